@@ -1,0 +1,1 @@
+"""The Duckietown domain: maps, lane geometry, dynamics, camera renderer and Gymnasium envs."""
