@@ -1,0 +1,47 @@
+"""The agent contract shared by built-in agents and agents reached over the protocol.
+
+An agent consumes observations and produces wheel commands; it never sees the simulator. A
+*privileged* agent also reads the true lane pose, which only a simulator (or a motion-capture lab)
+can provide; results of privileged agents say so.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+
+from proxybench.domain.lane_pose import LanePose
+
+__all__ = ["Agent", "Observation"]
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What a robot reports each frame.
+
+    ``camera``: (H, W, 3) uint8 RGB or None; ``time`` [s] since the episode start; ``lane_pose``: ground
+    truth, given to privileged agents only; ``wheel_ticks``: (left, right) encoder counts, if available.
+    """
+
+    camera: np.ndarray | None
+    time: float
+    lane_pose: LanePose | None = None
+    wheel_ticks: tuple[int, int] | None = None
+
+
+class Agent(ABC):
+    """Observations → wheel PWM (left, right) in [-1, 1]."""
+
+    #: needs ``Observation.lane_pose`` (ground truth), so it can only run where that is known
+    privileged: bool = False
+    #: short identifier used in result tables
+    name: str = "agent"
+
+    def reset(self, seed: int, episode: str | None = None) -> None:  # noqa: B027 - optional hook
+        """Called at the start of every episode, before the first observation."""
+
+    @abstractmethod
+    def act(self, obs: Observation) -> np.ndarray:
+        """Wheel PWM (left, right), shape (2,), each in [-1, 1]."""

@@ -1,0 +1,305 @@
+"""Gymnasium envs: ``proxybench/LaneFollowing-v0`` and its batched vector form.
+
+Both are thin layers over ``Simulator``; the vector env steps all N robots in one compiled call per
+frame (no Python loop over robots), and robot i of a vector env reset with seed s behaves exactly as a
+single env reset with seed s + i (tested).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from proxybench.domain.dynamics import ST
+from proxybench.domain.lane_pose import LANE_POSE_FIELDS, LP, LanePose
+from proxybench.domain.maps import Map
+from proxybench.domain.params import DomainParams
+from proxybench.domain.simulator import Simulator, StartDistribution
+from proxybench.domain.topdown import top_down
+
+__all__ = ["LaneFollowingEnv", "LaneFollowingVectorEnv", "RewardWeights", "lane_following_reward"]
+
+RENDER_MODES = ["rgb_array", "top_down"]
+OBSERVATIONS = ("camera", "state")
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    """Weights of the named reward terms (each term is reported in ``info["reward_terms"]``).
+
+    progress = ``progress`` × v cos(heading error) [m/s]; lateral = −``lateral`` × |offset| [m];
+    heading = −``heading`` × |heading error| [rad]; off_road = −``off_road`` once, on leaving the road.
+    """
+
+    progress: float = 1.0
+    lateral: float = 2.0
+    heading: float = 0.5
+    off_road: float = 10.0
+
+
+def lane_following_reward(
+    state: np.ndarray, lane: np.ndarray, off_road: np.ndarray, w: RewardWeights
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Per-robot reward (N,) and its named terms from simulator arrays."""
+    valid = lane[:, LP.VALID] > 0.5
+    herr = np.where(valid, lane[:, LP.HEADING_ERROR], 0.0)
+    lat = np.where(valid, lane[:, LP.LATERAL], 0.0)
+    terms = {
+        "progress": w.progress * state[:, ST.V] * np.cos(herr) * valid,
+        "lateral": -w.lateral * np.abs(lat),
+        "heading": -w.heading * np.abs(herr),
+        "off_road": -w.off_road * off_road.astype(np.float64),
+    }
+    return sum(terms.values()), terms
+
+
+def _observation_space(p: DomainParams, observation: str) -> spaces.Box:
+    if observation == "camera":
+        return spaces.Box(0, 255, (p.image_height, p.image_width, 3), dtype=np.uint8)
+    if observation == "state":
+        return spaces.Box(-np.inf, np.inf, (4,), dtype=np.float32)
+    raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
+
+
+class _Core:
+    """What the single and the vector env share: the simulator, spaces, reward and info."""
+
+    def __init__(self, map: Map | str, params: Any, n: int, observation: str, episode_seconds: float,
+                 reward: RewardWeights | None, start: StartDistribution | None):
+        plist = params if isinstance(params, (list, tuple)) else [params] * n
+        plist = [p if isinstance(p, DomainParams) else DomainParams.model_validate(p or {}) for p in plist]
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
+        if episode_seconds <= 0:
+            raise ValueError(f"episode_seconds must be positive, got {episode_seconds}")
+        self.observation = observation
+        self.sim = Simulator(map, plist, render=observation == "camera", start=start)
+        self.weights = reward or RewardWeights()
+        self.max_steps = max(1, round(episode_seconds * plist[0].frame_rate))
+        self.obs_space = _observation_space(plist[0], observation)
+
+    def observe(self) -> np.ndarray:
+        if self.observation == "camera":
+            return self.sim.render()
+        s, lane = self.sim.state, self.sim.lane
+        return np.stack(
+            [np.nan_to_num(lane[:, LP.LATERAL]), np.nan_to_num(lane[:, LP.HEADING_ERROR]), s[:, ST.V], s[:, ST.OMEGA]],
+            axis=1,
+        ).astype(np.float32)
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance all robots; (reward, terminated, truncated)."""
+        was_off = self.sim.off_road.copy()
+        self.sim.step(actions)
+        newly_off = self.sim.off_road & ~was_off
+        reward, self.terms = lane_following_reward(self.sim.state, self.sim.lane, newly_off, self.weights)
+        terminated = self.sim.off_road.copy()
+        truncated = (self.sim.frame_index >= self.max_steps) & ~terminated
+        return reward, terminated, truncated
+
+
+def _info_one(core: _Core, i: int) -> dict[str, Any]:
+    s = core.sim.state[i]
+    lp = LanePose.from_row(core.sim.lane[i])
+    info: dict[str, Any] = {
+        "pose": s[:3].copy(),
+        "velocity": s[3:5].copy(),
+        "lane_pose": lp,
+        "wheels_in_lane": np.array([lp.left_in_lane, lp.right_in_lane]),
+        "on_road": bool(lp.on_road),
+        "time": float(core.sim.time[i]),
+    }
+    if hasattr(core, "terms"):
+        info["reward_terms"] = {k: float(v[i]) for k, v in core.terms.items()}
+    return info
+
+
+class LaneFollowingEnv(gym.Env):
+    """Drive a Duckiebot in the right lane of a Duckietown map, from its camera.
+
+    ## Description
+    One DB18 robot on a tiled map (default: the 3×3 loop). Everything about the world, from wheel trim
+    and command delay to camera pitch and light, is a field of ``DomainParams``.
+
+    ## Action space
+    ``Box(-1, 1, (2,), float32)``: wheel PWM (left, right).
+
+    ## Observation space
+    ``observation="camera"``: ``Box(0, 255, (H, W, 3), uint8)`` camera frame (H, W from the params, 480×640
+    by default). ``observation="state"``: ``[lateral offset m, heading error rad, v m/s, ω rad/s]`` float32.
+
+    ## Rewards
+    Per frame: v cos(heading error) − 2 |lateral offset| − 0.5 |heading error|, and −10 on leaving the road
+    (``RewardWeights``); each term is in ``info["reward_terms"]``.
+
+    ## Starting state
+    A random point of a random lane (offset ±4 cm, heading ±0.35 rad), or the map's ``start_pose``.
+    ``reset(options={"pose": (x, y, θ)})`` starts at a given pose.
+
+    ## Episode end
+    Terminated when the robot centre leaves the drivable area; truncated after ``episode_seconds``.
+
+    ## Arguments
+    ``map`` (name or ``Map``), ``params`` (``DomainParams`` or dict), ``observation``, ``episode_seconds``
+    (60), ``reward`` (``RewardWeights``), ``start`` (``StartDistribution``), ``render_mode``.
+    """
+
+    metadata = {"render_modes": RENDER_MODES, "render_fps": 15}
+
+    def __init__(
+        self,
+        map: Map | str = "loop_3x3",
+        params: DomainParams | dict | None = None,
+        observation: str = "camera",
+        episode_seconds: float = 60.0,
+        reward: RewardWeights | None = None,
+        start: StartDistribution | None = None,
+        render_mode: str | None = None,
+    ):
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
+        self._core = _Core(map, params, 1, observation, episode_seconds, reward, start)
+        self.render_mode = render_mode
+        self.observation_space = self._core.obs_space
+        self.action_space = spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
+        self.metadata = {**self.metadata, "render_fps": self.params.frame_rate}
+        self._obs: np.ndarray | None = None
+
+    @property
+    def sim(self) -> Simulator:
+        return self._core.sim
+
+    @property
+    def params(self) -> DomainParams:
+        return self._core.sim.params[0]
+
+    def set_params(self, params: DomainParams) -> None:
+        """Change θ; takes effect at the next reset."""
+        self._pending = params
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        episode = seed if seed is not None else int(self.np_random.integers(2**63))
+        if getattr(self, "_pending", None) is not None:
+            self.sim.set_params(0, self._pending)
+            self._pending = None
+        pose = (options or {}).get("pose")
+        self.sim.reset(0, episode, None if pose is None else tuple(float(v) for v in pose))
+        self._core.__dict__.pop("terms", None)
+        self._obs = self._core.observe()[0]
+        return self._obs, _info_one(self._core, 0)
+
+    def step(self, action):
+        reward, term, trunc = self._core.step(np.asarray(action, dtype=np.float64).reshape(1, 2))
+        self._obs = self._core.observe()[0]
+        return self._obs, float(reward[0]), bool(term[0]), bool(trunc[0]), _info_one(self._core, 0)
+
+    def render(self):
+        if self.render_mode == "rgb_array":
+            if self._core.observation == "camera" and self._obs is not None:
+                return self._obs.copy()
+            raise RuntimeError("render_mode 'rgb_array' needs observation='camera'")
+        if self.render_mode == "top_down":
+            return top_down(self.sim.map, self.sim.state[:1, :3], params=self.params)
+        return None
+
+
+class LaneFollowingVectorEnv(VectorEnv):
+    """N lane-following robots stepped together (next-step autoreset, as Gymnasium's vector envs).
+
+    Arguments as :class:`LaneFollowingEnv`, plus ``num_envs``; ``params`` may be one ``DomainParams``
+    or a list of N (structural fields such as the image size must agree). ``info`` holds arrays:
+    ``pose`` (N, 3), ``velocity`` (N, 2), ``lane_pose`` (N, len(LANE_POSE_FIELDS)), ``on_road`` (N,),
+    ``time`` (N,) and ``reward_terms``.
+    """
+
+    metadata = {"render_modes": RENDER_MODES, "render_fps": 15, "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(
+        self,
+        num_envs: int = 8,
+        map: Map | str = "loop_3x3",
+        params: DomainParams | dict | list | None = None,
+        observation: str = "camera",
+        episode_seconds: float = 60.0,
+        reward: RewardWeights | None = None,
+        start: StartDistribution | None = None,
+        render_mode: str | None = None,
+    ):
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self._core = _Core(map, params, num_envs, observation, episode_seconds, reward, start)
+        self.num_envs = self._core.sim.n
+        self.render_mode = render_mode
+        self.single_observation_space = self._core.obs_space
+        self.single_action_space = spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._rngs = [np.random.default_rng() for _ in range(self.num_envs)]
+        self._needs_reset = np.zeros(self.num_envs, dtype=bool)
+
+    @property
+    def sim(self) -> Simulator:
+        return self._core.sim
+
+    def _reset_one(self, i: int, seed: int | None) -> None:
+        if seed is not None:
+            self._rngs[i] = np.random.default_rng(seed)
+        episode = seed if seed is not None else int(self._rngs[i].integers(2**63))
+        self.sim.reset(i, episode)
+
+    def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
+        if isinstance(seed, int):
+            seeds: list[int | None] = [seed + i for i in range(self.num_envs)]
+        elif seed is None:
+            seeds = [None] * self.num_envs
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"{len(seeds)} seeds for {self.num_envs} envs")
+        for i, s in enumerate(seeds):
+            self._reset_one(i, s)
+        self._needs_reset[:] = False
+        self._core.__dict__.pop("terms", None)
+        return self._core.observe(), self._infos()
+
+    def step(self, actions):
+        actions = np.asarray(actions, dtype=np.float64).reshape(self.num_envs, 2)
+        reset_now = self._needs_reset.copy()
+        reward, term, trunc = self._core.step(actions)
+        for i in np.flatnonzero(reset_now):
+            self._reset_one(int(i), None)
+        reward[reset_now] = 0.0
+        term[reset_now] = False
+        trunc[reset_now] = False
+        for v in self._core.terms.values():
+            v[reset_now] = 0.0
+        self._needs_reset = term | trunc
+        return self._core.observe(), reward, term, trunc, self._infos()
+
+    def _infos(self) -> dict[str, Any]:
+        s = self.sim.state
+        info: dict[str, Any] = {
+            "pose": s[:, :3].copy(),
+            "velocity": s[:, 3:5].copy(),
+            "lane_pose": self.sim.lane.copy(),
+            "lane_pose_fields": LANE_POSE_FIELDS,
+            "on_road": self.sim.lane[:, LP.ON_ROAD] > 0.5,
+            "time": self.sim.time.copy(),
+        }
+        if hasattr(self._core, "terms"):
+            info["reward_terms"] = {k: v.copy() for k, v in self._core.terms.items()}
+        return info
+
+    def render(self):
+        if self.render_mode == "rgb_array":
+            return self._core.observe() if self._core.observation == "camera" else None
+        if self.render_mode == "top_down":
+            return top_down(self.sim.map, self.sim.state[:, :3], params=self.sim.params[0])
+        return None
