@@ -8,7 +8,7 @@ single env reset with seed s + i (tested).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -150,7 +150,7 @@ class LaneFollowingEnv(gym.Env):
     (60), ``reward`` (``RewardWeights``), ``start`` (``StartDistribution``), ``render_mode``.
     """
 
-    metadata = {"render_modes": RENDER_MODES, "render_fps": 15}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": RENDER_MODES, "render_fps": 15}
 
     def __init__(
         self,
@@ -219,7 +219,9 @@ class LaneFollowingVectorEnv(VectorEnv):
     ``time`` (N,) and ``reward_terms``.
     """
 
-    metadata = {"render_modes": RENDER_MODES, "render_fps": 15, "autoreset_mode": AutoresetMode.NEXT_STEP}
+    metadata: ClassVar[dict[str, Any]] = {
+        "render_modes": RENDER_MODES, "render_fps": 15, "autoreset_mode": AutoresetMode.NEXT_STEP
+    }
 
     def __init__(
         self,

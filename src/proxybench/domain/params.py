@@ -90,7 +90,7 @@ class DomainParams(BaseModel):
     contrast: float = Field(1.0, ge=0.0, le=10.0, description="scales around mid-grey [-]")
     noise_std: float = Field(0.0, ge=0.0, le=128.0, description="per-pixel sensor noise std [0..255]")
     vignetting: float = Field(0.0, ge=0.0, le=1.0, description="darkening at the image corners [-]")
-    texture_noise: float = Field(0.06, ge=0.0, le=1.0, description="surface grain: relative texel brightness spread [-]")
+    texture_noise: float = Field(0.06, ge=0.0, le=1.0, description="surface grain: texel brightness spread [-]")
     texture_seed: int = Field(0, ge=0, description="seed of the surface texture pattern")
     road_rgb: RGB = (52.0, 52.0, 56.0)
     white_rgb: RGB = (235.0, 235.0, 235.0)

@@ -51,64 +51,142 @@ def _gauss_from_hash(h):
     return (s / 65535.0 - 2.0) * 1.7320508075688772
 
 
-@nb.njit(cache=True, inline="always")
-def _texel_noise(ti, tj, tx, ty, level, seed):
-    """Uniform in [-1, 1) fixed to one texel of one tile: the surface grain, the same every frame."""
-    h = (tx * 0x9E3779B1 + ty * 0x85EBCA77 + ti * 0xC2B2AE3D + tj * 0x27D4EB2F + level * 0x165667B1 + seed)
-    h &= 0xFFFFFFFF
-    h ^= h >> 15
-    h = (h * 0x2C1B3C6D) & 0xFFFFFFFF
-    h ^= h >> 12
-    h = (h * 0x297A2D39) & 0xFFFFFFFF
-    h ^= h >> 15
-    return float(h) * (2.0 / 4294967296.0) - 1.0
+#: side of the tileable surface-grain table; each tile reads it at its own pseudo-random offset
+_GRAIN = 64
+
+
+def grain_table(seed: int) -> np.ndarray:
+    """(_GRAIN², ) uniform [-1, 1) surface grain, fixed by the texture seed."""
+    return np.random.default_rng(seed).uniform(-1.0, 1.0, _GRAIN * _GRAIN).astype(np.float32)
 
 
 @nb.njit(cache=True, inline="always")
-def _ground_index(X, Y, level, inv_ts, tile_kind, tile_unturn, tile_base, tex, tex_off, tex_size, n_pal):
-    """Palette row of map point (X, Y) at mip ``level``, plus the texel's tile and coordinates."""
+def _span_row(
+    acc, first, X0, Y0, dX, dY, lv_r, u0, u1, grain_amp, pal, grain_n,
+    inv_ts, tile_kind, tile_affine, tile_base, tex, tex_off, tex_size, n_pal,
+):
+    """Add (or, if ``first``, store) the ground colour of pixels u0..u1-1 of one row into ``acc``.
+
+    For a pinhole camera the ground points of a row lie on a line, X(u) = X0 + u dX, so the row is cut
+    into spans that stay on one tile; per span the texture coordinates are linear in u too, and a
+    pixel costs two multiply-adds, a texel fetch and a palette fetch.
+    """
+    n_i = tile_kind.shape[0]
+    n_j = tile_kind.shape[1]
+    dfi = dX * inv_ts
+    dfj = dY * inv_ts
+    u = u0
+    while u < u1:
+        fi = (X0 + u * dX) * inv_ts
+        fj = (Y0 + u * dY) * inv_ts
+        ti = int(math.floor(fi))
+        tj = int(math.floor(fj))
+        # last pixel whose centre is still in this tile (the cell between integer grid lines)
+        end = u1
+        if dfi > 1e-12:
+            end = min(end, u + int(math.ceil((ti + 1 - fi) / dfi)))
+        elif dfi < -1e-12:
+            end = min(end, u + int(math.ceil((ti - fi) / dfi + 1e-9)))
+        if dfj > 1e-12:
+            end = min(end, u + int(math.ceil((tj + 1 - fj) / dfj)))
+        elif dfj < -1e-12:
+            end = min(end, u + int(math.ceil((tj - fj) / dfj + 1e-9)))
+        end = max(end, u + 1)
+        if ti < 0 or tj < 0 or ti >= n_i or tj >= n_j:
+            row = n_pal + 4
+            for k in range(u, end):
+                if first:
+                    acc[k, 0] = pal[row, 0]
+                    acc[k, 1] = pal[row, 1]
+                    acc[k, 2] = pal[row, 2]
+                else:
+                    acc[k, 0] += pal[row, 0]
+                    acc[k, 1] += pal[row, 1]
+                    acc[k, 2] += pal[row, 2]
+            u = end
+            continue
+        lx0 = fi - ti - u * dfi  # tile-local coordinates at u = 0 of this span's line
+        ly0 = fj - tj - u * dfj
+        kind = tile_kind[ti, tj]
+        if kind < 0:
+            a0, a1, a2, b0, b1, b2 = 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+        else:
+            a0 = tile_affine[ti, tj, 0]
+            a1 = tile_affine[ti, tj, 1]
+            a2 = tile_affine[ti, tj, 2]
+            b0 = tile_affine[ti, tj, 3]
+            b1 = tile_affine[ti, tj, 4]
+            b2 = tile_affine[ti, tj, 5]
+        tu0 = a0 + a1 * lx0 + a2 * ly0
+        tv0 = b0 + b1 * lx0 + b2 * ly0
+        dtu = a1 * dfi + a2 * dfj
+        dtv = b1 * dfi + b2 * dfj
+        gox = int(tile_affine[ti, tj, 6])
+        goy = int(tile_affine[ti, tj, 7])
+        base_row = n_pal + tile_base[ti, tj]
+        for k in range(u, end):
+            level = lv_r[k]
+            sz = tex_size >> level
+            tx = min(max(int((tu0 + k * dtu) * sz), 0), sz - 1)
+            ty = min(max(int((tv0 + k * dtv) * sz), 0), sz - 1)
+            idx = base_row if kind < 0 else int(tex[tex_off[kind, level] + ty * sz + tx])
+            f = 1.0 + grain_amp[level] * grain_n[(((ty + goy) & (_GRAIN - 1)) << 6) | ((tx + gox) & (_GRAIN - 1))]
+            if first:
+                acc[k, 0] = pal[idx, 0] * f
+                acc[k, 1] = pal[idx, 1] * f
+                acc[k, 2] = pal[idx, 2] * f
+            else:
+                acc[k, 0] += pal[idx, 0] * f
+                acc[k, 1] += pal[idx, 1] * f
+                acc[k, 2] += pal[idx, 2] * f
+        u = end
+
+
+@nb.njit(cache=True, inline="always")
+def _pixel_ground(X, Y, level, grain_amp, pal, grain_n, inv_ts, tile_kind, tile_affine, tile_base, tex, tex_off,
+                  tex_size, n_pal):
+    """Ground colour of one map point: the general path, for cameras whose rows are not lines."""
     fi = X * inv_ts
     fj = Y * inv_ts
     if fi < 0.0 or fj < 0.0 or fi >= tile_kind.shape[0] or fj >= tile_kind.shape[1]:
-        return n_pal + 4, -1, -1, 0, 0
+        row = n_pal + 4
+        return pal[row, 0], pal[row, 1], pal[row, 2]
     ti = int(fi)
     tj = int(fj)
     lx = fi - ti
     ly = fj - tj
-    s = tex_size >> level
+    sz = tex_size >> level
     kind = tile_kind[ti, tj]
     if kind < 0:
-        return n_pal + tile_base[ti, tj], ti, tj, min(int(lx * s), s - 1), min(int(ly * s), s - 1)
-    q = tile_unturn[ti, tj]  # quarter turns that bring the tile back to its north drawing
-    if q == 0:
-        u = lx
-        v = ly
-    elif q == 1:
-        u = 1.0 - ly
-        v = lx
-    elif q == 2:
-        u = 1.0 - lx
-        v = 1.0 - ly
+        tu = lx
+        tv = ly
     else:
-        u = ly
-        v = 1.0 - lx
-    tx = min(int(u * s), s - 1)
-    ty = min(int(v * s), s - 1)
-    return int(tex[tex_off[kind, level] + ty * s + tx]), ti, tj, tx, ty
+        tu = tile_affine[ti, tj, 0] + tile_affine[ti, tj, 1] * lx + tile_affine[ti, tj, 2] * ly
+        tv = tile_affine[ti, tj, 3] + tile_affine[ti, tj, 4] * lx + tile_affine[ti, tj, 5] * ly
+    tx = min(max(int(tu * sz), 0), sz - 1)
+    ty = min(max(int(tv * sz), 0), sz - 1)
+    idx = n_pal + tile_base[ti, tj] if kind < 0 else int(tex[tex_off[kind, level] + ty * sz + tx])
+    gox = int(tile_affine[ti, tj, 6])
+    goy = int(tile_affine[ti, tj, 7])
+    f = 1.0 + grain_amp[level] * grain_n[(((ty + goy) & (_GRAIN - 1)) << 6) | ((tx + gox) & (_GRAIN - 1))]
+    return pal[idx, 0] * f, pal[idx, 1] * f, pal[idx, 2] * f
 
 
 @nb.njit(cache=True, parallel=True, fastmath=True, error_model="numpy", boundscheck=False)
 def render_kernel(
-    out, poses, cam_index, gx, gy, level_map, sky_mix, vignette,
-    tile_kind, tile_unturn, tile_base, inv_ts, tex, tex_off, tex_size,
-    palette, sky, offset, post, seeds, frames, k_count,
+    out, poses, cam_index, linear, gx, gy, level_map, ground_from, sky_mix, vignette,
+    tile_kind, tile_affine, tile_base, inv_ts, tex, tex_off, tex_size,
+    palette, sky, offset, post, seeds, frames, k_count, grain, grain_index,
 ):
     """Render ``out[n]`` (H, W, 3 uint8) for every robot n from its K sub-frame poses ``poses[n]``.
 
     ``palette[n]`` holds robot n's colours already multiplied by light and contrast; ``offset[n]`` is
-    the per-channel value added after (brightness and contrast pivot). ``level_map < 0`` marks sky.
-    ``post[n]`` = (texture_noise, noise_std, vignetting, texture_seed). Robot n averages the first
-    ``k_count[n]`` sub-frames.
+    the per-channel value added after (brightness and contrast pivot). ``level_map < 0`` marks sky;
+    ``ground_from[c, v] < W`` if row v of camera c sees any ground. ``linear[c]``: camera c's rows are
+    straight lines on the ground (pinhole, where a row is all sky or all ground), so the span
+    renderer applies. ``post[n]`` = (texture_noise,
+    noise_std, vignetting, -). Robot n averages the first ``k_count[n]`` sub-frames and reads surface
+    grain ``grain[grain_index[n]]``.
     """
     n_envs, h, w, _ = out.shape
     n_pal = palette.shape[1] - 5
@@ -120,54 +198,70 @@ def render_kernel(
         tex_noise = post[n, 0]
         noise_std = post[n, 1]
         vig = post[n, 2]
-        tseed = int(post[n, 3])
-        o0 = offset[n, 0]
-        o1 = offset[n, 1]
-        o2 = offset[n, 2]
+        grain_n = grain[grain_index[n]]
         seed = seeds[n] ^ (np.uint64(frames[n]) * np.uint64(0x9E3779B97F4A7C15))
         pose_n = poses[n]
         k_sub = k_count[n]
         inv_k = 1.0 / k_sub
-        cosk = np.empty(k_sub)
-        sink = np.empty(k_sub)
-        for k in range(k_sub):
-            cosk[k] = math.cos(pose_n[k, 2])
-            sink[k] = math.sin(pose_n[k, 2])
+        amp = np.empty(16)
+        for lv in range(16):
+            amp[lv] = tex_noise / (1 << lv)  # averaging 4^L texels shrinks the grain by 2^L
         gx_r = gx[c, v]
         gy_r = gy[c, v]
         lv_r = level_map[c, v]
+        acc = np.empty((w, 3))
+        is_ground = ground_from[c, v] < w
+        if is_ground and linear[c]:
+            du = 1.0 / (w - 1) if w > 1 else 0.0
+            for k in range(k_sub):
+                cs = math.cos(pose_n[k, 2])
+                sn = math.sin(pose_n[k, 2])
+                px0 = gx_r[0]
+                py0 = gy_r[0]
+                dpx = (gx_r[w - 1] - px0) * du
+                dpy = (gy_r[w - 1] - py0) * du
+                X0 = pose_n[k, 0] + cs * px0 - sn * py0
+                Y0 = pose_n[k, 1] + sn * px0 + cs * py0
+                dX = cs * dpx - sn * dpy
+                dY = sn * dpx + cs * dpy
+                _span_row(acc, k == 0, X0, Y0, dX, dY, lv_r, 0, w, amp, pal, grain_n, inv_ts, tile_kind,
+                          tile_affine, tile_base, tex, tex_off, tex_size, n_pal)
+        elif is_ground:
+            for k in range(k_sub):
+                cs = math.cos(pose_n[k, 2])
+                sn = math.sin(pose_n[k, 2])
+                for u in range(w):
+                    level = lv_r[u]
+                    if level < 0:
+                        continue
+                    X = pose_n[k, 0] + cs * gx_r[u] - sn * gy_r[u]
+                    Y = pose_n[k, 1] + sn * gx_r[u] + cs * gy_r[u]
+                    r, g, b = _pixel_ground(X, Y, level, amp, pal, grain_n, inv_ts, tile_kind, tile_affine,
+                                            tile_base, tex, tex_off, tex_size, n_pal)
+                    if k == 0:
+                        acc[u, 0] = r
+                        acc[u, 1] = g
+                        acc[u, 2] = b
+                    else:
+                        acc[u, 0] += r
+                        acc[u, 1] += g
+                        acc[u, 2] += b
         mix_r = sky_mix[c, v]
         vig_r = vignette[c, v]
         out_r = out[n, v]
+        o0 = offset[n, 0]
+        o1 = offset[n, 1]
+        o2 = offset[n, 2]
         for u in range(w):
-            level = lv_r[u]
-            if level < 0:
+            if lv_r[u] < 0:
                 m = mix_r[u]
                 r = sky[n, _HORIZON, 0] * (1.0 - m) + sky[n, _SKY, 0] * m
                 g = sky[n, _HORIZON, 1] * (1.0 - m) + sky[n, _SKY, 1] * m
                 b = sky[n, _HORIZON, 2] * (1.0 - m) + sky[n, _SKY, 2] * m
             else:
-                px = gx_r[u]
-                py = gy_r[u]
-                r = 0.0
-                g = 0.0
-                b = 0.0
-                for k in range(k_sub):
-                    X = pose_n[k, 0] + cosk[k] * px - sink[k] * py
-                    Y = pose_n[k, 1] + sink[k] * px + cosk[k] * py
-                    idx, ti, tj, tx, ty = _ground_index(
-                        X, Y, level, inv_ts, tile_kind, tile_unturn, tile_base, tex, tex_off, tex_size, n_pal
-                    )
-                    f = 1.0
-                    if tex_noise > 0.0 and ti >= 0:
-                        f += tex_noise * _texel_noise(ti, tj, tx, ty, level, tseed) / (1 << level)
-                    r += pal[idx, 0] * f
-                    g += pal[idx, 1] * f
-                    b += pal[idx, 2] * f
-                if k_sub > 1:
-                    r *= inv_k
-                    g *= inv_k
-                    b *= inv_k
+                r = acc[u, 0] * inv_k
+                g = acc[u, 1] * inv_k
+                b = acc[u, 2] * inv_k
             if vig > 0.0:
                 shade = 1.0 - vig * vig_r[u]
                 r *= shade
@@ -196,8 +290,25 @@ def _appearance(p: DomainParams, coverage: np.ndarray) -> tuple[np.ndarray, np.n
     palette = np.concatenate([marked, bases]) * gain
     sky = np.array([p.sky_rgb, p.horizon_rgb]) * gain
     offset = np.full(3, 127.5 * (1.0 - p.contrast) + p.brightness)
-    post = np.array([p.texture_noise, p.noise_std, p.vignetting, p.texture_seed & 0xFFFFFFF], dtype=np.float64)
+    post = np.array([p.texture_noise, p.noise_std, p.vignetting, 0.0], dtype=np.float64)
     return palette, sky, offset, post
+
+
+_QUARTER_TURNS = np.array([  # (u, v) of the north drawing from tile-local (lx, ly), per CCW quarter turn
+    [0, 1, 0, 0, 0, 1],
+    [1, 0, -1, 0, 1, 0],
+    [1, -1, 0, 1, 0, -1],
+    [0, 0, 1, 1, -1, 0],
+], dtype=np.float64)
+
+
+def _tile_affine(lanes: LaneArrays) -> np.ndarray:
+    """(W, H, 8): per tile the affine map to its texture drawing, then a grain-table offset (x, y)."""
+    unturn = (1 - lanes.tile_orient.astype(np.int64)) % 4  # quarter turns back to the north drawing
+    unturn = np.where(lanes.tile_kind >= 0, unturn, 0)
+    w, h = unturn.shape
+    offsets = np.random.default_rng(0x7E57).integers(0, _GRAIN, (w, h, 2)).astype(np.float64)
+    return np.ascontiguousarray(np.concatenate([_QUARTER_TURNS[unturn], offsets], axis=-1))
 
 
 class Renderer:
@@ -215,7 +326,7 @@ class Renderer:
         # level-0 texel edge is tile_size / tex.size: this bias turns log2(footprint [m]) into a mip level
         self.tex_bias = math.log2(self.tex.size / lanes.tile_size)
         # per tile: quarter turns (CCW) that bring the tile back to the way its texture is drawn (north)
-        self._unturn = ((1 - lanes.tile_orient.astype(np.int64)) % 4).astype(np.int8)
+        self._affine = _tile_affine(lanes)
         # ground material row of each tile; empty cells look like the world outside the map
         self._base = np.where(lanes.tile_base < 0, _BASES.index("outside_rgb"), lanes.tile_base).astype(np.int8)
         self.n = len(params)
@@ -225,6 +336,9 @@ class Renderer:
         self.offset = np.zeros((self.n, 3))
         self.post = np.zeros((self.n, 4))
         self.cam_index = np.zeros(self.n, dtype=np.int64)
+        self.grain_index = np.zeros(self.n, dtype=np.int64)
+        self._grain_seeds: list[int] = []
+        self._grain = np.zeros((0, _GRAIN * _GRAIN), dtype=np.float32)
         self._tables: list[CameraTable] = []
         self._stack: tuple[np.ndarray, ...] | None = None
         for i, p in enumerate(params):
@@ -240,6 +354,10 @@ class Renderer:
         if p.texture_size != self.tex.size and 1 << round(math.log2(p.texture_size)) != self.tex.size:
             raise ValueError(f"all robots of a batch must share texture_size ({self.tex.size})")
         self.palette[i], self.sky[i], self.offset[i], self.post[i] = _appearance(p, self.tex.palette)
+        if p.texture_seed not in self._grain_seeds:
+            self._grain_seeds.append(p.texture_seed)
+            self._grain = np.concatenate([self._grain, grain_table(p.texture_seed)[None]])
+        self.grain_index[i] = self._grain_seeds.index(p.texture_seed)
         table = camera_table(p)
         if not any(t is table for t in self._tables):
             self._tables.append(table)
@@ -258,9 +376,11 @@ class Renderer:
                 lv = np.clip(np.nan_to_num(lv, posinf=self.tex.levels - 1), 0, self.tex.levels - 1)
                 levels.append(np.where(t.sky, -1, lv).astype(np.int8))
             self._stack = (
-                np.stack([t.gx for t in self._tables]).astype(np.float32),
-                np.stack([t.gy for t in self._tables]).astype(np.float32),
+                np.array([t.model.distortion is None for t in self._tables]),
+                np.stack([t.gx for t in self._tables]).astype(np.float64),
+                np.stack([t.gy for t in self._tables]).astype(np.float64),
                 np.stack(levels),
+                np.stack([np.where((~t.sky).any(axis=1), 0, t.sky.shape[1]) for t in self._tables]).astype(np.int64),
                 np.stack([t.sky_mix for t in self._tables]).astype(np.float32),
                 np.stack([t.vignette for t in self._tables]).astype(np.float32),
             )
@@ -278,15 +398,15 @@ class Renderer:
         poses = np.asarray(poses, dtype=np.float64).reshape(self.n, -1, 3)
         if k_count is None:
             k_count = np.full(self.n, poses.shape[1], dtype=np.int64)
-        gx, gy, level_map, sky_mix, vignette = self._prepare()
+        linear, gx, gy, level_map, ground_from, sky_mix, vignette = self._prepare()
         if out is None:
             out = np.empty((self.n, self.height, self.width, 3), dtype=np.uint8)
         la, tx = self.lanes, self.tex
         render_kernel(
-            out, np.ascontiguousarray(poses, dtype=np.float64), self.cam_index, gx, gy, level_map, sky_mix,
-            vignette, la.tile_kind, self._unturn, self._base, 1.0 / la.tile_size, tx.texels, tx.offsets,
-            tx.size, self.palette, self.sky, self.offset, self.post,
+            out, np.ascontiguousarray(poses, dtype=np.float64), self.cam_index, linear, gx, gy, level_map,
+            ground_from, sky_mix, vignette, la.tile_kind, self._affine, self._base, 1.0 / la.tile_size,
+            tx.texels, tx.offsets, tx.size, self.palette, self.sky, self.offset, self.post,
             np.asarray(seeds).astype(np.uint64), np.asarray(frames).astype(np.int64),
-            np.asarray(k_count, dtype=np.int64),
+            np.asarray(k_count, dtype=np.int64), self._grain, self.grain_index,
         )
         return out
