@@ -13,8 +13,8 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
 map_app = typer.Typer(no_args_is_help=True, help="Check, list and draw Duckietown map files.")
 app.add_typer(map_app, name="map")
-console = Console()
-err_console = Console(stderr=True)
+console = Console(soft_wrap=True)
+err_console = Console(stderr=True, soft_wrap=True)
 
 
 @app.command()
