@@ -52,7 +52,7 @@ class VideoWriter:
         import imageio.v2 as imageio
 
         self.path = Path(path)
-        self._w = imageio.get_writer(self.path, fps=fps, codec="libx264", quality=7, macro_block_size=8,
+        self._w = imageio.get_writer(self.path, fps=fps, codec="libx264", quality=5, macro_block_size=8,
                                      ffmpeg_log_level="error")
 
     def append(self, frame: np.ndarray) -> None:

@@ -19,16 +19,18 @@ __all__ = ["Agent", "Observation"]
 
 @dataclass(frozen=True)
 class Observation:
-    """What a robot reports each frame.
+    """What a robot reports each frame (the AIDO ``observations`` message, plus privileged extras).
 
-    ``camera``: (H, W, 3) uint8 RGB or None; ``time`` [s] since the episode start; ``lane_pose``: ground
-    truth, given to privileged agents only; ``wheel_ticks``: (left, right) encoder counts, if available.
+    ``camera``: (H, W, 3) uint8 RGB or None; ``time`` [s] since the episode start; ``odometry``: (left,
+    right) wheel axis angles [rad], quantised to the encoder's ``odometry_resolution`` [rad];
+    ``lane_pose``: ground truth, given to privileged agents only.
     """
 
     camera: np.ndarray | None
     time: float
+    odometry: tuple[float, float] | None = None
+    odometry_resolution: float | None = None
     lane_pose: LanePose | None = None
-    wheel_ticks: tuple[int, int] | None = None
 
 
 class Agent(ABC):

@@ -66,8 +66,9 @@ def run_episode(
         image = sim.render()[0] if camera else None
         s = sim.state[0]
         lp = LanePose.from_row(sim.lane[0]) if agent.privileged else None
-        ticks = wheel_ticks(s[[ST.WHEEL_L, ST.WHEEL_R]], sim.params[0].encoder_resolution)
-        obs = Observation(image, float(sim.time[0]), lp, (int(ticks[0]), int(ticks[1])))
+        res = sim.params[0].encoder_resolution
+        ticks = wheel_ticks(s[[ST.WHEEL_L, ST.WHEEL_R]], res)
+        obs = Observation(image, float(sim.time[0]), (float(ticks[0] * res), float(ticks[1] * res)), res, lp)
         if on_frame is not None:
             on_frame(k, image, sim)
         done = k == steps or sim.off_road[0]
