@@ -13,6 +13,8 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
 map_app = typer.Typer(no_args_is_help=True, help="Check, list and draw Duckietown map files.")
 app.add_typer(map_app, name="map")
+agent_app = typer.Typer(no_args_is_help=True, help="The built-in agent zoo.")
+app.add_typer(agent_app, name="agent")
 console = Console(soft_wrap=True)
 err_console = Console(stderr=True, soft_wrap=True)
 
@@ -26,13 +28,14 @@ def run(
     width: int = typer.Option(640, help="camera width [px]"),
     height: int = typer.Option(480, help="camera height [px]"),
     video: bool = typer.Option(True, help="write drive.mp4 (camera | top-down)"),
+    agent_name: str = typer.Option("pid", "--agent", help="zoo agent (see `proxybench agent list`)"),
 ) -> None:
-    """Drive the built-in privileged PID controller around a map in simulation and record it.
+    """Drive an agent (default: the privileged PID controller) around a map in simulation and record it.
 
     Writes a video (camera view beside a top-down view), a PNG strip of camera frames and one metrics
     line. This is a *simulated* run: nothing here comes from a real robot.
     """
-    from proxybench.agents import LanePIDAgent
+    from proxybench.agents import make_agent
     from proxybench.domain.maps import MapError, load_map
     from proxybench.domain.params import DomainParams
     from proxybench.domain.simulator import Simulator
@@ -47,7 +50,11 @@ def run(
         raise typer.Exit(1) from exc
     params = DomainParams(image_width=width, image_height=height)
     sim = Simulator(m, params)
-    agent = LanePIDAgent(frame_dt=1.0 / params.frame_rate)
+    try:
+        agent = make_agent(agent_name)
+    except KeyError as exc:
+        err_console.print(f"[red]error:[/red] {exc.args[0]}", highlight=False)
+        raise typer.Exit(2) from exc
     out.mkdir(parents=True, exist_ok=True)
     steps = round(seconds * params.frame_rate)
     strip_every = max(1, steps // 11)
@@ -80,11 +87,27 @@ def run(
     files = ", ".join(str(out / f) for f in (["drive.mp4"] if video else []) + ["strip.png", "metrics.json"])
     console.print(f"wrote {files}")
     console.print(
-        f"metrics: map={m.name} agent={agent.name} (privileged PID, simulated) duration={metrics['duration_s']:.1f}s "
+        f"metrics: map={m.name} agent={agent.name}{' (privileged)' if agent.privileged else ''} simulated "
+        f"duration={metrics['duration_s']:.1f}s "
         f"distance={metrics['distance_m']:.2f}m mean|lateral|={100 * metrics['mean_abs_lateral_m']:.1f}cm "
         f"in_lane={100 * metrics['in_lane_fraction']:.0f}% off_road={bool(metrics['off_road'])} "
         f"wall={elapsed:.1f}s"
     )
+
+
+@agent_app.command("list")
+def agent_list() -> None:
+    """The zoo: name, whether it reads privileged ground truth, what it does."""
+    from rich.table import Table
+
+    from proxybench.agents import ZOO
+
+    table = Table(title=f"{len(ZOO)} built-in agents")
+    for col in ("name", "needs", "description"):
+        table.add_column(col)
+    for e in ZOO.values():
+        table.add_row(e.name, "true lane pose" if e.privileged else "camera only", e.description)
+    console.print(table)
 
 
 @map_app.command("check")

@@ -35,6 +35,7 @@ LANE_POSE_FIELDS = (
     "on_road",  # robot centre inside the road's outer edge
     "tile_i",
     "tile_j",
+    "curvature",  # lane curvature at the robot [1/m], + = the lane turns left, 0 on straights
 )
 
 
@@ -43,7 +44,8 @@ class LP:
 
     VALID, SEGMENT, ALONG, LATERAL, HEADING_ERROR = 0, 1, 2, 3, 4
     LEFT_IN_LANE, RIGHT_IN_LANE, LEFT_ON_ROAD, RIGHT_ON_ROAD, ON_ROAD, TILE_I, TILE_J = 5, 6, 7, 8, 9, 10, 11
-    N = 12
+    CURVATURE = 12
+    N = 13
 
 
 @nb.njit(cache=True, inline="always")
@@ -96,7 +98,7 @@ def point_on_road(x, y, tile_kind, curve_corner, ts):
 @nb.njit(cache=True)
 def lane_pose_into(x, y, th, wheel_half, seg_kind, seg_f, tile_segs, tile_kind, curve_corner, ts, half_width, out):
     """Write the lane pose of robot pose (x, y, th) into ``out`` (length LP.N)."""
-    for f in range(12):
+    for f in range(13):
         out[f] = 0.0
     out[1] = -1.0
     out[2] = math.nan
@@ -148,6 +150,9 @@ def lane_pose_into(x, y, th, wheel_half, seg_kind, seg_f, tile_segs, tile_kind, 
     _, rr, _ = segment_local(best, rx, ry, seg_kind, seg_f)
     out[5] = 1.0 if abs(rl) <= half_width else 0.0
     out[6] = 1.0 if abs(rr) <= half_width else 0.0
+    kind = seg_kind[best]
+    if kind != 0:
+        out[12] = (1.0 if kind == 1 else -1.0) / seg_f[best, 6]
 
 
 @nb.njit(cache=True)
@@ -190,6 +195,7 @@ class LanePose:
     right_on_road: bool
     on_road: bool
     tile: tuple[int, int]
+    curvature: float = 0.0
 
     @property
     def in_lane(self) -> bool:
@@ -209,6 +215,7 @@ class LanePose:
             right_on_road=bool(row[LP.RIGHT_ON_ROAD]),
             on_road=bool(row[LP.ON_ROAD]),
             tile=(int(row[LP.TILE_I]), int(row[LP.TILE_J])),
+            curvature=float(row[LP.CURVATURE]),
         )
 
 

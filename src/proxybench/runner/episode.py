@@ -12,7 +12,11 @@ from proxybench.domain.dynamics import ST, wheel_ticks
 from proxybench.domain.lane_pose import LP, LanePose
 from proxybench.domain.simulator import Simulator
 
-__all__ = ["EpisodeRecord", "run_episode"]
+__all__ = ["EpisodeRecord", "PrivilegedAgentError", "run_episode"]
+
+
+class PrivilegedAgentError(ValueError):
+    """A privileged agent (one that reads the true lane pose) was given to a camera-only run."""
 
 
 @dataclass
@@ -52,12 +56,18 @@ def run_episode(
     *,
     pose: tuple[float, float, float] | None = None,
     camera: bool = True,
+    allow_privileged: bool = True,
     on_frame: Callable[[int, np.ndarray | None, Simulator], None] | None = None,
 ) -> EpisodeRecord:
     """Drive robot 0 of ``sim`` with ``agent`` for ``seconds`` (or until it leaves the road).
 
-    ``on_frame(k, image, sim)`` is called after each frame (e.g. to write a video).
+    ``on_frame(k, image, sim)`` is called after each frame (e.g. to write a video). With
+    ``allow_privileged=False`` (camera-only evaluation) a privileged agent is refused.
     """
+    if agent.privileged and not allow_privileged:
+        raise PrivilegedAgentError(
+            f"agent {agent.name!r} is privileged (reads the true lane pose); this run allows camera-only agents"
+        )
     sim.reset(0, seed, pose)
     agent.reset(seed)
     steps = max(1, round(seconds / sim.frame_dt))
