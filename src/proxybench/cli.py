@@ -19,6 +19,9 @@ console = Console(soft_wrap=True)
 err_console = Console(stderr=True, soft_wrap=True)
 
 
+_RUN_METRICS = ("survival_time", "driven_lanedir_consec", "deviation_center_line", "in_drivable_lane", "lane_score")
+
+
 @app.command()
 def run(
     map_name: str = typer.Option("loop_3x3", "--map", help="built-in map name or YAML file"),
@@ -42,6 +45,7 @@ def run(
     from proxybench.domain.topdown import top_down
     from proxybench.media import VideoWriter, side_by_side, write_strip
     from proxybench.runner import run_episode
+    from proxybench.tasks.metrics import METRICS
 
     try:
         m = load_map(map_name)
@@ -75,23 +79,26 @@ def run(
             progress.advance(task)
 
         try:
-            rec = run_episode(sim, agent, seed, seconds, on_frame=on_frame)
+            traj = run_episode(sim, agent, seed, seconds, camera=True, on_frame=on_frame, meta={"map": m.name})
         finally:
             if writer is not None:
                 writer.close()
     elapsed = time.perf_counter() - t0
     write_strip(strip, out / "strip.png", labels)
-    metrics = {"map": m.name, "agent": agent.name, "seed": seed, "domain": "simulation", **rec.summary(),
-               "wall_s": round(elapsed, 2)}
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    files = ", ".join(str(out / f) for f in (["drive.mp4"] if video else []) + ["strip.png", "metrics.json"])
-    console.print(f"wrote {files}")
+    traj.save(out / "trajectory.parquet")
+    scores = {name: METRICS[name](traj) for name in _RUN_METRICS}
+    record = {"map": m.name, "agent": agent.name, "privileged": agent.privileged, "seed": seed,
+              "source": "simulation", "termination": traj.termination, **scores, "wall_s": round(elapsed, 2)}
+    (out / "metrics.json").write_text(json.dumps(record, indent=2))
+    names = (["drive.mp4"] if video else []) + ["strip.png", "trajectory.parquet", "metrics.json"]
+    console.print(f"wrote {', '.join(str(out / f) for f in names)}")
+    failure = [e["message"] for e in traj.events if e["kind"] == "agent_failure"]
+    if failure:
+        err_console.print(f"[red]agent failure:[/red] {failure[0]}", highlight=False)
     console.print(
         f"metrics: map={m.name} agent={agent.name}{' (privileged)' if agent.privileged else ''} simulated "
-        f"duration={metrics['duration_s']:.1f}s "
-        f"distance={metrics['distance_m']:.2f}m mean|lateral|={100 * metrics['mean_abs_lateral_m']:.1f}cm "
-        f"in_lane={100 * metrics['in_lane_fraction']:.0f}% off_road={bool(metrics['off_road'])} "
-        f"wall={elapsed:.1f}s"
+        + " ".join(f"{k}={v:.2f}" for k, v in scores.items()) + f" end={traj.termination} wall={elapsed:.1f}s",
+        highlight=False,
     )
 
 

@@ -30,6 +30,7 @@ from proxybench.domain.params import DomainParams
 __all__ = [
     "DYN_FIELDS",
     "ST",
+    "TRACE_FIELDS",
     "blur_poses",
     "pack_dynamics",
     "physics_ticks",
@@ -45,6 +46,10 @@ DYN_FIELDS = (
 )
 (_KIN, _TRIM, _GAIN, _VDEC, _VGAIN, _WDEC, _WGAIN, _VMAX, _WD, _WR, _DB, _SAT, _SLIPV, _SLIPW, _DT, _DELAY,
  _JITTER) = range(len(DYN_FIELDS))
+
+
+#: columns of a physics trace row: pose, velocities, the PWM applied during the tick, off-road flag
+TRACE_FIELDS = ("x", "y", "theta", "v", "omega", "pwm_left", "pwm_right", "off_road")
 
 
 class ST:
@@ -85,7 +90,7 @@ def _jitter(seed, tick, max_ticks):
 @nb.njit(cache=True)
 def physics_ticks(
     state, dyn, commands, cmd_hist, applied_tick, tick, seeds, n_ticks, pose_hist,
-    tile_kind, curve_corner, tile_size,
+    tile_kind, curve_corner, tile_size, trace,
 ):
     """Advance every robot by ``n_ticks`` physics steps under its current ``commands`` (N, 2) PWM (l, r).
 
@@ -93,8 +98,10 @@ def physics_ticks(
     applied at tick t is the one issued at t - delay - jitter (never older than the one applied before,
     i.e. commands arrive in order). ``pose_hist`` (N, M, 3) keeps the pose after each tick (ring by
     tick % M) for motion blur. ``tick`` (N,) counts ticks per robot. ``state[:, OFF_ROAD]`` becomes 1
-    the first tick the robot centre leaves the drivable area and stays 1.
+    the first tick the robot centre leaves the drivable area and stays 1. If ``trace`` has shape
+    (N, n_ticks, TRACE_N), row k receives the state after tick k and the PWM applied during it.
     """
+    record = trace.shape[0] == state.shape[0] and trace.shape[1] >= n_ticks
     n_envs = state.shape[0]
     depth = cmd_hist.shape[1]
     m_hist = pose_hist.shape[1]
@@ -104,7 +111,7 @@ def physics_ticks(
         dt = d[_DT]
         delay = int(d[_DELAY])
         jit = int(d[_JITTER])
-        for _ in range(n_ticks):
+        for k in range(n_ticks):
             t = tick[n]
             cmd_hist[n, t % depth, 0] = commands[n, 0]
             cmd_hist[n, t % depth, 1] = commands[n, 1]
@@ -153,6 +160,16 @@ def physics_ticks(
             pose_hist[n, t % m_hist, 0] = s[0]
             pose_hist[n, t % m_hist, 1] = s[1]
             pose_hist[n, t % m_hist, 2] = s[2]
+            if record:
+                tr = trace[n, k]
+                tr[0] = s[0]
+                tr[1] = s[1]
+                tr[2] = s[2]
+                tr[3] = s[3]
+                tr[4] = s[4]
+                tr[5] = ul
+                tr[6] = ur
+                tr[7] = s[7]
             if s[7] == 0.0 and not point_on_road(s[0], s[1], tile_kind, curve_corner, tile_size):
                 s[7] = 1.0
 

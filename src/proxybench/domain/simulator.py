@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from proxybench.domain.dynamics import DYN_FIELDS, ST, blur_poses, pack_dynamics, physics_ticks
+from proxybench.domain.dynamics import DYN_FIELDS, ST, TRACE_FIELDS, blur_poses, pack_dynamics, physics_ticks
 from proxybench.domain.lane_pose import LP, lane_pose_into, point_on_road
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
@@ -28,6 +28,7 @@ __all__ = ["Simulator", "StartDistribution", "episode_seed"]
 
 _MASK64 = (1 << 64) - 1
 _WHEEL_DISTANCE = DYN_FIELDS.index("wheel_distance")
+_NO_TRACE = np.zeros((0, 0, len(TRACE_FIELDS)))
 
 
 @nb.njit(cache=True)
@@ -192,8 +193,12 @@ class Simulator:
 
     # -- stepping --------------------------------------------------------------------------------
 
-    def step(self, commands: np.ndarray) -> None:
-        """Hold PWM ``commands`` (N, 2) (left, right) for one camera frame of ``substeps`` physics ticks."""
+    def step(self, commands: np.ndarray, trace: np.ndarray | None = None) -> None:
+        """Hold PWM ``commands`` (N, 2) (left, right) for one camera frame of ``substeps`` physics ticks.
+
+        ``trace`` (N, substeps, len(TRACE_FIELDS)), if given, receives every tick's state (physics-rate
+        trajectories).
+        """
         c = np.asarray(commands, dtype=np.float64).reshape(self.n, 2)
         if not np.all(np.isfinite(c)):
             raise ValueError("wheel commands must be finite numbers")
@@ -202,6 +207,7 @@ class Simulator:
         physics_ticks(
             self.state, self.dyn, self.commands, self.cmd_hist, self.applied_tick, self.tick, self.seeds,
             self.substeps, self.pose_hist, a.tile_kind, a.curve_corner, a.tile_size,
+            _NO_TRACE if trace is None else trace,
         )
         self.frame_index += 1
         self._update_lane(None)

@@ -1,5 +1,5 @@
 """Running agents in domains: episodes → trajectories."""
 
-from proxybench.runner.episode import EpisodeRecord, PrivilegedAgentError, run_episode
+from proxybench.runner.episode import PrivilegedAgentError, run_episode
 
-__all__ = ["EpisodeRecord", "PrivilegedAgentError", "run_episode"]
+__all__ = ["PrivilegedAgentError", "run_episode"]
