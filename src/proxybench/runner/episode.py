@@ -65,7 +65,7 @@ def run_episode(
     termination, done_frames = "timeout", steps
     try:
         agent.reset(seed)
-    except Exception as exc:  # noqa: BLE001 - a failing agent ends its episode, never the run
+    except Exception as exc:  # a failing agent ends its episode, never the run
         return _failed_at_start(sim, agent, seed, start, exc, meta)
     for k in range(steps):
         image = sim.render()[0] if camera else None
@@ -77,7 +77,7 @@ def run_episode(
             command = np.asarray(agent.act(_observation(sim, image, agent.privileged)), dtype=np.float64)
             if command.shape != (2,) or not np.all(np.isfinite(command)):
                 raise ValueError(f"agent returned {command!r}, expected 2 finite wheel PWM values")
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:  # likewise: recorded as the reason the episode ended
             events.append(_failure_event(float(sim.time[0]), exc))
             termination, done_frames = "agent_failure", k
             break
