@@ -1,0 +1,123 @@
+"""Where jobs run: in this process, in a local process pool, or on a Ray cluster — one interface.
+
+A backend takes jobs and yields ``JobResult``s as they finish (any order). Workers keep one
+simulator per (map, θ) between jobs, and use one compiled-kernel thread each, since the pool already
+uses the cores.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from multiprocessing import get_context
+from typing import Protocol
+
+from proxybench.runner.jobs import Job, JobResult, execute
+
+__all__ = ["Backend", "InlineBackend", "LocalBackend", "RayBackend", "make_backend"]
+
+
+class Backend(Protocol):
+    """Runs jobs; yields results as they complete."""
+
+    workers: int
+
+    def run(self, jobs: Iterable[Job], out_dir: str | None) -> Iterator[JobResult]: ...
+
+    def close(self) -> None: ...
+
+
+class InlineBackend:
+    """Everything in this process, one job after the other (debugging, tests, single episodes)."""
+
+    workers = 1
+
+    def run(self, jobs: Iterable[Job], out_dir: str | None) -> Iterator[JobResult]:
+        for job in jobs:
+            yield execute(job, out_dir)
+
+    def close(self) -> None:
+        pass
+
+
+def _init_worker() -> None:
+    import numba
+
+    numba.set_num_threads(1)
+
+
+class LocalBackend:
+    """A process pool sized to the cores (spawned processes: safe with Numba's threads)."""
+
+    def __init__(self, workers: int | None = None):
+        self.workers = max(1, workers or os.cpu_count() or 1)
+        self._pool: ProcessPoolExecutor | None = None
+
+    def run(self, jobs: Iterable[Job], out_dir: str | None) -> Iterator[JobResult]:
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=get_context("spawn"), initializer=_init_worker)
+        pending: set[Future] = set()
+        it = iter(jobs)
+        # keep a bounded number in flight so that an interrupt loses little and memory stays flat
+        for job in it:
+            pending.add(self._pool.submit(execute, job, out_dir))
+            if len(pending) >= 2 * self.workers:
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                yield from (f.result() for f in done)
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            yield from (f.result() for f in done)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+
+class RayBackend:
+    """The same API on Ray: a local instance by default, or a cluster at ``address``."""
+
+    def __init__(self, workers: int | None = None, address: str | None = None):
+        try:
+            import ray
+        except ImportError as exc:
+            raise RuntimeError("the Ray backend needs Ray: pip install 'proxybench[ray]'") from exc
+        self._ray = ray
+        self.workers = max(1, workers or os.cpu_count() or 1)
+        if not ray.is_initialized():
+            kwargs = {"address": address} if address else {"num_cpus": self.workers}
+            ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **kwargs)
+        self._remote = ray.remote(num_cpus=1)(_ray_execute)
+
+    def run(self, jobs: Iterable[Job], out_dir: str | None) -> Iterator[JobResult]:
+        ray = self._ray
+        pending = []
+        for job in jobs:
+            pending.append(self._remote.remote(job, out_dir))
+            if len(pending) >= 2 * self.workers:
+                done, pending = ray.wait(pending, num_returns=1)
+                yield from ray.get(done)
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            yield from ray.get(done)
+
+    def close(self) -> None:
+        if self._ray.is_initialized():
+            self._ray.shutdown()
+
+
+def _ray_execute(job: Job, out_dir: str | None) -> JobResult:
+    _init_worker()
+    return execute(job, out_dir)
+
+
+def make_backend(name: str, workers: int | None = None) -> Backend:
+    """``inline`` | ``local`` | ``ray`` → a backend."""
+    if name == "inline":
+        return InlineBackend()
+    if name == "local":
+        return LocalBackend(workers) if (workers or os.cpu_count() or 1) > 1 else InlineBackend()
+    if name == "ray":
+        return RayBackend(workers)
+    raise ValueError(f"unknown backend {name!r} (inline, local, ray)")

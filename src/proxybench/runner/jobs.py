@@ -1,0 +1,164 @@
+"""What a unit of evaluation work is: one agent, one domain, one episode. And how a worker does it.
+
+A ``Job`` is plain data (picklable, JSON-able), so any backend (process pool, Ray cluster) can carry it;
+its ``key`` is a content hash of everything that determines the result (agent spec, θ, map, episode,
+duration, code version), which is what makes sweeps cacheable and resumable.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from proxybench import __version__
+
+__all__ = ["AgentSpec", "DomainSpec", "Job", "JobResult", "execute"]
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    """A zoo agent by ``name``, or an external node started with ``command`` (any language)."""
+
+    name: str
+    command: str | None = None
+
+    @property
+    def label(self) -> str:
+        return self.name
+
+
+@dataclass(frozen=True)
+class DomainSpec:
+    """A domain instance: a label, its parameters θ (DomainParams fields) and what kind of domain it is.
+
+    ``kind`` is "simulation" for proxy instances and "reality-model" for the stand-in target.
+    """
+
+    name: str
+    params: dict[str, Any] = field(default_factory=dict)
+    kind: str = "simulation"
+
+    def canonical(self) -> str:
+        return json.dumps({"params": self.params, "kind": self.kind}, sort_keys=True)
+
+
+@dataclass(frozen=True)
+class Job:
+    """One episode to run: agent × domain × map × episode (seed and optional start pose) × duration."""
+
+    agent: AgentSpec
+    domain: DomainSpec
+    map: str
+    episode: int
+    seed: int
+    duration: float
+    pose: tuple[float, float, float] | None = None
+    camera_only: bool = False
+    metrics: tuple[str, ...] = ()
+
+    @property
+    def key(self) -> str:
+        """Content hash: equal keys ⇔ the same result (given deterministic agents)."""
+        blob = json.dumps(
+            {"agent": asdict(self.agent), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
+             "seed": self.seed, "pose": self.pose, "duration": self.duration, "camera_only": self.camera_only,
+             "version": __version__},
+            sort_keys=True,
+        )
+        return hashlib.sha256(blob.encode()).hexdigest()[:24]
+
+
+@dataclass
+class JobResult:
+    """Scores of one finished episode plus where its trajectory is stored."""
+
+    key: str
+    agent: str
+    domain: str
+    episode: int
+    seed: int
+    scores: dict[str, float]
+    termination: str
+    trajectory: str | None
+    message: str = ""
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+    @staticmethod
+    def from_json(text: str) -> JobResult:
+        return JobResult(**json.loads(text))
+
+
+def _map_id(name: str) -> str:
+    """Maps by name are built-in; a file path is identified by its content, so edits invalidate caches."""
+    p = Path(name)
+    if p.suffix in (".yaml", ".yml") and p.exists():
+        return hashlib.sha256(p.read_bytes()).hexdigest()[:16]
+    return name
+
+
+# -- the worker side --------------------------------------------------------------------------------
+
+_SIMS: dict[tuple[str, str], Any] = {}
+
+
+def _simulator(job: Job):
+    """One cached simulator per (map, θ) per worker process: building one costs more than an episode."""
+    from proxybench.domain.params import DomainParams
+    from proxybench.domain.simulator import Simulator
+
+    k = (job.map, job.domain.canonical())
+    if k not in _SIMS:
+        if len(_SIMS) > 8:
+            _SIMS.clear()
+        _SIMS[k] = Simulator(job.map, DomainParams.model_validate(job.domain.params))
+    return _SIMS[k]
+
+
+def _agent(spec: AgentSpec):
+    if spec.command:
+        from proxybench.protocol import RemoteAgent
+
+        agent = RemoteAgent(spec.command)
+        agent.name = spec.name
+        return agent
+    from proxybench.agents import make_agent
+
+    return make_agent(spec.name)
+
+
+def execute(job: Job, out_dir: str | None) -> JobResult:
+    """Run one job in this process; write its trajectory under ``out_dir`` (atomically) if given."""
+    import time
+
+    from proxybench.runner.episode import run_episode
+    from proxybench.tasks.metrics import METRICS
+
+    t0 = time.perf_counter()
+    sim = _simulator(job)
+    agent = _agent(job.agent)
+    t1 = time.perf_counter()
+    try:
+        traj = run_episode(sim, agent, job.seed, job.duration, pose=job.pose,
+                           camera=not agent.privileged, allow_privileged=not job.camera_only,
+                           meta={"map": job.map, "episode": job.episode, "domain": job.domain.name,
+                                 "domain_kind": job.domain.kind, "source": job.domain.kind, "job": job.key})
+    finally:
+        close = getattr(agent, "close", None)
+        if close is not None:
+            close()
+    t2 = time.perf_counter()
+    names = job.metrics or tuple(METRICS)
+    scores = {name: METRICS[name](traj) for name in names}
+    path = None
+    if out_dir is not None:
+        path = str(Path(out_dir) / f"{job.key}.parquet")
+        traj.save(path)
+    message = next((e["message"] for e in traj.events if e["kind"] == "agent_failure"), "")
+    return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed, scores, traj.termination,
+                     path, message, {"setup_s": t1 - t0, "episode_s": t2 - t1, "score_s": time.perf_counter() - t2})

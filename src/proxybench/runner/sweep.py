@@ -1,0 +1,119 @@
+"""Agents × domains × episodes → a results table, cached per episode and resumable.
+
+Layout of a run directory::
+
+    run.json                  what was asked (jobs, backend), for humans and for resuming
+    episodes/<key>.parquet    one trajectory per finished episode
+    episodes/<key>.json       its scores; written last, atomically: its presence means "done"
+    results.parquet           long table: agent, domain, episode, seed, metric, value, termination
+
+A job whose ``<key>.json`` exists is not run again, so a sweep killed at any point (Ctrl-C, a dead
+worker, power loss) resumes where it stopped, and two sweeps sharing episodes share their work.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from proxybench.runner.backends import Backend, InlineBackend
+from proxybench.runner.jobs import Job, JobResult
+
+__all__ = ["SweepResult", "results_frame", "run_jobs"]
+
+
+@dataclass
+class SweepResult:
+    """Results of a sweep (cached and new), in job order, and what it cost."""
+
+    results: list[JobResult]
+    run_dir: Path
+    cached: int = 0
+    ran: int = 0
+    wall_s: float = 0.0
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def _load_done(ep_dir: Path, key: str) -> JobResult | None:
+    p = ep_dir / f"{key}.json"
+    if not p.exists():
+        return None
+    try:
+        res = JobResult.from_json(p.read_text())
+    except (ValueError, TypeError):
+        return None  # a damaged record is redone, never trusted
+    if res.trajectory and not Path(res.trajectory).exists():
+        return None
+    return res
+
+
+def run_jobs(
+    jobs: Sequence[Job],
+    run_dir: str | Path,
+    backend: Backend | None = None,
+    *,
+    progress: Callable[[int, int, JobResult | None], None] | None = None,
+    keep_trajectories: bool = True,
+) -> SweepResult:
+    """Run every job not already done in ``run_dir``; return all results in job order.
+
+    ``progress(done, total, result)`` is called once at the start (result None) and after each job.
+    """
+    backend = backend or InlineBackend()
+    run_dir = Path(run_dir)
+    ep_dir = run_dir / "episodes"
+    ep_dir.mkdir(parents=True, exist_ok=True)
+    _write_atomic(run_dir / "run.json", json.dumps(
+        {"jobs": [asdict(j) | {"key": j.key} for j in jobs], "backend": type(backend).__name__,
+         "workers": backend.workers}, indent=1, default=str))
+    by_key: dict[str, JobResult] = {}
+    todo: list[Job] = []
+    for job in jobs:
+        done = _load_done(ep_dir, job.key)
+        if done is not None:
+            by_key[job.key] = done
+        elif job.key not in {j.key for j in todo}:
+            todo.append(job)
+    cached = len(by_key)
+    t0 = time.perf_counter()
+    if progress:
+        progress(cached, len(jobs), None)
+    out = str(ep_dir) if keep_trajectories else None
+    for res in backend.run(todo, out):
+        _write_atomic(ep_dir / f"{res.key}.json", res.to_json())
+        by_key[res.key] = res
+        if progress:
+            progress(len(by_key), len(jobs), res)
+    results = [by_key[j.key] for j in jobs]
+    sweep = SweepResult(results, run_dir, cached, len(todo), time.perf_counter() - t0)
+    for r in (by_key[j.key] for j in todo):
+        for k, v in r.timings.items():
+            sweep.timings[k] = sweep.timings.get(k, 0.0) + v
+    frame = results_frame(results)
+    tmp = run_dir / ".results.parquet.tmp"
+    frame.to_parquet(tmp, index=False)
+    tmp.replace(run_dir / "results.parquet")
+    return sweep
+
+
+def results_frame(results: Sequence[JobResult]):
+    """Long pandas table: one row per (agent, domain, episode, metric)."""
+    import pandas as pd
+
+    rows = [
+        {"agent": r.agent, "domain": r.domain, "episode": r.episode, "seed": r.seed, "metric": m, "value": v,
+         "termination": r.termination, "key": r.key}
+        for r in results
+        for m, v in r.scores.items()
+    ]
+    return pd.DataFrame(rows, columns=["agent", "domain", "episode", "seed", "metric", "value", "termination", "key"])
