@@ -62,8 +62,9 @@ def lane_following_reward(
 def _observation_space(p: DomainParams, observation: str) -> spaces.Box:
     if observation == "camera":
         return spaces.Box(0, 255, (p.image_height, p.image_width, 3), dtype=np.uint8)
-    if observation == "state":
-        return spaces.Box(-np.inf, np.inf, (4,), dtype=np.float32)
+    if observation == "state":  # lateral [m], heading error [rad], v [m/s], ω [rad/s]
+        high = np.array([1.0, np.pi, 5.0, 100.0], dtype=np.float32)
+        return spaces.Box(-high, high, dtype=np.float32)
     raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
 
 
@@ -88,10 +89,11 @@ class _Core:
         if self.observation == "camera":
             return self.sim.render()
         s, lane = self.sim.state, self.sim.lane
-        return np.stack(
+        box = self.obs_space
+        return np.clip(np.stack(
             [np.nan_to_num(lane[:, LP.LATERAL]), np.nan_to_num(lane[:, LP.HEADING_ERROR]), s[:, ST.V], s[:, ST.OMEGA]],
             axis=1,
-        ).astype(np.float32)
+        ).astype(np.float32), box.low, box.high)
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Advance all robots; (reward, terminated, truncated)."""
@@ -204,7 +206,8 @@ class LaneFollowingEnv(gym.Env):
         if self.render_mode == "rgb_array":
             if self._core.observation == "camera" and self._obs is not None:
                 return self._obs.copy()
-            raise RuntimeError("render_mode 'rgb_array' needs observation='camera'")
+            self.sim.enable_rendering()  # state observations: render the camera on demand
+            return self.sim.render()[0]
         if self.render_mode == "top_down":
             return top_down(self.sim.map, self.sim.state[:1, :3], params=self.params)
         return None
@@ -236,6 +239,8 @@ class LaneFollowingVectorEnv(VectorEnv):
     ):
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
         self._core = _Core(map, params, num_envs, observation, episode_seconds, reward, start)
         self.num_envs = self._core.sim.n
         self.render_mode = render_mode
@@ -301,7 +306,8 @@ class LaneFollowingVectorEnv(VectorEnv):
 
     def render(self):
         if self.render_mode == "rgb_array":
-            return self._core.observe() if self._core.observation == "camera" else None
+            self.sim.enable_rendering()
+            return self.sim.render()
         if self.render_mode == "top_down":
             return top_down(self.sim.map, self.sim.state[:, :3], params=self.sim.params[0])
         return None

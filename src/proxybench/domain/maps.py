@@ -147,7 +147,12 @@ class MapIssue:
             where += f":{self.line}"
             if self.column is not None:
                 where += f":{self.column}"
-        cell = f" row {self.row}, column {self.col}:" if self.row is not None else ""
+        if self.row is None:
+            cell = ""
+        elif self.col is None:
+            cell = f" row {self.row}:"
+        else:
+            cell = f" row {self.row}, column {self.col}:"
         return f"{where}:{cell} {self.message}"
 
 

@@ -109,9 +109,10 @@ class Simulator:
         self.blur_count = np.ones(self.n, dtype=np.int64)
         self._alloc_history(plist)
         self.renderer = Renderer(self.arrays, plist) if render else None
+        # start on plain road tiles, never on a lane that leaves the map before the next tile
         self._start_segments = [
             s for s in self.net.segments
-            if self.map.tile(*s.tile).kind in ("straight", "curve_left", "curve_right")
+            if self.map.tile(*s.tile).kind in ("straight", "curve_left", "curve_right") and self.net.successors(s.index)
         ] or list(self.net.segments)
         if not self._start_segments:
             raise ValueError(f"map {self.map.name!r} has no lanes to start on")
@@ -165,7 +166,7 @@ class Simulator:
             return self.map.start_pose
         segs = self._start_segments
         if self.start.use_map_start and self.map.start_tile is not None:
-            segs = [s for s in self.net.segments if s.tile == self.map.start_tile] or segs
+            segs = [s for s in segs if s.tile == self.map.start_tile] or segs
         lengths = np.array([s.length for s in segs])
         seg = segs[int(rng.choice(len(segs), p=lengths / lengths.sum()))]
         s = float(rng.uniform(0.1, 0.9)) * seg.length
@@ -225,6 +226,11 @@ class Simulator:
             self.lane[:] = out
         else:
             self.lane[idx] = out
+
+    def enable_rendering(self) -> None:
+        """Build the renderer now if this simulator was created with ``render=False``."""
+        if self.renderer is None:
+            self.renderer = Renderer(self.arrays, self.params)
 
     def render(self, out: np.ndarray | None = None) -> np.ndarray:
         """Camera frames (N, H, W, 3) uint8 of the current poses, motion-blurred over ``blur_time``."""

@@ -1,0 +1,78 @@
+"""The reality model: a *simulated stand-in* for a real Duckiebot, used as the target domain.
+
+There are no real robots on the machines this project runs on, so the target of the usefulness
+experiments is this model unless a run says otherwise (the other targets are recorded real
+trajectories and external robot processes on the protocol). It is the same simulator switched into a
+regime that the default proxy family does not cover, so that an irreducible gap remains:
+
+- wheel slip growing with speed and turn rate, a motor dead-band and saturation;
+- actuation latency with jitter on top of the fixed delay;
+- the calibrated fisheye lens (distortion) with vignetting instead of the ideal pinhole;
+- different light, road colour and surface grain, sensor noise.
+
+Its *calibrated* parameters — the values a proxy should recover — are ``TRUTH``. A proxy that matches
+them still differs from the reality model in everything listed above.
+
+>>> reality_params().trim, reality_params().fisheye
+(0.0, True)
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from proxybench.domain.params import DomainParams
+
+__all__ = ["GAP_EFFECTS", "TRUTH", "hardware_variation", "reality_params"]
+
+#: the calibrated values of the parameters the proxy family shares with the reality model
+TRUTH: dict[str, float] = {
+    "trim": 0.0,
+    "gain": 1.0,
+    "command_delay": 0.10,
+    "blur_time": 0.05,
+    "camera_pitch": 19.15,
+    "camera_height": 0.108,
+    "camera_fov_y": 75.0,
+}
+
+#: effects outside the default proxy family (the irreducible gap)
+GAP_EFFECTS: dict[str, Any] = {
+    "slip_speed": 0.35,
+    "slip_turn": 0.08,
+    "motor_deadband": 0.06,
+    "motor_saturation": 0.92,
+    "delay_jitter": 0.03,
+    "fisheye": True,
+    "vignetting": 0.35,
+    "light_rgb": (0.93, 0.96, 1.06),
+    "brightness": -6.0,
+    "contrast": 1.08,
+    "noise_std": 3.0,
+    "texture_noise": 0.12,
+    "texture_seed": 7,
+    "road_rgb": (60.0, 58.0, 62.0),
+    "white_rgb": (225.0, 228.0, 232.0),
+    "yellow_rgb": (235.0, 190.0, 40.0),
+}
+
+
+def reality_params(**overrides: Any) -> DomainParams:
+    """θ of the reality model (optionally with some fields changed, e.g. the image size)."""
+    return DomainParams.model_validate({**TRUTH, **GAP_EFFECTS, **overrides})
+
+
+def hardware_variation(rng: np.random.Generator, base: DomainParams | None = None) -> DomainParams:
+    """One physical robot's deviation from the nominal build: trim, gain and camera mounting.
+
+    Used to sample a fleet of simulated robots for repeatability studies (thesis ch. 5).
+    """
+    base = base or reality_params()
+    return base.replace(
+        trim=float(np.clip(base.trim + rng.normal(0.0, 0.04), -0.3, 0.3)),
+        gain=float(np.clip(base.gain * rng.normal(1.0, 0.05), 0.5, 1.5)),
+        camera_pitch=float(base.camera_pitch + rng.normal(0.0, 1.0)),
+        camera_height=float(base.camera_height + rng.normal(0.0, 0.003)),
+    )
