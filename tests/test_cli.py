@@ -1,0 +1,64 @@
+"""The command line as a user meets it: the main job, map checking and drawing, the agent list."""
+
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+from typer.testing import CliRunner
+
+from proxybench.cli import app
+
+runner = CliRunner()
+
+
+def test_run_drives_the_loop_and_writes_video_strip_trajectory_and_metrics(tmp_path):
+    out = tmp_path / "run"
+    res = runner.invoke(app, ["run", "--seconds", "3", "--width", "80", "--height", "60", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    for name in ("drive.mp4", "strip.png", "trajectory.parquet", "metrics.json"):
+        assert (out / name).stat().st_size > 0, name
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["source"] == "simulation" and metrics["agent"] == "pid"
+    assert metrics["survival_time"] == 3.0 and metrics["termination"] == "timeout"
+    assert metrics["driven_lanedir_consec"] > 0.5  # ~0.3 m/s for 3 s, minus the start
+    traj = pd.read_parquet(out / "trajectory.parquet")  # readable without proxybench
+    assert len(traj) == 3 * 60 + 1 and {"t", "x", "y", "theta", "lateral"} <= set(traj.columns)
+    assert "metrics:" in res.output
+
+
+def test_run_rejects_unknown_agent_and_map(tmp_path):
+    res = runner.invoke(app, ["run", "--agent", "nobody", "--out", str(tmp_path)])
+    assert res.exit_code == 2 and "unknown agent 'nobody'" in res.output
+    res = runner.invoke(app, ["run", "--map", "no_such_map", "--out", str(tmp_path)])
+    assert res.exit_code == 1 and "no_such_map" in res.output
+
+
+def test_map_check_reports_every_problem_and_exits_1(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("tile_size: 0.585\ntiles:\n- [straight/N, grass]\n- [curve_lft/W, straight/Q]\n")
+    res = runner.invoke(app, ["map", "check", "loop_3x3", str(bad)])
+    assert res.exit_code == 1
+    assert "✓ loop_3x3: 3×3 tiles" in res.output
+    assert f"{bad}:4:4: row 1, column 0: unknown tile kind 'curve_lft'" in res.output
+    assert "bad orientation 'Q'" in res.output
+
+
+def test_map_check_all_builtins_pass():
+    res = runner.invoke(app, ["map", "check", "loop_3x3", "small_loop", "small_loop_cw", "zigzag", "intersections",
+                              "straight_road"])
+    assert res.exit_code == 0, res.output
+
+
+def test_map_show_writes_png(tmp_path):
+    png = tmp_path / "m.png"
+    res = runner.invoke(app, ["map", "show", "intersections", "-o", str(png)])
+    assert res.exit_code == 0, res.output
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_agent_list_shows_the_zoo():
+    res = runner.invoke(app, ["agent", "list"])
+    assert res.exit_code == 0
+    for name in ("random", "pid", "pure-pursuit", "vision", "vision-pitch15"):
+        assert name in res.output
