@@ -56,14 +56,16 @@ def _dt(traj: Trajectory) -> np.ndarray:
 def lane_progress(traj: Trajectory) -> np.ndarray:
     """Per-sample progress along the lane direction [m], with duckietown-world's consecutive-lane rule.
 
-    The displacement since the previous sample is projected on the lane direction at the sample. The
-    first lane segment the robot is matched to on a tile is *the* segment of that tile for the whole
-    episode: progress made while matched to any other segment of it counts zero, so driving the wrong
-    way (matched to the opposite lane) earns nothing.
+    The displacement since the previous sample is projected on the lane direction at the sample. It
+    counts only while the robot centre is inside the lane it is matched to, and the first lane segment
+    the robot is matched to on a tile is *the* segment of that tile for the whole episode: progress
+    made on any other segment of it counts zero. Driving the wrong way (in the left lane, or turned
+    around in the right one) therefore earns nothing.
     """
     lane = traj.lane
     x, y, th = traj["x"], traj["y"], traj["theta"]
     valid = lane[:, LP.VALID] > 0.5
+    inside = valid & (np.abs(np.nan_to_num(lane[:, LP.LATERAL], nan=1.0)) <= LANE_HALF_WIDTH)
     lane_heading = th - np.where(valid, lane[:, LP.HEADING_ERROR], 0.0)
     dx, dy = np.r_[0.0, np.diff(x)], np.r_[0.0, np.diff(y)]
     step = dx * np.cos(lane_heading) + dy * np.sin(lane_heading)
@@ -71,7 +73,7 @@ def lane_progress(traj: Trajectory) -> np.ndarray:
     ok = np.zeros(len(traj), dtype=bool)
     seg = lane[:, LP.SEGMENT].astype(np.int64)
     ti, tj = lane[:, LP.TILE_I].astype(np.int64), lane[:, LP.TILE_J].astype(np.int64)
-    for k in np.flatnonzero(valid):
+    for k in np.flatnonzero(inside):
         key = (int(ti[k]), int(tj[k]))
         ok[k] = tied.setdefault(key, int(seg[k])) == seg[k]
     return np.where(ok, step, 0.0)
