@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 import traceback
 from collections.abc import Callable
 from typing import Any
@@ -67,12 +68,16 @@ def run_episode(
         agent.reset(seed)
     except Exception as exc:  # a failing agent ends its episode, never the run
         return _failed_at_start(sim, agent, seed, start, exc, meta)
+    t_sim = t_agent = 0.0
     for k in range(steps):
+        t0 = time.perf_counter()
         image = sim.render()[0] if camera else None
         if image is not None and image_filter is not None:
             image = image_filter(image)
         if on_frame is not None:
             on_frame(k, image, sim)
+        t1 = time.perf_counter()
+        t_sim += t1 - t0
         try:
             command = np.asarray(agent.act(_observation(sim, image, agent.privileged)), dtype=np.float64)
             if command.shape != (2,) or not np.all(np.isfinite(command)):
@@ -81,7 +86,10 @@ def run_episode(
             events.append(_failure_event(float(sim.time[0]), exc))
             termination, done_frames = "agent_failure", k
             break
+        t2 = time.perf_counter()
+        t_agent += t2 - t1
         sim.step(command[None], trace[k][None])
+        t_sim += time.perf_counter() - t2
         if sim.off_road[0]:
             t_off = float(sim.time[0])
             events.append({"t": t_off, "kind": "off_road", "message": "the robot centre left the drivable area"})
@@ -92,8 +100,8 @@ def run_episode(
     poses = np.vstack([start[None, :3], rows[:, :3]])
     extra = {"v": np.r_[start[ST.V], rows[:, 3]], "omega": np.r_[start[ST.OMEGA], rows[:, 4]],
              "pwm_left": np.r_[0.0, rows[:, 5]], "pwm_right": np.r_[0.0, rows[:, 6]]}
-    return Trajectory.from_poses(sim.map, t, poses, extra=extra, meta=_meta(sim, agent, seed, seconds, meta),
-                                 events=events, termination=termination,
+    info = _meta(sim, agent, seed, seconds, meta) | {"timing": {"sim_s": t_sim, "agent_s": t_agent}}
+    return Trajectory.from_poses(sim.map, t, poses, extra=extra, meta=info, events=events, termination=termination,
                                  wheel_distance=sim.params[0].wheel_distance)
 
 

@@ -160,5 +160,10 @@ def execute(job: Job, out_dir: str | None) -> JobResult:
         path = str(Path(out_dir) / f"{job.key}.parquet")
         traj.save(path)
     message = next((e["message"] for e in traj.events if e["kind"] == "agent_failure"), "")
+    timing = traj.meta.get("timing", {})
+    sim_s, agent_s = timing.get("sim_s", 0.0), timing.get("agent_s", 0.0)
+    timings = {"setup_s": t1 - t0, "sim_s": sim_s, "agent_s": agent_s,
+               "bookkeeping_s": (t2 - t1 - sim_s - agent_s) + (time.perf_counter() - t2),
+               "simulated_s": traj.duration}
     return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed, scores, traj.termination,
-                     path, message, {"setup_s": t1 - t0, "episode_s": t2 - t1, "score_s": time.perf_counter() - t2})
+                     path, message, timings)
