@@ -1,4 +1,4 @@
-"""The ``proxybench`` command line: thin Typer commands over the library."""
+"""`proxybench run`: drive one agent around a map in simulation and record it."""
 
 from __future__ import annotations
 
@@ -7,17 +7,9 @@ import time
 from pathlib import Path
 
 import typer
-from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
-map_app = typer.Typer(no_args_is_help=True, help="Check, list and draw Duckietown map files.")
-app.add_typer(map_app, name="map")
-agent_app = typer.Typer(no_args_is_help=True, help="The built-in agent zoo.")
-app.add_typer(agent_app, name="agent")
-console = Console(soft_wrap=True)
-err_console = Console(stderr=True, soft_wrap=True)
-
+from proxybench.cli.app import app, console, err_console
 
 _RUN_METRICS = ("survival_time", "driven_lanedir_consec", "deviation_center_line", "in_drivable_lane", "lane_score")
 
@@ -100,77 +92,3 @@ def run(
         + " ".join(f"{k}={v:.2f}" for k, v in scores.items()) + f" end={traj.termination} wall={elapsed:.1f}s",
         highlight=False,
     )
-
-
-@agent_app.command("list")
-def agent_list() -> None:
-    """The zoo: name, whether it reads privileged ground truth, what it does."""
-    from rich.table import Table
-
-    from proxybench.agents import ZOO
-
-    table = Table(title=f"{len(ZOO)} built-in agents")
-    for col in ("name", "needs", "description"):
-        table.add_column(col)
-    for e in ZOO.values():
-        table.add_row(e.name, "true lane pose" if e.privileged else "camera only", e.description)
-    console.print(table)
-
-
-@map_app.command("check")
-def map_check(files: list[Path] = typer.Argument(..., help="map YAML files or built-in names")) -> None:
-    """Validate map files; print a one-line summary each. Exit 1 if any is invalid."""
-    from proxybench.domain.maps import MapError, load_map
-
-    bad = 0
-    for f in files:
-        try:
-            m = load_map(f if f.exists() else str(f))
-        except MapError as exc:
-            bad += 1
-            err_console.print(f"[red]✗[/red] {f}: {len(exc.issues)} problem(s)")
-            for issue in exc.issues:
-                err_console.print(f"    {issue}", markup=False, highlight=False)
-            continue
-        except (FileNotFoundError, IsADirectoryError, UnicodeDecodeError) as exc:
-            bad += 1
-            err_console.print(f"[red]✗[/red] {f}: {exc}", highlight=False)
-            continue
-        console.print(f"[green]✓[/green] {f}: {m.summary()}", highlight=False)
-    if bad:
-        raise typer.Exit(1)
-
-
-@map_app.command("show")
-def map_show(
-    file: str = typer.Argument(..., help="map YAML file or built-in name"),
-    output: Path | None = typer.Option(None, "-o", "--output", help="PNG path (default: <map name>.png)"),
-) -> None:
-    """Draw a map top-down with its lane centre lines (arrows: driving direction) to a PNG."""
-    from proxybench.domain.maps import MapError, load_map
-    from proxybench.domain.topdown import save_map_plot
-
-    try:
-        m = load_map(file)
-    except (MapError, FileNotFoundError) as exc:
-        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
-        raise typer.Exit(1) from exc
-    path = save_map_plot(m, output or Path(f"{m.name}.png"))
-    console.print(f"wrote {path}")
-
-
-@map_app.command("list")
-def map_list() -> None:
-    """List the built-in maps."""
-    from proxybench.domain.maps import builtin_map_names, load_map
-
-    for name in builtin_map_names():
-        console.print(f"{name:16s} {load_map(name).summary()}", highlight=False)
-
-
-def main() -> None:
-    app()
-
-
-if __name__ == "__main__":
-    main()

@@ -1,0 +1,15 @@
+"""The Typer application and its consoles, shared by every command module."""
+
+from __future__ import annotations
+
+import typer
+from rich.console import Console
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="proxybench: develop, benchmark and measure the usefulness of Duckietown simulators.")
+map_app = typer.Typer(no_args_is_help=True, help="Check, list and draw Duckietown map files.")
+app.add_typer(map_app, name="map")
+agent_app = typer.Typer(no_args_is_help=True, help="The built-in agent zoo.")
+app.add_typer(agent_app, name="agent")
+console = Console(soft_wrap=True)
+err_console = Console(stderr=True, soft_wrap=True)
