@@ -62,3 +62,28 @@ def test_agent_list_shows_the_zoo():
     assert res.exit_code == 0
     for name in ("random", "pid", "pure-pursuit", "vision", "vision-pitch15"):
         assert name in res.output
+
+
+def test_score_reads_simulated_and_recorded_runs_and_reports_bad_files(tmp_path):
+    out = tmp_path / "run"
+    runner.invoke(app, ["run", "--seconds", "2", "--width", "80", "--height", "60", "--no-video", "--out", str(out)])
+    traj = pd.read_parquet(out / "trajectory.parquet")
+    csv = tmp_path / "recorded.csv"
+    traj[["t", "x", "y", "theta"]].to_csv(csv, index=False)
+    res = runner.invoke(app, ["score", str(out / "trajectory.parquet"), str(csv)])
+    assert res.exit_code == 0, res.output
+    assert "simulation" in res.output and "recorded" in res.output
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,x\n0,1\n")
+    res = runner.invoke(app, ["score", str(bad)])
+    assert res.exit_code == 1 and "missing column(s) y, theta" in res.output
+
+
+def test_repeatability_prints_the_three_settings(tmp_path):
+    res = runner.invoke(app, ["repeatability", "--runs", "2", "--seconds", "2", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    for setting in ("one robot", "robots", "labs"):
+        assert setting in res.output
+    figures = json.loads((tmp_path / "repeatability.json").read_text())
+    assert figures["one robot"]["MPD_cm"] <= figures["robots"]["MPD_cm"]
+    assert (tmp_path / "trajectories.png").exists() and (tmp_path / "trajectories.svg").exists()
