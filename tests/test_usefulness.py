@@ -1,0 +1,111 @@
+"""Usefulness metrics on hand-computed cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from proxybench.usefulness import PairedResults, dominance, mmrv, ppv_value, prpv_value, usefulness
+
+
+def res(**agents):
+    return {a: np.atleast_2d(np.asarray(v, dtype=float)) for a, v in agents.items()}
+
+
+def test_identical_orders_give_prpv_zero():
+    a = dominance(res(x=[[3, 1]], y=[[2, 1]], z=[[1, 0]]), [True, True])
+    assert prpv_value(a, a) == 0.0
+
+
+def test_one_swapped_pair_gives_two():
+    t = dominance(res(x=[[3]], y=[[2]], z=[[1]]), [True])
+    p = dominance(res(x=[[2]], y=[[3]], z=[[1]]), [True])
+    assert prpv_value(p, t) == 2.0  # α_xy and α_yx both flip
+
+
+def test_incomparable_pairs_are_half():
+    a = dominance(res(x=[[3, 1]], y=[[1, 3]]), [True, True])
+    np.testing.assert_array_equal(a, [[0.5, 0.5], [0.5, 0.5]])
+    b = dominance(res(x=[[3, 3]], y=[[1, 1]]), [True, True])
+    assert prpv_value(a, b) == 1.0  # two entries differ by 0.5
+
+
+def test_ties_and_direction():
+    a = dominance(res(x=[[1.0]], y=[[1.0]]), [True])
+    np.testing.assert_array_equal(a, [[0.5, 0.5], [0.5, 0.5]])
+    lower = dominance(res(x=[[1.0]], y=[[2.0]]), [False])  # lower is better: x dominates
+    assert lower[0, 1] == 1.0 and lower[1, 0] == 0.0
+
+
+def test_single_agent():
+    a = dominance(res(x=[[1.0]]), [True])
+    assert a.shape == (1, 1) and prpv_value(a, a) == 0.0
+    est = usefulness(PairedResults(res(x=[[1.0]]), res(x=[[2.0]]), (True,)), n_boot=5)
+    assert est["prpv"].value == 0.0 and est["prpv_norm"].value == 0.0
+
+
+def test_dominance_matrix_is_complementary():
+    rng = np.random.default_rng(0)
+    r = {f"a{i}": rng.normal(size=(4, 3)) for i in range(6)}
+    a = dominance(r, [True, False, True])
+    off = ~np.eye(6, dtype=bool)
+    np.testing.assert_allclose((a + a.T)[off], 1.0)
+
+
+def test_significance_turns_noisy_differences_into_ties():
+    rng = np.random.default_rng(1)
+    x, y = rng.normal(0.0, 1.0, (10, 1)), rng.normal(0.1, 1.0, (10, 1))
+    assert dominance({"x": x, "y": y}, [True])[0, 1] in (0.0, 1.0)
+    assert dominance({"x": x, "y": y}, [True], significance=0.05)[0, 1] == 0.5
+    far = {"x": x + 10, "y": y}
+    assert dominance(far, [True], significance=0.05)[0, 1] == 1.0
+
+
+def test_ppv_sums_scaled_absolute_differences():
+    t = res(x=[[2.0]], y=[[4.0]])  # target spread (std) = 1
+    p = res(x=[[3.0]], y=[[4.5]])
+    assert ppv_value(p, t) == pytest.approx(1.5)
+
+
+def test_mmrv_counts_the_worst_violation_per_agent():
+    target = np.array([3.0, 2.0, 1.0])
+    assert mmrv(target, target) == 0.0
+    proxy = np.array([2.0, 3.0, 1.0])  # x and y swapped: each sees a violation of size 1
+    assert mmrv(proxy, target) == pytest.approx(2 / 3)
+
+
+def test_usefulness_reports_intervals_around_the_point():
+    rng = np.random.default_rng(2)
+    target = {f"a{i}": rng.normal(i, 0.3, (5, 2)) for i in range(5)}
+    proxy = {a: v + rng.normal(0, 0.3, v.shape) for a, v in target.items()}
+    est = usefulness(PairedResults(proxy, target, (True, True)), n_boot=50)
+    for k in ("prpv", "ppv", "srcc", "spearman", "kendall", "mmrv"):
+        assert est[k].low <= est[k].high
+    assert est["srcc"].value > 0.9
+
+
+def test_paired_results_must_match():
+    with pytest.raises(ValueError, match="same agents"):
+        PairedResults(res(x=[[1.0]]), res(y=[[1.0]]), (True,))
+    with pytest.raises(ValueError, match=r"proxy\['x'\]: expected \(episodes, 2\)"):
+        PairedResults(res(x=[[1.0]]), res(x=[[1.0, 2.0]]), (True, True))
+
+
+def test_predictivity_experiment_end_to_end_on_a_tiny_config(tmp_path):
+    from proxybench.usefulness.predictivity import PredictivityConfig, run_predictivity
+    from proxybench.usefulness.report import write_report
+
+    cfg = PredictivityConfig(agents=("straight", "pid", "vision"), episodes=2, seconds=3.0, trim_sweep=(-0.3, 0.0),
+                             grid={"camera_pitch": (15.0, 19.15)}, n_boot=10, pod_seconds=1.0)
+    res = run_predictivity(cfg, tmp_path / "runs")
+    df = res.frame()
+    assert list(df.parameter) == ["trim-sweep", "trim-sweep", "camera_pitch", "camera_pitch"]
+    assert set(res.target_scores) == {"straight", "pid", "vision"}
+    assert (df.pod >= 0).all() and (df.prpv >= 0).all() and (df.prpv <= 6).all()
+    files = write_report(res, tmp_path / "report")
+    html = files["html"].read_text()
+    assert "reality model" in html and "data:image/png;base64" in html
+    for key in ("fig3_3", "fig3_4"):
+        assert files[key].exists() and files[key].with_suffix(".svg").exists()
+    again = run_predictivity(cfg, tmp_path / "runs")  # resumes from the cache, same numbers
+    assert again.frame().prpv.tolist() == df.prpv.tolist()
