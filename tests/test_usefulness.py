@@ -109,3 +109,29 @@ def test_predictivity_experiment_end_to_end_on_a_tiny_config(tmp_path):
         assert files[key].exists() and files[key].with_suffix(".svg").exists()
     again = run_predictivity(cfg, tmp_path / "runs")  # resumes from the cache, same numbers
     assert again.frame().prpv.tolist() == df.prpv.tolist()
+
+
+def test_optimizer_runs_trials_into_a_sqlite_study_and_resumes(tmp_path):
+    from proxybench.usefulness.optimize import OptimizeConfig, optimize_proxy, plot_optimization
+
+    cfg = OptimizeConfig(space={"trim": (-0.3, 0.3)}, n_trials=3, agents=("straight", "pid"), episodes=1,
+                         seconds=2.0, storage=str(tmp_path / "study.db"), sampler="random")
+    res = optimize_proxy(cfg, tmp_path / "runs")
+    assert len(res.trials) == 3 and -0.3 <= res.best_params["trim"] <= 0.3
+    assert res.truth == {"trim": 0.0} and res.best_value == min(t["value"] for t in res.trials)
+    assert {"prpv", "ppv"} <= set(res.trials[0])
+    again = optimize_proxy(cfg, tmp_path / "runs")  # the study is loaded, not repeated
+    assert len(again.trials) == 3
+    paths = plot_optimization(res, tmp_path / "plots")
+    assert all(p.exists() for p in paths)
+
+
+def test_optimizer_config_names_bad_fields():
+    from proxybench.usefulness.optimize import OptimizeConfig
+
+    with pytest.raises(ValueError, match="unknown domain parameter 'trimm'"):
+        OptimizeConfig(space={"trimm": (0.0, 1.0)})
+    with pytest.raises(ValueError, match="trim needs low < high"):
+        OptimizeConfig(space={"trim": (1.0, 0.0)})
+    with pytest.raises(ValueError, match="objective must be one of"):
+        OptimizeConfig(objective="best")
