@@ -44,6 +44,12 @@ class Agent(ABC):
     def reset(self, seed: int, episode: str | None = None) -> None:  # noqa: B027 - optional hook
         """Called at the start of every episode, before the first observation."""
 
+    def true_lane_pose(self, obs: Observation) -> LanePose:
+        """The privileged lane pose, or a clear error where the run did not provide it."""
+        if obs.lane_pose is None:
+            raise ValueError(f"{self.name} is privileged: the observation must carry the true lane_pose")
+        return obs.lane_pose
+
     @abstractmethod
     def act(self, obs: Observation) -> np.ndarray:
         """Wheel PWM (left, right), shape (2,), each in [-1, 1]."""

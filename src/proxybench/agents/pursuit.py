@@ -42,9 +42,7 @@ class PurePursuitAgent(Agent):
         self.speed, self.lookahead = speed, lookahead
 
     def act(self, obs: Observation) -> np.ndarray:
-        lp = obs.lane_pose
-        if lp is None:
-            raise ValueError(f"{self.name} is privileged: the observation must carry the true lane_pose")
+        lp = self.true_lane_pose(obs)
         if not lp.valid:
             return np.zeros(2)
         x, y = lookahead_point(lp.lateral, lp.heading_error, lp.curvature, self.lookahead)

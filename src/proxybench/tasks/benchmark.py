@@ -1,0 +1,422 @@
+"""Benchmark files: what a user writes to define a task — map, episodes, domain, metrics and scoring.
+
+A benchmark is a YAML file validated strictly (unknown keys are errors at every level, so a typo never
+silently falls back to a default). Every problem is reported as ``<file>: <field path>: <message>``,
+e.g. ``aido_lf.yaml: scoring.0.tolerance: Input should be greater than or equal to 0``.
+
+Episodes are fixed by the file: either ``{count, seed}`` — episode i gets a seed derived from (seed, i)
+and the simulator samples a valid start pose from it — or explicit ``{poses: [[x, y, θ], ...]}`` [m, m,
+rad] in the map frame, each checked to lie on the road. Scoring criteria name aggregated columns as
+:mod:`proxybench.tasks.aggregate` writes them (``<metric>_<stat>``; a bare ``<metric>`` means its mean).
+
+>>> b = Benchmark.load("aido_lf")
+>>> b.domain_params().frame_rate, [c.metric for c in b.criteria()][:2]
+(15.0, ['driven_lanedir_consec_median', 'survival_time_median'])
+>>> [s.index for s in b.episode_specs()] == list(range(5))
+True
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import typing
+from collections.abc import Callable
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import yaml
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+from proxybench.domain.maps import Map, MapError, load_map
+from proxybench.domain.params import DomainParams
+from proxybench.domain.reality import reality_params
+from proxybench.tasks.aggregate import STATS
+from proxybench.tasks.metrics import METRICS
+from proxybench.tasks.scoring import Criterion
+
+__all__ = [
+    "NAMED_DOMAINS",
+    "Benchmark",
+    "BenchmarkError",
+    "DomainChoice",
+    "EpisodeSpec",
+    "Episodes",
+    "ScoringEntry",
+    "builtin_benchmark_names",
+    "derive_seed",
+    "parse_scoring_metric",
+]
+
+#: domains a benchmark may name (``domain: {named: ...}``); other modules may add entries
+NAMED_DOMAINS: dict[str, Callable[[], DomainParams]] = {"default": DomainParams, "reality": reality_params}
+
+#: statistic meant by a bare metric name in ``scoring``
+DEFAULT_STAT = "mean"
+_RATE_FIELDS = ("physics_rate", "frame_rate")
+
+
+class BenchmarkError(ValueError):
+    """A benchmark file is invalid; each line of the message names the file and the field path."""
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """Episode ``index`` of a benchmark: its ``seed`` and start ``pose`` (x, y, θ) [m, m, rad], or None
+    to let the simulator sample a valid start from the seed."""
+
+    index: int
+    seed: int
+    pose: tuple[float, float, float] | None = None
+
+
+def parse_scoring_metric(name: str) -> tuple[str, str]:
+    """(base metric, stat) of a scoring name ``<metric>_<stat>`` or ``<metric>`` (stat = ``DEFAULT_STAT``).
+
+    Longest metric names are tried first, so a metric whose name contains ``_`` parses unambiguously.
+    """
+    for base in sorted(METRICS, key=len, reverse=True):
+        if name == base:
+            return base, DEFAULT_STAT
+        if name.startswith(base + "_"):
+            stat = name[len(base) + 1:]
+            if stat not in STATS:
+                raise ValueError(f"unknown statistic {stat!r} in {name!r} (use {base}_<stat>, "
+                                 f"stat one of {', '.join(STATS)})")
+            return base, stat
+    raise ValueError(f"unknown metric in {name!r} (metrics: {', '.join(METRICS)})")
+
+
+def _known_metric(name: str) -> str:
+    if name not in METRICS:
+        raise ValueError(f"unknown metric {name!r} (one of {', '.join(METRICS)})")
+    return name
+
+
+def _has_kind(npc: dict[str, Any]) -> dict[str, Any]:
+    if not isinstance(npc.get("kind"), str) or not npc["kind"]:
+        raise ValueError("an NPC needs a 'kind' (a non-empty string)")
+    return npc
+
+
+MetricName = Annotated[str, AfterValidator(_known_metric)]
+Npc = Annotated[dict[str, Any], AfterValidator(_has_kind)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Pose = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Episodes(_Strict):
+    """Either ``count`` episodes from ``seed``, or one episode per explicit pose (optionally with ``seeds``)."""
+
+    count: int | None = Field(None, gt=0, description="number of episodes with sampled starts")
+    seed: int = Field(0, ge=0, description="seed from which each episode's seed is derived")
+    poses: list[Pose] | None = Field(None, min_length=1, description="start poses [x m, y m, θ rad]")
+    seeds: list[Annotated[int, Field(ge=0)]] | None = Field(None, description="one seed per pose")
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> Episodes:
+        if (self.count is None) == (self.poses is None):
+            raise ValueError("give either count (sampled starts) or poses (explicit starts), not both or neither")
+        if self.seeds is not None:
+            if self.poses is None:
+                raise ValueError("seeds go with poses; with count, episode seeds are derived from seed")
+            if len(self.seeds) != len(self.poses):
+                raise ValueError(f"seeds has {len(self.seeds)} entries for {len(self.poses)} poses")
+        return self
+
+
+class DomainChoice(_Strict):
+    """The domain θ: explicit ``params`` (DomainParams fields) or a ``named`` entry of ``NAMED_DOMAINS``."""
+
+    params: DomainParams | None = None
+    named: str | None = None
+
+    @field_validator("params")
+    @classmethod
+    def _rates_elsewhere(cls, p: DomainParams | None) -> DomainParams | None:
+        clash = [f for f in _RATE_FIELDS if p is not None and f in p.model_fields_set]
+        if clash:
+            raise ValueError(f"set {' and '.join(clash)} at the top level of the benchmark, not in domain.params")
+        return p
+
+    @field_validator("named")
+    @classmethod
+    def _known_name(cls, name: str | None) -> str | None:
+        if name is not None and name not in NAMED_DOMAINS:
+            raise ValueError(f"unknown domain {name!r} (one of {', '.join(NAMED_DOMAINS)})")
+        return name
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> DomainChoice:
+        if (self.params is None) == (self.named is None):
+            raise ValueError("give either params or named, not both or neither")
+        return self
+
+    def base(self) -> DomainParams:
+        return self.params if self.params is not None else NAMED_DOMAINS[self.named]()
+
+
+class ScoringEntry(_Strict):
+    """One criterion: an aggregated metric, its direction (defaults to the metric's) and tolerance."""
+
+    metric: str
+    higher_is_better: bool | None = None
+    tolerance: float = Field(0.0, ge=0.0, allow_inf_nan=False, description="differences up to this tie")
+
+    @field_validator("metric")
+    @classmethod
+    def _parse(cls, name: str) -> str:
+        parse_scoring_metric(name)
+        return name
+
+    @property
+    def base(self) -> str:
+        return parse_scoring_metric(self.metric)[0]
+
+    @property
+    def column(self) -> str:
+        """The aggregated column name, ``<metric>_<stat>``."""
+        base, stat = parse_scoring_metric(self.metric)
+        return f"{base}_{stat}"
+
+    def criterion(self) -> Criterion:
+        hib = METRICS[self.base].higher_is_better if self.higher_is_better is None else self.higher_is_better
+        return Criterion(self.column, hib, self.tolerance)
+
+
+def _resolve_map(name: str, base_dir: Path | None) -> str:
+    """A built-in name stays as is; a path is made relative to the benchmark file's folder."""
+    if "/" not in name and "\\" not in name and not name.endswith((".yaml", ".yml")):
+        return name
+    p = Path(name).expanduser()
+    return str(base_dir / p if base_dir is not None and not p.is_absolute() else p)
+
+
+class Benchmark(_Strict):
+    """A benchmark definition. Load with :meth:`load`; every field is validated on construction."""
+
+    name: str = Field(min_length=1)
+    description: str = ""
+    map: str = Field(description="built-in map name or path to a map YAML (relative to the benchmark file)")
+    episodes: Episodes
+    duration: float = Field(gt=0.0, allow_inf_nan=False, description="episode length [s]")
+    physics_rate: float = Field(60.0, gt=0.0, allow_inf_nan=False, description="physics steps per second [Hz]")
+    frame_rate: float = Field(15.0, gt=0.0, allow_inf_nan=False, description="camera frames per second [Hz]")
+    domain: DomainChoice = DomainChoice(named="default")
+    metrics: list[MetricName] = Field(min_length=1)
+    scoring: list[ScoringEntry] = Field(min_length=1)
+    npcs: list[Npc] = Field(default_factory=list, description="other vehicles; each a mapping with a 'kind'")
+    camera_only: bool = Field(False, description="refuse privileged agents (those reading the true lane pose)")
+
+    @field_validator("map")
+    @classmethod
+    def _loadable(cls, name: str, info: ValidationInfo) -> str:
+        resolved = _resolve_map(name, (info.context or {}).get("base_dir"))
+        try:
+            load_map(resolved)
+        except MapError as exc:
+            raise ValueError(str(exc)) from None
+        return resolved
+
+    @model_validator(mode="after")
+    def _cross_checks(self) -> Benchmark:
+        issues = [*self._metric_issues(), *self._rate_issues(), *self._pose_issues()]
+        if issues:
+            raise ValueError("\n".join(f"{path}: {msg}" for path, msg in issues))
+        return self
+
+    def _metric_issues(self) -> list[tuple[str, str]]:
+        issues = [(f"metrics.{i}", f"{m!r} is listed twice") for i, m in enumerate(self.metrics)
+                  if m in self.metrics[:i]]
+        for i, entry in enumerate(self.scoring):
+            base = entry.base
+            if base not in self.metrics:
+                issues.append((f"scoring.{i}.metric", f"{entry.metric!r} scores {base!r}, which is not in metrics "
+                                                      f"({', '.join(self.metrics)})"))
+            elif entry.higher_is_better is not None and entry.higher_is_better != METRICS[base].higher_is_better:
+                hib = METRICS[base].higher_is_better
+                issues.append((f"scoring.{i}.higher_is_better", f"{base} is {METRICS[base].direction} "
+                                                                f"(higher_is_better: {str(hib).lower()})"))
+        return issues
+
+    def _rate_issues(self) -> list[tuple[str, str]]:
+        try:
+            p = self.domain_params()
+        except ValidationError as exc:
+            return [("frame_rate", "; ".join(e["msg"].removeprefix("Value error, ") for e in exc.errors()))]
+        if self.duration * p.frame_rate < 1.0:
+            return [("duration", f"{self.duration:g} s is shorter than one frame at {p.frame_rate:g} Hz")]
+        return []
+
+    def _pose_issues(self) -> list[tuple[str, str]]:
+        if not self.episodes.poses:
+            return []
+        from proxybench.domain.lane_pose import lane_poses
+        from proxybench.domain.lanes import LaneNetwork
+
+        m = self.load_map()
+        rows = lane_poses(LaneNetwork(m), np.array(self.episodes.poses, dtype=float))
+        issues = []
+        for k, ((x, y, th), row) in enumerate(zip(self.episodes.poses, rows, strict=True)):
+            if row[0] < 0.5 or row[9] < 0.5:  # LP.VALID (on a drivable tile), LP.ON_ROAD (inside its road)
+                tile = m.tile_at(x, y)
+                where = f"on a {tile.kind} tile" if tile is not None else "on no tile"
+                issues.append((f"episodes.poses.{k}", f"({x:g}, {y:g}, {th:g}) is not on the road of map "
+                                                      f"{m.name!r} ({where})"))
+        return issues
+
+    # -- loading -----------------------------------------------------------------------------------
+
+    @classmethod
+    def load(cls, source: str | Path) -> Benchmark:
+        """Load a benchmark YAML file, or a built-in benchmark by name (see :func:`builtin_benchmark_names`).
+
+        Raises:
+            BenchmarkError: naming the file and the field path of every problem found.
+        """
+        path, origin = _locate(source)
+        try:
+            data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        except OSError as exc:
+            raise BenchmarkError(f"{origin}: cannot read ({exc})") from exc
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            at = f":{mark.line + 1}:{mark.column + 1}" if mark is not None else ""
+            raise BenchmarkError(f"{origin}{at}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        return cls.from_dict(data, origin=origin, base_dir=path.parent)
+
+    @classmethod
+    def from_dict(cls, data: Any, *, origin: str = "<benchmark>", base_dir: Path | None = None) -> Benchmark:
+        """Validate a parsed benchmark; ``origin`` names it in errors, ``base_dir`` anchors relative map paths."""
+        if not isinstance(data, dict):
+            raise BenchmarkError(f"{origin}: expected a mapping of benchmark fields, got {type(data).__name__}")
+        try:
+            return cls.model_validate(data, context={"base_dir": base_dir})
+        except ValidationError as exc:
+            raise BenchmarkError(_format_errors(exc, origin)) from None
+
+    # -- derived -----------------------------------------------------------------------------------
+
+    def load_map(self) -> Map:
+        return load_map(self.map)
+
+    def domain_params(self) -> DomainParams:
+        """θ of the benchmark's domain with the benchmark's physics and frame rates."""
+        return self.domain.base().replace(physics_rate=self.physics_rate, frame_rate=self.frame_rate)
+
+    def episode_specs(self) -> list[EpisodeSpec]:
+        """The episodes, fixed by the file: the same list on every call, machine and run."""
+        ep = self.episodes
+        if ep.poses is None:
+            return [EpisodeSpec(i, derive_seed(ep.seed, i)) for i in range(ep.count or 0)]
+        seeds = ep.seeds if ep.seeds is not None else [derive_seed(ep.seed, i) for i in range(len(ep.poses))]
+        pairs = zip(ep.poses, seeds, strict=True)
+        return [EpisodeSpec(i, s, (float(p[0]), float(p[1]), float(p[2]))) for i, (p, s) in enumerate(pairs)]
+
+    def criteria(self) -> list[Criterion]:
+        """The scoring criteria, in order, on aggregated column names (``<metric>_<stat>``)."""
+        return [entry.criterion() for entry in self.scoring]
+
+    @property
+    def frames(self) -> int:
+        """Camera frames (agent decisions) per episode."""
+        return math.ceil(self.duration * self.frame_rate - 1e-9)
+
+    def check_agent(self, agent: Any) -> None:
+        """Refuse a privileged agent (``agent.privileged``, or a bool) on a camera-only benchmark."""
+        privileged = agent if isinstance(agent, bool) else bool(getattr(agent, "privileged", False))
+        if self.camera_only and privileged:
+            who = getattr(agent, "name", None) or type(agent).__name__
+            raise BenchmarkError(f"benchmark {self.name!r} is camera-only: privileged agent {who!r} "
+                                 "(it reads the true lane pose) is not admitted")
+
+
+def derive_seed(seed: int, index: int) -> int:
+    """Seed of episode ``index`` from the benchmark seed: well mixed, stable across numpy versions."""
+    return int(np.random.SeedSequence(seed, spawn_key=(index,)).generate_state(1)[0])
+
+
+def _benchmarks_dir() -> Any:
+    return resources.files("proxybench") / "benchmarks"
+
+
+def builtin_benchmark_names() -> list[str]:
+    """Names of the benchmarks shipped with proxybench (``proxybench/benchmarks/*.yaml``)."""
+    return sorted(p.name[:-5] for p in _benchmarks_dir().iterdir() if p.name.endswith(".yaml"))
+
+
+def _locate(source: str | Path) -> tuple[Path, str]:
+    """(file, name to use in messages) of a path or built-in benchmark name."""
+    path = Path(source)
+    if path.is_file():
+        return path, str(source)
+    name = str(source)
+    if "/" not in name and "\\" not in name:
+        candidate = _benchmarks_dir() / f"{name.removesuffix('.yaml')}.yaml"
+        if candidate.is_file():
+            return Path(str(candidate)), candidate.name
+    raise BenchmarkError(f"{source}: no such benchmark file or built-in benchmark "
+                         f"(built-in: {', '.join(builtin_benchmark_names())})")
+
+
+def _format_errors(exc: ValidationError, origin: str) -> str:
+    """One ``<origin>: <field path>: <message>`` line per problem."""
+    lines = []
+    for err in exc.errors():
+        msg = err["msg"].removeprefix("Value error, ")
+        loc = ".".join(str(p) for p in err["loc"])
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key" + _key_hint(str(err["loc"][-1]), _allowed_keys(err["loc"][:-1]))
+        if loc:
+            lines.append(f"{origin}: {loc}: {msg}")
+        else:  # cross-field checks put their paths in the message, one per line
+            lines.extend(f"{origin}: {line}" for line in msg.splitlines())
+    return "\n".join(lines)
+
+
+def _key_hint(key: str, allowed: list[str]) -> str:
+    """' (did you mean ...?)' for a likely typo, else the allowed keys when they are few enough to read."""
+    close = difflib.get_close_matches(key, allowed, n=3, cutoff=0.6)
+    if close:
+        return f" (did you mean {' or '.join(close)}?)"
+    return f" (allowed: {', '.join(allowed)})" if 0 < len(allowed) <= 15 else ""
+
+
+def _allowed_keys(loc: tuple[Any, ...]) -> list[str]:
+    """The field names of the model at ``loc`` inside a benchmark, for 'unknown key' messages."""
+    model: Any = Benchmark
+    for part in loc:
+        if isinstance(part, int):
+            continue
+        field = model.model_fields.get(part) if isinstance(model, type) and issubclass(model, BaseModel) else None
+        if field is None:
+            return []
+        model = _model_in(field.annotation)
+    return list(model.model_fields) if isinstance(model, type) and issubclass(model, BaseModel) else []
+
+
+def _model_in(annotation: Any) -> Any:
+    """The pydantic model inside an annotation such as ``Episodes``, ``X | None`` or ``list[X]``."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in typing.get_args(annotation):
+        found = _model_in(arg)
+        if found is not None:
+            return found
+    return None

@@ -1,0 +1,168 @@
+"""Ranking agents: a lexicographic semiorder (AIDO's scoring rule) and Pareto dominance matrices.
+
+AIDO ranks submissions by an ordered list of criteria, each with a tolerance: agent x beats y on the
+first criterion where they differ by *more* than its tolerance; differences within the tolerance are
+treated as noise and the next criterion decides. Such a relation is a *semiorder*: it is antisymmetric,
+but "tied within tolerance" is not transitive (a ~ b and b ~ c while a beats c), and with several
+criteria even "beats" can form cycles. :func:`leaderboard` therefore ranks by Copeland score.
+
+:func:`dominance_matrix` is the Pareto relation over several metrics that the usefulness measure PRPV
+compares between two domains (1 / 0 / 0.5 for dominates / dominated / incomparable or equal).
+
+NaN values (a metric that could not be computed) count as the *worst* possible value in every
+comparison, whatever the direction and tolerance: a NaN never beats a number, two NaNs tie.
+
+>>> crit = [Criterion("distance_mean", True, 0.5), Criterion("survival_time_mean", True, 1.0)]
+>>> scores = {"a": {"distance_mean": 10.0, "survival_time_mean": 50.0},
+...           "b": {"distance_mean": 10.3, "survival_time_mean": 60.0},
+...           "c": {"distance_mean": 2.0, "survival_time_mean": 60.0}}
+>>> compare(scores["a"], scores["b"], crit)   # distance within 0.5 m: survival decides
+-1
+>>> [(r.rank, r.agent) for r in leaderboard(scores, crit)]
+[(1, 'b'), (2, 'a'), (3, 'c')]
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Hashable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Criterion", "Rank", "better", "compare", "dominance_matrix", "leaderboard", "semiorder_matrix"]
+
+Scores = Mapping[str, float]
+
+
+@dataclass(frozen=True)
+class Criterion:
+    """One scoring criterion: a (usually aggregated) metric name, its direction and its tolerance.
+
+    ``tolerance`` is in the metric's unit: differences up to it count as a tie on this criterion.
+    """
+
+    metric: str
+    higher_is_better: bool = True
+    tolerance: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not self.metric:
+            raise ValueError("a criterion needs a metric name")
+        if not (isinstance(self.tolerance, (int, float)) and self.tolerance >= 0):  # also rejects NaN
+            raise ValueError(f"criterion {self.metric!r}: tolerance must be a number >= 0, got {self.tolerance!r}")
+
+    @property
+    def direction(self) -> str:
+        return "↑" if self.higher_is_better else "↓"
+
+
+@dataclass(frozen=True)
+class Rank:
+    """One leaderboard row. ``rank`` is shared by agents with equal ``copeland`` score ("1, 1, 3").
+
+    ``copeland`` = ``wins`` − ``losses`` over all pairwise :func:`compare` results.
+    """
+
+    rank: int
+    agent: Hashable
+    copeland: int
+    wins: int
+    losses: int
+    ties: int
+
+
+def better(a: float, b: float, higher_is_better: bool, tolerance: float = 0.0) -> int:
+    """+1 if value ``a`` beats ``b`` by more than ``tolerance``, −1 if ``b`` beats ``a``, else 0; NaN is worst."""
+    a_nan, b_nan = math.isnan(a), math.isnan(b)
+    if a_nan or b_nan:
+        return int(b_nan) - int(a_nan)
+    gain = (a - b) if higher_is_better else (b - a)
+    if gain > tolerance:  # inf - inf is NaN: equal infinities compare as a tie
+        return 1
+    if gain < -tolerance:
+        return -1
+    return 0
+
+
+def _value(scores: Scores, metric: str) -> float:
+    try:
+        return float(scores[metric])
+    except KeyError:
+        raise KeyError(f"no score for {metric!r}; have {', '.join(map(str, scores)) or 'none'}") from None
+
+
+def compare(x: Scores, y: Scores, criteria: Sequence[Criterion]) -> int:
+    """+1 if ``x`` beats ``y``, −1 if ``y`` beats ``x``, 0 if they tie within tolerance on every criterion.
+
+    The first criterion on which one is better by more than the tolerance decides (lexicographic
+    semiorder); with all tolerances 0 this is plain lexicographic order with the directions applied.
+    """
+    for c in criteria:
+        verdict = better(_value(x, c.metric), _value(y, c.metric), c.higher_is_better, c.tolerance)
+        if verdict:
+            return verdict
+    return 0
+
+
+def _matrix(agents: list, pair: Callable[[int, int], int]) -> np.ndarray:
+    """(K, K) matrix of 1 / 0 / 0.5 from ``pair(i, j)`` ∈ {+1, −1, 0}; diagonal 0.5."""
+    k = len(agents)
+    d = np.full((k, k), 0.5)
+    for i in range(k):
+        for j in range(i + 1, k):
+            v = pair(i, j)
+            if v:
+                d[i, j], d[j, i] = (1.0, 0.0) if v > 0 else (0.0, 1.0)
+    return d
+
+
+def semiorder_matrix(scores: Mapping[Hashable, Scores], criteria: Sequence[Criterion]) -> tuple[list, np.ndarray]:
+    """Agents (input order) and D with D[i, j] = 1 if i beats j under :func:`compare`, 0 if j beats i, else 0.5."""
+    agents = list(scores)
+    return agents, _matrix(agents, lambda i, j: compare(scores[agents[i]], scores[agents[j]], criteria))
+
+
+def _pareto(x: Scores, y: Scores, metrics: Sequence[tuple[str, bool]]) -> int:
+    """+1 if x is at least as good on every metric and better on one, −1 for the reverse, else 0."""
+    verdicts = [better(_value(x, m), _value(y, m), hib) for m, hib in metrics]
+    if any(v > 0 for v in verdicts) and not any(v < 0 for v in verdicts):
+        return 1
+    if any(v < 0 for v in verdicts) and not any(v > 0 for v in verdicts):
+        return -1
+    return 0
+
+
+def dominance_matrix(scores: Mapping[Hashable, Scores], metrics: Sequence[tuple[str, bool]]) -> tuple[list, np.ndarray]:
+    """Agents (input order) and the Pareto dominance matrix over ``metrics`` = [(name, higher_is_better)].
+
+    D[i, j] = 1 if agent i dominates j (at least as good on all metrics, strictly better on one), 0 if j
+    dominates i, 0.5 if they are incomparable or equal (and on the diagonal), so D + Dᵀ = 1. PRPV is the
+    1-norm of the difference of two such matrices, so give both domains' agents in the same order.
+    """
+    agents = list(scores)
+    return agents, _matrix(agents, lambda i, j: _pareto(scores[agents[i]], scores[agents[j]], metrics))
+
+
+def leaderboard(scores: Mapping[Hashable, Scores], criteria: Sequence[Criterion]) -> list[Rank]:
+    """Agents ranked by Copeland score (pairwise wins − losses under :func:`compare`), best first.
+
+    Why Copeland: the semiorder need not be transitive, so there may be no order consistent with every
+    pairwise verdict; counting pairwise wins is deterministic, agrees with the order whenever it is
+    transitive, and never separates agents that compare equally against everyone. Agents with equal
+    scores share a rank and are listed by name (``str(agent)``), then input order — so the result does
+    not depend on the mapping's order. Note an agent may beat a higher-ranked one when the relation
+    has cycles.
+    """
+    agents, d = semiorder_matrix(scores, criteria)
+    off = ~np.eye(len(agents), dtype=bool)
+    wins = ((d == 1.0) & off).sum(axis=1)
+    losses = ((d == 0.0) & off).sum(axis=1)
+    ties = ((d == 0.5) & off).sum(axis=1)
+    order = sorted(range(len(agents)), key=lambda i: (-(wins[i] - losses[i]), str(agents[i]), i))
+    rows: list[Rank] = []
+    for pos, i in enumerate(order):
+        cope = int(wins[i] - losses[i])
+        rank = rows[-1].rank if rows and rows[-1].copeland == cope else pos + 1
+        rows.append(Rank(rank, agents[i], cope, int(wins[i]), int(losses[i]), int(ties[i])))
+    return rows
