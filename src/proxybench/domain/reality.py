@@ -38,24 +38,23 @@ TRUTH: dict[str, float] = {
     "camera_fov_y": 75.0,
 }
 
-#: effects outside the default proxy family (the irreducible gap)
+#: effects outside the default proxy family (the irreducible gap). The visual gap is kept modest: a
+#: stronger one (darker corners, other paint colours, more contrast) shifts the proxy that best predicts
+#: the target away from the calibrated values (measured: trim +0.1, pitch +4°), because a proxy
+#: parameter that handicaps camera agents then stands in for the handicap the look of reality causes.
 GAP_EFFECTS: dict[str, Any] = {
     "slip_speed": 0.35,
     "slip_turn": 0.08,
     "motor_deadband": 0.06,
     "motor_saturation": 0.92,
+    # latency 0.085 s + U[0, 0.03] s: 0.10 s on average, the calibrated value
+    "command_delay": 0.085,
     "delay_jitter": 0.03,
     "fisheye": True,
-    "vignetting": 0.35,
-    "light_rgb": (0.93, 0.96, 1.06),
-    "brightness": -6.0,
-    "contrast": 1.08,
-    "noise_std": 3.0,
-    "texture_noise": 0.12,
+    "vignetting": 0.1,
+    "light_rgb": (0.97, 1.0, 1.03),
+    "noise_std": 2.0,
     "texture_seed": 7,
-    "road_rgb": (60.0, 58.0, 62.0),
-    "white_rgb": (225.0, 228.0, 232.0),
-    "yellow_rgb": (235.0, 190.0, 40.0),
 }
 
 

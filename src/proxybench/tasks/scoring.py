@@ -117,8 +117,17 @@ def _matrix(agents: list, pair: Callable[[int, int], int]) -> np.ndarray:
     return d
 
 
+def _check_complete(scores: Mapping[Hashable, Scores], metrics: Sequence[str]) -> None:
+    """Fail before comparing anything when an agent lacks a metric, naming the agent."""
+    for agent, s in scores.items():
+        missing = [m for m in metrics if m not in s]
+        if missing:
+            raise KeyError(f"agent {agent!r} has no score for {', '.join(missing)}")
+
+
 def semiorder_matrix(scores: Mapping[Hashable, Scores], criteria: Sequence[Criterion]) -> tuple[list, np.ndarray]:
     """Agents (input order) and D with D[i, j] = 1 if i beats j under :func:`compare`, 0 if j beats i, else 0.5."""
+    _check_complete(scores, [c.metric for c in criteria])
     agents = list(scores)
     return agents, _matrix(agents, lambda i, j: compare(scores[agents[i]], scores[agents[j]], criteria))
 
@@ -140,6 +149,7 @@ def dominance_matrix(scores: Mapping[Hashable, Scores], metrics: Sequence[tuple[
     dominates i, 0.5 if they are incomparable or equal (and on the diagonal), so D + Dᵀ = 1. PRPV is the
     1-norm of the difference of two such matrices, so give both domains' agents in the same order.
     """
+    _check_complete(scores, [m for m, _ in metrics])
     agents = list(scores)
     return agents, _matrix(agents, lambda i, j: _pareto(scores[agents[i]], scores[agents[j]], metrics))
 

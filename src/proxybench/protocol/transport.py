@@ -1,0 +1,275 @@
+"""The operating-system side of an agent process: launch, pipes or FIFOs, stderr draining, kill and reap.
+
+Kept apart from the protocol logic (:mod:`.process`) because every piece here exists to make failure
+harmless: the node runs in its own process group so that killing it also kills whatever it spawned;
+stderr is drained by a thread into a bounded ring so a chatty node can never block on a full pipe; the
+parent's ends of the streams are non-blocking, so every wait has a deadline.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import select
+import shutil
+import signal
+import subprocess
+import tempfile
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+
+from proxybench.protocol.wire import ENV_DATA_IN, ENV_DATA_OUT
+
+__all__ = ["Launch", "StderrDrain"]
+
+_PIPE_SIZE = 1 << 20  # a whole 640×480 observation fits in one write
+
+
+class StderrDrain:
+    """Reads a stderr pipe in a daemon thread: keeps the last lines and counts bytes per request.
+
+    When the bytes since :meth:`arm` exceed the limit, one byte is written to :attr:`wake_fd`'s pipe so
+    that the caller, waiting in ``poll``, notices the flood at once.
+    """
+
+    def __init__(self, fd: int, lines: int = 50, line_chars: int = 2000,
+                 on_line: Callable[[str], None] | None = None):
+        self._fd = fd
+        self._tail: deque[str] = deque(maxlen=lines)
+        self._lock = threading.Lock()
+        self._partial = bytearray()
+        self._line_chars = line_chars
+        self._on_line = on_line
+        self._limit: int | None = None
+        self._count = 0
+        self._flagged = False
+        self._done = False
+        self._detached = False
+        self.total_bytes = 0
+        self.wake_fd, self._wake_w = os.pipe()
+        os.set_blocking(self.wake_fd, False)
+        os.set_blocking(self._wake_w, False)
+        self._thread = threading.Thread(target=self._run, name=f"agent-stderr-{fd}", daemon=True)
+        self._thread.start()
+
+    def arm(self, limit: int | None) -> None:
+        """Start counting a new request's bytes against ``limit``."""
+        with contextlib.suppress(BlockingIOError):
+            os.read(self.wake_fd, 64)
+        with self._lock:
+            self._limit, self._count, self._flagged = limit, 0, False
+
+    def _run(self) -> None:
+        while True:
+            try:
+                data = os.read(self._fd, 1 << 16)
+            except OSError:
+                break
+            if not data:
+                break
+            self._take(data)
+        with self._lock:
+            if self._partial:
+                self._emit(bytes(self._partial))
+                self._partial.clear()
+            self._done = True
+            if self._detached:
+                self._close_fds()
+
+    def _take(self, data: bytes) -> None:
+        with self._lock:
+            self.total_bytes += len(data)
+            self._count += len(data)
+            if self._limit is not None and self._count > self._limit and not self._flagged:
+                self._flagged = True
+                with contextlib.suppress(BlockingIOError):
+                    os.write(self._wake_w, b"!")
+            self._partial += data
+            *lines, rest = self._partial.split(b"\n")
+            self._partial = bytearray(rest[-self._line_chars:])
+            for line in lines[-self._tail.maxlen:] if self._tail.maxlen else lines:
+                self._emit(line)
+
+    def _emit(self, line: bytes) -> None:
+        text = line[: self._line_chars].decode("utf-8", "replace").rstrip("\r")
+        self._tail.append(text)
+        if self._on_line is not None:
+            with contextlib.suppress(Exception):
+                self._on_line(text)
+
+    def tail(self) -> list[str]:
+        with self._lock:
+            lines = list(self._tail)
+            if self._partial:
+                lines.append(self._partial.decode("utf-8", "replace"))
+        return lines
+
+    def finish(self, timeout: float = 0.5) -> list[str]:
+        """Wait (briefly) for the writers to be gone, then return the tail and close the pipes."""
+        self._thread.join(timeout)
+        tail = self.tail()
+        with self._lock:
+            if not self._done:  # a grandchild still holds the pipe: the thread closes the fds when it ends
+                self._detached = True
+                return tail
+        self._close_fds()
+        return tail
+
+    def _close_fds(self) -> None:
+        for fd in (self._fd, self.wake_fd, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+def _grow_pipe(fd: int) -> None:
+    with contextlib.suppress(OSError, AttributeError):
+        fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, _PIPE_SIZE)
+
+
+class Launch:
+    """One agent process and the parent's ends of its streams (``in_fd`` write, ``out_fd`` read)."""
+
+    def __init__(self, argv: list[str], *, transport: str = "pipes", env: dict[str, str] | None = None,
+                 cwd: str | None = None, stderr_lines: int = 50, on_stderr: Callable[[str], None] | None = None):
+        if transport not in ("pipes", "fifos"):
+            raise ValueError(f"transport must be 'pipes' or 'fifos', not {transport!r}")
+        self.transport = transport
+        self.tmpdir: str | None = None
+        self.dummy_fd: int | None = None
+        self.out_fd = -1
+        self.returncode: int | None = None
+        full_env = {k: v for k, v in os.environ.items() if k not in (ENV_DATA_IN, ENV_DATA_OUT)}
+        full_env.update(env or {})
+        err_r, err_w = os.pipe()
+        try:
+            self.proc = self._start_pipes(argv, full_env, cwd, err_w) if transport == "pipes" else \
+                self._start_fifos(argv, full_env, cwd, err_w)
+        except BaseException:
+            os.close(err_r)
+            self._cleanup_tmp()
+            raise
+        finally:
+            os.close(err_w)
+        self.pid = self.proc.pid
+        self.stderr = StderrDrain(err_r, stderr_lines, on_line=on_stderr)
+        try:
+            self.pidfd: int | None = os.pidfd_open(self.pid)
+        except (OSError, AttributeError):
+            self.pidfd = None
+
+    def _start_pipes(self, argv: list[str], env: dict, cwd: str | None, err_w: int) -> subprocess.Popen:
+        in_r, in_w = os.pipe()
+        out_r, out_w = os.pipe()
+        for fd in (in_w, out_w):
+            _grow_pipe(fd)
+        try:
+            proc = subprocess.Popen(argv, stdin=in_r, stdout=out_w, stderr=err_w, cwd=cwd, env=env,
+                                    start_new_session=True)
+        except BaseException:
+            os.close(in_w)
+            os.close(out_r)
+            raise
+        finally:
+            os.close(in_r)
+            os.close(out_w)
+        self.in_fd, self.out_fd = in_w, out_r
+        os.set_blocking(in_w, False)
+        os.set_blocking(out_r, False)
+        return proc
+
+    def _start_fifos(self, argv: list[str], env: dict, cwd: str | None, err_w: int) -> subprocess.Popen:
+        self.tmpdir = tempfile.mkdtemp(prefix="proxybench-node-")
+        in_path = os.path.join(self.tmpdir, "in")
+        self.out_path = os.path.join(self.tmpdir, "out")
+        os.mkfifo(in_path)
+        env.update({ENV_DATA_IN: in_path, ENV_DATA_OUT: "fifo:" + self.out_path})
+        # read-write: opening never blocks, and the node's open for reading returns at once
+        self.in_fd = os.open(in_path, os.O_RDWR | os.O_NONBLOCK)
+        _grow_pipe(self.in_fd)
+        try:
+            return subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=err_w, stderr=err_w, cwd=cwd, env=env,
+                                    start_new_session=True)
+        except BaseException:
+            os.close(self.in_fd)
+            raise
+
+    def output_ready(self) -> bool:
+        """FIFOs: open the node's output once it has created it. Until the node's first byte arrives a
+        spare write end stays open, so that reading before the node opens its end cannot look like EOF."""
+        if self.out_fd >= 0:
+            return True
+        if not os.path.exists(self.out_path):
+            return False
+        self.out_fd = os.open(self.out_path, os.O_RDONLY | os.O_NONBLOCK)
+        self.dummy_fd = os.open(self.out_path, os.O_WRONLY | os.O_NONBLOCK)
+        return True
+
+    def got_output(self) -> None:
+        if self.dummy_fd is not None:
+            os.close(self.dummy_fd)
+            self.dummy_fd = None
+
+    def exited(self) -> bool:
+        """Whether the process has ended (without reaping it, so its group id stays reserved)."""
+        if self.returncode is not None:
+            return True
+        try:
+            return os.waitid(os.P_PID, self.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None
+        except ChildProcessError:
+            return True
+
+    def wait_exit(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` s for the process to end by itself."""
+        deadline = time.monotonic() + timeout
+        while not self.exited():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            if self.pidfd is not None:
+                select.select([self.pidfd], [], [], left)
+            else:
+                time.sleep(min(left, 0.005))
+        return True
+
+    def close_input(self) -> None:
+        if self.in_fd >= 0:
+            os.close(self.in_fd)
+            self.in_fd = -1
+
+    def _killpg(self, sig: int) -> None:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(self.pid, sig)
+
+    def terminate(self, grace: float = 0.0, term_first: bool = False) -> int:
+        """Let the process end by itself for ``grace`` s, then kill its whole group; reap; its exit status."""
+        if self.returncode is not None:
+            return self.returncode
+        if not self.wait_exit(grace) and term_first:
+            self._killpg(signal.SIGTERM)
+            self.wait_exit(0.5)
+        self._killpg(signal.SIGKILL)  # the leader is at most a zombie here, so its group id is still ours
+        self.returncode = self.proc.wait()
+        self._release()
+        return self.returncode
+
+    def _release(self) -> None:
+        for name in ("in_fd", "out_fd", "dummy_fd", "pidfd"):
+            fd = getattr(self, name)
+            if fd is not None and fd >= 0:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+            setattr(self, name, -1 if name in ("in_fd", "out_fd") else None)
+        self._cleanup_tmp()
+
+    def _cleanup_tmp(self) -> None:
+        if self.tmpdir is not None:
+            shutil.rmtree(self.tmpdir, ignore_errors=True)
+            self.tmpdir = None
+
+    def kill_quietly(self) -> None:
+        """Last resort at garbage collection or interpreter exit."""
+        with contextlib.suppress(Exception):
+            self.terminate()

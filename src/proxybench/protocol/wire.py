@@ -1,0 +1,399 @@
+"""The bytes on the wire: zuper-nodes "z2" envelopes, the AIDO agent messages, and a stream reader.
+
+Each direction is a stream of CBOR maps back to back, with no length prefix, so a reader must find where
+one item ends by parsing CBOR headers (:func:`item_end`) before it can decode it. Encoders reproduce what
+the recorded AIDO node and caller send, byte for byte: envelopes keep the order ``compat, topic, data,
+timing`` / ``control, data``; data and timing *written by a node* are maps in canonical CBOR key order
+(shorter keys first, as the zuper serialiser sorts them); floats are always 8-byte CBOR floats, because the
+real node rejects an int where a float is declared.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import cbor2
+import numpy as np
+
+__all__ = [
+    "COMPAT", "CTRL_ABORTED", "CTRL_CAPABILITIES", "CTRL_NOT_UNDERSTOOD", "CTRL_OVER", "CTRL_UNDERSTOOD",
+    "ENV_DATA_IN", "ENV_DATA_OUT", "BadMessageError", "CborStream", "Control", "GarbageError", "MessageTypeError",
+    "NotAMapError", "Topic", "TruncatedError", "WireError", "canonical", "decode_message", "encode_commands",
+    "encode_control", "encode_episode_start", "encode_get_commands", "encode_observations", "encode_seed",
+    "encode_topic", "item_end", "node_timing", "parse_commands", "parse_episode_start", "parse_get_commands",
+    "parse_observations", "parse_seed", "timespec_seconds",
+]
+
+ENV_DATA_IN = "AIDONODE_DATA_IN"
+ENV_DATA_OUT = "AIDONODE_DATA_OUT"
+COMPAT = ["z2"]
+CTRL_CAPABILITIES = "capabilities"
+CTRL_UNDERSTOOD = "understood"
+CTRL_NOT_UNDERSTOOD = "not-understood"
+CTRL_OVER = "over"
+CTRL_ABORTED = "aborted"
+CONTROL_CODES = frozenset({CTRL_CAPABILITIES, CTRL_UNDERSTOOD, CTRL_NOT_UNDERSTOOD, CTRL_OVER, CTRL_ABORTED})
+CAPABILITIES = {"z2": {"protocol-reflection": True}}
+#: the LED colours the recorded node sends with every command (all blue)
+DEFAULT_LEDS = {k: {"b": 1.0, "g": 0.0, "r": 0.0} for k in ("center", "back_left", "back_right", "front_left",
+                                                             "front_right")}
+_MAX_DEPTH = 256
+
+
+# ---------------------------------------------------------------------------------------------- errors
+class WireError(Exception):
+    """The byte stream or a message is unusable; ``reason`` is an :data:`~.failures.REASONS` code."""
+
+    reason = "garbage"
+
+
+class GarbageError(WireError):
+    reason = "garbage"
+
+
+class NotAMapError(WireError):
+    reason = "not-a-map"
+
+
+class TruncatedError(WireError):
+    reason = "truncated"
+
+
+class BadMessageError(WireError):
+    reason = "bad-message"
+
+
+class MessageTypeError(ValueError):
+    """A message's data does not have the declared types (e.g. an int where a float is declared)."""
+
+
+# ------------------------------------------------------------------------------------------ envelopes
+@dataclass(slots=True)
+class Control:
+    """``{"control": code, "data": data}``."""
+
+    code: str
+    data: Any = None
+
+
+@dataclass(slots=True)
+class Topic:
+    """``{"compat": [...], "topic": topic, "data": data, "timing": timing}``; ``z2`` False: skip it."""
+
+    topic: str
+    data: Any
+    timing: Any = None
+    z2: bool = True
+
+
+def encode_control(code: str, data: Any = None) -> bytes:
+    return cbor2.dumps({"control": code, "data": data})
+
+
+def encode_topic(topic: str, data: Any, timing: Any = None) -> bytes:
+    return cbor2.dumps({"compat": COMPAT, "topic": topic, "data": data, "timing": timing})
+
+
+def decode_message(obj: dict) -> Control | Topic:
+    """The envelope of a decoded map; raises :class:`BadMessageError` when it is neither kind."""
+    if "control" in obj:
+        code = obj["control"]
+        if not isinstance(code, str):
+            raise BadMessageError(f"control code is not a string: {code!r}")
+        return Control(code, obj.get("data"))
+    topic = obj.get("topic")
+    if not isinstance(topic, str) or "data" not in obj:
+        raise BadMessageError(f"neither a control nor a topic message: keys {sorted(map(str, obj))}")
+    compat = obj.get("compat")
+    z2 = isinstance(compat, list) and "z2" in compat
+    return Topic(topic, obj["data"], obj.get("timing"), z2)
+
+
+def canonical(value: Any) -> Any:
+    """``value`` with every map's keys in canonical CBOR order (length first), as the zuper node sends."""
+    if isinstance(value, dict):
+        keys = sorted(value, key=lambda k: (len(k.encode()), k.encode()) if isinstance(k, str) else (0, b""))
+        return {k: canonical(value[k]) for k in keys}
+    if isinstance(value, list):
+        return [canonical(v) for v in value]
+    return value
+
+
+# ------------------------------------------------------------------------------------------- timing
+def _timespec(ns: int) -> dict:
+    # the zuper library puts nanoseconds in the field called "us"; reproduce it
+    return {"s": ns // 1_000_000_000, "us": ns % 1_000_000_000}
+
+
+def node_timing(node: str, start_ns: int, end_ns: int | None = None) -> dict:
+    """The ``timing`` a node attaches to its outputs: processed by ``node`` from ``start`` to ``end``."""
+    end_ns = time.time_ns() if end_ns is None else end_ns
+    spec = {"time": _timespec(start_ns), "clock": "vm", "frame": "epoch", "time2": _timespec(end_ns)}
+    return {"processed": {node: spec}}
+
+
+def timespec_seconds(spec: dict) -> float:
+    """Seconds of a time spec ``{"s", "us"}``, read as nanoseconds when ``us`` ≥ 10⁶ (the library bug)
+    and as microseconds otherwise; so a nanosecond value under 1 ms reads 1000× too large."""
+    s, sub = spec["s"], spec["us"]
+    return s + (sub * 1e-9 if sub >= 1_000_000 else sub * 1e-6)
+
+
+# ------------------------------------------------------------------------------------ typed messages
+def _is_float(x: Any) -> bool:
+    return type(x) is float
+
+
+def _is_number(x: Any) -> bool:
+    return type(x) in (float, int)
+
+
+def _need(data: Any, key: str, check, what: str, topic: str) -> Any:
+    if not isinstance(data, dict) or key not in data:
+        raise MessageTypeError(f"{topic}: missing field {key!r}")
+    value = data[key]
+    if not check(value):
+        raise MessageTypeError(f"{topic}: field {key!r} must be {what}, got {type(value).__name__} {value!r:.60}")
+    return value
+
+
+def encode_seed(seed: int) -> bytes:
+    return encode_topic("seed", int(seed))
+
+
+def parse_seed(data: Any) -> int:
+    if type(data) is not int:
+        raise MessageTypeError(f"seed must be an integer, got {type(data).__name__}")
+    return data
+
+
+def encode_episode_start(episode_name: str, yaml_payload: str = "{}") -> bytes:
+    return encode_topic("episode_start", {"episode_name": str(episode_name), "yaml_payload": str(yaml_payload)})
+
+
+def parse_episode_start(data: Any) -> tuple[str, str]:
+    name = _need(data, "episode_name", lambda v: type(v) is str, "a string", "episode_start")
+    payload = data.get("yaml_payload", "{}")
+    if type(payload) is not str:
+        raise MessageTypeError("episode_start: field 'yaml_payload' must be a string")
+    return name, payload
+
+
+def encode_observations(jpg: bytes, timestamp: float, odometry: tuple[float, float] | None,
+                        resolution: float | None, extras: dict | None = None) -> bytes:
+    """An ``observations`` message; missing odometry is sent as NaN (floats stay floats)."""
+    t = float(timestamp)
+    left, right = (math.nan, math.nan) if odometry is None else (float(odometry[0]), float(odometry[1]))
+    odo = {"resolution_rad": math.nan if resolution is None else float(resolution), "axis_left_rad": left,
+           "axis_right_rad": right, "timestamp": t}
+    data: dict[str, Any] = {"camera": {"jpg_data": bytes(jpg), "timestamp": t}, "odometry": odo}
+    if extras is not None:
+        data["proxybench"] = extras
+    return encode_topic("observations", data)
+
+
+@dataclass(slots=True)
+class ObservationsData:
+    """A decoded ``observations`` message (the JPEG still encoded)."""
+
+    jpg: bytes
+    timestamp: float
+    odometry: tuple[float, float] | None
+    resolution: float | None
+    extras: dict | None
+
+
+def parse_observations(data: Any) -> ObservationsData:
+    """Checks types as strictly as the real node: both maps present, every float a CBOR float."""
+    cam = _need(data, "camera", lambda v: isinstance(v, dict), "a map", "observations")
+    odo = _need(data, "odometry", lambda v: isinstance(v, dict), "a map", "observations")
+    jpg = _need(cam, "jpg_data", lambda v: type(v) is bytes, "bytes", "observations.camera")
+    stamp = _need(cam, "timestamp", _is_float, "a float", "observations.camera")
+    values = [_need(odo, k, _is_float, "a float", "observations.odometry")
+              for k in ("resolution_rad", "axis_left_rad", "axis_right_rad", "timestamp")]
+    extras = data.get("proxybench")
+    if extras is not None and not isinstance(extras, dict):
+        raise MessageTypeError("observations: field 'proxybench' must be a map")
+    odometry = None if math.isnan(values[1]) or math.isnan(values[2]) else (values[1], values[2])
+    resolution = None if math.isnan(values[0]) else values[0]
+    return ObservationsData(jpg, stamp, odometry, resolution, extras)
+
+
+def encode_get_commands(at_time: float) -> bytes:
+    return encode_topic("get_commands", {"at_time": float(at_time)})
+
+
+def parse_get_commands(data: Any) -> float:
+    return _need(data, "at_time", _is_float, "a float", "get_commands")
+
+
+def encode_commands(left: float, right: float, timing: dict | None = None) -> bytes:
+    """A ``commands`` message as the recorded node writes it (canonical key order, blue LEDs)."""
+    data = {"LEDS": DEFAULT_LEDS, "wheels": {"motor_left": float(left), "motor_right": float(right)}}
+    return encode_topic("commands", data, timing)
+
+
+def parse_commands(data: Any) -> np.ndarray:
+    """Wheel PWM (left, right); raises :class:`MessageTypeError` unless both are finite numbers in [-1, 1].
+
+    Ints are accepted (they are exact numbers); bools, NaN and infinities are not.
+    """
+    wheels = _need(data, "wheels", lambda v: isinstance(v, dict), "a map", "commands")
+    out = np.empty(2)
+    for i, key in enumerate(("motor_left", "motor_right")):
+        v = _need(wheels, key, _is_number, "a number", "commands.wheels")
+        if not math.isfinite(v) or not -1.0 <= v <= 1.0:
+            raise MessageTypeError(f"commands.wheels: {key} = {v!r} is not a finite number in [-1, 1]")
+        out[i] = v
+    return out
+
+
+# ------------------------------------------------------------------------------------- stream reader
+def _header(buf, pos: int, end: int) -> tuple[int, int, int] | None:
+    """(major type, argument or -1 for indefinite, position after the header), or None if incomplete."""
+    ib = buf[pos]
+    major, ai = ib >> 5, ib & 0x1F
+    if ai < 24:
+        return major, ai, pos + 1
+    if ai < 28:
+        n = 1 << (ai - 24)
+        if pos + 1 + n > end:
+            return None
+        val = int.from_bytes(buf[pos + 1:pos + 1 + n], "big")
+        if major == 7 and ai == 24 and val < 32:
+            raise GarbageError(f"invalid simple value encoding at byte {pos}")
+        return major, val, pos + 1 + n
+    if ai == 31 and major in (2, 3, 4, 5):
+        return major, -1, pos + 1
+    raise GarbageError(f"invalid CBOR initial byte 0x{ib:02x} at byte {pos}")
+
+
+def item_end(buf: bytes | bytearray, pos: int = 0, end: int | None = None) -> int:
+    """Index just past the CBOR item that starts at ``pos``; -1 if ``buf[pos:end]`` holds only part of it.
+
+    Raises :class:`GarbageError` on bytes that cannot start or continue a CBOR item. Only headers are read,
+    so a large byte string is skipped in O(1).
+    """
+    end = len(buf) if end is None else end
+    stack = [1]  # items still to read at each open level; -1: indefinite, until a break byte
+    while stack:
+        if stack[-1] == 0:
+            stack.pop()
+            continue
+        if pos >= end:
+            return -1
+        if buf[pos] == 0xFF:
+            if stack[-1] != -1:
+                raise GarbageError(f"unexpected break byte at byte {pos}")
+            stack.pop()
+            pos += 1
+            continue
+        head = _header(buf, pos, end)
+        if head is None:
+            return -1
+        major, val, pos = head
+        if stack[-1] > 0:
+            stack[-1] -= 1
+        if major in (2, 3):
+            if val >= 0:
+                pos += val
+                if pos > end:
+                    return -1
+            else:
+                stack.append(-1)
+        elif major == 4 and val:
+            stack.append(val)
+        elif major == 5 and val:
+            stack.append(2 * val if val > 0 else -1)
+        elif major == 6:
+            stack.append(1)
+        if len(stack) > _MAX_DEPTH:
+            raise GarbageError("CBOR nesting too deep")
+    return pos
+
+
+def _looks_like_text(raw: bytes | bytearray) -> bool:
+    return all(32 <= b < 127 or b in (9, 10, 13) for b in raw)
+
+
+class CborStream:
+    """Incremental reader of a stream of CBOR maps, fed from bytes or a (non-blocking) file descriptor.
+
+    :meth:`next` returns the next complete map, None when more bytes are needed, and raises
+    :class:`GarbageError` (not CBOR, or text such as a stray ``print`` on stdout), :class:`NotAMapError`
+    (a well-formed non-map value), or :class:`TruncatedError` (the stream ended inside an item).
+    A message must start with a map header (0xa0-0xbf), so anything else is classified at once.
+    """
+
+    def __init__(self, read_size: int = 1 << 20):
+        self._buf = bytearray()
+        self._start = 0
+        self._scratch = bytearray(read_size)
+        self._view = memoryview(self._scratch)
+        self.eof = False
+        self.bytes_read = 0
+
+    @property
+    def pending(self) -> int:
+        """Buffered bytes not yet returned as messages."""
+        return len(self._buf) - self._start
+
+    def feed(self, data: bytes | bytearray | memoryview) -> None:
+        self._buf += data
+        self.bytes_read += len(data)
+
+    def feed_eof(self) -> None:
+        self.eof = True
+
+    def read_from(self, fd: int) -> int | None:
+        """One read from ``fd``: bytes read, 0 at end of file, None if it would block."""
+        try:
+            n = os.readv(fd, [self._view])
+        except BlockingIOError:
+            return None
+        if n == 0:
+            self.eof = True
+        else:
+            self.feed(self._view[:n])
+        return n
+
+    def next(self) -> dict | None:
+        start, buf = self._start, self._buf
+        end = len(buf)
+        if start >= end:
+            return None
+        first = buf[start]
+        if not 0xA0 <= first <= 0xBF and _looks_like_text(buf[start:start + 256]):
+            raise GarbageError(f"text where a CBOR map was expected: {bytes(buf[start:start + 200])!r}")
+        stop = item_end(buf, start, end)
+        if stop < 0:
+            if self.eof:
+                raise TruncatedError(f"stream ended {end - start} bytes into a message: "
+                                     f"{bytes(buf[start:start + 40]).hex()}...")
+            return None
+        obj = self._decode(start, stop)
+        self._consume(stop)
+        if not isinstance(obj, dict):
+            raise NotAMapError(f"a CBOR {type(obj).__name__} where a map was expected: {obj!r:.200}")
+        return obj
+
+    def _decode(self, start: int, stop: int) -> Any:
+        with memoryview(self._buf) as mv, mv[start:stop] as raw:
+            try:
+                return cbor2.loads(raw)
+            except Exception as exc:  # invalid UTF-8, bad tag content, ...
+                raise GarbageError(f"undecodable CBOR ({exc}): {bytes(raw[:40]).hex()}...") from exc
+
+    def _consume(self, stop: int) -> None:
+        if stop >= len(self._buf):
+            self._buf.clear()
+            self._start = 0
+        elif stop > 1 << 16:
+            del self._buf[:stop]
+            self._start = 0
+        else:
+            self._start = stop
