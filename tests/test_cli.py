@@ -87,3 +87,50 @@ def test_repeatability_prints_the_three_settings(tmp_path):
     figures = json.loads((tmp_path / "repeatability.json").read_text())
     assert figures["one robot"]["MPD_cm"] <= figures["robots"]["MPD_cm"]
     assert (tmp_path / "trajectories.png").exists() and (tmp_path / "trajectories.svg").exists()
+
+
+BENCH = """
+name: tiny
+map: loop_3x3
+episodes: {count: 2, seed: 1}
+duration: 3.0
+domain: {params: {image_width: 80, image_height: 60}}
+camera_only: CAMERA_ONLY
+metrics: [survival_time, driven_lanedir_consec]
+scoring:
+  - {metric: driven_lanedir_consec_median, tolerance: 0.1}
+  - {metric: survival_time_median, tolerance: 0.5}
+"""
+
+
+def test_evaluate_prints_a_leaderboard_and_resumes(tmp_path):
+    bench = tmp_path / "tiny.yaml"
+    bench.write_text(BENCH.replace("CAMERA_ONLY", "false"))
+    args = ["evaluate", str(bench), "--agent", "straight", "--agent", "pid", "--backend", "inline",
+            "--run-dir", str(tmp_path / "run")]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    board = json.loads((tmp_path / "run" / "leaderboard.json").read_text())
+    assert [r["agent"] for r in board] == ["pid", "straight"]
+    assert "4 run, 0 cached" in res.output
+    again = runner.invoke(app, args)
+    assert "0 run, 4 cached" in again.output
+
+
+def test_evaluate_camera_only_refuses_privileged_agents(tmp_path):
+    bench = tmp_path / "tiny.yaml"
+    bench.write_text(BENCH.replace("CAMERA_ONLY", "true"))
+    res = runner.invoke(app, ["evaluate", str(bench), "--agent", "straight", "--agent", "pid", "--backend",
+                              "inline", "--run-dir", str(tmp_path / "run")])
+    assert res.exit_code == 0, res.output
+    assert "not admitted: pid: privileged" in res.output
+    res = runner.invoke(app, ["evaluate", str(bench), "--agent", "pid", "--backend", "inline",
+                              "--run-dir", str(tmp_path / "run2")])
+    assert res.exit_code == 2 and "no admitted agent" in res.output
+
+
+def test_evaluate_reports_bad_benchmark_files(tmp_path):
+    bench = tmp_path / "bad.yaml"
+    bench.write_text(BENCH.replace("CAMERA_ONLY", "false").replace("duration: 3.0", "duration: -1"))
+    res = runner.invoke(app, ["evaluate", str(bench)])
+    assert res.exit_code == 1 and "bad.yaml" in res.output and "duration" in res.output

@@ -93,3 +93,97 @@ def repeatability(
     (out / "repeatability.json").write_text(json.dumps(res.figures, indent=2))
     png = plot_trajectories(load_map(map_name), res.runs, out / "trajectories.png")
     console.print(f"wrote {out / 'repeatability.json'}, {png} (+ .svg)")
+
+
+def _agent_specs(names: list[str], commands: list[str]) -> list:
+    from proxybench.agents import ZOO
+    from proxybench.runner.jobs import AgentSpec
+
+    specs = []
+    for n in names:
+        if n not in ZOO:
+            raise typer.BadParameter(f"unknown agent {n!r}; known: {', '.join(ZOO)}", param_hint="--agent")
+        specs.append(AgentSpec(n))
+    for item in commands:
+        name, sep, cmd = item.partition("=")
+        if not sep or not name.strip() or not cmd.strip():
+            raise typer.BadParameter(f"{item!r}: expected NAME=COMMAND", param_hint="--agent-cmd")
+        specs.append(AgentSpec(name.strip(), cmd.strip()))
+    return specs
+
+
+@app.command()
+def evaluate(
+    benchmark: str = typer.Argument(..., help="benchmark YAML file or built-in name (aido_lf, thesis_loop)"),
+    agent: list[str] = typer.Option([], "--agent", help="zoo agent (repeat); default: every admitted one"),
+    agent_cmd: list[str] = typer.Option([], "--agent-cmd", help="NAME=COMMAND of an external agent node (repeat)"),
+    domain: str | None = typer.Option(None, help="run in this named domain instead (default, reality)"),
+    backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
+    workers: int | None = typer.Option(None, help="parallel workers (default: one per core)"),
+    run_dir: Path | None = typer.Option(None, help="run directory (default: out/evaluate/<benchmark>)"),
+) -> None:
+    """Run agents on a benchmark and print the leaderboard in the benchmark's lexicographic semiorder.
+
+    Episodes are cached in the run directory: run again to resume an interrupted evaluation.
+    """
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from proxybench.agents import ZOO
+    from proxybench.runner.backends import make_backend
+    from proxybench.runner.evaluate import evaluate_benchmark
+    from proxybench.tasks.benchmark import Benchmark, BenchmarkError
+
+    try:
+        bench = Benchmark.load(benchmark)
+    except BenchmarkError as exc:
+        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        raise typer.Exit(1) from exc
+    specs = _agent_specs(agent or list(ZOO) if not agent_cmd else agent, agent_cmd)
+    run_dir = run_dir or Path("out/evaluate") / bench.name
+    be = make_backend(backend, workers)
+    with Progress(TextColumn(f"[bold]{bench.name}[/bold] episodes"), BarColumn(), MofNCompleteColumn(),
+                  TimeRemainingColumn(), console=console, transient=True) as bar:
+        task = bar.add_task("episodes", total=None)
+        try:
+            ev = evaluate_benchmark(bench, specs, run_dir, be, domain=domain,
+                                    privileged=lambda s: s.command is None and ZOO[s.name].privileged,
+                                    progress=lambda d, t: bar.update(task, completed=d, total=t))
+        except BenchmarkError as exc:
+            err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+            raise typer.Exit(2) from exc
+        finally:
+            be.close()
+    _print_leaderboard(ev, run_dir)
+
+
+def _print_leaderboard(ev, run_dir: Path) -> None:
+    import json
+
+    bench = ev.benchmark
+    agg = ev.aggregates.set_index("agent")
+    cols = [c.metric for c in bench.criteria()]
+    table = Table(title=f"{bench.name}: {len(bench.episode_specs())} episodes × {bench.duration:g} s "
+                        f"(simulated; {ev.sweep.ran} run, {ev.sweep.cached} cached)")
+    table.add_column("rank", justify="right")
+    table.add_column("agent")
+    for c in bench.criteria():
+        table.add_column(f"{c.metric} {'↑' if c.higher_is_better else '↓'} ±{c.tolerance:g}", justify="right")
+    table.add_column("W/L/T", justify="right")
+    rows = []
+    prev = None
+    for r in ev.ranks:
+        shown = "=" if r.rank == prev else str(r.rank)
+        prev = r.rank
+        vals = [float(agg.loc[r.agent, c]) for c in cols]
+        table.add_row(shown, str(r.agent), *(f"{v:.3f}" for v in vals), f"{r.wins}/{r.losses}/{r.ties}")
+        rows.append({"rank": r.rank, "agent": r.agent, **dict(zip(cols, vals, strict=True)),
+                     "wins": r.wins, "losses": r.losses, "ties": r.ties})
+    console.print(table)
+    for name, why in ev.refused.items():
+        console.print(f"[yellow]not admitted:[/yellow] {name}: {why}", highlight=False)
+    failures = [r for r in ev.sweep.results if r.termination == "agent_failure"]
+    for r in failures[:5]:
+        console.print(f"[red]agent failure[/red] {r.agent} episode {r.episode}: {r.message}", highlight=False)
+    (run_dir / "leaderboard.json").write_text(json.dumps(rows, indent=1, default=str))
+    ev.aggregates.to_csv(run_dir / "aggregates.csv", index=False)
+    console.print(f"wrote {run_dir / 'leaderboard.json'}, {run_dir / 'aggregates.csv'}, {run_dir / 'results.parquet'}")

@@ -1,0 +1,76 @@
+"""Evaluate agents on a benchmark file: episodes → results → aggregates → leaderboard (semiorder).
+
+This is the engine behind ``proxybench evaluate``; it returns data and writes the run directory, the
+CLI only prints.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from proxybench.runner.backends import Backend, InlineBackend
+from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
+from proxybench.runner.sweep import SweepResult, results_frame, run_jobs
+from proxybench.tasks.benchmark import NAMED_DOMAINS, Benchmark, BenchmarkError
+from proxybench.tasks.scoring import Rank, leaderboard
+
+__all__ = ["Evaluation", "benchmark_domain", "evaluate_benchmark"]
+
+
+@dataclass
+class Evaluation:
+    """The leaderboard, the per-agent aggregates it was computed from, and the sweep behind them."""
+
+    benchmark: Benchmark
+    ranks: list[Rank]
+    aggregates: object  # pandas DataFrame (one row per agent)
+    sweep: SweepResult
+    refused: dict[str, str]
+
+
+def benchmark_domain(bench: Benchmark, named: str | None = None) -> DomainSpec:
+    """The domain a benchmark runs in (or the named domain that replaces it), with the benchmark's rates."""
+    if named is not None:
+        if named not in NAMED_DOMAINS:
+            raise BenchmarkError(f"unknown domain {named!r}; known: {', '.join(NAMED_DOMAINS)}")
+        params = NAMED_DOMAINS[named]().replace(physics_rate=bench.physics_rate, frame_rate=bench.frame_rate)
+        kind = "reality-model" if named == "reality" else "simulation"
+        return DomainSpec(named, params.model_dump(mode="json"), kind)
+    name = bench.domain.named or "benchmark"
+    kind = "reality-model" if bench.domain.named == "reality" else "simulation"
+    return DomainSpec(name, bench.domain_params().model_dump(mode="json"), kind)
+
+
+def evaluate_benchmark(
+    bench: Benchmark, agents: Sequence[AgentSpec], run_dir: str | Path, backend: Backend | None = None, *,
+    domain: str | None = None, privileged: Callable[[AgentSpec], bool] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> Evaluation:
+    """Run every admitted agent on every episode of ``bench``; rank them by the benchmark's criteria.
+
+    Agents that the benchmark does not admit (privileged ones on a camera-only benchmark) are left out
+    and listed in ``refused`` with the reason.
+    """
+    from proxybench.tasks.aggregate import aggregate, scores_by_agent
+
+    refused: dict[str, str] = {}
+    admitted = []
+    for a in agents:
+        if bench.camera_only and privileged is not None and privileged(a):
+            refused[a.label] = f"privileged (reads the true lane pose); {bench.name!r} admits camera-only agents"
+        else:
+            admitted.append(a)
+    if not admitted:
+        raise BenchmarkError(f"benchmark {bench.name!r}: no admitted agent ({'; '.join(refused.values())})")
+    dom = benchmark_domain(bench, domain)
+    metrics = tuple(bench.metrics)
+    jobs = [Job(a, dom, bench.map, ep.index, ep.seed, bench.duration, ep.pose, bench.camera_only, metrics)
+            for a in admitted for ep in bench.episode_specs()]
+    sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
+                     progress=(lambda d, t, _r: progress(d, t)) if progress else None)
+    frame = results_frame(sweep.results)
+    agg = aggregate(frame[["agent", "domain", "episode", "metric", "value"]], n_resamples=1000)
+    ranks = leaderboard(scores_by_agent(agg), bench.criteria())
+    return Evaluation(bench, ranks, agg, sweep, refused)
