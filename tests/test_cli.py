@@ -16,7 +16,7 @@ def test_run_drives_the_loop_and_writes_video_strip_trajectory_and_metrics(tmp_p
     out = tmp_path / "run"
     res = runner.invoke(app, ["run", "--seconds", "3", "--width", "80", "--height", "60", "--out", str(out)])
     assert res.exit_code == 0, res.output
-    for name in ("drive.mp4", "strip.png", "trajectory.parquet", "metrics.json"):
+    for name in ("drive.mp4", "drive_strip.png", "trajectory.parquet", "metrics.json"):
         assert (out / name).stat().st_size > 0, name
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["source"] == "simulation" and metrics["agent"] == "pid"

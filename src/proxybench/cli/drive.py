@@ -19,7 +19,7 @@ def run(
     map_name: str = typer.Option("loop_3x3", "--map", help="built-in map name or YAML file"),
     seconds: float = typer.Option(60.0, help="episode length [s] (simulated time)"),
     seed: int = typer.Option(0, help="episode seed (start pose, noise)"),
-    out: Path = typer.Option(Path("out/run"), help="folder for drive.mp4, strip.png, metrics.json"),
+    out: Path = typer.Option(Path("out/run"), help="folder for drive.mp4, drive_strip.png, metrics.json"),
     width: int = typer.Option(640, help="camera width [px]"),
     height: int = typer.Option(480, help="camera height [px]"),
     video: bool = typer.Option(True, help="write drive.mp4 (camera | top-down)"),
@@ -34,9 +34,7 @@ def run(
     from proxybench.domain.maps import MapError, load_map
     from proxybench.domain.params import DomainParams
     from proxybench.domain.simulator import Simulator
-    from proxybench.domain.topdown import top_down
-    from proxybench.media import VideoWriter, side_by_side, write_strip
-    from proxybench.runner import run_episode
+    from proxybench.runner.record import record_episode
     from proxybench.tasks.metrics import METRICS
 
     try:
@@ -51,39 +49,22 @@ def run(
     except KeyError as exc:
         err_console.print(f"[red]error:[/red] {exc.args[0]}", highlight=False)
         raise typer.Exit(2) from exc
-    out.mkdir(parents=True, exist_ok=True)
     steps = round(seconds * params.frame_rate)
-    strip_every = max(1, steps // 11)
-    strip, labels = [], []
-    writer = VideoWriter(out / "drive.mp4", params.frame_rate) if video else None
     t0 = time.perf_counter()
     with Progress(TextColumn("[bold]driving[/bold] {task.description}"), BarColumn(),
                   TextColumn("{task.completed}/{task.total} frames"), TimeRemainingColumn(),
                   console=console, transient=True) as progress:
-        task = progress.add_task(f"{m.name}, {seconds:g} s", total=steps + 1)
-
-        def on_frame(k, image, s):
-            if writer is not None:
-                writer.append(side_by_side(image, top_down(m, s.state[:1, :3], px_per_tile=160)))
-            if k % strip_every == 0:
-                strip.append(image)
-                labels.append(f"t={k / params.frame_rate:.1f}s")
-            progress.advance(task)
-
-        try:
-            traj = run_episode(sim, agent, seed, seconds, camera=True, on_frame=on_frame, meta={"map": m.name})
-        finally:
-            if writer is not None:
-                writer.close()
+        task = progress.add_task(f"{m.name}, {seconds:g} s", total=steps)
+        traj, files = record_episode(sim, agent, seed, seconds, out, video=video, meta={"map": m.name},
+                                     on_frame=lambda k: progress.advance(task))
     elapsed = time.perf_counter() - t0
-    write_strip(strip, out / "strip.png", labels)
     traj.save(out / "trajectory.parquet")
     scores = {name: METRICS[name](traj) for name in _RUN_METRICS}
     record = {"map": m.name, "agent": agent.name, "privileged": agent.privileged, "seed": seed,
               "source": "simulation", "termination": traj.termination, **scores, "wall_s": round(elapsed, 2)}
     (out / "metrics.json").write_text(json.dumps(record, indent=2))
-    names = (["drive.mp4"] if video else []) + ["strip.png", "trajectory.parquet", "metrics.json"]
-    console.print(f"wrote {', '.join(str(out / f) for f in names)}")
+    names = [*files, out / "trajectory.parquet", out / "metrics.json"]
+    console.print(f"wrote {', '.join(str(f) for f in names)}")
     failure = [e["message"] for e in traj.events if e["kind"] == "agent_failure"]
     if failure:
         err_console.print(f"[red]agent failure:[/red] {failure[0]}", highlight=False)

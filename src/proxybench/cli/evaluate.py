@@ -121,6 +121,7 @@ def evaluate(
     backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
     workers: int | None = typer.Option(None, help="parallel workers (default: one per core)"),
     run_dir: Path | None = typer.Option(None, help="run directory (default: out/evaluate/<benchmark>)"),
+    video: bool = typer.Option(False, "--video", help="also record episode 0 of every agent (MP4 + PNG strip)"),
 ) -> None:
     """Run agents on a benchmark and print the leaderboard in the benchmark's lexicographic semiorder.
 
@@ -154,6 +155,34 @@ def evaluate(
         finally:
             be.close()
     _print_leaderboard(ev, run_dir)
+    if video:
+        _videos(ev, specs, run_dir)
+
+
+def _videos(ev, specs, run_dir: Path) -> None:
+    """Episode 0 of each admitted agent, recorded in the benchmark's domain."""
+    from proxybench.domain.params import DomainParams
+    from proxybench.domain.simulator import Simulator
+    from proxybench.runner.evaluate import benchmark_domain
+    from proxybench.runner.jobs import make_agent_for
+    from proxybench.runner.record import record_episode
+
+    bench = ev.benchmark
+    ep = bench.episode_specs()[0]
+    params = DomainParams.model_validate(benchmark_domain(bench).params)
+    written = []
+    for spec in specs:
+        if spec.label in ev.refused:
+            continue
+        agent = make_agent_for(spec)
+        try:
+            with console.status(f"recording {spec.label}"):
+                _, files = record_episode(Simulator(bench.map, params), agent, ep.seed, bench.duration,
+                                          run_dir / "videos", stem=spec.label, pose=ep.pose)
+        finally:
+            getattr(agent, "close", lambda: None)()
+        written += files
+    console.print(f"wrote {', '.join(str(f) for f in written)}")
 
 
 def _print_leaderboard(ev, run_dir: Path) -> None:

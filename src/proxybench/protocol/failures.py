@@ -35,17 +35,18 @@ class AgentFailure(Exception):
 
     ``reason`` is a key of :data:`REASONS`; ``detail`` is human-readable (for ``aborted``, the node's
     traceback); ``exit_code`` is the process's exit status (negative: killed by that signal; None: never
-    started); ``stderr_tail`` holds its last stderr lines.
+    started); ``stderr_tail`` holds its last stderr lines; ``pid`` is the reaped process's id.
     """
 
     def __init__(self, reason: str, detail: str, exit_code: int | None = None,
-                 stderr_tail: list[str] | None = None):
+                 stderr_tail: list[str] | None = None, *, pid: int | None = None):
         if reason not in REASONS:
             raise ValueError(f"unknown failure reason {reason!r}")
         self.reason = reason
         self.detail = detail
         self.exit_code = exit_code
         self.stderr_tail = list(stderr_tail or [])
+        self.pid = pid
         super().__init__(reason, detail)
 
     def __str__(self) -> str:
@@ -57,9 +58,13 @@ class AgentFailure(Exception):
         return text
 
     def __reduce__(self):  # pickle-able for multi-process runners
-        return (AgentFailure, (self.reason, self.detail, self.exit_code, self.stderr_tail))
+        return (_rebuild, (self.reason, self.detail, self.exit_code, self.stderr_tail, self.pid))
 
 
 class ProtocolUsageError(RuntimeError):
     """The *caller* asked for something the protocol does not allow (e.g. ``get_commands`` before
     ``episode_start``); nothing was sent and the agent is left untouched."""
+
+
+def _rebuild(reason: str, detail: str, exit_code: int | None, stderr_tail: list[str], pid: int | None) -> AgentFailure:
+    return AgentFailure(reason, detail, exit_code, stderr_tail, pid=pid)

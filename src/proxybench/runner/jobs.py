@@ -15,7 +15,7 @@ from typing import Any
 
 from proxybench import __version__
 
-__all__ = ["AgentSpec", "DomainSpec", "Job", "JobResult", "execute"]
+__all__ = ["AgentSpec", "DomainSpec", "Job", "JobResult", "execute", "make_agent_for"]
 
 
 @dataclass(frozen=True)
@@ -120,7 +120,8 @@ def _simulator(job: Job):
     return _SIMS[k]
 
 
-def _agent(spec: AgentSpec):
+def make_agent_for(spec: AgentSpec):
+    """The agent a spec names: a zoo agent in-process, or a node process behind the protocol."""
     if spec.command:
         from proxybench.protocol import RemoteAgent
 
@@ -141,7 +142,7 @@ def execute(job: Job, out_dir: str | None) -> JobResult:
 
     t0 = time.perf_counter()
     sim = _simulator(job)
-    agent = _agent(job.agent)
+    agent = make_agent_for(job.agent)
     t1 = time.perf_counter()
     try:
         traj = run_episode(sim, agent, job.seed, job.duration, pose=job.pose,
