@@ -7,7 +7,7 @@ regime that the default proxy family does not cover, so that an irreducible gap 
 
 - wheel slip growing with speed and turn rate, a motor dead-band and saturation;
 - actuation latency with jitter on top of the fixed delay;
-- the calibrated fisheye lens (distortion) with vignetting instead of the ideal pinhole;
+- a fisheye lens that differs from its calibration (the proxies model the calibrated one), vignetting;
 - different light, road colour and surface grain, sensor noise.
 
 Its *calibrated* parameters — the values a proxy should recover — are ``TRUTH``. A proxy that matches
@@ -23,12 +23,13 @@ from typing import Any
 
 import numpy as np
 
-from proxybench.domain.params import DomainParams
+from proxybench.domain.params import DUCKIEBOT_DISTORTION, DUCKIEBOT_INTRINSICS, DomainParams
 
 __all__ = ["GAP_EFFECTS", "TRUTH", "hardware_variation", "reality_params"]
 
-#: the calibrated values of the parameters the proxy family shares with the reality model
-TRUTH: dict[str, float] = {
+#: the calibrated values of the parameters the proxy family shares with the reality model; a calibrated
+#: proxy models the Duckiebot's fisheye lens with its factory calibration
+TRUTH: dict[str, Any] = {
     "trim": 0.0,
     "gain": 1.0,
     "command_delay": 0.10,
@@ -36,12 +37,16 @@ TRUTH: dict[str, float] = {
     "camera_pitch": 19.15,
     "camera_height": 0.108,
     "camera_fov_y": 75.0,
+    "fisheye": True,
+    "intrinsics": DUCKIEBOT_INTRINSICS,
+    "distortion": DUCKIEBOT_DISTORTION,
 }
 
-#: effects outside the default proxy family (the irreducible gap). The visual gap is kept modest: a
-#: stronger one (darker corners, other paint colours, more contrast) shifts the proxy that best predicts
-#: the target away from the calibrated values (measured: trim +0.1, pitch +4°), because a proxy
-#: parameter that handicaps camera agents then stands in for the handicap the look of reality causes.
+#: effects outside the proxy family (the irreducible gap). The visual gap is kept modest: a stronger one
+#: (a lens far from its calibration, darker corners, other paint) shifts the proxy that best predicts the
+#: target away from the calibrated values (measured with the uncalibrated fisheye: trim +0.1 to +0.15,
+#: pitch +2 to +4°), because a proxy parameter that handicaps camera agents then stands in for the
+#: handicap that the look of reality causes them.
 GAP_EFFECTS: dict[str, Any] = {
     "slip_speed": 0.35,
     "slip_turn": 0.08,
@@ -50,7 +55,9 @@ GAP_EFFECTS: dict[str, Any] = {
     # latency 0.085 s + U[0, 0.03] s: 0.10 s on average, the calibrated value
     "command_delay": 0.085,
     "delay_jitter": 0.03,
-    "fisheye": True,
+    # the lens itself differs from its calibration (focal length, centre, distortion)
+    "intrinsics": (300.0, 304.0, 306.5, 229.0),
+    "distortion": (-0.22, 0.036, 0.0008, -0.0009, 0.0),
     "vignetting": 0.1,
     "light_rgb": (0.97, 1.0, 1.03),
     "noise_std": 2.0,
