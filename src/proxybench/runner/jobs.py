@@ -15,7 +15,12 @@ from typing import Any
 
 from proxybench import __version__
 
-__all__ = ["AgentSpec", "DomainSpec", "Job", "JobResult", "execute", "make_agent_for"]
+#: bump when what an episode produces changes without a change of its inputs (it is part of every job key)
+ENGINE_VERSION = 2  # 2: camera agents see JPEG-decoded frames, as over the AIDO protocol
+
+__all__ = [
+    "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "camera_filter", "execute", "make_agent_for",
+]
 
 
 @dataclass(frozen=True)
@@ -65,7 +70,7 @@ class Job:
         blob = json.dumps(
             {"agent": asdict(self.agent), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
              "seed": self.seed, "pose": self.pose, "duration": self.duration, "camera_only": self.camera_only,
-             "version": __version__},
+             "version": __version__, "engine": ENGINE_VERSION},
             sort_keys=True,
         )
         return hashlib.sha256(blob.encode()).hexdigest()[:24]
@@ -120,6 +125,13 @@ def _simulator(job: Job):
     return _SIMS[k]
 
 
+def camera_filter():
+    """What camera agents see: the JPEG round trip of every frame, exactly what a protocol node receives."""
+    from proxybench.protocol.jpeg import roundtrip
+
+    return roundtrip
+
+
 def make_agent_for(spec: AgentSpec):
     """The agent a spec names: a zoo agent in-process, or a node process behind the protocol."""
     if spec.command:
@@ -147,6 +159,7 @@ def execute(job: Job, out_dir: str | None) -> JobResult:
     try:
         traj = run_episode(sim, agent, job.seed, job.duration, pose=job.pose,
                            camera=not agent.privileged, allow_privileged=not job.camera_only,
+                           image_filter=camera_filter(),
                            meta={"map": job.map, "episode": job.episode, "domain": job.domain.name,
                                  "domain_kind": job.domain.kind, "source": job.domain.kind, "job": job.key})
     finally:

@@ -13,6 +13,7 @@ from proxybench.domain.simulator import Simulator
 from proxybench.domain.topdown import top_down
 from proxybench.media import VideoWriter, side_by_side, write_strip
 from proxybench.runner.episode import run_episode
+from proxybench.runner.jobs import camera_filter
 from proxybench.tasks.trajectory import Trajectory
 
 __all__ = ["record_episode"]
@@ -50,7 +51,7 @@ def record_episode(
 
     try:
         traj = run_episode(sim, agent, seed, seconds, pose=pose, camera=not agent.privileged, on_frame=frame,
-                           meta=meta)
+                           image_filter=camera_filter(), meta=meta)
     finally:
         if writer is not None:
             writer.close()
