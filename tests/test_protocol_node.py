@@ -16,7 +16,16 @@ from proxybench.agents.simple import StraightAgent
 from proxybench.domain.lane_pose import LanePose
 from proxybench.protocol import jpeg, serve, wire
 from proxybench.protocol.description import declares_extension, encode_extras
-from test_protocol_wire import CAPABILITIES, COMMANDS, DESCRIBE, DESCRIPTION_HEAD, EPISODE_000, OVER, SEED_42, UNDERSTOOD
+from test_protocol_wire import (
+    CAPABILITIES,
+    COMMANDS,
+    DESCRIBE,
+    DESCRIPTION_HEAD,
+    EPISODE_000,
+    OVER,
+    SEED_42,
+    UNDERSTOOD,
+)
 
 HERE = Path(__file__).resolve().parent
 # shared/aido/wire-errors.txt
@@ -223,7 +232,7 @@ def test_non_privileged_agent_never_sees_a_lane_pose():
 
     obs = wire.encode_observations(jpeg.encode(np.zeros((8, 8, 3), np.uint8)), 0.1, None, None,
                                    encode_extras(_lane_pose()))
-    out, code = run(EPISODE_E, obs, wire.encode_get_commands(0.1), agent=Spy(0.1))
+    _, code = run(EPISODE_E, obs, wire.encode_get_commands(0.1), agent=Spy(0.1))
     assert code == 0 and seen[0].lane_pose is None and seen[0].odometry is None and seen[0].time == 0.1
     assert seen[0].camera.shape == (8, 8, 3) and not seen[0].camera.flags.writeable
 
@@ -235,6 +244,6 @@ def test_episode_seed_comes_from_the_payload():
         def reset(self, seed, episode=None):
             seeds.append((seed, episode))
 
-    out, code = run(SEED_4, wire.encode_episode_start("a", '{"seed": 9}'), wire.encode_episode_start("b", "{}"),
+    _, code = run(SEED_4, wire.encode_episode_start("a", '{"seed": 9}'), wire.encode_episode_start("b", "{}"),
                     wire.encode_episode_start("c", "seed: 11\n"), agent=Spy(0.1))
     assert code == 0 and seeds == [(9, "a"), (4, "b"), (11, "c")]

@@ -47,7 +47,7 @@ def drive(agent, seeds: list[int], steps: int, roundtrip: bool, privileged: bool
 def test_remote_agent_gives_the_same_commands_as_in_process(transport):
     expected = drive(AGENTS.PixelAgent(), [5, 6], 8, roundtrip=True)
     with RemoteAgent([*PIXEL, "pixel"], transport=transport, init_timeout=20) as remote:
-        assert not remote.privileged and remote.name == "remote:pixel_agent"
+        assert not remote.privileged and remote.name == "remote:pixel"
         got_filtered = drive(remote, [5, 6], 8, roundtrip=True)  # the node gets the bytes roundtrip decoded
         got_raw = drive(remote, [5, 6], 8, roundtrip=False)  # the node gets one encoding of the raw frame
         assert remote.process.seed  # seed went only once: a second seed would have failed the process
@@ -85,10 +85,10 @@ def test_privileged_node_is_detected_and_gets_lane_poses():
 
 
 def test_privileged_extension_is_opt_in():
+    remote = RemoteAgent([*PIXEL, "privileged"], privileged=False, init_timeout=20)
+    assert not remote.privileged
     with pytest.raises(AgentFailure) as exc:
-        with RemoteAgent([*PIXEL, "privileged"], privileged=False, init_timeout=20) as remote:
-            assert not remote.privileged
-            drive(remote, [1], 2, roundtrip=False, privileged=True)
+        drive(remote, [1], 2, roundtrip=False, privileged=True)
     assert exc.value.reason == "aborted" and "privileged agent got no lane pose" in exc.value.detail
     assert exc.value.exit_code == 1
 

@@ -14,18 +14,17 @@ import time
 import cbor2
 
 
-
 def _streams():
     """stdin/stdout, or the AIDONODE_DATA_IN / AIDONODE_DATA_OUT (``fifo:`` creates it) streams."""
     path_in, path_out = os.environ.get("AIDONODE_DATA_IN"), os.environ.get("AIDONODE_DATA_OUT")
-    fin = open(path_in, "rb", buffering=0) if path_in else sys.stdin.buffer
+    fin = open(path_in, "rb", buffering=0) if path_in else sys.stdin.buffer  # noqa: SIM115 - kept open
     if path_out and path_out.startswith("fifo:"):
         os.mkfifo(path_out[5:])
         path_out = path_out[5:]
     return fin, (open(path_out, "wb") if path_out else sys.stdout.buffer)
 
 
-IN, OUT = _streams()
+IN = OUT = None  # set by main()
 DESCRIPTION = {"data": {"inputs": {t: {} for t in ("seed", "episode_start", "observations", "get_commands")},
                         "outputs": {"commands": {}}, "language": "", "description": "misbehaving node"},
                "meta": {}}
@@ -124,6 +123,8 @@ def answer(msg):
 
 
 def main():
+    global IN, OUT
+    IN, OUT = _streams()
     mode = sys.argv[1]
     trigger = sys.argv[2] if len(sys.argv) > 2 else "get_commands"
     decoder = cbor2.CBORDecoder(IN)

@@ -31,6 +31,8 @@ from proxybench.protocol.language import DATA_INPUTS, META_REPLIES, AgentLanguag
 __all__ = ["AgentNode", "ExternalProtocolViolation", "serve"]
 
 _TEXT_PREFIX = "| "
+_UNDERSTOOD = wire.encode_control(wire.CTRL_UNDERSTOOD)
+_OVER = wire.encode_control(wire.CTRL_OVER)
 
 
 class ExternalProtocolViolation(Exception):
@@ -101,15 +103,13 @@ class AgentNode:
         return [wire.encode_control(wire.CTRL_NOT_UNDERSTOOD, text), wire.encode_control(wire.CTRL_OVER)]
 
     def _on_topic(self, topic: str, data: Any, meta: bool) -> tuple[list[bytes], bool]:
-        understood = wire.encode_control(wire.CTRL_UNDERSTOOD)
         try:
             outputs = self._on_meta(topic, data, time.time_ns()) if meta else self._data[topic](data)
         except Exception:
             text = f'Exception while handling a message on topic "{topic}".\n\n' + _indent(traceback.format_exc())
             self._log(text)
-            return [understood, wire.encode_control(wire.CTRL_ABORTED, text),
-                    wire.encode_control(wire.CTRL_OVER)], True
-        return [understood, *outputs, wire.encode_control(wire.CTRL_OVER)], False
+            return [_UNDERSTOOD, wire.encode_control(wire.CTRL_ABORTED, text), _OVER], True
+        return [_UNDERSTOOD, *outputs, _OVER], False
 
     def _unexpected(self, exc: Exception) -> list[bytes]:
         """Aborted + over for an error outside any handler, with a real traceback like zuper's."""

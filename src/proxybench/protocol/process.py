@@ -31,7 +31,8 @@ from proxybench.protocol.transport import Launch
 __all__ = ["AgentProcess"]
 
 _IN = select.POLLIN | select.POLLPRI | select.POLLHUP | select.POLLERR
-_GRACE = {"aborted": 0.5, "not-understood": 0.5, "exited": 1.0, "truncated": 1.0}  # let a node that is ending end by itself
+# let a node that is ending anyway end by itself, so its own exit status is reported
+_GRACE = {"aborted": 0.5, "not-understood": 0.5, "exited": 1.0, "truncated": 1.0}
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,8 @@ class AgentProcess:
     runs nodes). ``env`` is added to the inherited environment. ``privileged``: None learns from the node's
     protocol description whether to send the proxybench extension; True/False force it.
     ``init_timeout`` bounds start + handshake and each seed / episode_start / meta request;
-    ``step_timeout`` bounds each observations / get_commands exchange.
+    ``step_timeout`` bounds each observations / get_commands exchange. ``on_stderr(line)`` is called
+    from the stderr drain thread for each line the node writes there.
     """
 
     def __init__(self, cmd: str | Sequence[str], *, init_timeout: float = 30.0, step_timeout: float = 5.0,
@@ -60,6 +62,8 @@ class AgentProcess:
                  privileged: bool | None = None, max_reply_bytes: int = 8 << 20, max_reply_messages: int = 1000,
                  max_stderr_bytes: int = 4 << 20, stderr_lines: int = 50, close_timeout: float = 2.0,
                  on_stderr: Callable[[str], None] | None = None):
+        if transport not in ("pipes", "fifos"):
+            raise ValueError(f"transport must be 'pipes' or 'fifos', not {transport!r}")
         self.argv = shlex.split(cmd) if isinstance(cmd, str) else [str(a) for a in cmd]
         self.init_timeout, self.step_timeout, self.close_timeout = init_timeout, step_timeout, close_timeout
         self.max_reply_bytes, self.max_reply_messages = max_reply_bytes, max_reply_messages
@@ -76,7 +80,7 @@ class AgentProcess:
         try:
             self._os = Launch(self.argv, transport=transport, env=env, cwd=cwd, stderr_lines=stderr_lines,
                               on_stderr=on_stderr)
-        except (OSError, ValueError) as exc:
+        except OSError as exc:
             raise AgentFailure("start-failed", f"cannot start {self.argv!r}: {exc}") from exc
         self._finalizer = weakref.finalize(self, self._os.kill_quietly)
         self._poll = select.poll()
@@ -90,6 +94,10 @@ class AgentProcess:
 
     @property
     def returncode(self) -> int | None:
+        return self._os.returncode
+
+    def poll(self) -> int | None:
+        """The exit status once the process has been reaped (after a failure or :meth:`close`), else None."""
         return self._os.returncode
 
     @property
@@ -214,8 +222,16 @@ class AgentProcess:
                 self.language.push(plan.request)
         self._req_bytes, self._req_msgs = self._stream.bytes_read, 0
         self._os.stderr.arm(self.max_stderr_bytes)
-        self._send(payload, deadline, reason)
-        return [self._collect(plan, deadline, reason) for plan in plans]
+        try:
+            self._send(payload, deadline, reason)
+            return [self._collect(plan, deadline, reason) for plan in plans]
+        except AgentFailure:
+            raise
+        except BaseException:  # e.g. KeyboardInterrupt mid-answer: the stream is out of step, end the node
+            self._closed = True
+            self._os.terminate()
+            self._finish_stderr()
+            raise
 
     def _observations(self, obs: Observation, jpg: bytes | None) -> bytes:
         if jpg is None and obs.camera is not None:
@@ -309,13 +325,14 @@ class AgentProcess:
             self._fail(reason, f"no complete answer within {self._timeout_of(reason)} s")
         if write_fd is not None:
             self._poll.register(write_fd, select.POLLOUT)
+        ms = math.ceil(left * 1000)
         try:
-            events = self._poll.poll(math.ceil(left * 1000) if self._os.pidfd is not None else min(20, left * 1000))
+            events = self._poll.poll(ms if self._os.pidfd is not None else min(20, ms))  # no pidfd: poll the exit
         finally:
             if write_fd is not None:
                 self._poll.unregister(write_fd)
         writable = False
-        for fd, event in events:
+        for fd, _event in events:
             if fd == self._os.out_fd:
                 self._read_output()
             elif fd == self._os.stderr.wake_fd:

@@ -48,6 +48,7 @@ class StderrDrain:
         self._flagged = False
         self._done = False
         self._detached = False
+        self._finished = False
         self.total_bytes = 0
         self.wake_fd, self._wake_w = os.pipe()
         os.set_blocking(self.wake_fd, False)
@@ -57,9 +58,10 @@ class StderrDrain:
 
     def arm(self, limit: int | None) -> None:
         """Start counting a new request's bytes against ``limit``."""
-        with contextlib.suppress(BlockingIOError):
-            os.read(self.wake_fd, 64)
         with self._lock:
+            if self._flagged:
+                with contextlib.suppress(BlockingIOError):
+                    os.read(self.wake_fd, 64)
             self._limit, self._count, self._flagged = limit, 0, False
 
     def _run(self) -> None:
@@ -70,16 +72,17 @@ class StderrDrain:
                 break
             if not data:
                 break
-            self._take(data)
+            self._callback(self._take(data))
         with self._lock:
-            if self._partial:
-                self._emit(bytes(self._partial))
-                self._partial.clear()
+            last = [self._emit(bytes(self._partial))] if self._partial else []
+            self._partial.clear()
             self._done = True
             if self._detached:
                 self._close_fds()
+        self._callback(last)
 
-    def _take(self, data: bytes) -> None:
+    def _take(self, data: bytes) -> list[str]:
+        """Count ``data``, flag a flood, add its complete lines to the tail; the new lines."""
         with self._lock:
             self.total_bytes += len(data)
             self._count += len(data)
@@ -90,15 +93,19 @@ class StderrDrain:
             self._partial += data
             *lines, rest = self._partial.split(b"\n")
             self._partial = bytearray(rest[-self._line_chars:])
-            for line in lines[-self._tail.maxlen:] if self._tail.maxlen else lines:
-                self._emit(line)
+            return [self._emit(line) for line in lines[-(self._tail.maxlen or len(lines)):]]
 
-    def _emit(self, line: bytes) -> None:
+    def _emit(self, line: bytes) -> str:
         text = line[: self._line_chars].decode("utf-8", "replace").rstrip("\r")
         self._tail.append(text)
+        return text
+
+    def _callback(self, lines: list[str]) -> None:
+        """``on_line`` for each line, outside the lock (so the callback may call :meth:`tail`)."""
         if self._on_line is not None:
-            with contextlib.suppress(Exception):
-                self._on_line(text)
+            for text in lines:
+                with contextlib.suppress(Exception):
+                    self._on_line(text)
 
     def tail(self) -> list[str]:
         with self._lock:
@@ -108,7 +115,10 @@ class StderrDrain:
         return lines
 
     def finish(self, timeout: float = 0.5) -> list[str]:
-        """Wait (briefly) for the writers to be gone, then return the tail and close the pipes."""
+        """Wait (briefly) for the writers to be gone, then return the tail and close the pipes (once)."""
+        if self._finished:
+            return self.tail()
+        self._finished = True
         self._thread.join(timeout)
         tail = self.tail()
         with self._lock:
@@ -216,6 +226,8 @@ class Launch:
         """Whether the process has ended (without reaping it, so its group id stays reserved)."""
         if self.returncode is not None:
             return True
+        if not hasattr(os, "waitid"):  # macOS: reaping is the only way to know
+            return self.proc.poll() is not None
         try:
             return os.waitid(os.P_PID, self.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None
         except ChildProcessError:
@@ -243,7 +255,7 @@ class Launch:
         with contextlib.suppress(ProcessLookupError, PermissionError):
             os.killpg(self.pid, sig)
 
-    def terminate(self, grace: float = 0.0, term_first: bool = False) -> int:
+    def terminate(self, grace: float = 0.0, term_first: bool = False) -> int | None:
         """Let the process end by itself for ``grace`` s, then kill its whole group; reap; its exit status."""
         if self.returncode is not None:
             return self.returncode
@@ -251,7 +263,8 @@ class Launch:
             self._killpg(signal.SIGTERM)
             self.wait_exit(0.5)
         self._killpg(signal.SIGKILL)  # the leader is at most a zombie here, so its group id is still ours
-        self.returncode = self.proc.wait()
+        with contextlib.suppress(subprocess.TimeoutExpired):  # stuck in the kernel even after SIGKILL: never hang
+            self.returncode = self.proc.wait(timeout=10.0)
         self._release()
         return self.returncode
 
@@ -270,6 +283,7 @@ class Launch:
             self.tmpdir = None
 
     def kill_quietly(self) -> None:
-        """Last resort at garbage collection or interpreter exit."""
+        """Last resort at garbage collection or interpreter exit: kill, reap, release every descriptor."""
         with contextlib.suppress(Exception):
             self.terminate()
+            self.stderr.finish(timeout=0.0)
