@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import json
+import sys
 
 import pandas as pd
+import pytest
 from typer.testing import CliRunner
 
 from proxybench.cli import app
@@ -134,3 +136,27 @@ def test_evaluate_reports_bad_benchmark_files(tmp_path):
     bench.write_text(BENCH.replace("CAMERA_ONLY", "false").replace("duration: 3.0", "duration: -1"))
     res = runner.invoke(app, ["evaluate", str(bench)])
     assert res.exit_code == 1 and "bad.yaml" in res.output and "duration" in res.output
+
+
+@pytest.mark.parametrize("agent", ["vision", "pid"])
+def test_in_process_and_node_agents_give_identical_trajectories(tmp_path, agent):
+    common = ["run", "--seconds", "3", "--width", "80", "--height", "60", "--no-video", "--seed", "4"]
+    local = runner.invoke(app, [*common, "--agent", agent, "--out", str(tmp_path / "local")])
+    cmd = f"{sys.executable} -m proxybench.cli agent serve {agent}"
+    remote = runner.invoke(app, [*common, "--agent-cmd", cmd, "--out", str(tmp_path / "remote")])
+    assert local.exit_code == 0 and remote.exit_code == 0, local.output + remote.output
+    a = pd.read_parquet(tmp_path / "local" / "trajectory.parquet")
+    b = pd.read_parquet(tmp_path / "remote" / "trajectory.parquet")
+    cols = ["t", "x", "y", "theta", "pwm_left", "pwm_right"]
+    pd.testing.assert_frame_equal(a[cols], b[cols])
+    assert "agent=remote:" in remote.output
+
+
+def test_agent_node_that_cannot_start_is_a_clear_error(tmp_path):
+    res = runner.invoke(app, ["run", "--agent-cmd", "no-such-program-xyz", "--out", str(tmp_path)])
+    assert res.exit_code == 1 and "failed to start" in res.output
+
+
+def test_agent_serve_rejects_unknown_agents():
+    res = runner.invoke(app, ["agent", "serve", "nobody"])
+    assert res.exit_code == 2 and "cannot load agent 'nobody'" in res.output

@@ -24,6 +24,8 @@ def run(
     height: int = typer.Option(480, help="camera height [px]"),
     video: bool = typer.Option(True, help="write drive.mp4 (camera | top-down)"),
     agent_name: str = typer.Option("pid", "--agent", help="zoo agent (see `proxybench agent list`)"),
+    agent_cmd: str | None = typer.Option(None, "--agent-cmd",
+                                         help="drive an agent node instead: any command speaking the AIDO protocol"),
 ) -> None:
     """Drive an agent (default: the privileged PID controller) around a map in simulation and record it.
 
@@ -45,7 +47,7 @@ def run(
     params = DomainParams(image_width=width, image_height=height)
     sim = Simulator(m, params)
     try:
-        agent = make_agent(agent_name)
+        agent = make_agent(agent_name) if agent_cmd is None else _remote(agent_cmd)
     except KeyError as exc:
         err_console.print(f"[red]error:[/red] {exc.args[0]}", highlight=False)
         raise typer.Exit(2) from exc
@@ -55,8 +57,11 @@ def run(
                   TextColumn("{task.completed}/{task.total} frames"), TimeRemainingColumn(),
                   console=console, transient=True) as progress:
         task = progress.add_task(f"{m.name}, {seconds:g} s", total=steps)
-        traj, files = record_episode(sim, agent, seed, seconds, out, video=video, meta={"map": m.name},
-                                     on_frame=lambda k: progress.advance(task))
+        try:
+            traj, files = record_episode(sim, agent, seed, seconds, out, video=video, meta={"map": m.name},
+                                         on_frame=lambda k: progress.advance(task))
+        finally:
+            getattr(agent, "close", lambda: None)()
     elapsed = time.perf_counter() - t0
     traj.save(out / "trajectory.parquet")
     scores = {name: METRICS[name](traj) for name in _RUN_METRICS}
@@ -73,3 +78,16 @@ def run(
         + " ".join(f"{k}={v:.2f}" for k, v in scores.items()) + f" end={traj.termination} wall={elapsed:.1f}s",
         highlight=False,
     )
+
+
+def _remote(cmd: str):
+    """An agent node started with ``cmd``; a node that fails to start is a clear error, not a traceback."""
+    from proxybench.protocol import AgentFailure, RemoteAgent
+
+    try:
+        return RemoteAgent(cmd)
+    except AgentFailure as exc:
+        err_console.print(f"[red]error:[/red] agent node {cmd!r} failed to start: {exc}", highlight=False)
+        for line in exc.stderr_tail[-10:]:
+            err_console.print(f"    {line}", highlight=False, markup=False)
+        raise typer.Exit(1) from exc
