@@ -160,3 +160,15 @@ def test_agent_node_that_cannot_start_is_a_clear_error(tmp_path):
 def test_agent_serve_rejects_unknown_agents():
     res = runner.invoke(app, ["agent", "serve", "nobody"])
     assert res.exit_code == 2 and "cannot load agent 'nobody'" in res.output
+
+
+def test_camera_only_benchmark_records_a_privileged_node_as_refused(tmp_path):
+    bench = tmp_path / "tiny.yaml"
+    bench.write_text(BENCH.replace("CAMERA_ONLY", "true"))
+    node = f"pidnode={sys.executable} -m proxybench.cli agent serve pid"
+    res = runner.invoke(app, ["evaluate", str(bench), "--agent", "straight", "--agent-cmd", node,
+                              "--backend", "inline", "--run-dir", str(tmp_path / "run")])
+    assert res.exit_code == 0, res.output
+    assert "agent failure pidnode" in res.output and "privileged" in res.output
+    board = json.loads((tmp_path / "run" / "leaderboard.json").read_text())
+    assert [r["agent"] for r in board][0] == "straight"

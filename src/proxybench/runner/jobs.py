@@ -125,6 +125,20 @@ def _simulator(job: Job):
     return _SIMS[k]
 
 
+def _refused(job: Job, agent, setup_s: float) -> JobResult:
+    """A privileged agent on a camera-only job: no episode, a recorded reason, NaN scores."""
+    msg = f"agent {agent.name!r} is privileged (reads the true lane pose); this benchmark is camera-only"
+    return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed,
+                     dict.fromkeys(job.metrics or _all_metrics(), float("nan")), "agent_failure", None, msg,
+                     {"setup_s": setup_s})
+
+
+def _all_metrics() -> tuple[str, ...]:
+    from proxybench.tasks.metrics import METRICS
+
+    return tuple(METRICS)
+
+
 def camera_filter():
     """What camera agents see: the JPEG round trip of every frame, exactly what a protocol node receives."""
     from proxybench.protocol.jpeg import roundtrip
@@ -157,6 +171,8 @@ def execute(job: Job, out_dir: str | None) -> JobResult:
     agent = make_agent_for(job.agent)
     t1 = time.perf_counter()
     try:
+        if agent.privileged and job.camera_only:
+            return _refused(job, agent, time.perf_counter() - t0)
         traj = run_episode(sim, agent, job.seed, job.duration, pose=job.pose,
                            camera=not agent.privileged, allow_privileged=not job.camera_only,
                            image_filter=camera_filter(),
