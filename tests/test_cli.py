@@ -171,4 +171,4 @@ def test_camera_only_benchmark_records_a_privileged_node_as_refused(tmp_path):
     assert res.exit_code == 0, res.output
     assert "agent failure pidnode" in res.output and "privileged" in res.output
     board = json.loads((tmp_path / "run" / "leaderboard.json").read_text())
-    assert [r["agent"] for r in board][0] == "straight"
+    assert board[0]["agent"] == "straight"
