@@ -120,6 +120,7 @@ def test_optimizer_runs_trials_into_a_sqlite_study_and_resumes(tmp_path):
     assert len(res.trials) == 3 and -0.3 <= res.best_params["trim"] <= 0.3
     assert res.truth == {"trim": 0.0} and res.best_value == min(t["value"] for t in res.trials)
     assert {"prpv", "ppv"} <= set(res.trials[0])
+    assert set(res.recovered) == {"trim"} and set(res.errors()) == {"trim"}
     again = optimize_proxy(cfg, tmp_path / "runs")  # the study is loaded, not repeated
     assert len(again.trials) == 3
     paths = plot_optimization(res, tmp_path / "plots")
@@ -135,3 +136,12 @@ def test_optimizer_config_names_bad_fields():
         OptimizeConfig(space={"trim": (1.0, 0.0)})
     with pytest.raises(ValueError, match="objective must be one of"):
         OptimizeConfig(objective="best")
+
+
+def test_best_decile_is_the_mean_of_the_best_trials():
+    from proxybench.usefulness.optimize import best_decile
+
+    trials = [{"value": float(v), "x": float(v)} for v in range(30)]  # value = x: best are x = 0, 1, 2
+    assert best_decile(trials, ["x"]) == {"x": 1.0}
+    trials = [{"value": float(v), "x": float(v)} for v in range(100)]
+    assert best_decile(trials, ["x"]) == {"x": 4.5}  # the best 10

@@ -125,11 +125,12 @@ def optimize(
     (out / "trials.json").write_text(json.dumps(res.trials, indent=1))
     table = Table(title=f"proxy optimisation: {len(res.trials)} trials, objective {cfg.objective}, "
                         f"{time.perf_counter() - t0:.0f} s (target: reality model, simulated)")
-    for col in ("parameter", "recovered", "truth", "error"):
+    for col in ("parameter", "recovered (best decile)", "truth", "error", "single best trial"):
         table.add_column(col, justify="left" if col == "parameter" else "right")
-    for name, v in res.best_params.items():
+    for name, v in res.recovered.items():
         t = res.truth.get(name)
-        table.add_row(name, f"{v:.3f}", "–" if t is None else f"{t:g}", "–" if t is None else f"{v - t:+.3f}")
+        table.add_row(name, f"{v:.3f}", "–" if t is None else f"{t:g}", "–" if t is None else f"{v - t:+.3f}",
+                      f"{res.best_params[name]:.3f}")
     console.print(table)
     console.print(f"residual (best objective, the gap no θ in this family closes): {res.best_value:.4f}")
     console.print(f"wrote {', '.join(str(p) for p in paths)}, {out / 'trials.json'}")
