@@ -73,16 +73,19 @@ def run_jobs(
     run_dir = Path(run_dir)
     ep_dir = run_dir / "episodes"
     ep_dir.mkdir(parents=True, exist_ok=True)
+    keys = [j.key for j in jobs]  # hashing is not free: once per job
     _write_atomic(run_dir / "run.json", json.dumps(
-        {"jobs": [asdict(j) | {"key": j.key} for j in jobs], "backend": type(backend).__name__,
-         "workers": backend.workers}, indent=1, default=str))
+        {"jobs": [asdict(j) | {"key": k} for j, k in zip(jobs, keys, strict=True)],
+         "backend": type(backend).__name__, "workers": backend.workers}, indent=1, default=str))
     by_key: dict[str, JobResult] = {}
     todo: list[Job] = []
-    for job in jobs:
-        done = _load_done(ep_dir, job.key)
+    queued: set[str] = set()
+    for job, key in zip(jobs, keys, strict=True):
+        done = _load_done(ep_dir, key)
         if done is not None:
-            by_key[job.key] = done
-        elif job.key not in {j.key for j in todo}:
+            by_key[key] = done
+        elif key not in queued:
+            queued.add(key)
             todo.append(job)
     cached = len(by_key)
     t0 = time.perf_counter()
@@ -94,9 +97,9 @@ def run_jobs(
         by_key[res.key] = res
         if progress:
             progress(len(by_key), len(jobs), res)
-    results = [by_key[j.key] for j in jobs]
+    results = [by_key[k] for k in keys]
     sweep = SweepResult(results, run_dir, cached, len(todo), time.perf_counter() - t0)
-    for r in (by_key[j.key] for j in todo):
+    for r in (by_key[k] for k in queued):
         for k, v in r.timings.items():
             sweep.timings[k] = sweep.timings.get(k, 0.0) + v
     frame = results_frame(results)
