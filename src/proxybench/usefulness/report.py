@@ -102,9 +102,12 @@ def findings(res: PredictivityResult) -> list[str]:
                f"(values {', '.join(f'{x:.0f}' for x in v)}).")
     for name in res.config.grid:
         d = df[df.parameter == name].sort_values("value")
-        at = float(d.value.iloc[int(np.argmin(d.prpv.to_numpy()))])
+        v = d.prpv.to_numpy()
+        lowest = [float(x) for x in d.value[np.isclose(v, v.min())]]
         t = float(d.truth.iloc[0])
-        out.append(f"{name}: PRPV lowest at {at:g} (truth {t:g})" + (" ✓" if abs(at - t) < 1e-9 else ""))
+        hit = any(abs(x - t) < 1e-9 for x in lowest)
+        where = " and ".join(f"{x:g}" for x in lowest) + (" (tie)" if len(lowest) > 1 else "")
+        out.append(f"{name}: PRPV lowest at {where} (truth {t:g})" + (" ✓" if hit else ""))
     return out
 
 
