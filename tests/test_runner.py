@@ -154,3 +154,14 @@ def test_imported_recording_scores_like_the_simulated_run(tmp_path):
     for name in ("survival_time", "driven_lanedir_consec", "deviation_center_line", "deviation_heading",
                  "in_drivable_lane", "lane_score", "driven_any"):
         assert METRICS[name](imported) == pytest.approx(METRICS[name](traj), abs=1e-9), name
+
+
+def test_batched_episodes_equal_single_episodes(tmp_path):
+    jobs = _jobs(agents=("pid", "vision", "straight"), episodes=3, duration=3.0)
+    single = run_jobs(jobs, tmp_path / "single", batch_size=1)
+    batched = run_jobs(jobs, tmp_path / "batched", batch_size=3)
+    assert _table(single) == _table(batched)
+    for a, b in zip(single.results, batched.results, strict=True):
+        ta, tb = Trajectory.load(a.trajectory), Trajectory.load(b.trajectory)
+        for col in ("x", "y", "theta", "pwm_left", "pwm_right"):
+            np.testing.assert_array_equal(ta[col], tb[col])

@@ -1,8 +1,8 @@
 """Where jobs run: in this process, in a local process pool, or on a Ray cluster — one interface.
 
-A backend takes jobs and yields ``JobResult``s as they finish (any order). Workers keep one
-simulator per (map, θ) between jobs, and use one compiled-kernel thread each, since the pool already
-uses the cores.
+A backend takes batches of jobs (see ``jobs.batch_group``: episodes that can share one batched
+simulator) and yields ``JobResult``s as they finish (any order). Workers keep their simulators between
+batches, and use one compiled-kernel thread each, since the pool already uses the cores.
 """
 
 from __future__ import annotations
@@ -13,17 +13,17 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from multiprocessing import get_context
 from typing import Protocol
 
-from proxybench.runner.jobs import Job, JobResult, execute
+from proxybench.runner.jobs import Job, JobResult, execute_batch
 
 __all__ = ["Backend", "InlineBackend", "LocalBackend", "RayBackend", "make_backend"]
 
 
 class Backend(Protocol):
-    """Runs jobs; yields results as they complete."""
+    """Runs batches of jobs; yields results as they complete."""
 
     workers: int
 
-    def run(self, jobs: Iterable[Job], out_dir: str | None) -> Iterator[JobResult]: ...
+    def run(self, batches: Iterable[list[Job]], out_dir: str | None) -> Iterator[JobResult]: ...
 
     def close(self) -> None: ...
 
@@ -33,9 +33,9 @@ class InlineBackend:
 
     workers = 1
 
-    def run(self, jobs: Iterable[Job], out_dir: str | None) -> Iterator[JobResult]:
-        for job in jobs:
-            yield execute(job, out_dir)
+    def run(self, batches: Iterable[list[Job]], out_dir: str | None) -> Iterator[JobResult]:
+        for batch in batches:
+            yield from execute_batch(batch, out_dir)
 
     def close(self) -> None:
         pass
@@ -54,20 +54,21 @@ class LocalBackend:
         self.workers = max(1, workers or os.cpu_count() or 1)
         self._pool: ProcessPoolExecutor | None = None
 
-    def run(self, jobs: Iterable[Job], out_dir: str | None) -> Iterator[JobResult]:
+    def run(self, batches: Iterable[list[Job]], out_dir: str | None) -> Iterator[JobResult]:
         if self._pool is None:
             self._pool = ProcessPoolExecutor(self.workers, mp_context=get_context("spawn"), initializer=_init_worker)
         pending: set[Future] = set()
-        it = iter(jobs)
         # keep a bounded number in flight so that an interrupt loses little and memory stays flat
-        for job in it:
-            pending.add(self._pool.submit(execute, job, out_dir))
+        for batch in batches:
+            pending.add(self._pool.submit(execute_batch, batch, out_dir))
             if len(pending) >= 2 * self.workers:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                yield from (f.result() for f in done)
+                for f in done:
+                    yield from f.result()
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            yield from (f.result() for f in done)
+            for f in done:
+                yield from f.result()
 
     def close(self) -> None:
         if self._pool is not None:
@@ -90,26 +91,28 @@ class RayBackend:
             ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **kwargs)
         self._remote = ray.remote(num_cpus=1)(_ray_execute)
 
-    def run(self, jobs: Iterable[Job], out_dir: str | None) -> Iterator[JobResult]:
+    def run(self, batches: Iterable[list[Job]], out_dir: str | None) -> Iterator[JobResult]:
         ray = self._ray
         pending = []
-        for job in jobs:
-            pending.append(self._remote.remote(job, out_dir))
+        for batch in batches:
+            pending.append(self._remote.remote(batch, out_dir))
             if len(pending) >= 2 * self.workers:
                 done, pending = ray.wait(pending, num_returns=1)
-                yield from ray.get(done)
+                for results in ray.get(done):
+                    yield from results
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
-            yield from ray.get(done)
+            for results in ray.get(done):
+                yield from results
 
     def close(self) -> None:
         if self._ray.is_initialized():
             self._ray.shutdown()
 
 
-def _ray_execute(job: Job, out_dir: str | None) -> JobResult:
+def _ray_execute(batch: list[Job], out_dir: str | None) -> list[JobResult]:
     _init_worker()
-    return execute(job, out_dir)
+    return execute_batch(batch, out_dir)
 
 
 def make_backend(name: str, workers: int | None = None) -> Backend:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -16,19 +16,19 @@ from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.simulator import Simulator
 from proxybench.tasks.trajectory import Trajectory
 
-__all__ = ["PrivilegedAgentError", "run_episode"]
+__all__ = ["PrivilegedAgentError", "run_episode", "run_episodes"]
 
 
 class PrivilegedAgentError(ValueError):
     """A privileged agent (one that reads the true lane pose) was given to a camera-only run."""
 
 
-def _observation(sim: Simulator, image: np.ndarray | None, privileged: bool) -> Observation:
-    s = sim.state[0]
-    res = sim.params[0].encoder_resolution
+def _observation(sim: Simulator, i: int, image: np.ndarray | None, privileged: bool) -> Observation:
+    s = sim.state[i]
+    res = sim.params[i].encoder_resolution
     ticks = wheel_ticks(s[[ST.WHEEL_L, ST.WHEEL_R]], res)
-    lp = LanePose.from_row(sim.lane[0]) if privileged else None
-    return Observation(image, float(sim.time[0]), (float(ticks[0] * res), float(ticks[1] * res)), res, lp)
+    lp = LanePose.from_row(sim.lane[i]) if privileged else None
+    return Observation(image, float(sim.time[i]), (float(ticks[0] * res), float(ticks[1] * res)), res, lp)
 
 
 def run_episode(
@@ -44,7 +44,7 @@ def run_episode(
     on_frame: Callable[[int, np.ndarray | None, Simulator], None] | None = None,
     meta: dict[str, Any] | None = None,
 ) -> Trajectory:
-    """Drive robot 0 of ``sim`` with ``agent`` for ``seconds`` (or until it leaves the road or fails).
+    """Drive the single robot of ``sim`` with ``agent`` for ``seconds`` (or until it leaves the road or fails).
 
     The agent sees a frame every 1/frame_rate s and its command is held until the next frame. The
     trajectory has one sample per physics tick. ``image_filter`` transforms frames before the agent sees
@@ -53,56 +53,108 @@ def run_episode(
     ``allow_privileged=False`` (camera-only evaluation) a privileged agent is refused.
     An exception from the agent ends the episode with termination ``agent_failure``; it is not raised.
     """
-    if agent.privileged and not allow_privileged:
-        raise PrivilegedAgentError(
-            f"agent {agent.name!r} is privileged (reads the true lane pose); this run allows camera-only agents"
-        )
-    sim.reset(0, seed, pose)
+    if sim.n != 1:
+        raise ValueError(f"run_episode drives a simulator of one robot; this one has {sim.n} (use run_episodes)")
+    hook = None if on_frame is None else (lambda k, images, s: on_frame(k, images[0], s))
+    return run_episodes(sim, [agent], [seed], seconds, poses=[pose], camera=camera,
+                        allow_privileged=allow_privileged, image_filter=image_filter, on_frame=hook,
+                        metas=[meta])[0]
+
+
+def run_episodes(
+    sim: Simulator,
+    agents: Sequence[Agent],
+    seeds: Sequence[int],
+    seconds: float,
+    *,
+    poses: Sequence[tuple[float, float, float] | None] | None = None,
+    camera: bool = True,
+    allow_privileged: bool = True,
+    image_filter: Callable[[np.ndarray], np.ndarray] | None = None,
+    on_frame: Callable[[int, list[np.ndarray | None], Simulator], None] | None = None,
+    metas: Sequence[dict[str, Any] | None] | None = None,
+) -> list[Trajectory]:
+    """Episodes of N agents at once, robot i of ``sim`` driven by ``agents[i]`` from ``seeds[i]``.
+
+    Physics and rendering advance all robots in one compiled call per frame; each robot's episode is
+    exactly what it would be alone (robots never interact), so a batch gives the same trajectories as N
+    single runs. A robot whose episode has ended keeps still until the others are done.
+    """
+    n = sim.n
+    if not (len(agents) == len(seeds) == n):
+        raise ValueError(f"{len(agents)} agents and {len(seeds)} seeds for a simulator of {n} robots")
+    poses = list(poses) if poses is not None else [None] * n
+    metas = list(metas) if metas is not None else [None] * n
+    for a in agents:
+        if a.privileged and not allow_privileged:
+            raise PrivilegedAgentError(
+                f"agent {a.name!r} is privileged (reads the true lane pose); this run allows camera-only agents"
+            )
     steps = max(1, round(seconds / sim.frame_dt))
-    sub = sim.substeps
-    trace = np.zeros((steps, sub, len(TRACE_FIELDS)))
-    start = sim.state[0].copy()
-    events: list[dict[str, Any]] = []
-    termination, done_frames = "timeout", steps
-    try:
-        agent.reset(seed)
-    except Exception as exc:  # a failing agent ends its episode, never the run
-        return _failed_at_start(sim, agent, seed, start, exc, meta)
-    t_sim = t_agent = 0.0
-    for k in range(steps):
-        t0 = time.perf_counter()
-        image = sim.render()[0] if camera else None
-        if image is not None and image_filter is not None:
-            image = image_filter(image)
-        if on_frame is not None:
-            on_frame(k, image, sim)
-        t1 = time.perf_counter()
-        t_sim += t1 - t0
+    trace = np.zeros((n, steps, sim.substeps, len(TRACE_FIELDS)))
+    for i in range(n):
+        sim.reset(i, int(seeds[i]), poses[i])
+    start = sim.state.copy()
+    events: list[list[dict[str, Any]]] = [[] for _ in range(n)]
+    termination = ["timeout"] * n
+    done_frames = [steps] * n
+    alive = np.ones(n, dtype=bool)
+    failed_at_start: dict[int, Trajectory] = {}
+    for i, a in enumerate(agents):
         try:
-            command = np.asarray(agent.act(_observation(sim, image, agent.privileged)), dtype=np.float64)
-            if command.shape != (2,) or not np.all(np.isfinite(command)):
-                raise ValueError(f"agent returned {command!r}, expected 2 finite wheel PWM values")
-        except Exception as exc:  # likewise: recorded as the reason the episode ended
-            events.append(_failure_event(float(sim.time[0]), exc))
-            termination, done_frames = "agent_failure", k
-            break
+            a.reset(int(seeds[i]))
+        except Exception as exc:  # a failing agent ends its episode, never the run
+            failed_at_start[i] = _failed_at_start(sim, i, a, int(seeds[i]), start[i], exc, metas[i])
+            alive[i] = False
+    commands = np.zeros((n, 2))
+    t_sim = t_agent = 0.0
+    k = 0
+    while k < steps and alive.any():
+        t0 = time.perf_counter()
+        images: list[np.ndarray | None] = [None] * n
+        if camera:
+            frames = sim.render()
+            images = [image_filter(f) if image_filter is not None else f for f in frames]
+        if on_frame is not None:
+            on_frame(k, images, sim)
+        t1 = time.perf_counter()
+        for i in np.flatnonzero(alive):
+            try:
+                command = np.asarray(agents[i].act(_observation(sim, i, images[i], agents[i].privileged)),
+                                     dtype=np.float64)
+                if command.shape != (2,) or not np.all(np.isfinite(command)):
+                    raise ValueError(f"agent returned {command!r}, expected 2 finite wheel PWM values")
+                commands[i] = command
+            except Exception as exc:  # likewise: recorded as the reason the episode ended
+                events[i].append(_failure_event(float(sim.time[i]), exc))
+                termination[i], done_frames[i], alive[i] = "agent_failure", k, False
+                commands[i] = 0.0
         t2 = time.perf_counter()
+        commands[~alive] = 0.0
+        sim.step(commands, trace[:, k])
+        t3 = time.perf_counter()
+        t_sim += (t1 - t0) + (t3 - t2)
         t_agent += t2 - t1
-        sim.step(command[None], trace[k][None])
-        t_sim += time.perf_counter() - t2
-        if sim.off_road[0]:
-            t_off = float(sim.time[0])
-            events.append({"t": t_off, "kind": "off_road", "message": "the robot centre left the drivable area"})
-            termination, done_frames = "off_road", k + 1
-            break
-    rows = trace[:done_frames].reshape(-1, len(TRACE_FIELDS))
-    t = np.arange(rows.shape[0] + 1) * sim.params[0].physics_dt
-    poses = np.vstack([start[None, :3], rows[:, :3]])
-    extra = {"v": np.r_[start[ST.V], rows[:, 3]], "omega": np.r_[start[ST.OMEGA], rows[:, 4]],
-             "pwm_left": np.r_[0.0, rows[:, 5]], "pwm_right": np.r_[0.0, rows[:, 6]]}
-    info = _meta(sim, agent, seed, seconds, meta) | {"timing": {"sim_s": t_sim, "agent_s": t_agent}}
-    return Trajectory.from_poses(sim.map, t, poses, extra=extra, meta=info, events=events, termination=termination,
-                                 wheel_distance=sim.params[0].wheel_distance)
+        for i in np.flatnonzero(alive & sim.off_road):
+            events[i].append({"t": float(sim.time[i]), "kind": "off_road",
+                              "message": "the robot centre left the drivable area"})
+            termination[i], done_frames[i], alive[i] = "off_road", k + 1, False
+        k += 1
+    timing = {"sim_s": t_sim / n, "agent_s": t_agent / n}
+    out = []
+    for i in range(n):
+        if i in failed_at_start:
+            out.append(failed_at_start[i])
+            continue
+        rows = trace[i, : done_frames[i]].reshape(-1, len(TRACE_FIELDS))
+        t = np.arange(rows.shape[0] + 1) * sim.params[i].physics_dt
+        pose = np.vstack([start[i, :3][None], rows[:, :3]])
+        extra = {"v": np.r_[start[i, ST.V], rows[:, 3]], "omega": np.r_[start[i, ST.OMEGA], rows[:, 4]],
+                 "pwm_left": np.r_[0.0, rows[:, 5]], "pwm_right": np.r_[0.0, rows[:, 6]]}
+        info = _meta(sim, i, agents[i], int(seeds[i]), seconds, metas[i]) | {"timing": timing}
+        out.append(Trajectory.from_poses(sim.map, t, pose, extra=extra, meta=info, events=events[i],
+                                         termination=termination[i], wheel_distance=sim.params[i].wheel_distance))
+    return out
 
 
 def _failure_event(t: float, exc: BaseException) -> dict[str, Any]:
@@ -111,19 +163,20 @@ def _failure_event(t: float, exc: BaseException) -> dict[str, Any]:
             "reason": getattr(exc, "reason", type(exc).__name__)}
 
 
-def _failed_at_start(sim, agent, seed, start, exc, meta) -> Trajectory:
-    return Trajectory.from_poses(sim.map, np.zeros(1), start[None, :3], meta=_meta(sim, agent, seed, 0.0, meta),
+def _failed_at_start(sim, i, agent, seed, start, exc, meta) -> Trajectory:
+    return Trajectory.from_poses(sim.map, np.zeros(1), start[None, :3], meta=_meta(sim, i, agent, seed, 0.0, meta),
                                  events=[_failure_event(0.0, exc)], termination="agent_failure")
 
 
-def _meta(sim: Simulator, agent: Agent, seed: int, seconds: float, extra: dict[str, Any] | None) -> dict[str, Any]:
+def _meta(sim: Simulator, i: int, agent: Agent, seed: int, seconds: float,
+          extra: dict[str, Any] | None) -> dict[str, Any]:
     return {
         "source": "simulation",
         "agent": agent.name,
         "privileged": agent.privileged,
         "seed": seed,
         "episode_seconds": seconds,
-        "params": sim.params[0].model_dump(mode="json"),
+        "params": sim.params[i].model_dump(mode="json"),
         "proxybench_version": __version__,
         **(extra or {}),
     }

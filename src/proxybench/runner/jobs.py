@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,7 +20,8 @@ from proxybench import __version__
 ENGINE_VERSION = 2  # 2: camera agents see JPEG-decoded frames, as over the AIDO protocol
 
 __all__ = [
-    "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "camera_filter", "execute", "make_agent_for",
+    "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "batch_group", "camera_filter", "execute",
+    "execute_batch", "make_agent_for",
 ]
 
 
@@ -109,20 +111,25 @@ def _map_id(name: str) -> str:
 
 # -- the worker side --------------------------------------------------------------------------------
 
-_SIMS: dict[tuple[str, str], Any] = {}
+_SIMS: dict[tuple[str, str, int], Any] = {}
 
 
-def _simulator(job: Job):
-    """One cached simulator per (map, θ) per worker process: building one costs more than an episode."""
+def _simulator(job: Job, n: int = 1):
+    """One cached simulator per (map, θ, batch size) per worker: building one costs more than an episode."""
     from proxybench.domain.params import DomainParams
     from proxybench.domain.simulator import Simulator
 
-    k = (job.map, job.domain.canonical())
+    k = (job.map, job.domain.canonical(), n)
     if k not in _SIMS:
         if len(_SIMS) > 8:
             _SIMS.clear()
-        _SIMS[k] = Simulator(job.map, DomainParams.model_validate(job.domain.params))
+        _SIMS[k] = Simulator(job.map, DomainParams.model_validate(job.domain.params), n=n)
     return _SIMS[k]
+
+
+def batch_group(job: Job) -> tuple:
+    """Jobs with equal groups can share one batched simulator: same agent, domain, map, length and rules."""
+    return (job.agent, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics)
 
 
 def _refused(job: Job, agent, setup_s: float) -> JobResult:
@@ -161,30 +168,48 @@ def make_agent_for(spec: AgentSpec):
 
 def execute(job: Job, out_dir: str | None) -> JobResult:
     """Run one job in this process; write its trajectory under ``out_dir`` (atomically) if given."""
+    return execute_batch([job], out_dir)[0]
+
+
+def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
+    """Run jobs of one :func:`batch_group` together: one simulator of N robots, one agent per robot.
+
+    In-process agents are batched; node agents (one process each) run one by one.
+    """
     import time
 
-    from proxybench.runner.episode import run_episode
+    from proxybench.runner.episode import run_episodes
     from proxybench.tasks.metrics import METRICS
 
+    if len({batch_group(j) for j in jobs}) != 1:
+        raise ValueError("execute_batch: the jobs do not share one batch group")
+    if len(jobs) > 1 and jobs[0].agent.command:
+        return [r for j in jobs for r in execute_batch([j], out_dir)]
+    job0 = jobs[0]
     t0 = time.perf_counter()
-    sim = _simulator(job)
-    agent = make_agent_for(job.agent)
+    sim = _simulator(job0, len(jobs))
+    agents = [make_agent_for(j.agent) for j in jobs]
     t1 = time.perf_counter()
     try:
-        if agent.privileged and job.camera_only:
-            return _refused(job, agent, time.perf_counter() - t0)
-        traj = run_episode(sim, agent, job.seed, job.duration, pose=job.pose,
-                           camera=not agent.privileged, allow_privileged=not job.camera_only,
-                           image_filter=camera_filter(),
-                           meta={"map": job.map, "episode": job.episode, "domain": job.domain.name,
-                                 "domain_kind": job.domain.kind, "source": job.domain.kind, "job": job.key})
+        if agents[0].privileged and job0.camera_only:
+            return [_refused(j, a, (t1 - t0) / len(jobs)) for j, a in zip(jobs, agents, strict=True)]
+        trajs = run_episodes(
+            sim, agents, [j.seed for j in jobs], job0.duration, poses=[j.pose for j in jobs],
+            camera=not agents[0].privileged, allow_privileged=not job0.camera_only, image_filter=camera_filter(),
+            metas=[{"map": j.map, "episode": j.episode, "domain": j.domain.name, "domain_kind": j.domain.kind,
+                    "source": j.domain.kind, "job": j.key} for j in jobs],
+        )
     finally:
-        close = getattr(agent, "close", None)
-        if close is not None:
-            close()
+        for a in agents:
+            getattr(a, "close", lambda: None)()
     t2 = time.perf_counter()
-    names = job.metrics or tuple(METRICS)
-    scores = {name: METRICS[name](traj) for name in names}
+    return [_result(j, tr, out_dir, (t1 - t0) / len(jobs), (t2 - t1) / len(jobs), METRICS)
+            for j, tr in zip(jobs, trajs, strict=True)]
+
+
+def _result(job: Job, traj, out_dir: str | None, setup_s: float, episode_s: float, metrics) -> JobResult:
+    t = time.perf_counter()
+    scores = {name: metrics[name](traj) for name in (job.metrics or tuple(metrics))}
     path = None
     if out_dir is not None:
         path = str(Path(out_dir) / f"{job.key}.parquet")
@@ -192,8 +217,8 @@ def execute(job: Job, out_dir: str | None) -> JobResult:
     message = next((e["message"] for e in traj.events if e["kind"] == "agent_failure"), "")
     timing = traj.meta.get("timing", {})
     sim_s, agent_s = timing.get("sim_s", 0.0), timing.get("agent_s", 0.0)
-    timings = {"setup_s": t1 - t0, "sim_s": sim_s, "agent_s": agent_s,
-               "bookkeeping_s": (t2 - t1 - sim_s - agent_s) + (time.perf_counter() - t2),
+    timings = {"setup_s": setup_s, "sim_s": sim_s, "agent_s": agent_s,
+               "bookkeeping_s": (episode_s - sim_s - agent_s) + (time.perf_counter() - t),
                "simulated_s": traj.duration}
     return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed, scores, traj.termination,
                      path, message, timings)

@@ -14,6 +14,7 @@ worker, power loss) resumes where it stopped, and two sweeps sharing episodes sh
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -21,7 +22,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from proxybench.runner.backends import Backend, InlineBackend
-from proxybench.runner.jobs import Job, JobResult
+from proxybench.runner.jobs import Job, JobResult, batch_group
 
 __all__ = ["SweepResult", "results_frame", "run_jobs"]
 
@@ -64,10 +65,13 @@ def run_jobs(
     *,
     progress: Callable[[int, int, JobResult | None], None] | None = None,
     keep_trajectories: bool = True,
+    batch_size: int = 8,
 ) -> SweepResult:
     """Run every job not already done in ``run_dir``; return all results in job order.
 
-    ``progress(done, total, result)`` is called once at the start (result None) and after each job.
+    Jobs that can share a simulator run in batches of up to ``batch_size`` robots (smaller when that
+    would leave workers idle). ``progress(done, total, result)`` is called once at the start (result
+    None) and after each job.
     """
     backend = backend or InlineBackend()
     run_dir = Path(run_dir)
@@ -92,7 +96,7 @@ def run_jobs(
     if progress:
         progress(cached, len(jobs), None)
     out = str(ep_dir) if keep_trajectories else None
-    for res in backend.run(todo, out):
+    for res in backend.run(_batches(todo, batch_size, backend.workers), out):
         _write_atomic(ep_dir / f"{res.key}.json", res.to_json())
         by_key[res.key] = res
         if progress:
@@ -107,6 +111,18 @@ def run_jobs(
     frame.to_parquet(tmp, index=False)
     tmp.replace(run_dir / "results.parquet")
     return sweep
+
+
+def _batches(todo: Sequence[Job], batch_size: int, workers: int) -> list[list[Job]]:
+    """Group jobs by :func:`batch_group`, then cut each group into batches that keep every worker busy."""
+    groups: dict[tuple, list[Job]] = {}
+    for job in todo:
+        groups.setdefault(batch_group(job), []).append(job)
+    out = []
+    for jobs in groups.values():
+        size = max(1, min(batch_size, math.ceil(len(jobs) / max(1, workers))))
+        out += [jobs[i : i + size] for i in range(0, len(jobs), size)]
+    return out
 
 
 def results_frame(results: Sequence[JobResult]):
