@@ -114,7 +114,8 @@ def run_episodes(
         images: list[np.ndarray | None] = [None] * n
         if camera:
             frames = sim.render()
-            images = [image_filter(f) if image_filter is not None else f for f in frames]
+            images = [None if not alive[i] else image_filter(f) if image_filter is not None else f
+                      for i, f in enumerate(frames)]
         if on_frame is not None:
             on_frame(k, images, sim)
         t1 = time.perf_counter()
