@@ -12,6 +12,8 @@ pose without rendering ≥ 1,000,000 env-steps/s.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
 import os
 import statistics
 import time
@@ -24,6 +26,7 @@ from rich.table import Table
 from proxybench.agents.pid import wheels_for
 from proxybench.domain.env import LaneFollowingEnv, LaneFollowingVectorEnv
 from proxybench.domain.lane_pose import LP
+from proxybench.domain.maps import Map, MapObject, load_map
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
 
@@ -37,8 +40,18 @@ def pid_actions(lateral: np.ndarray, heading: np.ndarray) -> np.ndarray:
         np.stack([0.5 * (1.0 - omega * 4 / 15), 0.5 * (1.0 + omega * 4 / 15)], axis=1), -1, 1)
 
 
-def bench_single(steps: int, width: int, height: int, blur: float) -> float:
-    env = LaneFollowingEnv(params=DomainParams(image_width=width, image_height=height, blur_time=blur))
+def loop_with_objects() -> Map:
+    """loop_3x3 with 10 objects along the roadsides (inside and outside the loop)."""
+    kinds = ["duckie", "cone", "sign_stop", "duckiebot", "barrier", "duckie", "cone", "duckie", "sign_left", "duckie"]
+    spots = [(0.65, 0.88), (1.1, 0.88), (0.88, 0.65), (0.88, 1.1), (0.03, 0.88), (1.72, 0.88), (0.88, 0.03),
+             (0.88, 1.72), (0.1, 0.1), (1.65, 1.65)]
+    objs = tuple(MapObject(k, x, y, heading=math.pi / 2 if k == "barrier" else 0.0) for k, (x, y) in zip(kinds, spots,
+                                                                                                       strict=True))
+    return dataclasses.replace(load_map("loop_3x3"), objects=objs)
+
+
+def bench_single(steps: int, width: int, height: int, blur: float, map_: Map | str = "loop_3x3") -> float:
+    env = LaneFollowingEnv(map_, params=DomainParams(image_width=width, image_height=height, blur_time=blur))
     env.reset(seed=0)
     for _ in range(20):
         env.step(np.array([0.3, 0.3]))
@@ -87,6 +100,8 @@ def main() -> None:
     k = 0.1 if args.quick else 1.0
     rows = [
         ("single env, 640×480, no blur", "steps/s", median3(bench_single, int(1800 * k), 640, 480, 0.0), 500, 50),
+        ("single env, 640×480, no blur, 10 objects", "steps/s",
+         median3(bench_single, int(1800 * k), 640, 480, 0.0, loop_with_objects()), None, 50),
         ("single env, 640×480, blur 0.05 s ×3", "steps/s", median3(bench_single, int(900 * k), 640, 480, 0.05), None,
          50),
         ("single env, 160×120, no blur", "steps/s", median3(bench_single, int(1800 * k), 160, 120, 0.0), None, 250),

@@ -34,7 +34,8 @@ class RewardWeights:
     """Weights of the named reward terms (each term is reported in ``info["reward_terms"]``).
 
     progress = ``progress`` × v cos(heading error) [m/s]; lateral = −``lateral`` × |offset| [m];
-    heading = −``heading`` × |heading error| [rad]; off_road = −``off_road`` once, on leaving the road.
+    heading = −``heading`` × |heading error| [rad]; off_road = −``off_road`` once, on leaving the road or
+    hitting an object of the map.
     """
 
     progress: float = 1.0
@@ -96,12 +97,12 @@ class _Core:
         ).astype(np.float32), box.low, box.high)
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Advance all robots; (reward, terminated, truncated)."""
-        was_off = self.sim.off_road.copy()
+        """Advance all robots; (reward, terminated, truncated). Leaving the road or hitting an object ends it."""
+        was_out = self.sim.off_road | self.sim.collided
         self.sim.step(actions)
-        newly_off = self.sim.off_road & ~was_off
-        reward, self.terms = lane_following_reward(self.sim.state, self.sim.lane, newly_off, self.weights)
-        terminated = self.sim.off_road.copy()
+        out = self.sim.off_road | self.sim.collided
+        reward, self.terms = lane_following_reward(self.sim.state, self.sim.lane, out & ~was_out, self.weights)
+        terminated = out.copy()
         truncated = (self.sim.frame_index >= self.max_steps) & ~terminated
         return reward, terminated, truncated
 
@@ -115,6 +116,7 @@ def _info_one(core: _Core, i: int) -> dict[str, Any]:
         "lane_pose": lp,
         "wheels_in_lane": np.array([lp.left_in_lane, lp.right_in_lane]),
         "on_road": bool(lp.on_road),
+        "collision": bool(core.sim.collided[i]),
         "time": float(core.sim.time[i]),
     }
     if hasattr(core, "terms"):
@@ -145,7 +147,8 @@ class LaneFollowingEnv(gym.Env):
     ``reset(options={"pose": (x, y, θ)})`` starts at a given pose.
 
     ## Episode end
-    Terminated when the robot centre leaves the drivable area; truncated after ``episode_seconds``.
+    Terminated when the robot centre leaves the drivable area or comes too close to a map object
+    (0.10 m from a duckie, 0.15 m from a robot); truncated after ``episode_seconds``.
 
     ## Arguments
     ``map`` (name or ``Map``), ``params`` (``DomainParams`` or dict), ``observation``, ``episode_seconds``
@@ -298,6 +301,7 @@ class LaneFollowingVectorEnv(VectorEnv):
             "lane_pose": self.sim.lane.copy(),
             "lane_pose_fields": LANE_POSE_FIELDS,
             "on_road": self.sim.lane[:, LP.ON_ROAD] > 0.5,
+            "collision": self.sim.collided.copy(),
             "time": self.sim.time.copy(),
         }
         if hasattr(self._core, "terms"):

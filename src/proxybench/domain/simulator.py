@@ -21,6 +21,7 @@ from proxybench.domain.dynamics import DYN_FIELDS, ST, TRACE_FIELDS, blur_poses,
 from proxybench.domain.lane_pose import LP, lane_pose_into, point_on_road
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
+from proxybench.domain.objects import collision_check, pack_objects
 from proxybench.domain.params import STRUCTURAL_FIELDS, DomainParams
 from proxybench.domain.renderer import Renderer
 
@@ -69,6 +70,7 @@ class Simulator:
     - ``state`` (N, ST.N): x [m], y [m], θ [rad], v [m/s], ω [rad/s], wheel angles [rad], off-road flag.
     - ``lane`` (N, LP.N): lane pose rows (see ``lane_pose.LANE_POSE_FIELDS``), updated every frame.
     - ``frame_index`` (N,): frames since each robot's reset.
+    - ``collided`` (N,) bool: the robot has hit a map object this episode (see :attr:`collided`).
     """
 
     def __init__(
@@ -108,7 +110,10 @@ class Simulator:
         self.blur_ticks = np.zeros(self.n)
         self.blur_count = np.ones(self.n, dtype=np.int64)
         self._alloc_history(plist)
-        self.renderer = Renderer(self.arrays, plist) if render else None
+        self.objects = pack_objects(self.map.objects)
+        self.collided = np.zeros(self.n, dtype=np.bool_)
+        self._trace = np.zeros((self.n, first.substeps, len(TRACE_FIELDS)))
+        self.renderer = Renderer(self.arrays, plist, self.objects) if render else None
         # start on plain road tiles, never on a lane that leaves the map before the next tile
         self._start_segments = [
             s for s in self.net.segments
@@ -191,6 +196,11 @@ class Simulator:
         self._update_lane(np.array([i]))
         a = self.arrays
         self.state[i, ST.OFF_ROAD] = 0.0 if point_on_road(x, y, a.tile_kind, a.curve_corner, a.tile_size) else 1.0
+        self.collided[i] = False
+        if self.objects.colliders.shape[0]:
+            flag = np.zeros(1, dtype=np.bool_)
+            collision_check(self.state[i : i + 1, None, :2].copy(), self.objects.colliders, flag)
+            self.collided[i] = flag[0]
 
     # -- stepping --------------------------------------------------------------------------------
 
@@ -205,11 +215,16 @@ class Simulator:
             raise ValueError("wheel commands must be finite numbers")
         np.clip(c, -1.0, 1.0, out=self.commands)
         a = self.arrays
+        check = self.objects.colliders.shape[0] > 0
+        if trace is None and check:
+            trace = self._trace  # collisions are checked at every physics tick, from the trace
         physics_ticks(
             self.state, self.dyn, self.commands, self.cmd_hist, self.applied_tick, self.tick, self.seeds,
             self.substeps, self.pose_hist, a.tile_kind, a.curve_corner, a.tile_size,
             _NO_TRACE if trace is None else trace,
         )
+        if check:
+            collision_check(trace, self.objects.colliders, self.collided)
         self.frame_index += 1
         self._update_lane(None)
 
@@ -230,7 +245,7 @@ class Simulator:
     def enable_rendering(self) -> None:
         """Build the renderer now if this simulator was created with ``render=False``."""
         if self.renderer is None:
-            self.renderer = Renderer(self.arrays, self.params)
+            self.renderer = Renderer(self.arrays, self.params, self.objects)
 
     def render(self, out: np.ndarray | None = None) -> np.ndarray:
         """Camera frames (N, H, W, 3) uint8 of the current poses, motion-blurred over ``blur_time``."""
@@ -243,6 +258,11 @@ class Simulator:
     def off_road(self) -> np.ndarray:
         """(N,) bool: the robot centre has left the drivable area this episode."""
         return self.state[:, ST.OFF_ROAD] > 0.5
+
+    # ``collided`` (N,) bool is a plain attribute: True once the robot has touched a map object this
+    # episode (sticky until reset, like ``off_road``). Rule (AIDO): the robot centre comes within 0.10 m of
+    # a duckie-like object's footprint, or within 0.15 m of a robot-like object's centre; checked at every
+    # physics tick (``objects.collision_check``). The robot keeps moving; ending the episode is the caller's.
 
     @property
     def time(self) -> np.ndarray:

@@ -16,10 +16,11 @@ from PIL import Image, ImageDraw
 
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import DRIVABLE_KINDS, Map
+from proxybench.domain.objects import BOX, pack_objects
 from proxybench.domain.params import DomainParams
 from proxybench.domain.textures import marking_textures
 
-__all__ = ["draw_robots", "map_image", "save_map_plot", "top_down"]
+__all__ = ["draw_objects", "draw_robots", "map_image", "save_map_plot", "top_down"]
 
 _BASE_COLOUR = {"grass": "grass_rgb", "floor": "floor_rgb", "asphalt": "asphalt_rgb"}
 
@@ -74,9 +75,41 @@ def draw_robots(
     return np.asarray(pil)
 
 
+def draw_objects(img: np.ndarray, m: Map, px_per_tile: int, light: Sequence[float] = (1.0, 1.0, 1.0)) -> np.ndarray:
+    """Copy of ``img`` with the map objects drawn as filled circles / rectangles in their colours.
+
+    Parts are drawn bottom to top, so a sign shows its plate over its pole.
+    """
+    pil = Image.fromarray(np.ascontiguousarray(img))
+    draw = ImageDraw.Draw(pil)
+    scale = px_per_tile / m.tile_size
+    h_px = img.shape[0]
+    prims = pack_objects(m.objects).prims
+    for p in sorted(prims.tolist(), key=lambda q: q[7]):
+        shape, x, y, c, s, a, b = p[:7]
+        colour = tuple(int(min(max(v * g, 0.0), 255.0)) for v, g in zip(p[9:12], light, strict=True))
+        if shape == BOX:
+            pts = [(x + c * sx * a - s * sy * b, y + s * sx * a + c * sy * b) for sx, sy in
+                   ((1, 1), (-1, 1), (-1, -1), (1, -1))]
+            draw.polygon([(u * scale, h_px - v * scale) for u, v in pts], fill=colour)
+        else:
+            r = max(a * scale, 1.0)
+            draw.ellipse([x * scale - r, h_px - y * scale - r, x * scale + r, h_px - y * scale + r], fill=colour)
+    return np.asarray(pil)
+
+
+@lru_cache(maxsize=16)
+def _map_with_objects(m: Map, px_per_tile: int, p: DomainParams) -> np.ndarray:
+    img = map_image(m, px_per_tile, p)
+    if m.objects:
+        img = draw_objects(img, m, px_per_tile, p.light_rgb)
+        img.setflags(write=False)
+    return img
+
+
 def top_down(m: Map, poses: np.ndarray, px_per_tile: int = 64, params: DomainParams | None = None) -> np.ndarray:
-    """Top-down frame of the map with the robots at ``poses`` (N, 3)."""
-    return draw_robots(map_image(m, px_per_tile, params), m, poses, px_per_tile)
+    """Top-down frame of the map with its objects and the robots at ``poses`` (N, 3)."""
+    return draw_robots(_map_with_objects(m, px_per_tile, params or DomainParams()), m, poses, px_per_tile)
 
 
 def save_map_plot(m: Map, path: str | Path, px_per_tile: int = 96, dpi: int = 120) -> Path:

@@ -136,6 +136,10 @@ def run_episodes(
         t3 = time.perf_counter()
         t_sim += (t1 - t0) + (t3 - t2)
         t_agent += t2 - t1
+        for i in np.flatnonzero(alive & sim.collided):
+            events[i].append({"t": float(sim.time[i]), "kind": "collision",
+                              "message": "the robot came too close to an object of the map"})
+            termination[i], done_frames[i], alive[i] = "collision", k + 1, False
         for i in np.flatnonzero(alive & sim.off_road):
             events[i].append({"t": float(sim.time[i]), "kind": "off_road",
                               "message": "the robot centre left the drivable area"})

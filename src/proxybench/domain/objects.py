@@ -1,0 +1,184 @@
+"""Map objects as simple upright shapes: for the camera renderer, the top-down view and collisions.
+
+Every ``MapObject`` becomes one or more *primitives*, each a vertical cylinder or an upright box standing
+on (or floating above) the ground, flat-coloured. Supported kinds (sizes at ``scale`` 1; ``height``
+from the map file, if given, rescales the object's height, and ``scale`` all of its dimensions):
+
+============================  =================================================  ============
+kind                          shape                                              collision
+============================  =================================================  ============
+``duckie``                    yellow cylinder, r 0.04 m, h 0.06 m                duckie-like
+``cone``                      orange cylinder, r 0.05 m, h 0.10 m                duckie-like
+``barrier``                   red/white box 0.50 × 0.06 m, h 0.12 m              duckie-like
+``sign_*`` (any sign kind)    grey pole r 0.01 m, h 0.16 m + plate 0.10 × 0.01   duckie-like
+                              × 0.08 m on top (red for stop/yield, blue else)
+``duckiebot``                 dark-blue box 0.18 × 0.13 m, h 0.10 m              robot-like
+``house``, ``building``       box 0.40 × 0.40 m, h 0.30 m                        duckie-like
+``tree``                      green cylinder r 0.10 m, h 0.30 m                  duckie-like
+``bus``, ``truck``            box 0.40 × 0.16 m, h 0.16 m                        robot-like
+anything else                 grey box 0.10 × 0.10 m, h 0.10 m                   duckie-like
+============================  =================================================  ============
+
+Collision rule (AIDO): a robot collides with a *duckie-like* object when its centre comes within
+``DUCKIE_MARGIN`` = 0.10 m of the object's footprint (circle or rectangle; for a sign, of its pole),
+and with a *robot-like* object when its centre comes within ``ROBOT_MARGIN`` = 0.15 m of the object's
+centre. All objects are treated as static.
+
+``pack_objects`` returns the arrays the compiled code reads: ``prims`` (P, PF) for rendering and
+``colliders`` (M, CF) for collisions, with the column indices in ``PF_*`` / ``CF_*``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from proxybench.domain.maps import MapObject
+
+__all__ = [
+    "DUCKIE_MARGIN",
+    "ROBOT_MARGIN",
+    "ObjectArrays",
+    "Primitive",
+    "collision_check",
+    "object_primitives",
+    "pack_objects",
+]
+
+DUCKIE_MARGIN = 0.10
+ROBOT_MARGIN = 0.15
+
+CYLINDER, BOX = 0, 1
+# primitive columns: shape, centre x, y [m], cos/sin heading, half-size a (radius or half-length along
+# the heading), half-size b (half-width across), z bottom, z top [m], colour r, g, b [0..255]
+PF_SHAPE, PF_X, PF_Y, PF_COS, PF_SIN, PF_A, PF_B, PF_Z0, PF_Z1, PF_RED, PF_GREEN, PF_BLUE = range(12)
+PF = 12
+# collider columns: centre x, y, cos, sin, half-size a, half-size b (0 for a circle of radius a), margin
+CF_X, CF_Y, CF_COS, CF_SIN, CF_A, CF_B, CF_MARGIN = range(7)
+CF = 7
+
+
+@dataclass(frozen=True)
+class Primitive:
+    """One upright shape in the object's own frame (x along its heading), sizes in metres."""
+
+    shape: int
+    a: float
+    b: float
+    z0: float
+    z1: float
+    rgb: tuple[float, float, float]
+    dx: float = 0.0  # offset of the primitive's centre in the object frame
+    dy: float = 0.0
+
+
+_YELLOW = (240.0, 200.0, 20.0)
+_GREY = (150.0, 150.0, 150.0)
+
+
+def _shapes(kind: str) -> tuple[list[Primitive], bool]:
+    """(primitives at scale 1, robot-like?) for an object kind."""
+    k = kind.lower()
+    if k.startswith("duckie") and k != "duckiebot":
+        return [Primitive(CYLINDER, 0.04, 0.04, 0.0, 0.06, _YELLOW)], False
+    if k == "cone":
+        return [Primitive(CYLINDER, 0.05, 0.05, 0.0, 0.10, (245.0, 110.0, 20.0))], False
+    if k == "barrier":
+        return [Primitive(BOX, 0.25, 0.03, 0.0, 0.12, (220.0, 60.0, 50.0))], False
+    if k.startswith("sign"):
+        plate = (200.0, 30.0, 30.0) if ("stop" in k or "yield" in k) else (40.0, 80.0, 200.0)
+        return [
+            Primitive(CYLINDER, 0.01, 0.01, 0.0, 0.16, _GREY),
+            Primitive(BOX, 0.005, 0.05, 0.16, 0.24, plate),
+        ], False
+    if k == "duckiebot":
+        return [Primitive(BOX, 0.09, 0.065, 0.0, 0.10, (30.0, 40.0, 90.0))], True
+    if k in ("house", "building"):
+        return [Primitive(BOX, 0.20, 0.20, 0.0, 0.30, (190.0, 120.0, 90.0))], False
+    if k == "tree":
+        return [Primitive(CYLINDER, 0.10, 0.10, 0.0, 0.30, (40.0, 110.0, 40.0))], False
+    if k in ("bus", "truck"):
+        return [Primitive(BOX, 0.20, 0.08, 0.0, 0.16, (230.0, 170.0, 30.0))], True
+    return [Primitive(BOX, 0.05, 0.05, 0.0, 0.10, _GREY)], False
+
+
+def object_primitives(obj: MapObject) -> tuple[list[Primitive], bool]:
+    """The object's primitives, scaled by ``obj.scale`` and to ``obj.height``, and whether it is robot-like."""
+    prims, robot = _shapes(obj.kind)
+    s = obj.scale or 1.0
+    top = max(p.z1 for p in prims) * s
+    hz = (obj.height / top) if obj.height else 1.0
+    out = [
+        Primitive(p.shape, p.a * s, p.b * s, p.z0 * s * hz, p.z1 * s * hz, p.rgb, p.dx * s, p.dy * s) for p in prims
+    ]
+    return out, robot
+
+
+@dataclass(frozen=True)
+class ObjectArrays:
+    """Packed objects: ``prims`` (P, PF) render primitives, ``colliders`` (M, CF), ``owner`` (P,) object index."""
+
+    prims: np.ndarray
+    colliders: np.ndarray
+    owner: np.ndarray
+
+
+def pack_objects(objects: Sequence[MapObject]) -> ObjectArrays:
+    """Arrays of every object's primitives and collision footprint (see the module docstring)."""
+    prims, cols, owner = [], [], []
+    for i, obj in enumerate(objects):
+        parts, robot = object_primitives(obj)
+        c, s = math.cos(obj.heading), math.sin(obj.heading)
+        for p in parts:
+            x = obj.x + c * p.dx - s * p.dy
+            y = obj.y + s * p.dx + c * p.dy
+            prims.append([p.shape, x, y, c, s, p.a, p.b, p.z0, p.z1, *p.rgb])
+            owner.append(i)
+        if robot:
+            cols.append([obj.x, obj.y, c, s, 0.0, 0.0, ROBOT_MARGIN])
+        else:
+            # the footprint is the lowest primitive (the pole of a sign, the body otherwise)
+            p = min(parts, key=lambda q: q.z0)
+            x = obj.x + c * p.dx - s * p.dy
+            y = obj.y + s * p.dx + c * p.dy
+            cols.append([x, y, c, s, p.a, p.b if p.shape == BOX else 0.0, DUCKIE_MARGIN])
+    return ObjectArrays(
+        np.array(prims, dtype=np.float64).reshape(-1, PF),
+        np.array(cols, dtype=np.float64).reshape(-1, CF),
+        np.array(owner, dtype=np.int64),
+    )
+
+
+@nb.njit(cache=True, inline="always")
+def footprint_distance(x, y, col):
+    """Distance [m] from map point (x, y) to a collider's footprint (0 inside)."""
+    dx = x - col[CF_X]
+    dy = y - col[CF_Y]
+    if col[CF_B] <= 0.0:  # circle of radius a
+        return max(math.sqrt(dx * dx + dy * dy) - col[CF_A], 0.0)
+    lx = abs(col[CF_COS] * dx + col[CF_SIN] * dy) - col[CF_A]
+    ly = abs(-col[CF_SIN] * dx + col[CF_COS] * dy) - col[CF_B]
+    ex = max(lx, 0.0)
+    ey = max(ly, 0.0)
+    return math.sqrt(ex * ex + ey * ey)
+
+
+@nb.njit(cache=True)
+def collision_check(xy, colliders, flags):
+    """Set ``flags[n]`` if any of robot n's centres ``xy[n, k, 0:2]`` touches a collider (sticky)."""
+    for n in range(xy.shape[0]):
+        if flags[n]:
+            continue
+        for k in range(xy.shape[1]):
+            x = xy[n, k, 0]
+            y = xy[n, k, 1]
+            for m in range(colliders.shape[0]):
+                if footprint_distance(x, y, colliders[m]) < colliders[m, CF_MARGIN]:
+                    flags[n] = True
+                    break
+            if flags[n]:
+                break
