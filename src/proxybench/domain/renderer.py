@@ -440,6 +440,8 @@ def render_kernel(
     for row in nb.prange(n_envs * h):
         n = row // h
         v = row % h
+        if k_count[n] == 0:  # robot not rendered this frame (its episode has ended)
+            continue
         c = cam_index[n]
         pal = palette[n]
         tex_noise = post[n, 0]
@@ -720,7 +722,8 @@ class Renderer:
         """Frames (N, H, W, 3) uint8 for sub-frame poses (N, K, 3) [m, m, rad]; K > 1 averages (motion blur).
 
         ``seeds`` and ``frames`` (N,) key the sensor noise, so a frame is reproducible on its own;
-        ``k_count`` (N,) limits how many of the K sub-frames each robot averages (default all).
+        ``k_count`` (N,) limits how many of the K sub-frames each robot averages (default all); 0 skips the
+        robot (its frame is left as it was in ``out``).
         """
         poses = np.asarray(poses, dtype=np.float64).reshape(self.n, -1, 3)
         if k_count is None:

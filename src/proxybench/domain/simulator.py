@@ -247,12 +247,16 @@ class Simulator:
         if self.renderer is None:
             self.renderer = Renderer(self.arrays, self.params, self.objects)
 
-    def render(self, out: np.ndarray | None = None) -> np.ndarray:
-        """Camera frames (N, H, W, 3) uint8 of the current poses, motion-blurred over ``blur_time``."""
+    def render(self, out: np.ndarray | None = None, active: np.ndarray | None = None) -> np.ndarray:
+        """Camera frames (N, H, W, 3) uint8 of the current poses, motion-blurred over ``blur_time``.
+
+        ``active`` (N,) bool: render only these robots; the frames of the others are undefined.
+        """
         if self.renderer is None:
             raise RuntimeError("this simulator was built with render=False")
         blur_poses(self.pose_hist, self.tick, self.state, self.dyn, self.blur_ticks, self.blur_count, self.sub_poses)
-        return self.renderer.render(self.sub_poses, self.seeds, self.frame_index, out, self.blur_count)
+        counts = self.blur_count if active is None else np.where(active, self.blur_count, 0)
+        return self.renderer.render(self.sub_poses, self.seeds, self.frame_index, out, counts)
 
     @property
     def off_road(self) -> np.ndarray:

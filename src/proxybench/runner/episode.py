@@ -113,7 +113,7 @@ def run_episodes(
         t0 = time.perf_counter()
         images: list[np.ndarray | None] = [None] * n
         if camera:
-            frames = sim.render()
+            frames = sim.render(active=alive)
             images = [None if not alive[i] else image_filter(f) if image_filter is not None else f
                       for i, f in enumerate(frames)]
         if on_frame is not None:
