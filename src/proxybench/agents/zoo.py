@@ -78,7 +78,12 @@ def agent_names() -> list[str]:
 
 
 def make_agent(name: str) -> Agent:
-    """A fresh instance of the zoo agent ``name``."""
+    """A fresh instance of the zoo agent ``name``, or of the behaviour-cloning checkpoint at that path."""
+    if name not in ZOO:
+        from proxybench.learning import is_checkpoint, make_bc_agent
+
+        if is_checkpoint(name):
+            return make_bc_agent(name)
     try:
         return ZOO[name].factory()
     except KeyError:

@@ -42,6 +42,7 @@ class InlineBackend:
 
 
 def _init_worker() -> None:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # network agents: one thread per worker, like the kernels
     import numba
 
     numba.set_num_threads(1)

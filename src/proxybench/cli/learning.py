@@ -1,0 +1,183 @@
+"""`proxybench plv` and `proxybench learn ...`: behaviour cloning and the proxy learning value (PLV).
+
+Everything here needs PyTorch (the ``learning`` extra); it is imported inside the commands, so the
+rest of the command line works without it.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from proxybench.cli.app import app, console, err_console
+
+learn_app = typer.Typer(no_args_is_help=True, help="Behaviour cloning: datasets, training, fine-tuning, evaluation.")
+app.add_typer(learn_app, name="learn")
+
+
+def _bars() -> Progress:
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    TimeRemainingColumn(), console=console, transient=True)
+
+
+def _fail(msg: str, code: int = 2) -> typer.Exit:
+    err_console.print(f"[red]error:[/red] {msg}", highlight=False)
+    return typer.Exit(code)
+
+
+@app.command()
+def plv(
+    quick: bool = typer.Option(False, "--quick", help="40×30 frames, short ladder, 2 seeds (a few minutes)"),
+    out: Path = typer.Option(Path("out/plv"), help="report folder (figure, tables, report.html) and cache"),
+    config: Path | None = typer.Option(None, help="JSON file overriding PLVConfig fields (nested: train, eval, ...)"),
+    dagger: bool = typer.Option(False, "--dagger", help="spend half of every rung on on-policy (DAgger) samples"),
+    eta_on: float = typer.Option(1.0, help="cost of one on-policy target sample (generalised PLV)"),
+    eta_off: float = typer.Option(1.0, help="cost of one off-policy target sample"),
+) -> None:
+    """How many target samples does pre-training on a proxy save a behaviour-cloning agent? (Table 3.1, Fig. 3.6)
+
+    The target is the reality model, a *simulated* stand-in for a real Duckiebot; the proxies are the
+    simulator with camera pitch 3°, 19°, 35° and a domain-randomised family. Work is cached in OUT/cache,
+    so an interrupted run resumes.
+    """
+    from proxybench.learning.experiment import PLVConfig, run_plv
+    from proxybench.learning.report import findings, needed_column, summarize, write_report
+
+    cfg = PLVConfig.quick() if quick else PLVConfig()
+    try:
+        extra = json.loads(config.read_text()) if config else {}
+        extra |= {"eta_on": eta_on, "eta_off": eta_off} | ({"use_dagger": True} if dagger else {})
+        cfg = PLVConfig.from_dict(extra, cfg)
+    except (OSError, ValueError, TypeError) as exc:
+        raise _fail(f"{config}: {exc}") from exc
+    t0 = time.perf_counter()
+    with _bars() as bar:
+        tasks: dict[str, int] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=total)
+            bar.update(tasks[stage], completed=done, total=total)
+
+        res = run_plv(cfg, out, progress)
+    files = write_report(res, out)
+    s = summarize(res)
+    wall = time.perf_counter() - t0
+    note = f", {res.cached} units from the cache" if res.cached else ""
+    table = Table(title=f"Table 3.1 — PLV of proxies (target: reality model, simulated) — {wall:.0f} s{note}")
+    for col in ("domain", "zero-shot", "in own domain", needed_column(res), "PLV", "reduction"):
+        table.add_column(col, justify="left" if col == "domain" else "right")
+    need = "not reached" if s.target_needed is None else f"{s.target_needed.weighted(cfg.eta_on, cfg.eta_off):,.0f}"
+    table.add_row("target only", "–", "–", need, "–", "–")
+    for r in s.rows:
+        table.add_row(r["proxy"], f"{r['zero_shot']:.2f}", f"{r['in_proxy']:.2f}", r["needed_label"], r["plv_label"],
+                      r["reduction_label"])
+    console.print(table)
+    for line in findings(res, s):
+        console.print(f"• {line}", highlight=False)
+    console.print(f"wrote {files['html']}, {files['fig3_6']} (+ .svg), {files['table']}, {files['runs']}")
+
+
+@learn_app.command("dataset")
+def learn_dataset(
+    domain: str = typer.Argument(..., help="reality | proxy[:NAME=VALUE,...] | randomized | family.yaml"),
+    out: Path = typer.Option(..., help="dataset folder (NPZ shards + dataset.json)"),
+    samples: int = typer.Option(5000, min=1),
+    width: int = typer.Option(64, help="image width [px]"),
+    height: int = typer.Option(48, help="image height [px]"),
+    robots: int = typer.Option(32, min=1, help="robots driven at once by the batched simulator"),
+    noise: float = typer.Option(0.15, help="std of the noise added to the executed expert command [PWM]"),
+    map_name: str = typer.Option("loop_3x3", "--map"),
+    seed: int = typer.Option(0),
+) -> None:
+    """Let the privileged expert drive DOMAIN (with recovery noise) and record camera frames + its commands."""
+    from proxybench.learning.collection import CollectConfig, collect
+    from proxybench.learning.domains import parse_domain
+
+    try:
+        dom = parse_domain(domain, width, height)
+        cfg = CollectConfig(samples=samples, robots=robots, noise_std=noise, map=map_name, seed=seed)
+    except ValueError as exc:
+        raise _fail(str(exc)) from exc
+    t0 = time.perf_counter()
+    with _bars() as bar:
+        task = bar.add_task(f"expert driving {dom.name}", total=samples)
+        data = collect(dom, cfg, progress=lambda d, t: bar.update(task, completed=d))
+    data.save(out)
+    wall = time.perf_counter() - t0
+    console.print(f"wrote {out}: {len(data):,} samples, {len(data.meta['episodes'])} episodes, "
+                  f"{len(data.meta['thetas'])} θ ({len(data) / wall:,.0f} samples/s)")
+
+
+@learn_app.command("train")
+def learn_train(
+    data: list[Path] = typer.Argument(..., help="dataset folder(s)"),
+    out: Path = typer.Option(..., help="checkpoint path (NAME.pt; NAME.json is written beside it)"),
+    init: Path | None = typer.Option(None, help="fine-tune this checkpoint instead of starting from scratch"),
+    samples: int | None = typer.Option(None, help="use only this many samples (whole episodes, seeded)"),
+    epochs: float = typer.Option(15.0),
+    max_steps: int = typer.Option(2000),
+    lr: float | None = typer.Option(None, help="learning rate (default 1e-3 from scratch, 3e-4 fine-tuning)"),
+    output: str = typer.Option("wheels", help="wheels (PWM) | vw (v, ω) — from scratch only"),
+    seed: int = typer.Option(0),
+) -> None:
+    """Train a PilotNet-style network on expert data (or fine-tune a checkpoint) and save a checkpoint."""
+    from proxybench.learning.dataset import Dataset, DatasetError
+    from proxybench.learning.model import ModelConfig, configure_threads
+    from proxybench.learning.training import TrainConfig, build_model, load_checkpoint, save_checkpoint, train
+
+    configure_threads()
+    try:
+        ds = Dataset.concat([Dataset.load(p) for p in data])
+        ds = ds.take(samples, seed) if samples else ds
+        if init:
+            model, prior = load_checkpoint(init)
+        else:
+            w, h = ds.image_size
+            model, prior = build_model(ModelConfig(width=w, height=h, output=output), seed), {}
+    except (DatasetError, FileNotFoundError, ValueError) as exc:
+        raise _fail(str(exc)) from exc
+    cfg = TrainConfig(epochs=epochs, max_steps=max_steps, lr=lr or (3e-4 if init else 1e-3), seed=seed)
+    with _bars() as bar:
+        task = bar.add_task("fine-tuning" if init else "training", total=cfg.steps_for(len(ds)))
+        res = train(model, ds, cfg, progress=lambda s, t: bar.update(task, completed=s))
+    info = {"train": {"config": asdict(cfg), "losses": res.losses, "wall_s": res.wall_s},
+            "data": {"folders": [str(p) for p in data], "samples": len(ds), "domain": ds.meta.get("domain")},
+            "init": str(init) if init else None, "prior": prior.get("data")}
+    path = save_checkpoint(out, model, info)
+    console.print(f"wrote {path} (+ .json): {res.steps} steps on {len(ds):,} samples, loss {res.losses[0]:.4f} → "
+                  f"{res.losses[-1]:.4f}, {res.samples_per_s:,.0f} samples/s on {res.device}")
+
+
+@learn_app.command("evaluate")
+def learn_evaluate(
+    checkpoint: Path = typer.Argument(..., help="checkpoint (.pt with its .json)"),
+    domain: str = typer.Option("reality", help="reality | proxy[:NAME=VALUE,...] | randomized | family.yaml"),
+    episodes: int = typer.Option(6, min=1),
+    seconds: float = typer.Option(30.0),
+    map_name: str = typer.Option("loop_3x3", "--map"),
+) -> None:
+    """Lane score of a checkpoint over evaluation episodes (all episodes in one batched simulator)."""
+    from proxybench.learning.agent import BCAgent
+    from proxybench.learning.domains import parse_domain
+    from proxybench.learning.evaluate import EvalConfig, evaluate_expert, evaluate_policy
+
+    try:
+        agent = BCAgent(checkpoint)
+        cfg = agent.model.cfg
+        dom = parse_domain(domain, cfg.width, cfg.height)
+    except (FileNotFoundError, ValueError) as exc:
+        raise _fail(str(exc)) from exc
+    ecfg = EvalConfig(episodes=episodes, seconds=seconds, map=map_name)
+    res = evaluate_policy(agent.policy, dom, ecfg)
+    expert = evaluate_expert(dom, ecfg)
+    what = "simulated stand-in for a real robot" if dom.kind == "reality-model" else "simulation"
+    console.print(f"{agent.name} in {dom.name} ({what}): lane score {res.mean:.2f} over {episodes} × {seconds:g} s "
+                  f"(per episode {', '.join(f'{x:.1f}' for x in res.scores)}; expert {expert.mean:.2f})",
+                  highlight=False)

@@ -1,0 +1,165 @@
+"""Collect behaviour-cloning data with the batched simulator: N robots at once, one compiled step per frame.
+
+Who drives and who labels are separate, as BC practice wants:
+
+- **off-policy (expert) data with recovery**: robots start from perturbed poses (wider lateral offset
+  and heading error than evaluation starts) and execute the expert's command *plus* temporally
+  correlated noise (noise injection, as in DART), while every frame is labelled with the expert's
+  clean command. The data then shows how to get back to the lane centre, which pure expert driving
+  never does.
+- **on-policy (DAgger) data**: a learner's batched ``policy(images) -> PWM`` drives (optionally mixed
+  with the expert with probability ``beta``); the expert still labels every frame.
+
+The expert is pure pursuit on the true lane pose (privileged; only a simulator or a motion-capture lab
+knows it). A robot that leaves the road, hits an object of the map or completes ``episode_frames``
+starts a new episode with a new seed — and, for a domain family, a new θ.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from proxybench import __version__
+from proxybench.domain.lane_pose import LP
+from proxybench.domain.params import DomainParams
+from proxybench.domain.simulator import Simulator, StartDistribution
+from proxybench.learning.dataset import ARRAYS, Dataset
+from proxybench.learning.domains import Domain
+from proxybench.learning.expert import expert_actions
+
+__all__ = ["CollectConfig", "Policy", "collect", "episode_seed_for"]
+
+#: a batched learner: camera frames (N, H, W, 3) uint8 → wheel PWM (N, 2)
+Policy = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class CollectConfig:
+    """How data is recorded. Seeds: episode e of a collection with ``seed`` s uses seed (s, e)."""
+
+    samples: int
+    robots: int = 32
+    episode_frames: int = 75  # 5 s at 15 Hz: short episodes, many different starts
+    start_lateral: float = 0.08  # [m] start offset bound (evaluation uses 0.04)
+    start_heading: float = 0.5  # [rad] start heading error bound (evaluation uses 0.35)
+    noise_std: float = 0.15  # [PWM] std of the noise added to the executed expert command
+    noise_corr: float = 0.85  # frame-to-frame correlation of that noise (AR(1)); drifts, not jitter
+    map: str = "loop_3x3"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.samples < 1 or self.robots < 1 or self.episode_frames < 1:
+            raise ValueError("samples, robots and episode_frames must be positive")
+        if not 0.0 <= self.noise_corr < 1.0:
+            raise ValueError(f"noise_corr must be in [0, 1), got {self.noise_corr}")
+
+
+def episode_seed_for(seed: int, episode: int) -> int:
+    """The simulator seed of episode ``episode`` of a collection seeded ``seed`` (disjoint from evaluation)."""
+    return int(np.random.SeedSequence([seed, episode, 0xB0C]).generate_state(1)[0])
+
+
+class _Recorder:
+    """Grows per-sample arrays and the episode table while the batch runs."""
+
+    def __init__(self, domain: Domain, cfg: CollectConfig):
+        self.domain, self.cfg = domain, cfg
+        self.rows: dict[str, list[np.ndarray]] = {k: [] for k in ARRAYS}
+        self.count = 0
+        self.episodes: list[dict[str, Any]] = []
+        self.thetas: list[dict[str, Any]] = []
+        self._theta_key: dict[str, int] = {}
+
+    def new_episode(self, sim: Simulator, robot: int, on_policy: bool) -> int:
+        """Start the next episode on ``robot`` (new seed, new θ for a family); returns its id."""
+        e = len(self.episodes)
+        seed = episode_seed_for(self.cfg.seed, e)
+        theta = self.domain.sample(np.random.default_rng(seed))
+        if self.domain.space is not None:  # a fixed θ is already the simulator's
+            sim.set_params(robot, theta)
+        sim.reset(robot, seed)
+        key = theta.model_dump_json()
+        if key not in self._theta_key:
+            self._theta_key[key] = len(self.thetas)
+            self.thetas.append(theta.model_dump(mode="json"))
+        self.episodes.append({"id": e, "seed": seed, "theta": self._theta_key[key], "robot": robot,
+                              "on_policy": on_policy})
+        return e
+
+    def add(self, keep: np.ndarray, **arrays: np.ndarray) -> None:
+        room = self.cfg.samples - self.count
+        idx = np.flatnonzero(keep)[:room]
+        for k, v in arrays.items():
+            self.rows[k].append(np.asarray(v)[idx])
+        self.count += idx.size
+
+    def dataset(self, extra_meta: dict[str, Any]) -> Dataset:
+        arrays = {k: np.concatenate(v) if v else np.zeros((0,)) for k, v in self.rows.items()}
+        order = np.lexsort((arrays["frame"], arrays["episode"]))  # episode by episode
+        arrays = {k: v[order].astype(ARRAYS[k][0]) for k, v in arrays.items()}
+        used = set(np.unique(arrays["episode"]).tolist())
+        meta = {"domain": self.domain.describe(), "collect": asdict(self.cfg), "proxybench_version": __version__,
+                "episodes": [e for e in self.episodes if e["id"] in used], "thetas": self.thetas, **extra_meta}
+        return Dataset(arrays, meta)
+
+
+def _roomiest(base: DomainParams) -> DomainParams:
+    """θ needing the deepest command and pose histories any θ can need.
+
+    A simulator sizes its history rings for the robots it is built with and, when a later θ needs more,
+    regrows them for *every* robot, restarting their histories mid-episode. Building the batch with this
+    θ first means no draw from a family ever triggers that (every robot gets its real θ before stepping).
+    """
+    return base.replace(command_delay=2.0, delay_jitter=1.0, blur_time=1.0, blur_samples=32)  # DomainParams' bounds
+
+
+def collect(
+    domain: Domain,
+    cfg: CollectConfig,
+    policy: Policy | None = None,
+    beta: float = 0.0,
+    progress: Callable[[int, int], None] | None = None,
+) -> Dataset:
+    """Record ``cfg.samples`` labelled frames in ``domain``.
+
+    Without ``policy`` the noisy expert drives (off-policy data); with one, the learner drives and the
+    expert's command is executed instead with probability ``beta`` per frame (DAgger's mixture).
+    Frames where the robot is off every lane (no valid expert label) are not recorded.
+    """
+    if not 0.0 <= beta <= 1.0:
+        raise ValueError(f"beta must be in [0, 1], got {beta}")
+    base = domain.base
+    start = StartDistribution(lateral=cfg.start_lateral, heading=cfg.start_heading, use_map_start=False)
+    first = base if domain.space is None else _roomiest(base)
+    sim = Simulator(cfg.map, [first] + [base] * (cfg.robots - 1), start=start)
+    rec = _Recorder(domain, cfg)
+    on_policy = policy is not None
+    episode = np.array([rec.new_episode(sim, i, on_policy) for i in range(cfg.robots)], dtype=np.int64)
+    rng = np.random.default_rng([cfg.seed, 0x5EED])
+    noise = np.zeros((cfg.robots, 2))
+    innov = cfg.noise_std * np.sqrt(1.0 - cfg.noise_corr ** 2)
+    while rec.count < cfg.samples:
+        images = sim.render()
+        labels = expert_actions(sim.lane)
+        valid = sim.lane[:, LP.VALID] > 0.5
+        if policy is None:
+            executed = labels + noise
+            noise = cfg.noise_corr * noise + innov * rng.standard_normal(noise.shape)
+        else:
+            learner = np.asarray(policy(images), dtype=np.float64).reshape(cfg.robots, 2)
+            executed = np.where((rng.random(cfg.robots) < beta)[:, None], labels, learner)
+        executed = np.clip(executed, -1.0, 1.0)
+        rec.add(valid, images=images, actions=labels, executed=executed, episode=episode.copy(),
+                frame=sim.frame_index.copy(), on_policy=np.full(cfg.robots, on_policy))
+        sim.step(executed)
+        done = sim.off_road | sim.collided | (sim.frame_index >= cfg.episode_frames) | ~valid
+        for i in np.flatnonzero(done):
+            episode[i] = rec.new_episode(sim, int(i), on_policy)
+            noise[i] = 0.0
+        if progress:
+            progress(min(rec.count, cfg.samples), cfg.samples)
+    return rec.dataset({"beta": beta if on_policy else None})

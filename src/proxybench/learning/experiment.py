@@ -1,0 +1,288 @@
+"""The PLV experiment (thesis §3.7.3, Table 3.1, Figure 3.6) as an importable function.
+
+1. **Target-only learning curve.** The expert drives the target (the reality model: a *simulated*
+   stand-in for a real Duckiebot) with noise injection; a network is trained from scratch on n of
+   those samples for every n of a ladder and every training seed, and scored by the lane score on
+   evaluation episodes in the target. The score at the largest n is the converged score; the reference
+   P is that score less a tolerance, and |D_target| is the smallest n whose mean score reaches P.
+2. **Each proxy.** The expert drives the proxy (an instance θ or a randomised family) for
+   ``proxy_samples`` frames; a network is pre-trained on them (zero-shot score: that network in the
+   target), then fine-tuned on n target samples up the same ladder until its mean score reaches P.
+3. PLV = |D_target| − |D_proxy→target| (weighted by η_on / η_off with DAgger), or "not reached".
+
+Every unit of work (a dataset, a training run and its evaluation) is cached in the output folder under
+a hash of the settings it depends on, so an interrupted run resumes and a longer ladder reuses rungs.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from proxybench.learning.collection import CollectConfig, collect
+from proxybench.learning.dataset import Dataset
+from proxybench.learning.domains import Domain, parse_domain, reality_domain
+from proxybench.learning.evaluate import EvalConfig, evaluate_expert, evaluate_policy
+from proxybench.learning.model import ModelConfig, configure_threads, default_device
+from proxybench.learning.onpolicy import DaggerConfig, dagger
+from proxybench.learning.training import TrainConfig, build_model, save_checkpoint, train
+from proxybench.learning.value import DataCost
+
+__all__ = ["THESIS_PROXIES", "PLVConfig", "PLVResult", "run_plv"]
+
+#: the thesis' proxies (camera pitch 3°, 19°, 35°) and a domain-randomised family
+THESIS_PROXIES: dict[str, str] = {
+    "pitch 3°": "proxy:camera_pitch=3",
+    "pitch 19°": "proxy:camera_pitch=19",
+    "pitch 35°": "proxy:camera_pitch=35",
+    "randomized": "randomized",
+}
+_NESTED = {"model": ModelConfig, "train": TrainConfig, "pretrain": TrainConfig, "finetune": TrainConfig,
+           "collect": CollectConfig, "eval": EvalConfig, "dagger": DaggerConfig}
+
+
+@dataclass
+class PLVConfig:
+    """Every knob of the experiment; ``quick()`` is the few-minutes version for tests and first tries."""
+
+    width: int = 64
+    height: int = 48
+    # target samples (cost units with DAgger): the thesis' 250 … 9,000, plus 50 and 100 to resolve small needs
+    ladder: tuple[int, ...] = (50, 100, 250, 500, 1000, 2000, 4000, 9000)
+    seeds: tuple[int, ...] = (0, 1, 2)  # training seeds: target-data subset, initialisation, minibatch order
+    proxies: dict[str, str] = field(default_factory=lambda: dict(THESIS_PROXIES))
+    proxy_samples: int = 20_000
+    tolerance: float = 0.05  # reach the converged target-only score less 5 % of it
+    stop_when_reached: bool = True  # stop a proxy's ladder at the first rung that reaches the reference
+    model: ModelConfig = field(default_factory=ModelConfig)
+    # target-only, from scratch: 10 epochs, at least 100 and at most 1,000 steps of 64 (fits 45 min on 2 cores)
+    train: TrainConfig = field(default_factory=lambda: TrainConfig(epochs=10.0, min_steps=100, max_steps=1000))
+    pretrain: TrainConfig = field(default_factory=lambda: TrainConfig(epochs=3.0, min_steps=100, max_steps=1000))
+    finetune: TrainConfig = field(default_factory=lambda: TrainConfig(epochs=10.0, min_steps=100, max_steps=1000,
+                                                                      lr=3e-4))
+    collect: CollectConfig = field(default_factory=lambda: CollectConfig(samples=1))  # samples set per use
+    eval: EvalConfig = field(default_factory=lambda: EvalConfig(episodes=10, seconds=30.0))
+    use_dagger: bool = False  # spend on_fraction of each rung on on-policy (DAgger) target samples
+    on_fraction: float = 0.5
+    dagger: DaggerConfig = field(default_factory=DaggerConfig)
+    eta_on: float = 1.0  # cost of one on-policy target sample
+    eta_off: float = 1.0  # cost of one off-policy (expert-driven) target sample
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        self.model = replace(self.model, width=self.width, height=self.height)
+        if sorted(self.ladder) != list(self.ladder) or not self.ladder or self.ladder[0] < 1:
+            raise ValueError(f"the ladder must be increasing positive sample counts, got {self.ladder}")
+        if not 0.0 <= self.on_fraction <= 1.0:
+            raise ValueError(f"on_fraction must be in [0, 1], got {self.on_fraction}")
+
+    @classmethod
+    def quick(cls) -> PLVConfig:
+        """40×30 frames, two seeds, a short ladder and short training: a few minutes on two cores."""
+        return cls(width=40, height=30, ladder=(150, 400, 1000, 2500), seeds=(0, 1), proxy_samples=4000,
+                   train=TrainConfig(epochs=10.0, min_steps=60, max_steps=400),
+                   pretrain=TrainConfig(epochs=4.0, min_steps=60, max_steps=300),
+                   finetune=TrainConfig(epochs=10.0, min_steps=60, max_steps=400, lr=3e-4),
+                   eval=EvalConfig(episodes=4, seconds=15.0))
+
+    def split(self, n: int) -> DataCost:
+        """How a rung of ``n`` target samples is collected: off-policy (expert) and on-policy (DAgger)."""
+        on = round(n * self.on_fraction) if self.use_dagger else 0
+        return DataCost(n - on, on)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], base: PLVConfig | None = None) -> PLVConfig:
+        """A config from JSON-like data; keys not given keep ``base``'s values; unknown keys are errors."""
+        cur = (base or cls()).to_dict()
+        known = {f.name for f in fields(cls)}
+        for k, v in d.items():
+            if k not in known:
+                raise ValueError(f"unknown PLV setting {k!r}; known: {', '.join(sorted(known))}")
+            cur[k] = {**cur[k], **v} if k in _NESTED else v
+        for k, typ in _NESTED.items():
+            cur[k] = typ(**{**cur[k], **({"channels": tuple(cur[k]["channels"]), "hidden": tuple(cur[k]["hidden"])}
+                                         if k == "model" else {})})
+        cur["ladder"], cur["seeds"] = tuple(cur["ladder"]), tuple(cur["seeds"])
+        return cls(**cur)
+
+    def work_key(self) -> str:
+        """Hash of what a training run's result depends on (not the ladder, seeds, proxy list or tolerance)."""
+        d = self.to_dict()
+        for k in ("ladder", "seeds", "proxies", "tolerance", "stop_when_reached", "eta_on", "eta_off"):
+            d.pop(k)
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+@dataclass
+class PLVResult:
+    """Every training run (``runs``), each proxy's pre-training record (``proxies``), the expert's score."""
+
+    config: PLVConfig
+    runs: list[dict[str, Any]]
+    proxies: dict[str, dict[str, Any]]
+    expert_score: float
+    wall_s: float = 0.0
+    stage_s: dict[str, float] = field(default_factory=dict)
+    cached: int = 0  # units of work (training runs, pre-trainings) taken from the cache, not recomputed
+
+    def frame(self):
+        import pandas as pd
+
+        return pd.DataFrame(self.runs)
+
+
+Progress = Callable[[str, int, int], None]
+
+
+class _Work:
+    """Caching and bookkeeping shared by the stages of one run."""
+
+    def __init__(self, cfg: PLVConfig, out: Path, progress: Progress | None):
+        self.cfg, self.out, self.progress = cfg, out, progress
+        self.root = out / "cache" / cfg.work_key()
+        self.device = default_device()
+        self.target = reality_domain(cfg.width, cfg.height)
+        self.eval_cfg = cfg.eval
+        self.stage_s: dict[str, float] = {}
+        self.cached = 0
+
+    def tick(self, stage: str, done: int, total: int) -> None:
+        if self.progress:
+            self.progress(stage, done, total)
+
+    def dataset(self, name: str, domain: Domain, samples: int, seed: int) -> Dataset:
+        folder = self.root / "data" / name
+        if (folder / "dataset.json").exists():
+            return Dataset.load(folder)
+        t0 = time.perf_counter()
+        data = collect(domain, replace(self.cfg.collect, samples=samples, seed=seed),
+                       progress=lambda d, t: self.tick(f"data: {name}", d, t))
+        data.save(folder)
+        self.stage_s["data"] = self.stage_s.get("data", 0.0) + time.perf_counter() - t0
+        return data
+
+    def run(self, arm: str, n: int, seed: int, make: Callable[[int], Any], data: Dataset, tcfg: TrainConfig,
+            ) -> dict[str, Any]:
+        """One rung: train (``make`` gives the starting network), DAgger if asked, evaluate on the target."""
+        cfg = self.cfg
+        path = self.root / "runs" / _slug(arm) / f"n{n}-s{seed}.json"
+        if path.exists():
+            self.cached += 1
+            return json.loads(path.read_text())
+        t0 = time.perf_counter()
+        cost = cfg.split(n)
+        model = make(seed)
+        off = data.take(cost.off_policy, seed) if cost.off_policy else None
+        losses = train(model, off, replace(tcfg, seed=seed)).losses if off is not None else []
+        if cost.on_policy:
+            ccfg = replace(cfg.collect, seed=10_000 + 97 * seed + n)
+            _, rounds = dagger(model, self.target, off, cost.on_policy, ccfg, replace(tcfg, seed=seed), cfg.dagger)
+            losses += [x for r in rounds for x in r.losses]
+        t1 = time.perf_counter()
+        ev = evaluate_policy(_policy(model), self.target, self.eval_cfg)
+        ckpt = save_checkpoint(self.root / "models" / _slug(arm) / f"n{n}-s{seed}.pt", model,
+                               {"arm": arm, "target_samples": asdict(cost), "seed": seed, "score": ev.mean,
+                                "domain": self.target.describe()})
+        row = {"arm": arm, "n": n, "seed": seed, "off_policy": cost.off_policy, "on_policy": cost.on_policy,
+               "cost": cost.weighted(cfg.eta_on, cfg.eta_off), "score": ev.mean, "scores": ev.scores,
+               "terminations": ev.terminations, "final_loss": losses[-1], "train_s": t1 - t0,
+               "eval_s": time.perf_counter() - t1, "checkpoint": str(ckpt)}
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(row, indent=1))
+        return row
+
+
+def _slug(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "-" for c in name).strip("-")
+
+
+def _policy(model):
+    from proxybench.learning.agent import torch_policy
+
+    return torch_policy(model)
+
+
+def _ladder(work: _Work, arm: str, make: Callable[[int], Any], pool: Dataset, tcfg: TrainConfig,
+            reference: float | None) -> list[dict[str, Any]]:
+    """Every seed on each rung; with a ``reference``, stop after the first rung whose mean reaches it."""
+    cfg, rows = work.cfg, []
+    total = len(cfg.ladder) * len(cfg.seeds)
+    for k, n in enumerate(cfg.ladder):
+        rung = []
+        for j, seed in enumerate(cfg.seeds):
+            rung.append(work.run(arm, n, seed, make, pool, tcfg))
+            work.tick(f"train: {arm}", k * len(cfg.seeds) + j + 1, total)
+        rows += rung
+        if reference is not None and cfg.stop_when_reached and np.mean([r["score"] for r in rung]) >= reference:
+            work.tick(f"train: {arm}", total, total)
+            break
+    return rows
+
+
+def _pretrain(work: _Work, name: str, spec: str, index: int) -> tuple[dict[str, Any], Any]:
+    """Proxy data, one pre-trained network, its zero-shot score on the target and its score in the proxy."""
+    cfg = work.cfg
+    domain = parse_domain(spec, cfg.width, cfg.height)
+    data = work.dataset(_slug(name), domain, cfg.proxy_samples, cfg.seed + 1 + index)
+    t0 = time.perf_counter()
+    ckpt = work.root / "models" / _slug(name) / "pretrained.pt"
+    record_path = ckpt.with_name("pretrained-record.json")
+    if record_path.exists():
+        from proxybench.learning.training import load_checkpoint
+
+        model, _ = load_checkpoint(ckpt, work.device)
+        work.cached += 1
+        return json.loads(record_path.read_text()), model
+    model = build_model(cfg.model, cfg.seed, work.device)
+    res = train(model, data, replace(cfg.pretrain, seed=cfg.seed),
+                progress=lambda s, t: work.tick(f"pre-train: {name}", s, t))
+    zero = evaluate_policy(_policy(model), work.target, work.eval_cfg)
+    own = evaluate_policy(_policy(model), domain, work.eval_cfg)
+    save_checkpoint(ckpt, model, {"arm": name, "domain": domain.describe(), "pretrain": asdict(cfg.pretrain),
+                                  "proxy_samples": cfg.proxy_samples, "zero_shot": zero.mean})
+    record = {"spec": spec, "domain": domain.describe(), "zero_shot": zero.mean, "zero_shot_scores": zero.scores,
+              "in_proxy": own.mean, "pretrain_losses": res.losses, "pretrain_s": time.perf_counter() - t0,
+              "samples_per_s": res.samples_per_s, "checkpoint": str(ckpt)}
+    record_path.write_text(json.dumps(record, indent=1))
+    work.stage_s["pretrain"] = work.stage_s.get("pretrain", 0.0) + time.perf_counter() - t0
+    return record, model
+
+
+def run_plv(cfg: PLVConfig, out: str | Path, progress: Progress | None = None) -> PLVResult:
+    """Run (or resume) the whole experiment; caches and checkpoints go under ``out/cache``."""
+    from proxybench.learning.value import reference_score
+
+    t0 = time.perf_counter()
+    configure_threads()
+    work = _Work(cfg, Path(out), progress)
+    pool_size = max(cfg.split(n).off_policy for n in cfg.ladder)
+    pool = work.dataset("target", work.target, pool_size, cfg.seed)
+    expert = evaluate_expert(work.target, work.eval_cfg).mean
+    t1 = time.perf_counter()
+    runs = _ladder(work, "target-only", lambda seed: build_model(cfg.model, seed, work.device), pool, cfg.train,
+                   None)
+    work.stage_s["target-only"] = time.perf_counter() - t1
+    top = [r["score"] for r in runs if r["n"] == cfg.ladder[-1]]
+    reference = reference_score(float(np.mean(top)), cfg.tolerance)
+    proxies: dict[str, dict[str, Any]] = {}
+    for k, (name, spec) in enumerate(cfg.proxies.items()):
+        record, pre = _pretrain(work, name, spec, k)
+        proxies[name] = record
+        t2 = time.perf_counter()
+        if record["zero_shot"] >= reference:
+            record["reached_zero_shot"] = True
+            continue
+        runs += _ladder(work, name, lambda _seed, pre=pre: copy.deepcopy(pre), pool, cfg.finetune, reference)
+        work.stage_s["fine-tune"] = work.stage_s.get("fine-tune", 0.0) + time.perf_counter() - t2
+    return PLVResult(cfg, runs, proxies, expert, time.perf_counter() - t0, work.stage_s, work.cached)
