@@ -32,6 +32,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--workers", type=int, default=os.cpu_count())
+    ap.add_argument("--batch-size", type=int, default=8, help="robots per batched simulator (1: no batching)")
     args = ap.parse_args()
     episodes, seconds = (2, 10.0) if args.quick else (10, 60.0)
     dom = DomainSpec("default-160x120", {"image_width": 160, "image_height": 120})
@@ -39,7 +40,7 @@ def main() -> None:
     backend = make_backend("local", args.workers)
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        res = run_jobs(jobs, tmp, backend)
+        res = run_jobs(jobs, tmp, backend, batch_size=args.batch_size)
         wall = time.perf_counter() - t0
     backend.close()
     cores = backend.workers
