@@ -190,6 +190,20 @@ OBJECT_RANGE = 3.0
 
 
 @nb.njit(cache=True, inline="always")
+def _slab(p, d, half):
+    """(hit possible, t_enter, t_exit) of the ray p + t·d through the slab |x| <= half (±inf when parallel)."""
+    if abs(d) < 1e-12:
+        if p < -half or p > half:
+            return False, 0.0, 0.0
+        return True, -np.inf, np.inf
+    t1 = (-half - p) / d
+    t2 = (half - p) / d
+    if t1 > t2:
+        t1, t2 = t2, t1
+    return True, t1, t2
+
+
+@nb.njit(cache=True, inline="always")
 def _hit_primitive(ox, oy, oz, dx, dy, dz, prim):
     """(t, nx, ny, nz): first hit of the ray O + t D (t > 0) with an upright cylinder or box; t = inf on a miss."""
     inf = np.inf
@@ -221,38 +235,26 @@ def _hit_primitive(ox, oy, oz, dx, dy, dz, prim):
         nx = 0.0
         ny = 0.0
         nz = nzc
-        a = prim[5]
-        if abs(ldx) < 1e-12:
-            if lx < -a or lx > a:
-                return inf, 0.0, 0.0, 0.0
-        else:
-            t1 = (-a - lx) / ldx
-            t2 = (a - lx) / ldx
-            if t1 > t2:
-                t1, t2 = t2, t1
-            if t1 > t_in:
-                t_in = t1
-                sg = -1.0 if ldx > 0.0 else 1.0
-                nx = sg * c
-                ny = sg * s
-                nz = 0.0
-            t_out = min(t_out, t2)
-        b = prim[6]
-        if abs(ldy) < 1e-12:
-            if ly < -b or ly > b:
-                return inf, 0.0, 0.0, 0.0
-        else:
-            t1 = (-b - ly) / ldy
-            t2 = (b - ly) / ldy
-            if t1 > t2:
-                t1, t2 = t2, t1
-            if t1 > t_in:
-                t_in = t1
-                sg = -1.0 if ldy > 0.0 else 1.0
-                nx = -sg * s
-                ny = sg * c
-                nz = 0.0
-            t_out = min(t_out, t2)
+        ok, t1, t2 = _slab(lx, ldx, prim[5])
+        if not ok:
+            return inf, 0.0, 0.0, 0.0
+        if t1 > t_in:
+            t_in = t1
+            sg = -1.0 if ldx > 0.0 else 1.0
+            nx = sg * c
+            ny = sg * s
+            nz = 0.0
+        t_out = min(t_out, t2)
+        ok, t1, t2 = _slab(ly, ldy, prim[6])
+        if not ok:
+            return inf, 0.0, 0.0, 0.0
+        if t1 > t_in:
+            t_in = t1
+            sg = -1.0 if ldy > 0.0 else 1.0
+            nx = -sg * s
+            ny = sg * c
+            nz = 0.0
+        t_out = min(t_out, t2)
         if t_in >= t_out or t_in <= 0.0:
             return inf, 0.0, 0.0, 0.0
         return t_in, nx, ny, nz
