@@ -1,0 +1,255 @@
+"""`proxybench serve`, `submit`, `leaderboard` and `server …`: the challenges server and its clients.
+
+``proxybench serve --evaluators 1`` is the one-command local network: an SQLite server in a data folder
+and an evaluator process pulling its jobs. Clients find the server in ``--server`` / $PROXYBENCH_SERVER
+(default http://127.0.0.1:8000) and their token in ``--token`` / $PROXYBENCH_TOKEN / ``--token-file``
+(default: the local server's ``proxybench-server/admin.token``).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import typer
+from rich.table import Table
+
+from proxybench.cli.app import app, console, err_console
+
+server_app = typer.Typer(no_args_is_help=True, help="Administer a challenges server (users, benchmarks, paths).")
+app.add_typer(server_app, name="server")
+
+DEFAULT_DATA = Path("proxybench-server")
+ServerOpt = typer.Option(None, "--server", envvar="PROXYBENCH_SERVER", help="server URL [http://127.0.0.1:8000]")
+TokenOpt = typer.Option(None, "--token", envvar="PROXYBENCH_TOKEN", help="API token")
+TokenFileOpt = typer.Option(None, "--token-file", help="file holding the API token [proxybench-server/admin.token]")
+
+
+def _client(server: str | None, token: str | None, token_file: Path | None):
+    from proxybench.client import ServerClient
+
+    if token is None:
+        path = token_file or DEFAULT_DATA / "admin.token"
+        if not path.is_file():
+            err_console.print(f"[red]✗[/red] no token: pass --token, set PROXYBENCH_TOKEN or --token-file "
+                              f"({path} does not exist)")
+            raise typer.Exit(2)
+        token = path.read_text().strip()
+    return ServerClient(server or "http://127.0.0.1:8000", token, retry_for=10.0)
+
+
+def _fail(exc: Exception) -> typer.Exit:
+    err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+    return typer.Exit(1)
+
+
+def _evaluator_token(settings) -> Path:
+    """The local evaluators' token file (user ``local-evaluator``, created once)."""
+    from sqlalchemy import select
+    from sqlalchemy.orm import sessionmaker
+
+    from proxybench.server.db import make_engine, migrate, session_scope
+    from proxybench.server.models import User
+    from proxybench.server.security import create_user, issue_token
+
+    path = settings.data_dir / "evaluator.token"
+    if path.is_file():
+        return path
+    engine = make_engine(settings.url)
+    migrate(engine)
+    with session_scope(sessionmaker(engine)) as session:
+        user = session.scalar(select(User).where(User.name == "local-evaluator"))
+        token = issue_token(session, user, "local") if user else create_user(session, "local-evaluator",
+                                                                               "evaluator")[1]
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(token + "\n")
+    engine.dispose()
+    return path
+
+
+@app.command()
+def serve(
+    host: str = typer.Option("127.0.0.1", help="address to listen on (0.0.0.0 for remote evaluators)"),
+    port: int = typer.Option(8000, help="TCP port"),
+    data_dir: Path = typer.Option(DEFAULT_DATA, help="SQLite database, artifacts and tokens"),
+    database_url: str | None = typer.Option(None, envvar="PROXYBENCH_SERVER_DATABASE_URL",
+                                            help="SQLAlchemy URL, e.g. postgresql+psycopg://u:p@host/db"),
+    evaluators: int = typer.Option(0, help="local evaluator processes to start beside the server"),
+    features: str = typer.Option("sim,target", help="features the local evaluators offer"),
+    lease_seconds: float = typer.Option(120.0, help="a job lease lapses this long after the last heartbeat"),
+) -> None:
+    """Run the challenges server (SQLite in --data-dir unless --database-url), optionally with evaluators."""
+    import uvicorn
+
+    from proxybench.server.app import create_app
+    from proxybench.server.config import Settings
+
+    settings = Settings.from_env(data_dir=data_dir, database_url=database_url, lease_seconds=lease_seconds)
+    application = create_app(settings)
+    url = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}"
+    console.print(f"proxybench server on [bold]{url}[/bold]  (database: {settings.url.split('@')[-1]})")
+    console.print(f"  web console: {url}/   API docs: {url}/api/v1/docs")
+    console.print(f"  admin token: {settings.data_dir / 'admin.token'}")
+    procs = []
+    if evaluators:
+        token_file = _evaluator_token(settings)
+        for i in range(evaluators):
+            cmd = [sys.executable, "-m", "proxybench.cli", "evaluator", "--server", url,
+                   "--token-file", str(token_file), "--name", f"local-{i + 1}", "--features", features,
+                   "--work-dir", str(settings.data_dir / "evaluator-work" / f"local-{i + 1}")]
+            procs.append(subprocess.Popen(cmd))
+        console.print(f"  {evaluators} local evaluator(s) started (features: {features})")
+    try:
+        uvicorn.run(application, host=host, port=port, log_level="warning")
+    finally:
+        for p in procs:
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+@app.command()
+def submit(
+    agent: str = typer.Argument(..., help="a built-in agent name, or an agent package (.zip / .tar.gz)"),
+    benchmark: str | None = typer.Option(None, help="benchmark name on the server"),
+    path: str | None = typer.Option(None, "--path", help="benchmark path name on the server (instead of --benchmark)"),
+    label: str | None = typer.Option(None, help="submission label [the agent name]; an older one is retired"),
+    description: str = typer.Option("", help="free text"),
+    wait: bool = typer.Option(False, help="wait until every job has finished, then show the leaderboard"),
+    timeout: float = typer.Option(1800.0, help="give up waiting after this many seconds"),
+    server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
+) -> None:
+    """Submit an agent to a benchmark (or a benchmark path) on a challenges server."""
+    from proxybench.client import ServerError
+
+    if (benchmark is None) == (path is None):
+        raise _fail(ValueError("pass exactly one of --benchmark or --path"))
+    client = _client(server, token, token_file)
+    archive = Path(agent)
+    try:
+        if archive.suffix in (".zip", ".gz", ".tgz", ".tar") and archive.is_file():
+            sub = client.submit_archive(archive, label or archive.stem, benchmark=benchmark, path=path,
+                                        description=description)
+        else:
+            sub = client.submit(agent, label or agent, benchmark=benchmark, path=path, description=description)
+        console.print(f"submission [bold]{sub['id']}[/bold] ({sub['label']}): jobs "
+                      + ", ".join(f"{j['id']} {j['step']} [{j['status']}]" for j in sub["jobs"]))
+        if wait:
+            sub = _wait(client, sub["id"], timeout)
+            for j in sub["jobs"]:
+                console.print(f"  job {j['id']} {j['benchmark']} v{j['benchmark_version']}: {j['status']} "
+                              f"{j['message'][:200]}", highlight=False)
+            for name in sorted({j["benchmark"] for j in sub["jobs"]}):
+                _print_board(client.leaderboard(name))
+            if any(j["status"] != "success" for j in sub["jobs"]):
+                raise typer.Exit(1)
+    except ServerError as exc:
+        raise _fail(exc) from None
+
+
+def _wait(client, sid: int, timeout: float) -> dict:
+    deadline = time.monotonic() + timeout
+    with console.status("waiting for evaluation…") as status:
+        while True:
+            sub = client.get(f"/submissions/{sid}")
+            open_jobs = [j for j in sub["jobs"] if j["status"] in ("queued", "evaluating")]
+            if not open_jobs:
+                return sub
+            if time.monotonic() > deadline:
+                raise _fail(TimeoutError(f"submission {sid}: {len(open_jobs)} job(s) still open after {timeout:g} s"))
+            status.update("waiting for evaluation… " + ", ".join(f"job {j['id']}: {j['status']}" for j in open_jobs))
+            time.sleep(1.0)
+
+
+def _print_board(board: dict) -> None:
+    table = Table(title=f"{board['benchmark']} v{board['version']} ({board['split']})")
+    for col in ("rank", "label", "user", "agent"):
+        table.add_column(col)
+    for c in board["criteria"]:
+        table.add_column(f"{c['metric']} {'↑' if c['higher_is_better'] else '↓'}", justify="right")
+    for row in board["rows"]:
+        values = [row["scores"].get(c["metric"]) for c in board["criteria"]]
+        table.add_row(str(row["rank"]), row["label"], row["user"], str(row["agent"]),
+                      *("–" if v is None else f"{v:.3f}" for v in values))
+    console.print(table)
+
+
+@app.command("leaderboard")
+def show_leaderboard(
+    benchmark: str = typer.Argument(..., help="benchmark name on the server"),
+    split: str = typer.Option("public", help="public (validation) or hidden (test; super-users)"),
+    server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
+) -> None:
+    """Show a benchmark's leaderboard from a challenges server."""
+    from proxybench.client import ServerError
+
+    try:
+        _print_board(_client(server, token, token_file).leaderboard(benchmark, split))
+    except ServerError as exc:
+        raise _fail(exc) from None
+
+
+@server_app.command("user-add")
+def user_add(
+    name: str = typer.Argument(...), role: str = typer.Option("developer", help="superuser, developer or evaluator"),
+    daily_limit: int | None = typer.Option(None, help="submissions per 24 h [server default]"),
+    server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
+) -> None:
+    """Create a user (super-user token needed); prints the new user's token once."""
+    from proxybench.client import ServerError
+
+    try:
+        out = _client(server, token, token_file).post("/users", {"name": name, "role": role,
+                                                                  "daily_limit": daily_limit})
+    except ServerError as exc:
+        raise _fail(exc) from None
+    console.print(f"user {out['name']} ({out['role']}) token: [bold]{out['token']}[/bold]")
+
+
+@server_app.command("benchmark-add")
+def benchmark_add(
+    file: Path = typer.Argument(..., exists=True, dir_okay=False, help="benchmark YAML"),
+    features: str = typer.Option("sim", help="features an evaluator must offer, comma-separated (sim, target)"),
+    server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
+) -> None:
+    """Upload a benchmark file (a changed file under a known name becomes a new version)."""
+    from proxybench.client import ServerError
+
+    body = {"yaml": file.read_text(encoding="utf-8"), "features": [f for f in features.split(",") if f]}
+    try:
+        out = _client(server, token, token_file).post("/benchmarks", body)
+    except ServerError as exc:
+        raise _fail(exc) from None
+    console.print(f"benchmark {out['name']} v{out['version']} " + ("stored" if out["created"] else "unchanged"))
+
+
+@server_app.command("path-add")
+def path_add(
+    file: Path = typer.Argument(..., exists=True, dir_okay=False, help="YAML with name, description, steps, edges"),
+    server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
+) -> None:
+    """Define a benchmark path: steps (benchmarks) and edges with conditions to progress."""
+    import yaml
+
+    from proxybench.client import ServerError
+
+    try:
+        data = yaml.safe_load(file.read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        raise _fail(ValueError(f"{file}: not valid YAML ({exc})")) from None
+    if not isinstance(data, dict):
+        raise _fail(ValueError(f"{file}: expected a mapping with name, steps, edges"))
+    body = {"name": data.get("name"), "description": data.get("description", ""),
+            "spec": {"steps": data.get("steps"), "edges": data.get("edges", [])}}
+    try:
+        out = _client(server, token, token_file).post("/paths", body)
+    except ServerError as exc:
+        raise _fail(exc) from None
+    console.print(f"path {out['name']}: {len(out['spec']['steps'])} steps, {len(out['spec']['edges'])} edges")

@@ -1,0 +1,122 @@
+"""A small HTTP client for the challenges server, used by the CLI and by evaluators.
+
+Connection failures and 5xx replies are retried with backoff (a server restart is a pause, not a lost
+result); 4xx replies raise :class:`ServerError` carrying the server's message.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+__all__ = ["ServerClient", "ServerError"]
+
+API = "/api/v1"
+
+
+class ServerError(RuntimeError):
+    """A request the server refused (4xx) or that never got through; ``status`` is 0 for the latter."""
+
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(f"{status}: {message}" if status else message)
+        self.status = status
+        self.message = message
+
+
+class ServerClient:
+    """``ServerClient("http://127.0.0.1:8000", token)``; every method returns the decoded JSON reply."""
+
+    def __init__(self, url: str, token: str, *, timeout: float = 30.0, retry_for: float = 60.0) -> None:
+        self.url = url.rstrip("/")
+        self.retry_for = retry_for
+        self.http = httpx.Client(base_url=self.url + API, timeout=timeout,
+                                 headers={"Authorization": f"Bearer {token.strip()}"})
+
+    def close(self) -> None:
+        self.http.close()
+
+    def __enter__(self) -> ServerClient:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.close()
+
+    def request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        """Send, retrying connection errors and 5xx for up to ``retry_for`` seconds; raise on 4xx."""
+        deadline = time.monotonic() + self.retry_for
+        delay = 0.2
+        while True:
+            try:
+                r = self.http.request(method, path, **kwargs)
+            except httpx.TransportError as exc:
+                if time.monotonic() > deadline:
+                    raise ServerError(0, f"cannot reach {self.url} ({exc})") from None
+            else:
+                if r.status_code < 500:
+                    if r.status_code >= 400:
+                        try:
+                            detail = r.json().get("detail", r.text)
+                        except ValueError:
+                            detail = r.text
+                        raise ServerError(r.status_code, str(detail))
+                    return r
+                if time.monotonic() > deadline:
+                    raise ServerError(r.status_code, r.text[:500])
+            time.sleep(delay)
+            delay = min(delay * 2, 5.0)
+
+    def get(self, path: str, **params: Any) -> Any:
+        return self.request("GET", path, params={k: v for k, v in params.items() if v is not None}).json()
+
+    def post(self, path: str, body: dict[str, Any] | None = None) -> Any:
+        r = self.request("POST", path, json=body or {})
+        return None if r.status_code == 204 else r.json()
+
+    # -- developers --------------------------------------------------------------------------------
+
+    def me(self) -> dict[str, Any]:
+        return self.get("/me")
+
+    def submit(self, agent: str, label: str, *, benchmark: str | None = None, path: str | None = None,
+               description: str = "") -> dict[str, Any]:
+        return self.post("/submissions", {"agent": agent, "label": label, "benchmark": benchmark, "path": path,
+                                          "description": description})
+
+    def submit_archive(self, archive: Path, label: str, *, benchmark: str | None = None, path: str | None = None,
+                       description: str = "") -> dict[str, Any]:
+        data = {"label": label, "description": description}
+        data.update({k: v for k, v in (("benchmark", benchmark), ("path", path)) if v is not None})
+        with archive.open("rb") as f:
+            return self.request("POST", "/submissions/upload", data=data,
+                                files={"archive": (archive.name, f, "application/octet-stream")}).json()
+
+    def leaderboard(self, benchmark: str, split: str = "public") -> dict[str, Any]:
+        return self.get(f"/leaderboards/{benchmark}", split=split)
+
+    # -- evaluators --------------------------------------------------------------------------------
+
+    def lease(self, evaluator: str, features: list[str], version: str = "") -> dict[str, Any] | None:
+        return self.post("/jobs/lease", {"evaluator": evaluator, "features": features, "version": version})
+
+    def heartbeat(self, job_id: int, lease_id: str, evaluator: str, progress: dict[str, Any] | None = None) -> Any:
+        return self.post(f"/jobs/{job_id}/heartbeat", {"lease_id": lease_id, "evaluator": evaluator,
+                                                       "progress": progress})
+
+    def put_artifact(self, data: bytes, media_type: str = "application/octet-stream") -> str:
+        sha = hashlib.sha256(data).hexdigest()
+        self.request("PUT", f"/artifacts/{sha}", content=data, headers={"content-type": media_type})
+        return sha
+
+    def get_artifact(self, sha256: str) -> bytes:
+        """Download and check the content hash (a corrupted transfer is an error, not an agent)."""
+        data = self.request("GET", f"/artifacts/{sha256}").content
+        if hashlib.sha256(data).hexdigest() != sha256:
+            raise ServerError(0, f"artifact {sha256[:12]}…: downloaded bytes do not match their hash")
+        return data
+
+    def result(self, job_id: int, body: dict[str, Any]) -> dict[str, Any]:
+        return self.post(f"/jobs/{job_id}/result", body)

@@ -1,0 +1,70 @@
+"""Request dependencies: the database session, the caller (from the API token) and role checks."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from typing import Annotated
+
+from fastapi import Depends, Request
+from sqlalchemy.orm import Session
+
+from proxybench.server.config import Settings
+from proxybench.server.db import session_scope
+from proxybench.server.errors import ServiceError
+from proxybench.server.models import User
+from proxybench.server.security import user_for_token
+
+__all__ = ["DB", "Caller", "Conf", "require"]
+
+TOKEN_COOKIE = "proxybench_token"
+
+
+def get_session(request: Request) -> Iterator[Session]:
+    with session_scope(request.app.state.sessions) as session:
+        yield session
+
+
+def get_settings(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+DB = Annotated[Session, Depends(get_session)]
+Conf = Annotated[Settings, Depends(get_settings)]
+
+
+def _token(request: Request) -> str | None:
+    auth = request.headers.get("authorization", "")
+    if auth.lower().startswith("bearer "):
+        return auth[7:].strip()
+    return request.cookies.get(TOKEN_COOKIE)
+
+
+def current_user(request: Request, session: DB) -> User:
+    """The caller; 401 with a clear message when the token is missing, unknown or revoked."""
+    token = _token(request)
+    if not token:
+        raise ServiceError(401, "no API token: send 'Authorization: Bearer <token>'")
+    user = user_for_token(session, token)
+    if user is None:
+        raise ServiceError(401, "invalid or revoked API token")
+    return user
+
+
+def optional_user(request: Request, session: DB) -> User | None:
+    token = _token(request)
+    return user_for_token(session, token) if token else None
+
+
+def require(*roles: str) -> Callable[..., User]:
+    """A dependency admitting only the given roles (super-users are always admitted)."""
+
+    def check(user: Annotated[User, Depends(current_user)]) -> User:
+        if user.role != "superuser" and user.role not in roles:
+            raise ServiceError(403, f"user {user.name!r} ({user.role}) may not do this; "
+                                    f"needs role {' or '.join(('superuser', *roles))}")
+        return user
+
+    return check
+
+
+Caller = Annotated[User, Depends(current_user)]

@@ -1,0 +1,134 @@
+"""The evaluators' side: lease a job, heartbeat, upload its result; plus the queue views and operator actions."""
+
+from __future__ import annotations
+
+import time
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, Request, Response
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from proxybench.server.api.deps import DB, Caller, Conf, require
+from proxybench.server.api.schemas import HeartbeatIn, LeaseIn, ResultIn
+from proxybench.server.errors import ServiceError
+from proxybench.server.models import ArtifactLink, Evaluator, Job, User
+from proxybench.server.queue import finish, heartbeat, lease, requeue_expired, retry
+from proxybench.server.submissions import advance
+from proxybench.server.views import can_see, evaluator_view, job_events, job_view, result_view
+
+router = APIRouter(tags=["jobs"])
+EvaluatorUser = Annotated[User, Depends(require("evaluator"))]
+Superuser = Annotated[User, Depends(require())]
+
+
+def _evaluator(session: Session, user: User, name: str, features: list[str] | None = None,
+               version: str | None = None) -> Evaluator:
+    """The caller's evaluator of that name (registered on first contact); marks it seen."""
+    ev = session.scalar(select(Evaluator).where(Evaluator.user_id == user.id, Evaluator.name == name))
+    now = time.time()
+    if ev is None:
+        if features is None:
+            raise ServiceError(404, f"no evaluator {name!r} for user {user.name!r}; lease a job first")
+        ev = Evaluator(user_id=user.id, name=name, features=sorted(set(features)), version=version or "",
+                       created_at=now, last_seen_at=now, jobs_done=0)
+        session.add(ev)
+        session.flush()
+    if features is not None:
+        ev.features = sorted(set(features))
+    if version is not None:
+        ev.version = version
+    ev.last_seen_at = now
+    return ev
+
+
+@router.post("/jobs/lease", responses={204: {"description": "no job for these features now"}})
+def lease_job(body: LeaseIn, session: DB, settings: Conf, user: EvaluatorUser) -> Any:
+    """Lease the oldest job this evaluator can run; 204 when there is none. Keep it with heartbeats."""
+    ev = _evaluator(session, user, body.evaluator, body.features, body.version)
+    job = lease(session, ev, settings.lease_seconds)
+    if job is None:
+        return Response(status_code=204)
+    sub = job.submission
+    bench = job.benchmark
+    return {"job_id": job.id, "lease_id": job.lease_id, "lease_seconds": settings.lease_seconds,
+            "attempt": job.attempts, "step": job.step,
+            "submission": {"id": sub.id, "label": sub.label, "agent": sub.agent_name,
+                           "archive_sha256": sub.archive_sha256, "manifest": sub.manifest},
+            "benchmark": {"name": bench.name, "version": bench.version, "spec_yaml": bench.spec_yaml,
+                          "test_seed": bench.test_seed}}
+
+
+@router.post("/jobs/{job_id}/heartbeat")
+def job_heartbeat(job_id: int, body: HeartbeatIn, session: DB, settings: Conf,
+                  user: EvaluatorUser) -> dict[str, Any]:
+    """Extend the lease; 409 means it was lost (stop and drop the work)."""
+    ev = _evaluator(session, user, body.evaluator)
+    job = heartbeat(session, job_id, body.lease_id, ev, settings.lease_seconds, body.progress)
+    return {"job_id": job.id, "lease_expires_at": job.lease_expires_at}
+
+
+@router.post("/jobs/{job_id}/result")
+def job_result(job_id: int, body: ResultIn, request: Request, session: DB, settings: Conf, response: Response,
+               user: EvaluatorUser) -> dict[str, Any]:
+    """Record the job's outcome. Safe to retry: the same lease's upload is stored once (200 on a repeat)."""
+    ev = _evaluator(session, user, body.evaluator)
+    store = request.app.state.store
+    for k, ref in enumerate(body.artifacts):
+        if not store.has(ref.sha256):
+            raise ServiceError(422, f"artifacts.{k}: {ref.name!r} ({ref.sha256[:12]}…) was not uploaded; "
+                                    "PUT it to /api/v1/artifacts/{sha256} first")
+    result, created = finish(session, job_id, body.lease_id, ev, body.status, body.model_dump())
+    if result is None:
+        response.status_code = 202
+        return {"job_id": job_id, "status": "host-error", "requeued": session.get(Job, job_id).status == "queued"}
+    if created:
+        for ref in body.artifacts:
+            session.add(ArtifactLink(sha256=ref.sha256, submission_id=result.submission_id, result_id=result.id,
+                                     name=ref.name, hidden=ref.hidden))
+        opened = advance(session, result.job, result, settings.max_attempts)
+        response.status_code = 201
+    else:
+        opened = []
+    session.flush()
+    return {**result_view(session, result, True), "recorded": created, "opened_jobs": [j.id for j in opened]}
+
+
+@router.get("/jobs")
+def list_jobs(session: DB, user: Caller, status: str | None = None, limit: int = 200) -> list[dict[str, Any]]:
+    """The queue (super-users and evaluators: every job; developers: their own)."""
+    requeue_expired(session)
+    q = select(Job).order_by(Job.id.desc()).limit(max(1, min(limit, 1000)))
+    if status:
+        q = q.where(Job.status == status)
+    jobs = session.scalars(q).all()
+    if user.role == "developer":
+        jobs = [j for j in jobs if can_see(user, j.submission)]
+    return [job_view(j) for j in jobs]
+
+
+@router.get("/jobs/{job_id}")
+def get_job(job_id: int, session: DB, user: Caller) -> dict[str, Any]:
+    job = session.get(Job, job_id)
+    if job is None:
+        raise ServiceError(404, f"no job {job_id}")
+    if user.role == "developer" and not can_see(user, job.submission):
+        raise ServiceError(403, f"job {job_id} belongs to another user's submission")
+    return {**job_view(job), "events": job_events(session, job_id)}
+
+
+@router.post("/jobs/{job_id}/retry", status_code=201)
+def retry_job(job_id: int, session: DB, settings: Conf, _: Superuser) -> dict[str, Any]:
+    """Operator: re-run a job that ended without success (as a new job)."""
+    job = session.get(Job, job_id)
+    if job is None:
+        raise ServiceError(404, f"no job {job_id}")
+    return job_view(retry(session, job, settings.max_attempts))
+
+
+@router.get("/evaluators")
+def list_evaluators(session: DB, settings: Conf, _: Caller) -> list[dict[str, Any]]:
+    """Evaluators and their health (seen within one lease period)."""
+    now = time.time()
+    return [evaluator_view(e, now, settings.lease_seconds)
+            for e in session.scalars(select(Evaluator).order_by(Evaluator.last_seen_at.desc()))]

@@ -1,0 +1,99 @@
+"""The challenges server as a FastAPI app, built by :func:`create_app` from :class:`Settings`.
+
+At start it migrates the database to the newest schema, registers the built-in benchmarks (a changed
+file becomes a new version) and, on an empty database, creates the super-user ``admin`` whose token is
+written to ``<data_dir>/admin.token`` (mode 600). JSON API under ``/api/v1`` (OpenAPI at
+``/api/v1/openapi.json``, docs at ``/api/v1/docs``); web pages at ``/``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from sqlalchemy import func, select
+from sqlalchemy.orm import sessionmaker
+
+from proxybench import __version__
+from proxybench.server.artifacts import ArtifactStore
+from proxybench.server.benchmarks import register_builtins
+from proxybench.server.config import Settings
+from proxybench.server.db import make_engine, migrate, session_scope
+from proxybench.server.errors import ServiceError
+from proxybench.server.limits import BodyLimit
+from proxybench.server.models import User
+from proxybench.server.security import create_user
+
+__all__ = ["bootstrap", "create_app"]
+
+API = "/api/v1"
+
+
+def bootstrap(settings: Settings, factory: sessionmaker) -> str | None:
+    """Built-in benchmarks, and the first super-user on an empty database (returns its new token)."""
+    with session_scope(factory) as session:
+        register_builtins(session)
+        if session.scalar(select(func.count()).select_from(User)):
+            return None
+        _, token = create_user(session, "admin", "superuser")
+    path = settings.data_dir / "admin.token"
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(token + "\n")
+    return token
+
+
+def _validation_message(exc: RequestValidationError) -> str:
+    parts = []
+    for err in exc.errors()[:10]:
+        loc = ".".join(str(p) for p in err.get("loc", ()) if p != "body") or "body"
+        parts.append(f"{loc}: {err.get('msg', 'invalid')}")
+    return "; ".join(parts)
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """A ready server: database migrated, built-ins registered, routes mounted."""
+    settings = settings or Settings.from_env()
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    engine = make_engine(settings.url)
+    migrate(engine)
+    factory = sessionmaker(engine, expire_on_commit=False)
+    app = FastAPI(title="proxybench challenges server", version=__version__, openapi_url=f"{API}/openapi.json",
+                  docs_url=f"{API}/docs", redoc_url=None)
+    app.state.settings = settings
+    app.state.engine = engine
+    app.state.sessions = factory
+    app.state.store = ArtifactStore(settings.artifact_dir)
+    app.state.admin_token = bootstrap(settings, factory)
+    app.add_middleware(BodyLimit, limits=[(f"{API}/artifacts/", settings.artifact_max_bytes),
+                                          (f"{API}/submissions/upload", settings.archive_max_bytes + (1 << 20))],
+                       default=settings.json_max_bytes)
+
+    @app.exception_handler(ServiceError)
+    async def _service_error(_: Request, exc: ServiceError) -> JSONResponse:
+        return JSONResponse({"detail": exc.message}, status_code=exc.status)
+
+    @app.exception_handler(RequestValidationError)
+    async def _invalid(_: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = [{"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
+                  for e in exc.errors()[:10]]
+        return JSONResponse({"detail": _validation_message(exc), "errors": errors}, status_code=422)
+
+    from proxybench.server.api import artifacts, benchmarks, jobs, submissions, users
+
+    for module in (users, benchmarks, submissions, jobs, artifacts):
+        app.include_router(module.router, prefix=API)
+
+    @app.get(f"{API}/health", tags=["health"])
+    def health() -> dict[str, str]:
+        return {"status": "ok", "version": __version__}
+
+    web = Path(__file__).with_name("web")
+    if (web / "__init__.py").exists():
+        from proxybench.server.web import mount
+
+        mount(app)
+    return app

@@ -1,0 +1,50 @@
+"""Server settings: typed, read from the environment (``PROXYBENCH_SERVER_*``) or given in code.
+
+Built in a factory, never at import, so tests and the CLI can run several servers side by side.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = ["Settings"]
+
+_ENV_PREFIX = "PROXYBENCH_SERVER_"
+
+
+class Settings(BaseModel):
+    """Everything a challenges server needs to know. Sizes in bytes, times in seconds."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    data_dir: Path = Field(Path("proxybench-server"), description="artifacts, SQLite file and the admin token")
+    database_url: str | None = Field(None, description="SQLAlchemy URL; default: SQLite in data_dir")
+    lease_seconds: float = Field(120.0, gt=0, description="a job lease lapses this long after the last heartbeat")
+    max_attempts: int = Field(3, ge=1, description="leases a job may take before it is given up")
+    daily_submission_limit: int = Field(20, ge=0, description="submissions per developer per 24 h (0: no limit)")
+    archive_max_bytes: int = Field(64 << 20, gt=0, description="largest agent archive accepted")
+    artifact_max_bytes: int = Field(256 << 20, gt=0, description="largest artifact accepted")
+    json_max_bytes: int = Field(8 << 20, gt=0, description="largest JSON or YAML request body accepted")
+
+    @property
+    def url(self) -> str:
+        """The database URL in effect (SQLite in ``data_dir`` unless one was given)."""
+        return self.database_url or f"sqlite:///{(self.data_dir / 'server.sqlite3').resolve()}"
+
+    @property
+    def artifact_dir(self) -> Path:
+        return self.data_dir / "artifacts"
+
+    @classmethod
+    def from_env(cls, **overrides: object) -> Settings:
+        """Settings from ``PROXYBENCH_SERVER_<FIELD>`` variables, then ``overrides`` (those not None)."""
+        values: dict[str, object] = {}
+        for name in cls.model_fields:
+            raw = os.environ.get(_ENV_PREFIX + name.upper())
+            if raw is not None:
+                values[name] = raw
+        values.update({k: v for k, v in overrides.items() if v is not None})
+        return cls.model_validate(values)

@@ -1,0 +1,29 @@
+"""Shared fixtures: server tests run once on SQLite and once on a real PostgreSQL server."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from support.postgres import PostgresServer
+
+
+@pytest.fixture(scope="session")
+def postgres():
+    server = PostgresServer()
+    reason = server.start()
+    if reason is not None:
+        if os.environ.get("PROXYBENCH_REQUIRE_PG"):
+            pytest.fail(f"PostgreSQL required (PROXYBENCH_REQUIRE_PG) but unavailable: {reason}")
+        pytest.skip(reason)
+    yield server
+    server.stop()
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def database_url(request, tmp_path):
+    """A fresh, empty database of each kind."""
+    if request.param == "sqlite":
+        return f"sqlite:///{tmp_path / 'server.sqlite3'}"
+    return request.getfixturevalue("postgres").new_database()
