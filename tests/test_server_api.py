@@ -43,7 +43,7 @@ class Api:
 
     def finish(self, lease, status="success", name="e1", scores=SCORES, **extra):
         body = {"evaluator": name, "lease_id": lease["lease_id"], "status": status, "public_scores": scores,
-                "hidden_scores": {k: v + 1 for k, v in scores.items()}, **extra}
+                "hidden_scores": {k: None if v is None else v + 1 for k, v in scores.items()}, **extra}
         return self.c.post(f"/api/v1/jobs/{lease['job_id']}/result", headers=self.ev, json=body)
 
 
@@ -264,3 +264,29 @@ def test_restart_keeps_everything(tmp_path, database_url):
     view = again.get(f"/api/v1/submissions/{sub['id']}", headers=api.dev).json()
     assert view["results"][0]["public_scores"]["survival_time_median"] == 60.0
     assert again.get("/api/v1/benchmarks", headers=api.dev).status_code == 200
+
+
+def test_success_without_ranking_scores_refused(api):
+    api.submit(api.dev)
+    lease = api.lease().json()
+    r = api.finish(lease, scores={"survival_time_median": 60.0})
+    assert r.status_code == 422 and "driven_lanedir_consec_median" in r.json()["detail"]
+    r = api.finish(lease, scores={**SCORES, "deviation_center_line_median": None})  # not computable: ranks last
+    assert r.status_code == 201
+    row = api.c.get("/api/v1/leaderboards/aido_lf", headers=api.dev).json()["rows"][0]
+    assert row["scores"]["deviation_center_line_median"] is None
+
+
+def test_migrations_match_models(database_url):
+    """The Alembic revisions create exactly the schema the ORM models describe."""
+    from alembic.autogenerate import compare_metadata
+    from alembic.migration import MigrationContext
+
+    from proxybench.server.db import make_engine, migrate
+    from proxybench.server.models import Base
+
+    engine = make_engine(database_url)
+    migrate(engine)
+    with engine.connect() as conn:
+        diff = compare_metadata(MigrationContext.configure(conn), Base.metadata)
+    assert diff == []

@@ -7,6 +7,7 @@ hidden test episodes (super-users only: the API refuses developers).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from sqlalchemy import select
@@ -30,6 +31,10 @@ def _version(session: Session, name: str, version: int | None) -> BenchmarkVersi
     return row
 
 
+def _json_number(v: float | None) -> float | None:
+    return None if v is None or (isinstance(v, float) and math.isnan(v)) else v
+
+
 def leaderboard_rows(session: Session, name: str, split: str = "public",
                      version: int | None = None) -> dict[str, Any]:
     """The ranked table as plain data: criteria, then one row per submission (best first)."""
@@ -46,7 +51,8 @@ def leaderboard_rows(session: Session, name: str, split: str = "public",
     for result, sub in results:
         newest[sub.id] = (result, sub)  # the latest success per submission (a retried step replaces the older)
     scores = {sid: (r.public_scores if split == "public" else r.hidden_scores) for sid, (r, _) in newest.items()}
-    scores = {sid: s for sid, s in scores.items() if s}
+    # a metric the evaluator could not compute arrives as null: NaN ranks it worst, as in proxybench evaluate
+    scores = {sid: {k: (math.nan if v is None else v) for k, v in s.items()} for sid, s in scores.items() if s}
     ranks = leaderboard(scores, criteria) if scores else []
     rows = []
     for rank in ranks:
@@ -54,7 +60,7 @@ def leaderboard_rows(session: Session, name: str, split: str = "public",
         rows.append({"rank": rank.rank, "submission_id": sub.id, "label": sub.label, "user": sub.user.name,
                      "agent": sub.agent_name or (sub.manifest or {}).get("name", "archive"),
                      "copeland": rank.copeland, "wins": rank.wins, "losses": rank.losses,
-                     "scores": {c.metric: scores[rank.agent].get(c.metric) for c in criteria},
+                     "scores": {c.metric: _json_number(scores[rank.agent].get(c.metric)) for c in criteria},
                      "result_id": result.id, "at": result.created_at})
     return {"benchmark": row.name, "version": row.version, "split": split,
             "criteria": [{"metric": c.metric, "higher_is_better": c.higher_is_better, "tolerance": c.tolerance}

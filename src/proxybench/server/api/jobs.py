@@ -11,6 +11,7 @@ from sqlalchemy.orm import Session
 
 from proxybench.server.api.deps import DB, Caller, Conf, require
 from proxybench.server.api.schemas import HeartbeatIn, LeaseIn, ResultIn
+from proxybench.server.benchmarks import benchmark_of
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import ArtifactLink, Evaluator, Job, User
 from proxybench.server.queue import finish, heartbeat, lease, requeue_expired, retry
@@ -78,6 +79,8 @@ def job_result(job_id: int, body: ResultIn, request: Request, session: DB, setti
         if not store.has(ref.sha256):
             raise ServiceError(422, f"artifacts.{k}: {ref.name!r} ({ref.sha256[:12]}…) was not uploaded; "
                                     "PUT it to /api/v1/artifacts/{sha256} first")
+    if body.status == "success":
+        _check_scores(session, job_id, body)
     result, created = finish(session, job_id, body.lease_id, ev, body.status, body.model_dump())
     if result is None:
         response.status_code = 202
@@ -92,6 +95,20 @@ def job_result(job_id: int, body: ResultIn, request: Request, session: DB, setti
         opened = []
     session.flush()
     return {**result_view(session, result, True), "recorded": created, "opened_jobs": [j.id for j in opened]}
+
+
+def _check_scores(session: Session, job_id: int, body: ResultIn) -> None:
+    """A success must carry every score the benchmark ranks by (else its leaderboard could not rank it)."""
+    job = session.get(Job, job_id)
+    if job is None:
+        raise ServiceError(404, f"no job {job_id}")
+    needed = [c.metric for c in benchmark_of(job.benchmark).criteria()]
+    for field, scores in (("public_scores", body.public_scores), ("hidden_scores", body.hidden_scores)):
+        if field == "hidden_scores" and job.benchmark.test_seed is None:
+            continue
+        missing = [m for m in needed if m not in scores]
+        if missing:
+            raise ServiceError(422, f"{field}: missing {', '.join(missing)} (the benchmark ranks by them)")
 
 
 @router.get("/jobs")
