@@ -34,7 +34,7 @@ class Api:
         assert r.status_code == 201, r.text
         return {"Authorization": f"Bearer {r.json()['token']}"}
 
-    def submit(self, who, label="a", agent="pid", benchmark="aido_lf", **kw):
+    def submit(self, who, label="a", agent="vision", benchmark="aido_lf", **kw):
         return self.c.post("/api/v1/submissions", headers=who,
                            json={"label": label, "agent": agent, "benchmark": benchmark, **kw})
 
@@ -79,7 +79,7 @@ def test_job_lifecycle_result_exactly_once_and_leaderboard(api):
     sub = api.submit(api.dev).json()
     assert [j["status"] for j in sub["jobs"]] == ["queued"]
     lease = api.lease().json()
-    assert lease["submission"]["agent"] == "pid" and lease["benchmark"]["name"] == "aido_lf"
+    assert lease["submission"]["agent"] == "vision" and lease["benchmark"]["name"] == "aido_lf"
     assert api.lease().status_code == 204  # nothing else queued
     hb = api.c.post(f"/api/v1/jobs/{lease['job_id']}/heartbeat", headers=api.ev,
                     json={"evaluator": "e1", "lease_id": lease["lease_id"], "progress": {"done": 1, "total": 5}})
@@ -89,7 +89,7 @@ def test_job_lifecycle_result_exactly_once_and_leaderboard(api):
     assert first.status_code == 201 and again.status_code == 200 and again.json()["recorded"] is False
     assert first.json()["id"] == again.json()["id"]
     other = api.c.post(f"/api/v1/jobs/{lease['job_id']}/result", headers=api.ev,
-                       json={"evaluator": "e1", "lease_id": "0" * 32, "status": "success"})
+                       json={"evaluator": "e1", "lease_id": "0" * 32, "status": "failed"})
     assert other.status_code == 409
     board = api.c.get("/api/v1/leaderboards/aido_lf", headers=api.dev).json()
     assert [r["label"] for r in board["rows"]] == ["a"]
@@ -147,6 +147,12 @@ def test_submission_limits_and_retiring(tmp_path, database_url):
     assert api.c.get(f"/api/v1/submissions/{new['id']}", headers=api.dev).json()["status"] == "active"
     assert api.c.get(f"/api/v1/submissions/{new['id']}", headers=api.dev2).status_code == 403
     assert api.submit(api.dev, agent="no-such-agent", label="x").status_code in (422, 429)
+
+
+def test_privileged_agent_refused_on_camera_only_benchmark(api):
+    r = api.submit(api.dev, agent="pid")
+    assert r.status_code == 422 and "privileged" in r.json()["detail"] and "aido_lf" in r.json()["detail"]
+    assert api.submit(api.dev, agent="pid", benchmark="thesis_loop").status_code == 201
 
 
 def test_bad_input_refused_with_clear_messages(api):

@@ -7,9 +7,9 @@ import threading
 import time
 
 from sqlalchemy import create_engine, text
-from support.live_server import LiveServer
 
 from proxybench.client import ServerClient, ServerError
+from support.live_server import LiveServer
 
 SCORES = {"driven_lanedir_consec_median": 5.0, "survival_time_median": 60.0,
           "deviation_center_line_median": 0.1, "in_drivable_lane_median": 0.0}
@@ -21,7 +21,7 @@ def _submitter(server: LiveServer, token: str, stop: threading.Event, accepted: 
         while not stop.is_set():
             n += 1
             try:
-                accepted.append(c.submit("pid", f"s{threading.get_ident()}-{n}", benchmark="aido_lf")["id"])
+                accepted.append(c.submit("vision", f"s{threading.get_ident()}-{n}", benchmark="aido_lf")["id"])
             except ServerError as exc:
                 errors.append(str(exc))
 

@@ -66,14 +66,16 @@ def create_submission(session: Session, user: User, *, label: str, description: 
     if not label or len(label) > 64:
         raise ServiceError(422, "field 'label': 1 to 64 characters")
     if agent_name is not None:
-        from proxybench.agents.zoo import agent_names
+        from proxybench.agents.zoo import ZOO
 
-        if agent_name not in agent_names():
-            raise ServiceError(422, f"field 'agent': no built-in agent {agent_name!r} "
-                                    f"(known: {', '.join(agent_names())})")
+        if agent_name not in ZOO:
+            raise ServiceError(422, f"field 'agent': no built-in agent {agent_name!r} (known: {', '.join(ZOO)})")
     spec = path_spec(session, path) if path is not None else PathSpec(steps=[Step(id="main", benchmark=benchmark)])
     for step in spec.steps:
-        latest(session, step.benchmark)  # 404 now, not when the step opens
+        bench = benchmark_of(latest(session, step.benchmark))  # 404 now, not when the step opens
+        if agent_name is not None and bench.camera_only and ZOO[agent_name].privileged:
+            raise ServiceError(422, f"field 'agent': {agent_name!r} is privileged (reads the true lane pose); "
+                                    f"benchmark {bench.name!r} admits camera-only agents")
     _check_limit(session, user, daily_limit)
     for old in session.scalars(select(Submission).where(Submission.user_id == user.id, Submission.label == label,
                                                         Submission.status == "active")):

@@ -7,7 +7,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Request, Response
 from sqlalchemy import select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, selectinload
 
 from proxybench.server.api.deps import DB, Caller, Conf, require
 from proxybench.server.api.schemas import HeartbeatIn, LeaseIn, ResultIn
@@ -115,7 +115,8 @@ def _check_scores(session: Session, job_id: int, body: ResultIn) -> None:
 def list_jobs(session: DB, user: Caller, status: str | None = None, limit: int = 200) -> list[dict[str, Any]]:
     """The queue (super-users and evaluators: every job; developers: their own)."""
     requeue_expired(session)
-    q = select(Job).order_by(Job.id.desc()).limit(max(1, min(limit, 1000)))
+    q = (select(Job).order_by(Job.id.desc()).limit(max(1, min(limit, 1000)))
+         .options(selectinload(Job.benchmark), selectinload(Job.evaluator), selectinload(Job.submission)))
     if status:
         q = q.where(Job.status == status)
     jobs = session.scalars(q).all()

@@ -1,0 +1,141 @@
+"""Challenges server under bounded load on 127.0.0.1: throughput, p50/p99 latency and errors.
+
+    .venv/bin/python benchmarks/bench_server.py                 # 200 clients × 60 s, SQLite then PostgreSQL
+    .venv/bin/python benchmarks/bench_server.py --quick         # 20 clients × 5 s
+    .venv/bin/python benchmarks/bench_server.py --db sqlite --clients 100 --seconds 30
+
+A real ``proxybench serve`` process (one uvicorn worker) serves; this process runs the clients as
+asyncio tasks on one connection pool. Each client loops over a mix like a busy challenge: 70 % leaderboard
+reads, 10 % queue listings, 10 % submissions, 10 % lease + result (an evaluator with an instant "run").
+PostgreSQL is a throwaway server started from the installed binaries (or $PROXYBENCH_TEST_PG_URL).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import random
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from support.live_server import LiveServer
+from support.postgres import PostgresServer
+
+SCORES = {"driven_lanedir_consec_median": 5.0, "survival_time_median": 60.0,
+          "deviation_center_line_median": 0.1, "in_drivable_lane_median": 0.0}
+OPS = ("leaderboard", "jobs", "submit", "lease+result")
+WEIGHTS = (0.7, 0.1, 0.1, 0.1)
+
+
+async def _client(i: int, http: httpx.AsyncClient, admin: dict, ev: dict, until: float,
+                  lat: dict[str, list[float]], errors: dict[str, int]) -> None:
+    rng = random.Random(i)
+    n = 0
+    while time.perf_counter() < until:
+        op = rng.choices(OPS, WEIGHTS)[0]
+        t0 = time.perf_counter()
+        try:
+            if op == "leaderboard":
+                r = await http.get("/api/v1/leaderboards/aido_lf", headers=admin)
+                ok = r.status_code == 200
+            elif op == "jobs":
+                r = await http.get("/api/v1/jobs", params={"limit": 20}, headers=admin)
+                ok = r.status_code == 200
+            elif op == "submit":
+                n += 1
+                r = await http.post("/api/v1/submissions", headers=admin,
+                                    json={"label": f"c{i}-{n}", "agent": "vision", "benchmark": "aido_lf"})
+                ok = r.status_code == 201
+            else:
+                r = await http.post("/api/v1/jobs/lease", headers=ev, json={"evaluator": f"e{i}", "features": ["sim"]})
+                ok = r.status_code in (200, 204)
+                if r.status_code == 200:
+                    job = r.json()
+                    r = await http.post(f"/api/v1/jobs/{job['job_id']}/result", headers=ev,
+                                        json={"evaluator": f"e{i}", "lease_id": job["lease_id"], "status": "success",
+                                              "public_scores": SCORES, "hidden_scores": SCORES})
+                    ok = r.status_code == 201
+        except httpx.HTTPError:
+            ok = False
+        lat[op].append(time.perf_counter() - t0)
+        if not ok:
+            errors[op] += 1
+
+
+async def _load(url: str, admin_token: str, clients: int, seconds: float) -> tuple[dict, dict, float]:
+    limits = httpx.Limits(max_connections=clients, max_keepalive_connections=clients)
+    async with httpx.AsyncClient(base_url=url, limits=limits, timeout=60.0) as http:
+        admin = {"Authorization": f"Bearer {admin_token}"}
+        r = await http.post("/api/v1/users", headers=admin, json={"name": "bench-ev", "role": "evaluator"})
+        ev = {"Authorization": f"Bearer {r.json()['token']}"}
+        lat: dict[str, list[float]] = {op: [] for op in OPS}
+        errors = dict.fromkeys(OPS, 0)
+        t0 = time.perf_counter()
+        await asyncio.gather(*(_client(i, http, admin, ev, t0 + seconds, lat, errors) for i in range(clients)))
+        return lat, errors, time.perf_counter() - t0
+
+
+def run_case(db: str, clients: int, seconds: float, console: Console) -> list[tuple]:
+    tmp = Path(tempfile.mkdtemp(prefix="pbbench-"))
+    (tmp / "data").mkdir()
+    pg = None
+    url = None
+    if db == "postgresql":
+        pg = PostgresServer()
+        reason = pg.start()
+        if reason:
+            console.print(f"[yellow]PostgreSQL skipped: {reason}[/yellow]")
+            return []
+        url = pg.new_database()
+    server = LiveServer(tmp / "data", url).start()
+    try:
+        console.print(f"{db}: {clients} clients × {seconds:g} s on {server.url} …")
+        lat, errors, wall = asyncio.run(_load(server.url, server.admin_token, clients, seconds))
+    finally:
+        server.stop()
+        if pg:
+            pg.stop()
+    rows = []
+    for op in OPS:
+        a = np.array(lat[op]) * 1000
+        if len(a):
+            rows.append((db, op, len(a) / wall, np.percentile(a, 50), np.percentile(a, 99), errors[op]))
+    total = sum(len(v) for v in lat.values())
+    allv = np.concatenate([np.array(v) for v in lat.values() if v]) * 1000
+    rows.append((db, "all", total / wall, np.percentile(allv, 50), np.percentile(allv, 99), sum(errors.values())))
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--db", choices=("sqlite", "postgresql", "both"), default="both")
+    ap.add_argument("--clients", type=int, default=200)
+    ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument("--quick", action="store_true", help="20 clients × 5 s")
+    args = ap.parse_args()
+    if args.quick:
+        args.clients, args.seconds = 20, 5.0
+    console = Console()
+    rows = []
+    for db in (("sqlite", "postgresql") if args.db == "both" else (args.db,)):
+        rows += run_case(db, args.clients, args.seconds, console)
+    table = Table(title=f"proxybench server load — {args.clients} clients × {args.seconds:g} s, "
+                        f"{os.cpu_count()} cores, 1 uvicorn worker, clients in the same machine")
+    for col in ("database", "operation", "req/s", "p50 ms", "p99 ms", "errors"):
+        table.add_column(col, justify="left" if col in ("database", "operation") else "right")
+    for db, op, rps, p50, p99, err in rows:
+        table.add_row(db, op, f"{rps:,.0f}", f"{p50:.1f}", f"{p99:.1f}", str(err))
+    console.print(table)
+
+
+if __name__ == "__main__":
+    main()
