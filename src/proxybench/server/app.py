@@ -9,6 +9,10 @@ written to ``<data_dir>/admin.token`` (mode 600). JSON API under ``/api/v1`` (Op
 from __future__ import annotations
 
 import os
+import sys
+import threading
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from pathlib import Path
 
 from fastapi import FastAPI, Request
@@ -54,6 +58,33 @@ def _validation_message(exc: RequestValidationError) -> str:
     return "; ".join(parts)
 
 
+def _reap(app: FastAPI, stop: threading.Event) -> None:
+    """Return lapsed leases to the queue even when no evaluator asks for work (the queue page stays true)."""
+    from proxybench.server.api.deps import write_turn
+    from proxybench.server.queue import requeue_expired
+
+    period = max(0.5, app.state.settings.lease_seconds / 4)
+    while not stop.wait(period):
+        try:
+            with write_turn(app, "POST"), session_scope(app.state.sessions) as session:
+                requeue_expired(session)
+        except Exception as exc:  # a database hiccup must not kill the reaper
+            print(f"lease reaper: {exc}", file=sys.stderr)
+
+
+@asynccontextmanager
+async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    stop = threading.Event()
+    reaper = threading.Thread(target=_reap, args=(app, stop), name="lease-reaper", daemon=True)
+    reaper.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        reaper.join(5)
+        app.state.engine.dispose()
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """A ready server: database migrated, built-ins registered, routes mounted."""
     settings = settings or Settings.from_env()
@@ -62,11 +93,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     migrate(engine)
     factory = sessionmaker(engine, expire_on_commit=False)
     app = FastAPI(title="proxybench challenges server", version=__version__, openapi_url=f"{API}/openapi.json",
-                  docs_url=f"{API}/docs", redoc_url=None)
+                  docs_url=f"{API}/docs", redoc_url=None, lifespan=_lifespan)
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessions = factory
     app.state.store = ArtifactStore(settings.artifact_dir)
+    app.state.write_lock = threading.Lock() if settings.url.startswith("sqlite") else None
     app.state.admin_token = bootstrap(settings, factory)
     app.add_middleware(BodyLimit, limits=[(f"{API}/artifacts/", settings.artifact_max_bytes),
                                           (f"{API}/submissions/upload", settings.archive_max_bytes + (1 << 20))],

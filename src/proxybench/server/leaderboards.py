@@ -8,6 +8,8 @@ hidden test episodes (super-users only: the API refuses developers).
 from __future__ import annotations
 
 import math
+import threading
+from collections import OrderedDict
 from typing import Any
 
 from sqlalchemy import select
@@ -16,7 +18,7 @@ from sqlalchemy.orm import Session
 from proxybench.server.benchmarks import benchmark_of, latest
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import BenchmarkVersion, Result, Submission
-from proxybench.tasks.scoring import leaderboard
+from proxybench.tasks.scoring import Rank, leaderboard
 
 __all__ = ["leaderboard_rows"]
 
@@ -29,6 +31,27 @@ def _version(session: Session, name: str, version: int | None) -> BenchmarkVersi
     if row is None:
         raise ServiceError(404, f"benchmark {name!r} has no version {version}")
     return row
+
+
+_RANK_CACHE: OrderedDict[tuple, list[Rank]] = OrderedDict()
+_RANK_CACHE_LOCK = threading.Lock()
+
+
+def _ranked(bench_id: int, split: str, key_rows: tuple, scores: dict, criteria: list) -> list[Rank]:
+    """Copeland ranking is quadratic in the entries: compute it once per set of (submission, result)."""
+    if not scores:
+        return []
+    key = (bench_id, split, key_rows)
+    with _RANK_CACHE_LOCK:
+        if key in _RANK_CACHE:
+            _RANK_CACHE.move_to_end(key)
+            return _RANK_CACHE[key]
+    ranks = leaderboard(scores, criteria)
+    with _RANK_CACHE_LOCK:
+        _RANK_CACHE[key] = ranks
+        while len(_RANK_CACHE) > 64:
+            _RANK_CACHE.popitem(last=False)
+    return ranks
 
 
 def _json_number(v: float | None) -> float | None:
@@ -53,7 +76,7 @@ def leaderboard_rows(session: Session, name: str, split: str = "public",
     scores = {sid: (r.public_scores if split == "public" else r.hidden_scores) for sid, (r, _) in newest.items()}
     # a metric the evaluator could not compute arrives as null: NaN ranks it worst, as in proxybench evaluate
     scores = {sid: {k: (math.nan if v is None else v) for k, v in s.items()} for sid, s in scores.items() if s}
-    ranks = leaderboard(scores, criteria) if scores else []
+    ranks = _ranked(row.id, split, tuple(sorted((sid, r.id) for sid, (r, _) in newest.items())), scores, criteria)
     rows = []
     for rank in ranks:
         result, sub = newest[rank.agent]

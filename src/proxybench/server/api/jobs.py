@@ -14,7 +14,7 @@ from proxybench.server.api.schemas import HeartbeatIn, LeaseIn, ResultIn
 from proxybench.server.benchmarks import benchmark_of
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import ArtifactLink, Evaluator, Job, User
-from proxybench.server.queue import finish, heartbeat, lease, requeue_expired, retry
+from proxybench.server.queue import finish, heartbeat, lease, retry
 from proxybench.server.submissions import advance
 from proxybench.server.views import can_see, evaluator_view, job_events, job_view, result_view
 
@@ -114,7 +114,6 @@ def _check_scores(session: Session, job_id: int, body: ResultIn) -> None:
 @router.get("/jobs")
 def list_jobs(session: DB, user: Caller, status: str | None = None, limit: int = 200) -> list[dict[str, Any]]:
     """The queue (super-users and evaluators: every job; developers: their own)."""
-    requeue_expired(session)
     q = (select(Job).order_by(Job.id.desc()).limit(max(1, min(limit, 1000)))
          .options(selectinload(Job.benchmark), selectinload(Job.evaluator), selectinload(Job.submission)))
     if status:
