@@ -157,6 +157,9 @@ def retry(session: Session, job: Job, max_attempts: int) -> Job:
     if job.status not in ("error", "timeout", "host-error", "aborted", "failed"):
         raise ServiceError(409, f"job {job.id} is {job.status}; only jobs that ended in error, timeout, "
                                 "host-error, aborted or failed can be retried")
+    again = session.scalar(select(JobEvent).where(JobEvent.job_id == job.id, JobEvent.kind == "retried").limit(1))
+    if again is not None:  # a double click or a repeated request must not queue the job twice
+        raise ServiceError(409, f"job {job.id} was already retried ({again.message}); retry that job instead")
     new = Job(submission_id=job.submission_id, benchmark_id=job.benchmark_id, step=job.step, features=job.features,
               status="queued", max_attempts=max_attempts, created_at=time.time())
     session.add(new)

@@ -42,7 +42,9 @@ def get_settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-DB = Annotated[Session, Depends(get_session)]
+# scope='function': commit (or roll back) *before* the response is sent, so that a client that got its answer
+# (or followed a redirect) reads what it wrote, and a failed commit is an error, not a lost write
+DB = Annotated[Session, Depends(get_session, scope="function")]
 Conf = Annotated[Settings, Depends(get_settings)]
 
 

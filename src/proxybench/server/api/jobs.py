@@ -53,7 +53,7 @@ def lease_job(body: LeaseIn, session: DB, settings: Conf, user: EvaluatorUser) -
     sub = job.submission
     bench = job.benchmark
     return {"job_id": job.id, "lease_id": job.lease_id, "lease_seconds": settings.lease_seconds,
-            "attempt": job.attempts, "step": job.step,
+            "attempt": job.attempts, "step": job.step, "features": job.features,
             "submission": {"id": sub.id, "label": sub.label, "agent": sub.agent_name,
                            "archive_sha256": sub.archive_sha256, "manifest": sub.manifest},
             "benchmark": {"name": bench.name, "version": bench.version, "spec_yaml": bench.spec_yaml,

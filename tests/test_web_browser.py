@@ -1,0 +1,136 @@
+"""The web console in a real headless Chromium (Debian's ``chromium``, driven by Playwright; no browser download).
+
+A uvicorn server on 127.0.0.1 serves a demo database (``proxybench.server.web.demo``); the browser signs in
+by pasting tokens, as people do. Skipped when ``/usr/bin/chromium`` or the ``playwright`` package is missing
+(Debian: ``apt-get install chromium``; ``pip install playwright``; never ``playwright install``).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import pytest
+
+CHROMIUM = Path("/usr/bin/chromium")
+# The network is closed here: without these flags Chromium stalls on background connections.
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+
+if os.environ.get("PROXYBENCH_REQUIRE_CHROMIUM"):  # CI installs both: a missing one is a failure there
+    assert CHROMIUM.exists(), "PROXYBENCH_REQUIRE_CHROMIUM is set but /usr/bin/chromium is missing"
+    import playwright.sync_api
+if not CHROMIUM.exists():
+    pytest.skip("no /usr/bin/chromium (Debian package 'chromium'); browser tests skipped", allow_module_level=True)
+playwright = pytest.importorskip("playwright.sync_api", reason="the 'playwright' Python package is not installed")
+
+from fastapi.testclient import TestClient  # noqa: E402
+
+from proxybench.server.app import create_app  # noqa: E402
+from proxybench.server.config import Settings  # noqa: E402
+from proxybench.server.web.demo import DemoData, seed_demo, serve_in_thread  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """(base URL, demo data, app) of a live server on a free port."""
+    app = create_app(Settings(data_dir=tmp_path_factory.mktemp("web-browser") / "data"))
+    with TestClient(app) as client:
+        demo = seed_demo(client, app.state.admin_token)
+    with serve_in_thread(app) as url:
+        yield url, demo, app
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with playwright.sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, timeout=30_000)
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def page(browser):
+    context = browser.new_context(viewport={"width": 1280, "height": 900})
+    context.set_default_timeout(15_000)
+    yield context.new_page()
+    context.close()
+
+
+def sign_in(page, url: str, demo: DemoData, who: str, start: str = "/") -> None:
+    """Open ``start`` signed out, land on the login form, paste the token, come back to ``start``."""
+    page.goto(url + start)
+    assert page.url.startswith(url + "/login?next=")
+    page.fill("#token", demo.tokens[who])
+    page.click("form[action='/login'] button")
+    page.wait_for_url(url + start)
+    assert page.inner_text("[data-testid=user]") == who
+
+
+def test_sign_in_and_see_the_leaderboard_ranking(server, page):
+    url, demo, app = server
+    sign_in(page, url, demo, "alice", "/leaderboards/aido_lf")
+    labels = page.locator("[data-testid=leaderboard] tbody tr td:nth-child(2)").all_inner_texts()
+    with TestClient(app) as client:
+        board = client.get("/api/v1/leaderboards/aido_lf",
+                           headers={"Authorization": f"Bearer {demo.tokens['alice']}"}).json()
+    assert labels == [r["label"] for r in board["rows"]] and len(labels) == 4
+    ranks = page.locator("[data-testid=leaderboard] tbody tr td:nth-child(1)").all_inner_texts()
+    assert ranks == [str(r["rank"]) for r in board["rows"]]
+    assert page.locator("[data-testid=tab-hidden]").count() == 0  # developers get no hidden tab
+    page.goto(url + "/leaderboards/aido_lf?split=hidden")
+    assert "super-users only" in page.inner_text("[data-testid=error-message]")
+    page.click("text=Sign out")
+    page.wait_for_url(url + "/login")
+    page.goto(url + "/")
+    assert page.url.startswith(url + "/login")
+
+
+def test_submission_page_shows_metrics_and_plot(server, page):
+    url, demo, app = server
+    sid = demo.submissions["vision v2"]
+    sign_in(page, url, demo, "bob", f"/submissions/{sid}")
+    with TestClient(app) as client:
+        sub = client.get(f"/api/v1/submissions/{sid}", headers={"Authorization": f"Bearer {demo.tokens['bob']}"})
+    episodes = sub.json()["results"][0]["public_report"]["episodes"]
+    header = [h.replace("\u200b", "") for h in page.locator("[data-testid=episodes] thead th").all_inner_texts()]
+    assert header[:3] == ["episode", "seed", "ended by"] and "survival_time" in header
+    rows = page.locator("[data-testid=episodes] tbody tr")
+    assert rows.count() == len(episodes) == 5
+    for k, ep in enumerate(episodes):
+        cells = rows.nth(k).locator("td").all_inner_texts()
+        assert cells[:3] == [str(ep["episode"]), str(ep["seed"]), ep["termination"]]
+        assert cells[header.index("survival_time")] == f"{ep['scores']['survival_time']:,.3f}"
+    plot = page.locator("svg.bars")
+    assert plot.is_visible() and plot.bounding_box()["width"] > 300
+    assert page.locator("svg.bars rect.bars-bar").count() == 25
+    assert page.locator("text=Test scores (hidden)").count() == 0
+    page.click("text=History of job")
+    assert page.locator("details.log pre").first.is_visible()
+
+
+def test_a_developer_cannot_open_another_users_submission(server, page):
+    url, demo, _ = server
+    sign_in(page, url, demo, "alice")
+    response = page.goto(url + f"/submissions/{demo.submissions['vision v2']}")
+    assert response.status == 403
+    assert page.inner_text("h1") == "403 · Not allowed"
+    assert "belongs to another user" in page.inner_text("[data-testid=error-message]")
+    assert page.goto(url + "/operator").status == 403
+    assert page.locator("nav >> text=Operator").count() == 0
+
+
+def test_operator_retry_requeues_a_failed_job(server, page):
+    url, demo, _ = server
+    job = demo.jobs["failed"][0]
+    sign_in(page, url, demo, "admin", "/operator")
+    page.click(f"[data-testid=retry-{job}]")
+    page.wait_for_url(re.compile(r".*/operator\?retried=\d+&as=\d+$"))
+    new = page.url.rsplit("=", 1)[1]
+    assert page.inner_text(".flash") == f"Job {job} was re-queued as job {new}."
+    assert page.locator(f"[data-testid=retry-{job}]").count() == 0
+    page.goto(url + "/jobs?status=queued")
+    row = page.locator(f"#job-{new}")
+    assert row.is_visible() and "queued" in row.inner_text()
+
