@@ -6,7 +6,9 @@
 Each figure is the median of 3 runs, driven by the privileged PID controller (as the gym-duckietown
 reference figures were), after a warm-up that compiles the kernels. Targets (2 cores, no GPU):
 single env 640×480 without blur ≥ 500 steps/s; N = 64 at 80×60 ≥ 25,000 env-steps/s; physics + lane
-pose without rendering ≥ 1,000,000 env-steps/s.
+pose without rendering ≥ 1,000,000 env-steps/s. With 10 map objects and 3 NPC robots per episode the
+simulator may cost at most 2× the empty road (issue 8): the ``simulator, ...`` rows measure both side by side
+and the last lines print the ratio.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from proxybench.agents.pid import wheels_for
 from proxybench.domain.env import LaneFollowingEnv, LaneFollowingVectorEnv
 from proxybench.domain.lane_pose import LP
 from proxybench.domain.maps import Map, MapObject, load_map
+from proxybench.domain.npcs import NpcRobot, Traffic
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
 
@@ -79,6 +82,28 @@ def bench_vector(steps: int, n: int, width: int, height: int, blur: float) -> fl
     return n * steps / (time.perf_counter() - t0)
 
 
+#: three NPC Duckiebots: one 0.6 m ahead in the robot's lane (in view), two anywhere on the lanes
+THREE_NPCS = Traffic(robots=(NpcRobot(ahead=0.6), NpcRobot(), NpcRobot(driver="pure-pursuit")))
+
+
+def bench_sim(steps: int, n: int, width: int, height: int, map_: Map | str = "loop_3x3",
+              npcs: Traffic | None = None) -> float:
+    """Env-steps/s of the simulator itself (render + step, PD on the egos and the NPC robots), any world."""
+    sim = Simulator(map_, DomainParams(image_width=width, image_height=height, blur_time=0.0), n=n, npcs=npcs)
+    for i in range(n):
+        sim.reset(i, seed=i)
+    sim.render()
+    t0 = time.perf_counter()
+    for k in range(steps):
+        sim.render()
+        npc = pid_actions(sim.npc_lane[:, LP.LATERAL], sim.npc_lane[:, LP.HEADING_ERROR]) if sim.worlds.k else None
+        sim.step(pid_actions(sim.lane[:, LP.LATERAL], sim.lane[:, LP.HEADING_ERROR]), npc_commands=npc)
+        if k % 150 == 149:  # fresh episodes now and then, as an env would after a crash
+            for i in range(n):
+                sim.reset(i, seed=k + i)
+    return n * steps / (time.perf_counter() - t0)
+
+
 def bench_physics(steps: int, n: int) -> float:
     sim = Simulator("loop_3x3", DomainParams(), n=n, render=False)
     sim.step(np.zeros((n, 2)))
@@ -109,6 +134,12 @@ def main() -> None:
          250),
         ("batched N=64, 80×60, blur 0.05 s ×3", "env-steps/s", median3(bench_vector, int(200 * k), 64, 80, 60, 0.05),
          None, 250),
+        ("simulator, 640×480, empty road", "steps/s", median3(bench_sim, int(900 * k), 1, 640, 480), None, 50),
+        ("simulator, 640×480, 10 objects + 3 NPC robots", "steps/s",
+         median3(bench_sim, int(900 * k), 1, 640, 480, loop_with_objects(), THREE_NPCS), None, 50),
+        ("simulator N=64, 80×60, empty road", "env-steps/s", median3(bench_sim, int(150 * k), 64, 80, 60), None, 250),
+        ("simulator N=64, 80×60, 10 objects + 3 NPC robots each", "env-steps/s",
+         median3(bench_sim, int(150 * k), 64, 80, 60, loop_with_objects(), THREE_NPCS), None, 250),
         ("physics + lane pose, N=4096, no rendering", "env-steps/s", median3(bench_physics, int(300 * k), 4096),
          1_000_000, 500),
     ]
@@ -121,6 +152,11 @@ def main() -> None:
         table.add_row(name, unit, f"{value:,.0f}", f"{target:,}{ok}" if target else "–", f"{ref:,}",
                       f"{value / ref:,.0f}×")
     Console(width=130).print(table)
+    by = {name: value for name, _, value, _, _ in rows}
+    for size, a, b in (("640×480", "simulator, 640×480, empty road", "simulator, 640×480, 10 objects + 3 NPC robots"),
+                       ("N=64 80×60", "simulator N=64, 80×60, empty road",
+                        "simulator N=64, 80×60, 10 objects + 3 NPC robots each")):
+        print(f"cost of 10 objects + 3 NPC robots, {size}: {by[a] / by[b]:.2f}× the empty road (target ≤ 2×)")
 
 
 if __name__ == "__main__":

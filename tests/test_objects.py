@@ -211,7 +211,7 @@ def test_culling_boxes_are_conservative(monkeypatch):
     def full_boxes(*args):
         original(*args)
         box = args[-1]
-        box[..., 0], box[..., 1], box[..., 2], box[..., 3] = 0, args[6], 0, args[7]
+        box[..., 0], box[..., 1], box[..., 2], box[..., 3] = 0, args[-5], 0, args[-4]  # (.., w, h, vis, nvis, box)
 
     monkeypatch.setattr(rmod, "cull_objects", full_boxes)
     for p, img in zip(poses, culled, strict=True):

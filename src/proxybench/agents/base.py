@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from proxybench.domain.lane_pose import LanePose
+from proxybench.domain.routes import RouteInfo
 
 __all__ = ["Agent", "Observation"]
 
@@ -23,7 +24,9 @@ class Observation:
 
     ``camera``: (H, W, 3) uint8 RGB or None; ``time`` [s] since the episode start; ``odometry``: (left,
     right) wheel axis angles [rad], quantised to the encoder's ``odometry_resolution`` [rad];
-    ``lane_pose``: ground truth, given to privileged agents only.
+    ``lane_pose``: ground truth, given to privileged agents only (through an intersection, measured
+    against the lane of the chosen exit); ``route``: the turn chosen at the intersection ahead and the
+    distance to its stop line, privileged agents only.
     """
 
     camera: np.ndarray | None
@@ -31,6 +34,7 @@ class Observation:
     odometry: tuple[float, float] | None = None
     odometry_resolution: float | None = None
     lane_pose: LanePose | None = None
+    route: RouteInfo | None = None
 
 
 class Agent(ABC):

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from proxybench.agents.base import Agent, Observation
+from proxybench.agents.stopping import StopLineBrake, StopRule
 
 __all__ = ["LanePIDAgent", "PIDGains"]
 
@@ -29,18 +30,24 @@ class PIDGains:
 
 
 class LanePIDAgent(Agent):
-    """ω = −(k_lat e + k_head θ_e + k_i ∫e); PWM from (v, ω) by the nominal DB18 steady state."""
+    """ω = −(k_lat e + k_head θ_e + k_i ∫e); PWM from (v, ω) by the nominal DB18 steady state.
+
+    With a ``stop`` rule it also stops at the red lines before intersections (``agents.stopping``).
+    """
 
     privileged = True
     name = "pid"
 
-    def __init__(self, gains: PIDGains | None = None, frame_dt: float = 1 / 15):
+    def __init__(self, gains: PIDGains | None = None, frame_dt: float = 1 / 15, stop: StopRule | None = None):
         self.gains = gains or PIDGains()
         self.frame_dt = frame_dt
         self._integral = 0.0
+        self._brake = StopLineBrake(stop) if stop is not None else None
 
     def reset(self, seed: int, episode: str | None = None) -> None:
         self._integral = 0.0
+        if self._brake is not None:
+            self._brake.reset()
 
     def act(self, obs: Observation) -> np.ndarray:
         lp = self.true_lane_pose(obs)
@@ -50,7 +57,10 @@ class LanePIDAgent(Agent):
         self._integral = float(np.clip(self._integral + lp.lateral * self.frame_dt, -g.integral_limit,
                                        g.integral_limit))
         omega = -(g.k_lateral * lp.lateral + g.k_heading * lp.heading_error + g.k_integral * self._integral)
-        return wheels_for(g.speed, omega)
+        if self._brake is None:
+            return wheels_for(g.speed, omega)
+        speed = self._brake.speed(obs, g.speed)
+        return wheels_for(speed, omega) if speed > 0 else np.zeros(2)  # stand still, do not spin
 
 
 def wheels_for(v: float, omega: float, a_v: float = 5.0, b_v: float = 1.5, a_w: float = 4.0,

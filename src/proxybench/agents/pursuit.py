@@ -14,6 +14,7 @@ import numpy as np
 
 from proxybench.agents.base import Agent, Observation
 from proxybench.agents.pid import wheels_for
+from proxybench.agents.stopping import StopLineBrake, StopRule
 
 __all__ = ["PurePursuitAgent", "lookahead_point"]
 
@@ -31,15 +32,23 @@ def lookahead_point(lateral: float, heading_error: float, curvature: float, dist
 
 
 class PurePursuitAgent(Agent):
-    """Follow the right-lane centre by pure pursuit at ``speed`` [m/s] with a ``lookahead`` [m]."""
+    """Follow the right-lane centre by pure pursuit at ``speed`` [m/s] with a ``lookahead`` [m].
+
+    With a ``stop`` rule it also stops at the red lines before intersections (``agents.stopping``).
+    """
 
     privileged = True
     name = "pure-pursuit"
 
-    def __init__(self, speed: float = 0.35, lookahead: float = 0.25):
+    def __init__(self, speed: float = 0.35, lookahead: float = 0.25, stop: StopRule | None = None):
         if speed <= 0 or lookahead <= 0:
             raise ValueError(f"speed and lookahead must be positive, got {speed}, {lookahead}")
         self.speed, self.lookahead = speed, lookahead
+        self._brake = StopLineBrake(stop) if stop is not None else None
+
+    def reset(self, seed: int, episode: str | None = None) -> None:
+        if self._brake is not None:
+            self._brake.reset()
 
     def act(self, obs: Observation) -> np.ndarray:
         lp = self.true_lane_pose(obs)
@@ -47,4 +56,5 @@ class PurePursuitAgent(Agent):
             return np.zeros(2)
         x, y = lookahead_point(lp.lateral, lp.heading_error, lp.curvature, self.lookahead)
         kappa = 2.0 * y / max(x * x + y * y, 1e-6)
-        return wheels_for(self.speed, self.speed * kappa)
+        speed = self.speed if self._brake is None else self._brake.speed(obs, self.speed)
+        return wheels_for(speed, speed * kappa)

@@ -14,6 +14,7 @@ from proxybench.agents.base import Agent
 from proxybench.agents.pid import LanePIDAgent, PIDGains
 from proxybench.agents.pursuit import PurePursuitAgent
 from proxybench.agents.simple import BangBangAgent, RandomAgent, StraightAgent
+from proxybench.agents.stopping import StopRule
 from proxybench.agents.vision import AssumedCamera, LaneVisionAgent
 
 __all__ = ["ZOO", "ZooEntry", "agent_names", "make_agent"]
@@ -53,10 +54,14 @@ ZOO: dict[str, ZooEntry] = {
                                               "pid-sluggish"), "PID with low gains: drifts wide in curves"),
         _entry("pid-twitchy", lambda: _named(LanePIDAgent(PIDGains(k_lateral=40.0, k_heading=12.0)),
                                              "pid-twitchy"), "PID with high gains: oscillates, worse with delay"),
+        _entry("pid-stop", lambda: _named(LanePIDAgent(stop=StopRule()), "pid-stop"),
+               "PID on the true lane pose, 0.3 m/s, stopping 1 s at every stop line"),
         _entry("pure-pursuit", lambda: _named(PurePursuitAgent(), "pure-pursuit"),
                "pure pursuit on the true lane geometry, 0.35 m/s (the expert)"),
         _entry("pure-pursuit-fast", lambda: _named(PurePursuitAgent(speed=0.5, lookahead=0.3),
                                                    "pure-pursuit-fast"), "pure pursuit at 0.5 m/s"),
+        _entry("pure-pursuit-stop", lambda: _named(PurePursuitAgent(stop=StopRule()), "pure-pursuit-stop"),
+               "pure pursuit at 0.35 m/s, stopping 1 s at every stop line"),
         _entry("vision", lambda: _named(LaneVisionAgent(), "vision"),
                "camera only: colour segmentation, ground projection, line fit, PID"),
         _entry("vision-fast", lambda: _named(LaneVisionAgent(speed=0.4), "vision-fast"), "vision at 0.4 m/s"),

@@ -114,7 +114,7 @@ def _agent_specs(names: list[str], commands: list[str]) -> list:
 
 @app.command()
 def evaluate(
-    benchmark: str = typer.Argument(..., help="benchmark YAML file or built-in name (aido_lf, thesis_loop)"),
+    benchmark: str = typer.Argument(..., help="benchmark YAML file or built-in name (aido_lf, aido_lfi, thesis_loop)"),
     agent: list[str] = typer.Option([], "--agent", help="zoo agent (repeat); default: every admitted one"),
     agent_cmd: list[str] = typer.Option([], "--agent-cmd", help="NAME=COMMAND of an external agent node (repeat)"),
     domain: str | None = typer.Option(None, help="run in this named domain instead (default, reality)"),
@@ -122,10 +122,12 @@ def evaluate(
     workers: int | None = typer.Option(None, help="parallel workers (default: one per core)"),
     run_dir: Path | None = typer.Option(None, help="run directory (default: out/evaluate/<benchmark>)"),
     video: bool = typer.Option(False, "--video", help="also record episode 0 of every agent (MP4 + PNG strip)"),
+    quick: bool = typer.Option(False, "--quick", help="smoke test: the first 2 episodes, at most 15 s each"),
 ) -> None:
     """Run agents on a benchmark and print the leaderboard in the benchmark's lexicographic semiorder.
 
-    Episodes are cached in the run directory: run again to resume an interrupted evaluation.
+    Episodes are cached in the run directory: run again to resume an interrupted evaluation. The table
+    counts the episodes that ended in a collision (with a map object, a duckie, a pedestrian or a robot).
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -139,6 +141,8 @@ def evaluate(
     except BenchmarkError as exc:
         err_console.print(f"[red]error:[/red] {exc}", highlight=False)
         raise typer.Exit(1) from exc
+    if quick:
+        bench = _quick(bench)
     specs = _agent_specs(agent or list(ZOO) if not agent_cmd else agent, agent_cmd)
     run_dir = run_dir or Path("out/evaluate") / bench.name
     be = make_backend(backend, workers)
@@ -159,6 +163,16 @@ def evaluate(
         _videos(ev, specs, run_dir)
 
 
+def _quick(bench, episodes: int = 2, seconds: float = 15.0):
+    """The benchmark cut to its first ``episodes`` episodes of at most ``seconds`` (renamed ``<name>-quick``)."""
+    ep = bench.episodes
+    cut = {k: getattr(ep, k)[:episodes] for k in ("poses", "seeds", "routes") if getattr(ep, k, None) is not None}
+    if ep.count is not None:
+        cut["count"] = min(ep.count, episodes)
+    return bench.model_copy(update={"name": f"{bench.name}-quick", "duration": min(bench.duration, seconds),
+                                    "episodes": ep.model_copy(update=cut)})
+
+
 def _videos(ev, specs, run_dir: Path) -> None:
     """Episode 0 of each admitted agent, recorded in the benchmark's domain."""
     from proxybench.domain.params import DomainParams
@@ -177,12 +191,32 @@ def _videos(ev, specs, run_dir: Path) -> None:
         agent = make_agent_for(spec)
         try:
             with console.status(f"recording {spec.label}"):
-                _, files = record_episode(Simulator(bench.map, params), agent, ep.seed, bench.duration,
-                                          run_dir / "videos", stem=spec.label, pose=ep.pose)
+                _, files = record_episode(Simulator(bench.map, params, npcs=bench.traffic()), agent, ep.seed,
+                                          bench.duration,
+                                          run_dir / "videos", stem=spec.label, pose=ep.pose, route=ep.route)
         finally:
             getattr(agent, "close", lambda: None)()
         written += files
     console.print(f"wrote {', '.join(str(f) for f in written)}")
+
+
+def _collisions(results) -> dict[str, tuple[int, int, dict[str, int]]]:
+    """Per agent: (episodes ended by a collision, episodes, {what was hit: count}) from the stored runs."""
+    from proxybench.tasks.trajectory import Trajectory, TrajectoryError
+
+    out: dict[str, tuple[int, int, dict[str, int]]] = {}
+    for r in results:
+        hit, total, what = out.get(r.agent, (0, 0, {}))
+        if r.termination == "collision":
+            hit += 1
+            try:
+                events = Trajectory.load(r.trajectory).events if r.trajectory else []
+            except (TrajectoryError, OSError):
+                events = []
+            kind = next((e.get("with", "object") for e in events if e["kind"] == "collision"), "object")
+            what[kind] = what.get(kind, 0) + 1
+        out[r.agent] = (hit, total + 1, what)
+    return out
 
 
 def _print_leaderboard(ev, run_dir: Path) -> None:
@@ -198,15 +232,20 @@ def _print_leaderboard(ev, run_dir: Path) -> None:
     for c in bench.criteria():
         table.add_column(f"{c.metric} {'↑' if c.higher_is_better else '↓'} ±{c.tolerance:g}", justify="right")
     table.add_column("W/L/T", justify="right")
+    table.add_column("collisions", justify="right")
+    crashes = _collisions(ev.sweep.results)
     rows = []
     prev = None
     for r in ev.ranks:
         shown = "=" if r.rank == prev else str(r.rank)
         prev = r.rank
         vals = [float(agg.loc[r.agent, c]) for c in cols]
-        table.add_row(shown, str(r.agent), *(f"{v:.3f}" for v in vals), f"{r.wins}/{r.losses}/{r.ties}")
+        hit, total, what = crashes.get(str(r.agent), (0, 0, {}))
+        with_ = ", ".join(f"{k} {n}" for k, n in sorted(what.items()))
+        table.add_row(shown, str(r.agent), *(f"{v:.3f}" for v in vals), f"{r.wins}/{r.losses}/{r.ties}",
+                      f"{hit}/{total}" + (f" ({with_})" if with_ else ""))
         rows.append({"rank": r.rank, "agent": r.agent, **dict(zip(cols, vals, strict=True)),
-                     "wins": r.wins, "losses": r.losses, "ties": r.ties})
+                     "wins": r.wins, "losses": r.losses, "ties": r.ties, "collisions": hit, "collided_with": what})
     console.print(table)
     for name, why in ev.refused.items():
         console.print(f"[yellow]not admitted:[/yellow] {name}: {why}", highlight=False)

@@ -212,7 +212,8 @@ class LaneFollowingEnv(gym.Env):
             self.sim.enable_rendering()  # state observations: render the camera on demand
             return self.sim.render()[0]
         if self.render_mode == "top_down":
-            return top_down(self.sim.map, self.sim.state[:1, :3], params=self.params)
+            objects, npcs = self.sim.world_view(0)
+            return top_down(self.sim.map, self.sim.state[:1, :3], params=self.params, objects=objects, npc_poses=npcs)
         return None
 
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from proxybench.domain.lanes import LaneArrays, LaneNetwork
 
-__all__ = ["LANE_POSE_FIELDS", "LP", "LanePose", "lane_pose", "lane_poses"]
+__all__ = ["LANE_POSE_FIELDS", "LP", "LanePose", "lane_pose", "lane_poses", "lane_poses_on_segments"]
 
 LANE_POSE_FIELDS = (
     "valid",  # 1 if the robot centre is on a drivable tile
@@ -164,6 +164,43 @@ def lane_poses_into(poses, wheel_half, seg_kind, seg_f, tile_segs, tile_kind, cu
         )
 
 
+@nb.njit(cache=True)
+def lane_pose_on_segment_into(x, y, th, wheel_half, k, seg_kind, seg_f, tile_segs, tile_kind, curve_corner, ts,
+                              half_width, out):
+    """Like :func:`lane_pose_into`, but relative to segment ``k`` instead of the best-fitting one.
+
+    Through an intersection the segments of one entry overlap, so the pose alone cannot say which lane
+    the robot is in; a route names it (``proxybench.domain.routes``) and this measures against it.
+    """
+    lane_pose_into(x, y, th, wheel_half, seg_kind, seg_f, tile_segs, tile_kind, curve_corner, ts, half_width, out)
+    if out[0] < 0.5 or k < 0:
+        return
+    s, r, lh = segment_local(k, x, y, seg_kind, seg_f)
+    out[1] = k
+    out[2] = s
+    out[3] = r
+    out[4] = wrap_angle(th - lh)
+    sth = math.sin(th)
+    cth = math.cos(th)
+    _, rl, _ = segment_local(k, x - wheel_half * sth, y + wheel_half * cth, seg_kind, seg_f)
+    _, rr, _ = segment_local(k, x + wheel_half * sth, y - wheel_half * cth, seg_kind, seg_f)
+    out[5] = 1.0 if abs(rl) <= half_width else 0.0
+    out[6] = 1.0 if abs(rr) <= half_width else 0.0
+    kind = seg_kind[k]
+    out[12] = 0.0 if kind == 0 else (1.0 if kind == 1 else -1.0) / seg_f[k, 6]
+
+
+@nb.njit(cache=True)
+def lane_poses_on_segments_into(poses, wheel_half, segs, seg_kind, seg_f, tile_segs, tile_kind, curve_corner, ts,
+                                half_width, out):
+    """Row n relative to segment ``segs[n]`` (best fit where it is -1); ``wheel_half`` (N,) per pose."""
+    for n in range(poses.shape[0]):
+        lane_pose_on_segment_into(
+            poses[n, 0], poses[n, 1], poses[n, 2], wheel_half[n], segs[n], seg_kind, seg_f, tile_segs, tile_kind,
+            curve_corner, ts, half_width, out[n],
+        )
+
+
 def _arrays(net: LaneNetwork | LaneArrays) -> LaneArrays:
     return net.arrays if isinstance(net, LaneNetwork) else net
 
@@ -176,6 +213,22 @@ def lane_poses(net: LaneNetwork | LaneArrays, poses: np.ndarray, wheel_distance:
     lane_poses_into(
         poses, 0.5 * wheel_distance, a.seg_kind, a.seg_f, a.tile_segs, a.tile_kind, a.curve_corner,
         a.tile_size, a.lane_half_width, out,
+    )
+    return out
+
+
+def lane_poses_on_segments(net: LaneNetwork | LaneArrays, poses: np.ndarray, segments: np.ndarray,
+                           wheel_distance: float = 0.102) -> np.ndarray:
+    """Lane poses (N, LP.N) of poses (N, 3) each measured against ``segments[n]`` (-1: the best fit)."""
+    a = _arrays(net)
+    poses = np.ascontiguousarray(poses, dtype=np.float64).reshape(-1, 3)
+    segs = np.ascontiguousarray(segments, dtype=np.int64).reshape(-1)
+    if segs.size != poses.shape[0]:
+        raise ValueError(f"{segs.size} segments for {poses.shape[0]} poses")
+    out = np.empty((poses.shape[0], LP.N))
+    lane_poses_on_segments_into(
+        poses, np.full(poses.shape[0], 0.5 * wheel_distance), segs, a.seg_kind, a.seg_f, a.tile_segs, a.tile_kind,
+        a.curve_corner, a.tile_size, a.lane_half_width, out,
     )
     return out
 

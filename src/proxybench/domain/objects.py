@@ -22,7 +22,9 @@ anything else                 grey box 0.10 × 0.10 m, h 0.10 m                 
 Collision rule (AIDO): a robot collides with a *duckie-like* object when its centre comes within
 ``DUCKIE_MARGIN`` = 0.10 m of the object's footprint (circle or rectangle; for a sign, of its pole),
 and with a *robot-like* object when its centre comes within ``ROBOT_MARGIN`` = 0.15 m of the object's
-centre. All objects are treated as static.
+centre. Map objects are static; moving ones (NPC robots, pedestrians) and per-world extras are
+``proxybench.domain.npcs``, drawn from the same primitives. Duckies and duckiebots take their colours from
+the domain parameters ``duckie_rgb`` and ``duckiebot_rgb`` (their *material*), everything else keeps its own.
 
 ``pack_objects`` returns the arrays the compiled code reads: ``prims`` (P, PF) for rendering and
 ``colliders`` (M, CF) for collisions, with the column indices in ``PF_*`` / ``CF_*``.
@@ -38,9 +40,13 @@ import numba as nb
 import numpy as np
 
 from proxybench.domain.maps import MapObject
+from proxybench.domain.params import DUCKIE_RGB, DUCKIEBOT_RGB
 
 __all__ = [
+    "DUCKIEBOT_RGB",
     "DUCKIE_MARGIN",
+    "DUCKIE_RGB",
+    "MATERIAL_PARAMS",
     "ROBOT_MARGIN",
     "ObjectArrays",
     "Primitive",
@@ -54,9 +60,13 @@ ROBOT_MARGIN = 0.15
 
 CYLINDER, BOX = 0, 1
 # primitive columns: shape, centre x, y [m], cos/sin heading, half-size a (radius or half-length along
-# the heading), half-size b (half-width across), z bottom, z top [m], colour r, g, b [0..255]
-PF_SHAPE, PF_X, PF_Y, PF_COS, PF_SIN, PF_A, PF_B, PF_Z0, PF_Z1, PF_RED, PF_GREEN, PF_BLUE = range(12)
-PF = 12
+# the heading), half-size b (half-width across), z bottom, z top [m], colour r, g, b [0..255], material
+PF_SHAPE, PF_X, PF_Y, PF_COS, PF_SIN, PF_A, PF_B, PF_Z0, PF_Z1, PF_RED, PF_GREEN, PF_BLUE, PF_MATERIAL = range(13)
+PF = 13
+#: materials: a primitive of material 0 keeps its own colour; the others take the colour the robot's
+#: domain parameters give them (``MATERIAL_PARAMS``), so object colours can differ per robot and episode
+MAT_OWN, MAT_DUCKIE, MAT_DUCKIEBOT = 0, 1, 2
+MATERIAL_PARAMS = ("", "duckie_rgb", "duckiebot_rgb")
 # collider columns: centre x, y, cos, sin, half-size a, half-size b (0 for a circle of radius a), margin
 CF_X, CF_Y, CF_COS, CF_SIN, CF_A, CF_B, CF_MARGIN = range(7)
 CF = 7
@@ -74,9 +84,9 @@ class Primitive:
     rgb: tuple[float, float, float]
     dx: float = 0.0  # offset of the primitive's centre in the object frame
     dy: float = 0.0
+    material: int = MAT_OWN
 
 
-_YELLOW = (240.0, 200.0, 20.0)
 _GREY = (150.0, 150.0, 150.0)
 
 
@@ -84,7 +94,7 @@ def _shapes(kind: str) -> tuple[list[Primitive], bool]:
     """(primitives at scale 1, robot-like?) for an object kind."""
     k = kind.lower()
     if k.startswith("duckie") and k != "duckiebot":
-        return [Primitive(CYLINDER, 0.04, 0.04, 0.0, 0.06, _YELLOW)], False
+        return [Primitive(CYLINDER, 0.04, 0.04, 0.0, 0.06, DUCKIE_RGB, material=MAT_DUCKIE)], False
     if k == "cone":
         return [Primitive(CYLINDER, 0.05, 0.05, 0.0, 0.10, (245.0, 110.0, 20.0))], False
     if k == "barrier":
@@ -96,7 +106,7 @@ def _shapes(kind: str) -> tuple[list[Primitive], bool]:
             Primitive(BOX, 0.005, 0.05, 0.16, 0.24, plate),
         ], False
     if k == "duckiebot":
-        return [Primitive(BOX, 0.09, 0.065, 0.0, 0.10, (30.0, 40.0, 90.0))], True
+        return [Primitive(BOX, 0.09, 0.065, 0.0, 0.10, DUCKIEBOT_RGB, material=MAT_DUCKIEBOT)], True
     if k in ("house", "building"):
         return [Primitive(BOX, 0.20, 0.20, 0.0, 0.30, (190.0, 120.0, 90.0))], False
     if k == "tree":
@@ -113,7 +123,8 @@ def object_primitives(obj: MapObject) -> tuple[list[Primitive], bool]:
     top = max(p.z1 for p in prims) * s
     hz = (obj.height / top) if obj.height else 1.0
     out = [
-        Primitive(p.shape, p.a * s, p.b * s, p.z0 * s * hz, p.z1 * s * hz, p.rgb, p.dx * s, p.dy * s) for p in prims
+        Primitive(p.shape, p.a * s, p.b * s, p.z0 * s * hz, p.z1 * s * hz, p.rgb, p.dx * s, p.dy * s, p.material)
+        for p in prims
     ]
     return out, robot
 
@@ -136,7 +147,7 @@ def pack_objects(objects: Sequence[MapObject]) -> ObjectArrays:
         for p in parts:
             x = obj.x + c * p.dx - s * p.dy
             y = obj.y + s * p.dx + c * p.dy
-            prims.append([p.shape, x, y, c, s, p.a, p.b, p.z0, p.z1, *p.rgb])
+            prims.append([p.shape, x, y, c, s, p.a, p.b, p.z0, p.z1, *p.rgb, p.material])
             owner.append(i)
         if robot:
             cols.append([obj.x, obj.y, c, s, 0.0, 0.0, ROBOT_MARGIN])

@@ -22,7 +22,10 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-__all__ = ["DUCKIEBOT_DISTORTION", "DUCKIEBOT_INTRINSICS", "DomainParams", "ParamSpace", "ParamSpaceError"]
+__all__ = [
+    "DUCKIEBOT_DISTORTION", "DUCKIEBOT_INTRINSICS", "DUCKIEBOT_RGB", "DUCKIE_RGB", "DomainParams", "ParamSpace",
+    "ParamSpaceError",
+]
 
 RGB = tuple[float, float, float]
 Unit = Annotated[float, Field(ge=0.0)]
@@ -30,6 +33,9 @@ Unit = Annotated[float, Field(ge=0.0)]
 #: Duckiebot camera calibration at 640×480 (fx, fy, cx, cy) and plumb-bob coefficients (k1, k2, p1, p2, k3).
 DUCKIEBOT_INTRINSICS = (305.5718893575089, 308.8338858195428, 303.0797142544728, 231.8845403702499)
 DUCKIEBOT_DISTORTION = (-0.2, 0.0305, 0.0005859930422629722, -0.0006697840226199427, 0.0)
+#: default colours of duckies and duckiebots (objects, pedestrians, NPC robots), sRGB 0..255
+DUCKIE_RGB = (240.0, 200.0, 20.0)
+DUCKIEBOT_RGB = (30.0, 40.0, 90.0)
 
 
 class DomainParams(BaseModel):
@@ -103,6 +109,15 @@ class DomainParams(BaseModel):
     sky_rgb: RGB = (160.0, 190.0, 225.0)
     horizon_rgb: RGB = (215.0, 220.0, 225.0)
 
+    # --- objects and other road users (the defaults add nothing and change nothing) ---
+    duckie_rgb: RGB = Field(DUCKIE_RGB, description="colour of duckies: map objects, extras, pedestrians [0..255]")
+    duckiebot_rgb: RGB = Field(DUCKIEBOT_RGB, description="colour of duckiebot objects and NPC robots [0..255]")
+    extra_duckies: int = Field(0, ge=0, le=100, description="duckies added beside the road, placed by object_seed [-]")
+    object_seed: int = Field(0, ge=0, description="seed of where the extra duckies stand")
+    npc_speed_scale: float = Field(
+        1.0, ge=0.0, le=3.0, description="multiplies NPC robots' wheel commands and pedestrians' speeds [-]"
+    )
+
     @model_validator(mode="after")
     def _check_rates(self) -> DomainParams:
         ratio = self.physics_rate / self.frame_rate
@@ -157,7 +172,8 @@ class ParamSpace:
 
     Distributions are written as one-key mappings: ``{"uniform": [lo, hi]}``, ``{"loguniform": [lo, hi]}``,
     ``{"normal": [mean, std]}`` or ``{"choice": [v1, v2, ...]}``. For colour / RGB fields each channel
-    is drawn independently from the same distribution.
+    is drawn independently from the same distribution. Integer fields (counts such as ``extra_duckies``)
+    take the nearest integer of a continuous draw.
     """
 
     def __init__(self, base: DomainParams | None = None, dists: Mapping[str, Mapping[str, Any]] | None = None):
@@ -216,6 +232,8 @@ class ParamSpace:
                 changes[name] = tuple(self._draw(rng, kind, args) for _ in current)
             else:
                 changes[name] = self._draw(rng, kind, args)
+            if type(current) is int and kind != "choice":
+                changes[name] = round(changes[name])
         try:
             return self.base.replace(**changes)
         except ValidationError as exc:

@@ -16,7 +16,7 @@ from PIL import Image, ImageDraw
 
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import DRIVABLE_KINDS, Map
-from proxybench.domain.objects import BOX, pack_objects
+from proxybench.domain.objects import BOX, MATERIAL_PARAMS, PF_MATERIAL, pack_objects
 from proxybench.domain.params import DomainParams
 from proxybench.domain.textures import marking_textures
 
@@ -75,8 +75,10 @@ def draw_robots(
     return np.asarray(pil)
 
 
-def draw_objects(img: np.ndarray, m: Map, px_per_tile: int, light: Sequence[float] = (1.0, 1.0, 1.0)) -> np.ndarray:
-    """Copy of ``img`` with the map objects drawn as filled circles / rectangles in their colours.
+def draw_objects(img: np.ndarray, m: Map, px_per_tile: int, light: Sequence[float] = (1.0, 1.0, 1.0),
+                 prims: np.ndarray | None = None, params: DomainParams | None = None) -> np.ndarray:
+    """Copy of ``img`` with the map objects (or the primitives ``prims`` (P, PF)) drawn as filled circles /
+    rectangles in their colours (duckies and duckiebots in those of ``params``).
 
     Parts are drawn bottom to top, so a sign shows its plate over its pole.
     """
@@ -84,10 +86,13 @@ def draw_objects(img: np.ndarray, m: Map, px_per_tile: int, light: Sequence[floa
     draw = ImageDraw.Draw(pil)
     scale = px_per_tile / m.tile_size
     h_px = img.shape[0]
-    prims = pack_objects(m.objects).prims
+    prims = pack_objects(m.objects).prims if prims is None else prims
+    p_ = params or DomainParams()
+    materials = [None, *(getattr(p_, name) for name in MATERIAL_PARAMS[1:])]
     for p in sorted(prims.tolist(), key=lambda q: q[7]):
         shape, x, y, c, s, a, b = p[:7]
-        colour = tuple(int(min(max(v * g, 0.0), 255.0)) for v, g in zip(p[9:12], light, strict=True))
+        rgb = materials[int(p[PF_MATERIAL])] or p[9:12]
+        colour = tuple(int(min(max(v * g, 0.0), 255.0)) for v, g in zip(rgb, light, strict=True))
         if shape == BOX:
             pts = [(x + c * sx * a - s * sy * b, y + s * sx * a + c * sy * b) for sx, sy in
                    ((1, 1), (-1, 1), (-1, -1), (1, -1))]
@@ -102,14 +107,25 @@ def draw_objects(img: np.ndarray, m: Map, px_per_tile: int, light: Sequence[floa
 def _map_with_objects(m: Map, px_per_tile: int, p: DomainParams) -> np.ndarray:
     img = map_image(m, px_per_tile, p)
     if m.objects:
-        img = draw_objects(img, m, px_per_tile, p.light_rgb)
+        img = draw_objects(img, m, px_per_tile, p.light_rgb, params=p)
         img.setflags(write=False)
     return img
 
 
-def top_down(m: Map, poses: np.ndarray, px_per_tile: int = 64, params: DomainParams | None = None) -> np.ndarray:
-    """Top-down frame of the map with its objects and the robots at ``poses`` (N, 3)."""
-    return draw_robots(_map_with_objects(m, px_per_tile, params or DomainParams()), m, poses, px_per_tile)
+def top_down(m: Map, poses: np.ndarray, px_per_tile: int = 64, params: DomainParams | None = None,
+             objects: np.ndarray | None = None, npc_poses: np.ndarray | None = None) -> np.ndarray:
+    """Top-down frame of the map with its objects and the robots at ``poses`` (N, 3).
+
+    An episode's own world (``Simulator.world_view``) adds ``objects`` (primitives (P, PF): extra duckies,
+    pedestrians) and NPC robots at ``npc_poses`` (M, 3), drawn in the duckiebot colour.
+    """
+    p = params or DomainParams()
+    img = _map_with_objects(m, px_per_tile, p)
+    if objects is not None and len(objects):
+        img = draw_objects(img, m, px_per_tile, p.light_rgb, prims=objects, params=p)
+    if npc_poses is not None and len(npc_poses):
+        img = draw_robots(img, m, npc_poses, px_per_tile, [tuple(int(v) for v in p.duckiebot_rgb)])
+    return draw_robots(img, m, poses, px_per_tile)
 
 
 def save_map_plot(m: Map, path: str | Path, px_per_tile: int = 96, dpi: int = 120) -> Path:

@@ -13,7 +13,10 @@ from proxybench import __version__
 from proxybench.agents.base import Agent, Observation
 from proxybench.domain.dynamics import ST, TRACE_FIELDS, wheel_ticks
 from proxybench.domain.lane_pose import LanePose
+from proxybench.domain.routes import given_route_samples
 from proxybench.domain.simulator import Simulator
+from proxybench.domain.worlds import HIT_KINDS
+from proxybench.runner.npcs import NpcDrivers
 from proxybench.tasks.trajectory import Trajectory
 
 __all__ = ["PrivilegedAgentError", "run_episode", "run_episodes"]
@@ -28,7 +31,8 @@ def _observation(sim: Simulator, i: int, image: np.ndarray | None, privileged: b
     res = sim.params[i].encoder_resolution
     ticks = wheel_ticks(s[[ST.WHEEL_L, ST.WHEEL_R]], res)
     lp = LanePose.from_row(sim.lane[i]) if privileged else None
-    return Observation(image, float(sim.time[i]), (float(ticks[0] * res), float(ticks[1] * res)), res, lp)
+    route = sim.routes.info(i, sim.lane[i]) if privileged else None
+    return Observation(image, float(sim.time[i]), (float(ticks[0] * res), float(ticks[1] * res)), res, lp, route)
 
 
 def run_episode(
@@ -43,6 +47,7 @@ def run_episode(
     image_filter: Callable[[np.ndarray], np.ndarray] | None = None,
     on_frame: Callable[[int, np.ndarray | None, Simulator], None] | None = None,
     meta: dict[str, Any] | None = None,
+    route: Sequence[str] | None = None,
 ) -> Trajectory:
     """Drive the single robot of ``sim`` with ``agent`` for ``seconds`` (or until it leaves the road or fails).
 
@@ -50,7 +55,8 @@ def run_episode(
     trajectory has one sample per physics tick. ``image_filter`` transforms frames before the agent sees
     them (e.g. a JPEG round trip, so that in-process and remote agents see the same pixels);
     ``on_frame(k, image, sim)`` is called after each frame (e.g. to write a video). With
-    ``allow_privileged=False`` (camera-only evaluation) a privileged agent is refused.
+    ``allow_privileged=False`` (camera-only evaluation) a privileged agent is refused. ``route``: the
+    turns to take at intersections (see ``Simulator.reset``).
     An exception from the agent ends the episode with termination ``agent_failure``; it is not raised.
     """
     if sim.n != 1:
@@ -58,7 +64,7 @@ def run_episode(
     hook = None if on_frame is None else (lambda k, images, s: on_frame(k, images[0], s))
     return run_episodes(sim, [agent], [seed], seconds, poses=[pose], camera=camera,
                         allow_privileged=allow_privileged, image_filter=image_filter, on_frame=hook,
-                        metas=[meta])[0]
+                        metas=[meta], routes=[route])[0]
 
 
 def run_episodes(
@@ -73,18 +79,25 @@ def run_episodes(
     image_filter: Callable[[np.ndarray], np.ndarray] | None = None,
     on_frame: Callable[[int, list[np.ndarray | None], Simulator], None] | None = None,
     metas: Sequence[dict[str, Any] | None] | None = None,
+    routes: Sequence[Sequence[str] | None] | None = None,
 ) -> list[Trajectory]:
     """Episodes of N agents at once, robot i of ``sim`` driven by ``agents[i]`` from ``seeds[i]``.
 
     Physics and rendering advance all robots in one compiled call per frame; each robot's episode is
-    exactly what it would be alone (robots never interact), so a batch gives the same trajectories as N
-    single runs. A robot whose episode has ended keeps still until the others are done.
+    exactly what it would be alone (robot i meets only the NPCs of its own world), so a batch gives the same
+    trajectories as N single runs. A robot whose episode has ended keeps still until the others are done.
+    The simulator's NPC robots are driven by the zoo agents their specs name (``runner.npcs``).
+
+    ``routes[i]``: robot i's turns at intersections. Privileged agents are measured against the exits
+    the simulator chose for them (recorded as ``route_segment``); camera agents are free, and their
+    route is the exits they took (``proxybench.domain.routes``).
     """
     n = sim.n
     if not (len(agents) == len(seeds) == n):
         raise ValueError(f"{len(agents)} agents and {len(seeds)} seeds for a simulator of {n} robots")
     poses = list(poses) if poses is not None else [None] * n
     metas = list(metas) if metas is not None else [None] * n
+    routes = list(routes) if routes is not None else [None] * n
     for a in agents:
         if a.privileged and not allow_privileged:
             raise PrivilegedAgentError(
@@ -92,9 +105,13 @@ def run_episodes(
             )
     steps = max(1, round(seconds / sim.frame_dt))
     trace = np.zeros((n, steps, sim.substeps, len(TRACE_FIELDS)))
+    lanes_chosen = np.full((2, n, steps), -1, dtype=np.int64)  # per frame: pinned lane, lane chosen ahead
     for i in range(n):
-        sim.reset(i, int(seeds[i]), poses[i])
+        sim.reset(i, int(seeds[i]), poses[i], routes[i])
     start = sim.state.copy()
+    drivers = NpcDrivers(sim, image_filter) if sim.worlds.k else None
+    if drivers is not None:
+        drivers.reset(seeds)
     events: list[list[dict[str, Any]]] = [[] for _ in range(n)]
     termination = ["timeout"] * n
     done_frames = [steps] * n
@@ -112,10 +129,12 @@ def run_episodes(
     while k < steps and alive.any():
         t0 = time.perf_counter()
         images: list[np.ndarray | None] = [None] * n
-        if camera:
-            frames = sim.render(active=alive)
-            images = [None if not alive[i] else image_filter(f) if image_filter is not None else f
-                      for i, f in enumerate(frames)]
+        npc_cams = drivers.wants_camera(alive) if drivers is not None else None
+        if camera or npc_cams is not None:
+            frames = sim.render(active=alive if camera else np.zeros(n, dtype=bool), npc_active=npc_cams)
+            if camera:
+                images = [None if not alive[i] else image_filter(f) if image_filter is not None else f
+                          for i, f in enumerate(frames)]
         if on_frame is not None:
             on_frame(k, images, sim)
         t1 = time.perf_counter()
@@ -132,19 +151,26 @@ def run_episodes(
                 commands[i] = 0.0
         t2 = time.perf_counter()
         commands[~alive] = 0.0
-        sim.step(commands, trace[:, k])
+        lanes_chosen[:, :, k] = sim.routes.pin[:n], sim.routes.next[:n]  # the egos' rows (NPCs follow)
+        sim.step(commands, trace[:, k], None if drivers is None else drivers.act(alive))
         t3 = time.perf_counter()
         t_sim += (t1 - t0) + (t3 - t2)
         t_agent += t2 - t1
+        for w, event in drivers.events() if drivers is not None else ():
+            if alive[w]:
+                events[w].append(event)
         for i in np.flatnonzero(alive & sim.collided):
-            events[i].append({"t": float(sim.time[i]), "kind": "collision",
-                              "message": "the robot came too close to an object of the map"})
+            what = HIT_KINDS[int(sim.hit_kind[i])] or "map object"
+            events[i].append({"t": float(sim.time[i]), "kind": "collision", "with": what,
+                              "message": f"the robot came too close to a {what}"})
             termination[i], done_frames[i], alive[i] = "collision", k + 1, False
         for i in np.flatnonzero(alive & sim.off_road):
             events[i].append({"t": float(sim.time[i]), "kind": "off_road",
                               "message": "the robot centre left the drivable area"})
             termination[i], done_frames[i], alive[i] = "off_road", k + 1, False
         k += 1
+    if drivers is not None:
+        drivers.close()
     timing = {"sim_s": t_sim / n, "agent_s": t_agent / n}
     out = []
     for i in range(n):
@@ -157,6 +183,14 @@ def run_episodes(
         extra = {"v": np.r_[start[i, ST.V], rows[:, 3]], "omega": np.r_[start[i, ST.OMEGA], rows[:, 4]],
                  "pwm_left": np.r_[0.0, rows[:, 5]], "pwm_right": np.r_[0.0, rows[:, 6]]}
         info = _meta(sim, i, agents[i], int(seeds[i]), seconds, metas[i]) | {"timing": timing}
+        if routes[i] is not None:
+            info["route_plan"] = list(routes[i])
+        if not sim.worlds.traffic[i].empty:
+            info["npcs"] = sim.worlds.traffic[i].to_dict()
+        if agents[i].privileged and sim.routes.active:
+            extra["route_segment"] = given_route_samples(sim.routes.graph, pose, *lanes_chosen[:, i, : done_frames[i]],
+                                                         sim.substeps)
+            info["route_choices"] = list(sim.routes.choices[i])
         out.append(Trajectory.from_poses(sim.map, t, pose, extra=extra, meta=info, events=events[i],
                                          termination=termination[i], wheel_distance=sim.params[i].wheel_distance))
     return out
@@ -164,8 +198,13 @@ def run_episodes(
 
 def _failure_event(t: float, exc: BaseException) -> dict[str, Any]:
     detail = getattr(exc, "detail", None) or "".join(traceback.format_exception_only(exc)).strip()
-    return {"t": t, "kind": "agent_failure", "message": f"{type(exc).__name__}: {detail}",
-            "reason": getattr(exc, "reason", type(exc).__name__)}
+    event = {"t": t, "kind": "agent_failure", "message": f"{type(exc).__name__}: {detail}",
+             "reason": getattr(exc, "reason", type(exc).__name__)}
+    if getattr(exc, "exit_code", None) is not None:  # a node's exit status and last words (e.g. its traceback)
+        event["exit_code"] = exc.exit_code
+    if getattr(exc, "stderr_tail", None):
+        event["stderr_tail"] = list(exc.stderr_tail)[-20:]
+    return event
 
 
 def _failed_at_start(sim, i, agent, seed, start, exc, meta) -> Trajectory:

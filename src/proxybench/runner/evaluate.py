@@ -66,7 +66,9 @@ def evaluate_benchmark(
         raise BenchmarkError(f"benchmark {bench.name!r}: no admitted agent ({'; '.join(refused.values())})")
     dom = benchmark_domain(bench, domain)
     metrics = tuple(bench.metrics)
-    jobs = [Job(a, dom, bench.map, ep.index, ep.seed, bench.duration, ep.pose, bench.camera_only, metrics)
+    npcs = bench.traffic()
+    jobs = [Job(a, dom, bench.map, ep.index, ep.seed, bench.duration, ep.pose, bench.camera_only, metrics,
+                route=ep.route, npcs=npcs)
             for a in admitted for ep in bench.episode_specs()]
     sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
                      progress=(lambda d, t, _r: progress(d, t)) if progress else None)

@@ -12,12 +12,16 @@ import json
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from proxybench import __version__
 
+if TYPE_CHECKING:
+    from proxybench.domain.npcs import Traffic
+
 #: bump when what an episode produces changes without a change of its inputs (it is part of every job key)
-ENGINE_VERSION = 2  # 2: camera agents see JPEG-decoded frames, as over the AIDO protocol
+ENGINE_VERSION = 4  # 2: camera agents see JPEG-decoded frames, as over the AIDO protocol; 3: intersection routes;
+# 4: NPC robots and pedestrians simulated (benchmark ``npcs:``), object colours and extra duckies in θ
 
 __all__ = [
     "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "batch_group", "camera_filter", "execute",
@@ -54,7 +58,7 @@ class DomainSpec:
 
 @dataclass(frozen=True)
 class Job:
-    """One episode to run: agent × domain × map × episode (seed and optional start pose) × duration."""
+    """One episode to run: agent × domain × map × episode (seed, optional start pose and route) × duration."""
 
     agent: AgentSpec
     domain: DomainSpec
@@ -65,6 +69,8 @@ class Job:
     pose: tuple[float, float, float] | None = None
     camera_only: bool = False
     metrics: tuple[str, ...] = ()
+    route: tuple[str, ...] | None = None  # turns at intersections (domain.routes); None: drawn from the seed
+    npcs: Traffic | None = None  # NPC robots and pedestrians of the episode's world (domain.npcs)
 
     @property
     def key(self) -> str:
@@ -72,6 +78,7 @@ class Job:
         blob = json.dumps(
             {"agent": asdict(self.agent), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
              "seed": self.seed, "pose": self.pose, "duration": self.duration, "camera_only": self.camera_only,
+             "route": self.route, "npcs": None if self.npcs is None else self.npcs.to_dict(),
              "version": __version__, "engine": ENGINE_VERSION},
             sort_keys=True,
         )
@@ -111,7 +118,7 @@ def _map_id(name: str) -> str:
 
 # -- the worker side --------------------------------------------------------------------------------
 
-_SIMS: dict[tuple[str, str, int], Any] = {}
+_SIMS: dict[tuple[Any, ...], Any] = {}
 
 
 def _simulator(job: Job, n: int = 1):
@@ -119,17 +126,17 @@ def _simulator(job: Job, n: int = 1):
     from proxybench.domain.params import DomainParams
     from proxybench.domain.simulator import Simulator
 
-    k = (job.map, job.domain.canonical(), n)
+    k = (job.map, job.domain.canonical(), n, job.npcs)
     if k not in _SIMS:
         if len(_SIMS) > 8:
             _SIMS.clear()
-        _SIMS[k] = Simulator(job.map, DomainParams.model_validate(job.domain.params), n=n)
+        _SIMS[k] = Simulator(job.map, DomainParams.model_validate(job.domain.params), n=n, npcs=job.npcs)
     return _SIMS[k]
 
 
 def batch_group(job: Job) -> tuple:
-    """Jobs with equal groups can share one batched simulator: same agent, domain, map, length and rules."""
-    return (job.agent, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics)
+    """Jobs with equal groups can share one batched simulator: same agent, domain, map, NPCs, length, rules."""
+    return (job.agent, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs)
 
 
 def _refused(job: Job, agent, setup_s: float) -> JobResult:
@@ -195,7 +202,8 @@ def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
             return [_refused(j, a, (t1 - t0) / len(jobs)) for j, a in zip(jobs, agents, strict=True)]
         trajs = run_episodes(
             sim, agents, [j.seed for j in jobs], job0.duration, poses=[j.pose for j in jobs],
-            camera=not agents[0].privileged, allow_privileged=not job0.camera_only, image_filter=camera_filter(),
+            routes=[j.route for j in jobs], camera=not agents[0].privileged, allow_privileged=not job0.camera_only,
+            image_filter=camera_filter(),
             metas=[{"map": j.map, "episode": j.episode, "domain": j.domain.name, "domain_kind": j.domain.kind,
                     "source": j.domain.kind, "job": j.key} for j in jobs],
         )

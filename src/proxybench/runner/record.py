@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +23,7 @@ def record_episode(
     sim: Simulator, agent: Agent, seed: int, seconds: float, out: str | Path, *, stem: str = "drive",
     video: bool = True, pose: tuple[float, float, float] | None = None, strip_frames: int = 12,
     on_frame: Callable[[int], None] | None = None, meta: dict[str, Any] | None = None,
+    route: Sequence[str] | None = None,
 ) -> tuple[Trajectory, list[Path]]:
     """Run one episode and write ``<stem>.mp4`` (if ``video``) and ``<stem>_strip.png`` into ``out``.
 
@@ -42,7 +43,9 @@ def record_episode(
     def frame(k: int, image: np.ndarray | None, s: Simulator) -> None:
         img = image if image is not None else s.render()[0]
         if writer is not None:
-            writer.append(side_by_side(img, top_down(s.map, s.state[:1, :3], px_per_tile=px)))
+            objects, npcs = s.world_view(0)  # the episode's own extras, pedestrians and NPC robots
+            writer.append(side_by_side(img, top_down(s.map, s.state[:1, :3], px_per_tile=px, params=s.params[0],
+                                                     objects=objects, npc_poses=npcs)))
         if k % every == 0:
             strip.append(img)
             labels.append(f"t={k / fps:.1f}s")
@@ -51,7 +54,7 @@ def record_episode(
 
     try:
         traj = run_episode(sim, agent, seed, seconds, pose=pose, camera=not agent.privileged, on_frame=frame,
-                           image_filter=camera_filter(), meta=meta)
+                           image_filter=camera_filter(), meta=meta, route=route)
     finally:
         if writer is not None:
             writer.close()

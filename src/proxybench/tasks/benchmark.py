@@ -6,8 +6,11 @@ e.g. ``aido_lf.yaml: scoring.0.tolerance: Input should be greater than or equal 
 
 Episodes are fixed by the file: either ``{count, seed}`` — episode i gets a seed derived from (seed, i)
 and the simulator samples a valid start pose from it — or explicit ``{poses: [[x, y, θ], ...]}`` [m, m,
-rad] in the map frame, each checked to lie on the road. Scoring criteria name aggregated columns as
-:mod:`proxybench.tasks.aggregate` writes them (``<metric>_<stat>``; a bare ``<metric>`` means its mean).
+rad] in the map frame, each checked to lie on the road. ``routes`` (one list of turns per episode)
+fixes the exits taken at intersections; with explicit poses each plan is checked against the map.
+Scoring criteria name aggregated columns as :mod:`proxybench.tasks.aggregate` writes them
+(``<metric>_<stat>``; a bare ``<metric>`` means its mean). ``npcs`` lists NPC Duckiebots and pedestrians
+that every episode's world holds (schema in :mod:`proxybench.tasks.npcs`).
 
 >>> b = Benchmark.load("aido_lf")
 >>> b.domain_params().frame_rate, [c.metric for c in b.criteria()][:2]
@@ -25,7 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
@@ -41,10 +44,12 @@ from pydantic import (
 )
 
 from proxybench.domain.maps import Map, MapError, load_map
+from proxybench.domain.npcs import Traffic
 from proxybench.domain.params import DomainParams
 from proxybench.domain.reality import reality_params
 from proxybench.tasks.aggregate import STATS
 from proxybench.tasks.metrics import METRICS
+from proxybench.tasks.npcs import NpcEntry, npc_issues, traffic_of
 from proxybench.tasks.scoring import Criterion
 
 __all__ = [
@@ -75,11 +80,13 @@ class BenchmarkError(ValueError):
 @dataclass(frozen=True)
 class EpisodeSpec:
     """Episode ``index`` of a benchmark: its ``seed`` and start ``pose`` (x, y, θ) [m, m, rad], or None
-    to let the simulator sample a valid start from the seed."""
+    to let the simulator sample a valid start from the seed; ``route``: turns at the intersections met,
+    or None to draw them from the seed (``proxybench.domain.routes``)."""
 
     index: int
     seed: int
     pose: tuple[float, float, float] | None = None
+    route: tuple[str, ...] | None = None
 
 
 def parse_scoring_metric(name: str) -> tuple[str, str]:
@@ -105,14 +112,7 @@ def _known_metric(name: str) -> str:
     return name
 
 
-def _has_kind(npc: dict[str, Any]) -> dict[str, Any]:
-    if not isinstance(npc.get("kind"), str) or not npc["kind"]:
-        raise ValueError("an NPC needs a 'kind' (a non-empty string)")
-    return npc
-
-
 MetricName = Annotated[str, AfterValidator(_known_metric)]
-Npc = Annotated[dict[str, Any], AfterValidator(_has_kind)]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 Pose = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
@@ -128,6 +128,14 @@ class Episodes(_Strict):
     seed: int = Field(0, ge=0, description="seed from which each episode's seed is derived")
     poses: list[Pose] | None = Field(None, min_length=1, description="start poses [x m, y m, θ rad]")
     seeds: list[Annotated[int, Field(ge=0)]] | None = Field(None, description="one seed per pose")
+    routes: list[list[Literal["left", "straight", "right"]]] | None = Field(
+        None, description="one list of turns per episode, taken at the intersections in the order met; "
+                          "after its end (or without routes) turns are drawn from the episode seed")
+
+    @property
+    def n(self) -> int:
+        """Number of episodes."""
+        return self.count if self.count is not None else len(self.poses or ())
 
     @model_validator(mode="after")
     def _one_kind(self) -> Episodes:
@@ -221,7 +229,7 @@ class Benchmark(_Strict):
     domain: DomainChoice = DomainChoice(named="default")
     metrics: list[MetricName] = Field(min_length=1)
     scoring: list[ScoringEntry] = Field(min_length=1)
-    npcs: list[Npc] = Field(default_factory=list, description="other vehicles; each a mapping with a 'kind'")
+    npcs: list[NpcEntry] = Field(default_factory=list, description="NPC duckiebots and pedestrians of every episode")
     camera_only: bool = Field(False, description="refuse privileged agents (those reading the true lane pose)")
 
     @field_validator("map")
@@ -236,7 +244,8 @@ class Benchmark(_Strict):
 
     @model_validator(mode="after")
     def _cross_checks(self) -> Benchmark:
-        issues = [*self._metric_issues(), *self._rate_issues(), *self._pose_issues()]
+        issues = [*self._metric_issues(), *self._rate_issues(), *self._pose_issues(), *self._route_issues(),
+                  *npc_issues(self.npcs, self.load_map())]
         if issues:
             raise ValueError("\n".join(f"{path}: {msg}" for path, msg in issues))
         return self
@@ -281,6 +290,22 @@ class Benchmark(_Strict):
                                                       f"{m.name!r} ({where})"))
         return issues
 
+    def _route_issues(self) -> list[tuple[str, str]]:
+        routes = self.episodes.routes
+        if routes is None:
+            return []
+        if len(routes) != self.episodes.n:
+            return [("episodes.routes", f"{len(routes)} routes for {self.episodes.n} episodes (give one per episode)")]
+        if not self.episodes.poses or self._pose_issues():
+            return []  # sampled starts: a turn the map does not allow is replaced by a draw, and logged
+        from proxybench.domain.lanes import LaneNetwork
+        from proxybench.domain.routes import RouteGraph, route_issues
+
+        graph = RouteGraph(LaneNetwork(self.load_map()))
+        return [(f"episodes.routes.{e}.{k}", msg) for e, (pose, turns) in enumerate(zip(self.episodes.poses, routes,
+                                                                                        strict=True))
+                for k, msg in route_issues(graph, pose, turns)]
+
     # -- loading -----------------------------------------------------------------------------------
 
     @classmethod
@@ -316,6 +341,10 @@ class Benchmark(_Strict):
     def load_map(self) -> Map:
         return load_map(self.map)
 
+    def traffic(self) -> Traffic | None:
+        """The NPCs of every episode as the domain's ``Traffic`` (None if the benchmark has none)."""
+        return traffic_of(self.npcs)
+
     def domain_params(self) -> DomainParams:
         """θ of the benchmark's domain with the benchmark's physics and frame rates."""
         return self.domain.base().replace(physics_rate=self.physics_rate, frame_rate=self.frame_rate)
@@ -323,11 +352,12 @@ class Benchmark(_Strict):
     def episode_specs(self) -> list[EpisodeSpec]:
         """The episodes, fixed by the file: the same list on every call, machine and run."""
         ep = self.episodes
+        routes = [tuple(r) for r in ep.routes] if ep.routes is not None else [None] * ep.n
         if ep.poses is None:
-            return [EpisodeSpec(i, derive_seed(ep.seed, i)) for i in range(ep.count or 0)]
+            return [EpisodeSpec(i, derive_seed(ep.seed, i), route=routes[i]) for i in range(ep.count or 0)]
         seeds = ep.seeds if ep.seeds is not None else [derive_seed(ep.seed, i) for i in range(len(ep.poses))]
-        pairs = zip(ep.poses, seeds, strict=True)
-        return [EpisodeSpec(i, s, (float(p[0]), float(p[1]), float(p[2]))) for i, (p, s) in enumerate(pairs)]
+        pairs = zip(ep.poses, seeds, routes, strict=True)
+        return [EpisodeSpec(i, s, (float(p[0]), float(p[1]), float(p[2])), r) for i, (p, s, r) in enumerate(pairs)]
 
     def criteria(self) -> list[Criterion]:
         """The scoring criteria, in order, on aggregated column names (``<metric>_<stat>``)."""
@@ -401,14 +431,32 @@ def _key_hint(key: str, allowed: list[str]) -> str:
 def _allowed_keys(loc: tuple[Any, ...]) -> list[str]:
     """The field names of the model at ``loc`` inside a benchmark, for 'unknown key' messages."""
     model: Any = Benchmark
+    annotation: Any = None
     for part in loc:
         if isinstance(part, int):
+            continue
+        tagged = _tagged_model(annotation, part)  # the tag of a discriminated union (npcs.0.duckiebot.…)
+        if tagged is not None:
+            model = tagged
             continue
         field = model.model_fields.get(part) if isinstance(model, type) and issubclass(model, BaseModel) else None
         if field is None:
             return []
-        model = _model_in(field.annotation)
+        annotation = field.annotation
+        model = _model_in(annotation)
     return list(model.model_fields) if isinstance(model, type) and issubclass(model, BaseModel) else []
+
+
+def _tagged_model(annotation: Any, tag: Any) -> Any:
+    """The model of a union in ``annotation`` whose ``kind`` is the literal ``tag``, if any."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        kind = annotation.model_fields.get("kind")
+        return annotation if kind is not None and typing.get_args(kind.annotation) == (tag,) else None
+    for arg in typing.get_args(annotation):
+        found = _tagged_model(arg, tag)
+        if found is not None:
+            return found
+    return None
 
 
 def _model_in(annotation: Any) -> Any:

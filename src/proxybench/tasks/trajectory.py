@@ -5,6 +5,11 @@ metadata block. The lane pose is *recomputed from the map* for every trajectory,
 the simulator, the reality model or a real lab's localisation system, so that all of them are scored
 by the same code on the same footing.
 
+Through intersections the lane pose follows the trajectory's route (``route_segment``: the lane the
+simulator chose for a privileged agent, else the exit the robot took; see ``proxybench.domain.routes``),
+and ``stop_distance`` / ``on_route`` record the stop line ahead and whether the robot is still on its
+route, so that the intersection metrics need nothing but the file.
+
 The Parquet file is readable with pandas or polars alone: one row per sample, the metadata as JSON in
 the schema metadata under the key ``proxybench``.
 """
@@ -22,6 +27,7 @@ import numpy as np
 from proxybench.domain.lane_pose import LANE_POSE_FIELDS, lane_poses
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
+from proxybench.domain.routes import RouteGraph, pin_route, route_columns
 
 __all__ = ["TERMINATIONS", "Trajectory", "TrajectoryError"]
 
@@ -32,6 +38,9 @@ _OPTIONAL = ("v", "omega", "pwm_left", "pwm_right")
 _LANE = ("valid", "segment", "along", "lateral", "heading_error", "left_in_lane", "right_in_lane",
          "left_on_road", "right_on_road", "on_road", "tile_i", "tile_j", "curvature")
 assert _LANE == LANE_POSE_FIELDS
+#: route columns: the lane pinned on intersection tiles (-1 elsewhere), metres to the stop line ahead
+#: along the lane (NaN: none), and 1 while the robot's lane continues its route
+_ROUTE = ("route_segment", "stop_distance", "on_route")
 
 
 class TrajectoryError(ValueError):
@@ -62,18 +71,25 @@ class Trajectory:
         t = np.asarray(t, dtype=np.float64)
         pose = np.asarray(pose, dtype=np.float64).reshape(-1, 3)
         _check_samples(t, pose, origin)
-        lane = lane_poses(LaneNetwork(m), pose, wheel_distance)
+        net = LaneNetwork(m)
+        lane = lane_poses(net, pose, wheel_distance)
         cols: dict[str, np.ndarray] = {"t": t, "x": pose[:, 0], "y": pose[:, 1], "theta": pose[:, 2]}
         for name, arr in (extra or {}).items():
             arr = np.asarray(arr, dtype=np.float64)
             if arr.shape != t.shape:
                 raise TrajectoryError(f"{origin}: column {name!r} has {arr.size} samples, time has {t.size}")
             cols[name] = arr
+        graph = RouteGraph(net)
+        route, visits = pin_route(graph, pose, lane, wheel_distance, cols.get("route_segment"))
         for k, name in enumerate(LANE_POSE_FIELDS):
             cols[name] = lane[:, k]
+        cols["route_segment"] = route.astype(np.float64)
+        cols.update(route_columns(graph, lane))
         if termination not in TERMINATIONS:
             raise TrajectoryError(f"{origin}: unknown termination {termination!r} (one of {TERMINATIONS})")
         meta = {"map": m.name, **(meta or {})}
+        if visits:
+            meta["route"] = [{"t": float(t[v.pop("sample")]), **v} for v in visits]
         return cls(cols, meta, list(events or []), termination)
 
     # -- access ----------------------------------------------------------------------------------

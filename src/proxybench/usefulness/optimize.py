@@ -105,6 +105,12 @@ def _objective_value(kind: str, proxy: Mapping[str, np.ndarray], target: Mapping
     return value, {"prpv": prpv, "ppv": ppv}
 
 
+def _is_count(name: str) -> bool:
+    """An integer domain parameter (e.g. ``extra_duckies``): Optuna proposes whole numbers for it."""
+    field = DomainParams.model_fields.get(name)
+    return field is not None and field.annotation is int
+
+
 def _sampler(cfg: OptimizeConfig):
     import optuna
 
@@ -135,7 +141,8 @@ def optimize_proxy(
     target = _by_agent(run_jobs(jobs_for(target_dom), run_dir, backend).results, cfg.metrics)
 
     def objective(trial) -> float:
-        theta = {name: trial.suggest_float(name, lo, hi) for name, (lo, hi) in cfg.space.items()}
+        theta = {name: trial.suggest_int(name, int(lo), int(hi)) if _is_count(name)
+                 else trial.suggest_float(name, lo, hi) for name, (lo, hi) in cfg.space.items()}  # counts are ints
         params = DomainParams(image_width=w, image_height=h, **{**TRUTH, **theta})
         dom = DomainSpec("proxy " + " ".join(f"{k}={v:.4g}" for k, v in theta.items()), params.model_dump())
         proxy = _by_agent(run_jobs(jobs_for(dom), run_dir, backend).results, cfg.metrics)
