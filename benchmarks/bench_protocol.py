@@ -10,7 +10,13 @@ Per frame size (160×120, 640×480) it measures, medians over many steps:
   figure to compare with the real zuper-nodes node (1.6-2.0 ms median).
 
 ``--codecs`` also compares Pillow, simplejpeg and PyTurboJPEG (when its system library is present).
-Run: ``python benchmarks/bench_protocol.py [--quick] [--codecs]``.
+
+``--robot`` measures the robot protocol: one control period of a camera agent on the simulator served as a
+robot node (``proxybench robot serve``; set_robot_commands + step + get_sim_state + get_robot_state with
+the tick trace + get_robot_observations in one write, then the caller decodes the JPEG and the agent acts)
+against the same period in-process (render, JPEG round trip, act, physics); the difference is the robot
+protocol's overhead per frame. Also a bare ``get_sim_state`` round trip.
+Run: ``python benchmarks/bench_protocol.py [--quick] [--codecs] [--robot]``.
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ import numpy as np
 
 from proxybench.agents.base import Observation
 from proxybench.agents.zoo import make_agent
-from proxybench.protocol import AgentProcess, jpeg
+from proxybench.protocol import AgentProcess, RemoteRobot, jpeg
 
 AGENT = "straight"  # trivial act(): what is left is the protocol
 
@@ -83,6 +89,56 @@ def measure(width: int, height: int, n: int) -> dict[str, float]:
     return r
 
 
+def measure_robot(width: int, height: int, n: int) -> dict[str, float]:
+    """Per-frame µs of a camera agent driving the simulator in-process and through the robot protocol."""
+    from proxybench.domain.dynamics import TRACE_FIELDS
+    from proxybench.domain.maps import load_map
+    from proxybench.domain.params import DomainParams
+    from proxybench.domain.simulator import Simulator
+
+    params = DomainParams(image_width=width, image_height=height)
+    sim = Simulator("loop_3x3", params)
+    sim.reset(0, 1)
+    trace = np.zeros((1, sim.substeps, len(TRACE_FIELDS)))
+    agent = make_agent(AGENT)
+    agent.reset(0)
+    still = np.zeros((1, 2))  # the robot stands still: the episode never ends, rendering costs the same
+    r: dict[str, float] = {}
+
+    def in_process(i: int) -> None:
+        image = jpeg.roundtrip(sim.render()[0])
+        agent.act(Observation(image, float(sim.time[0]), (0.0, 0.0), 0.01))
+        sim.step(still, trace)
+
+    r["render"] = median_us(lambda i: sim.render(), n)
+    cmd = [sys.executable, "-m", "proxybench.cli", "robot", "serve", "--param", f"image_width={width}",
+           "--param", f"image_height={height}"]
+    with RemoteRobot(cmd, init_timeout=120) as robot:
+        robot.start_episode(load_map("loop_3x3"), 1)
+        robot.state(0.0)
+        now = {"k": 0, "obs": robot.observations(0.0)}
+        dt = 1.0 / params.frame_rate
+
+        def remote(i: int) -> None:
+            k, o = now["k"], now["obs"].observations
+            agent.act(Observation(jpeg.decode_received(o.jpg), o.timestamp, o.odometry, o.resolution))
+            _, _, now["obs"] = robot.frame(k * dt, still[0], (k + 1) * dt)
+            now["k"] = k + 1
+
+        # interleaved, so that both paths meet the same load from other processes
+        times: dict[str, list[float]] = {"in_process_frame": [], "robot_frame": []}
+        for i in range(n + 20):
+            for key, fn in (("in_process_frame", in_process), ("robot_frame", remote)):
+                t0 = time.perf_counter()
+                fn(i)
+                if i >= 20:
+                    times[key].append(time.perf_counter() - t0)
+        r.update({k: statistics.median(v) * 1e6 for k, v in times.items()})
+        r["get_sim_state"] = median_us(lambda i: robot.process.get_sim_state(), n)
+    r["overhead"] = r["robot_frame"] - r["in_process_frame"]
+    return r
+
+
 def codecs(n: int) -> list[tuple[str, str, float, float, float]]:
     """(codec, size, KB, encode µs, decode µs) at quality 75, 4:2:0."""
     rows = []
@@ -121,6 +177,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer steps (a few seconds)")
     parser.add_argument("--codecs", action="store_true", help="also compare JPEG codecs")
+    parser.add_argument("--robot", action="store_true", help="also measure the robot protocol per frame")
     args = parser.parse_args()
     n = 200 if args.quick else 2000
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
@@ -134,6 +191,15 @@ def main() -> None:
         r = measure(w, h, n)
         print(f"| {w}x{h} | " + " | ".join(f"{r[c]:.1f}" for c in cols) + " |")
     print("overhead = remote_step (JPEG pre-encoded, node decodes) - decode - act; target ≤ 1000 µs at 160x120")
+    if args.robot:
+        cols = ["render", "in_process_frame", "robot_frame", "overhead", "get_sim_state"]
+        print("\n| frame | " + " | ".join(cols) + " |")
+        print("|---" * (len(cols) + 1) + "|")
+        for w, h in ((160, 120), (640, 480)):
+            r = measure_robot(w, h, n // 2)
+            print(f"| {w}x{h} | " + " | ".join(f"{r[c]:.0f}" for c in cols) + " |")
+        print("overhead = robot_frame (one pipelined exchange + decode + act) - in_process_frame "
+              "(render + JPEG round trip + act + physics)")
     if args.codecs:
         print("\n| codec | frame | KB | encode µs | decode µs |\n|---|---|---|---|---|")
         for name, size, kb, enc, dec in codecs(n // 2):

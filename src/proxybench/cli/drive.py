@@ -26,11 +26,16 @@ def run(
     agent_name: str = typer.Option("pid", "--agent", help="zoo agent (see `proxybench agent list`)"),
     agent_cmd: str | None = typer.Option(None, "--agent-cmd",
                                          help="drive an agent node instead: any command speaking the AIDO protocol"),
+    robot_cmd: str | None = typer.Option(None, "--robot-cmd",
+                                         help="drive a robot node instead of the built-in simulator: any command "
+                                              "speaking the robot protocol, e.g. 'proxybench robot serve'"),
 ) -> None:
     """Drive an agent (default: the privileged PID controller) around a map in simulation and record it.
 
     Writes a video (camera view beside a top-down view), a PNG strip of camera frames and one metrics
-    line. This is a *simulated* run: nothing here comes from a real robot.
+    line. This is a *simulated* run: nothing here comes from a real robot. With --robot-cmd the robot is
+    a node process (docs/robot-protocol.md) that decides camera size and rates; no video is written and
+    the metrics say what the robot reported it is (``source``).
     """
     from proxybench.agents import make_agent
     from proxybench.domain.maps import MapError, load_map
@@ -44,6 +49,16 @@ def run(
     except (MapError, FileNotFoundError) as exc:
         err_console.print(f"[red]error:[/red] {exc}")
         raise typer.Exit(1) from exc
+    if robot_cmd is not None:
+        from proxybench.cli.robot import run_on_robot
+
+        try:
+            agent = make_agent(agent_name) if agent_cmd is None else _remote(agent_cmd)
+        except KeyError as exc:
+            err_console.print(f"[red]error:[/red] {exc.args[0]}", highlight=False)
+            raise typer.Exit(2) from exc
+        run_on_robot(robot_cmd, agent, map_name, seconds, seed, out)
+        return
     params = DomainParams(image_width=width, image_height=height)
     sim = Simulator(m, params)
     try:

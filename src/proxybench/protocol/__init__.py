@@ -1,18 +1,33 @@
-"""The AIDO agent wire protocol: serve proxybench agents as nodes, and drive any node as an agent.
+"""The AIDO wire protocols: agents and robots as nodes, served by proxybench or driven by it.
 
 - :func:`serve` turns a Python :class:`~proxybench.agents.base.Agent` into a node that speaks what an
   unmodified AIDO (zuper-nodes) agent node speaks.
 - :class:`AgentProcess` runs a node command and talks to it; :class:`RemoteAgent` wraps it as an
   ``Agent`` for the runner. Every misbehaviour ends in :class:`AgentFailure` with a stable reason code.
-- :mod:`.wire` (bytes and messages) and :mod:`.jpeg` (the camera codec) are the shared layers.
+- Robots (AIDO's simulator protocol, one robot): :class:`~.robot_node.RobotNode` serves the proxybench
+  simulator as a robot node; :class:`RobotProcess` / :class:`RemoteRobot` drive any robot node (a simulator
+  or a physical robot's bridge), failing with :class:`RobotFailure`.
+- :mod:`.wire`, :mod:`.robot_wire` (bytes and messages) and :mod:`.jpeg` (the camera codec) are the shared
+  layers.
 
-See docs/protocol.md for the specification, the privileged extension and the failure table.
+See docs/protocol.md (agents) and docs/robot-protocol.md (robots).
 """
 
 from proxybench.protocol import jpeg, wire
-from proxybench.protocol.failures import REASONS, AgentFailure, ProtocolUsageError
+from proxybench.protocol.failures import (
+    REASONS,
+    ROBOT_REASONS,
+    AgentFailure,
+    NodeFailure,
+    ProtocolUsageError,
+    RobotFailure,
+)
 from proxybench.protocol.node import serve
 from proxybench.protocol.process import AgentProcess
 from proxybench.protocol.remote import RemoteAgent
+from proxybench.protocol.robot_process import RemoteRobot, RobotProcess
 
-__all__ = ["REASONS", "AgentFailure", "AgentProcess", "ProtocolUsageError", "RemoteAgent", "jpeg", "serve", "wire"]
+__all__ = [
+    "REASONS", "ROBOT_REASONS", "AgentFailure", "AgentProcess", "NodeFailure", "ProtocolUsageError", "RemoteAgent",
+    "RemoteRobot", "RobotFailure", "RobotProcess", "jpeg", "serve", "wire",
+]

@@ -88,12 +88,17 @@ def _extension_schema() -> dict:
                 "proxybench extension, sent only to nodes that declare it: ground truth for privileged agents.")
 
 
-def _data_protocol(privileged: bool) -> dict:
+def _episode_start() -> dict:
     episode = _obj("EpisodeStart", "aido_schemas.protocol_agent",
                    {"episode_name": _t("string"),
                     "yaml_payload": {"anyOf": [_t("string")], "$schema": _S, "default": "{}"}},
                    ["episode_name", "yaml_payload"], "Marker for the start of an episode.")
     episode["required"] = ["episode_name"]
+    return episode
+
+
+def _data_protocol(privileged: bool) -> dict:
+    episode = _episode_start()
     get_commands = _obj("GetCommands", "aido_schemas.protocol_agent", {"at_time": _float()}, ["at_time"])
     return {
         "inputs": {"seed": _t("integer"), "get_commands": get_commands, "observations": _observations(privileged),

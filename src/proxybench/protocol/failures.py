@@ -1,13 +1,14 @@
-"""How a remote agent can fail, as stable short reason codes.
+"""How a remote node (agent or robot) can fail, as stable short reason codes.
 
-An agent process failing is a normal outcome of an evaluation, not a bug of the caller: every way a node
-can misbehave ends in one :class:`AgentFailure` whose ``reason`` is one of :data:`REASONS`, so result
-tables can count failures by kind, and whose process has already been reaped when it is raised.
+A node process failing is a normal outcome of an evaluation, not a bug of the caller: every way a node
+can misbehave ends in one :class:`NodeFailure` — :class:`AgentFailure` for agent nodes, :class:`RobotFailure`
+for robot nodes — whose ``reason`` is one of its class's reasons (:data:`REASONS`, :data:`ROBOT_REASONS`),
+so result tables can count failures by kind, and whose process has already been reaped when it is raised.
 """
 
 from __future__ import annotations
 
-__all__ = ["REASONS", "AgentFailure", "ProtocolUsageError"]
+__all__ = ["REASONS", "ROBOT_REASONS", "AgentFailure", "NodeFailure", "ProtocolUsageError", "RobotFailure"]
 
 #: reason code → when it is raised (the table in docs/protocol.md is generated from the same words)
 REASONS: dict[str, str] = {
@@ -30,18 +31,30 @@ REASONS: dict[str, str] = {
 }
 
 
-class AgentFailure(Exception):
-    """A remote agent failed; the process is already reaped when this is raised.
+#: reason code → when a robot node's failure is raised (the table in docs/robot-protocol.md)
+ROBOT_REASONS: dict[str, str] = {
+    **{k: v for k, v in REASONS.items() if k not in ("bad-commands", "incompatible", "init-timeout", "step-timeout")},
+    "bad-data": "an output whose data lacks a field or has the wrong type (robot_observations, robot_state, ...)",
+    "incompatible": "the node's protocol description lacks the robot protocol's topics",
+    "init-timeout": "no complete answer within the init timeout (start, handshake, seed, episode setup)",
+    "step-timeout": "no complete answer within the step timeout (commands, step, observations, state)",
+}
 
-    ``reason`` is a key of :data:`REASONS`; ``detail`` is human-readable (for ``aborted``, the node's
+
+class NodeFailure(Exception):
+    """A node process failed; the process is already reaped when this is raised.
+
+    ``reason`` is a key of the class's ``REASONS``; ``detail`` is human-readable (for ``aborted``, the node's
     traceback); ``exit_code`` is the process's exit status (negative: killed by that signal; None: never
     started); ``stderr_tail`` holds its last stderr lines; ``pid`` is the reaped process's id.
     """
 
+    REASONS: dict[str, str] = REASONS
+
     def __init__(self, reason: str, detail: str, exit_code: int | None = None,
                  stderr_tail: list[str] | None = None, *, pid: int | None = None):
-        if reason not in REASONS:
-            raise ValueError(f"unknown failure reason {reason!r}")
+        if reason not in self.REASONS:
+            raise ValueError(f"unknown {type(self).__name__} reason {reason!r}")
         self.reason = reason
         self.detail = detail
         self.exit_code = exit_code
@@ -58,13 +71,28 @@ class AgentFailure(Exception):
         return text
 
     def __reduce__(self):  # pickle-able for multi-process runners
-        return (_rebuild, (self.reason, self.detail, self.exit_code, self.stderr_tail, self.pid))
+        return (_rebuild, (type(self), self.reason, self.detail, self.exit_code, self.stderr_tail, self.pid))
+
+
+class AgentFailure(NodeFailure):
+    """A remote agent failed (reasons: :data:`REASONS`); the process is already reaped."""
+
+
+class RobotFailure(NodeFailure):
+    """A robot node failed (reasons: :data:`ROBOT_REASONS`); the process is already reaped.
+
+    Not an agent's fault: an episode whose robot failed has no valid trajectory, so the runner raises this
+    instead of recording an ``agent_failure``.
+    """
+
+    REASONS = ROBOT_REASONS
 
 
 class ProtocolUsageError(RuntimeError):
     """The *caller* asked for something the protocol does not allow (e.g. ``get_commands`` before
-    ``episode_start``); nothing was sent and the agent is left untouched."""
+    ``episode_start``); nothing was sent and the node is left untouched."""
 
 
-def _rebuild(reason: str, detail: str, exit_code: int | None, stderr_tail: list[str], pid: int | None) -> AgentFailure:
-    return AgentFailure(reason, detail, exit_code, stderr_tail, pid=pid)
+def _rebuild(cls: type[NodeFailure], reason: str, detail: str, exit_code: int | None, stderr_tail: list[str],
+             pid: int | None) -> NodeFailure:
+    return cls(reason, detail, exit_code, stderr_tail, pid=pid)

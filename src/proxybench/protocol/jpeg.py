@@ -20,7 +20,7 @@ from collections import deque
 import numpy as np
 import simplejpeg
 
-__all__ = ["DEFAULT_QUALITY", "SUBSAMPLING", "decode", "encode", "jpeg_of", "roundtrip"]
+__all__ = ["DEFAULT_QUALITY", "SUBSAMPLING", "decode", "decode_received", "encode", "jpeg_of", "roundtrip"]
 
 DEFAULT_QUALITY = 75
 SUBSAMPLING = "420"
@@ -51,6 +51,15 @@ def roundtrip(rgb: np.ndarray, quality: int = DEFAULT_QUALITY) -> np.ndarray:
     out = decode(data)
     out.flags.writeable = False
     _RECENT.append((out, data))
+    return out
+
+
+def decode_received(data: bytes) -> np.ndarray:
+    """A received frame's pixels (e.g. from a robot node), read-only and remembered like :func:`roundtrip`'s,
+    so that a remote agent is then sent these very bytes rather than a second encoding."""
+    out = decode(data)
+    out.flags.writeable = False
+    _RECENT.append((out, bytes(data)))
     return out
 
 

@@ -1,15 +1,22 @@
-"""The AIDO agent protocol's language, checked on both sides of the wire.
+"""The AIDO agent and simulator (robot) protocols' languages, checked on both sides of the wire.
 
-``(in:seed)? ; ((in:episode_start ; ((in:observations | (in:get_commands ; out:commands))*))*)``
+Agent: ``(in:seed)? ; ((in:episode_start ; ((in:observations | (in:get_commands ; out:commands))*))*)``
 
-Every input is answered before the next one is read, so the language reduces to a three-state machine
+Robot: the part of AIDO's ``protocol_simulator`` a single-robot node speaks (see :data:`ROBOT_LANGUAGE`).
+
+Every input is answered before the next one is read, so each language reduces to a small state machine
 over inputs plus, per input, the outputs its answer must hold. Meta topics (``wrapper.*``) are outside the
-language and allowed at any time.
+languages and allowed at any time.
 """
 
 from __future__ import annotations
 
-__all__ = ["AGENT_LANGUAGE", "DATA_INPUTS", "DATA_REPLIES", "META_LANGUAGE", "META_REPLIES", "AgentLanguage"]
+from typing import ClassVar
+
+__all__ = [
+    "AGENT_LANGUAGE", "DATA_INPUTS", "DATA_REPLIES", "META_LANGUAGE", "META_REPLIES", "ROBOT_INPUTS", "ROBOT_LANGUAGE",
+    "ROBOT_OUTPUTS", "ROBOT_REPLIES", "AgentLanguage", "Language", "RobotLanguage",
+]
 
 AGENT_LANGUAGE = "(in:seed)? ; ((in:episode_start ; ((in:observations | (in:get_commands ; out:commands))*))*)"
 META_LANGUAGE = (
@@ -37,34 +44,81 @@ META_REPLIES: dict[str, frozenset[str]] = {
 #: every topic a node may write: the agent protocol's output, the meta outputs, and the meta ``aborted``
 NODE_OUTPUTS = frozenset({"commands", "aborted"}.union(*META_REPLIES.values()))
 
-_START, _SEEDED, _EPISODE = "start", "seeded", "episode"
-_ALLOWED = {
-    _START: ("seed", "episode_start"),
-    _SEEDED: ("episode_start",),
-    _EPISODE: ("episode_start", "observations", "get_commands"),
+#: the subset of AIDO's protocol_simulator language a single-robot node speaks (no duckies, dumps, UI images)
+ROBOT_LANGUAGE = (
+    "(in:seed)? ; ((in:clear ; in:set_map ; (in:spawn_robot)* ; (in:get_robot_interface_description ; "
+    "out:robot_interface_description)* ; in:episode_start ; (in:step | in:set_robot_commands | "
+    "(in:get_robot_observations ; out:robot_observations) | (in:get_robot_performance ; out:robot_performance) | "
+    "(in:get_robot_state ; out:robot_state) | (in:get_sim_state ; out:sim_state))*)*)"
+)
+#: robot input → the outputs its answer holds, in order (each exactly once)
+ROBOT_REPLIES: dict[str, tuple[str, ...]] = {
+    "seed": (), "clear": (), "set_map": (), "spawn_robot": (), "episode_start": (), "step": (),
+    "set_robot_commands": (), "get_robot_interface_description": ("robot_interface_description",),
+    "get_robot_observations": ("robot_observations",), "get_robot_performance": ("robot_performance",),
+    "get_robot_state": ("robot_state",), "get_sim_state": ("sim_state",),
 }
+ROBOT_INPUTS = tuple(sorted(ROBOT_REPLIES))
+#: every topic a robot node may write: its data outputs, the meta outputs, and the meta ``aborted``
+ROBOT_OUTPUTS = frozenset({"aborted"}.union(*ROBOT_REPLIES.values(), *META_REPLIES.values()))
 
 
-class AgentLanguage:
-    """Tracks where a conversation is in the agent language; :meth:`check` says what an input breaks."""
+class Language:
+    """Tracks where a conversation is in a language; :meth:`check` says what an input breaks.
+
+    Subclasses give ``ALLOWED`` (state → inputs allowed there) and ``NEXT`` (input → state after it; inputs
+    not listed keep the state).
+    """
+
+    START = "start"
+    ALLOWED: ClassVar[dict[str, tuple[str, ...]]] = {}
+    NEXT: ClassVar[dict[str, str]] = {}
 
     def __init__(self) -> None:
-        self.state = _START
+        self.state = self.START
 
     @property
     def expected(self) -> tuple[str, ...]:
         """Inputs allowed now."""
-        return _ALLOWED[self.state]
+        return self.ALLOWED[self.state]
 
     def check(self, topic: str) -> str | None:
         """Why input ``topic`` is not allowed now, or None if it is."""
-        if topic in _ALLOWED[self.state]:
+        if topic in self.ALLOWED[self.state]:
             return None
         return f'Unexpected input "{topic}"; I expected one of {list(self.expected)} (state: {self.state}).'
 
     def push(self, topic: str) -> None:
         """Advance past input ``topic`` (which :meth:`check` allowed)."""
-        if topic == "seed":
-            self.state = _SEEDED
-        elif topic == "episode_start":
-            self.state = _EPISODE
+        self.state = self.NEXT.get(topic, self.state)
+
+
+class AgentLanguage(Language):
+    """The agent language: start → (seed) → episode_start → observations / get_commands."""
+
+    ALLOWED: ClassVar[dict[str, tuple[str, ...]]] = {
+        "start": ("seed", "episode_start"),
+        "seeded": ("episode_start",),
+        "episode": ("episode_start", "observations", "get_commands"),
+    }
+    NEXT: ClassVar[dict[str, str]] = {"seed": "seeded", "episode_start": "episode"}
+
+
+class RobotLanguage(Language):
+    """The robot language: (seed) → per episode clear, set_map, spawn_robot*, describe*, episode_start, then
+    commands, steps and queries until the next clear."""
+
+    _EPISODE = ("clear", "step", "set_robot_commands", "get_robot_observations", "get_robot_performance",
+                "get_robot_state", "get_sim_state")
+    ALLOWED: ClassVar[dict[str, tuple[str, ...]]] = {
+        "start": ("seed", "clear"),
+        "seeded": ("clear",),
+        "cleared": ("set_map",),
+        "mapped": ("spawn_robot", "get_robot_interface_description", "episode_start"),
+        "described": ("get_robot_interface_description", "episode_start"),
+        "episode": _EPISODE,
+    }
+    NEXT: ClassVar[dict[str, str]] = {
+        "seed": "seeded", "clear": "cleared", "set_map": "mapped", "spawn_robot": "mapped",
+        "get_robot_interface_description": "described", "episode_start": "episode",
+    }

@@ -1,11 +1,15 @@
 """Serve any Python :class:`~proxybench.agents.base.Agent` as an AIDO agent node.
 
+:class:`NodeLogic` is the protocol-independent part (envelopes, control messages, meta topics, error
+answers) that the agent node here and the robot node (:mod:`.robot_node`) share, and :func:`serve_node`
+runs any such logic on a pair of streams.
+
 What the node writes mirrors the recorded zuper-nodes node (zuper-nodes-z6 6.2.17) message for message:
 ``capabilities`` → understood, capabilities, over; every topic input → understood, its outputs, over; a
 failing handler (bad types, out-of-order input, an exception in the agent) → understood, aborted
 (traceback), over, exit 1; an unknown topic → not-understood, over, aborted, over, exit 1; a topic
-message without ``compat: ["z2"]`` → nothing. Each answer is written with one ``write`` call, which halves
-the wake-ups per exchange without changing a byte.
+message without ``compat: ["z2"]`` → nothing. Each answer, and the answers to inputs that arrived together,
+are written with one ``write`` call, which saves wake-ups per exchange without changing a byte.
 """
 
 from __future__ import annotations
@@ -26,9 +30,9 @@ import yaml
 from proxybench.agents.base import Agent, Observation
 from proxybench.protocol import jpeg, wire
 from proxybench.protocol.description import decode_extras, protocol_description
-from proxybench.protocol.language import DATA_INPUTS, META_REPLIES, AgentLanguage
+from proxybench.protocol.language import META_REPLIES, AgentLanguage, Language
 
-__all__ = ["AgentNode", "ExternalProtocolViolation", "serve"]
+__all__ = ["AgentNode", "ExternalProtocolViolation", "NodeLogic", "serve", "serve_node"]
 
 _TEXT_PREFIX = "| "
 _UNDERSTOOD = wire.encode_control(wire.CTRL_UNDERSTOOD)
@@ -57,22 +61,23 @@ def _payload_seed(payload: str) -> int | None:
     return seed if type(seed) is int else None
 
 
-class AgentNode:
-    """The protocol logic of a served agent, free of I/O: one decoded input map → the bytes to answer."""
+class NodeLogic:
+    """The protocol logic of a node, free of I/O: one decoded input map → the bytes to answer.
 
-    def __init__(self, agent: Agent, node_name: str = "agent"):
-        self.agent = agent
+    A protocol is given by its ``language``, its ``description`` (the ``protocol_description`` data) and
+    ``handlers`` (data input topic → handler returning the encoded outputs; a handler that raises makes the
+    node answer ``aborted`` and exit 1); subclasses override :meth:`_node_description`. ``config_target``
+    is the object whose ``config`` attribute ``wrapper.set_config`` edits.
+    """
+
+    def __init__(self, node_name: str, language: Language, description: dict,
+                 handlers: dict[str, Callable[[Any], list[bytes]]]):
         self.name = node_name
-        self.privileged = bool(agent.privileged)
-        self.language = AgentLanguage()
-        self.seed: int | None = None
-        self.obs: Observation | None = None
+        self.language = language
         self.logs: deque[str] = deque(maxlen=200)
-        self._description = protocol_description(self.privileged)
-        self._data: dict[str, Callable[[Any], list[bytes]]] = {
-            "seed": self._on_seed, "episode_start": self._on_episode_start,
-            "observations": self._on_observations, "get_commands": self._on_get_commands,
-        }
+        self._description = description
+        self._data = handlers
+        self.config_target: Any = None
 
     def handle(self, obj: dict) -> tuple[list[bytes], bool]:
         """(messages to write, whether the node must now exit with status 1)."""
@@ -86,7 +91,7 @@ class AgentNode:
             return [], False
         meta = msg.topic.startswith("wrapper.")
         topic = msg.topic[len("wrapper."):] if meta else msg.topic
-        known = META_REPLIES if meta else DATA_INPUTS
+        known = META_REPLIES if meta else self._data
         if topic not in known:
             text = f'Input channel "{topic}" not found in protocol. \n\nKnown channels: {sorted(known)}'
             head = [wire.encode_control(wire.CTRL_NOT_UNDERSTOOD, text), wire.encode_control(wire.CTRL_OVER)]
@@ -130,6 +135,64 @@ class AgentNode:
             raise ExternalProtocolViolation(problem)
         self.language.push(topic)
 
+    # ------------------------------------------------------------------------------------ meta topics
+    def _on_meta(self, topic: str, data: Any, start: int) -> list[bytes]:
+        out_topic, out = self._meta_answer(topic, data)
+        timing = wire.node_timing(self.name + ".wrapper", start)
+        return [wire.encode_topic(out_topic, wire.canonical(out), timing)]
+
+    def _meta_answer(self, topic: str, data: Any) -> tuple[str, Any]:
+        if topic == "describe_protocol":
+            return "protocol_description", self._description
+        if topic == "describe_node":
+            return "node_description", {"description": self._node_description()}
+        if topic == "describe_config":
+            schema = {"$id": "http://invalid.json-schema.org/NoConfig#", "type": "object", "order": [],
+                      "title": "NoConfig", "$schema": "http://json-schema.org/draft-07/schema#",
+                      "__qualname__": "NoConfig"}
+            return "config_description", {"config": schema, "current": {}}
+        if topic == "set_config":
+            return self._set_config(data)
+        if topic == "describe_build":
+            return "build_description", {}
+        if topic == "get_state":
+            return "node_state", None
+        if topic == "set_state":
+            return "set_state_ack", None
+        return "logs", list(self.logs)
+
+    def _set_config(self, data: Any) -> tuple[str, Any]:
+        if not isinstance(data, dict) or type(data.get("key")) is not str or "value" not in data:
+            raise wire.MessageTypeError("set_config: expected {key: str, value: any}")
+        config = getattr(self.config_target, "config", None)
+        if config is None:
+            return "set_config_error", 'Node does not have the "config" attribute.'
+        if not hasattr(config, data["key"]):
+            return "set_config_error", f"Could not find config key {data['key']}"
+        try:
+            setattr(config, data["key"], data["value"])
+        except Exception as exc:  # frozen dataclasses, properties
+            return "set_config_error", f"Could not set config key {data['key']}: {exc}"
+        return "set_config_ack", None
+
+    def _node_description(self) -> str:
+        return f"{type(self).__name__} {self.name!r}"
+
+
+class AgentNode(NodeLogic):
+    """The protocol logic of a served agent, free of I/O: one decoded input map → the bytes to answer."""
+
+    def __init__(self, agent: Agent, node_name: str = "agent"):
+        self.agent = agent
+        self.privileged = bool(agent.privileged)
+        self.seed: int | None = None
+        self.obs: Observation | None = None
+        super().__init__(node_name, AgentLanguage(), protocol_description(self.privileged), {
+            "seed": self._on_seed, "episode_start": self._on_episode_start,
+            "observations": self._on_observations, "get_commands": self._on_get_commands,
+        })
+        self.config_target = agent
+
     # ------------------------------------------------------------------------------------ data topics
     def _on_seed(self, data: Any) -> list[bytes]:
         seed = wire.parse_seed(data)
@@ -165,46 +228,6 @@ class AgentNode:
         if action.shape != (2,):
             raise ValueError(f"act() must return 2 wheel commands, got shape {action.shape}")
         return [wire.encode_commands(action[0], action[1], wire.node_timing(self.name, start))]
-
-    # ------------------------------------------------------------------------------------ meta topics
-    def _on_meta(self, topic: str, data: Any, start: int) -> list[bytes]:
-        out_topic, out = self._meta_answer(topic, data)
-        timing = wire.node_timing(self.name + ".wrapper", start)
-        return [wire.encode_topic(out_topic, wire.canonical(out), timing)]
-
-    def _meta_answer(self, topic: str, data: Any) -> tuple[str, Any]:
-        if topic == "describe_protocol":
-            return "protocol_description", self._description
-        if topic == "describe_node":
-            return "node_description", {"description": self._node_description()}
-        if topic == "describe_config":
-            schema = {"$id": "http://invalid.json-schema.org/NoConfig#", "type": "object", "order": [],
-                      "title": "NoConfig", "$schema": "http://json-schema.org/draft-07/schema#",
-                      "__qualname__": "NoConfig"}
-            return "config_description", {"config": schema, "current": {}}
-        if topic == "set_config":
-            return self._set_config(data)
-        if topic == "describe_build":
-            return "build_description", {}
-        if topic == "get_state":
-            return "node_state", None
-        if topic == "set_state":
-            return "set_state_ack", None
-        return "logs", list(self.logs)
-
-    def _set_config(self, data: Any) -> tuple[str, Any]:
-        if not isinstance(data, dict) or type(data.get("key")) is not str or "value" not in data:
-            raise wire.MessageTypeError("set_config: expected {key: str, value: any}")
-        config = getattr(self.agent, "config", None)
-        if config is None:
-            return "set_config_error", 'Node does not have the "config" attribute.'
-        if not hasattr(config, data["key"]):
-            return "set_config_error", f"Could not find config key {data['key']}"
-        try:
-            setattr(config, data["key"], data["value"])
-        except Exception as exc:  # frozen dataclasses, properties
-            return "set_config_error", f"Could not set config key {data['key']}: {exc}"
-        return "set_config_ack", None
 
     def _node_description(self) -> str:
         doc = (type(self.agent).__doc__ or type(self.agent).__name__).strip()
@@ -294,24 +317,49 @@ class _NodeIO:
             os.close(private)
 
 
-def _loop(node: AgentNode, io: _NodeIO) -> int:
+def _loop(node: NodeLogic, io: _NodeIO) -> int:
+    """Answer every input; answers to inputs that arrived together (a caller's pipelined request) are
+    written at once, when no further complete input is buffered, so the caller wakes up once."""
     stream = wire.CborStream()
+    pending: list[bytes] = []
     while True:
         try:
             obj = stream.next()
         except wire.WireError as exc:
-            io.write(b"".join(node._unexpected(exc)))
+            io.write(b"".join(pending + node._unexpected(exc)))
             return 1
         if obj is None:
+            if pending:
+                io.write(b"".join(pending))
+                pending.clear()
             if stream.eof:
                 return 0
             io.read_into(stream)
             continue
         out, failed = node.handle(obj)
-        if out:
-            io.write(b"".join(out))
+        pending += out
         if failed:
+            io.write(b"".join(pending))
             return 1
+
+
+def serve_node(node: NodeLogic, data_in: str | int | BinaryIO | None = None,
+               data_out: str | int | BinaryIO | None = None, *, exit_on_abort: bool = True) -> int:
+    """Answer on the node's streams with ``node``'s logic until its input ends; returns the exit status.
+
+    Streams as :func:`serve`. After an ``aborted`` answer the status is 1, raised as ``SystemExit(1)``
+    unless ``exit_on_abort`` is False.
+    """
+    io = _NodeIO(data_in, data_out)
+    try:
+        code = _loop(node, io)
+    except BrokenPipeError:  # the caller went away: nothing left to answer
+        code = 0
+    finally:
+        io.close()
+    if code and exit_on_abort:
+        raise SystemExit(code)
+    return code
 
 
 def serve(agent: Agent, data_in: str | int | BinaryIO | None = None, data_out: str | int | BinaryIO | None = None,
@@ -323,13 +371,4 @@ def serve(agent: Agent, data_in: str | int | BinaryIO | None = None, data_out: s
     stdout, fd 1 points to stderr, so the agent's prints cannot corrupt the protocol. After an
     ``aborted`` answer the status is 1, raised as ``SystemExit(1)`` unless ``exit_on_abort`` is False.
     """
-    io = _NodeIO(data_in, data_out)
-    try:
-        code = _loop(AgentNode(agent, node_name), io)
-    except BrokenPipeError:  # the caller went away: nothing left to answer
-        code = 0
-    finally:
-        io.close()
-    if code and exit_on_abort:
-        raise SystemExit(code)
-    return code
+    return serve_node(AgentNode(agent, node_name), data_in, data_out, exit_on_abort=exit_on_abort)

@@ -1,9 +1,13 @@
-"""The caller side: drive an agent node process over the AIDO protocol, failing fast and cleanly.
+"""The caller side: drive a node process over the AIDO protocol, failing fast and cleanly.
 
 Each request is one write and then a read loop over ``poll`` with a deadline; replies are checked against
 the language (understood, exactly the outputs the input calls for, over). Anything else ends the process
-and raises :class:`~.failures.AgentFailure` with a stable reason code, after the process group has been
+and raises a :class:`~.failures.NodeFailure` with a stable reason code, after the process group has been
 killed and reaped. A failed process stays failed: later calls raise the same failure again.
+
+:class:`NodeProcess` is that machinery for any protocol (its language, replies and failure class are class
+attributes); :class:`AgentProcess` speaks the agent protocol, :class:`~.robot_process.RobotProcess` the robot
+(simulator) protocol.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ import time
 import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 
@@ -24,11 +28,18 @@ from proxybench.agents.base import Observation
 from proxybench.protocol import jpeg as jpeg_codec
 from proxybench.protocol import wire
 from proxybench.protocol.description import declares_extension, encode_extras
-from proxybench.protocol.failures import AgentFailure, ProtocolUsageError
-from proxybench.protocol.language import DATA_INPUTS, DATA_REPLIES, META_REPLIES, NODE_OUTPUTS, AgentLanguage
+from proxybench.protocol.failures import AgentFailure, NodeFailure, ProtocolUsageError
+from proxybench.protocol.language import (
+    DATA_INPUTS,
+    DATA_REPLIES,
+    META_REPLIES,
+    NODE_OUTPUTS,
+    AgentLanguage,
+    Language,
+)
 from proxybench.protocol.transport import Launch
 
-__all__ = ["AgentProcess"]
+__all__ = ["AgentProcess", "NodeProcess"]
 
 _IN = select.POLLIN | select.POLLPRI | select.POLLHUP | select.POLLERR
 # let a node that is ending anyway end by itself, so its own exit status is reported
@@ -45,21 +56,30 @@ class _Plan:
     capabilities: bool = False
 
 
-class AgentProcess:
-    """An AIDO agent node in a child process, started and handshaken on construction.
+class NodeProcess:
+    """A node in a child process, started and handshaken on construction; the protocol-independent part.
 
     ``cmd`` is an argv list or a string split like a shell would (no shell features). ``transport``:
     ``"pipes"`` (stdin/stdout) or ``"fifos"`` (``AIDONODE_DATA_IN`` / ``AIDONODE_DATA_OUT=fifo:``, as AIDO
-    runs nodes). ``env`` is added to the inherited environment. ``privileged``: None learns from the node's
-    protocol description whether to send the proxybench extension; True/False force it.
-    ``init_timeout`` bounds start + handshake and each seed / episode_start / meta request;
-    ``step_timeout`` bounds each observations / get_commands exchange. ``on_stderr(line)`` is called
-    from the stderr drain thread for each line the node writes there.
+    runs nodes). ``env`` is added to the inherited environment. ``init_timeout`` bounds start + handshake
+    and each setup or meta request; ``step_timeout`` bounds each per-frame request. ``on_stderr(line)`` is
+    called from the stderr drain thread for each line the node writes there.
+
+    Subclasses set the protocol: ``language_class``, ``data_replies`` (input → outputs of its answer),
+    ``node_outputs`` (every topic the node may write), ``required_inputs`` / ``required_outputs`` (what its
+    protocol description must declare) and ``failure_class``.
     """
+
+    language_class: type[Language] = AgentLanguage
+    data_replies: dict[str, tuple[str, ...]] = DATA_REPLIES
+    node_outputs: frozenset[str] = NODE_OUTPUTS
+    required_inputs: tuple[str, ...] = DATA_INPUTS
+    required_outputs: tuple[str, ...] = ("commands",)
+    failure_class: type[NodeFailure] = AgentFailure
 
     def __init__(self, cmd: str | Sequence[str], *, init_timeout: float = 30.0, step_timeout: float = 5.0,
                  transport: str = "pipes", env: dict[str, str] | None = None, cwd: str | None = None,
-                 privileged: bool | None = None, max_reply_bytes: int = 8 << 20, max_reply_messages: int = 1000,
+                 max_reply_bytes: int = 8 << 20, max_reply_messages: int = 1000,
                  max_stderr_bytes: int = 4 << 20, stderr_lines: int = 50, close_timeout: float = 2.0,
                  on_stderr: Callable[[str], None] | None = None):
         if transport not in ("pipes", "fifos"):
@@ -68,11 +88,10 @@ class AgentProcess:
         self.init_timeout, self.step_timeout, self.close_timeout = init_timeout, step_timeout, close_timeout
         self.max_reply_bytes, self.max_reply_messages = max_reply_bytes, max_reply_messages
         self.max_stderr_bytes = max_stderr_bytes
-        self.language = AgentLanguage()
-        self.failure: AgentFailure | None = None
+        self.language = self.language_class()
+        self.failure: NodeFailure | None = None
         self.capabilities: dict = {}
         self.description: dict | None = None
-        self.privileged = bool(privileged)
         self._closed = False
         self._stream = wire.CborStream()
         self._req_bytes = self._req_msgs = 0
@@ -81,11 +100,11 @@ class AgentProcess:
             self._os = Launch(self.argv, transport=transport, env=env, cwd=cwd, stderr_lines=stderr_lines,
                               on_stderr=on_stderr)
         except OSError as exc:
-            raise AgentFailure("start-failed", f"cannot start {self.argv!r}: {exc}") from exc
+            raise self.failure_class("start-failed", f"cannot start {self.argv!r}: {exc}") from exc
         self._finalizer = weakref.finalize(self, self._os.kill_quietly)
         self._poll = select.poll()
         self._await_output(deadline)
-        self._handshake(deadline, privileged)
+        self._handshake(deadline)
 
     # --------------------------------------------------------------------------------- public API
     @property
@@ -103,32 +122,6 @@ class AgentProcess:
     @property
     def alive(self) -> bool:
         return not self._closed and self.failure is None
-
-    def seed(self, seed: int) -> None:
-        self._data("seed", wire.encode_seed(seed), self.init_timeout, "init-timeout")
-
-    def episode_start(self, name: str, yaml_payload: str = "{}") -> None:
-        self._data("episode_start", wire.encode_episode_start(name, yaml_payload), self.init_timeout,
-                   "init-timeout")
-
-    def observe(self, obs: Observation, jpeg: bytes | None = None) -> None:
-        """Send one ``observations`` message; ``jpeg``: the camera frame already encoded."""
-        self._data("observations", self._observations(obs, jpeg), self.step_timeout, "step-timeout")
-
-    def get_commands(self, at_time: float) -> np.ndarray:
-        """Wheel PWM (left, right) the node commands at ``at_time``."""
-        (reply,) = self._data("get_commands", wire.encode_get_commands(at_time), self.step_timeout,
-                              "step-timeout")
-        return self._commands(reply[0])
-
-    def step(self, obs: Observation, jpeg: bytes | None = None) -> np.ndarray:
-        """``observe(obs)`` then ``get_commands(obs.time)``, both written at once (one round trip less)."""
-        self._usable()
-        self._check_order("observations", "get_commands")
-        payload = self._observations(obs, jpeg) + wire.encode_get_commands(obs.time)
-        plans = [self._data_plan("observations"), self._data_plan("get_commands")]
-        replies = self._request(payload, plans, time.monotonic() + self.step_timeout, "step-timeout")
-        return self._commands(replies[1][0])
 
     def meta(self, name: str, data: Any = None) -> tuple[str, Any]:
         """Ask meta topic ``wrapper.<name>`` (describe_node, get_logs, ...): (output topic, its data)."""
@@ -150,7 +143,7 @@ class AgentProcess:
         self._closed = True
         return self._os.returncode
 
-    def __enter__(self) -> AgentProcess:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -168,24 +161,29 @@ class AgentProcess:
             if fd is not None:
                 self._poll.register(fd, _IN)
 
-    def _handshake(self, deadline: float, privileged: bool | None) -> None:
+    def _handshake(self, deadline: float) -> None:
         plan = _Plan("capabilities", capabilities=True)
         self._request(wire.encode_control(wire.CTRL_CAPABILITIES, wire.CAPABILITIES), [plan], deadline,
                       "init-timeout")
         if not (self.capabilities.get("z2") or {}).get("protocol-reflection"):
-            self.privileged = bool(privileged)
+            self._described()
             return
         plan = _Plan("wrapper.describe_protocol", any_of=META_REPLIES["describe_protocol"])
         (reply,) = self._request(wire.encode_topic("wrapper.describe_protocol", None), [plan], deadline,
                                  "init-timeout")
         self.description = reply[0].data
         self._check_compatible()
-        self.privileged = declares_extension(self.description) if privileged is None else privileged
+        self._described()
+
+    def _described(self) -> None:
+        """Hook after the handshake: :attr:`description` is the node's protocol description (None without
+        protocol reflection)."""
 
     def _check_compatible(self) -> None:
         try:
             inputs, outputs = self.description["data"]["inputs"], self.description["data"]["outputs"]
-            missing = [t for t in DATA_INPUTS if t not in inputs] + [t for t in ("commands",) if t not in outputs]
+            missing = [t for t in self.required_inputs if t not in inputs] + \
+                [t for t in self.required_outputs if t not in outputs]
         except (KeyError, TypeError):
             missing = ["data.inputs", "data.outputs"]
         if missing:
@@ -195,12 +193,12 @@ class AgentProcess:
     def _usable(self) -> None:
         if self.failure is not None:
             f = self.failure
-            raise AgentFailure(f.reason, f.detail, f.exit_code, f.stderr_tail, pid=f.pid)
+            raise self.failure_class(f.reason, f.detail, f.exit_code, f.stderr_tail, pid=f.pid)
         if self._closed:
-            raise ProtocolUsageError("the agent process is closed")
+            raise ProtocolUsageError("the node process is closed")
 
     def _check_order(self, *topics: str) -> None:
-        probe = AgentLanguage()
+        probe = self.language_class()
         probe.state = self.language.state
         for topic in topics:
             problem = probe.check(topic)
@@ -209,7 +207,7 @@ class AgentProcess:
             probe.push(topic)
 
     def _data_plan(self, topic: str) -> _Plan:
-        return _Plan(topic, outputs=DATA_REPLIES[topic])
+        return _Plan(topic, outputs=self.data_replies[topic])
 
     def _data(self, topic: str, payload: bytes, timeout: float, reason: str) -> list[list[wire.Topic]]:
         self._usable()
@@ -218,33 +216,20 @@ class AgentProcess:
 
     def _request(self, payload: bytes, plans: list[_Plan], deadline: float, reason: str) -> list[list[wire.Topic]]:
         for plan in plans:
-            if plan.request in DATA_REPLIES:
+            if plan.request in self.data_replies:
                 self.language.push(plan.request)
         self._req_bytes, self._req_msgs = self._stream.bytes_read, 0
         self._os.stderr.arm(self.max_stderr_bytes)
         try:
             self._send(payload, deadline, reason)
             return [self._collect(plan, deadline, reason) for plan in plans]
-        except AgentFailure:
+        except NodeFailure:
             raise
         except BaseException:  # e.g. KeyboardInterrupt mid-answer: the stream is out of step, end the node
             self._closed = True
             self._os.terminate()
             self._finish_stderr()
             raise
-
-    def _observations(self, obs: Observation, jpg: bytes | None) -> bytes:
-        if jpg is None and obs.camera is not None:
-            jpg = jpeg_codec.jpeg_of(obs.camera) or jpeg_codec.encode(obs.camera)
-        extras = encode_extras(obs.lane_pose) if self.privileged else None
-        return wire.encode_observations(jpg or b"", obs.time, obs.odometry, obs.odometry_resolution, extras)
-
-    def _commands(self, reply: wire.Topic) -> np.ndarray:
-        try:
-            return wire.parse_commands(reply.data)
-        except wire.MessageTypeError as exc:
-            self._fail("bad-commands", str(exc))
-            raise  # unreachable: _fail raises
 
     # ------------------------------------------------------------------------------- reading replies
     def _collect(self, plan: _Plan, deadline: float, reason: str) -> list[wire.Topic]:
@@ -272,7 +257,7 @@ class AgentProcess:
     def _check_output(self, msg: wire.Topic, plan: _Plan, outputs: list[wire.Topic]) -> None:
         if msg.topic == "aborted":
             self._fail("aborted", str(msg.data))
-        if msg.topic not in NODE_OUTPUTS:
+        if msg.topic not in self.node_outputs:
             self._fail("unknown-topic", f"topic {msg.topic!r} in the answer to {plan.request!r} is not a node "
                                         f"output of the protocol")
         k = len(outputs)
@@ -292,7 +277,7 @@ class AgentProcess:
             self._fail("out-of-order", f"{what} in the answer to {plan.request!r}, got control {msg.code!r}")
         if msg.topic == "aborted":
             self._fail("aborted", str(msg.data))
-        if msg.topic not in NODE_OUTPUTS:
+        if msg.topic not in self.node_outputs:
             self._fail("unknown-topic", f"topic {msg.topic!r} is not a node output of the protocol")
         self._fail("out-of-order", f"{what} in the answer to {plan.request!r}, got topic {msg.topic!r}")
 
@@ -383,9 +368,69 @@ class AgentProcess:
         return self._stderr_tail
 
     def _fail(self, reason: str, detail: str) -> None:
-        """Kill and reap the process, then raise :class:`AgentFailure` (this function never returns)."""
+        """Kill and reap the process, then raise the failure class (this function never returns)."""
         grace = max(_GRACE.get(reason, 0.0), 1.0 if self._stream.eof else 0.0)
         code = self._os.terminate(grace)
-        self.failure = AgentFailure(reason, detail, code, self._finish_stderr(), pid=self._os.pid)
+        self.failure = self.failure_class(reason, detail, code, self._finish_stderr(), pid=self._os.pid)
         self._finalizer.detach()
         raise self.failure
+
+
+class AgentProcess(NodeProcess):
+    """An AIDO agent node in a child process, started and handshaken on construction.
+
+    Options as :class:`NodeProcess`; ``init_timeout`` bounds start + handshake and each seed /
+    episode_start / meta request, ``step_timeout`` each observations / get_commands exchange.
+    ``privileged``: None learns from the node's protocol description whether to send the proxybench
+    extension; True/False force it.
+    """
+
+    def __init__(self, cmd: str | Sequence[str], *, privileged: bool | None = None, **kwargs: Any):
+        self._privileged_request = privileged
+        self.privileged = bool(privileged)
+        super().__init__(cmd, **kwargs)
+
+    def _described(self) -> None:
+        if self.description is None or self._privileged_request is not None:
+            self.privileged = bool(self._privileged_request)
+        else:
+            self.privileged = declares_extension(self.description)
+
+    def seed(self, seed: int) -> None:
+        self._data("seed", wire.encode_seed(seed), self.init_timeout, "init-timeout")
+
+    def episode_start(self, name: str, yaml_payload: str = "{}") -> None:
+        self._data("episode_start", wire.encode_episode_start(name, yaml_payload), self.init_timeout,
+                   "init-timeout")
+
+    def observe(self, obs: Observation, jpeg: bytes | None = None) -> None:
+        """Send one ``observations`` message; ``jpeg``: the camera frame already encoded."""
+        self._data("observations", self._observations(obs, jpeg), self.step_timeout, "step-timeout")
+
+    def get_commands(self, at_time: float) -> np.ndarray:
+        """Wheel PWM (left, right) the node commands at ``at_time``."""
+        (reply,) = self._data("get_commands", wire.encode_get_commands(at_time), self.step_timeout,
+                              "step-timeout")
+        return self._commands(reply[0])
+
+    def step(self, obs: Observation, jpeg: bytes | None = None) -> np.ndarray:
+        """``observe(obs)`` then ``get_commands(obs.time)``, both written at once (one round trip less)."""
+        self._usable()
+        self._check_order("observations", "get_commands")
+        payload = self._observations(obs, jpeg) + wire.encode_get_commands(obs.time)
+        plans = [self._data_plan("observations"), self._data_plan("get_commands")]
+        replies = self._request(payload, plans, time.monotonic() + self.step_timeout, "step-timeout")
+        return self._commands(replies[1][0])
+
+    def _observations(self, obs: Observation, jpg: bytes | None) -> bytes:
+        if jpg is None and obs.camera is not None:
+            jpg = jpeg_codec.jpeg_of(obs.camera) or jpeg_codec.encode(obs.camera)
+        extras = encode_extras(obs.lane_pose) if self.privileged else None
+        return wire.encode_observations(jpg or b"", obs.time, obs.odometry, obs.odometry_resolution, extras)
+
+    def _commands(self, reply: wire.Topic) -> np.ndarray:
+        try:
+            return wire.parse_commands(reply.data)
+        except wire.MessageTypeError as exc:
+            self._fail("bad-commands", str(exc))
+            raise  # unreachable: _fail raises

@@ -10,6 +10,7 @@ real node rejects an int where a float is declared.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import time
@@ -24,8 +25,8 @@ __all__ = [
     "ENV_DATA_IN", "ENV_DATA_OUT", "BadMessageError", "CborStream", "Control", "GarbageError", "MessageTypeError",
     "NotAMapError", "Topic", "TruncatedError", "WireError", "canonical", "decode_message", "encode_commands",
     "encode_control", "encode_episode_start", "encode_get_commands", "encode_observations", "encode_seed",
-    "encode_topic", "item_end", "node_timing", "parse_commands", "parse_episode_start", "parse_get_commands",
-    "parse_observations", "parse_seed", "timespec_seconds",
+    "encode_topic", "item_end", "node_timing", "observations_data", "parse_commands", "parse_episode_start",
+    "parse_get_commands", "parse_observations", "parse_seed", "timespec_seconds",
 ]
 
 ENV_DATA_IN = "AIDONODE_DATA_IN"
@@ -113,13 +114,17 @@ def decode_message(obj: dict) -> Control | Topic:
     return Topic(topic, obj["data"], obj.get("timing"), z2)
 
 
+@functools.lru_cache(maxsize=4096)
+def _canonical_key(k: Any) -> tuple[int, bytes]:
+    return (len(k.encode()), k.encode()) if isinstance(k, str) else (0, b"")
+
+
 def canonical(value: Any) -> Any:
     """``value`` with every map's keys in canonical CBOR order (length first), as the zuper node sends."""
     if isinstance(value, dict):
-        keys = sorted(value, key=lambda k: (len(k.encode()), k.encode()) if isinstance(k, str) else (0, b""))
-        return {k: canonical(value[k]) for k in keys}
+        return {k: canonical(value[k]) for k in sorted(value, key=_canonical_key)}
     if isinstance(value, list):
-        return [canonical(v) for v in value]
+        return [canonical(v) if isinstance(v, dict | list) else v for v in value]
     return value
 
 
@@ -183,9 +188,10 @@ def parse_episode_start(data: Any) -> tuple[str, str]:
     return name, payload
 
 
-def encode_observations(jpg: bytes, timestamp: float, odometry: tuple[float, float] | None,
-                        resolution: float | None, extras: dict | None = None) -> bytes:
-    """An ``observations`` message; missing odometry is sent as NaN (floats stay floats)."""
+def observations_data(jpg: bytes, timestamp: float, odometry: tuple[float, float] | None,
+                      resolution: float | None, extras: dict | None = None) -> dict[str, Any]:
+    """The data of an ``observations`` message (also a robot node's ``robot_observations.observations``);
+    missing odometry is sent as NaN (floats stay floats)."""
     t = float(timestamp)
     left, right = (math.nan, math.nan) if odometry is None else (float(odometry[0]), float(odometry[1]))
     odo = {"resolution_rad": math.nan if resolution is None else float(resolution), "axis_left_rad": left,
@@ -193,7 +199,13 @@ def encode_observations(jpg: bytes, timestamp: float, odometry: tuple[float, flo
     data: dict[str, Any] = {"camera": {"jpg_data": bytes(jpg), "timestamp": t}, "odometry": odo}
     if extras is not None:
         data["proxybench"] = extras
-    return encode_topic("observations", data)
+    return data
+
+
+def encode_observations(jpg: bytes, timestamp: float, odometry: tuple[float, float] | None,
+                        resolution: float | None, extras: dict | None = None) -> bytes:
+    """An ``observations`` message (see :func:`observations_data`)."""
+    return encode_topic("observations", observations_data(jpg, timestamp, odometry, resolution, extras))
 
 
 @dataclass(slots=True)
