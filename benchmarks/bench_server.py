@@ -75,7 +75,8 @@ async def _load(url: str, admin_token: str, clients: int, seconds: float) -> tup
     limits = httpx.Limits(max_connections=clients, max_keepalive_connections=clients)
     async with httpx.AsyncClient(base_url=url, limits=limits, timeout=60.0) as http:
         admin = {"Authorization": f"Bearer {admin_token}"}
-        r = await http.post("/api/v1/users", headers=admin, json={"name": f"bench-ev-{time.time_ns()}", "role": "evaluator"})
+        r = await http.post("/api/v1/users", headers=admin,
+                            json={"name": f"bench-ev-{time.time_ns()}", "role": "evaluator"})
         ev = {"Authorization": f"Bearer {r.json()['token']}"}
         lat: dict[str, list[float]] = {op: [] for op in OPS}
         errors = dict.fromkeys(OPS, 0)

@@ -13,6 +13,8 @@ map_app = typer.Typer(no_args_is_help=True, help="Check, list and draw Duckietow
 app.add_typer(map_app, name="map")
 agent_app = typer.Typer(no_args_is_help=True, help="The built-in agent zoo.")
 app.add_typer(agent_app, name="agent")
+robot_app = typer.Typer(no_args_is_help=True, help="Robots behind AIDO's simulator protocol (simulated or real).")
+app.add_typer(robot_app, name="robot")
 # wide enough for result tables when the output is a file or a pipe (rich assumes 80 columns there)
 console = Console(soft_wrap=True, width=None if sys.stdout.isatty() else 160)
 err_console = Console(stderr=True, soft_wrap=True, width=None if sys.stderr.isatty() else 160)

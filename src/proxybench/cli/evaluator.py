@@ -1,0 +1,139 @@
+"""`proxybench evaluator`: a worker that pulls jobs from a challenges server and evaluates them."""
+
+from __future__ import annotations
+
+import logging
+import socket
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from proxybench.cli.app import app, console, err_console
+
+KNOWN_FEATURES = ("sim", "target")
+
+
+def _token(token: str | None, token_file: Path | None) -> str:
+    if token:
+        return token.strip()
+    if token_file is None:
+        err_console.print("[red]✗[/red] no token: pass --token, set PROXYBENCH_TOKEN, or pass --token-file")
+        raise typer.Exit(2)
+    try:
+        return token_file.read_text().strip()
+    except OSError as exc:
+        err_console.print(f"[red]✗[/red] cannot read the token file {token_file}: {exc}", highlight=False)
+        raise typer.Exit(2) from None
+
+
+def _reporter():
+    from rich.markup import escape
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from proxybench.evaluator import Reporter
+
+    class RichReporter(Reporter):
+        """Job lines on the console and a bar of the job's episodes while it runs."""
+
+        def __init__(self) -> None:
+            self.progress: Progress | None = None
+            self.task: Any = None
+
+        def job_started(self, lease: dict[str, Any]) -> None:
+            b, s = lease["benchmark"], lease["submission"]
+            who = s.get("agent") or (s.get("manifest") or {}).get("name", "archive")
+            console.print(f"[bold]job {lease['job_id']}[/bold] (attempt {lease.get('attempt', 1)}): "
+                          + escape(f"{b['name']} v{b['version']} ← submission {s.get('id')} {s.get('label', '')} "
+                                   f"[{who}]"), highlight=False)
+            self.progress = Progress(TextColumn("  {task.description}"), BarColumn(), MofNCompleteColumn(),
+                                     TimeElapsedColumn(), console=console, transient=True)
+            self.progress.start()
+            self.task = self.progress.add_task("setting up", total=None)
+
+        def job_progress(self, lease: dict[str, Any], progress: dict[str, Any]) -> None:
+            if self.progress is not None:
+                self.progress.update(self.task, description=f"{progress.get('phase', '')} episodes",
+                                     completed=progress.get("done", 0), total=progress.get("total"))
+
+        def job_finished(self, lease: dict[str, Any], status: str, message: str) -> None:
+            if self.progress is not None:
+                self.progress.stop()
+                self.progress = None
+            colour = {"success": "green", "failed": "yellow", "lost": "yellow"}.get(status, "red")
+            first = message.splitlines()[0] if message else ""
+            console.print(f"  job {lease['job_id']}: [{colour}]{status}[/{colour}] {escape(first[:300])}",
+                          highlight=False)
+
+        def note(self, text: str) -> None:
+            console.print(escape(text), highlight=False)
+
+    return RichReporter()
+
+
+@app.command()
+def evaluator(
+    server: str | None = typer.Option(None, "--server", envvar="PROXYBENCH_SERVER",
+                                      help="challenges server URL [http://127.0.0.1:8000]"),
+    token: str | None = typer.Option(None, "--token", envvar="PROXYBENCH_TOKEN", help="API token (role evaluator)"),
+    token_file: Path | None = typer.Option(None, "--token-file", help="file holding the API token"),
+    name: str | None = typer.Option(None, help="this evaluator's name, unique per token [host name]"),
+    features: str = typer.Option("sim", help="what this evaluator offers, comma-separated: sim, target"),
+    once: bool = typer.Option(False, "--once", help="try to take one job, evaluate it, and exit"),
+    poll: float = typer.Option(2.0, min=0.1, help="seconds between lease attempts while the queue is empty"),
+    work_dir: Path | None = typer.Option(None, help="folder for job files [<tmp>/proxybench-evaluator/<name>]"),
+    sandbox: str = typer.Option("auto", help="agent network isolation: auto, bwrap, unshare or none"),
+    cpu_seconds: int = typer.Option(600, min=1, help="CPU time limit of each agent process [s]"),
+    memory_mb: int = typer.Option(4096, min=64, help="address-space limit of each agent process [MiB]"),
+    file_mb: int = typer.Option(256, min=1, help="largest file an agent process may write [MiB]"),
+    video: bool = typer.Option(True, help="upload a short top-down video of the first validation episode"),
+    keep_work: bool = typer.Option(False, help="keep each job's folder after its result is uploaded"),
+    robot_cmd: str | None = typer.Option(None, help="robot node (robot protocol) that target jobs run on "
+                                                    "[the reality model]"),
+) -> None:
+    """Pull jobs from a challenges server and evaluate them, until stopped (SIGTERM / Ctrl-C).
+
+    Agent packages run sandboxed: own folder, CPU / memory / file-size limits, no network (bwrap or
+    unshare where the OS allows). Target jobs run on the reality model (a simulated stand-in for a real
+    robot), or on the robot node of --robot-cmd, after a compliance check. Many evaluators, on many
+    machines, can pull from one server.
+    """
+    from rich.logging import RichHandler
+
+    from proxybench.client import ServerError
+    from proxybench.evaluator import Evaluator, EvaluatorConfig, Limits
+    from proxybench.evaluator.sandbox import ISOLATIONS
+
+    feats = tuple(dict.fromkeys(f.strip() for f in features.split(",") if f.strip()))
+    if not feats:
+        raise typer.BadParameter("give at least one feature (sim, target)", param_hint="--features")
+    unknown = [f for f in feats if f not in KNOWN_FEATURES]
+    if unknown:
+        err_console.print(f"[yellow]![/yellow] feature(s) {', '.join(unknown)} are not known to this evaluator "
+                          f"({', '.join(KNOWN_FEATURES)}); jobs needing them will end in host-error")
+    if sandbox not in ISOLATIONS:
+        raise typer.BadParameter(f"one of {', '.join(ISOLATIONS)}", param_hint="--sandbox")
+    if robot_cmd and "target" not in feats:
+        err_console.print("[yellow]![/yellow] --robot-cmd is used for target jobs only; add 'target' to --features")
+    name = name or socket.gethostname()
+    logging.basicConfig(level=logging.WARNING, handlers=[RichHandler(console=err_console, show_path=False)],
+                        format="%(message)s")
+    config = EvaluatorConfig(
+        name=name, features=feats, poll=poll, sandbox=sandbox,
+        work_dir=work_dir or Path(tempfile.gettempdir()) / "proxybench-evaluator" / name,
+        limits=Limits(cpu_seconds=cpu_seconds, memory_bytes=memory_mb << 20, file_bytes=file_mb << 20),
+        video=video, keep_work=keep_work, robot_cmd=robot_cmd)
+    try:
+        ev = Evaluator(server or "http://127.0.0.1:8000", _token(token, token_file), config, _reporter())
+    except RuntimeError as exc:
+        err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+        raise typer.Exit(2) from None
+    ev.install_signal_handlers()
+    try:
+        done = ev.run(once=once)
+    except ServerError as exc:
+        err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+        raise typer.Exit(2) from None
+    if ev.stop_reason:
+        console.print(f"evaluator {name!r} stopped ({ev.stop_reason}) after {done} job(s)")

@@ -1,0 +1,345 @@
+"""The evaluator loop: lease a job, keep the lease alive, run the job in a worker process, upload, repeat.
+
+Many evaluators on many machines pull from one server over HTTP (from behind NAT: they only ever call
+out). Per job:
+
+1. ``POST /jobs/lease`` with this evaluator's name and features (nothing → wait ``poll`` s, ask again);
+2. a heartbeat thread extends the lease every ``lease_seconds / 4``; a 409 means the lease was lost
+   (it lapsed and another evaluator has the job, or an operator aborted it): the worker is killed and the
+   work dropped, nothing is uploaded;
+3. the submission's archive is downloaded (hash-checked), and ``python -m proxybench.evaluator.run`` does
+   the job in its own process group (:mod:`.run`), dying with this process if it is killed;
+4. artifacts are uploaded by content hash, then the result is posted, retried through network failures
+   (the server stores it exactly once per lease, so a retry after a lost reply is harmless).
+
+SIGTERM / SIGINT (:meth:`Evaluator.stop`) end the loop; a job being worked on is killed and reported as
+``aborted`` (as ``host-error`` if its work had not started, so that it goes back to the queue).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import logging
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from proxybench import __version__
+from proxybench.client import ServerClient, ServerError
+from proxybench.evaluator.outcome import Artifact, Outcome
+from proxybench.evaluator.sandbox import Isolation, Limits, detect_isolation
+
+__all__ = ["Evaluator", "EvaluatorConfig", "Reporter"]
+
+log = logging.getLogger("proxybench.evaluator")
+_MAX_MESSAGE = 100_000
+
+
+@dataclass(frozen=True)
+class EvaluatorConfig:
+    """One evaluator's settings. ``features``: what it offers (``sim``, ``target``); ``poll`` [s] between
+    lease attempts when the queue is empty; ``robot_cmd``: the robot node that target jobs run on (default:
+    the reality model); ``post_retry_s`` [s]: how long a result upload is retried."""
+
+    name: str
+    work_dir: Path
+    features: tuple[str, ...] = ("sim",)
+    poll: float = 2.0
+    sandbox: str = "auto"
+    limits: Limits = field(default_factory=Limits)
+    video: bool = True
+    keep_work: bool = False
+    robot_cmd: str | None = None
+    post_retry_s: float = 600.0
+
+
+class Reporter:
+    """What the loop tells its user; the CLI draws it with rich, the default logs it."""
+
+    def job_started(self, lease: dict[str, Any]) -> None:
+        b, s = lease["benchmark"], lease["submission"]
+        log.info("job %s: %s v%s, submission %s (%s)", lease["job_id"], b["name"], b["version"], s.get("id"),
+                 s.get("agent") or (s.get("manifest") or {}).get("name", "archive"))
+
+    def job_progress(self, lease: dict[str, Any], progress: dict[str, Any]) -> None:
+        pass
+
+    def job_finished(self, lease: dict[str, Any], status: str, message: str) -> None:
+        log.info("job %s: %s %s", lease["job_id"], status, message.splitlines()[0] if message else "")
+
+    def note(self, text: str) -> None:
+        log.info("%s", text)
+
+
+class _Heartbeat(threading.Thread):
+    """Extends one lease until stopped; sets ``lost`` on a 409 (or 404) answer."""
+
+    def __init__(self, client: ServerClient, lease: dict[str, Any], name: str, job_dir: Path,
+                 wake: threading.Event):
+        super().__init__(name=f"heartbeat-{lease['job_id']}", daemon=True)
+        self.client, self.lease, self.evaluator, self.job_dir, self.wake = client, lease, name, job_dir, wake
+        self.interval = max(0.2, float(lease.get("lease_seconds", 120.0)) / 4)
+        self.done = threading.Event()
+        self.lost = threading.Event()
+        self.lost_reason = ""
+        self.progress: dict[str, Any] | None = None
+
+    def run(self) -> None:
+        while not self.done.wait(self.interval):
+            with contextlib.suppress(OSError, ValueError):
+                self.progress = json.loads((self.job_dir / "progress.json").read_text())
+            try:
+                self.client.heartbeat(self.lease["job_id"], self.lease["lease_id"], self.evaluator, self.progress)
+            except ServerError as exc:
+                if exc.status in (404, 409):
+                    self.lost_reason = exc.message
+                    self.lost.set()
+                    self.wake.set()
+                    return
+                log.warning("heartbeat for job %s failed (%s); trying again", self.lease["job_id"], exc)
+
+    def stop(self) -> None:
+        self.done.set()
+        self.join(timeout=30)
+
+
+class Evaluator:
+    """``Evaluator(server_url, token, config).run()``: pull and evaluate jobs until stopped."""
+
+    def __init__(self, server: str, token: str, config: EvaluatorConfig, reporter: Reporter | None = None):
+        self.config = config
+        self.server, self._token = server, token
+        self.client = ServerClient(server, token)
+        self.reporter = reporter or Reporter()
+        self.isolation: Isolation = detect_isolation(config.sandbox)
+        self._stopping = threading.Event()
+        self._wake = threading.Event()
+        self.stop_reason = ""
+        self.jobs_done = 0
+        config.work_dir.mkdir(parents=True, exist_ok=True)
+        self._lock = open(config.work_dir / ".lock", "w")  # noqa: SIM115 - held for the evaluator's lifetime
+        try:
+            fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self._lock.close()
+            raise RuntimeError(f"work dir {config.work_dir} is in use by another evaluator; give each evaluator "
+                               "its own --name or --work-dir") from None
+        for stale in config.work_dir.glob("job-*"):  # left by a killed evaluator: never resumed, the lease is gone
+            shutil.rmtree(stale, ignore_errors=True)
+
+    # -- control -----------------------------------------------------------------------------------
+
+    def stop(self, why: str = "stopped") -> None:
+        """End the loop (callable from a signal handler): a running job is killed and reported aborted."""
+        self.stop_reason = why
+        self._stopping.set()
+        self._wake.set()
+
+    def install_signal_handlers(self) -> None:
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda signum, _frame: self.stop(signal.Signals(signum).name))
+
+    def run(self, once: bool = False) -> int:
+        """Evaluate jobs until :meth:`stop` (or, with ``once``, after one lease attempt); jobs done."""
+        target = ("" if "target" not in self.config.features else
+                  f"; target: robot node {self.config.robot_cmd!r}" if self.config.robot_cmd else
+                  "; target: the reality model (a simulated stand-in, no real robot)")
+        self.reporter.note(f"evaluator {self.config.name!r} (proxybench {__version__}) → {self.server}; features "
+                           f"{','.join(self.config.features)}{target}; sandbox: {self.isolation.note}")
+        if not self.isolation.blocks_network:
+            log.warning("agents are NOT cut off from the network: %s", self.isolation.note)
+        while not self._stopping.is_set():
+            status = self.take_one()
+            if once:
+                break
+            if status is None:
+                self._wake.wait(self.config.poll)
+                self._wake.clear()
+        self.close()
+        return self.jobs_done
+
+    def close(self) -> None:
+        """Release the server connection and the work dir."""
+        self.client.close()
+        if not self._lock.closed:
+            self._lock.close()
+
+    def take_one(self) -> str | None:
+        """Lease one job and see it through. Returns the status reported, ``lost`` (the lease was lost: work
+        dropped), ``unreported`` (the server stayed unreachable), or None when no job was free."""
+        try:
+            lease = self.client.lease(self.config.name, list(self.config.features), __version__)
+        except ServerError as exc:
+            if exc.status in (400, 401, 403, 404, 422):  # this evaluator's token or settings: asking again won't help
+                raise
+            self.reporter.note(f"cannot lease a job: {exc}")
+            return None
+        if lease is None:
+            return None
+        self.reporter.job_started(lease)
+        status = self._process(lease)
+        self.jobs_done += 1
+        return status
+
+    # -- one job -----------------------------------------------------------------------------------
+
+    def _features_of(self, lease: dict[str, Any]) -> list[str]:
+        if "features" in lease:
+            return list(lease["features"])
+        try:
+            return list(self.client.get(f"/jobs/{lease['job_id']}").get("features", []))
+        except ServerError as exc:
+            log.warning("cannot read job %s's features (%s); assuming a simulation job", lease["job_id"], exc)
+            return ["sim"]
+
+    def _process(self, lease: dict[str, Any]) -> str:
+        job_dir = self.config.work_dir / f"job-{lease['job_id']}-{lease['lease_id'][:8]}"
+        job_dir.mkdir(parents=True, exist_ok=True)
+        heart_client = ServerClient(self.server, self._token, retry_for=max(1.0, lease["lease_seconds"] / 4))
+        heart = _Heartbeat(heart_client, lease, self.config.name, job_dir, self._wake)
+        heart.start()
+        try:
+            try:
+                outcome = self._work(lease, job_dir, heart)
+            except OSError as exc:  # e.g. a full disk while preparing the job
+                log.exception("job %s: cannot prepare the job", lease["job_id"])
+                outcome = Outcome("host-error", f"this host cannot prepare the job: {exc}")
+            if heart.lost.is_set():
+                self.reporter.job_finished(lease, "lost", f"lease lost, work dropped: {heart.lost_reason}")
+                return "lost"
+            status = self._report(lease, outcome, heart)
+            self.reporter.job_finished(lease, status, outcome.message)
+            return status
+        finally:
+            heart.stop()
+            heart_client.close()
+            if not self.config.keep_work:
+                shutil.rmtree(job_dir, ignore_errors=True)
+
+    def _work(self, lease: dict[str, Any], job_dir: Path, heart: _Heartbeat) -> Outcome:
+        sub = lease["submission"]
+        if sub.get("archive_sha256"):
+            try:
+                (job_dir / "agent.archive").write_bytes(self.client.get_artifact(sub["archive_sha256"]))
+            except ServerError as exc:
+                status = "host-error" if exc.status == 0 else "error"
+                return Outcome(status, f"cannot download the submission's archive: {exc}")
+        cfg = {"lease": lease, "job_features": self._features_of(lease),
+               "evaluator": {"name": self.config.name, "features": list(self.config.features),
+                             "version": __version__},
+               "isolation": asdict(self.isolation), "limits": asdict(self.config.limits), "video": self.config.video,
+               "robot_cmd": self.config.robot_cmd}
+        (job_dir / "job.json").write_text(json.dumps(cfg, indent=1))
+        if self._stopping.is_set():
+            return Outcome("host-error", f"evaluator {self.config.name!r} is shutting down ({self.stop_reason}); "
+                                         "job not started")
+        env = {k: v for k, v in os.environ.items() if k != "PROXYBENCH_TOKEN"}
+        with open(job_dir / "worker.log", "wb") as out:
+            proc = subprocess.Popen([sys.executable, "-m", "proxybench.evaluator.run", str(job_dir),
+                                     "--parent", str(os.getpid())], stdin=subprocess.DEVNULL, stdout=out,
+                                    stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        try:
+            while proc.poll() is None and not heart.lost.is_set() and not self._stopping.is_set():
+                self._wake.wait(0.25)
+                self._wake.clear()  # the events themselves say what happened
+                if heart.progress is not None:
+                    self.reporter.job_progress(lease, heart.progress)
+        finally:
+            if proc.poll() is None:
+                _kill_group(proc)
+        if heart.lost.is_set():
+            return Outcome("error", "lease lost")
+        outcome_file = job_dir / "outcome.json"
+        if outcome_file.is_file():
+            return Outcome.read(outcome_file)
+        if self._stopping.is_set():
+            outcome = Outcome("aborted", f"evaluator {self.config.name!r} was stopped ({self.stop_reason}) while "
+                                         "evaluating this job")
+        else:
+            tail = (job_dir / "worker.log").read_text(errors="replace").splitlines()[-15:]
+            outcome = Outcome("error", f"evaluator worker died (exit status {proc.returncode}); last output:\n"
+                                       + "\n".join(tail))
+        for name, hidden in (("evaluator.log", False), ("evaluator-hidden.log", True), ("worker.log", True)):
+            if (job_dir / name).is_file():
+                outcome.artifacts.append(Artifact(name, str(job_dir / name), hidden, "text/plain"))
+        return outcome
+
+    # -- reporting ---------------------------------------------------------------------------------
+
+    def _upload(self, artifacts: list[Artifact], heart: _Heartbeat) -> tuple[list[dict[str, Any]], list[str]]:
+        refs, notes = [], []
+        for a in artifacts:
+            if heart.lost.is_set():
+                break
+            try:
+                sha = self.client.put_artifact(Path(a.path).read_bytes(), a.media_type)
+            except (ServerError, OSError) as exc:
+                notes.append(f"artifact {a.name} not uploaded: {exc}")
+                continue
+            refs.append({"name": a.name, "sha256": sha, "hidden": a.hidden})
+        return refs, notes
+
+    def _report(self, lease: dict[str, Any], outcome: Outcome, heart: _Heartbeat) -> str:
+        refs, notes = self._upload(outcome.artifacts, heart)
+        message = "\n".join([outcome.message, *notes]) if notes else outcome.message
+        body = {"lease_id": lease["lease_id"], "evaluator": self.config.name, "status": outcome.status,
+                "public_scores": outcome.public_scores, "hidden_scores": outcome.hidden_scores,
+                "public_report": outcome.public_report, "hidden_report": outcome.hidden_report,
+                "message": message[:_MAX_MESSAGE], "artifacts": refs}
+        try:
+            try:
+                self._post(lease, body)
+            except ServerError as exc:
+                if exc.status != 422:
+                    raise
+                log.error("job %s: the server refused the result (%s); reporting an error instead",
+                          lease["job_id"], exc)
+                body.update(status="error", public_scores={}, hidden_scores={}, public_report={}, hidden_report={},
+                            message=f"the server refused this evaluator's result: {exc.message}"[:_MAX_MESSAGE])
+                self._post(lease, body)
+                return "error"
+        except ServerError as exc:
+            if exc.status in (401, 403):
+                raise
+            if exc.status == 409:
+                log.warning("job %s: result refused, the lease was lost: %s", lease["job_id"], exc.message)
+                return "lost"
+            log.error("job %s: the result could not be delivered (%s); the lease will lapse and the job run again",
+                      lease["job_id"], exc)
+            return "unreported"
+        return outcome.status
+
+    def _post(self, lease: dict[str, Any], body: dict[str, Any]) -> None:
+        """POST the result; network failures and 5xx are retried for ``post_retry_s`` (stored once per lease)."""
+        deadline = time.monotonic() + self.config.post_retry_s
+        while True:
+            try:
+                self.client.result(lease["job_id"], body)
+                return
+            except ServerError as exc:
+                if (exc.status != 0 and exc.status < 500) or time.monotonic() > deadline:
+                    raise
+                log.warning("posting the result of job %s failed (%s); retrying", lease["job_id"], exc)
+                time.sleep(2.0)
+
+
+def _kill_group(proc: subprocess.Popen) -> None:
+    """End the worker and everything it started (agents also die with it: PR_SET_PDEATHSIG)."""
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout=3)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+

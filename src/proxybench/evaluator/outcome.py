@@ -1,0 +1,81 @@
+"""What a job's worker hands back to the evaluator loop: the outcome, its artifacts, and whose fault it was.
+
+Statuses are the server's (AIDO's): ``success``; ``failed`` (the submission's fault); ``error`` (ours);
+``host-error`` (this host cannot do it: the job goes back to the queue for another evaluator);
+``aborted`` (the evaluator was stopped while working).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = ["STATUSES", "Artifact", "Fault", "HostFault", "Outcome", "SubmissionFault"]
+
+STATUSES = ("success", "failed", "error", "host-error", "aborted")
+
+
+class Fault(Exception):
+    """An ending of the job that is not a bug of ours; ``status`` says whose it is."""
+
+    status = "error"
+
+
+class SubmissionFault(Fault):
+    status = "failed"
+
+
+class HostFault(Fault):
+    status = "host-error"
+
+
+@dataclass
+class Artifact:
+    """A file to upload: ``name`` as the server lists it; ``hidden`` files are shown to operators only."""
+
+    name: str
+    path: str
+    hidden: bool = False
+    media_type: str = "application/octet-stream"
+
+
+@dataclass
+class Outcome:
+    """What the worker hands back to the loop (``outcome.json``)."""
+
+    status: str
+    message: str = ""
+    public_scores: dict[str, float | None] = field(default_factory=dict)
+    hidden_scores: dict[str, float | None] = field(default_factory=dict)
+    public_report: dict[str, Any] = field(default_factory=dict)
+    hidden_report: dict[str, Any] = field(default_factory=dict)
+    artifacts: list[Artifact] = field(default_factory=list)
+
+    def write(self, path: Path) -> None:
+        """Strict JSON (NaN and ±inf anywhere become null: the server accepts nothing else), atomically."""
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(_strict(asdict(self)), indent=1, allow_nan=False, default=str))
+        tmp.replace(path)
+
+    @classmethod
+    def read(cls, path: Path) -> Outcome:
+        data = json.loads(path.read_text())
+        data["artifacts"] = [Artifact(**a) for a in data.get("artifacts", [])]
+        return cls(**data)
+
+
+def _strict(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _strict(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_strict(v) for v in value]
+    if isinstance(value, bool | int | str) or value is None:
+        return value
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    return x if math.isfinite(x) else None

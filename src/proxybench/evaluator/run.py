@@ -1,0 +1,302 @@
+"""The work of one leased job, in a process of its own: agent, episodes, checks, report.
+
+The evaluator loop runs ``python -m proxybench.evaluator.run JOB_DIR --parent PID`` per job, so that it
+can kill the whole job (lease lost, SIGTERM) without killing itself, and so that a crash in the job
+cannot take the evaluator down. The worker reads ``JOB_DIR/job.json``, writes ``progress.json`` as
+episodes finish and ``outcome.json`` at the end; it dies with its parent.
+
+Who is at fault decides the status: :class:`SubmissionFault` (archive refused, agent node crashed, hung
+or misbehaved, privileged agent on a camera-only benchmark) → ``failed``; :class:`HostFault` (this host
+cannot do it: target not compliant, sandbox unusable, benchmark too new for this evaluator, disk full)
+→ ``host-error``; any other exception is a bug of ours → ``error``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import errno
+import json
+import logging
+import os
+import signal
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+from proxybench.evaluator.outcome import Artifact, Fault, HostFault, Outcome, SubmissionFault
+
+__all__ = ["main", "run_job"]
+
+log = logging.getLogger("proxybench.evaluator.job")
+
+
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data))
+    tmp.replace(path)
+
+
+def _log_to(path: Path) -> logging.Handler:
+    """Send the job's log (and the runner's warnings) to ``path`` only, replacing the previous file."""
+    root = logging.getLogger("proxybench")
+    for h in list(root.handlers):
+        if getattr(h, "_job_log", False):
+            root.removeHandler(h)
+            h.close()
+    handler = logging.FileHandler(path, encoding="utf-8")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s", "%Y-%m-%d %H:%M:%S"))
+    handler._job_log = True  # type: ignore[attr-defined]
+    root.addHandler(handler)
+    root.setLevel(logging.INFO)
+    return handler
+
+
+class _Job:
+    """One job's work; fills :attr:`outcome` as it goes, so a fault still reports what was done."""
+
+    def __init__(self, job_dir: Path, cfg: dict[str, Any]):
+        self.dir = job_dir
+        self.cfg = cfg
+        self.lease = cfg["lease"]
+        self.outcome = Outcome("success")
+        self.phase = "setup"
+
+    def progress(self, done: int, total: int) -> None:
+        _write_json(self.dir / "progress.json", {"phase": self.phase, "done": done, "total": total})
+
+    # -- setup -------------------------------------------------------------------------------------
+
+    def benchmark(self, test_seed: int | None = None):
+        import yaml
+
+        from proxybench.tasks.benchmark import Benchmark, BenchmarkError
+
+        b = self.lease["benchmark"]
+        data = yaml.safe_load(b["spec_yaml"])
+        if test_seed is not None:
+            data["episodes"] = {**data["episodes"], "seed": int(test_seed)}
+            data["episodes"].pop("seeds", None)  # explicit seeds would make the hidden split the public one
+        try:
+            return Benchmark.from_dict(data, origin=f"{b['name']} v{b['version']}")
+        except BenchmarkError as exc:
+            raise HostFault(f"this evaluator (proxybench {self.cfg['evaluator']['version']}) cannot read the "
+                            f"benchmark: {exc}") from None
+
+    def agent(self, bench):
+        from proxybench.agents.package import PackageError
+        from proxybench.agents.zoo import ZOO
+        from proxybench.evaluator import sandbox as sb
+        from proxybench.runner.jobs import AgentSpec
+
+        sub = self.lease["submission"]
+        if sub.get("agent"):
+            name = sub["agent"]
+            if name not in ZOO:
+                raise HostFault(f"built-in agent {name!r} is unknown to this evaluator (proxybench "
+                                f"{self.cfg['evaluator']['version']}); a newer evaluator can run it")
+            if bench.camera_only and ZOO[name].privileged:
+                raise SubmissionFault(f"agent {name!r} is privileged (reads the true lane pose); benchmark "
+                                      f"{bench.name!r} admits camera-only agents")
+            log.info("agent: built-in %r (in-process)", name)
+            return AgentSpec(name)
+        archive = (self.dir / "agent.archive").read_bytes()
+        try:
+            manifest = sb.prepare_agent(archive, sub["archive_sha256"], self.dir / "agent")
+        except PackageError as exc:
+            raise SubmissionFault(f"agent archive refused: {exc}") from None
+        except sb.ArchiveMismatch as exc:
+            raise HostFault(str(exc)) from None
+        isolation = sb.Isolation(**{**self.cfg["isolation"], "prefix": tuple(self.cfg["isolation"]["prefix"])})
+        try:
+            command = sb.agent_command(manifest, self.dir / "agent", sb.Limits(**self.cfg["limits"]), isolation)
+        except sb.SandboxError as exc:
+            raise HostFault(str(exc)) from None
+        log.info("agent: package %r (%s), command %s; sandbox: %s", manifest.name, sub["archive_sha256"][:12],
+                 manifest.command, isolation.note)
+        return AgentSpec(manifest.name, command)
+
+    # -- running -----------------------------------------------------------------------------------
+
+    def evaluate(self, bench, spec, split: str, target: bool):
+        """Run the split's episodes: in the benchmark's domain, or on the target (robot node or reality model)."""
+        from proxybench.agents.zoo import ZOO
+        from proxybench.protocol.failures import AgentFailure, RobotFailure
+        from proxybench.runner.backends import InlineBackend
+        from proxybench.runner.episode import PrivilegedAgentError
+        from proxybench.runner.evaluate import evaluate_benchmark
+        from proxybench.runner.robot_episode import RobotLacksGroundTruth
+
+        self.phase = split
+        robot = self.cfg.get("robot_cmd") if target else None
+        where = f"robot node {robot!r}" if robot else "the reality model" if target else \
+            f"domain {bench.domain.named or 'of the benchmark'}"
+        log.info("%s: %d episodes of %g s on %s, in %s", split, len(bench.episode_specs()), bench.duration,
+                 bench.map, where)
+        run_dir = self.dir / "runs" / split
+        try:
+            if robot:
+                from proxybench.evaluator.robot import evaluate_on_robot
+
+                return evaluate_on_robot(bench, spec, robot, run_dir, self.progress)
+            return evaluate_benchmark(bench, [spec], run_dir, InlineBackend(), domain="reality" if target else None,
+                                      privileged=lambda s: s.command is None and ZOO[s.name].privileged,
+                                      progress=self.progress)
+        except AgentFailure as exc:  # the node could not even be started or handshaken
+            raise SubmissionFault(f"agent node failed in the {split} episodes: {exc}") from None
+        except (RobotFailure, RobotLacksGroundTruth) as exc:
+            raise HostFault(f"the target robot cannot run this job: {exc}") from None
+        except PrivilegedAgentError as exc:
+            raise SubmissionFault(str(exc)) from None
+
+    def split(self, bench, spec, split: str, target: bool, domain_kind: str, hidden: bool):
+        from proxybench.evaluator.report import pack_trajectories, summarize
+
+        ev = self.evaluate(bench, spec, split, target)
+        summary = summarize(ev, split, domain_kind=domain_kind,
+                            extra={"benchmark_version": self.lease["benchmark"]["version"]})
+        if hidden:
+            self.outcome.hidden_report = summary.report
+        else:
+            self.outcome.public_report.update(summary.report)
+        zip_path = pack_trajectories(ev, self.dir / f"trajectories-{split}.zip")
+        self.outcome.artifacts.append(Artifact(zip_path.name, str(zip_path), hidden, "application/zip"))
+        log.info("%s: terminations %s; %s", split, summary.report["terminations"],
+                 ", ".join(f"{k}={v:.3f}" if v is not None else f"{k}=null"
+                           for k, v in summary.scores.items() if k in summary.report["criteria"]))
+        if summary.problems:
+            text = f"invalid {split} data: " + "; ".join(summary.problems[:5])
+            if not domain_kind.startswith("robot-node"):
+                raise RuntimeError(text + " (our own simulator should never produce this)")
+            raise HostFault(text)
+        if summary.failures:
+            if hidden:
+                raise SubmissionFault(f"the agent failed in {len(summary.failures)} hidden test episodes "
+                                      "(details are shown to the operators only)")
+            raise SubmissionFault(summary.failure_message())
+        if not hidden and self.cfg.get("video", True):
+            self.video(ev, bench)
+        return summary
+
+    def video(self, ev, bench) -> None:
+        from proxybench.evaluator.report import topdown_video
+
+        first = min(ev.sweep.results, key=lambda r: r.episode)
+        if not first.trajectory:
+            return
+        try:
+            path = topdown_video(first.trajectory, self.dir / "validation-episode-0.mp4", bench.frame_rate)
+        except Exception as exc:  # a missing codec must not cost a result: the video is optional
+            log.warning("no video of the first episode: %s", exc)
+            return
+        self.outcome.artifacts.append(Artifact(path.name, str(path), False, "video/mp4"))
+
+    def compliance(self, bench) -> str:
+        """Check the target before a target job; its ``domain_kind``. Not compliant: :class:`HostFault`."""
+        from proxybench.domain.params import DomainParams
+        from proxybench.evaluator.compliance import check_reality_model
+        from proxybench.runner.evaluate import benchmark_domain
+
+        self.phase = "compliance"
+        robot = self.cfg.get("robot_cmd")
+        if robot:
+            from proxybench.evaluator.robot import check_robot
+
+            log.info("target job: the target is the robot node %r", robot)
+            report = check_robot(bench, robot)
+        else:
+            log.info("target job: the target is the reality model, a simulated stand-in (no real robot here)")
+            report = check_reality_model(bench, DomainParams.model_validate(benchmark_domain(bench, "reality").params))
+        self.outcome.public_report["compliance"] = report.to_dict()
+        for c in report.checks:
+            log.info("compliance %s: %s: %s", c.name, "ok" if c.ok else "FAILED", c.detail)
+        if not report.ok:
+            raise HostFault(f"target not compliant ({report.target}): {report.failures()}")
+        return report.domain_kind
+
+    def run(self) -> Outcome:
+        features = set(self.cfg.get("job_features") or [])
+        unknown = features - {"sim", "target"}
+        if unknown:
+            raise HostFault(f"job needs feature(s) {', '.join(sorted(unknown))} that this evaluator cannot provide")
+        bench = self.benchmark()
+        target = "target" in features
+        kind = "reality-model" if bench.domain.named == "reality" else "simulation"
+        self.outcome.public_report.update(evaluator=self.cfg["evaluator"], sandbox=self.cfg["isolation"]["note"])
+        if target:
+            kind = self.compliance(bench)
+        self.outcome.public_report["domain_kind"] = kind
+        spec = self.agent(bench)
+        public = self.split(bench, spec, "validation", target, kind, hidden=False)
+        self.outcome.public_scores = public.scores
+        test_seed = self.lease["benchmark"].get("test_seed")
+        if test_seed is not None:
+            log.info("validation done; the hidden test episodes are logged apart (shown to operators only)")
+            _log_to(self.dir / "evaluator-hidden.log")
+            hidden = self.split(self.benchmark(test_seed), spec, "test", target, kind, hidden=True)
+            self.outcome.hidden_scores = hidden.scores
+        self.outcome.message = f"{len(bench.episode_specs())} validation episodes" + \
+            (" and the hidden test episodes" if test_seed is not None else "") + " evaluated"
+        return self.outcome
+
+
+def run_job(job_dir: Path) -> Outcome:
+    """Do the job in ``job_dir`` and return its outcome (never raises for the job's own failures)."""
+    job_dir = Path(job_dir)
+    _log_to(job_dir / "evaluator.log")
+    cfg = json.loads((job_dir / "job.json").read_text())
+    lease = cfg["lease"]
+    log.info("job %s (lease %s…, attempt %s) on evaluator %r: benchmark %s v%s, submission %s",
+             lease["job_id"], lease["lease_id"][:8], lease.get("attempt"), cfg["evaluator"]["name"],
+             lease["benchmark"]["name"], lease["benchmark"]["version"], lease["submission"].get("id"))
+    job = _Job(job_dir, cfg)
+    t0 = time.perf_counter()
+    try:
+        outcome = job.run()
+    except Fault as exc:
+        outcome = job.outcome
+        outcome.status, outcome.message = exc.status, str(exc)
+        outcome.public_scores, outcome.hidden_scores = {}, {}
+    except OSError as exc:
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.ENOMEM):
+            raise
+        outcome = job.outcome
+        outcome.status, outcome.message = "host-error", f"out of resources on this host: {exc}"
+    except Exception as exc:
+        log.error("evaluator bug:\n%s", traceback.format_exc())
+        outcome = job.outcome
+        outcome.status = "error"
+        outcome.message = f"evaluator error (not the submission's fault): {type(exc).__name__}: {exc}"
+        outcome.public_scores, outcome.hidden_scores = {}, {}
+    log.log(logging.INFO if outcome.status == "success" else logging.WARNING, "outcome %s after %.1f s: %s",
+            outcome.status, time.perf_counter() - t0, outcome.message)
+    logging.getLogger("proxybench").handlers.clear()
+    for name, hidden in (("evaluator.log", False), ("evaluator-hidden.log", True)):
+        if (job_dir / name).is_file():
+            outcome.artifacts.append(Artifact(name, str(job_dir / name), hidden, "text/plain"))
+    return outcome
+
+
+def _die_with(parent: int) -> None:
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG: the evaluator killed (-9) takes its job along
+    if os.getppid() != parent:
+        sys.exit(3)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m proxybench.evaluator.run", description=__doc__.splitlines()[0])
+    p.add_argument("job_dir", type=Path)
+    p.add_argument("--parent", type=int, help="the evaluator's pid: die with it")
+    args = p.parse_args(argv)
+    if args.parent is not None and sys.platform.startswith("linux"):
+        _die_with(args.parent)
+    outcome = run_job(args.job_dir)
+    outcome.write(args.job_dir / "outcome.json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
