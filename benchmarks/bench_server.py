@@ -5,7 +5,8 @@
     .venv/bin/python benchmarks/bench_server.py --db sqlite --clients 100 --seconds 30
 
 A real ``proxybench serve`` process (one uvicorn worker) serves; this process runs the clients as
-asyncio tasks on one connection pool. Each client loops over a mix like a busy challenge: 70 % leaderboard
+asyncio tasks on one aiohttp connection pool (httpx's async client saturated a core at ~60 requests/s and
+measured itself, not the server). Each client loops over a mix like a busy challenge: 70 % leaderboard
 reads, 10 % queue listings, 10 % submissions, 10 % lease + result (an evaluator with an instant "run").
 PostgreSQL is a throwaway server started from the installed binaries (or $PROXYBENCH_TEST_PG_URL).
 """
@@ -21,7 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-import httpx
+import aiohttp
 import numpy as np
 from rich.console import Console
 from rich.table import Table
@@ -36,35 +37,41 @@ OPS = ("leaderboard", "jobs", "submit", "lease+result")
 WEIGHTS = (0.7, 0.1, 0.1, 0.1)
 
 
-async def _client(i: int, http: httpx.AsyncClient, admin: dict, ev: dict, until: float,
+async def _client(i: int, http: aiohttp.ClientSession, url: str, admin: dict, ev: dict, until: float,
                   lat: dict[str, list[float]], errors: dict[str, int]) -> None:
     rng = random.Random(i)
+    api = url + "/api/v1"
     n = 0
     while time.perf_counter() < until:
         op = rng.choices(OPS, WEIGHTS)[0]
         t0 = time.perf_counter()
         try:
             if op == "leaderboard":
-                r = await http.get("/api/v1/leaderboards/aido_lf", headers=admin)
-                ok = r.status_code == 200
+                async with http.get(f"{api}/leaderboards/aido_lf", headers=admin) as r:
+                    await r.read()
+                    ok = r.status == 200
             elif op == "jobs":
-                r = await http.get("/api/v1/jobs", params={"limit": 20}, headers=admin)
-                ok = r.status_code == 200
+                async with http.get(f"{api}/jobs", params={"limit": 20}, headers=admin) as r:
+                    await r.read()
+                    ok = r.status == 200
             elif op == "submit":
                 n += 1
-                r = await http.post("/api/v1/submissions", headers=admin,
-                                    json={"label": f"c{i}-{n}", "agent": "vision", "benchmark": "aido_lf"})
-                ok = r.status_code == 201
+                body = {"label": f"c{i}-{n}", "agent": "vision", "benchmark": "aido_lf"}
+                async with http.post(f"{api}/submissions", headers=admin, json=body) as r:
+                    await r.read()
+                    ok = r.status == 201
             else:
-                r = await http.post("/api/v1/jobs/lease", headers=ev, json={"evaluator": f"e{i}", "features": ["sim"]})
-                ok = r.status_code in (200, 204)
-                if r.status_code == 200:
-                    job = r.json()
-                    r = await http.post(f"/api/v1/jobs/{job['job_id']}/result", headers=ev,
-                                        json={"evaluator": f"e{i}", "lease_id": job["lease_id"], "status": "success",
-                                              "public_scores": SCORES, "hidden_scores": SCORES})
-                    ok = r.status_code == 201
-        except httpx.HTTPError:
+                async with http.post(f"{api}/jobs/lease", headers=ev,
+                                     json={"evaluator": f"e{i}", "features": ["sim"]}) as r:
+                    job = await r.json() if r.status == 200 else None
+                    ok = r.status in (200, 204)
+                if job is not None:
+                    body = {"evaluator": f"e{i}", "lease_id": job["lease_id"], "status": "success",
+                            "public_scores": SCORES, "hidden_scores": SCORES}
+                    async with http.post(f"{api}/jobs/{job['job_id']}/result", headers=ev, json=body) as r:
+                        await r.read()
+                        ok = r.status == 201
+        except (TimeoutError, aiohttp.ClientError):
             ok = False
         lat[op].append(time.perf_counter() - t0)
         if not ok:
@@ -72,16 +79,16 @@ async def _client(i: int, http: httpx.AsyncClient, admin: dict, ev: dict, until:
 
 
 async def _load(url: str, admin_token: str, clients: int, seconds: float) -> tuple[dict, dict, float]:
-    limits = httpx.Limits(max_connections=clients, max_keepalive_connections=clients)
-    async with httpx.AsyncClient(base_url=url, limits=limits, timeout=60.0) as http:
+    conn = aiohttp.TCPConnector(limit=clients)
+    async with aiohttp.ClientSession(connector=conn, timeout=aiohttp.ClientTimeout(total=120)) as http:
         admin = {"Authorization": f"Bearer {admin_token}"}
-        r = await http.post("/api/v1/users", headers=admin,
-                            json={"name": f"bench-ev-{time.time_ns()}", "role": "evaluator"})
-        ev = {"Authorization": f"Bearer {r.json()['token']}"}
+        async with http.post(f"{url}/api/v1/users", headers=admin,
+                             json={"name": f"bench-ev-{time.time_ns()}", "role": "evaluator"}) as r:
+            ev = {"Authorization": f"Bearer {(await r.json())['token']}"}
         lat: dict[str, list[float]] = {op: [] for op in OPS}
         errors = dict.fromkeys(OPS, 0)
         t0 = time.perf_counter()
-        await asyncio.gather(*(_client(i, http, admin, ev, t0 + seconds, lat, errors) for i in range(clients)))
+        await asyncio.gather(*(_client(i, http, url, admin, ev, t0 + seconds, lat, errors) for i in range(clients)))
         return lat, errors, time.perf_counter() - t0
 
 

@@ -58,7 +58,11 @@ class LiveServer:
     def kill(self, sig: int = signal.SIGKILL) -> None:
         if self.proc is not None and self.proc.poll() is None:
             os.killpg(self.proc.pid, sig)
-            self.proc.wait(30)
+            try:
+                self.proc.wait(15)
+            except subprocess.TimeoutExpired:  # a graceful stop that hangs must not hang the caller
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait(15)
 
     def stop(self) -> None:
         self.kill(signal.SIGTERM)

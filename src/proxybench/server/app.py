@@ -8,18 +8,21 @@ written to ``<data_dir>/admin.token`` (mode 600). JSON API under ``/api/v1`` (Op
 
 from __future__ import annotations
 
+import asyncio
 import os
 import sys
-import threading
+import weakref
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
 
+import anyio.to_thread
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from sqlalchemy import func, select
 from sqlalchemy.orm import sessionmaker
+from starlette.concurrency import run_in_threadpool
 
 from proxybench import __version__
 from proxybench.server.artifacts import ArtifactStore
@@ -27,7 +30,7 @@ from proxybench.server.benchmarks import register_builtins
 from proxybench.server.config import Settings
 from proxybench.server.db import make_engine, migrate, session_scope
 from proxybench.server.errors import ServiceError
-from proxybench.server.limits import BodyLimit
+from proxybench.server.limits import BodyLimit, ConcurrencyLimit
 from proxybench.server.models import User
 from proxybench.server.security import create_user
 
@@ -58,30 +61,40 @@ def _validation_message(exc: RequestValidationError) -> str:
     return "; ".join(parts)
 
 
-def _reap(app: FastAPI, stop: threading.Event) -> None:
-    """Return lapsed leases to the queue even when no evaluator asks for work (the queue page stays true)."""
-    from proxybench.server.api.deps import write_turn
+def _requeue(app: FastAPI) -> None:
     from proxybench.server.queue import requeue_expired
 
+    with session_scope(app.state.sessions) as session:
+        requeue_expired(session)
+
+
+async def _reap(app: FastAPI) -> None:
+    """Return lapsed leases to the queue even when no evaluator asks for work (the queue page stays true)."""
+    from proxybench.server.api.deps import write_lock
+
     period = max(0.5, app.state.settings.lease_seconds / 4)
-    while not stop.wait(period):
+    while True:
+        await asyncio.sleep(period)
         try:
-            with write_turn(app, "POST"), session_scope(app.state.sessions) as session:
-                requeue_expired(session)
+            lock = write_lock(app)
+            if lock is None:
+                await run_in_threadpool(_requeue, app)
+            else:
+                async with lock:
+                    await run_in_threadpool(_requeue, app)
         except Exception as exc:  # a database hiccup must not kill the reaper
             print(f"lease reaper: {exc}", file=sys.stderr)
 
 
 @asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
-    stop = threading.Event()
-    reaper = threading.Thread(target=_reap, args=(app, stop), name="lease-reaper", daemon=True)
-    reaper.start()
+    # worker threads for every admitted request (see ConcurrencyLimit) plus the reaper's
+    anyio.to_thread.current_default_thread_limiter().total_tokens = app.state.settings.max_concurrent_requests + 2
+    reaper = asyncio.create_task(_reap(app))
     try:
         yield
     finally:
-        stop.set()
-        reaper.join(5)
+        reaper.cancel()
         app.state.engine.dispose()
 
 
@@ -89,7 +102,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """A ready server: database migrated, built-ins registered, routes mounted."""
     settings = settings or Settings.from_env()
     settings.data_dir.mkdir(parents=True, exist_ok=True)
-    engine = make_engine(settings.url)
+    engine = make_engine(settings.url, pool_size=settings.max_concurrent_requests + 4)
     migrate(engine)
     factory = sessionmaker(engine, expire_on_commit=False)
     app = FastAPI(title="proxybench challenges server", version=__version__, openapi_url=f"{API}/openapi.json",
@@ -98,11 +111,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.engine = engine
     app.state.sessions = factory
     app.state.store = ArtifactStore(settings.artifact_dir)
-    app.state.write_lock = threading.Lock() if settings.url.startswith("sqlite") else None
+    app.state.write_locks = weakref.WeakKeyDictionary() if settings.url.startswith("sqlite") else None
     app.state.admin_token = bootstrap(settings, factory)
     app.add_middleware(BodyLimit, limits=[(f"{API}/artifacts/", settings.artifact_max_bytes),
                                           (f"{API}/submissions/upload", settings.archive_max_bytes + (1 << 20))],
                        default=settings.json_max_bytes)
+    app.add_middleware(ConcurrencyLimit, limit=settings.max_concurrent_requests)  # outermost: added last
 
     @app.exception_handler(ServiceError)
     async def _service_error(_: Request, exc: ServiceError) -> JSONResponse:

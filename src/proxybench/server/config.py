@@ -27,6 +27,8 @@ class Settings(BaseModel):
     daily_submission_limit: int = Field(20, ge=0, description="submissions per developer per 24 h (0: no limit)")
     archive_max_bytes: int = Field(64 << 20, gt=0, description="largest agent archive accepted")
     artifact_max_bytes: int = Field(256 << 20, gt=0, description="largest artifact accepted")
+    max_concurrent_requests: int = Field(8, ge=1, le=200, description="requests in progress at once; "
+                                         "the rest queue (one process has one GIL: more only adds switching)")
     json_max_bytes: int = Field(8 << 20, gt=0, description="largest JSON or YAML request body accepted")
 
     @property

@@ -18,10 +18,15 @@ __all__ = ["make_engine", "migrate", "session_scope"]
 _MIGRATIONS = Path(__file__).with_name("migrations")
 
 
-def make_engine(url: str) -> Engine:
-    """An engine tuned for a server with many short transactions from many threads."""
+def make_engine(url: str, pool_size: int = 12) -> Engine:
+    """An engine tuned for a server with many short transactions from many threads.
+
+    ``pool_size`` connections are always enough when at most ``pool_size`` sessions are open at once
+    (the app admits fewer requests than that); a few more may be opened briefly by other callers.
+    """
     if url.startswith("sqlite"):
-        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30},
+                               pool_size=pool_size, max_overflow=8)
 
         @event.listens_for(engine, "connect")
         def _pragmas(conn, _record) -> None:  # WAL: readers never block the writer
@@ -33,7 +38,7 @@ def make_engine(url: str) -> Engine:
             cur.close()
 
         return engine
-    return create_engine(url, pool_size=20, max_overflow=20, pool_pre_ping=True)
+    return create_engine(url, pool_size=pool_size, max_overflow=8, pool_pre_ping=True)
 
 
 def migrate(engine: Engine) -> None:

@@ -12,13 +12,13 @@ import threading
 from collections import OrderedDict
 from typing import Any
 
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from proxybench.server.benchmarks import benchmark_of, latest
 from proxybench.server.errors import ServiceError
-from proxybench.server.models import BenchmarkVersion, Result, Submission
-from proxybench.tasks.scoring import Rank, leaderboard
+from proxybench.server.models import BenchmarkVersion, Result, Submission, User
+from proxybench.tasks.scoring import leaderboard
 
 __all__ = ["leaderboard_rows"]
 
@@ -33,58 +33,68 @@ def _version(session: Session, name: str, version: int | None) -> BenchmarkVersi
     return row
 
 
-_RANK_CACHE: OrderedDict[tuple, list[Rank]] = OrderedDict()
-_RANK_CACHE_LOCK = threading.Lock()
-
-
-def _ranked(bench_id: int, split: str, key_rows: tuple, scores: dict, criteria: list) -> list[Rank]:
-    """Copeland ranking is quadratic in the entries: compute it once per set of (submission, result)."""
-    if not scores:
-        return []
-    key = (bench_id, split, key_rows)
-    with _RANK_CACHE_LOCK:
-        if key in _RANK_CACHE:
-            _RANK_CACHE.move_to_end(key)
-            return _RANK_CACHE[key]
-    ranks = leaderboard(scores, criteria)
-    with _RANK_CACHE_LOCK:
-        _RANK_CACHE[key] = ranks
-        while len(_RANK_CACHE) > 64:
-            _RANK_CACHE.popitem(last=False)
-    return ranks
+_CACHE_LOCK = threading.Lock()
+_BOARD_CACHE: OrderedDict[tuple, dict[str, Any]] = OrderedDict()
 
 
 def _json_number(v: float | None) -> float | None:
     return None if v is None or (isinstance(v, float) and math.isnan(v)) else v
 
 
+def _fingerprint(session: Session, bench_id: int) -> tuple:
+    """Changes whenever the board can: a new success on this version, or a submission retired."""
+    n, last = session.execute(select(func.count(Result.id), func.max(Result.id))
+                              .where(Result.benchmark_id == bench_id, Result.status == "success")).one()
+    retired = session.scalar(select(func.count(Submission.id)).where(Submission.status != "active"))
+    return (n, last, retired)
+
+
 def leaderboard_rows(session: Session, name: str, split: str = "public",
                      version: int | None = None) -> dict[str, Any]:
-    """The ranked table as plain data: criteria, then one row per submission (best first)."""
+    """The ranked table as plain data: criteria, then one row per submission (best first).
+
+    Boards are cached per (version, split) and rebuilt only when their fingerprint changes, so polling
+    clients cost two small aggregate queries, not a scan of every result.
+    """
     if split not in ("public", "hidden"):
         raise ServiceError(422, f"split must be 'public' or 'hidden', got {split!r}")
     row = _version(session, name, version)
+    bind = session.get_bind()
+    key = (id(bind), str(bind.url), row.id, split, _fingerprint(session, row.id))
+    with _CACHE_LOCK:
+        if key in _BOARD_CACHE:
+            _BOARD_CACHE.move_to_end(key)
+            return _BOARD_CACHE[key]
+    board = _build(session, row, split)
+    with _CACHE_LOCK:
+        _BOARD_CACHE[key] = board
+        while len(_BOARD_CACHE) > 64:
+            _BOARD_CACHE.popitem(last=False)
+    return board
+
+
+def _build(session: Session, row: BenchmarkVersion, split: str) -> dict[str, Any]:
     criteria = benchmark_of(row).criteria()
+    score_col = Result.public_scores if split == "public" else Result.hidden_scores
     results = session.execute(
-        select(Result, Submission).join(Submission, Result.submission_id == Submission.id)
+        select(Result.id, Result.created_at, score_col, Submission.id, Submission.label, Submission.agent_name,
+               Submission.manifest, User.name)
+        .join(Submission, Result.submission_id == Submission.id).join(User, Submission.user_id == User.id)
         .where(Result.benchmark_id == row.id, Result.status == "success", Submission.status == "active")
         .order_by(Result.id)
     ).all()
-    newest: dict[int, tuple[Result, Submission]] = {}
-    for result, sub in results:
-        newest[sub.id] = (result, sub)  # the latest success per submission (a retried step replaces the older)
-    scores = {sid: (r.public_scores if split == "public" else r.hidden_scores) for sid, (r, _) in newest.items()}
+    newest = {r[3]: r for r in results}  # the latest success per submission (a retried step replaces the older)
     # a metric the evaluator could not compute arrives as null: NaN ranks it worst, as in proxybench evaluate
-    scores = {sid: {k: (math.nan if v is None else v) for k, v in s.items()} for sid, s in scores.items() if s}
-    ranks = _ranked(row.id, split, tuple(sorted((sid, r.id) for sid, (r, _) in newest.items())), scores, criteria)
+    scores = {sid: {k: (math.nan if v is None else v) for k, v in r[2].items()} for sid, r in newest.items() if r[2]}
+    ranks = leaderboard(scores, criteria) if scores else []  # Copeland: quadratic, hence the board cache
     rows = []
     for rank in ranks:
-        result, sub = newest[rank.agent]
-        rows.append({"rank": rank.rank, "submission_id": sub.id, "label": sub.label, "user": sub.user.name,
-                     "agent": sub.agent_name or (sub.manifest or {}).get("name", "archive"),
+        rid, at, _, sid, label, agent, manifest, user = newest[rank.agent]
+        rows.append({"rank": rank.rank, "submission_id": sid, "label": label, "user": user,
+                     "agent": agent or (manifest or {}).get("name", "archive"),
                      "copeland": rank.copeland, "wins": rank.wins, "losses": rank.losses,
                      "scores": {c.metric: _json_number(scores[rank.agent].get(c.metric)) for c in criteria},
-                     "result_id": result.id, "at": result.created_at})
+                     "result_id": rid, "at": at})
     return {"benchmark": row.name, "version": row.version, "split": split,
             "criteria": [{"metric": c.metric, "higher_is_better": c.higher_is_better, "tolerance": c.tolerance}
                          for c in criteria],

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
+import weakref
 from collections.abc import Sequence
 
-__all__ = ["BodyLimit"]
+__all__ = ["BodyLimit", "ConcurrencyLimit"]
 
 
 class _TooLarge(Exception):
@@ -69,3 +71,30 @@ class BodyLimit:
         await send({"type": "http.response.start", "status": 413,
                     "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]})
         await send({"type": "http.response.body", "body": body})
+
+
+class ConcurrencyLimit:
+    """ASGI middleware: at most ``limit`` requests in progress; the rest wait their turn on the event loop.
+
+    Waiting here holds nothing, so the resources a request needs once admitted (a worker thread, a database
+    connection, the SQLite write turn) are sized to ``limit`` and can never run out — without it, requests
+    that had taken pooled connections could wait for worker threads held by requests waiting for
+    connections (a deadlock seen with 200 clients). One process has one GIL: more requests at once only
+    add switching.
+    """
+
+    def __init__(self, app, limit: int) -> None:
+        self.app = app
+        self.limit = limit
+        self._sems: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+    async def __call__(self, scope, receive, send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        loop = asyncio.get_running_loop()
+        sem = self._sems.get(loop)
+        if sem is None:
+            sem = self._sems[loop] = asyncio.Semaphore(self.limit)
+        async with sem:
+            await self.app(scope, receive, send)

@@ -50,6 +50,5 @@ def user_for_token(session: Session, token: str) -> User | None:
     """The user a live token belongs to, or None (unknown or revoked)."""
     if not token.startswith(TOKEN_PREFIX):
         return None
-    row = session.scalar(select(ApiToken).where(ApiToken.token_hash == hash_token(token),
-                                                ApiToken.revoked.is_(False)))
-    return row.user if row is not None else None
+    return session.scalar(select(User).join(ApiToken, ApiToken.user_id == User.id)
+                          .where(ApiToken.token_hash == hash_token(token), ApiToken.revoked.is_(False)))

@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+import asyncio
+from collections.abc import AsyncIterator, Callable
 from typing import Annotated
 
 from fastapi import Depends, Request
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from proxybench.server.config import Settings
-from proxybench.server.db import session_scope
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import User
 from proxybench.server.security import user_for_token
@@ -20,22 +20,45 @@ __all__ = ["DB", "Caller", "Conf", "require"]
 TOKEN_COOKIE = "proxybench_token"
 
 
-def get_session(request: Request) -> Iterator[Session]:
-    """A session per request; on SQLite, writing requests take turns (see :func:`write_turn`)."""
-    with write_turn(request.app, request.method), session_scope(request.app.state.sessions) as session:
-        yield session
+def write_lock(app) -> asyncio.Lock | None:
+    """The SQLite writers' lock of the running event loop (None on PostgreSQL: row locks suffice)."""
+    locks = app.state.write_locks
+    if locks is None:
+        return None
+    loop = asyncio.get_running_loop()
+    if loop not in locks:
+        locks[loop] = asyncio.Lock()
+    return locks[loop]
 
 
-@contextmanager
-def write_turn(app, method: str) -> Iterator[None]:
-    """SQLite allows one writer: queue writers on a lock instead of SQLite's busy-wait, which sleeps in
-    steps of up to 100 ms and made p99 latency seconds under load. Reads (GET) never wait (WAL)."""
-    lock = app.state.write_lock
-    if lock is None or method in ("GET", "HEAD", "OPTIONS"):
+async def write_turn(request: Request) -> AsyncIterator[None]:
+    """SQLite allows one writer: writing requests queue on an event-loop lock *before* they take a worker
+    thread. (SQLite's own busy-wait sleeps in steps of up to 100 ms: p99 of seconds under load; a thread
+    lock deadlocked once waiting writers held every worker thread.) Reads (GET) never wait (WAL)."""
+    lock = write_lock(request.app)
+    if lock is None or request.method in ("GET", "HEAD", "OPTIONS"):
         yield
         return
-    with lock:
+    async with lock:
         yield
+
+
+async def get_session(request: Request,
+                      _turn: Annotated[None, Depends(write_turn, scope="function")]) -> AsyncIterator[Session]:
+    """A session per request, committed when the endpoint returns (after its write turn was granted).
+
+    Async on purpose: each sync dependency costs a worker-thread hop (and GIL hand-offs), which under
+    load dominated request time; only the endpoint and the commit run in worker threads.
+    """
+    session = request.app.state.sessions()
+    try:
+        yield session
+        await run_in_threadpool(session.commit)
+    except BaseException:
+        await run_in_threadpool(session.rollback)
+        raise
+    finally:
+        session.close()
 
 
 def get_settings(request: Request) -> Settings:
@@ -55,8 +78,10 @@ def _token(request: Request) -> str | None:
     return request.cookies.get(TOKEN_COOKIE)
 
 
-def current_user(request: Request, session: DB) -> User:
-    """The caller; 401 with a clear message when the token is missing, unknown or revoked."""
+async def current_user(request: Request, session: DB) -> User:
+    """The caller; 401 with a clear message when the token is missing, unknown or revoked.
+
+    The token lookup (one indexed row) runs on the event loop: cheaper than a thread hop."""
     token = _token(request)
     if not token:
         raise ServiceError(401, "no API token: send 'Authorization: Bearer <token>'")
@@ -74,7 +99,7 @@ def optional_user(request: Request, session: DB) -> User | None:
 def require(*roles: str) -> Callable[..., User]:
     """A dependency admitting only the given roles (super-users are always admitted)."""
 
-    def check(user: Annotated[User, Depends(current_user)]) -> User:
+    async def check(user: Annotated[User, Depends(current_user)]) -> User:
         if user.role != "superuser" and user.role not in roles:
             raise ServiceError(403, f"user {user.name!r} ({user.role}) may not do this; "
                                     f"needs role {' or '.join(('superuser', *roles))}")
