@@ -213,3 +213,23 @@ def test_dominance_matrix_agrees_with_the_usefulness_module(scores, directions):
     _, d = dominance_matrix(scores, list(zip(METRIC_NAMES, directions, strict=True)))
     res = {a: np.array([[s[m] for m in METRIC_NAMES]]) for a, s in scores.items()}
     np.testing.assert_array_equal(d, dominance(res, directions))
+
+
+def test_semiorder_matrix_matches_pairwise_compare_on_random_scores():
+    """The all-pairs array version gives exactly compare()'s verdicts, NaN, infinities and ties included."""
+    import numpy as np
+
+    from proxybench.tasks.scoring import Criterion, compare, semiorder_matrix
+
+    rng = np.random.default_rng(0)
+    pool = [0.0, 1.0, 1.5, 2.0, np.nan, np.inf, -np.inf, 0.1, 0.3]
+    for trial in range(30):
+        criteria = [Criterion(f"m{j}", bool(rng.integers(2)), float(rng.choice([0.0, 0.2, 0.5])))
+                    for j in range(int(rng.integers(1, 4)))]
+        scores = {f"a{i}": {c.metric: (float(rng.choice(pool)) if trial % 2 else float(rng.normal()))
+                            for c in criteria} for i in range(12)}
+        agents, d = semiorder_matrix(scores, criteria)
+        for i, a in enumerate(agents):
+            for j, b in enumerate(agents):
+                expected = {1: 1.0, -1: 0.0, 0: 0.5}[compare(scores[a], scores[b], criteria)]
+                assert d[i, j] == expected, (trial, a, b)
