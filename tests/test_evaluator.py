@@ -96,13 +96,16 @@ class Served:
 
 
 @pytest.fixture
-def served(tmp_path: Path) -> Iterator[Served]:
+def served(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[Served]:
     """A server with a short lease (2 s), an evaluator user, a developer and the tiny benchmark, with a
-    hidden split (``tiny_eval``) and without (``tiny_open``, for speed)."""
+    hidden split (``tiny_eval``) and without (``tiny_open``, for speed). SQLite unless a test asks for
+    ``postgresql`` (indirect parametrisation)."""
     from proxybench.server.app import create_app
     from proxybench.server.config import Settings
 
-    app = create_app(Settings(data_dir=tmp_path / "server", lease_seconds=2.0))
+    url = request.getfixturevalue("postgres").new_database() if getattr(request, "param", None) == "postgresql" \
+        else None
+    app = create_app(Settings(data_dir=tmp_path / "server", lease_seconds=2.0, database_url=url))
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning"))
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
@@ -206,6 +209,7 @@ def test_crashing_archive_agent_fails_with_its_stderr(served: Served, tmp_path: 
     assert served.developer.leaderboard("tiny_open")["rows"] == []
 
 
+@pytest.mark.parametrize("served", ["sqlite", "postgresql"], indirect=True)
 def test_killed_evaluator_job_is_released_and_finished_once(served: Served, tmp_path: Path) -> None:
     sub = submit_archive(served, tmp_path, make_package("slow"), "slow")
     proc, work = start_cli_evaluator(served, tmp_path, "victim", "--once")
