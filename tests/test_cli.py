@@ -172,3 +172,16 @@ def test_camera_only_benchmark_records_a_privileged_node_as_refused(tmp_path):
     assert "agent failure pidnode" in res.output and "privileged" in res.output
     board = json.loads((tmp_path / "run" / "leaderboard.json").read_text())
     assert board[0]["agent"] == "straight"
+
+
+def test_missing_extra_is_an_install_hint_not_a_traceback(capsys):
+    import pytest
+    import typer
+
+    from proxybench.cli.app import require_extra
+
+    with pytest.raises(typer.Exit) as exc:
+        require_extra("server", ("no_such_module_xyz",))
+    assert exc.value.exit_code == 2
+    assert "pip install -e '.[server]'" in capsys.readouterr().err
+    require_extra("server", ("json",))  # present: no exit

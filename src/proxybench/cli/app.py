@@ -18,3 +18,17 @@ app.add_typer(robot_app, name="robot")
 # wide enough for result tables when the output is a file or a pipe (rich assumes 80 columns there)
 console = Console(soft_wrap=True, width=None if sys.stdout.isatty() else 160)
 err_console = Console(stderr=True, soft_wrap=True, width=None if sys.stderr.isatty() else 160)
+
+#: what the optional ``server`` extra provides (the challenges server, its clients and evaluators)
+SERVER_MODULES = ("fastapi", "uvicorn", "sqlalchemy", "alembic", "httpx", "jinja2", "multipart")
+
+
+def require_extra(extra: str, modules: tuple[str, ...] = SERVER_MODULES) -> None:
+    """Exit with an install hint, not a traceback, when an optional extra is missing."""
+    from importlib.util import find_spec
+
+    missing = [m for m in modules if find_spec(m) is None]
+    if missing:
+        err_console.print(f"[red]✗[/red] this command needs the '{extra}' extra (missing: {', '.join(missing)}): "
+                          f"pip install -e '.\\[{extra}]'", highlight=False)
+        raise typer.Exit(2)

@@ -10,7 +10,7 @@ from typing import Any
 
 import typer
 
-from proxybench.cli.app import app, console, err_console
+from proxybench.cli.app import app, console, err_console, require_extra
 
 KNOWN_FEATURES = ("sim", "target")
 
@@ -99,6 +99,7 @@ def evaluator(
     robot), or on the robot node of --robot-cmd, after a compliance check. Many evaluators, on many
     machines, can pull from one server.
     """
+    require_extra("server", ("httpx",))
     from rich.logging import RichHandler
 
     from proxybench.client import ServerError

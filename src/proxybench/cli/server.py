@@ -17,7 +17,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from proxybench.cli.app import app, console, err_console
+from proxybench.cli.app import app, console, err_console, require_extra
 
 server_app = typer.Typer(no_args_is_help=True, help="Administer a challenges server (users, benchmarks, paths).")
 app.add_typer(server_app, name="server")
@@ -83,6 +83,7 @@ def serve(
     lease_seconds: float = typer.Option(120.0, help="a job lease lapses this long after the last heartbeat"),
 ) -> None:
     """Run the challenges server (SQLite in --data-dir unless --database-url), optionally with evaluators."""
+    require_extra("server")
     import uvicorn
 
     from proxybench.server.app import create_app
@@ -127,6 +128,7 @@ def submit(
     server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
 ) -> None:
     """Submit an agent to a benchmark (or a benchmark path) on a challenges server."""
+    require_extra("server", ("httpx",))
     from proxybench.client import ServerError
 
     if (benchmark is None) == (path is None):
@@ -188,6 +190,7 @@ def show_leaderboard(
     server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
 ) -> None:
     """Show a benchmark's leaderboard from a challenges server."""
+    require_extra("server", ("httpx",))
     from proxybench.client import ServerError
 
     try:
@@ -203,6 +206,7 @@ def user_add(
     server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
 ) -> None:
     """Create a user (super-user token needed); prints the new user's token once."""
+    require_extra("server", ("httpx",))
     from proxybench.client import ServerError
 
     try:
@@ -220,6 +224,7 @@ def benchmark_add(
     server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
 ) -> None:
     """Upload a benchmark file (a changed file under a known name becomes a new version)."""
+    require_extra("server", ("httpx",))
     from proxybench.client import ServerError
 
     body = {"yaml": file.read_text(encoding="utf-8"), "features": [f for f in features.split(",") if f]}
@@ -238,6 +243,7 @@ def path_add(
     """Define a benchmark path: steps (benchmarks) and edges with conditions to progress."""
     import yaml
 
+    require_extra("server", ("httpx",))
     from proxybench.client import ServerError
 
     try:
