@@ -39,7 +39,7 @@ from proxybench.protocol.language import (
 )
 from proxybench.protocol.transport import Launch
 
-__all__ = ["AgentProcess", "NodeProcess"]
+__all__ = ["AgentProcess", "NodeProcess", "NodeSession"]
 
 _IN = select.POLLIN | select.POLLPRI | select.POLLHUP | select.POLLERR
 # let a node that is ending anyway end by itself, so its own exit status is reported
@@ -374,6 +374,34 @@ class NodeProcess:
         self.failure = self.failure_class(reason, detail, code, self._finish_stderr(), pid=self._os.pid)
         self._finalizer.detach()
         raise self.failure
+
+
+class NodeSession:
+    """Caller-side life of a node across episodes (a mixin of RemoteAgent and RemoteRobot): the process is
+    seeded once (the languages allow one ``seed``) and, with ``restart``, replaced after a failure."""
+
+    process: NodeProcess
+
+    def _init_session(self, factory: Callable[[], NodeProcess], restart: bool) -> None:
+        self._factory = factory
+        self.restart = restart
+        self.restarts = 0
+        self.process = factory()
+        self._seeded = False
+        self._episodes = 0
+
+    def _begin_episode(self, seed: int, episode: str | None) -> str:
+        """Restart a failed process if allowed, send ``seed`` once per process; returns the episode's name."""
+        if not self.process.alive and self.process.failure is not None and self.restart:
+            self.process = self._factory()
+            self.restarts += 1
+            self._seeded = False
+        if not self._seeded:
+            self.process.seed(int(seed))
+            self._seeded = True
+        name = episode if episode is not None else f"episode-{self._episodes}"
+        self._episodes += 1
+        return name
 
 
 class AgentProcess(NodeProcess):

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from proxybench.agents.base import Agent, Observation
-from proxybench.protocol.process import AgentProcess
+from proxybench.protocol.process import AgentProcess, NodeSession
 
 __all__ = ["RemoteAgent"]
 
@@ -27,7 +27,7 @@ def _name_of(cmd: str | Sequence[str]) -> str:
     return "remote:" + os.path.splitext(os.path.basename(str(script)))[0]
 
 
-class RemoteAgent(Agent):
+class RemoteAgent(Agent, NodeSession):
     """An agent node in a child process, used exactly like an in-process agent.
 
     ``reset(seed, episode)`` sends ``seed`` on the first episode of each process (the language allows one)
@@ -41,24 +41,12 @@ class RemoteAgent(Agent):
                  privileged: bool | None = None, **process_kwargs: Any):
         self._cmd = cmd
         self._kwargs = dict(process_kwargs, privileged=privileged)
-        self.restart = restart
-        self.restarts = 0
         self.name = name or _name_of(cmd)
-        self.process = AgentProcess(cmd, **self._kwargs)
+        self._init_session(lambda: AgentProcess(self._cmd, **self._kwargs), restart)
         self.privileged = self.process.privileged
-        self._seeded = False
-        self._episodes = 0
 
     def reset(self, seed: int, episode: str | None = None) -> None:
-        if not self.process.alive and self.process.failure is not None and self.restart:
-            self.process = AgentProcess(self._cmd, **self._kwargs)
-            self.restarts += 1
-            self._seeded = False
-        if not self._seeded:
-            self.process.seed(int(seed))
-            self._seeded = True
-        name = episode if episode is not None else f"episode-{self._episodes}"
-        self._episodes += 1
+        name = self._begin_episode(seed, episode)
         self.process.episode_start(name, json.dumps({"seed": int(seed)}))
 
     def act(self, obs: Observation) -> np.ndarray:

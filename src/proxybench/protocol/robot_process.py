@@ -22,7 +22,7 @@ from proxybench.protocol import robot_wire as rw
 from proxybench.protocol import wire
 from proxybench.protocol.failures import ROBOT_REASONS, RobotFailure
 from proxybench.protocol.language import ROBOT_OUTPUTS, ROBOT_REPLIES, RobotLanguage
-from proxybench.protocol.process import NodeProcess
+from proxybench.protocol.process import NodeProcess, NodeSession
 
 __all__ = ["ROBOT_REASONS", "RemoteRobot", "RobotProcess", "map_yaml"]
 
@@ -151,7 +151,7 @@ def _performance(data: Any) -> dict[str, float]:
     return out
 
 
-class RemoteRobot:
+class RemoteRobot(NodeSession):
     """A robot node process driving one robot named ``robot_name``, as the runner uses it.
 
     :meth:`start_episode` sends ``seed`` on the first episode of each process, then the episode setup;
@@ -166,11 +166,7 @@ class RemoteRobot:
         self._cmd = cmd
         self._kwargs = process_kwargs
         self.robot_name = robot_name
-        self.restart = restart
-        self.restarts = 0
-        self.process = RobotProcess(cmd, **process_kwargs)
-        self._seeded = False
-        self._episodes = 0
+        self._init_session(lambda: RobotProcess(self._cmd, **self._kwargs), restart)
 
     @property
     def command(self) -> str:
@@ -180,15 +176,7 @@ class RemoteRobot:
                       seconds: float | None = None, episode: str | None = None, camera: bool = True,
                       route: Sequence[str] | None = None) -> rw.RobotInfo:
         """Set up and start one episode on ``map_`` from ``seed`` (and ``pose``, else drawn by the robot)."""
-        if not self.process.alive and self.process.failure is not None and self.restart:
-            self.process = RobotProcess(self._cmd, **self._kwargs)
-            self.restarts += 1
-            self._seeded = False
-        if not self._seeded:
-            self.process.seed(int(seed))
-            self._seeded = True
-        name = episode if episode is not None else f"episode-{self._episodes}"
-        self._episodes += 1
+        name = self._begin_episode(seed, episode)
         payload: dict[str, Any] = {"seed": int(seed), "proxybench": True}
         if pose is not None:
             payload["pose"] = [float(v) for v in pose]
