@@ -2,7 +2,8 @@
 
 A ``Job`` is plain data (picklable, JSON-able), so any backend (process pool, Ray cluster) can carry it;
 its ``key`` is a content hash of everything that determines the result (agent spec, θ, map, episode,
-duration, code version), which is what makes sweeps cacheable and resumable.
+duration, code version; the content of map files and of checkpoint agents), which is what makes sweeps
+cacheable and resumable.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import hashlib
 import json
 import time
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -107,11 +109,12 @@ class Job:
             raise ValueError(f"job {self.agent.label} / {self.domain.name}: a robot node drives one robot and no "
                              f"NPCs; this job has npcs (a benchmark with `npcs:` needs a simulated domain)")
 
-    @property
+    @cached_property
     def key(self) -> str:
-        """Content hash: equal keys ⇔ the same result (given deterministic agents)."""
+        """Content hash: equal keys ⇔ the same result (given deterministic agents). Computed once per job
+        (it reads map and checkpoint files) and carried along when the job is pickled to a worker."""
         blob = json.dumps(
-            {"agent": asdict(self.agent), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
+            {"agent": _agent_id(self.agent), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
              "seed": self.seed, "pose": self.pose, "duration": self.duration, "camera_only": self.camera_only,
              "route": self.route, "npcs": None if self.npcs is None else self.npcs.to_dict(),
              "version": __version__, "engine": ENGINE_VERSION},
@@ -141,6 +144,26 @@ class JobResult:
     @staticmethod
     def from_json(text: str) -> JobResult:
         return JobResult(**json.loads(text))
+
+
+def _agent_id(spec: AgentSpec) -> dict[str, Any]:
+    """What identifies an agent in a key: its spec, and for a behaviour-cloning checkpoint (a path given as
+    the name) the content of its files, so that retraining into the same path invalidates cached episodes.
+    A node command is identified by its string only (like a robot's: what was asked)."""
+    from proxybench.agents.zoo import ZOO
+
+    out = asdict(spec)
+    if spec.command is None and spec.name not in ZOO:
+        from proxybench.learning import is_checkpoint
+
+        if is_checkpoint(spec.name):
+            pt = Path(spec.name).with_suffix(".pt")
+            out["checkpoint"] = _file_digest(pt) + _file_digest(pt.with_suffix(".json"))
+    return out
+
+
+def _file_digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
 
 
 def _map_id(name: str) -> str:
