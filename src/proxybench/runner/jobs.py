@@ -22,8 +22,10 @@ if TYPE_CHECKING:
     from proxybench.domain.npcs import Traffic
 
 #: bump when what an episode produces changes without a change of its inputs (it is part of every job key)
-ENGINE_VERSION = 4  # 2: camera agents see JPEG-decoded frames, as over the AIDO protocol; 3: intersection routes;
-# 4: NPC robots and pedestrians simulated (benchmark ``npcs:``), object colours and extra duckies in θ
+ENGINE_VERSION = 5  # 2: camera agents see JPEG-decoded frames, as over the AIDO protocol; 3: intersection routes;
+# 4: NPC robots and pedestrians simulated (benchmark ``npcs:``), object colours and extra duckies in θ;
+# 5: the vision agents' lane fit is compiled (closed-form least squares, equal to lstsq within 1e-9, so their
+# trajectories can differ in the last bits)
 
 __all__ = [
     "DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "batch_group",
