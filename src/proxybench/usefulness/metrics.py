@@ -68,6 +68,12 @@ def dominance(res: Results, higher_is_better: Sequence[bool], *, significance: f
     k = len(agents)
     alpha = np.full((k, k), 0.5)
     signed = {a: _signed(np.asarray(res[a], dtype=float), higher_is_better) for a in agents}
+    if significance is None:  # the comparison is the sign of the mean difference: all pairs at once
+        means = np.stack([np.nanmean(signed[a], axis=0) for a in agents]) if k else np.zeros((0, 0))
+        cmp = np.sign(means[:, None, :] - means[None, :, :])
+        ge, le = np.all(cmp >= 0, axis=2), np.all(cmp <= 0, axis=2)
+        alpha[ge & ~le], alpha[le & ~ge] = 1.0, 0.0
+        return alpha
     for i in range(k):
         for j in range(i + 1, k):
             cmp = _compare(signed[agents[i]], signed[agents[j]], significance)
@@ -125,18 +131,56 @@ def mmrv(proxy: np.ndarray, target: np.ndarray) -> float:
 
 
 def _correlations(mp: np.ndarray, mt: np.ndarray) -> dict[str, float]:
-    from scipy.stats import kendalltau, pearsonr, spearmanr
+    """Pearson (SRCC in the thesis' sense), Spearman and Kendall τ-b per metric, averaged over metrics.
 
-    out = {}
-    for name, fn in (("srcc", pearsonr), ("spearman", spearmanr), ("kendall", kendalltau)):
-        vals = []
-        for m in range(mt.shape[1]):
-            if np.nanstd(mp[:, m]) < 1e-12 or np.nanstd(mt[:, m]) < 1e-12:
-                vals.append(np.nan)
-            else:
-                vals.append(float(fn(mp[:, m], mt[:, m])[0]))
-        out[name] = float(np.nanmean(vals)) if not np.all(np.isnan(vals)) else float("nan")
-    return out
+    NumPy versions of ``scipy.stats.pearsonr`` / ``spearmanr`` / ``kendalltau`` (equal to them within
+    1e-12, tested): this runs for every bootstrap resample, where SciPy's per-call overhead dominated.
+    A metric where either side is constant (or NaN) has no correlation.
+    """
+    out: dict[str, list[float]] = {"srcc": [], "spearman": [], "kendall": []}
+    for m in range(mt.shape[1]):
+        x, y = mp[:, m], mt[:, m]
+        if not (np.nanstd(x) >= 1e-12 and np.nanstd(y) >= 1e-12):
+            for v in out.values():
+                v.append(np.nan)
+            continue
+        out["srcc"].append(_pearson(x, y))
+        out["spearman"].append(_pearson(_average_ranks(x), _average_ranks(y)))
+        out["kendall"].append(_kendall_tau_b(x, y))
+    return {k: float(np.nanmean(v)) if not np.all(np.isnan(v)) else float("nan") for k, v in out.items()}
+
+
+def _pearson(x: np.ndarray, y: np.ndarray) -> float:
+    if np.isnan(x).any() or np.isnan(y).any():
+        return float("nan")
+    xm, ym = x - x.mean(), y - y.mean()
+    r = float(np.dot(xm, ym) / (np.sqrt(np.dot(xm, xm)) * np.sqrt(np.dot(ym, ym))))
+    return max(-1.0, min(1.0, r))
+
+
+def _average_ranks(x: np.ndarray) -> np.ndarray:
+    """Ranks 1..n, ties sharing their average rank (``scipy.stats.rankdata``'s default)."""
+    order = np.argsort(x, kind="mergesort")
+    xs = x[order]
+    starts = np.r_[True, xs[1:] != xs[:-1]]
+    group = np.cumsum(starts) - 1
+    first = np.flatnonzero(starts)
+    ends = np.r_[first[1:], len(x)]
+    ranks = np.empty(len(x))
+    ranks[order] = (first + ends + 1)[group] / 2.0
+    return ranks
+
+
+def _kendall_tau_b(x: np.ndarray, y: np.ndarray) -> float:
+    if np.isnan(x).any() or np.isnan(y).any():
+        return float("nan")
+    i, j = np.triu_indices(len(x), 1)
+    dx, dy = np.sign(x[i] - x[j]), np.sign(y[i] - y[j])
+    pairs = len(i)
+    tx, ty = int((dx == 0).sum()), int((dy == 0).sum())
+    if pairs - tx == 0 or pairs - ty == 0:
+        return float("nan")
+    return float((dx * dy).sum() / np.sqrt(pairs - tx) / np.sqrt(pairs - ty))
 
 
 @dataclass(frozen=True)
