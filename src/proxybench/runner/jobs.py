@@ -264,7 +264,7 @@ def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
     if len(jobs) > 1 and jobs[0].agent.command:
         return [r for j in jobs for r in execute_batch([j], out_dir)]
     job0 = jobs[0]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     sim = _simulator(job0, len(jobs))
     agents = [make_agent_for(j.agent) for j in jobs]
     t1 = time.perf_counter()
@@ -282,8 +282,12 @@ def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
         for a in agents:
             getattr(a, "close", lambda: None)()
     t2 = time.perf_counter()
-    return [_result(j, tr, out_dir, (t1 - t0) / len(jobs), (t2 - t1) / len(jobs), METRICS)
-            for j, tr in zip(jobs, trajs, strict=True)]
+    results = [_result(j, tr, out_dir, (t1 - t0) / len(jobs), (t2 - t1) / len(jobs), METRICS)
+               for j, tr in zip(jobs, trajs, strict=True)]
+    cpu = (time.process_time() - c0) / len(jobs)
+    for r in results:
+        r.timings["cpu_s"] = cpu
+    return results
 
 
 def _result(job: Job, traj, out_dir: str | None, setup_s: float, episode_s: float, metrics) -> JobResult:
