@@ -19,9 +19,8 @@ import time
 
 import cbor2
 
-CASE = sys.argv[1]
-with open("targets.json") as _f:
-    T = json.load(_f)
+CASE = sys.argv[1] if len(sys.argv) > 1 else ""
+T: dict = {}  # targets.json, read by main()
 libc = ctypes.CDLL(None, use_errno=True)
 CLONE_NEWNET, CLONE_NEWUSER = 0x40000000, 0x10000000
 DESCRIPTION = {"data": {"inputs": {t: {} for t in ("seed", "episode_start", "observations", "get_commands")},
@@ -247,6 +246,8 @@ def ctrl(code, data=None) -> dict:
 
 
 def main() -> None:
+    with open("targets.json") as f:
+        T.update(json.load(f))
     decoder = cbor2.CBORDecoder(sys.stdin.buffer)
     while True:
         try:
@@ -270,4 +271,5 @@ def main() -> None:
         send(ctrl("understood"), *outputs, ctrl("over"))
 
 
-main()
+if __name__ == "__main__":
+    main()

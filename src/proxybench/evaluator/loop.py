@@ -128,6 +128,11 @@ class Evaluator:
         self.client = ServerClient(server, token)
         self.reporter = reporter or Reporter()
         self.isolation: Isolation = detect_isolation(config.agent_user, config.dev_unsafe)
+        work = str(config.work_dir.resolve())
+        for root in self.isolation.runtime:
+            if work == root or work.startswith(root.rstrip("/") + "/"):
+                raise RuntimeError(f"work dir {config.work_dir} lies inside {root}, which agents see (the runtime): "
+                                   "choose a work dir elsewhere")
         self._stopping = threading.Event()
         self._wake = threading.Event()
         self.stop_reason = ""
