@@ -203,7 +203,7 @@ def run_session(cases: list[str], keep_work: Path | None = None) -> Session:
         proc = subprocess.Popen(
             [sys.executable, "-m", "proxybench", "evaluator", "--server", f"http://127.0.0.1:{port}", "--token-file",
              str(token_file), "--name", "hostile", "--work-dir", str(work), "--no-video", "--poll", "0.2",
-             "--cpu-seconds", "5", "--memory-mb", "1024", "--file-mb", "64", "--scratch-mb", "32",
+             "--cpu-seconds", "3", "--memory-mb", "640", "--file-mb", "64", "--scratch-mb", "32",
              *(["--keep-work"] if keep_work else [])],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
         targets = json.dumps({

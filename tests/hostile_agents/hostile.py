@@ -5,6 +5,11 @@ A bare AIDO agent node (cbor2 only, so that it starts fast) that answers the pro
 try (``blocked: ...``, and ``ESCAPED ...`` for anything that got through the sandbox), and exits with
 status 1. ``targets.json`` (written by the test into the package) names what to go for: secret files,
 the evaluator's work dir and pid, the server's database, a listener on 127.0.0.1.
+
+Safety catch: where it finds itself unconfined (root, other processes or the host's files in view) it
+attacks nothing and only says ``ESCAPED: not confined``: run unsandboxed as root, ``kill(-1)`` or a fork
+bomb would take the whole machine down, and a planted symlink would let the worker overwrite host files
+(an earlier evaluator wrote its trajectory archive over /etc/shadow that way).
 """
 
 import contextlib
@@ -236,6 +241,17 @@ def cpu_hog() -> None:
         pass
 
 
+def unsafe_here() -> str:
+    """Why this process is not in a sandbox where the attacks are harmless ('' if it is)."""
+    if os.geteuid() == 0:
+        return "running as root"
+    if len(visible_pids()) > 2:
+        return f"{len(visible_pids())} other processes visible: not in a PID namespace of its own"
+    if os.path.exists("/etc/shadow") or os.path.exists(T["work_dir"]):
+        return "the host's files are visible"
+    return ""
+
+
 def send(*msgs) -> None:
     sys.stdout.buffer.write(b"".join(cbor2.dumps(m) for m in msgs))
     sys.stdout.buffer.flush()
@@ -261,6 +277,10 @@ def main() -> None:
         if msg.get("topic") == "wrapper.describe_protocol":
             outputs = [{"compat": ["z2"], "topic": "protocol_description", "data": DESCRIPTION, "timing": None}]
         elif msg.get("topic") == "get_commands":
+            unconfined = unsafe_here()
+            if unconfined:  # never fork-bomb or kill(-1) a real machine: the test fails on this line anyway
+                say(f"ESCAPED: not confined ({unconfined}): {CASE} not attempted")
+                os._exit(1)
             say(f"ATTEMPTED {CASE}")
             try:
                 globals()[CASE]()
