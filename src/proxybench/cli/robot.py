@@ -45,7 +45,7 @@ def robot_serve(
     map_name: str | None = typer.Option("loop_3x3", "--map", help="map to prepare (built-in name or YAML file); "
                                         "set_map may choose another"),
     param: list[str] = typer.Option([], "--param", help="domain parameter k=v (repeatable), e.g. image_width=160"),
-    seed: int = typer.Option(0, help="episode seed when neither `seed` nor episode_start gives one"),
+    seed: int = typer.Option(0, min=0, help="episode seed when neither `seed` nor episode_start gives one"),
     name: str = typer.Option("robot", help="node name in timing information"),
 ) -> None:
     """Serve the proxybench simulator as a robot node on stdin/stdout (or $AIDONODE_DATA_IN/_OUT).
