@@ -6,7 +6,9 @@ listing), headings are counter-clockwise from +x. Tile ``(i, j)`` covers
 *bottom* of the ``tiles:`` listing, so the file reads like a map with north up.
 
 Every problem is reported with the file, the YAML line and column, and the tile's row/column in the
-listing, so a user can fix a hand-written map without guessing.
+listing, so a user can fix a hand-written map without guessing. What gym-duckietown accepts with a
+fallback loads with a warning (``Map.warnings``): a start tile outside the map or off the road, an
+unknown object kind. Objects in every placement are read by ``proxybench.domain.map_objects``.
 
 >>> m = load_map("loop_3x3")
 >>> (m.width, m.height, m.tile_size)
