@@ -117,6 +117,15 @@ def test_markup_in_names_is_printed_not_interpreted(tmp_path):
     assert "[/nothing].yaml" in res.output
 
 
+def test_errors_keep_their_brackets(tmp_path):
+    """``[x, y]`` in a message is text, not a rich style that swallows it."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("tiles:\n- [straight/E]\ntile_size: 0.585\nobjects: [{kind: duckie, pos: [1]}]\n")
+    for args in (["run", "--map", str(bad), "--out", str(tmp_path / "r")], ["map", "show", str(bad)]):
+        res = runner.invoke(app, args)
+        assert res.exit_code == 1 and "'pos' must be [x, y] in tiles (y down the listing), got [1]" in flat(res.output)
+
+
 def test_map_check_prints_warnings_and_passes(tmp_path):
     f = tmp_path / "m.yaml"
     f.write_text("tiles:\n- [straight/E, straight/E]\ntile_size: 0.585\nstart_tile: [7, 0]\n")

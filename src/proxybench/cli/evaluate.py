@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
@@ -38,7 +39,7 @@ def score(
         try:
             traj = _load_any(f, map_name, Trajectory, TrajectoryError)
         except (TrajectoryError, FileNotFoundError) as exc:
-            err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+            err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
             bad += 1
             continue
         if episode_seconds:
@@ -142,7 +143,7 @@ def evaluate(
     try:
         bench = Benchmark.load(benchmark)
     except BenchmarkError as exc:
-        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(1) from exc
     if quick:
         bench = _quick(bench)
@@ -157,7 +158,7 @@ def evaluate(
                                     privileged=lambda s: s.command is None and ZOO[s.name].privileged,
                                     progress=lambda d, t: bar.update(task, completed=d, total=t))
         except BenchmarkError as exc:
-            err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+            err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
             raise typer.Exit(2) from exc
         finally:
             be.close()
@@ -251,10 +252,11 @@ def _print_leaderboard(ev, run_dir: Path) -> None:
                      "wins": r.wins, "losses": r.losses, "ties": r.ties, "collisions": hit, "collided_with": what})
     console.print(table)
     for name, why in ev.refused.items():
-        console.print(f"[yellow]not admitted:[/yellow] {name}: {why}", highlight=False)
+        console.print(f"[yellow]not admitted:[/yellow] {escape(str(name))}: {escape(str(why))}", highlight=False)
     failures = [r for r in ev.sweep.results if r.termination == "agent_failure"]
     for r in failures[:5]:
-        console.print(f"[red]agent failure[/red] {r.agent} episode {r.episode}: {r.message}", highlight=False)
+        console.print(f"[red]agent failure[/red] {r.agent} episode {r.episode}: {escape(str(r.message))}",
+                      highlight=False)
     (run_dir / "leaderboard.json").write_text(json.dumps(rows, indent=1, default=str))
     ev.aggregates.to_csv(run_dir / "aggregates.csv", index=False)
     console.print(f"wrote {run_dir / 'leaderboard.json'}, {run_dir / 'aggregates.csv'}, {run_dir / 'results.parquet'}")

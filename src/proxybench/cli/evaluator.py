@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import typer
+from rich.markup import escape
 
 from proxybench.cli.app import app, console, err_console, require_extra
 from proxybench.cli.options import positive
@@ -25,12 +26,11 @@ def _token(token: str | None, token_file: Path | None) -> str:
     try:
         return token_file.read_text().strip()
     except OSError as exc:
-        err_console.print(f"[red]✗[/red] cannot read the token file {token_file}: {exc}", highlight=False)
+        err_console.print(f"[red]✗[/red] cannot read the token file {token_file}: {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
 
 
 def _reporter():
-    from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from proxybench.cli.progress import progress_bar
@@ -131,13 +131,13 @@ def evaluator(
     try:
         ev = Evaluator(server or "http://127.0.0.1:8000", _token(token, token_file), config, _reporter())
     except RuntimeError as exc:
-        err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+        err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
     ev.install_signal_handlers()
     try:
         done = ev.run(once=once)
     except ServerError as exc:
-        err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+        err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
     if ev.stop_reason:
         console.print(f"evaluator {name!r} stopped ({ev.stop_reason}) after {done} job(s)")

@@ -12,6 +12,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -29,7 +30,7 @@ def _bars() -> Progress:
 
 
 def _fail(msg: str, code: int = 2) -> typer.Exit:
-    err_console.print(f"[red]error:[/red] {msg}", highlight=False)
+    err_console.print(f"[red]error:[/red] {escape(str(msg))}", highlight=False)
     return typer.Exit(code)
 
 

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console, require_extra
@@ -44,7 +45,7 @@ def _client(server: str | None, token: str | None, token_file: Path | None):
 
 
 def _fail(exc: Exception) -> typer.Exit:
-    err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+    err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
     return typer.Exit(1)
 
 
