@@ -399,10 +399,8 @@ class _MapParser:
         return Tile(kind, orientation, i=c, j=n_rows - 1 - r, row=r, col=c)
 
     def _objects(self, entry: tuple | None, ts: float, grid_w: int, grid_h: int) -> list[MapObject]:
-        if entry is None:
-            return []
-        node = entry[1]
-        if isinstance(node, yaml.ScalarNode) and self._data(node) is None:
+        node = entry[1] if entry is not None else None
+        if node is None or (isinstance(node, yaml.ScalarNode) and self._data(node) is None):
             return []
         if isinstance(node, yaml.MappingNode):
             items = [(str(self._data(k)), v) for k, v in node.value]
@@ -419,11 +417,8 @@ class _MapParser:
         return objects
 
     def _start_tile(self, entry: tuple | None, tiles) -> tuple[tuple[int, int] | None, tuple[int, int] | None]:
-        """(origin of a relative start pose as (i, j), start tile for the start distribution).
-
-        Like gym-duckietown, a start tile outside the map or off the road is not a refusal: it falls back
-        to a random drivable tile, with a warning. An off-road start tile still anchors ``start_pose``.
-        """
+        """(origin (i, j) of a relative start pose, start tile of the start distribution). As in gym-duckietown, one
+        outside the map or off the road falls back to a random drivable tile (a warning); off-road, it anchors."""
         if entry is None:
             return None, None
         node = entry[1]
@@ -465,9 +460,7 @@ class _MapParser:
             return None
         x, z = float(pos[0]), float(pos[-1])
         if origin is not None:
-            i, j = origin
-            x += i * ts
-            z += (grid_h - 1 - j) * ts
+            x, z = x + origin[0] * ts, z + (grid_h - 1 - origin[1]) * ts
         return (x, grid_h * ts - z, float(angle))
 
     # -- topology ----------------------------------------------------------------------------------
