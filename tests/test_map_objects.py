@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from proxybench.domain.camera import camera_table
-from proxybench.domain.maps import MapError, MapObject, load_map, parse_map
+from proxybench.domain.maps import MapError, MapObject, MapWarning, load_map, parse_map
 from proxybench.domain.objects import object_collides, object_primitives, pack_objects
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
@@ -131,6 +131,13 @@ def test_unknown_kinds_are_grey_boxes_with_one_warning_per_kind():
     ]
     prims, robot = object_primitives(m.objects[0])
     assert prims[0].rgb == (150.0, 150.0, 150.0) and not robot and object_collides("ufo")
+
+
+def test_loading_a_file_warns_where_nobody_prints_the_warnings(tmp_path):
+    f = tmp_path / "m.yaml"
+    f.write_text(HEAD + "objects:\n- {kind: ufo, pos: [0.5, 0.5]}\n")
+    with pytest.warns(MapWarning, match=rf"{f}:6:3: unknown object kind 'ufo'"):
+        Simulator(str(f), render=False)
 
 
 @pytest.mark.parametrize("kind", ["duckie", "duckiebot", "cone", "barrier", "house", "building", "tree", "bus",

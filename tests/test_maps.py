@@ -12,6 +12,7 @@ from proxybench.domain.maps import (
     Direction,
     Map,
     MapError,
+    MapWarning,
     builtin_map_names,
     load_map,
     parse_map,
@@ -306,7 +307,8 @@ def test_named_object_with_bad_height(tmp_path):
 def test_start_tile_outside_map_falls_back_with_a_warning(tmp_path):
     """gym-duckietown accepts it and starts on a random drivable tile: a warning, not a refusal."""
     path = write_map(tmp_path, "tiles:\n- [straight/E, straight/E]\ntile_size: 0.585\nstart_tile: [5, 0]\n")
-    m = load_map(path)
+    with pytest.warns(MapWarning, match="is outside the map"):
+        m = load_map(path)
     assert m.start_tile is None
     (w,) = m.warnings
     assert_located(str(w), path, line=4)
@@ -316,7 +318,8 @@ def test_start_tile_outside_map_falls_back_with_a_warning(tmp_path):
 def test_start_tile_not_drivable_falls_back_with_a_warning(tmp_path):
     path = write_map(tmp_path, "tiles:\n- [straight/N, grass]\n- [straight/N, grass]\ntile_size: 0.585\n"
                                "start_tile: [1, 0]\n")
-    m = load_map(path)
+    with pytest.warns(MapWarning, match="not a drivable tile"):
+        m = load_map(path)
     assert m.start_tile is None
     (w,) = m.warnings
     assert_located(str(w), path, line=5, row=0, col=1)

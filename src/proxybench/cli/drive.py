@@ -41,15 +41,16 @@ def run(
     the metrics say what the robot reported it is (``source``).
     """
     from proxybench.agents import make_agent
-    from proxybench.domain.maps import MapError, load_map
+    from proxybench.cli.maps import load_map_printing_warnings
+    from proxybench.domain.maps import MapError
     from proxybench.domain.params import DomainParams
     from proxybench.domain.simulator import Simulator
     from proxybench.runner.record import record_episode
     from proxybench.tasks.metrics import METRICS
 
     try:
-        m = load_map(map_name)
-    except (MapError, FileNotFoundError) as exc:
+        m = load_map_printing_warnings(map_name)
+    except (MapError, OSError) as exc:
         err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(1) from exc
     if not m.drivable_tiles():

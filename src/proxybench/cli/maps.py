@@ -2,12 +2,31 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.markup import escape
 
 from proxybench.cli.app import console, err_console, map_app
+
+if TYPE_CHECKING:
+    from proxybench.domain.maps import Map
+
+
+def load_map_printing_warnings(name: str | Path, print_warnings: bool = True) -> Map:
+    """``load_map`` for commands: what the map loaded with by a fallback as yellow lines on stderr (not as
+    Python warnings). Raises ``MapError`` / ``OSError`` as ``load_map`` does."""
+    from proxybench.domain.maps import MapWarning, load_map
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", MapWarning)
+        m = load_map(name)
+    if print_warnings:
+        for w in m.warnings:
+            err_console.print(f"[yellow]warning:[/yellow] {escape(str(w))}", highlight=False)
+    return m
 
 
 @map_app.command("check")
@@ -17,13 +36,13 @@ def map_check(files: list[Path] = typer.Argument(..., help="map YAML files or bu
     Exit 1 if any map is invalid; warnings alone (an unknown object kind, a start tile off the road)
     do not fail the check, as gym-duckietown loads such maps too.
     """
-    from proxybench.domain.maps import MapError, load_map
+    from proxybench.domain.maps import MapError
 
     bad = 0
     for f in files:
         name = escape(str(f))
         try:
-            m = load_map(f if f.exists() else str(f))
+            m = load_map_printing_warnings(f if f.exists() else str(f), print_warnings=False)
         except MapError as exc:
             bad += 1
             err_console.print(f"[red]✗[/red] {name}: {len(exc.issues)} problem(s)", highlight=False)
@@ -48,11 +67,11 @@ def map_show(
                                        help="image path, PNG (default: <map name>.png); missing folders are made"),
 ) -> None:
     """Draw a map top-down with its lane centre lines (arrows: driving direction) to a PNG."""
-    from proxybench.domain.maps import MapError, load_map
+    from proxybench.domain.maps import MapError
     from proxybench.domain.topdown import save_map_plot
 
     try:
-        m = load_map(file)
+        m = load_map_printing_warnings(file)
     except (MapError, OSError) as exc:
         err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(1) from exc
@@ -70,7 +89,7 @@ def map_show(
 @map_app.command("list")
 def map_list() -> None:
     """List the built-in maps."""
-    from proxybench.domain.maps import builtin_map_names, load_map
+    from proxybench.domain.maps import builtin_map_names
 
     for name in builtin_map_names():
-        console.print(f"{name:16s} {load_map(name).summary()}", highlight=False, markup=False)
+        console.print(f"{name:16s} {load_map_printing_warnings(name).summary()}", highlight=False, markup=False)

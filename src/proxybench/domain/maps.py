@@ -20,6 +20,7 @@ unknown object kind. Objects in every placement are read by ``proxybench.domain.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from enum import IntEnum
 from importlib import resources
@@ -31,19 +32,8 @@ import yaml
 from proxybench.domain.map_objects import AprilTag, parse_objects
 
 __all__ = [
-    "DRIVABLE_KINDS",
-    "GROUND_KINDS",
-    "NON_DRIVABLE_KINDS",
-    "ROAD_END_KINDS",
-    "Direction",
-    "Map",
-    "MapError",
-    "MapIssue",
-    "MapObject",
-    "Tile",
-    "builtin_map_names",
-    "load_map",
-    "parse_map",
+    "DRIVABLE_KINDS", "GROUND_KINDS", "NON_DRIVABLE_KINDS", "ROAD_END_KINDS", "Direction", "Map", "MapError",
+    "MapIssue", "MapObject", "MapWarning", "Tile", "builtin_map_names", "load_map", "parse_map",
 ]
 
 
@@ -167,6 +157,10 @@ class MapIssue:
         return f"{where}:{cell} {self.message}"
 
 
+class MapWarning(UserWarning):
+    """A map loaded with a fallback (``Map.warnings``), warned when a file is loaded."""
+
+
 class MapError(ValueError):
     """A map file could not be loaded; ``issues`` lists every problem found."""
 
@@ -271,7 +265,10 @@ def load_map(name_or_path: str | Path) -> Map:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise MapError([MapIssue(str(path), f"cannot read map file: {exc}")]) from exc
-    return parse_map(text, path=str(path), name=path.stem)
+    m = parse_map(text, path=str(path), name=path.stem)
+    for w in m.warnings:  # where nobody prints Map.warnings (an env, a runner): once per message and place
+        warnings.warn(str(w), MapWarning, stacklevel=2)
+    return m
 
 
 def parse_map(text: str, path: str = "<string>", name: str = "map") -> Map:
