@@ -280,3 +280,15 @@ def test_target_on_a_robot_node(tmp_path: Path) -> None:
     summary = summarize(ev, "validation", domain_kind=report.domain_kind)
     assert summary.problems == [] and summary.failures == []
     assert summary.scores["survival_time_median"] == pytest.approx(1.0)
+
+
+def test_an_agent_cannot_pass_its_failure_off_as_the_hosts(tmp_path: Path, isolation: Isolation) -> None:
+    """Sandbox words on an agent's stderr make the worker probe the sandbox: working → the agent's fault."""
+    from proxybench.evaluator.outcome import HostFault
+    from proxybench.evaluator.run import _Job
+
+    tail = [["bwrap: Creating new namespace failed: No space left on device"]]
+    _Job(tmp_path, {"lease": {}, "isolation": dataclasses.asdict(isolation)}).check_sandbox(tail)  # no fault
+    broken = dataclasses.replace(isolation, bwrap="/bin/false")
+    with pytest.raises(HostFault, match="the sandbox stopped working on this host"):
+        _Job(tmp_path, {"lease": {}, "isolation": dataclasses.asdict(broken)}).check_sandbox(tail)

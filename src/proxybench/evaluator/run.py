@@ -153,11 +153,30 @@ class _Job:
                                       privileged=lambda s: s.command is None and ZOO[s.name].privileged,
                                       progress=self.progress)
         except AgentFailure as exc:  # the node could not even be started or handshaken
+            self.check_sandbox([exc.stderr_tail])
             raise SubmissionFault(f"agent node failed in the {split} episodes: {exc}") from None
         except (RobotFailure, RobotLacksGroundTruth) as exc:
             raise HostFault(f"the target robot cannot run this job: {exc}") from None
         except PrivilegedAgentError as exc:
             raise SubmissionFault(str(exc)) from None
+
+    def check_sandbox(self, stderr_tails: list[list[str]]) -> None:
+        """An agent that failed with the sandbox's own words on its stderr: is the sandbox still working here?
+
+        The agent writes its stderr too, so its words decide nothing: the probe (a fresh sandbox running
+        Python) does. Broken → :class:`HostFault` (the job goes to another evaluator); else the agent's fault.
+        """
+        from proxybench.evaluator import sandbox as sb
+
+        if not any(line.startswith(("bwrap:", "_confine:")) for tail in stderr_tails for line in tail[:5]):
+            return
+        isolation = sb.Isolation.from_dict(self.cfg["isolation"])
+        if isolation.kind != "bwrap":
+            return
+        problem = sb.probe(isolation)
+        if problem is not None:
+            raise HostFault(f"the sandbox stopped working on this host: {problem}")
+        log.info("the agent's failure mentions the sandbox, but the sandbox works here: the agent's fault")
 
     def split(self, bench, spec, split: str, target: bool, domain_kind: str, hidden: bool):
         from proxybench.evaluator.report import pack_trajectories, summarize
@@ -180,6 +199,7 @@ class _Job:
                 raise RuntimeError(text + " (our own simulator should never produce this)")
             raise HostFault(text)
         if summary.failures:
+            self.check_sandbox([f.get("stderr_tail") or [] for f in summary.failures])
             if hidden:
                 raise SubmissionFault(f"the agent failed in {len(summary.failures)} hidden test episodes "
                                       "(details are shown to the operators only)")

@@ -41,7 +41,7 @@ from proxybench.agents.package import AgentManifest, PackageError, extract_archi
 
 __all__ = [
     "AGENT_USER", "ArchiveMismatch", "Isolation", "Limits", "SandboxError", "agent_command", "confine",
-    "detect_isolation", "prepare_agent", "runtime_paths",
+    "detect_isolation", "prepare_agent", "probe", "runtime_paths",
 ]
 
 log = logging.getLogger("proxybench.evaluator")
@@ -160,7 +160,7 @@ def _whoami() -> str:
         return f"uid {os.geteuid()}"
 
 
-def _probe(isolation: Isolation) -> str | None:
+def probe(isolation: Isolation) -> str | None:
     """Run ``python3 -c 'import proxybench.protocol'`` through the whole chain; None if it works, else why not."""
     code = "import os, proxybench.protocol; open(os.path.join(os.environ['HOME'], 'w'), 'w').write('ok')"
     with tempfile.TemporaryDirectory(prefix="proxybench-probe-") as folder:
@@ -202,7 +202,7 @@ def detect_isolation(agent_user: str = AGENT_USER, dev_unsafe: bool = False) -> 
     else:
         safe = Isolation("bwrap", agent_user, ids[0], ids[1], True, f"bubblewrap as user {agent_user!r}: no network, "
                          "no other processes, read-only runtime and package, bounded scratch", bwrap=bwrap, **common)
-        problem = _probe(safe)
+        problem = probe(safe)
         if problem is None:
             return safe
     if not dev_unsafe:
@@ -213,7 +213,7 @@ def detect_isolation(agent_user: str = AGENT_USER, dev_unsafe: bool = False) -> 
     if bwrap is not None:
         same = Isolation("bwrap", me, safe=False, bwrap=bwrap, note=f"UNSAFE developer mode: agents run as the "
                          f"evaluator's user {me!r} in bubblewrap (no network, read-only view); {problem}", **common)
-        if _probe(same) is None:
+        if probe(same) is None:
             return same
     return Isolation("none", me, note=f"UNSAFE developer mode: agents run as the evaluator's user {me!r} with no "
                      f"isolation at all (network, files, processes); {problem}", **common)
