@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import io
+import json
 import math
 import os
 import socket
@@ -292,3 +293,27 @@ def test_an_agent_cannot_pass_its_failure_off_as_the_hosts(tmp_path: Path, isola
     broken = dataclasses.replace(isolation, bwrap="/bin/false")
     with pytest.raises(HostFault, match="the sandbox stopped working on this host"):
         _Job(tmp_path, {"lease": {}, "isolation": dataclasses.asdict(broken)}).check_sandbox(tail)
+
+
+def test_the_evaluator_uploads_only_files_of_the_job_folder(tmp_path: Path) -> None:
+    """Even an outcome naming /etc/shadow or a link to it (say, from a buggy worker) uploads nothing of it."""
+    from proxybench.evaluator.outcome import Artifact, Outcome
+    from proxybench.evaluator.worker import job_artifacts_only, read_plain_file
+
+    job = tmp_path / "job"
+    job.mkdir()
+    (job / "evaluator.log").write_text("fine")
+    (job / "trajectories-validation.zip").symlink_to("/etc/passwd")
+    zipped = "trajectories-validation.zip"
+    sent = Outcome("success", artifacts=[Artifact("evaluator.log", str(job / "evaluator.log")),
+                                         Artifact("shadow", "/etc/shadow"),
+                                         Artifact("../evaluator.log", str(job / "../evaluator.log")),
+                                         Artifact(zipped, str(job / zipped))])
+    kept = job_artifacts_only(Outcome.parse(json.dumps(dataclasses.asdict(sent))), job)
+    assert [a.name for a in kept.artifacts] == ["evaluator.log", "trajectories-validation.zip"]
+    assert "'shadow' refused" in kept.message and "'../evaluator.log' refused" in kept.message
+    assert read_plain_file(job / "evaluator.log") == b"fine"
+    with pytest.raises(OSError):  # a link is never followed when uploading
+        read_plain_file(job / "trajectories-validation.zip")
+    with pytest.raises(ValueError, match="unknown status"):
+        Outcome.parse('{"status": "rank-1"}')

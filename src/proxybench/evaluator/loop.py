@@ -26,7 +26,6 @@ import fcntl
 import json
 import logging
 import os
-import re
 import shutil
 import signal
 import threading
@@ -39,15 +38,12 @@ from proxybench import __version__
 from proxybench.client import ServerClient, ServerError
 from proxybench.evaluator.outcome import Artifact, Outcome
 from proxybench.evaluator.sandbox import AGENT_USER, Isolation, Limits, detect_isolation
-from proxybench.evaluator.worker import Worker, read_plain_file
+from proxybench.evaluator.worker import Worker, job_artifacts_only, read_plain_file
 
 __all__ = ["Evaluator", "EvaluatorConfig", "Reporter"]
 
 log = logging.getLogger("proxybench.evaluator")
 _MAX_MESSAGE = 100_000
-_ARTIFACT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")
-
-
 @dataclass(frozen=True)
 class EvaluatorConfig:
     """One evaluator's settings. ``features``: what it offers (``sim``, ``target``); ``poll`` [s] between
@@ -285,7 +281,7 @@ class Evaluator:
             return Outcome("error", "lease lost")
         if sent is not None:
             try:
-                return self._checked(Outcome.parse(sent), job_dir)
+                return job_artifacts_only(Outcome.parse(sent), job_dir)
             except ValueError as exc:
                 log.error("job %s: the worker's outcome is unusable: %s", lease["job_id"], exc)
         if self._stopping.is_set():
@@ -301,18 +297,6 @@ class Evaluator:
         for name, hidden in (("evaluator.log", False), ("evaluator-hidden.log", True), ("worker.log", True)):
             if (job_dir / name).is_file():
                 outcome.artifacts.append(Artifact(name, str(job_dir / name), hidden, "text/plain"))
-        return outcome
-
-    def _checked(self, outcome: Outcome, job_dir: Path) -> Outcome:
-        """Keep only artifacts the worker made: plain files directly in the job folder, named as listed."""
-        kept = []
-        for a in outcome.artifacts:
-            if _ARTIFACT_NAME.fullmatch(a.name) and Path(a.path) == job_dir / a.name and a.name != "agent.archive":
-                kept.append(a)
-            else:
-                log.error("artifact %r at %r is not a file of the job folder: not uploaded", a.name, a.path)
-                outcome.message += f"\nartifact {a.name!r} refused: not a file of the job folder"
-        outcome.artifacts = kept
         return outcome
 
     def _new_worker(self) -> Worker:

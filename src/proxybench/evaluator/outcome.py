@@ -68,6 +68,8 @@ class Outcome:
             raise ValueError(f"malformed outcome: {exc}") from None
         if outcome.status not in STATUSES:
             raise ValueError(f"unknown status {outcome.status!r}")
+        if not all(isinstance(a.name, str) and isinstance(a.path, str) for a in outcome.artifacts):
+            raise ValueError("artifact names and paths must be strings")
         return outcome
 
 

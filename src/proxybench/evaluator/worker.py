@@ -10,7 +10,9 @@ place. Only a worker that exited normally and sent a complete outcome is believe
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
+import re
 import signal
 import stat
 import subprocess
@@ -18,9 +20,13 @@ import sys
 import threading
 from pathlib import Path
 
-__all__ = ["Worker", "read_plain_file"]
+from proxybench.evaluator.outcome import Outcome
 
+__all__ = ["Worker", "job_artifacts_only", "read_plain_file"]
+
+log = logging.getLogger("proxybench.evaluator")
 _MAX_OUTCOME = 64 << 20
+_ARTIFACT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")
 
 
 class _Channel(threading.Thread):
@@ -105,6 +111,20 @@ class Worker:
         with contextlib.suppress(OSError):
             if self.proc.stdin is not None:
                 self.proc.stdin.close()
+
+
+def job_artifacts_only(outcome: Outcome, job_dir: Path) -> Outcome:
+    """Keep only artifacts the worker made: files directly in the job folder, named as listed (the rest is
+    dropped, and the message says so)."""
+    kept = []
+    for a in outcome.artifacts:
+        if _ARTIFACT_NAME.fullmatch(a.name) and Path(a.path) == job_dir / a.name and a.name != "agent.archive":
+            kept.append(a)
+        else:
+            log.error("artifact %r at %r is not a file of the job folder: not uploaded", a.name, a.path)
+            outcome.message += f"\nartifact {a.name!r} refused: not a file of the job folder"
+    outcome.artifacts = kept
+    return outcome
 
 
 def read_plain_file(path: Path) -> bytes:
