@@ -27,7 +27,7 @@ import uvicorn
 
 from proxybench.client import ServerClient, ServerError
 from proxybench.evaluator import Evaluator, EvaluatorConfig
-from support.sandbox import processes_of, require_safe_sandbox
+from support.sandbox import processes_left, require_safe_sandbox
 
 TINY = """\
 name: tiny_eval
@@ -230,7 +230,7 @@ def test_killed_evaluator_job_is_released_and_finished_once(served: Served, tmp_
     time.sleep(0.5)
     leftovers = [p.name for p in Path("/proc").iterdir() if p.name.isdigit() and _works_in(p, work)]
     assert leftovers == [], "the killed evaluator's worker or agent outlived it"
-    assert processes_of(require_safe_sandbox().uid) == [], "the agent outlived the killed evaluator"
+    assert processes_left(require_safe_sandbox().uid, 5) == [], "the agent outlived the killed evaluator"
     rescuer = evaluator(served, tmp_path, name="rescuer", video=False)
     deadline = time.monotonic() + 20
     status = None

@@ -36,7 +36,7 @@ pytest.importorskip("fastapi")
 import uvicorn
 
 from proxybench.client import ServerClient
-from support.sandbox import processes_of, require_safe_sandbox
+from support.sandbox import processes_left, require_safe_sandbox
 
 HOSTILE = Path(__file__).with_name("hostile_agents") / "hostile.py"
 TEST_SEED = 738291046
@@ -239,7 +239,7 @@ def run_session(cases: list[str], keep_work: Path | None = None) -> Session:
                                          for a in out.results[label].get("artifacts", [])]
         uid = isolation.uid
         assert uid is not None
-        out.leftovers = processes_of(uid)
+        out.leftovers = processes_left(uid)  # the last job's sandbox may still be exiting as its result is stored
         out.host_files = [p for p in ("/tmp/hostile-daemon", "/tmp/hostile-fill", "/dev/shm/hostile-fill",
                                       "/tmp/outcome.json") if os.path.lexists(p)]
         out.host_files += [str(p) for p in work.rglob("*") if p.name in ("outcome.json", "hostile-fill")]

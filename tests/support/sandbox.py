@@ -4,12 +4,13 @@ its absence fails the tests instead of skipping them."""
 from __future__ import annotations
 
 import os
+import time
 
 import pytest
 
 from proxybench.evaluator.sandbox import Isolation, detect_isolation
 
-__all__ = ["agent_uid", "processes_of", "require_safe_sandbox"]
+__all__ = ["agent_uid", "processes_left", "processes_of", "require_safe_sandbox"]
 
 
 def require_safe_sandbox() -> Isolation:
@@ -29,7 +30,7 @@ def agent_uid() -> int | None:
 
 
 def processes_of(uid: int) -> list[str]:
-    """'pid command' of every process the user ``uid`` runs now."""
+    """'pid [state] command' of every process the user ``uid`` runs now."""
     out = []
     for entry in os.scandir("/proc"):
         if not entry.name.isdigit():
@@ -39,7 +40,17 @@ def processes_of(uid: int) -> list[str]:
                 continue
             with open(os.path.join(entry.path, "cmdline"), "rb") as f:
                 cmdline = f.read().replace(b"\0", b" ").decode(errors="replace")
-            out.append(f"{entry.name} {cmdline[:200]}")
+            with open(os.path.join(entry.path, "stat")) as f:
+                state = f.read().rsplit(")", 1)[-1].split()[0]  # R, S, Z (zombie), ...
+            out.append(f"{entry.name} [{state}] {cmdline[:200]}")
         except OSError:
             continue
     return out
+
+
+def processes_left(uid: int, timeout: float = 10.0) -> list[str]:
+    """:func:`processes_of` once they are gone or ``timeout`` [s] has passed (a sandbox may be exiting)."""
+    deadline = time.monotonic() + timeout
+    while (left := processes_of(uid)) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    return left
