@@ -63,7 +63,7 @@ def test_robot_state_carries_se2_arrays_and_both_forms_parse() -> None:
 def test_bad_arrays_name_the_field(pose: dict, words: str) -> None:
     data = {"robot_name": "ego", "t_effective": 0.0, "state": {
         "pose": pose, "velocity": ndarray_data(se2_twist(0, 0)), "pwm": {"motor_left": 0.0, "motor_right": 0.0}}}
-    with pytest.raises(wire.MessageTypeError, match="robot_state.state.pose") as info:
+    with pytest.raises(wire.MessageTypeError, match=r"robot_state\.state\.pose") as info:
         rw.parse_robot_state(data)
     assert words in str(info.value)
 

@@ -12,10 +12,9 @@ import math
 import sys
 
 import cbor2
+import misbehave as mb
 import numpy as np
 import yaml
-
-import misbehave as mb
 from misbehave import ctrl, send, topic  # send writes to mb.OUT, set in main()
 
 
@@ -29,7 +28,8 @@ def se2(x, y, th):
 
 
 def main():
-    jpg = open(sys.argv[1], "rb").read()
+    with open(sys.argv[1], "rb") as f:
+        jpg = f.read()
     mb.IN, mb.OUT = mb._streams()
     decoder = cbor2.CBORDecoder(mb.IN)
     robot, size, now, term = {}, (1.0, 1.0), 0.0, None
