@@ -210,3 +210,15 @@ def test_agent_spec_carries_options_and_old_job_keys_stay(solution: Path) -> Non
     finally:
         agent.close()
     assert starts(solution) == 1
+
+
+def test_a_restarted_node_skips_the_request_that_failed_before(solution: Path) -> None:
+    agent = RemoteAgent(f"{PY} solution.py --hang-on get_commands", cwd=str(solution), init_timeout=20,
+                        step_timeout=0.5)
+    assert starts(solution) == 2  # the crash on describe_protocol, then the fallback
+    agent.reset(seed=1)
+    with pytest.raises(AgentFailure):
+        agent.act(OBS)
+    agent.reset(seed=2)  # a fresh process, started without describe_protocol
+    assert agent.restarts == 1 and agent.process.reflection is False and starts(solution) == 3
+    agent.close()
