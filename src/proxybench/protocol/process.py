@@ -48,8 +48,9 @@ _TRANSPORTS = {"pipe": "pipes", "fifo": "fifos"}
 #: how describe_protocol may fail for a node whose data path works: then start it again without reflection
 _REFLECTION_FALLBACK = frozenset({"aborted", "not-understood", "exited", "out-of-order", "bad-message",
                                   "unknown-topic", "garbage", "not-a-map", "truncated"})
-# let a node that is ending anyway end by itself, so its own exit status is reported
-_GRACE = {"aborted": 0.5, "not-understood": 0.5, "exited": 1.0, "truncated": 1.0}
+# let a node that is ending anyway end by itself, so its own exit status is reported (a Python node's exit
+# takes ~0.5 s on a loaded machine)
+_GRACE = {"aborted": 1.0, "not-understood": 1.0, "exited": 1.0, "truncated": 1.0}
 
 
 @dataclass(frozen=True)

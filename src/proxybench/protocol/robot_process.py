@@ -17,9 +17,7 @@ from typing import Any, Self, TypeVar
 
 import numpy as np
 
-from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map
-from proxybench.domain.simulator import start_pose
 from proxybench.protocol import robot_wire as rw
 from proxybench.protocol import wire
 from proxybench.protocol.failures import ROBOT_REASONS, RobotFailure
@@ -174,7 +172,7 @@ class RemoteRobot(NodeSession):
         self._kwargs = process_kwargs
         self.robot_name = robot_name
         self.frame_rate = float(frame_rate)
-        self._nets: dict[str, LaneNetwork] = {}
+        self._nets: dict[str, Any] = {}  # map path → its LaneNetwork, to draw starts
         self._init_session(lambda: RobotProcess(self._cmd, **self._kwargs), restart)
 
     @property
@@ -186,7 +184,10 @@ class RemoteRobot(NodeSession):
                       route: Sequence[str] | None = None) -> rw.RobotInfo:
         """Set up and start one episode on ``map_`` from ``seed`` (and ``pose``, else drawn from the seed)."""
         name = self._begin_episode(seed, episode)
-        if pose is None:
+        if pose is None:  # imported here: an agent node importing proxybench.protocol needs no simulator
+            from proxybench.domain.lanes import LaneNetwork
+            from proxybench.domain.simulator import start_pose
+
             net = self._nets.get(map_.path)
             if net is None:
                 net = self._nets[map_.path] = LaneNetwork(map_)
