@@ -22,7 +22,7 @@ from proxybench.domain.lane_pose import LP, lane_pose_into, point_on_road
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
 from proxybench.domain.npcs import Traffic, npc_start
-from proxybench.domain.objects import collision_check, pack_objects
+from proxybench.domain.objects import CF_MARGIN, collision_check, footprint_distance, pack_objects
 from proxybench.domain.params import STRUCTURAL_FIELDS, DomainParams
 from proxybench.domain.renderer import Renderer
 from proxybench.domain.routes import RouteTracker
@@ -34,6 +34,8 @@ _MASK64 = (1 << 64) - 1
 _WHEEL_DISTANCE = DYN_FIELDS.index("wheel_distance")
 _NO_TRACE = np.zeros((0, 0, len(TRACE_FIELDS)))
 _NPC_STREAM = 0x4E5043  # spawn key of NPC start draws: independent of the ego's start and route draws
+#: redraws of a random start that lands within a map object's collision margin plus this clearance [m]
+_START_TRIES, _START_CLEARANCE = 50, 0.05
 
 
 @nb.njit(cache=True)
@@ -78,17 +80,26 @@ def _start_segments(m: Map, net: LaneNetwork) -> list:
     return segs
 
 
-def _draw_start(m: Map, segs: list, start: StartDistribution, rng: np.random.Generator) -> tuple[float, float, float]:
+def _clear_of_objects(x: float, y: float, colliders: np.ndarray) -> bool:
+    """Whether a robot at (x, y) [m] is ``_START_CLEARANCE`` beyond every map object's collision margin."""
+    return all(footprint_distance(x, y, c) >= c[CF_MARGIN] + _START_CLEARANCE for c in colliders)
+
+
+def _draw_start(m: Map, segs: list, start: StartDistribution, rng: np.random.Generator,
+                colliders: np.ndarray) -> tuple[float, float, float]:
     if start.use_map_start and m.start_pose is not None:
         return m.start_pose
     if start.use_map_start and m.start_tile is not None:
         segs = [s for s in segs if s.tile == m.start_tile] or segs
     lengths = np.array([s.length for s in segs])
-    seg = segs[int(rng.choice(len(segs), p=lengths / lengths.sum()))]
-    s = float(rng.uniform(0.1, 0.9)) * seg.length
-    r = float(rng.uniform(-start.lateral, start.lateral))
-    dh = float(rng.uniform(-start.heading, start.heading))
-    x, y = seg.position(s, r)
+    for _ in range(_START_TRIES):  # like gym-duckietown, never start on (or right at) a map object
+        seg = segs[int(rng.choice(len(segs), p=lengths / lengths.sum()))]
+        s = float(rng.uniform(0.1, 0.9)) * seg.length
+        r = float(rng.uniform(-start.lateral, start.lateral))
+        dh = float(rng.uniform(-start.heading, start.heading))
+        x, y = seg.position(s, r)
+        if _clear_of_objects(x, y, colliders):
+            break
     return x, y, math.remainder(seg.heading_at(s) + dh, 2 * math.pi)
 
 
@@ -97,7 +108,8 @@ def start_pose(m: Map, seed: int, start: StartDistribution | None = None,
     """The start (x [m], y [m], θ [rad]) that ``Simulator.reset`` draws for ``seed`` on ``m``, for a caller
     that must send it (a robot node is told where its robot stands, as AIDO's ``spawn_robot`` requires)."""
     net = net or LaneNetwork(m)
-    return _draw_start(m, _start_segments(m, net), start or StartDistribution(), np.random.default_rng(seed))
+    return _draw_start(m, _start_segments(m, net), start or StartDistribution(), np.random.default_rng(seed),
+                       pack_objects(m.objects).colliders)
 
 
 class Simulator:
@@ -228,7 +240,7 @@ class Simulator:
 
     def sample_start(self, rng: np.random.Generator) -> tuple[float, float, float]:
         """A start pose (x, y, θ) from the start distribution (or the map's own start)."""
-        return _draw_start(self.map, self._start_segments, self.start, rng)
+        return _draw_start(self.map, self._start_segments, self.start, rng, self.objects.colliders)
 
     def reset(self, i: int, seed: int, pose: tuple[float, float, float] | None = None,
               route: Sequence[str] | None = None) -> None:
