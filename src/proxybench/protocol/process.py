@@ -39,7 +39,7 @@ from proxybench.protocol.language import (
 )
 from proxybench.protocol.transport import Launch, node_argv
 
-__all__ = ["AgentProcess", "NodeProcess", "NodeSession"]
+__all__ = ["AgentProcess", "NodeProcess"]
 
 log = logging.getLogger("proxybench.protocol")
 
@@ -426,43 +426,6 @@ class NodeProcess:
         self.failure = self.failure_class(reason, detail, code, self._finish_stderr(), pid=self._os.pid)
         self._finalizer.detach()
         raise self.failure
-
-
-class NodeSession:
-    """Caller-side life of a node across episodes (a mixin of RemoteAgent and RemoteRobot): the process is
-    seeded once (the languages allow one ``seed``) and, with ``restart``, replaced after a failure. The
-    factory reads its options from ``self._kwargs``: once a node has failed ``describe_protocol``, its
-    replacements start without asking (``reflection=False``), saving the failed start each time."""
-
-    process: NodeProcess
-    _kwargs: dict[str, Any]
-
-    def _init_session(self, factory: Callable[[], NodeProcess], restart: bool) -> None:
-        self._factory = factory
-        self.restart = restart
-        self.restarts = 0
-        self.process = self._new_process()
-        self._seeded = False
-        self._episodes = 0
-
-    def _new_process(self) -> NodeProcess:
-        process = self._factory()
-        if process.reflection_note is not None:
-            self._kwargs["reflection"] = False
-        return process
-
-    def _begin_episode(self, seed: int, episode: str | None) -> str:
-        """Restart a failed process if allowed, send ``seed`` once per process; returns the episode's name."""
-        if not self.process.alive and self.process.failure is not None and self.restart:
-            self.process = self._new_process()
-            self.restarts += 1
-            self._seeded = False
-        if not self._seeded:
-            self.process.seed(int(seed))
-            self._seeded = True
-        name = episode if episode is not None else f"episode-{self._episodes}"
-        self._episodes += 1
-        return name
 
 
 class AgentProcess(NodeProcess):

@@ -22,7 +22,8 @@ from proxybench.protocol import robot_wire as rw
 from proxybench.protocol import wire
 from proxybench.protocol.failures import ROBOT_REASONS, RobotFailure
 from proxybench.protocol.language import ROBOT_OUTPUTS, ROBOT_REPLIES, RobotLanguage
-from proxybench.protocol.process import NodeProcess, NodeSession
+from proxybench.protocol.process import NodeProcess
+from proxybench.protocol.session import NodeSession
 
 __all__ = ["ROBOT_REASONS", "RemoteRobot", "RobotProcess", "map_yaml"]
 
