@@ -1,8 +1,9 @@
 """proxybench against AIDO's own code (zuper-nodes-z6 6.2.17, aido-protocols-daffy 6.1.1), not stand-ins.
 
-A separate virtual environment with the AIDO libraries (``tests/aido/requirements.txt``, every version
-pinned) is built once into a cache folder (``$PROXYBENCH_AIDO_VENV``, else
-``~/.cache/proxybench/aido-venv-<hash>``; about two minutes) and reused. In it run:
+The project's own interpreter when it has the AIDO libraries at the pinned versions (the ``test`` extra
+brings them with duckietown-world-daffy); otherwise a separate virtual environment with them
+(``tests/aido/requirements.txt``, every version pinned) is built once into a cache folder
+(``$PROXYBENCH_AIDO_VENV``, else ``~/.cache/proxybench/aido-venv-<hash>``; about two minutes) and reused. In it run:
 
 - ``aido/solution.py``: a lane-following agent written with AIDO's API. On Python >= 3.11 its wrapper
   crashes on ``describe_protocol``: it runs with ``--no-reflection`` and by the automatic fallback, over
@@ -59,11 +60,26 @@ def _venv_dir() -> Path:
     return cache / "proxybench" / f"aido-venv-{key}"
 
 
+def _has_aido(python: str) -> bool:
+    """Whether ``python`` imports AIDO's libraries at the pinned versions (and Pillow, for the agent)."""
+    pins = {line.split("==")[0]: line.split("==")[1] for line in REQUIREMENTS.read_text().splitlines()
+            if "==" in line and not line.startswith("#")}
+    want = {k: pins[k] for k in ("zuper-nodes-z6", "aido-protocols-daffy", "zuper-ipce-z6", "zuper-typing-z6")}
+    code = ("import importlib.metadata as m, sys, PIL, zuper_nodes, aido_schemas; "
+            f"sys.exit(any(m.version(k) != v for k, v in {want!r}.items()))")
+    try:
+        return subprocess.run([python, "-c", code], capture_output=True, timeout=120).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+
+
 @pytest.fixture(scope="session")
 def aido_python() -> str:
     """The Python of a virtual environment holding the AIDO libraries (built once, then cached)."""
     if os.environ.get("PROXYBENCH_SKIP_AIDO"):
         pytest.skip("PROXYBENCH_SKIP_AIDO is set")
+    if not os.environ.get("PROXYBENCH_AIDO_VENV") and _has_aido(sys.executable):
+        return sys.executable  # the `test` extra brings them (duckietown-world-daffy): no second venv to build
     target = _venv_dir()
     python, done = target / "bin" / "python", target / ".complete"
     if done.exists():
