@@ -35,14 +35,35 @@ __all__ = [
 
 @dataclass(frozen=True)
 class AgentSpec:
-    """A zoo agent by ``name``, or an external node started with ``command`` (any language)."""
+    """A zoo agent by ``name``, or an external node started with ``command`` (any language; a string may use
+    shell syntax) and ``options``: the non-default fields of :class:`~proxybench.protocol.options.NodeOptions`
+    (working directory, transport, timeouts, reflection) as sorted pairs, so the spec stays hashable."""
 
     name: str
     command: str | None = None
+    options: tuple[tuple[str, Any], ...] = ()
+
+    @classmethod
+    def node(cls, name: str, command: str, options: Any = None) -> AgentSpec:
+        """A node agent; ``options``: a ``NodeOptions`` (or None for the defaults)."""
+        return cls(name, command, options.items() if options is not None else ())
 
     @property
     def label(self) -> str:
         return self.name
+
+    def node_options(self):
+        """The ``NodeOptions`` of a node agent."""
+        from proxybench.protocol.options import NodeOptions
+
+        return NodeOptions(**dict(self.options))
+
+    def key_data(self) -> dict[str, Any]:
+        """What identifies the agent in a job's hash (options only when set, so older keys stay valid)."""
+        data: dict[str, Any] = {"name": self.name, "command": self.command}
+        if self.options:
+            data["options"] = dict(self.options)
+        return data
 
 
 #: what a domain can be: a proxy instance S_θ, the built-in reality model, or a robot node (the robot protocol)
@@ -154,7 +175,7 @@ def _agent_id(spec: AgentSpec) -> dict[str, Any]:
     A node command is identified by its string only (like a robot's: what was asked)."""
     from proxybench.agents.zoo import ZOO
 
-    out = asdict(spec)
+    out = spec.key_data()
     if spec.command is None and spec.name not in ZOO:
         from proxybench.learning import is_checkpoint
 
@@ -231,7 +252,7 @@ def make_agent_for(spec: AgentSpec):
     if spec.command:
         from proxybench.protocol import RemoteAgent
 
-        agent = RemoteAgent(spec.command)
+        agent = RemoteAgent(spec.command, **spec.node_options().process_kwargs())
         agent.name = spec.name
         return agent
     from proxybench.agents import make_agent
