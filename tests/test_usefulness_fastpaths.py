@@ -47,3 +47,14 @@ def test_correlations_equal_scipy(seed):
         ref = np.mean([float(fn(mp[:, m], mt[:, m])[0]) for m in range(2)])
         assert got[name] == pytest.approx(ref, abs=1e-12), name
     assert all(np.isnan(v) for v in _correlations(mp[:, 2:], mt[:, 2:]).values())
+
+
+@pytest.mark.parametrize("episodes", [(3, 3, 3), (12, 12, 12), (2, 5, 3)])
+def test_means_equal_agent_by_agent(episodes):
+    from proxybench.usefulness.metrics import _means
+
+    rng = np.random.default_rng(len(episodes) + sum(episodes))
+    res = {f"a{i}": rng.normal(0, 1e3, (e, 2)) for i, e in enumerate(episodes)}
+    res["a1"][0, 0] = np.nan
+    ref = np.stack([np.nanmean(res[a], axis=0) for a in res])
+    np.testing.assert_array_equal(_means(res, list(res)), ref)

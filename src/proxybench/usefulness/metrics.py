@@ -50,7 +50,12 @@ class Estimate:
 
 
 def _means(res: Results, agents: Sequence[str]) -> np.ndarray:
-    return np.stack([np.nanmean(np.asarray(res[a], dtype=float), axis=0) for a in agents])
+    """(K, M) per-agent means over episodes, NaN-skipping; one NumPy call when every agent has as many
+    episodes (the same sums, term by term, as agent by agent)."""
+    arrays = [np.asarray(res[a], dtype=float) for a in agents]
+    if arrays and all(x.shape == arrays[0].shape for x in arrays):
+        return np.nanmean(np.stack(arrays), axis=1)
+    return np.stack([np.nanmean(x, axis=0) for x in arrays])
 
 
 def _signed(values: np.ndarray, higher_is_better: Sequence[bool]) -> np.ndarray:
@@ -69,7 +74,7 @@ def dominance(res: Results, higher_is_better: Sequence[bool], *, significance: f
     alpha = np.full((k, k), 0.5)
     signed = {a: _signed(np.asarray(res[a], dtype=float), higher_is_better) for a in agents}
     if significance is None:  # the comparison is the sign of the mean difference: all pairs at once
-        means = np.stack([np.nanmean(signed[a], axis=0) for a in agents]) if k else np.zeros((0, 0))
+        means = _means(signed, agents) if k else np.zeros((0, 0))
         cmp = np.sign(means[:, None, :] - means[None, :, :])
         ge, le = np.all(cmp >= 0, axis=2), np.all(cmp <= 0, axis=2)
         alpha[ge & ~le], alpha[le & ~ge] = 1.0, 0.0
