@@ -157,9 +157,12 @@ def test_imported_recording_scores_like_the_simulated_run(tmp_path):
 
 
 def test_batched_episodes_equal_single_episodes(tmp_path):
+    from proxybench.runner.sweep import _batches
+
     jobs = _jobs(agents=("pid", "vision", "straight"), episodes=3, duration=3.0)
+    assert any(len({j.agent for j in b}) > 1 for b in _batches(jobs, 4, 1))  # camera agents of both kinds share one
     single = run_jobs(jobs, tmp_path / "single", batch_size=1)
-    batched = run_jobs(jobs, tmp_path / "batched", batch_size=3)
+    batched = run_jobs(jobs, tmp_path / "batched", batch_size=4)
     assert _table(single) == _table(batched)
     for a, b in zip(single.results, batched.results, strict=True):
         ta, tb = Trajectory.load(a.trajectory), Trajectory.load(b.trajectory)

@@ -29,7 +29,7 @@ ENGINE_VERSION = 5  # 2: camera agents see JPEG-decoded frames, as over the AIDO
 
 __all__ = [
     "DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "batch_group",
-    "camera_filter", "execute", "execute_batch", "make_agent_for",
+    "camera_filter", "execute", "execute_batch", "is_privileged", "make_agent_for",
 ]
 
 
@@ -216,13 +216,23 @@ def _simulator(job: Job, n: int = 1):
 
 
 def batch_group(job: Job) -> tuple:
-    """Jobs with equal groups can share one batched simulator: same agent, domain, map, NPCs, length, rules.
-
-    Jobs on one robot domain share a node process whatever their agent, map or length (one after another).
+    """Jobs with equal groups can share one batched simulator: same domain, map, NPCs, length and rules, and
+    agents that see alike (all privileged or all camera); in-process agents may differ robot by robot. A node
+    agent groups only with itself. Jobs on one robot domain share a node process whatever their agent, map
+    or length (one after another).
     """
     if job.domain.kind == "robot":
         return ("robot", job.domain.canonical())
-    return (job.agent, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs)
+    who = job.agent if job.agent.command else ("in-process", is_privileged(job.agent))
+    return (who, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs)
+
+
+def is_privileged(spec: AgentSpec) -> bool:
+    """Whether the agent a spec names reads the true lane pose, without starting it: a zoo agent's flag;
+    False for node agents and checkpoints (camera only)."""
+    from proxybench.agents.zoo import ZOO
+
+    return bool(spec.command is None and spec.name in ZOO and ZOO[spec.name].privileged)
 
 
 def _refused(job: Job, agent, setup_s: float, msg: str | None = None) -> JobResult:
@@ -266,7 +276,8 @@ def execute(job: Job, out_dir: str | None) -> JobResult:
 
 
 def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
-    """Run jobs of one :func:`batch_group` together: one simulator of N robots, one agent per robot.
+    """Run jobs of one :func:`batch_group` together: one simulator of N robots, one agent per robot (agents
+    may differ from robot to robot; a batch gives the same trajectories as N single runs).
 
     In-process agents are batched; node agents (one process each) run one by one. Robot domains go to
     :func:`execute_robot_batch`.
@@ -286,8 +297,14 @@ def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
         return [r for j in jobs for r in execute_batch([j], out_dir)]
     job0 = jobs[0]
     t0, c0 = time.perf_counter(), time.process_time()
-    sim = _simulator(job0, len(jobs))
     agents = [make_agent_for(j.agent) for j in jobs]
+    if len({a.privileged for a in agents}) > 1:  # an agent that is not what its name said: see alike, run alike
+        for a in agents:
+            getattr(a, "close", lambda: None)()
+        return [r for flag in (False, True)
+                for r in execute_batch([j for j, a in zip(jobs, agents, strict=True) if a.privileged == flag],
+                                       out_dir)]
+    sim = _simulator(job0, len(jobs))
     t1 = time.perf_counter()
     try:
         if agents[0].privileged and job0.camera_only:

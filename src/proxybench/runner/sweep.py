@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from proxybench.runner.backends import Backend, InlineBackend
-from proxybench.runner.jobs import Job, JobResult, batch_group
+from proxybench.runner.jobs import Job, JobResult, batch_group, is_privileged
 
 __all__ = ["UNSTORED", "SweepResult", "results_frame", "run_jobs"]
 
@@ -74,9 +74,9 @@ def run_jobs(
 ) -> SweepResult:
     """Run every job not already done in ``run_dir``; return all results in job order.
 
-    Jobs that can share a simulator run in batches of up to ``batch_size`` robots (smaller when that
-    would leave workers idle); jobs on one robot domain run one after another on one node process per
-    batch, at most ``DomainSpec.nodes`` such processes at once (``runner.robot_jobs``).
+    Jobs that can share a simulator run in batches of up to ``batch_size`` robots (smaller towards the
+    end, so that no worker waits long for the last one); jobs on one robot domain run one after another on
+    one node process per batch, at most ``DomainSpec.nodes`` such processes at once (``runner.robot_jobs``).
     ``progress(done, total, result)`` is called once at the start (result None) and after each job.
     """
     backend = backend or InlineBackend()
@@ -121,14 +121,33 @@ def run_jobs(
 
 
 def _batches(todo: Sequence[Job], batch_size: int, workers: int) -> list[list[Job]]:
-    """Group jobs by :func:`batch_group`, then cut each group into batches that keep every worker busy."""
+    """Group jobs by :func:`batch_group` and cut the groups into batches of at most ``batch_size``, costliest
+    first and smaller towards the end (guided self-scheduling: a batch takes about 1/(2·workers) of the work
+    left), so that every worker finishes at about the same time.
+
+    Cost estimate per job: seconds, ten times that for camera agents (rendering dominates). Robot domains
+    come first, in whole batches (a node start per batch; a real robot runs in real time, so the rest of the
+    work can go on beside it).
+    """
     groups: dict[tuple, list[Job]] = {}
     for job in todo:
         groups.setdefault(batch_group(job), []).append(job)
-    out = []
-    for jobs in groups.values():
-        size = max(1, min(batch_size, math.ceil(len(jobs) / max(1, workers))))
-        out += [jobs[i : i + size] for i in range(0, len(jobs), size)]
+
+    def cost(job: Job) -> float:
+        return max(job.duration, 1e-3) * (1.0 if is_privileged(job.agent) else 10.0)
+
+    out = [jobs[i : i + batch_size] for g, jobs in groups.items() if g[0] == "robot"
+           for i in range(0, len(jobs), batch_size)]
+    ordered = sorted((jobs for g, jobs in groups.items() if g[0] != "robot"), key=lambda jobs: -cost(jobs[0]))
+    left = sum(cost(jobs[0]) * len(jobs) for jobs in ordered)
+    for jobs in ordered:
+        c = cost(jobs[0])
+        i = 0
+        while i < len(jobs):
+            size = max(1, min(batch_size, len(jobs) - i, math.ceil(left / (2 * max(1, workers) * c))))
+            out.append(jobs[i : i + size])
+            i += size
+            left -= size * c
     return out
 
 
