@@ -20,7 +20,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import Path
 
 from proxybench.runner.backends import Backend, InlineBackend
@@ -84,9 +84,7 @@ def run_jobs(
     ep_dir = run_dir / "episodes"
     ep_dir.mkdir(parents=True, exist_ok=True)
     keys = [j.key for j in jobs]  # hashing is not free: once per job
-    _write_atomic(run_dir / "run.json", json.dumps(
-        {"jobs": [asdict(j) | {"key": k} for j, k in zip(jobs, keys, strict=True)],
-         "backend": type(backend).__name__, "workers": backend.workers}, indent=1, default=str))
+    _write_atomic(run_dir / "run.json", _run_record(jobs, keys, backend))
     by_key: dict[str, JobResult] = {}
     todo: list[Job] = []
     queued: set[str] = set()
@@ -118,6 +116,26 @@ def run_jobs(
     frame.to_parquet(tmp, index=False)
     tmp.replace(run_dir / "results.parquet")
     return sweep
+
+
+def _run_record(jobs: Sequence[Job], keys: Sequence[str], backend: Backend) -> str:
+    """run.json: one job per line (JSON's C encoder; an indented dump of thousands of jobs took seconds)."""
+    head = json.dumps({"backend": type(backend).__name__, "workers": backend.workers})
+    lines = [json.dumps(_job_record(j) | {"key": k}, default=str) for j, k in zip(jobs, keys, strict=True)]
+    return head[:-1] + ', "jobs": [\n' + ",\n".join(lines) + "\n]}\n"
+
+
+def _job_record(job: Job) -> dict:
+    """A job as plain data (``dataclasses.asdict`` without its deep copies)."""
+    out = {}
+    for f in fields(job):
+        v = getattr(job, f.name)
+        if hasattr(v, "to_dict"):
+            v = v.to_dict()
+        elif is_dataclass(v):
+            v = {g.name: getattr(v, g.name) for g in fields(v)}
+        out[f.name] = v
+    return out
 
 
 def _batches(todo: Sequence[Job], batch_size: int, workers: int) -> list[list[Job]]:
