@@ -76,7 +76,7 @@ def _plan(out: Path, new: TargetManifest, agents: list[AgentSpec]) -> TargetMani
         if a != b:
             raise TargetError(f"{out / MANIFEST_NAME}: {name}: this recording has {a!r}, the command asks for {b!r}; "
                               "record into another directory (a recording holds one experiment)")
-    if old.params is not None and new.params is not None and old.params != new.params:
+    if old.params is not None and new.params is not None and _theta(old.params) != _theta(new.params):
         raise TargetError(f"{out / MANIFEST_NAME}: params: the target's θ differs from the recording's; record "
                           "into another directory")
     agents_all = list(old.agents) + [a for a in new.agents if a not in old.agents]
@@ -91,6 +91,13 @@ def _plan(out: Path, new: TargetManifest, agents: list[AgentSpec]) -> TargetMani
                                   "description": new.description or old.description,
                                   "who": new.who or old.who, "where": new.where or old.where,
                                   "when": new.when or old.when})
+
+
+def _theta(params: dict) -> object:
+    """θ in a comparable form (YAML gives lists where θ has tuples)."""
+    from proxybench.domain.params import DomainParams
+
+    return DomainParams.model_validate(params)
 
 
 def _place(res: JobResult, dest: Path) -> None:

@@ -135,7 +135,10 @@ def _numbers(path: Path, name: str, values: Any, csv: bool) -> tuple[np.ndarray 
     bad = ~np.isfinite(arr)
     if bad.any():
         k = int(np.argmax(bad))
-        return None, f"{path}: {_row(k, csv)}, column {name!r}: {values[k]!r} is not a finite number"
+        v = values[k]
+        v = v.item() if isinstance(v, np.generic) else v
+        what = "empty (or NaN)" if isinstance(v, float) and np.isnan(v) else f"{v!r} is not a finite number"
+        return None, f"{path}: {_row(k, csv)}, column {name!r}: {what}"
     return arr, None
 
 

@@ -263,7 +263,7 @@ def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize"],
         agents = parse_agents(names, work_dir)
     except AgentArgError as exc:
         if cfg.agents is None and target.fixed_agents is not None:
-            raise ConfigError(f"agents: the target's agent {exc}; name how to run each with --agent "
+            raise ConfigError(f"agents: the target's {exc}; name how to run each of its agents with --agent "
                               "(NAME=COMMAND for a node, a checkpoint or a package)") from None
         raise ConfigError(f"agents: {exc}") from None
     if target.fixed_agents is not None:
