@@ -195,8 +195,12 @@ def findings(res: PredictivityResult) -> list[str]:
                        f"{known}.")
         else:
             plausible = ", ".join(_fmt(v) for v in claim.plausible)
-            out.append(f"{name}: the smallest PRPV is at {_fmt(claim.best)}, but the paired intervals do not separate "
-                       f"it from its neighbours; values the data cannot tell apart from it: {plausible}{known}.")
+            low = float(d.prpv.min())
+            ties = [float(v) for v in d.value[np.isclose(d.prpv, low)]]
+            where = (f"is equally small ({low:.1f}) at {', '.join(_fmt(v) for v in ties)}" if len(ties) > 1
+                     else f"is smallest at {_fmt(claim.best)} ({low:.1f})")
+            out.append(f"{name}: PRPV {where}, but the paired intervals do not separate the minimum from its "
+                       f"neighbours; values the data cannot tell apart from it: {plausible}{known}.")
     main = _main_parameter(res)
     d = df[df.parameter == main].sort_values("value")
     if len(d) >= 3:
@@ -282,14 +286,15 @@ method: {html.escape(THESIS)}.</p>
 <p>{k} agents × {exp.episodes} episodes × {exp.seconds:g} s on {html.escape(Path(exp.map).name)}; task metrics
 {metrics}; each proxy replays every target episode from the same start pose and seed; {exp.n_boot} bootstrap
 resamples (95% intervals){f"; wall time {wall_s:.0f} s" if wall_s else ""}.</p>
-<h2>Findings</h2><ul>{"".join(f"<li>{html.escape(f)}</li>" for f in findings(res))}</ul>
+<h2>Findings</h2><p><small>PRPV, PPV, SRCC, POD, noise floor: <a href="#definitions">definitions and
+ranges below</a>.</small></p><ul>{"".join(f"<li>{html.escape(f)}</li>" for f in findings(res))}</ul>
 <h2>Results</h2>{_compact_table(res)}
 <details><summary>every figure with its interval (Spearman, Kendall, MMRV, normalised PRPV, …)</summary>
 {details}</details>
 <h2>Figure 3.3: usefulness metrics against proxy {html.escape(_main_parameter(res))}</h2>
 {_img(files["fig3_3"], "figure 3.3")}
 <h2>Figure 3.4: PRPV for each swept parameter</h2>{_img(files["fig3_4"], "figure 3.4")}
-<h2>What the figures mean</h2><dl>{defs}</dl>
+<h2 id="definitions">What the figures mean</h2><dl>{defs}</dl>
 <h2>Agents on the target (mean over episodes)</h2><table><tr><th>agent</th>
 {"".join(f"<th>{html.escape(m)}</th>" for m in exp.metrics)}</tr>{target_rows}</table>
 <details><summary>configuration</summary><pre>{html.escape(json.dumps(
