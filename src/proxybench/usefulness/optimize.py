@@ -12,6 +12,7 @@ PostgreSQL, so many workers can share one study.
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -193,7 +194,7 @@ def plot_optimization(res: OptimizeResult, out: str | Path) -> list[Path]:
     if points is not None:
         fig.colorbar(points, ax=list(axes[1:]), label="trial number", fraction=0.03)
     what = res.target.label if res.target is not None else "the target"
-    fig.suptitle(f"proxy optimisation against {what}", fontsize=10)
+    fig.suptitle(textwrap.shorten(f"proxy optimisation against {what}", 150, placeholder=" …"), fontsize=10)
     paths = [out / "optimization_history.png"]
     fig.savefig(paths[0], dpi=110)
     fig.savefig(paths[0].with_suffix(".svg"))

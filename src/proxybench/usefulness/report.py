@@ -49,6 +49,9 @@ DEFINITIONS = (
     ("noise floor", "[0, K(K−1)]",
      "PRPV of the target against a replicate of itself: two independent resamples of its own episodes (same "
      "count per agent). A proxy whose PRPV lies within it cannot be told from a perfect proxy with these data."),
+    ("95% intervals", "",
+     "Percentile bootstrap over episodes (resampled per agent). Resampling adds noise to both domains, and PRPV "
+     "grows with noise, so a PRPV interval can lie above its point value; read it with the noise floor."),
     ("Δ vs best", "PRPV units",
      "PRPV of this θ minus PRPV of the best θ of the same parameter, over paired resamples (the same target "
      "episodes, replayed from the same starts in both proxies). An interval above 0 separates the two."),
@@ -121,8 +124,8 @@ def figure_3_3(res: PredictivityResult, path: Path) -> Path:
         ax.set_ylabel(ylabel.format(kk=k * (k - 1)))
         ax.set_title(title, fontsize=10)
         ax.legend(fontsize=7)
-    fig.suptitle(f"Usefulness of proxies with different {name} for predicting the ranking of {k} agents "
-                 f"(target: {res.target.info.label})", fontsize=10)
+    fig.suptitle(_short(f"Usefulness of proxies with different {name} for predicting the ranking of {k} agents "
+                        f"(target: {res.target.info.label})", 40 * len(panels)), fontsize=10)
     return _save(fig, path)
 
 
@@ -145,8 +148,16 @@ def figure_3_4(res: PredictivityResult, path: Path) -> Path:
         ax.set_ylabel(f"PRPV  [0, {k * (k - 1)}]")
         ax.set_title("PRPV (↓)", fontsize=10)
         ax.legend(fontsize=7)
-    fig.suptitle(f"PRPV for each swept parameter (target: {res.target.info.label})", fontsize=10)
+    fig.suptitle(_short(f"PRPV for each swept parameter (target: {res.target.info.label})", 40 * len(params)),
+                 fontsize=10)
     return _save(fig, path)
+
+
+def _short(text: str, width: int) -> str:
+    """A figure title that fits its figure (the full target statement is on the page)."""
+    import textwrap
+
+    return textwrap.shorten(text, max(width, 60), placeholder=" …")
 
 
 def _save(fig, path: Path) -> Path:
