@@ -9,6 +9,8 @@ import typer
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.options import positive
+from proxybench.cli.progress import status
 
 target_app = typer.Typer(no_args_is_help=True, help="Record a target once (reality model or robot node), check "
                                                     "recorded targets (your lab's runs).")
@@ -30,7 +32,7 @@ def record(
     robot_nodes: int = typer.Option(1, min=1, help="robot node processes at once (1 for a physical robot)"),
     target_param: list[str] = typer.Option([], "--target-param", help="reality model θ, k=v (repeat)"),
     episodes: int = typer.Option(10, min=1, help="episodes per agent"),
-    seconds: float = typer.Option(60.0, min=0.1, max=3600.0, help="episode length in s"),
+    seconds: float = typer.Option(60.0, callback=positive, max=3600.0, help="episode length in s"),
     map_name: str = typer.Option("loop_3x3", "--map", help="built-in map or map file"),
     seed: int = typer.Option(0, min=0, help="episode seeds are seed·10000 + episode"),
     image_size: str = typer.Option("160x120", help="camera WIDTHxHEIGHT (reality model)"),
@@ -65,12 +67,12 @@ def record(
     assert size is not None
     be = make_backend(backend, min(workers or robot_nodes, robot_nodes) if robot_cmd else workers)
     t0 = time.perf_counter()
-    with console.status("recording") as status:
+    with status("recording") as spinner:
         try:
             summary = record_target(out, target, specs, map_name=map_name, seconds=seconds, episodes=episodes,
                                     seed=seed, image_size=(size[0], size[1]), description=description, who=who,
                                     where=where, when=when or time.strftime("%Y-%m-%d"), backend=be,
-                                    progress=lambda d, t: status.update(f"recording: episode {d}/{t}"))
+                                    progress=lambda d, t: spinner.update(f"recording: episode {d}/{t}"))
         except TargetError as exc:
             _fail(str(exc))
         finally:

@@ -12,10 +12,12 @@ from pathlib import Path
 from typing import Any
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.options import non_negative, positive
+from proxybench.cli.progress import progress_bar
 
 _TARGET_HELP = "reality (the simulated reality model) | DIR (recorded target) | robot:CMD (a robot node)"
 _AGENT_HELP = "zoo name, NAME=COMMAND (node), checkpoint X.pt, or agent package .zip/.tar.gz (repeat)"
@@ -93,10 +95,10 @@ def _fail(exc: Exception) -> None:
 
 def _bars():
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-    return Progress(*columns, console=console, transient=True)
+    return progress_bar(*columns, console=console, transient=True)
 
 
-def _stage_progress(bar: Progress):
+def _stage_progress(bar):
     tasks: dict[str, int] = {}
 
     def progress(stage: str, done: int, total: int) -> None:
@@ -117,7 +119,7 @@ def predictivity(
     agent: list[str] = typer.Option([], "--agent", help=f"{_AGENT_HELP} (default: the target's, else the zoo set)"),
     map_name: str | None = typer.Option(None, "--map", help="map (default: the target's, else loop_3x3)"),
     episodes: int | None = typer.Option(None, min=1, help="episodes per agent (default: 10; --quick 3)"),
-    seconds: float | None = typer.Option(None, min=0.1, help="episode length in s (default: 60; --quick 20)"),
+    seconds: float | None = typer.Option(None, callback=positive, help="episode length in s (default: 60; --quick 20)"),
     metric: list[str] = typer.Option([], "--metric", help="task metric (repeat) (default: driven_lanedir_consec, "
                                      "survival_time)"),
     image_size: str | None = typer.Option(None, help="camera WIDTHxHEIGHT (default: 160x120)"),
@@ -125,7 +127,8 @@ def predictivity(
     sweep: list[str] = typer.Option([], "--sweep", help="NAME=V1,V2,… (repeat) (default: trim ±0.3 in 7 steps, "
                                     "delay, blur, pitch around the nominal calibration)"),
     n_boot: int | None = typer.Option(None, min=10, help="bootstrap resamples (default: 300; --quick 100)"),
-    pod_seconds: float | None = typer.Option(None, min=0.0, help="POD rollout in s, 0: none (default: 10; --quick 4)"),
+    pod_seconds: float | None = typer.Option(None, callback=non_negative,
+                                             help="POD rollout in s, 0: none (default: 10; --quick 4)"),
     seed: int | None = typer.Option(None, min=0, help="experiment seed (default: 0)"),
     truth: list[str] = typer.Option([], "--truth", help="target's known θ k=v, only marked on plots (repeat)"),
     out: Path = typer.Option(Path("out/predictivity"), help="report folder (figures, tables, report.html)"),
@@ -202,7 +205,7 @@ def optimize(
     agent: list[str] = typer.Option([], "--agent", help=f"{_AGENT_HELP} (default: the target's, else 12 zoo agents)"),
     map_name: str | None = typer.Option(None, "--map", help="map (default: the target's, else loop_3x3)"),
     episodes: int | None = typer.Option(None, min=1, help="episodes per agent (default: 4; --quick 2)"),
-    seconds: float | None = typer.Option(None, min=0.1, help="episode length in s (default: 20; --quick 12)"),
+    seconds: float | None = typer.Option(None, callback=positive, help="episode length in s (default: 20; --quick 12)"),
     metric: list[str] = typer.Option([], "--metric", help="task metric (repeat) (default: driven_lanedir_consec, "
                                      "survival_time)"),
     image_size: str | None = typer.Option(None, help="camera WIDTHxHEIGHT (default: 160x120)"),
@@ -243,9 +246,9 @@ def optimize(
     be = make_backend(backend, workers)
     t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("best {task.fields[best]}"), TimeRemainingColumn(), console=console,
-                  transient=True) as bar:
+    with progress_bar(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                      TextColumn("best {task.fields[best]}"), TimeRemainingColumn(), console=console,
+                      transient=True) as bar:
         task = bar.add_task("trials", total=None, best="–")
         stages: dict[str, int] = {}
         best = [float("inf")]
