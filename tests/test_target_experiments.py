@@ -170,3 +170,47 @@ def test_score_saves_its_table_and_the_table_is_a_metrics_target(tmp_path):
            "metrics_table": "scores.csv"}
     (lab / "target.yaml").write_text(yaml.safe_dump(man))
     assert check_recording(lab).ok
+
+
+FORWARD_NODE = """\
+import sys
+import numpy as np
+from proxybench.agents.base import Agent
+from proxybench.protocol import serve
+
+class Forward(Agent):
+    name = "forward"
+    def reset(self, seed, episode=None):
+        pass
+    def act(self, obs):
+        return np.array([0.3, 0.3])
+
+sys.exit(serve(Forward()))
+"""
+
+
+def test_an_agent_package_runs_sandboxed_in_predictivity(tmp_path):
+    import io
+    import zipfile
+
+    from proxybench.usefulness.experiment import ExperimentConfig
+    from proxybench.usefulness.predictivity import run_predictivity
+    from support.sandbox import require_safe_sandbox
+
+    require_safe_sandbox()
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        zf.writestr("proxybench-agent.yaml", "name: forward\nprotocol: aido-z2\ncommand: [python3, agent.py]\n")
+        zf.writestr("agent.py", FORWARD_NODE)
+    pkg = tmp_path / "forward.zip"
+    pkg.write_bytes(buf.getvalue())
+    cfg = ExperimentConfig(agents=["pid", str(pkg)], episodes=1, seconds=1.0, sweep={"trim": (0.0,)}, n_boot=10,
+                           pod_seconds=0.0)
+    res = run_predictivity(cfg, tmp_path / "out" / "runs")
+    assert res.experiment.agent_labels == ["pid", "forward"]
+    assert "_confine.py" in res.experiment.agents[1].command  # started through the sandbox's shim
+    assert res.target_scores["forward"]["survival_time"] == pytest.approx(1.0)  # it drove, no agent failure
+    bad = tmp_path / "bad.zip"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(TargetError, match=r"agent package .*bad\.zip"):
+        run_predictivity(cfg.model_copy(update={"agents": [str(bad)]}), tmp_path / "out" / "runs")

@@ -8,6 +8,7 @@ from proxybench.cli import (  # noqa: F401 - importing registers the commands
     learning,
     maps,
     robot,
+    sandbox,
     server,
     targets,
     usefulness,

@@ -32,21 +32,30 @@ def _is_archive(text: str) -> bool:
 
 
 def _package(path: Path, work_dir: Path) -> AgentSpec:
-    from proxybench.agents.package import PackageError, extract_archive
-    from proxybench.evaluator.sandbox import Limits, agent_command, detect_isolation
+    """A checked, unpacked agent package, its node started in the evaluator's sandbox (refused without one)."""
+    import shlex
+    import shutil
+
+    from proxybench.agents.package import PackageError
+    from proxybench.evaluator.sandbox import Limits, SandboxError, confine, detect_isolation, prepare_agent
 
     data = path.read_bytes()
-    folder = work_dir / "agents" / hashlib.sha256(data).hexdigest()[:16]
+    digest = hashlib.sha256(data).hexdigest()
+    folder = (work_dir / "agents" / digest[:16]).resolve()
     try:
         if folder.exists():
-            import shutil
-
             shutil.rmtree(folder)  # unpack afresh: a package run never sees what an earlier run left
         folder.mkdir(parents=True)
-        manifest = extract_archive(data, folder)
+        manifest = prepare_agent(data, digest, folder)
+        # started by whichever worker runs the episode, so no parent-process check (parent=None)
+        argv = confine(list(manifest.command), folder, Limits(), detect_isolation(), parent=None)
     except PackageError as exc:
         raise AgentArgError(f"agent package {path}: {exc}") from None
-    return AgentSpec(manifest.name, agent_command(manifest, folder, Limits(), detect_isolation()))
+    except SandboxError as exc:
+        raise AgentArgError(f"agent package {path}: {exc} (`proxybench sandbox setup` prepares this host; a "
+                            "package you trust can also run unconfined as --agent NAME=COMMAND from its unpacked "
+                            "folder)") from None
+    return AgentSpec(manifest.name, shlex.join(argv))
 
 
 def parse_agent(text: str, work_dir: str | Path = "out/agents") -> AgentSpec:
