@@ -30,6 +30,7 @@ def score(
     map_name: str = typer.Option("loop_3x3", "--map", help="map of recorded runs (t, x, y, theta in its frame)"),
     episode_seconds: float | None = typer.Option(None, callback=positive,
                                                  help="cap survival_time at this episode length [s]"),
+    out: Path | None = typer.Option(None, "--out", help="also save the table: FILE.csv or FILE.parquet"),
 ) -> None:
     """Score trajectories with the task metrics: imported real runs and simulated ones alike.
 
@@ -39,6 +40,9 @@ def score(
     from proxybench.tasks.metrics import METRICS
     from proxybench.tasks.trajectory import Trajectory, TrajectoryError
 
+    if out is not None and out.suffix.lower() not in (".csv", ".parquet"):
+        raise typer.BadParameter(f"{out}: the table is saved as .csv or .parquet", param_hint="--out")
+    rows: list[dict] = []
     table = Table(title="scores")
     for col in ("file", "source", "end", *_SCORE_METRICS):
         table.add_column(col, justify="left" if col in ("file", "source", "end") else "right")
@@ -52,11 +56,30 @@ def score(
             continue
         if episode_seconds:
             traj.meta["episode_seconds"] = episode_seconds
-        table.add_row(f.name, str(traj.meta.get("source", "?")), traj.termination,
-                      *(f"{METRICS[m](traj):.3f}" for m in _SCORE_METRICS))
+        scores = {m: METRICS[m](traj) for m in _SCORE_METRICS}
+        rows.append({"file": str(f), "source": str(traj.meta.get("source", "?")), "agent": traj.meta.get("agent"),
+                     "episode": traj.meta.get("episode"), "termination": traj.termination, **scores})
+        table.add_row(f.name, rows[-1]["source"], traj.termination, *(f"{v:.3f}" for v in scores.values()))
     console.print(table)
+    if out is not None:
+        _save_table(rows, out)
+        console.print(f"wrote {out} ({len(rows)} row(s))", highlight=False)
     if bad:
         raise typer.Exit(1)
+
+
+def _save_table(rows: list[dict], out: Path) -> None:
+    """The scores as CSV or Parquet (by suffix), written atomically."""
+    import pandas as pd
+
+    df = pd.DataFrame(rows, columns=["file", "source", "agent", "episode", "termination", *_SCORE_METRICS])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp")
+    if out.suffix.lower() == ".csv":
+        df.to_csv(tmp, index=False)
+    else:
+        df.to_parquet(tmp, index=False)
+    tmp.replace(out)
 
 
 def _load_any(path: Path, map_name: str, Trajectory, TrajectoryError):
