@@ -1,0 +1,107 @@
+"""PLV you can trust: the "reach and stay above P" rule, the bootstrap over seeds, and the ladder's stopping rule.
+
+Every expected number here is computed by hand in the comments.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from proxybench.learning.intervals import Curve, Interval, curves_from_runs, mean_band, plv_bootstrap
+from proxybench.learning.value import settled_rung
+
+
+def test_settled_rung_needs_the_score_to_stay_above():
+    ns, thr = [0, 250, 500, 1000, 2000], 10.0
+    assert settled_rung(ns, [11, 9, 11, 12, 13], thr, confirm=2) == 500  # 250 dips below: start after it
+    assert settled_rung(ns, [11, 12, 13, 12, 11], thr, confirm=2) == 0  # never below: zero-shot is enough
+    assert settled_rung(ns, [11, 12, 13, 12, 9], thr, confirm=0) is None  # falls below at the last rung tried
+    assert settled_rung([0, 250, 500], [9, 11, 12], thr, confirm=2) is None  # 250 has only one rung after it
+    assert settled_rung([0, 250, 500], [9, 11, 12], thr, confirm=2, through_end=True) == 250  # ladder ended
+    assert settled_rung([500, 250, 0], [12, 11, 9], thr, confirm=1) == 250  # order of the lists does not matter
+    assert settled_rung([0, 250, 500], [9, float("nan"), 12], thr, confirm=0) == 500  # NaN counts as below
+    assert settled_rung([], [], thr) is None
+    with pytest.raises(ValueError, match="confirm"):
+        settled_rung([1], [1], 0.0, confirm=-1)
+
+
+def _target() -> Curve:
+    # two seeds, both 10 at 100 and 20 at 200: P = 0.95 · 20 = 19 in every replicate, |D_target| = 200
+    return Curve(np.array([100.0, 200.0]), (0, 1), np.array([[10.0, 20.0], [10.0, 20.0]]), through_end=True)
+
+
+def test_bootstrap_over_seeds_redoes_the_plv_in_each_replicate():
+    # zero-shot 19.2 / 18.6 (mean 18.9 < 19): the point estimate settles at rung 100, PLV 200 − 100 = 100.
+    # Replicates draw seeds (0,0) w.p. 1/4 → zero-shot 19.2 ≥ 19 → PLV 200; otherwise mean ≤ 18.9 → PLV 100.
+    proxy = Curve(np.array([0.0, 100.0, 200.0]), (0, 1), np.array([[19.2, 19.5, 19.5], [18.6, 19.5, 19.5]]),
+                  through_end=True)
+    iv = plv_bootstrap(_target(), {"p": proxy}, tolerance=0.05, confirm=1, replicates=4000, seed=1)
+    assert iv.reference == Interval(19.0, 19.0, 19.0) and iv.target_needed == Interval(200, 200.0, 200.0)
+    assert iv.plv["p"] == Interval(100.0, 100.0, 200.0) and iv.needed["p"] == Interval(100, 0.0, 100.0)
+    assert iv.reduction["p"].label("{:.0%}") == "50% [50%, 100%]"
+    assert iv.reached["p"] == 1.0 and iv.paired["p"]
+
+
+def test_a_proxy_that_settles_for_one_seed_only_gets_not_reached_as_an_interval_end():
+    # seed 0 stays at 19.5 ≥ 19, seed 1 at 15: only replicates (0,0) (1/4) settle, at rung 100 → PLV 100.
+    proxy = Curve(np.array([0.0, 100.0, 200.0]), (0, 1), np.array([[5.0, 19.5, 19.5], [5.0, 15.0, 15.0]]),
+                  through_end=True)
+    iv = plv_bootstrap(_target(), {"p": proxy}, tolerance=0.05, confirm=1, replicates=4000, seed=2)
+    assert iv.plv["p"] == Interval(None, None, 100.0)
+    assert iv.plv["p"].label() == "not reached [not reached, 100]"
+    assert iv.reached["p"] == pytest.approx(0.25, abs=0.03)
+
+
+def test_unpaired_seeds_are_resampled_independently():
+    proxy = Curve(np.array([0.0, 100.0]), (7, 8), np.array([[19.5, 19.5], [19.5, 19.5]]), through_end=True)
+    iv = plv_bootstrap(_target(), {"p": proxy}, tolerance=0.05, confirm=1, replicates=500)
+    assert not iv.paired["p"] and iv.plv["p"] == Interval(200.0, 200.0, 200.0)
+
+
+def test_mean_band_is_the_seed_range_for_three_seeds_and_a_point_for_one():
+    # all three draws equal the minimum with probability 1/27 ≈ 3.7 % > 2.5 %: the band's ends are min and max
+    assert mean_band(np.array([-9.5, 9.9, 0.0])) == (pytest.approx(0.1333, abs=1e-4), -9.5, 9.9)
+    assert mean_band(np.array([4.0])) == (4.0, 4.0, 4.0)
+
+
+def test_curves_from_runs_keeps_seeds_present_on_every_rung_and_adds_the_zero_shot():
+    runs = [{"arm": "p", "n": n, "seed": s, "cost": float(n), "score": n + s} for n in (10, 20) for s in (0, 1, 2)]
+    runs = [r for r in runs if not (r["n"] == 20 and r["seed"] == 2)]  # seed 2 missing on rung 20
+    c = curves_from_runs(runs, "p", ladder=(10, 20), zero_shot={"0": 1.0, "1": 2.0, "2": 3.0})
+    assert c.seeds == (0, 1) and list(c.costs) == [0.0, 10.0, 20.0] and c.through_end
+    np.testing.assert_array_equal(c.scores, [[1.0, 10.0, 20.0], [2.0, 11.0, 21.0]])
+    assert not curves_from_runs(runs, "p", ladder=(10, 20, 40)).through_end
+    with pytest.raises(ValueError, match="seeds × rungs"):
+        Curve(np.array([1.0]), (0,), np.zeros((2, 1)), through_end=True)
+
+
+class _ScriptedWork:
+    """A stand-in for the experiment's workspace: each rung's score comes from a script, no training."""
+
+    def __init__(self, ladder, confirm, scores, seeds=(0, 1)):
+        self.cfg = SimpleNamespace(ladder=ladder, seeds=seeds, confirm=confirm, stop_when_reached=True)
+        self.scores, self.trained = scores, []
+
+    def run(self, arm, n, seed, make, tcfg):
+        self.trained.append((n, seed))
+        return {"arm": arm, "n": n, "seed": seed, "score": self.scores[n]}
+
+    def tick(self, *_):
+        pass
+
+
+@pytest.mark.parametrize(("scores", "zero_shot", "confirm", "rungs"), [
+    ({1: 5, 2: 11, 4: 12, 8: 13, 16: 14}, 0.0, 2, [1, 2, 4, 8]),   # 2 reaches, 4 and 8 confirm: stop
+    ({1: 11, 2: 9, 4: 12, 8: 13, 16: 14}, 0.0, 1, [1, 2, 4, 8]),   # 1 reaches but 2 falls back: go on
+    ({1: 11, 2: 12, 4: 2, 8: 2, 16: 2}, 12.0, 1, [1]),             # zero-shot + rung 1 above: stop at once
+    ({1: 5, 2: 5, 4: 5, 8: 5, 16: 5}, 0.0, 2, [1, 2, 4, 8, 16]),    # never: the whole ladder
+])
+def test_a_proxy_ladder_stops_only_once_the_score_has_stayed_above(scores, zero_shot, confirm, rungs):
+    from proxybench.learning.experiment import _ladder
+
+    work = _ScriptedWork((1, 2, 4, 8, 16), confirm, scores)
+    rows = _ladder(work, "p", make=None, tcfg=None, reference=10.0, zero_shot=zero_shot)
+    assert sorted({r["n"] for r in rows}) == rungs and len(rows) == 2 * len(rungs)
