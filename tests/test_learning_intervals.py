@@ -105,3 +105,31 @@ def test_a_proxy_ladder_stops_only_once_the_score_has_stayed_above(scores, zero_
     work = _ScriptedWork((1, 2, 4, 8, 16), confirm, scores)
     rows = _ladder(work, "p", make=None, tcfg=None, reference=10.0, zero_shot=zero_shot)
     assert sorted({r["n"] for r in rows}) == rungs and len(rows) == 2 * len(rungs)
+
+
+def test_plv_objective_scores_proxies_against_one_cached_target_curve(tmp_path):
+    """argmax PLV (thesis eq. 3.6.2) needs PLV as a function of θ: a tiny run, θ given as values and as a family."""
+    from proxybench.learning.experiment import PLVConfig
+    from proxybench.learning.objective import PLVObjective, objective_value
+
+    cfg = PLVConfig.from_dict({"width": 32, "height": 24, "ladder": [40, 80], "seeds": [0, 1], "proxy_samples": 80,
+                               "model": {"channels": [8, 8, 8, 8, 8], "hidden": [16]},
+                               "train": {"min_steps": 2, "max_steps": 2}, "pretrain": {"min_steps": 2, "max_steps": 2},
+                               "finetune": {"min_steps": 2, "max_steps": 2},
+                               "collect": {"robots": 8, "episode_frames": 20}, "eval": {"episodes": 2, "seconds": 1.0},
+                               "replicates": 200})
+    objective = PLVObjective(cfg, tmp_path)
+    trial = objective({"camera_pitch": 30.0})
+    assert trial.proxy == "proxy:camera_pitch=30" and trial.domain["params"]["camera_pitch"] == 30.0
+    assert trial.value == objective_value(trial.plv, 80.0) and 0.0 <= trial.reached_share <= 1.0
+    assert {r["seed"] for r in trial.runs} <= {0, 1} and all(r["arm"] == trial.proxy for r in trial.runs)
+    assert set(trial.attrs()) >= {"plv", "plv_ci", "reached_share", "zero_shot"}
+    cached = objective.work.cached
+    again = objective({"camera_pitch": 30.0})  # the same θ: every unit of work comes from the cache
+    assert again.value == trial.value and objective.work.cached > cached
+    fam = objective({"camera_pitch": {"uniform": [25.0, 35.0]}}, family=True)
+    assert fam.proxy.startswith("family-") and fam.domain["kind"] == "family"
+    with pytest.raises(ValueError, match="images are"):
+        from proxybench.learning.domains import proxy_domain
+
+        objective(proxy_domain(64, 48))

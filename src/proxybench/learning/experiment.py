@@ -269,12 +269,21 @@ def _ladder(work: Workspace, arm: str, make: Callable[[int], Any], tcfg: TrainCo
     return rows
 
 
-def _pretrain(work: Workspace, name: str, spec: str, data_seed: int) -> tuple[dict[str, Any], dict[int, Any]]:
+def _domain(spec: str | Domain, cfg: PLVConfig) -> Domain:
+    domain = parse_domain(spec, cfg.width, cfg.height) if isinstance(spec, str) else spec
+    if domain.image_size != (cfg.width, cfg.height):
+        raise ValueError(f"proxy {domain.name!r}: images are {domain.image_size}, the experiment's network takes "
+                         f"{(cfg.width, cfg.height)}")
+    return domain
+
+
+def _pretrain(work: Workspace, name: str, spec: str | Domain, data_seed: int,
+              ) -> tuple[dict[str, Any], dict[int, Any]]:
     """Proxy data, one pre-trained network per seed, each one's zero-shot score on the target and in the proxy."""
     from proxybench.learning.training import load_checkpoint
 
     cfg = work.cfg
-    domain = parse_domain(spec, cfg.width, cfg.height)
+    domain = _domain(spec, cfg)
     data = work.dataset(_slug(name), domain, cfg.proxy_samples, data_seed)
     models, per_seed = {}, {}
     for j, seed in enumerate(cfg.seeds):
@@ -299,7 +308,8 @@ def _pretrain(work: Workspace, name: str, spec: str, data_seed: int) -> tuple[di
         record_path.write_text(json.dumps(rec, indent=1))
         models[seed], per_seed[seed] = model, rec
         work.add_time("pretrain", t0)
-    record = {"spec": spec, "domain": domain.describe(), "data_seed": data_seed,
+    record = {"spec": spec if isinstance(spec, str) else domain.name, "domain": domain.describe(),
+              "data_seed": data_seed,
               "zero_shot": float(np.mean([r["zero_shot"] for r in per_seed.values()])),
               "in_proxy": float(np.mean([r["in_proxy"] for r in per_seed.values()])),
               "zero_shot_by_seed": {str(k): r["zero_shot"] for k, r in per_seed.items()},
@@ -321,16 +331,17 @@ def target_arm(work: Workspace) -> tuple[list[dict[str, Any]], float, float]:
     return runs, expert, reference
 
 
-def proxy_arm(work: Workspace, name: str, spec: str, reference: float,
+def proxy_arm(work: Workspace, name: str, spec: str | Domain, reference: float,
               data_seed: int | None = None) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """Pre-train on proxy ``spec`` (one network per seed) and fine-tune up the ladder until settled above P.
 
-    ``data_seed`` seeds the proxy data; by default a stable hash of ``spec``, so the same proxy gets the
-    same data in every experiment.
+    ``spec``: a domain spec (``parse_domain``) or a ``Domain`` at the experiment's image size; ``name``
+    keys its cache. ``data_seed`` seeds the proxy data; by default a stable hash of ``name``, so the
+    same proxy gets the same data in every experiment.
     """
     cfg = work.cfg
     if data_seed is None:
-        data_seed = cfg.seed + 1 + int(hashlib.sha256(spec.encode()).hexdigest()[:6], 16)
+        data_seed = cfg.seed + 1 + int(hashlib.sha256(name.encode()).hexdigest()[:6], 16)
     record, pre = _pretrain(work, name, spec, data_seed)
     t2 = time.perf_counter()
     record["reached_zero_shot"] = record["zero_shot"] >= reference
