@@ -41,7 +41,7 @@ def test_bootstrap_over_seeds_redoes_the_plv_in_each_replicate():
     iv = plv_bootstrap(_target(), {"p": proxy}, tolerance=0.05, confirm=1, replicates=4000, seed=1)
     assert iv.reference == Interval(19.0, 19.0, 19.0) and iv.target_needed == Interval(200, 200.0, 200.0)
     assert iv.plv["p"] == Interval(100.0, 100.0, 200.0) and iv.needed["p"] == Interval(100, 0.0, 100.0)
-    assert iv.reduction["p"].label("{:.0%}") == "50% [50%, 100%]"
+    assert iv.reduction["p"].label("{:.0f} %", scale=100.0) == "50 % [50 %, 100 %]"
     assert iv.reached["p"] == 1.0 and iv.paired["p"]
 
 

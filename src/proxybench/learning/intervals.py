@@ -67,9 +67,10 @@ class Interval:
     low: float | None
     high: float | None
 
-    def label(self, fmt: str = "{:,.0f}", none: str = "not reached") -> str:
+    def label(self, fmt: str = "{:,.0f}", none: str = "not reached", scale: float = 1.0) -> str:
+        """``estimate [low, high]`` in ``fmt`` (values times ``scale``), ``none`` for a missing end."""
         def one(v: float | None) -> str:
-            return none if v is None else fmt.format(v)
+            return none if v is None else fmt.format(v * scale)
 
         if self.estimate is None and self.low is None and self.high is None:
             return none

@@ -117,8 +117,8 @@ def summarize(res: PLVResult) -> Summary:
                "reduction_label": value.reduction_label, "status": value.status}
         if ivs is not None:
             row |= {"needed_ci": ivs.needed[name].label(), "plv_ci": ivs.plv[name].label(),
-                    "reduction_ci": ivs.reduction[name].label("{:.0%}"), "reached_share": ivs.reached[name],
-                    "plv_low": ivs.plv[name].low, "plv_high": ivs.plv[name].high}
+                    "reduction_ci": ivs.reduction[name].label("{:.0f} %", scale=100.0),
+                    "reached_share": ivs.reached[name], "plv_low": ivs.plv[name].low, "plv_high": ivs.plv[name].high}
         rows.append(row)
     return Summary(curves, converged, ok, reference, d_target, rows, ivs, t_first)
 
