@@ -12,6 +12,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -76,10 +77,10 @@ def plv(
     for col in rows[0]:
         table.add_column(col, justify="left" if col == "domain" else "right")
     for r in rows:
-        table.add_row(*r.values())
+        table.add_row(*(escape(str(v)) for v in r.values()))  # "[not reached, 900]" is not markup
     console.print(table)
     for line in findings(res, s):
-        console.print(f"• {line}", highlight=False)
+        console.print(f"• {escape(line)}", highlight=False)
     console.print(f"wrote {files['html']}, {files['fig3_6']} and {files['fig_plv']} (+ .svg), {files['table']}, "
                   f"{files['runs']}", highlight=False)
 

@@ -262,6 +262,9 @@ def figure_3_6(res: PLVResult, s: Summary, path: Path) -> Path:
     lin = max(1.0, min(res.config.ladder) / 2)
     ax.set_xscale("symlog", linthresh=lin)
     ax.set_xlim(-0.3 * lin, 1.5 * max(res.config.ladder))
+    rungs = sorted({p["cost"] for c in s.curves.values() for p in c} | {0.0})
+    ax.set_xticks(rungs, [f"{x:,.0f}" for x in rungs], fontsize=7)
+    ax.minorticks_off()
     bottom = max(lo_possible, min(shown) - 0.05 * (hi_possible - lo_possible))
     ax.set_ylim(bottom, hi_possible + 0.02 * (hi_possible - lo_possible))
     ax.set_xlabel("target samples [frames]" + (" (weighted cost η_on·n_on + η_off·n_off)" if res.config.use_dagger
@@ -307,6 +310,10 @@ def figure_plv(res: PLVResult, s: Summary, path: Path) -> Path:
                 va="bottom", color="grey")
         ax.set_xlim(left - 0.05 * scale, dt + 0.08 * scale)
     ax.set_ylim(-0.6, len(names) + 0.2)
+    lo_lim, hi_lim = ax.get_xlim()
+    ticks = [t for t in ax.get_xticks() if left + 0.1 * scale <= t <= hi_lim]
+    ax.set_xticks([left, *ticks], ["not\nreached", *(f"{t:,.0f}" for t in ticks)])
+    ax.set_xlim(lo_lim, hi_lim)
     ax.set_yticks(range(len(names)), list(reversed(names)))
     ax.set_xlabel("PLV [target samples saved]\ndot: estimate, ×: not reached; bar: 95 % bootstrap interval over "
                   "seeds; arrow: down to \"not reached\"", fontsize=8)
