@@ -6,9 +6,12 @@ import json
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.options import positive
+from proxybench.cli.progress import progress_bar, status
 
 _SCORE_METRICS = ("survival_time", "driven_lanedir_consec", "driven_any", "deviation_center_line",
                   "deviation_heading", "in_drivable_lane", "lane_score")
@@ -18,7 +21,8 @@ _SCORE_METRICS = ("survival_time", "driven_lanedir_consec", "driven_any", "devia
 def score(
     files: list[Path] = typer.Argument(..., help="trajectory files: proxybench Parquet, or recorded CSV/Parquet"),
     map_name: str = typer.Option("loop_3x3", "--map", help="map of recorded runs (t, x, y, theta in its frame)"),
-    episode_seconds: float | None = typer.Option(None, help="cap survival_time at this episode length [s]"),
+    episode_seconds: float | None = typer.Option(None, callback=positive,
+                                                 help="cap survival_time at this episode length [s]"),
 ) -> None:
     """Score trajectories with the task metrics: imported real runs and simulated ones alike.
 
@@ -36,7 +40,7 @@ def score(
         try:
             traj = _load_any(f, map_name, Trajectory, TrajectoryError)
         except (TrajectoryError, FileNotFoundError) as exc:
-            err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+            err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
             bad += 1
             continue
         if episode_seconds:
@@ -65,9 +69,9 @@ def repeatability(
     design: list[str] = typer.Option([], "--design", help="repeatability | inter-robot | inter-lab | LABSxROBOTSxRUNS "
                                      "(repeat; default: the thesis' three, 1×1×9, 1×3×3, 2×1×6)"),
     runs: int | None = typer.Option(None, min=2, help="runs per robot, overriding every design's"),
-    seconds: float = typer.Option(30.0, min=0.1, help="length of each run [s]"),
+    seconds: float = typer.Option(30.0, callback=positive, help="length of each run [s]"),
     map_name: str = typer.Option("loop_3x3", "--map"),
-    seed: int = typer.Option(0),
+    seed: int = typer.Option(0, min=0),
     placement_cm: float = typer.Option(0.5, min=0.0, help="operator's placement error across the lane, std [cm]"),
     placement_deg: float = typer.Option(1.0, min=0.0, help="operator's placement error of the heading, std [deg]"),
     recorded: list[Path] = typer.Option([], "--recorded", help="recorded runs instead: a LAB/ROBOT/run.csv folder "
@@ -96,19 +100,19 @@ def repeatability(
                 if not sep or not name.strip() or not cmd.strip():
                     raise typer.BadParameter(f"{item!r}: expected NAME=COMMAND", param_hint="--robot-cmd")
                 cmds[name.strip()] = cmd.strip()
-            with console.status("driving robot nodes") as status:
+            with status("driving robot nodes") as spinner:
                 res = robot_study(agent, cmds, runs or 3, seconds, map_name, seed,
-                                  progress=lambda n, k, t: status.update(f"{n}: run {k}/{t}"))
+                                  progress=lambda n, k, t: spinner.update(f"{n}: run {k}/{t}"))
         else:
             designs = dict(Design.parse(d) for d in design) if design else None
             if runs is not None:
                 from proxybench.runner.repeatability import DESIGNS
 
                 designs = {k: Design(d.labs, d.robots, runs) for k, d in (designs or DESIGNS).items()}
-            with console.status("running") as status:
+            with status("running") as spinner:
                 res = repeatability_study(agent, designs, seconds, map_name, seed,
                                           placement=(placement_cm / 100.0, placement_deg),
-                                          progress=lambda n, k, t: status.update(f"{n}: {t} runs side by side"))
+                                          progress=lambda n, k, t: spinner.update(f"{n}: {t} runs side by side"))
     except (ValueError, FileNotFoundError) as exc:
         err_console.print(f"[red]error:[/red] {exc}", highlight=False)
         raise typer.Exit(2) from exc
@@ -125,8 +129,6 @@ def _repeatability_report(res, agent: str, seconds: float, map_name: str, out: P
     from proxybench.tasks.metrics import deviation_curves
 
     out.mkdir(parents=True, exist_ok=True)
-    from rich.markup import escape
-
     table = Table(title=escape(f"repeatability of {agent} ({res.source}; {seconds:g} s runs): MPD [cm] (+ = left of "
                                "the lane centre), MOD [deg]; STD = run-to-run"))
     cols = ("design", "labs×robots×runs", "AVG MPD", "STD MPD", "AVG MOD", "STD MOD", "within / between STD MPD",
@@ -183,7 +185,7 @@ def evaluate(
     agent_cmd: list[str] = typer.Option([], "--agent-cmd", help="NAME=COMMAND of an external agent node (repeat)"),
     domain: str | None = typer.Option(None, help="run in this named domain instead (default, reality)"),
     backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
-    workers: int | None = typer.Option(None, help="parallel workers (default: one per core)"),
+    workers: int | None = typer.Option(None, min=1, help="parallel workers (default: one per core)"),
     run_dir: Path | None = typer.Option(None, help="run directory (default: out/evaluate/<benchmark>)"),
     video: bool = typer.Option(False, "--video", help="also record episode 0 of every agent (MP4 + PNG strip)"),
     quick: bool = typer.Option(False, "--quick", help="smoke test: the first 2 episodes, at most 15 s each"),
@@ -193,7 +195,7 @@ def evaluate(
     Episodes are cached in the run directory: run again to resume an interrupted evaluation. The table
     counts the episodes that ended in a collision (with a map object, a duckie, a pedestrian or a robot).
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 
     from proxybench.agents import ZOO
     from proxybench.runner.backends import make_backend
@@ -203,14 +205,14 @@ def evaluate(
     try:
         bench = Benchmark.load(benchmark)
     except BenchmarkError as exc:
-        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(1) from exc
     if quick:
         bench = _quick(bench)
     specs = _agent_specs(agent or list(ZOO) if not agent_cmd else agent, agent_cmd)
     run_dir = run_dir or Path("out/evaluate") / bench.name
     be = make_backend(backend, workers)
-    with Progress(TextColumn(f"[bold]{bench.name}[/bold] episodes"), BarColumn(), MofNCompleteColumn(),
+    with progress_bar(TextColumn(f"[bold]{bench.name}[/bold] episodes"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), console=console, transient=True) as bar:
         task = bar.add_task("episodes", total=None)
         try:
@@ -218,7 +220,7 @@ def evaluate(
                                     privileged=lambda s: s.command is None and ZOO[s.name].privileged,
                                     progress=lambda d, t: bar.update(task, completed=d, total=t))
         except BenchmarkError as exc:
-            err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+            err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
             raise typer.Exit(2) from exc
         finally:
             be.close()
@@ -254,7 +256,7 @@ def _videos(ev, specs, run_dir: Path) -> None:
             continue
         agent = make_agent_for(spec)
         try:
-            with console.status(f"recording {spec.label}"):
+            with status(f"recording {spec.label}"):
                 _, files = record_episode(Simulator(bench.map, params, npcs=bench.traffic()), agent, ep.seed,
                                           bench.duration,
                                           run_dir / "videos", stem=spec.label, pose=ep.pose, route=ep.route)
@@ -312,10 +314,11 @@ def _print_leaderboard(ev, run_dir: Path) -> None:
                      "wins": r.wins, "losses": r.losses, "ties": r.ties, "collisions": hit, "collided_with": what})
     console.print(table)
     for name, why in ev.refused.items():
-        console.print(f"[yellow]not admitted:[/yellow] {name}: {why}", highlight=False)
+        console.print(f"[yellow]not admitted:[/yellow] {escape(str(name))}: {escape(str(why))}", highlight=False)
     failures = [r for r in ev.sweep.results if r.termination == "agent_failure"]
     for r in failures[:5]:
-        console.print(f"[red]agent failure[/red] {r.agent} episode {r.episode}: {r.message}", highlight=False)
+        console.print(f"[red]agent failure[/red] {r.agent} episode {r.episode}: {escape(str(r.message))}",
+                      highlight=False)
     (run_dir / "leaderboard.json").write_text(json.dumps(rows, indent=1, default=str))
     ev.aggregates.to_csv(run_dir / "aggregates.csv", index=False)
     console.print(f"wrote {run_dir / 'leaderboard.json'}, {run_dir / 'aggregates.csv'}, {run_dir / 'results.parquet'}")
