@@ -5,6 +5,7 @@ Every expected number here is computed by hand in the comments.
 
 from __future__ import annotations
 
+import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -107,18 +108,22 @@ def test_a_proxy_ladder_stops_only_once_the_score_has_stayed_above(scores, zero_
     assert sorted({r["n"] for r in rows}) == rungs and len(rows) == 2 * len(rungs)
 
 
+def _tiny():
+    from proxybench.learning.experiment import PLVConfig
+
+    return PLVConfig.from_dict({"width": 32, "height": 24, "ladder": [40, 80], "seeds": [0, 1], "proxy_samples": 80,
+                                "model": {"channels": [8, 8, 8, 8, 8], "hidden": [16]},
+                                "train": {"min_steps": 2, "max_steps": 2}, "pretrain": {"min_steps": 2, "max_steps": 2},
+                                "finetune": {"min_steps": 2, "max_steps": 2},
+                                "collect": {"robots": 8, "episode_frames": 20}, "eval": {"episodes": 2, "seconds": 1.0},
+                                "replicates": 200})
+
+
 def test_plv_objective_scores_proxies_against_one_cached_target_curve(tmp_path):
     """argmax PLV (thesis eq. 3.6.2) needs PLV as a function of θ: a tiny run, θ given as values and as a family."""
-    from proxybench.learning.experiment import PLVConfig
     from proxybench.learning.objective import PLVObjective, objective_value
 
-    cfg = PLVConfig.from_dict({"width": 32, "height": 24, "ladder": [40, 80], "seeds": [0, 1], "proxy_samples": 80,
-                               "model": {"channels": [8, 8, 8, 8, 8], "hidden": [16]},
-                               "train": {"min_steps": 2, "max_steps": 2}, "pretrain": {"min_steps": 2, "max_steps": 2},
-                               "finetune": {"min_steps": 2, "max_steps": 2},
-                               "collect": {"robots": 8, "episode_frames": 20}, "eval": {"episodes": 2, "seconds": 1.0},
-                               "replicates": 200})
-    objective = PLVObjective(cfg, tmp_path)
+    objective = PLVObjective(_tiny(), tmp_path)
     trial = objective({"camera_pitch": 30.0})
     assert trial.proxy == "proxy:camera_pitch=30" and trial.domain["params"]["camera_pitch"] == 30.0
     assert trial.value == objective_value(trial.plv, 80.0) and 0.0 <= trial.reached_share <= 1.0
@@ -133,3 +138,20 @@ def test_plv_objective_scores_proxies_against_one_cached_target_curve(tmp_path):
         from proxybench.learning.domains import proxy_domain
 
         objective(proxy_domain(64, 48))
+
+
+def test_optimize_plv_searches_instances_and_families_and_resumes(tmp_path):
+    from proxybench.learning.objective import PLVSearch, optimize_plv
+
+    with pytest.raises(ValueError, match="lo < hi"):
+        PLVSearch({"camera_pitch": (30.0, 10.0)})
+    search = PLVSearch({"camera_pitch": (10.0, 30.0)}, trials=2, sampler="random", storage=str(tmp_path / "s.db"))
+    res = optimize_plv(search, _tiny(), tmp_path / "work")
+    assert len(res.trials) == 2 and res.best["value"] == max(t["value"] for t in res.trials)
+    assert all(t["proxy"].startswith("proxy:camera_pitch=") and "plv_ci" in t for t in res.trials)
+    again = optimize_plv(search, _tiny(), tmp_path / "work")  # the stored study has its trials: none added
+    assert [t["number"] for t in again.trials] == [0, 1]
+    fam = optimize_plv(PLVSearch({"camera_pitch": (10.0, 30.0)}, trials=1, family=True, sampler="random"),
+                       _tiny(), tmp_path / "work")
+    lo, hi = json.loads(fam.best["proposal"])["camera_pitch"]["uniform"]
+    assert 10.0 <= lo <= hi <= 30.0 and fam.best["proxy"].startswith("family-") and not fam.separated

@@ -32,7 +32,8 @@ from proxybench.learning.experiment import PLVConfig, PLVResult, Progress, Works
 from proxybench.learning.intervals import Interval
 from proxybench.learning.value import PLVValue
 
-__all__ = ["PLVObjective", "PLVTrial", "family_domain", "instance_domain", "objective_value"]
+__all__ = ["PLVObjective", "PLVSearch", "PLVSearchResult", "PLVTrial", "family_domain", "instance_domain",
+           "objective_value", "optimize_plv"]
 
 
 def instance_domain(values: Mapping[str, Any], width: int, height: int) -> Domain:
@@ -122,3 +123,94 @@ class PLVObjective:
         score = objective_value(value, max(float(r["cost"]) for r in runs))
         return PLVTrial(name, record["domain"], score, value, iv.plv[name], iv.reached[name], row["needed"],
                         row["zero_shot"], arm)
+
+
+@dataclass(frozen=True)
+class PLVSearch:
+    """What to search: ``space`` maps a parameter to its range (lo, hi); instances θ, or families p(θ).
+
+    With ``family=True`` each trial proposes, per parameter, a centre in [lo, hi] and a half-width in
+    [0, (hi − lo) / 2]: the proxy is the uniform family over [centre ± half-width] ∩ [lo, hi], drawn
+    per episode (eq. 3.6.2's p(θ)).
+    """
+
+    space: dict[str, tuple[float, float]]
+    trials: int = 12
+    family: bool = False
+    sampler: str = "tpe"  # tpe | random
+    seed: int = 0
+    storage: str | None = None  # an Optuna storage URL or a SQLite file, so a search resumes
+    study_name: str = "plv"
+
+    def __post_init__(self) -> None:
+        if not self.space:
+            raise ValueError("the PLV search needs at least one parameter range")
+        for name, (lo, hi) in self.space.items():
+            if not lo < hi:
+                raise ValueError(f"{name}: the range must have lo < hi, got ({lo}, {hi})")
+        if self.trials < 1:
+            raise ValueError(f"trials must be >= 1, got {self.trials}")
+        if self.sampler not in ("tpe", "random"):
+            raise ValueError(f"sampler must be tpe or random, got {self.sampler!r}")
+
+
+@dataclass
+class PLVSearchResult:
+    """Every trial's proxy and PLV (with its interval), the best one, and whether its interval stands apart."""
+
+    trials: list[dict[str, Any]]
+    best: dict[str, Any]
+    separated: bool  # the best trial's lower PLV bound is above every other trial's upper bound
+    study: Any = field(repr=False, default=None)
+
+
+def _propose(trial, search: PLVSearch) -> dict[str, Any]:
+    if not search.family:
+        return {k: trial.suggest_float(k, lo, hi) for k, (lo, hi) in search.space.items()}
+    dists = {}
+    for k, (lo, hi) in search.space.items():
+        c = trial.suggest_float(f"{k}.centre", lo, hi)
+        w = trial.suggest_float(f"{k}.half_width", 0.0, (hi - lo) / 2)
+        dists[k] = {"uniform": [max(lo, c - w), min(hi, c + w)]}
+    return dists
+
+
+def optimize_plv(search: PLVSearch, cfg: PLVConfig, out: str | Path, progress: Progress | None = None,
+                 ) -> PLVSearchResult:
+    """p(θ)* = argmax PLV (thesis eq. 3.6.2) with Optuna: each trial is one :class:`PLVObjective` call.
+
+    The target-only curve is computed once; trials, their PLVs and intervals are cached under ``out``
+    (a repeated θ costs nothing) and, with ``search.storage``, the study itself resumes.
+    """
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    objective = PLVObjective(cfg, out, progress)
+    objective.target()
+    sampler = (optuna.samplers.RandomSampler(seed=search.seed) if search.sampler == "random" else
+               optuna.samplers.TPESampler(seed=search.seed, n_startup_trials=min(5, search.trials)))
+    storage = search.storage
+    if storage and "://" not in storage:
+        storage = f"sqlite:///{Path(storage).resolve()}"
+    study = optuna.create_study(direction="maximize", sampler=sampler, storage=storage,
+                                study_name=search.study_name, load_if_exists=True)
+
+    def run(trial) -> float:
+        proxy = _propose(trial, search)
+        res = objective(proxy, family=search.family)
+        for k, v in {**res.attrs(), "proposal": json.dumps(proxy)}.items():
+            trial.set_user_attr(k, v)
+        if progress:
+            progress("search", trial.number + 1, search.trials)
+        return res.value
+
+    remaining = search.trials - len([t for t in study.trials if t.state.is_finished()])
+    if remaining > 0:
+        study.optimize(run, n_trials=remaining)
+    done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    rows = [{"number": t.number, "value": t.value, **t.user_attrs} for t in done]
+    best = max(rows, key=lambda r: r["value"])
+    others = [r["plv_high"] for r in rows if r is not best]
+    separated = bool(others) and best.get("plv_low") is not None and all(h is None or best["plv_low"] > h
+                                                                        for h in others)
+    return PLVSearchResult(rows, best, separated, study)
