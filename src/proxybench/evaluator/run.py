@@ -116,7 +116,12 @@ class _Job:
             raise HostFault(str(exc)) from None
         log.info("agent: package %r (%s), command %s; sandbox: %s", manifest.name, sub["archive_sha256"][:12],
                  manifest.command, isolation.note)
-        return AgentSpec(manifest.name, command)
+        options = manifest.node_options()
+        if options.transport == "fifo":  # the sandbox hides the evaluator's FIFOs and clears AIDONODE_* (for now)
+            log.warning("agent: the manifest asks for transport fifo; agents in the sandbox run over pipes, so "
+                        "what the agent prints to stdout breaks the protocol (print to stderr)")
+            options = options.model_copy(update={"transport": "pipe"})
+        return AgentSpec.node(manifest.name, command, options)
 
     # -- running -----------------------------------------------------------------------------------
 
