@@ -66,8 +66,7 @@ class RobotPlant:
         self.states = [robot.state(0.0)]
         self.obs: rw.RobotObservationsData | None = robot.observations(0.0)
         if privileged[0] and self.obs.lane_pose is None:
-            raise RobotLacksGroundTruth(f"robot {robot.command!r} ({self.info.kind}) reports no true lane pose, "
-                                        f"which a privileged agent needs")
+            raise RobotLacksGroundTruth(f"robot {robot.command!r} ({self.info.kind}) reports no true lane pose")
         return self.steps
 
     def frames(self, alive: np.ndarray) -> list[np.ndarray | None]:
@@ -143,5 +142,8 @@ def run_episode_on_robot(
     (there is no valid trajectory then). A privileged agent needs a robot that reports the true lane pose.
     """
     hook = None if on_frame is None else (lambda k, images, alive, plant: on_frame(k, images[0]))
-    return rollout(RobotPlant(robot, map_), AgentPolicy([agent]), [seed], seconds, poses=[pose], routes=[route],
-                   camera=camera, allow_privileged=allow_privileged, on_frame=hook, metas=[meta])[0]
+    try:
+        return rollout(RobotPlant(robot, map_), AgentPolicy([agent]), [seed], seconds, poses=[pose], routes=[route],
+                       camera=camera, allow_privileged=allow_privileged, on_frame=hook, metas=[meta])[0]
+    except RobotLacksGroundTruth as exc:
+        raise RobotLacksGroundTruth(f"{exc}, which the privileged agent {agent.name!r} needs") from None
