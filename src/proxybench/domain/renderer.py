@@ -188,6 +188,35 @@ def render_rows(
         o0 = offset[n, 0]
         o1 = offset[n, 1]
         o2 = offset[n, 2]
+        if not any_obj and vig <= 0.0 and noise_std <= 0.0 and (not is_ground or linear[c]):
+            # the common rows, all sky or all ground (pinhole), without per-pixel effects: branch-free loops
+            # with the same arithmetic as the general one below
+            if is_ground:
+                for u in range(w):
+                    r = acc[u, 0] * inv_k
+                    g = acc[u, 1] * inv_k
+                    b = acc[u, 2] * inv_k
+                    r += o0
+                    g += o1
+                    b += o2
+                    out_r[u, 0] = np.uint8(min(max(r, 0.0), 255.0) + 0.5)
+                    out_r[u, 1] = np.uint8(min(max(g, 0.0), 255.0) + 0.5)
+                    out_r[u, 2] = np.uint8(min(max(b, 0.0), 255.0) + 0.5)
+            else:
+                h0, h1, h2 = sky[n, _HORIZON, 0], sky[n, _HORIZON, 1], sky[n, _HORIZON, 2]
+                s0, s1, s2 = sky[n, _SKY, 0], sky[n, _SKY, 1], sky[n, _SKY, 2]
+                for u in range(w):
+                    m = mix_r[u]
+                    r = h0 * (1.0 - m) + s0 * m
+                    g = h1 * (1.0 - m) + s1 * m
+                    b = h2 * (1.0 - m) + s2 * m
+                    r += o0
+                    g += o1
+                    b += o2
+                    out_r[u, 0] = np.uint8(min(max(r, 0.0), 255.0) + 0.5)
+                    out_r[u, 1] = np.uint8(min(max(g, 0.0), 255.0) + 0.5)
+                    out_r[u, 2] = np.uint8(min(max(b, 0.0), 255.0) + 0.5)
+            continue
         for u in range(w):
             if lv_r[u] < 0 and not (any_obj and hit[u]):
                 m = mix_r[u]
