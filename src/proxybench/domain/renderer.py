@@ -5,8 +5,9 @@ frame costs one rotation + translation per pixel and sub-frame, a tile lookup, o
 mip level that matches the pixel's footprint, and a palette lookup. Light, contrast and the road
 colours are folded into each robot's palette beforehand (they are linear), so the inner loop does no
 colour arithmetic beyond ``palette * texture_noise * shade + offset``. No NumPy temporaries: the whole
-pipeline (motion blur, light, vignetting, contrast, sensor noise) is one Numba loop, parallel over the
-image rows of all robots.
+pipeline (motion blur, light, vignetting, contrast, sensor noise) is one Numba loop over the image rows of
+all robots (``render_rows``), run on one thread or on all (``render_parallel``) as
+``proxybench.domain.parallelism`` decides from timing both.
 
 Appearance is per robot (``Renderer.set_params``), so a batch can randomise it per episode.
 
