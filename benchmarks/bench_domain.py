@@ -284,10 +284,12 @@ def print_busy(results: list[tuple[str, str, str, float, float]]) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="fewer steps (for smoke tests)")
+    ap.add_argument("--scale", type=float, default=None, help="multiply every step count (default 1, --quick 0.1)")
     ap.add_argument("--busy", choices=("both", "no", "only"), default="both",
                     help="also measure beside a busy neighbour process (default), skip that, or only that")
     args = ap.parse_args()
-    all_rows = rows(0.1 if args.quick else 1.0)
+    k = args.scale or (0.1 if args.quick else 1.0)
+    all_rows = rows(k)
     if args.busy != "only":
         values = {r.name: median3(r.fn, *r.args) for r in all_rows}
         print_table(all_rows, values)
@@ -304,7 +306,7 @@ def main() -> None:
                 if r.busy:
                     results.append((r.name, "1 busy process", r.unit, *side_by_side(r.fn, r.args)))
         if importlib.util.find_spec("torch") is not None:
-            steps = 30 if args.quick else 300
+            steps = max(10, int(300 * k))
             for w, h in ((640, 480), (160, 120)):
                 results.append((f"single env, {w}×{h}, a PyTorch training step after each (env time)",
                                 "PyTorch, same process", "steps/s",

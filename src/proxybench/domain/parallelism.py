@@ -35,8 +35,8 @@ from numba.extending import intrinsic
 __all__ = ["MIN_PARALLEL_WORK", "ThreadChoice", "fetch_add", "force_parallel", "in_forked_child", "threads_available"]
 
 #: below this many pixel-samples (pixels × sub-frames) per call a kernel runs on one thread: measured on
-#: 2 cores, a 160×120 frame (19,200) is as fast serial as parallel on a quiet machine and 20× faster
-#: serial beside a busy neighbour
+#: 2 shared cores, a 160×120 frame (19,200; ~0.1 ms) gained ~25 % from a second thread when the machine
+#: was quiet and took 7× longer when it was not; too short a call to time both modes reliably
 MIN_PARALLEL_WORK = 60_000
 
 _forked = False
