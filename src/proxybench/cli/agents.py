@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import typer
+from rich.markup import escape
 
 from proxybench.cli.app import agent_app, console, err_console
 
@@ -38,6 +39,6 @@ def agent_serve(
     try:
         agent = load_agent(name)
     except (KeyError, ImportError, AttributeError) as exc:
-        err_console.print(f"[red]error:[/red] cannot load agent {name!r}: {exc}", highlight=False)
+        err_console.print(f"[red]error:[/red] cannot load agent {name!r}: {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from exc
     raise typer.Exit(serve(agent, node_name=node_name))

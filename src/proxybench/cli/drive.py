@@ -7,9 +7,12 @@ import time
 from pathlib import Path
 
 import typer
-from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.markup import escape
+from rich.progress import BarColumn, TextColumn, TimeRemainingColumn
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.options import positive
+from proxybench.cli.progress import progress_bar
 
 _RUN_METRICS = ("survival_time", "driven_lanedir_consec", "deviation_center_line", "in_drivable_lane", "lane_score")
 
@@ -17,11 +20,11 @@ _RUN_METRICS = ("survival_time", "driven_lanedir_consec", "deviation_center_line
 @app.command()
 def run(
     map_name: str = typer.Option("loop_3x3", "--map", help="built-in map name or YAML file"),
-    seconds: float = typer.Option(60.0, help="episode length [s] (simulated time)"),
-    seed: int = typer.Option(0, help="episode seed (start pose, noise)"),
+    seconds: float = typer.Option(60.0, callback=positive, help="episode length [s] (simulated time)"),
+    seed: int = typer.Option(0, min=0, help="episode seed (start pose, noise)"),
     out: Path = typer.Option(Path("out/run"), help="folder for drive.mp4, drive_strip.png, metrics.json"),
-    width: int = typer.Option(640, help="camera width [px]"),
-    height: int = typer.Option(480, help="camera height [px]"),
+    width: int = typer.Option(640, min=8, max=4096, help="camera width [px]"),
+    height: int = typer.Option(480, min=8, max=4096, help="camera height [px]"),
     video: bool = typer.Option(True, help="write drive.mp4 (camera | top-down)"),
     agent_name: str = typer.Option("pid", "--agent", help="zoo agent (see `proxybench agent list`)"),
     agent_cmd: str | None = typer.Option(None, "--agent-cmd",
@@ -38,16 +41,27 @@ def run(
     the metrics say what the robot reported it is (``source``).
     """
     from proxybench.agents import make_agent
-    from proxybench.domain.maps import MapError, load_map
+    from proxybench.cli.maps import load_map_printing_warnings
+    from proxybench.domain.maps import MapError
     from proxybench.domain.params import DomainParams
     from proxybench.domain.simulator import Simulator
     from proxybench.runner.record import record_episode
     from proxybench.tasks.metrics import METRICS
 
     try:
-        m = load_map(map_name)
-    except (MapError, FileNotFoundError) as exc:
-        err_console.print(f"[red]error:[/red] {exc}")
+        m = load_map_printing_warnings(map_name)
+    except (MapError, OSError) as exc:
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
+        raise typer.Exit(1) from exc
+    if not m.drivable_tiles():
+        err_console.print(f"[red]error:[/red] map {escape(m.name)!r} has no drivable tile: nothing to drive on",
+                          highlight=False)
+        raise typer.Exit(1)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        err_console.print(f"[red]error:[/red] --out: cannot create the folder {escape(str(out))}: "
+                          f"{escape(exc.strerror or str(exc))}", highlight=False)
         raise typer.Exit(1) from exc
     if robot_cmd is not None:
         from proxybench.cli.robot import run_on_robot
@@ -55,7 +69,7 @@ def run(
         try:
             agent = make_agent(agent_name) if agent_cmd is None else _remote(agent_cmd)
         except KeyError as exc:
-            err_console.print(f"[red]error:[/red] {exc.args[0]}", highlight=False)
+            err_console.print(f"[red]error:[/red] {escape(str(exc.args[0]))}", highlight=False)
             raise typer.Exit(2) from exc
         run_on_robot(robot_cmd, agent, map_name, seconds, seed, out)
         return
@@ -64,13 +78,13 @@ def run(
     try:
         agent = make_agent(agent_name) if agent_cmd is None else _remote(agent_cmd)
     except KeyError as exc:
-        err_console.print(f"[red]error:[/red] {exc.args[0]}", highlight=False)
+        err_console.print(f"[red]error:[/red] {escape(str(exc.args[0]))}", highlight=False)
         raise typer.Exit(2) from exc
     steps = round(seconds * params.frame_rate)
     t0 = time.perf_counter()
-    with Progress(TextColumn("[bold]driving[/bold] {task.description}"), BarColumn(),
-                  TextColumn("{task.completed}/{task.total} frames"), TimeRemainingColumn(),
-                  console=console, transient=True) as progress:
+    with progress_bar(TextColumn("[bold]driving[/bold] {task.description}"), BarColumn(),
+                      TextColumn("{task.completed}/{task.total} frames"), TimeRemainingColumn(),
+                      console=console, transient=True) as progress:
         task = progress.add_task(f"{m.name}, {seconds:g} s", total=steps)
         try:
             traj, files = record_episode(sim, agent, seed, seconds, out, video=video, meta={"map": m.name},
@@ -84,14 +98,14 @@ def run(
               "source": "simulation", "termination": traj.termination, **scores, "wall_s": round(elapsed, 2)}
     (out / "metrics.json").write_text(json.dumps(record, indent=2))
     names = [*files, out / "trajectory.parquet", out / "metrics.json"]
-    console.print(f"wrote {', '.join(str(f) for f in names)}")
+    console.print(f"wrote {', '.join(str(f) for f in names)}", markup=False, highlight=False)
     failure = [e["message"] for e in traj.events if e["kind"] == "agent_failure"]
     if failure:
-        err_console.print(f"[red]agent failure:[/red] {failure[0]}", highlight=False)
+        err_console.print(f"[red]agent failure:[/red] {escape(failure[0])}", highlight=False)
     console.print(
         f"metrics: map={m.name} agent={agent.name}{' (privileged)' if agent.privileged else ''} simulated "
         + " ".join(f"{k}={v:.2f}" for k, v in scores.items()) + f" end={traj.termination} wall={elapsed:.1f}s",
-        highlight=False,
+        highlight=False, markup=False,
     )
 
 
@@ -102,7 +116,8 @@ def _remote(cmd: str):
     try:
         return RemoteAgent(cmd)
     except AgentFailure as exc:
-        err_console.print(f"[red]error:[/red] agent node {cmd!r} failed to start: {exc}", highlight=False)
+        err_console.print(f"[red]error:[/red] agent node {escape(repr(cmd))} failed to start: {escape(str(exc))}",
+                          highlight=False)
         for line in exc.stderr_tail[-10:]:
             err_console.print(f"    {line}", highlight=False, markup=False)
         raise typer.Exit(1) from exc

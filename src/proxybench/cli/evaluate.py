@@ -5,9 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.options import positive
+from proxybench.cli.progress import progress_bar, status
 
 _SCORE_METRICS = ("survival_time", "driven_lanedir_consec", "driven_any", "deviation_center_line",
                   "deviation_heading", "in_drivable_lane", "lane_score")
@@ -17,7 +20,8 @@ _SCORE_METRICS = ("survival_time", "driven_lanedir_consec", "driven_any", "devia
 def score(
     files: list[Path] = typer.Argument(..., help="trajectory files: proxybench Parquet, or recorded CSV/Parquet"),
     map_name: str = typer.Option("loop_3x3", "--map", help="map of recorded runs (t, x, y, theta in its frame)"),
-    episode_seconds: float | None = typer.Option(None, help="cap survival_time at this episode length [s]"),
+    episode_seconds: float | None = typer.Option(None, callback=positive,
+                                                 help="cap survival_time at this episode length [s]"),
 ) -> None:
     """Score trajectories with the task metrics: imported real runs and simulated ones alike.
 
@@ -35,7 +39,7 @@ def score(
         try:
             traj = _load_any(f, map_name, Trajectory, TrajectoryError)
         except (TrajectoryError, FileNotFoundError) as exc:
-            err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+            err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
             bad += 1
             continue
         if episode_seconds:
@@ -62,9 +66,9 @@ def _load_any(path: Path, map_name: str, Trajectory, TrajectoryError):
 def repeatability(
     agent: str = typer.Option("vision", help="zoo agent"),
     runs: int = typer.Option(10, min=2, help="runs per setting"),
-    seconds: float = typer.Option(30.0, help="length of each run [s]"),
+    seconds: float = typer.Option(30.0, callback=positive, help="length of each run [s]"),
     map_name: str = typer.Option("loop_3x3", "--map"),
-    seed: int = typer.Option(0),
+    seed: int = typer.Option(0, min=0),
     out: Path = typer.Option(Path("out/repeatability"), help="folder for the table and the trajectory plot"),
 ) -> None:
     """MPD / MOD of one agent: one robot N times, N robots, N labs (thesis figs. 5.8–5.10), simulated.
@@ -78,9 +82,9 @@ def repeatability(
     from proxybench.runner.repeatability import SETTINGS, repeatability_study
 
     out.mkdir(parents=True, exist_ok=True)
-    with console.status("running") as status:
+    with status("running") as spinner:
         res = repeatability_study(agent, runs, seconds, map_name, seed,
-                                  progress=lambda s, k: status.update(f"{s}: run {k + 1}/{runs}"))
+                                  progress=lambda s, k: spinner.update(f"{s}: run {k + 1}/{runs}"))
     table = Table(title=f"repeatability of {agent}: {runs} runs × {seconds:g} s per setting (simulated, reality model)")
     for col in ("setting", "MPD (cm)", "± std", "MOD (deg)", "± std", "runs ended early"):
         table.add_column(col, justify="left" if col == "setting" else "right")
@@ -119,7 +123,7 @@ def evaluate(
     agent_cmd: list[str] = typer.Option([], "--agent-cmd", help="NAME=COMMAND of an external agent node (repeat)"),
     domain: str | None = typer.Option(None, help="run in this named domain instead (default, reality)"),
     backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
-    workers: int | None = typer.Option(None, help="parallel workers (default: one per core)"),
+    workers: int | None = typer.Option(None, min=1, help="parallel workers (default: one per core)"),
     run_dir: Path | None = typer.Option(None, help="run directory (default: out/evaluate/<benchmark>)"),
     video: bool = typer.Option(False, "--video", help="also record episode 0 of every agent (MP4 + PNG strip)"),
     quick: bool = typer.Option(False, "--quick", help="smoke test: the first 2 episodes, at most 15 s each"),
@@ -129,7 +133,7 @@ def evaluate(
     Episodes are cached in the run directory: run again to resume an interrupted evaluation. The table
     counts the episodes that ended in a collision (with a map object, a duckie, a pedestrian or a robot).
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 
     from proxybench.agents import ZOO
     from proxybench.runner.backends import make_backend
@@ -139,14 +143,14 @@ def evaluate(
     try:
         bench = Benchmark.load(benchmark)
     except BenchmarkError as exc:
-        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(1) from exc
     if quick:
         bench = _quick(bench)
     specs = _agent_specs(agent or list(ZOO) if not agent_cmd else agent, agent_cmd)
     run_dir = run_dir or Path("out/evaluate") / bench.name
     be = make_backend(backend, workers)
-    with Progress(TextColumn(f"[bold]{bench.name}[/bold] episodes"), BarColumn(), MofNCompleteColumn(),
+    with progress_bar(TextColumn(f"[bold]{bench.name}[/bold] episodes"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), console=console, transient=True) as bar:
         task = bar.add_task("episodes", total=None)
         try:
@@ -154,7 +158,7 @@ def evaluate(
                                     privileged=lambda s: s.command is None and ZOO[s.name].privileged,
                                     progress=lambda d, t: bar.update(task, completed=d, total=t))
         except BenchmarkError as exc:
-            err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+            err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
             raise typer.Exit(2) from exc
         finally:
             be.close()
@@ -190,7 +194,7 @@ def _videos(ev, specs, run_dir: Path) -> None:
             continue
         agent = make_agent_for(spec)
         try:
-            with console.status(f"recording {spec.label}"):
+            with status(f"recording {spec.label}"):
                 _, files = record_episode(Simulator(bench.map, params, npcs=bench.traffic()), agent, ep.seed,
                                           bench.duration,
                                           run_dir / "videos", stem=spec.label, pose=ep.pose, route=ep.route)
@@ -248,10 +252,11 @@ def _print_leaderboard(ev, run_dir: Path) -> None:
                      "wins": r.wins, "losses": r.losses, "ties": r.ties, "collisions": hit, "collided_with": what})
     console.print(table)
     for name, why in ev.refused.items():
-        console.print(f"[yellow]not admitted:[/yellow] {name}: {why}", highlight=False)
+        console.print(f"[yellow]not admitted:[/yellow] {escape(str(name))}: {escape(str(why))}", highlight=False)
     failures = [r for r in ev.sweep.results if r.termination == "agent_failure"]
     for r in failures[:5]:
-        console.print(f"[red]agent failure[/red] {r.agent} episode {r.episode}: {r.message}", highlight=False)
+        console.print(f"[red]agent failure[/red] {r.agent} episode {r.episode}: {escape(str(r.message))}",
+                      highlight=False)
     (run_dir / "leaderboard.json").write_text(json.dumps(rows, indent=1, default=str))
     ev.aggregates.to_csv(run_dir / "aggregates.csv", index=False)
     console.print(f"wrote {run_dir / 'leaderboard.json'}, {run_dir / 'aggregates.csv'}, {run_dir / 'results.parquet'}")

@@ -9,8 +9,10 @@ from pathlib import Path
 from typing import Any
 
 import typer
+from rich.markup import escape
 
 from proxybench.cli.app import app, console, err_console, require_extra
+from proxybench.cli.options import positive
 
 KNOWN_FEATURES = ("sim", "target")
 
@@ -24,14 +26,14 @@ def _token(token: str | None, token_file: Path | None) -> str:
     try:
         return token_file.read_text().strip()
     except OSError as exc:
-        err_console.print(f"[red]✗[/red] cannot read the token file {token_file}: {exc}", highlight=False)
+        err_console.print(f"[red]✗[/red] cannot read the token file {token_file}: {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
 
 
 def _reporter():
-    from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from proxybench.cli.progress import progress_bar
     from proxybench.evaluator import Reporter
 
     class RichReporter(Reporter):
@@ -47,8 +49,8 @@ def _reporter():
             console.print(f"[bold]job {lease['job_id']}[/bold] (attempt {lease.get('attempt', 1)}): "
                           + escape(f"{b['name']} v{b['version']} ← submission {s.get('id')} {s.get('label', '')} "
                                    f"[{who}]"), highlight=False)
-            self.progress = Progress(TextColumn("  {task.description}"), BarColumn(), MofNCompleteColumn(),
-                                     TimeElapsedColumn(), console=console, transient=True)
+            self.progress = progress_bar(TextColumn("  {task.description}"), BarColumn(), MofNCompleteColumn(),
+                                         TimeElapsedColumn(), console=console, transient=True)
             self.progress.start()
             self.task = self.progress.add_task("setting up", total=None)
 
@@ -81,7 +83,8 @@ def evaluator(
     name: str | None = typer.Option(None, help="this evaluator's name, unique per token [host name]"),
     features: str = typer.Option("sim", help="what this evaluator offers, comma-separated: sim, target"),
     once: bool = typer.Option(False, "--once", help="try to take one job, evaluate it, and exit"),
-    poll: float = typer.Option(2.0, min=0.1, help="seconds between lease attempts while the queue is empty"),
+    poll: float = typer.Option(2.0, min=0.1, callback=positive,
+                               help="seconds between lease attempts while the queue is empty"),
     work_dir: Path | None = typer.Option(None, help="folder for job files [<tmp>/proxybench-evaluator/<name>]"),
     sandbox: str = typer.Option("auto", help="agent network isolation: auto, bwrap, unshare or none"),
     cpu_seconds: int = typer.Option(600, min=1, help="CPU time limit of each agent process [s]"),
@@ -128,13 +131,13 @@ def evaluator(
     try:
         ev = Evaluator(server or "http://127.0.0.1:8000", _token(token, token_file), config, _reporter())
     except RuntimeError as exc:
-        err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+        err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
     ev.install_signal_handlers()
     try:
         done = ev.run(once=once)
     except ServerError as exc:
-        err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+        err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
     if ev.stop_reason:
         console.print(f"evaluator {name!r} stopped ({ev.stop_reason}) after {done} job(s)")

@@ -15,9 +15,12 @@ import time
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console, require_extra
+from proxybench.cli.options import positive
+from proxybench.cli.progress import status
 
 server_app = typer.Typer(no_args_is_help=True, help="Administer a challenges server (users, benchmarks, paths).")
 app.add_typer(server_app, name="server")
@@ -42,7 +45,7 @@ def _client(server: str | None, token: str | None, token_file: Path | None):
 
 
 def _fail(exc: Exception) -> typer.Exit:
-    err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+    err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
     return typer.Exit(1)
 
 
@@ -74,13 +77,14 @@ def _evaluator_token(settings) -> Path:
 @app.command()
 def serve(
     host: str = typer.Option("127.0.0.1", help="address to listen on (0.0.0.0 for remote evaluators)"),
-    port: int = typer.Option(8000, help="TCP port"),
+    port: int = typer.Option(8000, min=1, max=65535, help="TCP port"),
     data_dir: Path = typer.Option(DEFAULT_DATA, help="SQLite database, artifacts and tokens"),
     database_url: str | None = typer.Option(None, envvar="PROXYBENCH_SERVER_DATABASE_URL",
                                             help="SQLAlchemy URL, e.g. postgresql+psycopg://u:p@host/db"),
-    evaluators: int = typer.Option(0, help="local evaluator processes to start beside the server"),
+    evaluators: int = typer.Option(0, min=0, help="local evaluator processes to start beside the server"),
     features: str = typer.Option("sim,target", help="features the local evaluators offer"),
-    lease_seconds: float = typer.Option(120.0, help="a job lease lapses this long after the last heartbeat"),
+    lease_seconds: float = typer.Option(120.0, callback=positive,
+                                        help="a job lease lapses this long after the last heartbeat"),
 ) -> None:
     """Run the challenges server (SQLite in --data-dir unless --database-url), optionally with evaluators."""
     require_extra("server")
@@ -124,7 +128,7 @@ def submit(
     label: str | None = typer.Option(None, help="submission label [the agent name]; an older one is retired"),
     description: str = typer.Option("", help="free text"),
     wait: bool = typer.Option(False, help="wait until every job has finished, then show the leaderboard"),
-    timeout: float = typer.Option(1800.0, help="give up waiting after this many seconds"),
+    timeout: float = typer.Option(1800.0, callback=positive, help="give up waiting after this many seconds"),
     server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
 ) -> None:
     """Submit an agent to a benchmark (or a benchmark path) on a challenges server."""
@@ -158,7 +162,7 @@ def submit(
 
 def _wait(client, sid: int, timeout: float) -> dict:
     deadline = time.monotonic() + timeout
-    with console.status("waiting for evaluation…") as status:
+    with status("waiting for evaluation…") as spinner:
         while True:
             sub = client.get(f"/submissions/{sid}")
             open_jobs = [j for j in sub["jobs"] if j["status"] in ("queued", "evaluating")]
@@ -166,7 +170,7 @@ def _wait(client, sid: int, timeout: float) -> dict:
                 return sub
             if time.monotonic() > deadline:
                 raise _fail(TimeoutError(f"submission {sid}: {len(open_jobs)} job(s) still open after {timeout:g} s"))
-            status.update("waiting for evaluation… " + ", ".join(f"job {j['id']}: {j['status']}" for j in open_jobs))
+            spinner.update("waiting for evaluation… " + ", ".join(f"job {j['id']}: {j['status']}" for j in open_jobs))
             time.sleep(1.0)
 
 
@@ -202,7 +206,7 @@ def show_leaderboard(
 @server_app.command("user-add")
 def user_add(
     name: str = typer.Argument(...), role: str = typer.Option("developer", help="superuser, developer or evaluator"),
-    daily_limit: int | None = typer.Option(None, help="submissions per 24 h [server default]"),
+    daily_limit: int | None = typer.Option(None, min=0, help="submissions per 24 h [server default]"),
     server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
 ) -> None:
     """Create a user (super-user token needed); prints the new user's token once."""

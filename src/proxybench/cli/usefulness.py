@@ -6,10 +6,11 @@ import time
 from pathlib import Path
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from proxybench.cli.app import app, console
+from proxybench.cli.progress import progress_bar
 
 
 @app.command()
@@ -17,7 +18,7 @@ def predictivity(
     quick: bool = typer.Option(False, "--quick", help="12 agents × 3 episodes × 20 s (a minute or two)"),
     out: Path = typer.Option(Path("out/predictivity"), help="report folder (figures, tables, report.html)"),
     backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
-    workers: int | None = typer.Option(None, help="parallel workers (default: one per core)"),
+    workers: int | None = typer.Option(None, min=1, help="parallel workers (default: one per core)"),
 ) -> None:
     """Rank agents on the target and on swept simulator instances; plot PRPV, PPV, SRCC, POD (figs 3.3, 3.4).
 
@@ -32,7 +33,7 @@ def predictivity(
     be = make_backend(backend, workers)
     t0 = time.perf_counter()
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-    with Progress(*columns, console=console, transient=True) as bar:
+    with progress_bar(*columns, console=console, transient=True) as bar:
         tasks: dict[str, int] = {}
 
         def progress(stage: str, done: int, total: int) -> None:
@@ -84,7 +85,7 @@ def optimize(
     quick: bool = typer.Option(False, "--quick", help="fewer agents, episodes and trials"),
     out: Path = typer.Option(Path("out/optimize"), help="folder for plots, trials table and episode cache"),
     backend: str = typer.Option("local", help="inline | local | ray"),
-    workers: int | None = typer.Option(None),
+    workers: int | None = typer.Option(None, min=1),
 ) -> None:
     """Find the simulator parameters θ* whose agent ranking best matches the target's (Optuna).
 
@@ -108,8 +109,8 @@ def optimize(
     be = make_backend(backend, workers)
     t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
-    with Progress(TextColumn("trials"), BarColumn(), MofNCompleteColumn(), TextColumn("best {task.fields[best]}"),
-                  TimeRemainingColumn(), console=console, transient=True) as bar:
+    with progress_bar(TextColumn("trials"), BarColumn(), MofNCompleteColumn(), TextColumn("best {task.fields[best]}"),
+                      TimeRemainingColumn(), console=console, transient=True) as bar:
         task = bar.add_task("trials", total=cfg.n_trials, best="–")
         best = [float("inf")]
 

@@ -22,7 +22,7 @@ from proxybench.domain.lane_pose import LP, lane_pose_into, point_on_road
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
 from proxybench.domain.npcs import Traffic, npc_start
-from proxybench.domain.objects import collision_check, pack_objects
+from proxybench.domain.objects import CF_MARGIN, collision_check, footprint_distance, pack_objects
 from proxybench.domain.params import STRUCTURAL_FIELDS, DomainParams
 from proxybench.domain.renderer import Renderer
 from proxybench.domain.routes import RouteTracker
@@ -34,6 +34,8 @@ _MASK64 = (1 << 64) - 1
 _WHEEL_DISTANCE = DYN_FIELDS.index("wheel_distance")
 _NO_TRACE = np.zeros((0, 0, len(TRACE_FIELDS)))
 _NPC_STREAM = 0x4E5043  # spawn key of NPC start draws: independent of the ego's start and route draws
+#: redraws of a random start that lands within a map object's collision margin plus this clearance [m]
+_START_TRIES, _START_CLEARANCE = 50, 0.05
 
 
 @nb.njit(cache=True)
@@ -208,12 +210,19 @@ class Simulator:
         if self.start.use_map_start and self.map.start_tile is not None:
             segs = [s for s in segs if s.tile == self.map.start_tile] or segs
         lengths = np.array([s.length for s in segs])
-        seg = segs[int(rng.choice(len(segs), p=lengths / lengths.sum()))]
-        s = float(rng.uniform(0.1, 0.9)) * seg.length
-        r = float(rng.uniform(-self.start.lateral, self.start.lateral))
-        dh = float(rng.uniform(-self.start.heading, self.start.heading))
-        x, y = seg.position(s, r)
+        for _ in range(_START_TRIES):  # like gym-duckietown, never start on (or right at) a map object
+            seg = segs[int(rng.choice(len(segs), p=lengths / lengths.sum()))]
+            s = float(rng.uniform(0.1, 0.9)) * seg.length
+            r = float(rng.uniform(-self.start.lateral, self.start.lateral))
+            dh = float(rng.uniform(-self.start.heading, self.start.heading))
+            x, y = seg.position(s, r)
+            if self._clear_of_objects(x, y):
+                break
         return x, y, math.remainder(seg.heading_at(s) + dh, 2 * math.pi)
+
+    def _clear_of_objects(self, x: float, y: float) -> bool:
+        """Whether a robot at (x, y) [m] is ``_START_CLEARANCE`` beyond every map object's collision margin."""
+        return all(footprint_distance(x, y, c) >= c[CF_MARGIN] + _START_CLEARANCE for c in self.objects.colliders)
 
     def reset(self, i: int, seed: int, pose: tuple[float, float, float] | None = None,
               route: Sequence[str] | None = None) -> None:
