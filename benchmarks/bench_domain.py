@@ -232,7 +232,9 @@ class BusyNeighbour:
     """Another process that keeps one core busy (a pure-Python loop), for as long as the ``with`` lasts."""
 
     def __enter__(self) -> BusyNeighbour:
-        self.proc = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        # the loop ends by itself when this process goes, even if killed before ``__exit__``
+        loop = "import os\nparent = os.getppid()\nwhile os.getppid() == parent:\n    sum(range(100_000))\n"
+        self.proc = subprocess.Popen([sys.executable, "-c", loop])
         time.sleep(0.3)
         return self
 
@@ -241,8 +243,9 @@ class BusyNeighbour:
         self.proc.wait()
 
 
-def side_by_side(fn: Callable[..., float], args: tuple, rounds: int = 3) -> tuple[float, float]:
-    """(default threads, one thread) medians of ``fn(*args)``, measured alternately in this process."""
+def side_by_side(fn: Callable[..., float], args: tuple, rounds: int = 3, name: str = "") -> tuple[float, float]:
+    """(default threads, one thread) medians of ``fn(*args)``, measured alternately in this process
+    (printed as they come, since a loaded machine makes the table slow)."""
     threads = numba.get_num_threads()
     auto, one = [], []
     try:
@@ -253,6 +256,7 @@ def side_by_side(fn: Callable[..., float], args: tuple, rounds: int = 3) -> tupl
             one.append(fn(*args))
     finally:
         numba.set_num_threads(threads)
+    print(f"  {name}: default {statistics.median(auto):,.0f}, one thread {statistics.median(one):,.0f}", flush=True)
     return statistics.median(auto), statistics.median(one)
 
 
@@ -304,13 +308,13 @@ def main() -> None:
         with BusyNeighbour():
             for r in all_rows:
                 if r.busy:
-                    results.append((r.name, "1 busy process", r.unit, *side_by_side(r.fn, r.args)))
+                    results.append((r.name, "1 busy process", r.unit, *side_by_side(r.fn, r.args, name=r.name)))
         if importlib.util.find_spec("torch") is not None:
             steps = max(10, int(300 * k))
             for w, h in ((640, 480), (160, 120)):
                 results.append((f"single env, {w}×{h}, a PyTorch training step after each (env time)",
                                 "PyTorch, same process", "steps/s",
-                                *side_by_side(bench_single_with_training, (steps, w, h))))
+                                *side_by_side(bench_single_with_training, (steps, w, h), name=f"PyTorch {w}×{h}")))
         print_busy(results)
 
 

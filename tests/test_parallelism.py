@@ -106,3 +106,16 @@ def test_forked_child_uses_one_thread():
     os.close(w)
     assert os.read(r, 16) == b"1"
     os.waitpid(pid, 0)
+
+
+def test_renders_from_two_python_threads_equal_serial(forced):
+    """Two threads rendering at once (one gets the threads, the other runs serial) draw the right frames."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    p = DomainParams(image_width=320, image_height=240, blur_time=0.0)
+    serial = frames(False, p, 1, steps=3)
+    forced(True)
+    with ThreadPoolExecutor(2) as pool:
+        results = list(pool.map(lambda _: frames(True, p, 1, steps=3), range(4)))
+    for r in results:
+        np.testing.assert_array_equal(r, serial)

@@ -32,7 +32,10 @@ import numba as nb
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
-__all__ = ["MIN_PARALLEL_WORK", "ThreadChoice", "fetch_add", "force_parallel", "in_forked_child", "threads_available"]
+__all__ = [
+    "MIN_PARALLEL_WORK", "ThreadChoice", "claim_threads", "fetch_add", "force_parallel", "in_forked_child",
+    "release_threads", "threads_available",
+]
 
 #: below this many pixel-samples (pixels × sub-frames) per call a kernel runs on one thread: measured on
 #: 2 shared cores, a 160×120 frame (19,200; ~0.1 ms) gained ~25 % from a second thread when the machine
@@ -59,6 +62,21 @@ def in_forked_child() -> bool:
 def threads_available() -> int:
     """Threads a kernel may use now: 1 in a forked child, else Numba's current setting."""
     return 1 if _forked else nb.get_num_threads()
+
+
+_slot = threading.Lock()
+
+
+def claim_threads() -> bool:
+    """Take the right to run a parallel kernel now (False if another Python thread holds it: run serial
+    then). One parallel kernel at a time: two would share the same cores anyway, and Numba's workqueue
+    layer (the fallback where OpenMP and TBB are missing) aborts the process on concurrent launches."""
+    return _slot.acquire(blocking=False)
+
+
+def release_threads() -> None:
+    """Give back what :func:`claim_threads` took."""
+    _slot.release()
 
 
 def force_parallel(value: bool | None) -> None:

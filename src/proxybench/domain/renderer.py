@@ -30,7 +30,13 @@ from proxybench.domain.camera import CameraTable, camera_table
 from proxybench.domain.lanes import LaneArrays
 from proxybench.domain.maps import MapObject
 from proxybench.domain.objects import MATERIAL_PARAMS, ObjectArrays, pack_objects
-from proxybench.domain.parallelism import ThreadChoice, fetch_add, threads_available
+from proxybench.domain.parallelism import (
+    ThreadChoice,
+    claim_threads,
+    fetch_add,
+    release_threads,
+    threads_available,
+)
 from proxybench.domain.params import DomainParams
 from proxybench.domain.render_ground import GRAIN, gauss_from_hash, grain_table, mix64, pixel_ground, span_row
 from proxybench.domain.render_objects import OBJECT_RANGE, camera_row, cull_objects, draw_object_row, pixel_rays
@@ -441,13 +447,16 @@ class Renderer:
         work = int(k_count[: out.shape[0]].sum()) * self.height * self.width
         # one thread or all, by timing both on batches of this size (domain.parallelism)
         threads = ThreadChoice.shared((rows, self.width, poses.shape[1]))
-        parallel = threads.parallel(work)
+        parallel = threads.parallel(work) and claim_threads()
         t0 = time.perf_counter()
         if parallel:
-            workers = threads_available()
-            # about 16 chunks per thread: small enough that a parked thread holds up little of the frame
-            chunk = max(1, rows // (16 * workers))
-            render_parallel(workers, np.zeros(1, dtype=np.int64), chunk, *args)
+            try:
+                workers = threads_available()
+                # about 16 chunks per thread: small enough that a parked thread holds up little of the frame
+                chunk = max(1, rows // (16 * workers))
+                render_parallel(workers, np.zeros(1, dtype=np.int64), chunk, *args)
+            finally:
+                release_threads()
         else:
             render_rows(0, rows, *args)
         threads.record(parallel, time.perf_counter() - t0, work)
