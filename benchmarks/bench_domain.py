@@ -14,7 +14,8 @@ and async vector envs of 8 (async: one worker process per env, each on one threa
 
 The second table runs every figure beside a busy neighbour process (a pure-Python loop that keeps one core
 busy) and, without it, with a PyTorch training step after every env step in the same process; each is
-measured with the default threads and with ``numba.set_num_threads(1)``, alternately, and the default must
+measured with the default threads and with ``numba.set_num_threads(1)``, alternating every twentieth of the
+steps of one run (so that both see the same drifting load), and the default must
 reach ≥ 90 % of one thread (issue 16: a parallel kernel must never lose to a serial one under contention).
 """
 
@@ -66,33 +67,82 @@ def loop_with_objects() -> Map:
     return dataclasses.replace(load_map("loop_3x3"), objects=objs)
 
 
-def bench_single(steps: int, width: int, height: int, blur: float, map_: Map | str = "loop_3x3") -> float:
+class Clock:
+    """Times the steps of a benchmark loop (``begin`` / ``end`` around each); ``rate`` gives units/s."""
+
+    def __init__(self) -> None:
+        self.elapsed = 0.0
+        self.steps = 0
+
+    def begin(self) -> None:
+        self._t = time.perf_counter()
+
+    def end(self) -> None:
+        self.elapsed += time.perf_counter() - self._t
+        self.steps += 1
+
+    def rate(self, units_per_step: float) -> float:
+        return units_per_step * self.steps / self.elapsed
+
+
+class Alternating(Clock):
+    """Switches between the default threads and ``numba.set_num_threads(1)`` every ``block`` steps of one
+    loop, timing each: on a shared machine whose load drifts, both modes see the same load."""
+
+    def __init__(self, block: int) -> None:
+        super().__init__()
+        self.block = max(1, block)
+        self.threads = numba.get_num_threads()
+        self.by_mode = {True: [0.0, 0], False: [0.0, 0]}
+        self.mode = True
+
+    def end(self) -> None:
+        dt = time.perf_counter() - self._t
+        slot = self.by_mode[self.mode]
+        slot[0] += dt
+        slot[1] += 1
+        if slot[1] % self.block == 0:
+            self.mode = not self.mode
+            numba.set_num_threads(self.threads if self.mode else 1)
+
+    def rate(self, units_per_step: float) -> tuple[float, float]:
+        numba.set_num_threads(self.threads)
+        (ta, na), (to, no) = self.by_mode[True], self.by_mode[False]
+        return units_per_step * na / ta, units_per_step * no / to
+
+
+def bench_single(steps: int, width: int, height: int, blur: float, map_: Map | str = "loop_3x3",
+                 clock: Clock | None = None) -> float:
     env = LaneFollowingEnv(map_, params=DomainParams(image_width=width, image_height=height, blur_time=blur))
     env.reset(seed=0)
     for _ in range(20):
         env.step(np.array([0.3, 0.3]))
     env.reset(seed=1)
     lp = env.sim.lane
-    t0 = time.perf_counter()
+    clock = clock or Clock()
     for _ in range(steps):
+        clock.begin()
         a = pid_actions(lp[:1, LP.LATERAL], lp[:1, LP.HEADING_ERROR])[0]
         _, _, term, trunc, _ = env.step(a)
         if term or trunc:
             env.reset()
-    return steps / (time.perf_counter() - t0)
+        clock.end()
+    return clock.rate(1)
 
 
-def bench_vector(steps: int, n: int, width: int, height: int, blur: float) -> float:
+def bench_vector(steps: int, n: int, width: int, height: int, blur: float, clock: Clock | None = None) -> float:
     env = LaneFollowingVectorEnv(num_envs=n, params=DomainParams(image_width=width, image_height=height,
                                                                  blur_time=blur))
     env.reset(seed=0)
     for _ in range(5):
         env.step(np.full((n, 2), 0.3))
     lp = env.sim.lane
-    t0 = time.perf_counter()
+    clock = clock or Clock()
     for _ in range(steps):
+        clock.begin()
         env.step(pid_actions(lp[:, LP.LATERAL], lp[:, LP.HEADING_ERROR]))
-    return n * steps / (time.perf_counter() - t0)
+        clock.end()
+    return clock.rate(n)
 
 
 #: three NPC Duckiebots: one 0.6 m ahead in the robot's lane (in view), two anywhere on the lanes
@@ -100,34 +150,38 @@ THREE_NPCS = Traffic(robots=(NpcRobot(ahead=0.6), NpcRobot(), NpcRobot(driver="p
 
 
 def bench_sim(steps: int, n: int, width: int, height: int, map_: Map | str = "loop_3x3",
-              npcs: Traffic | None = None) -> float:
+              npcs: Traffic | None = None, clock: Clock | None = None) -> float:
     """Env-steps/s of the simulator itself (render + step, PD on the egos and the NPC robots), any world."""
     sim = Simulator(map_, DomainParams(image_width=width, image_height=height, blur_time=0.0), n=n, npcs=npcs)
     for i in range(n):
         sim.reset(i, seed=i)
     sim.render()
-    t0 = time.perf_counter()
+    clock = clock or Clock()
     for k in range(steps):
+        clock.begin()
         sim.render()
         npc = pid_actions(sim.npc_lane[:, LP.LATERAL], sim.npc_lane[:, LP.HEADING_ERROR]) if sim.worlds.k else None
         sim.step(pid_actions(sim.lane[:, LP.LATERAL], sim.lane[:, LP.HEADING_ERROR]), npc_commands=npc)
         if k % 150 == 149:  # fresh episodes now and then, as an env would after a crash
             for i in range(n):
                 sim.reset(i, seed=k + i)
-    return n * steps / (time.perf_counter() - t0)
+        clock.end()
+    return clock.rate(n)
 
 
-def bench_physics(steps: int, n: int) -> float:
+def bench_physics(steps: int, n: int, clock: Clock | None = None) -> float:
     sim = Simulator("loop_3x3", DomainParams(), n=n, render=False)
     sim.step(np.zeros((n, 2)))
     lp = sim.lane
-    t0 = time.perf_counter()
+    clock = clock or Clock()
     for _ in range(steps):
+        clock.begin()
         sim.step(pid_actions(lp[:, LP.LATERAL], lp[:, LP.HEADING_ERROR]))
-    return n * steps / (time.perf_counter() - t0)
+        clock.end()
+    return clock.rate(n)
 
 
-def bench_gym_vec(steps: int, n: int, width: int, height: int, mode: str) -> float:
+def bench_gym_vec(steps: int, n: int, width: int, height: int, mode: str, clock: Clock | None = None) -> float:
     """Env-steps/s of ``gym.make_vec(..., vectorization_mode=mode)`` (sync: one process; async: a worker each)."""
     env = gym.make_vec("proxybench/LaneFollowing-v0", num_envs=n, vectorization_mode=mode,
                        params={"image_width": width, "image_height": height, "blur_time": 0.0})
@@ -135,17 +189,19 @@ def bench_gym_vec(steps: int, n: int, width: int, height: int, mode: str) -> flo
         _, info = env.reset(seed=0)
         for _ in range(5):
             _, _, _, _, info = env.step(np.full((n, 2), 0.3, dtype=np.float32))
-        t0 = time.perf_counter()
+        clock = clock or Clock()
         for _ in range(steps):
+            clock.begin()
             lat = np.array([lp.lateral for lp in info["lane_pose"]])
             head = np.array([lp.heading_error for lp in info["lane_pose"]])
             _, _, _, _, info = env.step(pid_actions(lat, head).astype(np.float32))
-        return n * steps / (time.perf_counter() - t0)
+            clock.end()
+        return clock.rate(n)
     finally:
         env.close()
 
 
-def bench_single_with_training(steps: int, width: int, height: int) -> float:
+def bench_single_with_training(steps: int, width: int, height: int, clock: Clock | None = None) -> float:
     """Env steps/s (time in ``env.step`` only) of a single env when every step is followed by a PyTorch
     training step in the same process (a small CNN on the frame, PyTorch's default threads, whose OpenMP
     workers spin after each operation), as a learning agent's loop does."""
@@ -169,16 +225,16 @@ def bench_single_with_training(steps: int, width: int, height: int) -> float:
         obs, *_ = env.step(np.array([0.3, 0.3]))
         train(obs)
     env.reset(seed=1)
-    in_env = 0.0
+    clock = clock or Clock()
     for _ in range(steps):
         a = pid_actions(lp[:1, LP.LATERAL], lp[:1, LP.HEADING_ERROR])[0]
-        t0 = time.perf_counter()
+        clock.begin()
         obs, _, term, trunc, _ = env.step(a)
-        in_env += time.perf_counter() - t0
+        clock.end()
         train(obs)
         if term or trunc:
             env.reset()
-    return steps / in_env
+    return clock.rate(1)
 
 
 def median3(fn, *args) -> float:
@@ -243,21 +299,12 @@ class BusyNeighbour:
         self.proc.wait()
 
 
-def side_by_side(fn: Callable[..., float], args: tuple, rounds: int = 3, name: str = "") -> tuple[float, float]:
-    """(default threads, one thread) medians of ``fn(*args)``, measured alternately in this process
-    (printed as they come, since a loaded machine makes the table slow)."""
-    threads = numba.get_num_threads()
-    auto, one = [], []
-    try:
-        for _ in range(rounds):
-            numba.set_num_threads(threads)
-            auto.append(fn(*args))
-            numba.set_num_threads(1)
-            one.append(fn(*args))
-    finally:
-        numba.set_num_threads(threads)
-    print(f"  {name}: default {statistics.median(auto):,.0f}, one thread {statistics.median(one):,.0f}", flush=True)
-    return statistics.median(auto), statistics.median(one)
+def side_by_side(fn: Callable[..., float], args: tuple, name: str = "") -> tuple[float, float]:
+    """(default threads, one thread) rates of ``fn(*args)``: one run whose steps alternate between the two
+    in blocks of about a twentieth (printed as they come, since a loaded machine makes the table slow)."""
+    auto, one = fn(*args, clock=Alternating(args[0] // 20))
+    print(f"  {name}: default {auto:,.0f}, one thread {one:,.0f}", flush=True)
+    return auto, one
 
 
 def print_table(all_rows: list[Row], values: dict[str, float]) -> None:
@@ -275,7 +322,7 @@ def print_table(all_rows: list[Row], values: dict[str, float]) -> None:
 
 def print_busy(results: list[tuple[str, str, str, float, float]]) -> None:
     table = Table(title="beside a busy neighbour: default threads vs the same code on one thread "
-                        "(measured alternately; target ≥ 90 %)")
+                        "(alternating blocks of steps in one run; target ≥ 90 %)")
     for col in ("case", "neighbour", "unit", "default", "one thread", "ratio"):
         table.add_column(col, justify="left" if col in ("case", "neighbour") else "right")
     for name, neighbour, unit, auto, one in results:
