@@ -111,8 +111,9 @@ class ThreadChoice:
 
     Each call asks :meth:`parallel` and reports its wall time with :meth:`record`. Calls run on one thread
     until that has been timed; then all threads are tried for ``probe_calls`` calls, and the mode with the
-    lower median of its recent timings is kept (parallel must be ``margin`` faster, since it takes a second
-    core from whatever else runs). The other mode is tried again after ``probe_every`` seconds, an interval
+    lower median of its recent timings is kept (parallel must take at most ``margin`` of one thread's time:
+    it takes a second core from whatever else runs, and a close call on a loaded machine is often a loss).
+    The other mode is tried again after ``probe_every`` seconds, an interval
     that doubles (up to ``max_interval``) each time the try loses, so a loaded machine pays for few slow
     tries and a machine that becomes quiet is noticed within that interval. Get one with :meth:`shared`:
     the load is the machine's, so every simulator with the same work size shares what was measured.
@@ -121,7 +122,7 @@ class ThreadChoice:
     _registry: ClassVar[dict[tuple, ThreadChoice]] = {}
 
     def __init__(self, min_work: int = MIN_PARALLEL_WORK, probe_every: float = 0.5, probe_calls: int = 3,
-                 max_interval: float = 30.0, margin: float = 0.9, window: int = 5,
+                 max_interval: float = 30.0, margin: float = 0.8, window: int = 5,
                  clock: Callable[[], float] = time.perf_counter):
         self.clock = clock
         self.min_work = min_work
