@@ -11,6 +11,15 @@ from rich.markup import escape
 from rich.progress import BarColumn, TextColumn, TimeRemainingColumn
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.node_options import (
+    AGENT_CWD_HELP,
+    NO_REFLECTION_HELP,
+    START_TIMEOUT_HELP,
+    STEP_TIMEOUT_HELP,
+    TRANSPORT_HELP,
+    node_options,
+    remote_agent,
+)
 from proxybench.cli.options import positive
 from proxybench.cli.progress import progress_bar
 
@@ -32,13 +41,20 @@ def run(
     robot_cmd: str | None = typer.Option(None, "--robot-cmd",
                                          help="drive a robot node instead of the built-in simulator: any command "
                                               "speaking the robot protocol, e.g. 'proxybench robot serve'"),
+    agent_cwd: Path | None = typer.Option(None, "--agent-cwd", help=AGENT_CWD_HELP),
+    transport: str = typer.Option("pipe", "--transport", help=TRANSPORT_HELP),
+    start_timeout: float = typer.Option(30.0, "--start-timeout", help=START_TIMEOUT_HELP),
+    step_timeout: float = typer.Option(5.0, "--step-timeout", help=STEP_TIMEOUT_HELP),
+    no_reflection: bool = typer.Option(False, "--no-reflection", help=NO_REFLECTION_HELP),
 ) -> None:
     """Drive an agent (default: the privileged PID controller) around a map in simulation and record it.
 
     Writes a video (camera view beside a top-down view), a PNG strip of camera frames and one metrics
     line. This is a *simulated* run: nothing here comes from a real robot. With --robot-cmd the robot is
     a node process (docs/robot-protocol.md) that decides camera size and rates; no video is written and
-    the metrics say what the robot reported it is (``source``).
+    the metrics say what the robot reported it is (``source``). --agent-cmd takes a command as you would
+    type it (shell syntax such as `cd dir && exec node` works); --agent-cwd, --transport, the timeouts and
+    --no-reflection say how to start and talk to it (docs/protocol.md §7).
     """
     from proxybench.agents import make_agent
     from proxybench.cli.maps import load_map_printing_warnings
@@ -48,6 +64,7 @@ def run(
     from proxybench.runner.record import record_episode
     from proxybench.tasks.metrics import METRICS
 
+    options = node_options(agent_cwd, transport, start_timeout, step_timeout, no_reflection)
     try:
         m = load_map_printing_warnings(map_name)
     except (MapError, OSError) as exc:
@@ -67,7 +84,7 @@ def run(
         from proxybench.cli.robot import run_on_robot
 
         try:
-            agent = make_agent(agent_name) if agent_cmd is None else _remote(agent_cmd)
+            agent = make_agent(agent_name) if agent_cmd is None else remote_agent(agent_cmd, options)
         except KeyError as exc:
             err_console.print(f"[red]error:[/red] {escape(str(exc.args[0]))}", highlight=False)
             raise typer.Exit(2) from exc
@@ -76,7 +93,7 @@ def run(
     params = DomainParams(image_width=width, image_height=height)
     sim = Simulator(m, params)
     try:
-        agent = make_agent(agent_name) if agent_cmd is None else _remote(agent_cmd)
+        agent = make_agent(agent_name) if agent_cmd is None else remote_agent(agent_cmd, options)
     except KeyError as exc:
         err_console.print(f"[red]error:[/red] {escape(str(exc.args[0]))}", highlight=False)
         raise typer.Exit(2) from exc
@@ -107,17 +124,3 @@ def run(
         + " ".join(f"{k}={v:.2f}" for k, v in scores.items()) + f" end={traj.termination} wall={elapsed:.1f}s",
         highlight=False, markup=False,
     )
-
-
-def _remote(cmd: str):
-    """An agent node started with ``cmd``; a node that fails to start is a clear error, not a traceback."""
-    from proxybench.protocol import AgentFailure, RemoteAgent
-
-    try:
-        return RemoteAgent(cmd)
-    except AgentFailure as exc:
-        err_console.print(f"[red]error:[/red] agent node {escape(repr(cmd))} failed to start: {escape(str(exc))}",
-                          highlight=False)
-        for line in exc.stderr_tail[-10:]:
-            err_console.print(f"    {line}", highlight=False, markup=False)
-        raise typer.Exit(1) from exc

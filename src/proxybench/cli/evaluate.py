@@ -9,6 +9,14 @@ from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.node_options import (
+    AGENT_CWD_HELP,
+    NO_REFLECTION_HELP,
+    START_TIMEOUT_HELP,
+    STEP_TIMEOUT_HELP,
+    TRANSPORT_HELP,
+    node_options,
+)
 from proxybench.cli.options import positive
 from proxybench.cli.progress import progress_bar, status
 
@@ -99,10 +107,16 @@ def repeatability(
     console.print(f"wrote {out / 'repeatability.json'}, {png} (+ .svg)")
 
 
-def _agent_specs(names: list[str], commands: list[str]) -> list:
+def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:
+    """--agent and --agent-cmd, else the benchmark file's ``agents:``, else every zoo agent."""
     from proxybench.agents import ZOO
     from proxybench.runner.jobs import AgentSpec
 
+    if not names and not commands:
+        if bench.agents:
+            return [AgentSpec.node(e.name, e.command_line, e.node_options()) if e.is_node else AgentSpec(e.name)
+                    for e in bench.agents]
+        names = list(ZOO)
     specs = []
     for n in names:
         if n not in ZOO:
@@ -112,7 +126,7 @@ def _agent_specs(names: list[str], commands: list[str]) -> list:
         name, sep, cmd = item.partition("=")
         if not sep or not name.strip() or not cmd.strip():
             raise typer.BadParameter(f"{item!r}: expected NAME=COMMAND", param_hint="--agent-cmd")
-        specs.append(AgentSpec(name.strip(), cmd.strip()))
+        specs.append(AgentSpec.node(name.strip(), cmd.strip(), options))
     return specs
 
 
@@ -127,11 +141,19 @@ def evaluate(
     run_dir: Path | None = typer.Option(None, help="run directory (default: out/evaluate/<benchmark>)"),
     video: bool = typer.Option(False, "--video", help="also record episode 0 of every agent (MP4 + PNG strip)"),
     quick: bool = typer.Option(False, "--quick", help="smoke test: the first 2 episodes, at most 15 s each"),
+    agent_cwd: Path | None = typer.Option(None, "--agent-cwd", help=AGENT_CWD_HELP + " (of every --agent-cmd)"),
+    transport: str = typer.Option("pipe", "--transport", help=TRANSPORT_HELP),
+    start_timeout: float = typer.Option(30.0, "--start-timeout", help=START_TIMEOUT_HELP),
+    step_timeout: float = typer.Option(5.0, "--step-timeout", help=STEP_TIMEOUT_HELP),
+    no_reflection: bool = typer.Option(False, "--no-reflection", help=NO_REFLECTION_HELP),
 ) -> None:
     """Run agents on a benchmark and print the leaderboard in the benchmark's lexicographic semiorder.
 
-    Episodes are cached in the run directory: run again to resume an interrupted evaluation. The table
-    counts the episodes that ended in a collision (with a map object, a duckie, a pedestrian or a robot).
+    Without --agent / --agent-cmd the agents are the benchmark file's `agents:` list, else the whole zoo.
+    --agent-cmd takes NAME=COMMAND, the command as you would type it (shell syntax works); --agent-cwd,
+    --transport, the timeouts and --no-reflection apply to every --agent-cmd. Episodes are cached in the
+    run directory: run again to resume an interrupted evaluation. The table counts the episodes that
+    ended in a collision (with a map object, a duckie, a pedestrian or a robot).
     """
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 
@@ -147,7 +169,8 @@ def evaluate(
         raise typer.Exit(1) from exc
     if quick:
         bench = _quick(bench)
-    specs = _agent_specs(agent or list(ZOO) if not agent_cmd else agent, agent_cmd)
+    options = node_options(agent_cwd, transport, start_timeout, step_timeout, no_reflection)
+    specs = _agent_specs(agent, agent_cmd, options, bench)
     run_dir = run_dir or Path("out/evaluate") / bench.name
     be = make_backend(backend, workers)
     with progress_bar(TextColumn(f"[bold]{bench.name}[/bold] episodes"), BarColumn(), MofNCompleteColumn(),

@@ -31,14 +31,35 @@ __all__ = [
 
 @dataclass(frozen=True)
 class AgentSpec:
-    """A zoo agent by ``name``, or an external node started with ``command`` (any language)."""
+    """A zoo agent by ``name``, or an external node started with ``command`` (any language; a string may use
+    shell syntax) and ``options``: the non-default fields of :class:`~proxybench.protocol.options.NodeOptions`
+    (working directory, transport, timeouts, reflection) as sorted pairs, so the spec stays hashable."""
 
     name: str
     command: str | None = None
+    options: tuple[tuple[str, Any], ...] = ()
+
+    @classmethod
+    def node(cls, name: str, command: str, options: Any = None) -> AgentSpec:
+        """A node agent; ``options``: a ``NodeOptions`` (or None for the defaults)."""
+        return cls(name, command, options.items() if options is not None else ())
 
     @property
     def label(self) -> str:
         return self.name
+
+    def node_options(self):
+        """The ``NodeOptions`` of a node agent."""
+        from proxybench.protocol.options import NodeOptions
+
+        return NodeOptions(**dict(self.options))
+
+    def key_data(self) -> dict[str, Any]:
+        """What identifies the agent in a job's hash (options only when set, so older keys stay valid)."""
+        data: dict[str, Any] = {"name": self.name, "command": self.command}
+        if self.options:
+            data["options"] = dict(self.options)
+        return data
 
 
 #: what a domain can be: a proxy instance S_θ, the built-in reality model, or a robot node (the robot protocol)
@@ -111,7 +132,7 @@ class Job:
     def key(self) -> str:
         """Content hash: equal keys ⇔ the same result (given deterministic agents)."""
         blob = json.dumps(
-            {"agent": asdict(self.agent), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
+            {"agent": self.agent.key_data(), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
              "seed": self.seed, "pose": self.pose, "duration": self.duration, "camera_only": self.camera_only,
              "route": self.route, "npcs": None if self.npcs is None else self.npcs.to_dict(),
              "version": __version__, "engine": ENGINE_VERSION},
@@ -206,7 +227,7 @@ def make_agent_for(spec: AgentSpec):
     if spec.command:
         from proxybench.protocol import RemoteAgent
 
-        agent = RemoteAgent(spec.command)
+        agent = RemoteAgent(spec.command, **spec.node_options().process_kwargs())
         agent.name = spec.name
         return agent
     from proxybench.agents import make_agent

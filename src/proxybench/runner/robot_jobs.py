@@ -96,7 +96,8 @@ def execute_robot_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]
                         continue
                     if robot is None:
                         robot = RemoteRobot(domain.command, init_timeout=ROBOT_INIT_TIMEOUT_S,
-                                            step_timeout=ROBOT_STEP_TIMEOUT_S)
+                                            step_timeout=ROBOT_STEP_TIMEOUT_S,  # a robot not saying its rate:
+                                            frame_rate=float(domain.params.get("frame_rate", 15.0)))  # the domain's
                     if job.map not in maps:
                         maps[job.map] = load_map(job.map)
                     t1 = time.perf_counter()
