@@ -85,6 +85,7 @@ def test_choice_backs_off_while_parallel_loses(monkeypatch):
     modes = fed(choice, serial=1.0, parallel=3.0, calls=300)
     assert not choice.current
     assert 3 <= modes.count(True) <= 30  # the first try, then tries ever further apart
+    assert "PP" not in "".join("P" if m else "s" for m in modes)  # a try that loses at once stops at once
     assert choice._interval >= 64.0
 
 

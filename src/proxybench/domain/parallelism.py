@@ -151,6 +151,15 @@ class ThreadChoice:
             return self.current
         return statistics.median(par) < self.margin * statistics.median(ser)
 
+    def _losing(self, mode: bool, sample: float) -> bool:
+        """One call of a try already shows ``mode`` cannot win: stop the try (a parallel call on a loaded
+        machine can cost many serial ones, so a try should not insist)."""
+        other = self.samples[not mode]
+        if not other:
+            return False
+        ref = statistics.median(other)
+        return sample * self.margin >= ref if mode else sample >= self.margin * ref
+
     def parallel(self, work: int) -> bool:
         """Run the next call of ``work`` units (pixel-samples) on all threads?"""
         if work < self.min_work or threads_available() < 2:
@@ -163,7 +172,8 @@ class ThreadChoice:
                 return not self.current
             if len(self.samples[False]) < 2:
                 return False
-            if self.clock() >= self._next_probe:
+            if self.clock() >= self._next_probe:  # a try: judged on fresh timings only
+                self.samples[not self.current].clear()
                 self._probe_left = self.probe_calls - 1
                 return not self.current
             return self.current
@@ -172,13 +182,17 @@ class ThreadChoice:
         """Report the wall time of a call that :meth:`parallel` was asked about."""
         if work < self.min_work:
             return
+        sample = seconds / work
         with self._lock:
-            self.samples[parallel].append(seconds / work)
-            if parallel != self.current and self._probe_left == 0:  # the last call of a try
-                best = self._best()
-                self._interval = self.probe_every if best != self.current else min(2 * self._interval,
-                                                                                   self.max_interval)
-                self._next_probe = self.clock() + self._interval
-                self.current = best
-            elif parallel == self.current:
+            self.samples[parallel].append(sample)
+            if parallel != self.current:  # a call of a try
+                if self._probe_left > 0 and self._losing(parallel, sample):
+                    self._probe_left = 0
+                if self._probe_left == 0:  # the try is over
+                    best = self._best() if len(self.samples[parallel]) >= 2 else self.current
+                    self._interval = (self.probe_every if best != self.current
+                                      else min(2 * self._interval, self.max_interval))
+                    self._next_probe = self.clock() + self._interval
+                    self.current = best
+            else:
                 self.current = self._best()
