@@ -117,19 +117,15 @@ class _Job:
             raise SubmissionFault(f"agent archive refused: {exc}") from None
         except sb.ArchiveMismatch as exc:
             raise HostFault(str(exc)) from None
-        try:
-            command = sb.agent_command(manifest, self.dir / "agent", sb.Limits(**self.cfg["limits"]), isolation)
+        try:  # FIFO transport: a folder of FIFOs beside the package, in the job folder (mode 700)
+            spec = sb.package_spec(manifest, self.dir / "agent", sb.Limits(**self.cfg["limits"]), isolation)
         except sb.SandboxError as exc:
             raise HostFault(str(exc)) from None
         self.unsafe = not isolation.safe
-        log.log(logging.WARNING if self.unsafe else logging.INFO, "agent: package %r (%s), command %s; sandbox: %s",
-                manifest.name, sub["archive_sha256"][:12], manifest.command, isolation.note)
-        options = manifest.node_options()
-        if options.transport == "fifo":  # the sandbox shows the agent none of the evaluator's folders (for now)
-            log.warning("agent: the manifest asks for transport fifo; agents in the sandbox run over pipes, so "
-                        "what the agent prints to stdout breaks the protocol (print to stderr)")
-            options = options.model_copy(update={"transport": "pipe"})
-        return AgentSpec.node(manifest.name, command, options)
+        log.log(logging.WARNING if self.unsafe else logging.INFO,
+                "agent: package %r (%s), command %s, transport %s; sandbox: %s", manifest.name,
+                sub["archive_sha256"][:12], manifest.command, manifest.transport, isolation.note)
+        return spec
 
     # -- running -----------------------------------------------------------------------------------
 
