@@ -16,6 +16,14 @@ from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemaini
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.node_options import (
+    RobotCwd,
+    RobotNoReflection,
+    RobotStartTimeout,
+    RobotStepTimeout,
+    RobotTransport,
+    robot_option_values,
+)
 from proxybench.cli.options import non_negative, positive
 from proxybench.cli.progress import progress_bar
 
@@ -116,6 +124,11 @@ def predictivity(
     target: str | None = typer.Option(None, help=f"{_TARGET_HELP} (default: reality)"),
     target_param: list[str] = typer.Option([], "--target-param", help="reality model θ, k=v (repeat)"),
     robot_nodes: int | None = typer.Option(None, min=1, help="robot node processes at once (default: 1)"),
+    robot_cwd: RobotCwd = None,
+    robot_transport: RobotTransport = None,
+    robot_start_timeout: RobotStartTimeout = None,
+    robot_step_timeout: RobotStepTimeout = None,
+    robot_no_reflection: RobotNoReflection = False,
     agent: list[str] = typer.Option([], "--agent", help=f"{_AGENT_HELP} (default: the target's, else the zoo set)"),
     map_name: str | None = typer.Option(None, "--map", help="map (default: the target's, else loop_3x3)"),
     episodes: int | None = typer.Option(None, min=1, help="episodes per agent (default: 10; --quick 3)"),
@@ -146,6 +159,8 @@ def predictivity(
     from proxybench.usefulness.report import findings, write_report
 
     over = _overrides(target=target, target_params=_kv(target_param, "--target-param"), robot_nodes=robot_nodes,
+                      robot_options=robot_option_values(robot_cwd, robot_transport, robot_start_timeout,
+                                                        robot_step_timeout, robot_no_reflection),
                       agents=agent, map=map_name,
                       episodes=episodes, seconds=seconds, metrics=metric, image_size=_image_size(image_size),
                       proxy=_kv(proxy_param, "--proxy-param"), sweep=_sweep(sweep), n_boot=n_boot,
@@ -202,6 +217,11 @@ def optimize(
     target: str | None = typer.Option(None, help=f"{_TARGET_HELP} (default: reality)"),
     target_param: list[str] = typer.Option([], "--target-param", help="reality model θ, k=v (repeat)"),
     robot_nodes: int | None = typer.Option(None, min=1, help="robot node processes at once (default: 1)"),
+    robot_cwd: RobotCwd = None,
+    robot_transport: RobotTransport = None,
+    robot_start_timeout: RobotStartTimeout = None,
+    robot_step_timeout: RobotStepTimeout = None,
+    robot_no_reflection: RobotNoReflection = False,
     agent: list[str] = typer.Option([], "--agent", help=f"{_AGENT_HELP} (default: the target's, else 12 zoo agents)"),
     map_name: str | None = typer.Option(None, "--map", help="map (default: the target's, else loop_3x3)"),
     episodes: int | None = typer.Option(None, min=1, help="episodes per agent (default: 4; --quick 2)"),
@@ -238,6 +258,8 @@ def optimize(
     search = _overrides(space=_space(param) or None, objective=objective, trials=trials, sampler=sampler,
                         storage=storage, study_name=study_name)
     over = _overrides(target=target, target_params=_kv(target_param, "--target-param"), robot_nodes=robot_nodes,
+                      robot_options=robot_option_values(robot_cwd, robot_transport, robot_start_timeout,
+                                                        robot_step_timeout, robot_no_reflection),
                       agents=agent, map=map_name,
                       episodes=episodes, seconds=seconds, metrics=metric, image_size=_image_size(image_size),
                       proxy=_kv(proxy_param, "--proxy-param"), search=search or None, n_boot=n_boot, seed=seed,
