@@ -205,9 +205,11 @@ def test_archive_submissions_checked_and_artifacts_scoped(api):
     assert api.c.get(f"/api/v1/artifacts/{sha}", headers=api.dev).status_code == 200
     r = api.c.get(f"/api/v1/artifacts/{sha}", headers=api.dev2)
     assert r.status_code == 403 and "another user" in r.json()["detail"]
-    assert api.c.get(f"/api/v1/artifacts/{sha}", headers=api.ev).status_code == 200  # evaluators fetch archives
-    # evaluator artifacts: hash checked; hidden ones stay hidden from the developer
+    r = api.c.get(f"/api/v1/artifacts/{sha}", headers=api.ev)  # evaluators: only archives of jobs they hold
+    assert r.status_code == 403
     lease = api.lease().json()
+    assert api.c.get(f"/api/v1/artifacts/{sha}", headers=api.ev).status_code == 200
+    # evaluator artifacts: hash checked; hidden ones stay hidden from the developer
     log, secret = b"episode log", b"hidden test trajectory"
     import hashlib
 

@@ -2,8 +2,9 @@
 
 ``proxybench serve --evaluators 1`` is the one-command local network: an SQLite server in a data folder
 and an evaluator process pulling its jobs. Clients find the server in ``--server`` / $PROXYBENCH_SERVER
-(default http://127.0.0.1:8000) and their token in ``--token`` / $PROXYBENCH_TOKEN / ``--token-file``
-(default: the local server's ``proxybench-server/admin.token``).
+(default http://127.0.0.1:8000) and their token in $PROXYBENCH_TOKEN, ``--token-file`` or
+$PROXYBENCH_TOKEN_FILE (default: the local server's ``proxybench-server/admin.token``). There is no
+``--token``: a command line is readable by every user of the machine (``/proc/PID/cmdline``).
 """
 
 from __future__ import annotations
@@ -24,21 +25,36 @@ app.add_typer(server_app, name="server")
 
 DEFAULT_DATA = Path("proxybench-server")
 ServerOpt = typer.Option(None, "--server", envvar="PROXYBENCH_SERVER", help="server URL [http://127.0.0.1:8000]")
-TokenOpt = typer.Option(None, "--token", envvar="PROXYBENCH_TOKEN", help="API token")
-TokenFileOpt = typer.Option(None, "--token-file", help="file holding the API token [proxybench-server/admin.token]")
+TokenOpt = typer.Option(None, "--token", hidden=True, help="refused: a command line is visible to every user")
+TokenFileOpt = typer.Option(None, "--token-file", help="file holding the API token (or $PROXYBENCH_TOKEN, "
+                                                       "$PROXYBENCH_TOKEN_FILE) [proxybench-server/admin.token]")
+NO_ARGV_TOKEN = ("--token is not accepted: a command line is readable by every user of the machine "
+                 "(/proc/PID/cmdline). Put the token in $PROXYBENCH_TOKEN, or in a file (chmod 600) "
+                 "passed as --token-file FILE or $PROXYBENCH_TOKEN_FILE.")
+
+
+def read_token(token: str | None, token_file: Path | None, default_file: Path | None = None) -> str:
+    """The API token from the environment or a file (never argv); exits with a clear message otherwise."""
+    from proxybench.client import TokenError, load_token
+
+    if token is not None:
+        err_console.print(f"[red]✗[/red] {NO_ARGV_TOKEN}", highlight=False)
+        raise typer.Exit(2)
+    try:
+        value, where = load_token(token_file, default_file)
+    except TokenError as exc:
+        err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+        raise typer.Exit(2) from None
+    if "warning" in where:
+        err_console.print(f"[yellow]![/yellow] token file {where}", highlight=False)
+    return value
 
 
 def _client(server: str | None, token: str | None, token_file: Path | None):
     from proxybench.client import ServerClient
 
-    if token is None:
-        path = token_file or DEFAULT_DATA / "admin.token"
-        if not path.is_file():
-            err_console.print(f"[red]✗[/red] no token: pass --token, set PROXYBENCH_TOKEN or --token-file "
-                              f"({path} does not exist)")
-            raise typer.Exit(2)
-        token = path.read_text().strip()
-    return ServerClient(server or "http://127.0.0.1:8000", token, retry_for=10.0)
+    value = read_token(token, token_file, DEFAULT_DATA / "admin.token")
+    return ServerClient(server or "http://127.0.0.1:8000", value, retry_for=10.0)
 
 
 def _fail(exc: Exception) -> typer.Exit:
@@ -74,25 +90,36 @@ def _evaluator_token(settings) -> Path:
 @app.command()
 def serve(
     host: str = typer.Option("127.0.0.1", help="address to listen on (0.0.0.0 for remote evaluators)"),
-    port: int = typer.Option(8000, help="TCP port"),
+    port: int = typer.Option(8000, min=0, max=65535, help="TCP port"),
     data_dir: Path = typer.Option(DEFAULT_DATA, help="SQLite database, artifacts and tokens"),
     database_url: str | None = typer.Option(None, envvar="PROXYBENCH_SERVER_DATABASE_URL",
                                             help="SQLAlchemy URL, e.g. postgresql+psycopg://u:p@host/db"),
-    evaluators: int = typer.Option(0, help="local evaluator processes to start beside the server"),
+    workers: int | None = typer.Option(None, min=1, max=64, help="server processes sharing the port "
+                                       "[PostgreSQL: the number of cores, at most 4; SQLite: 1]"),
+    evaluators: int = typer.Option(0, min=0, help="local evaluator processes to start beside the server"),
     features: str = typer.Option("sim,target", help="features the local evaluators offer"),
-    lease_seconds: float = typer.Option(120.0, help="a job lease lapses this long after the last heartbeat"),
+    lease_seconds: float = typer.Option(120.0, min=0.1, help="a job lease lapses this long after the last heartbeat"),
 ) -> None:
     """Run the challenges server (SQLite in --data-dir unless --database-url), optionally with evaluators."""
     require_extra("server")
     import uvicorn
 
-    from proxybench.server.app import create_app
+    from proxybench.server import clock
+    from proxybench.server.app import create_app, prepare
     from proxybench.server.config import Settings
 
-    settings = Settings.from_env(data_dir=data_dir, database_url=database_url, lease_seconds=lease_seconds)
-    application = create_app(settings)
+    if workers is None:
+        workers = 1 if not database_url else max(1, min(4, os.cpu_count() or 1))
+    settings = Settings.from_env(data_dir=data_dir, database_url=database_url, lease_seconds=lease_seconds,
+                                 workers=workers)
     url = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}"
-    console.print(f"proxybench server on [bold]{url}[/bold]  (database: {settings.url.split('@')[-1]})")
+    if settings.workers == 1:
+        application = create_app(settings)
+    else:
+        prepare(settings)
+        _export(settings, clock.anchor())
+    console.print(f"proxybench server on [bold]{url}[/bold]  (database: {settings.url.split('@')[-1]}, "
+                  f"{settings.workers} worker process{'es' if settings.workers > 1 else ''})")
     console.print(f"  web console: {url}/   API docs: {url}/api/v1/docs")
     console.print(f"  admin token: {settings.data_dir / 'admin.token'}")
     procs = []
@@ -102,10 +129,15 @@ def serve(
             cmd = [sys.executable, "-m", "proxybench.cli", "evaluator", "--server", url,
                    "--token-file", str(token_file), "--name", f"local-{i + 1}", "--features", features,
                    "--work-dir", str(settings.data_dir / "evaluator-work" / f"local-{i + 1}")]
-            procs.append(subprocess.Popen(cmd))
+            env = {k: v for k, v in os.environ.items() if k not in ("PROXYBENCH_TOKEN", "PROXYBENCH_TOKEN_FILE")}
+            procs.append(subprocess.Popen(cmd, env=env))
         console.print(f"  {evaluators} local evaluator(s) started (features: {features})")
     try:
-        uvicorn.run(application, host=host, port=port, log_level="warning")
+        if settings.workers == 1:
+            uvicorn.run(application, host=host, port=port, log_level="warning", timeout_keep_alive=15)
+        else:
+            uvicorn.run("proxybench.server.app:app_from_env", factory=True, workers=settings.workers, host=host,
+                        port=port, log_level="warning", timeout_keep_alive=15)
     finally:
         for p in procs:
             p.terminate()
@@ -114,6 +146,17 @@ def serve(
                 p.wait(10)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def _export(settings, anchor: float) -> None:
+    """Hand the settings (and the server clock) to worker processes through their environment."""
+    from proxybench.server.clock import ANCHOR_ENV
+    from proxybench.server.config import _ENV_PREFIX
+
+    for name, value in settings.model_dump().items():
+        if value is not None:
+            os.environ[_ENV_PREFIX + name.upper()] = str(value)
+    os.environ[ANCHOR_ENV] = repr(anchor)
 
 
 @app.command()
@@ -259,3 +302,69 @@ def path_add(
     except ServerError as exc:
         raise _fail(exc) from None
     console.print(f"path {out['name']}: {len(out['spec']['steps'])} steps, {len(out['spec']['edges'])} edges")
+
+
+@server_app.command("token-list")
+def token_list(
+    user: str | None = typer.Option(None, help="another user's tokens (super-users)"),
+    server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
+) -> None:
+    """List API tokens (yours, or --user's): id, prefix, label, created, revoked. Never their text."""
+    require_extra("server", ("httpx",))
+    from proxybench.client import ServerError
+
+    try:
+        rows = _client(server, token, token_file).tokens(user)
+    except ServerError as exc:
+        raise _fail(exc) from None
+    table = Table(title=f"API tokens of {user or 'you'}")
+    for col in ("id", "user", "prefix", "label", "created (UTC)", "revoked (UTC)"):
+        table.add_column(col)
+    for t in rows:
+        table.add_row(str(t["id"]), t["user"], t["prefix"] + "…", t["label"], _utc(t["created_at"]),
+                      _utc(t["revoked_at"]) if t["revoked"] else "")
+    console.print(table)
+
+
+@server_app.command("token-add")
+def token_add(
+    label: str = typer.Option("", help="what the token is for, e.g. the machine it lives on"),
+    out: Path | None = typer.Option(None, "--out", help="write the token to this file (mode 600) instead of "
+                                                      "printing it"),
+    server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
+) -> None:
+    """Make another token for yourself (one per machine makes revoking one painless)."""
+    require_extra("server", ("httpx",))
+    from proxybench.client import ServerError
+
+    try:
+        made = _client(server, token, token_file).new_token(label)
+    except ServerError as exc:
+        raise _fail(exc) from None
+    if out is not None:
+        fd = os.open(out, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.write(made["token"] + "\n")
+        console.print(f"token {made['id']} ({made['prefix']}…) written to {out}")
+    else:
+        console.print(f"token {made['id']}: [bold]{made['token']}[/bold]  (shown once)")
+
+
+@server_app.command("token-revoke")
+def token_revoke(
+    token_id: int = typer.Argument(..., min=1, help="the token's id (proxybench server token-list)"),
+    server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
+) -> None:
+    """Revoke a token for good (yours; super-users: anyone's); its web sessions end with it."""
+    require_extra("server", ("httpx",))
+    from proxybench.client import ServerError
+
+    try:
+        out = _client(server, token, token_file).revoke_token(token_id)
+    except ServerError as exc:
+        raise _fail(exc) from None
+    console.print(f"token {out['id']} of {out['user']} ({out['prefix']}…) revoked")
+
+
+def _utc(t: float | None) -> str:
+    return "" if t is None else time.strftime("%Y-%m-%d %H:%M", time.gmtime(t))

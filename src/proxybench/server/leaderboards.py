@@ -3,77 +3,71 @@ benchmark's lexicographic semiorder (Copeland over pairwise comparisons, as ``pr
 
 ``split="public"`` ranks by validation scores (what developers see); ``split="hidden"`` by the
 hidden test episodes (super-users only: the API refuses developers).
+
+Boards are built when they change, not when they are read. Every change (a success result, a retired
+submission) bumps its benchmark version's ``board_version`` in the same transaction; a board is built
+once per version and kept, serialised, in the process (:class:`BoardCache`), so a read costs one small
+query (the version) and a dictionary lookup. Who builds: the request that changed the board, right
+after its commit; else the first reader that finds it out of date. Small boards (built in under
+``SYNC_BUILD_S``) are built on the spot, so a read after a result always shows it. A large board is
+rebuilt in the background at most once per ``max(MIN_INTERVAL_S, 4 × its build time)`` however fast
+results arrive, and readers get the previous build meanwhile, marked ``"stale": true``.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import threading
-from collections import OrderedDict
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 from typing import Any
 
-from sqlalchemy import func, select
-from sqlalchemy.orm import Session
+from sqlalchemy import select
+from sqlalchemy.orm import Session, sessionmaker
 
-from proxybench.server.benchmarks import benchmark_of, latest
+from proxybench.server.benchmarks import benchmark_of
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import BenchmarkVersion, Result, Submission, User
 from proxybench.tasks.scoring import leaderboard
 
-__all__ = ["leaderboard_rows"]
+__all__ = ["MIN_INTERVAL_S", "SYNC_BUILD_S", "Board", "BoardCache", "build_board", "resolve_version"]
+
+SYNC_BUILD_S = 0.02  # boards built faster than this are always built before they are served [s]
+MIN_INTERVAL_S = 0.5  # the shortest pause between background rebuilds of one large board [s]
+SPLITS = ("public", "hidden")
 
 
-def _version(session: Session, name: str, version: int | None) -> BenchmarkVersion:
-    if version is None:
-        return latest(session, name)
-    row = session.scalar(select(BenchmarkVersion).where(BenchmarkVersion.name == name,
-                                                        BenchmarkVersion.version == version))
+def resolve_version(session: Session, name: str, version: int | None) -> tuple[int, int, int]:
+    """(benchmark id, version, board_version) of a benchmark's newest or given version, in one query."""
+    q = select(BenchmarkVersion.id, BenchmarkVersion.version, BenchmarkVersion.board_version) \
+        .where(BenchmarkVersion.name == name)
+    q = q.order_by(BenchmarkVersion.version.desc()).limit(1) if version is None else \
+        q.where(BenchmarkVersion.version == version)
+    row = session.execute(q).first()
     if row is None:
-        raise ServiceError(404, f"benchmark {name!r} has no version {version}")
-    return row
-
-
-_CACHE_LOCK = threading.Lock()
-_BOARD_CACHE: OrderedDict[tuple, dict[str, Any]] = OrderedDict()
+        raise ServiceError(404, f"no benchmark named {name!r}" if version is None else
+                           f"benchmark {name!r} has no version {version}")
+    return int(row[0]), int(row[1]), int(row[2])
 
 
 def _json_number(v: float | None) -> float | None:
-    return None if v is None or (isinstance(v, float) and math.isnan(v)) else v
+    return None if v is None or (isinstance(v, float) and not math.isfinite(v)) else v
 
 
-def _fingerprint(session: Session, bench_id: int) -> tuple:
-    """Changes whenever the board can: a new success on this version, or a submission retired."""
-    n, last = session.execute(select(func.count(Result.id), func.max(Result.id))
-                              .where(Result.benchmark_id == bench_id, Result.status == "success")).one()
-    retired = session.scalar(select(func.count(Submission.id)).where(Submission.status != "active"))
-    return (n, last, retired)
+def build_board(session: Session, bench_id: int, split: str) -> tuple[int, dict[str, Any]]:
+    """(board_version it reflects, the ranked table as plain data: criteria, then rows best first).
 
-
-def leaderboard_rows(session: Session, name: str, split: str = "public",
-                     version: int | None = None) -> dict[str, Any]:
-    """The ranked table as plain data: criteria, then one row per submission (best first).
-
-    Boards are cached per (version, split) and rebuilt only when their fingerprint changes, so polling
-    clients cost two small aggregate queries, not a scan of every result.
+    The version is read first: everything it counts was committed before, so the results read after it
+    include at least those (a board is never newer than it claims).
     """
-    if split not in ("public", "hidden"):
-        raise ServiceError(422, f"split must be 'public' or 'hidden', got {split!r}")
-    row = _version(session, name, version)
-    bind = session.get_bind()
-    key = (id(bind), str(bind.url), row.id, split, _fingerprint(session, row.id))
-    with _CACHE_LOCK:
-        if key in _BOARD_CACHE:
-            _BOARD_CACHE.move_to_end(key)
-            return _BOARD_CACHE[key]
-    board = _build(session, row, split)
-    with _CACHE_LOCK:
-        _BOARD_CACHE[key] = board
-        while len(_BOARD_CACHE) > 64:
-            _BOARD_CACHE.popitem(last=False)
-    return board
-
-
-def _build(session: Session, row: BenchmarkVersion, split: str) -> dict[str, Any]:
+    row = session.get(BenchmarkVersion, bench_id)
+    if row is None:
+        raise ServiceError(404, f"no benchmark version {bench_id}")
+    session.refresh(row)
+    board_version = row.board_version
     criteria = benchmark_of(row).criteria()
     score_col = Result.public_scores if split == "public" else Result.hidden_scores
     results = session.execute(
@@ -85,8 +79,9 @@ def _build(session: Session, row: BenchmarkVersion, split: str) -> dict[str, Any
     ).all()
     newest = {r[3]: r for r in results}  # the latest success per submission (a retried step replaces the older)
     # a metric the evaluator could not compute arrives as null: NaN ranks it worst, as in proxybench evaluate
-    scores = {sid: {k: (math.nan if v is None else v) for k, v in r[2].items()} for sid, r in newest.items() if r[2]}
-    ranks = leaderboard(scores, criteria) if scores else []  # Copeland: quadratic, hence the board cache
+    scores = {sid: {c.metric: _nan_if_none((r[2] or {}).get(c.metric)) for c in criteria}
+              for sid, r in newest.items() if r[2]}
+    ranks = leaderboard(scores, criteria) if scores else []
     rows = []
     for rank in ranks:
         rid, at, _, sid, label, agent, manifest, user = newest[rank.agent]
@@ -95,7 +90,167 @@ def _build(session: Session, row: BenchmarkVersion, split: str) -> dict[str, Any
                      "copeland": rank.copeland, "wins": rank.wins, "losses": rank.losses,
                      "scores": {c.metric: _json_number(scores[rank.agent].get(c.metric)) for c in criteria},
                      "result_id": rid, "at": at})
-    return {"benchmark": row.name, "version": row.version, "split": split,
-            "criteria": [{"metric": c.metric, "higher_is_better": c.higher_is_better, "tolerance": c.tolerance}
-                         for c in criteria],
-            "rows": rows}
+    return board_version, {
+        "benchmark": row.name, "version": row.version, "split": split,
+        "criteria": [{"metric": c.metric, "higher_is_better": c.higher_is_better, "tolerance": c.tolerance}
+                     for c in criteria],
+        "rows": rows}
+
+
+def _nan_if_none(v: Any) -> float:
+    return math.nan if v is None else float(v)
+
+
+@dataclass
+class Board:
+    """One built board: the data, when it was built and how long that took."""
+
+    bench_id: int
+    split: str
+    board_version: int
+    data: dict[str, Any]
+    built_at: float
+    build_seconds: float
+    etag: str = ""
+    _pages: dict[tuple[int, int], bytes] = field(default_factory=dict, repr=False)
+
+    def page(self, offset: int, limit: int | None, stale: bool) -> bytes:
+        """The JSON reply for rows[offset : offset + limit], serialised once per page and build."""
+        key = (offset, -1 if limit is None else limit, stale)
+        cached = self._pages.get(key)
+        if cached is None:
+            rows = self.data["rows"]
+            chosen = rows[offset:] if limit is None else rows[offset:offset + limit]
+            body = {**self.data, "rows": chosen, "total": len(rows), "offset": offset,
+                    "board_version": self.board_version, "built_at": self.built_at, "stale": stale}
+            cached = json.dumps(body, separators=(",", ":"), allow_nan=False).encode()
+            if len(self._pages) < 32:
+                self._pages[key] = cached
+        return cached
+
+
+class BoardCache:
+    """The boards this process has built, by (benchmark version id, split); thread-safe."""
+
+    def __init__(self, sessions: sessionmaker) -> None:
+        self.sessions = sessions
+        self._boards: dict[tuple[int, str], Board] = {}
+        self._lock = threading.Lock()
+        self._building: set[tuple[int, str]] = set()
+        self._wanted: dict[tuple[int, str], int] = {}
+        self._background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="board-builder")
+
+    def close(self) -> None:
+        self._background.shutdown(wait=False, cancel_futures=True)
+
+    # -- building ------------------------------------------------------------------------------------
+
+    def _build(self, key: tuple[int, str]) -> Board:
+        t0 = time.perf_counter()
+        with self.sessions() as session:
+            version, data = build_board(session, *key)
+        seconds = time.perf_counter() - t0
+        digest = hashlib.sha256(f"{key}{version}{time.time()}".encode()).hexdigest()[:20]
+        board = Board(key[0], key[1], version, data, time.time(), seconds, etag=f'"{digest}"')
+        with self._lock:
+            old = self._boards.get(key)
+            if old is None or old.board_version <= version:
+                self._boards[key] = board
+            return self._boards[key]
+
+    def _build_once(self, key: tuple[int, str], wait: bool) -> Board | None:
+        """Build unless this process is building it already (then wait for that build, or not)."""
+        with self._lock:
+            busy = key in self._building
+            if not busy:
+                self._building.add(key)
+        if busy:
+            if not wait:
+                return None
+            while True:
+                time.sleep(0.005)
+                with self._lock:
+                    if key not in self._building:
+                        return self._boards.get(key)
+        try:
+            return self._build(key)
+        finally:
+            with self._lock:
+                self._building.discard(key)
+                wanted = self._wanted.pop(key, None)
+            board = self._boards.get(key)
+            if wanted is not None and board is not None and board.board_version < wanted:
+                self._schedule(key, wanted)  # changes arrived while it was being built
+
+    def _schedule(self, key: tuple[int, str], version: int) -> None:
+        """Rebuild in the background, no sooner than the board's interval after its last build."""
+        with self._lock:
+            if key in self._building or key in self._wanted:
+                self._wanted[key] = max(version, self._wanted.get(key, version))
+                return
+            self._wanted[key] = version
+        board = self._boards.get(key)
+        delay = 0.0 if board is None else max(0.0, board.built_at + interval(board) - time.time())
+
+        def run() -> None:
+            if delay:
+                time.sleep(delay)
+            with self._lock:
+                self._wanted.pop(key, None)
+            try:
+                self._build_once(key, wait=False)
+            except Exception as exc:
+                print(f"leaderboard rebuild of {key} failed: {exc}")
+
+        self._background.submit(run)
+
+    # -- reading -------------------------------------------------------------------------------------
+
+    def get(self, bench_id: int, split: str, board_version: int) -> tuple[Board, bool]:
+        """(the board to serve, whether it is older than ``board_version``)."""
+        key = (bench_id, split)
+        board = self._boards.get(key)
+        if board is not None and board.board_version >= board_version:
+            return board, False
+        if board is None or board.build_seconds < SYNC_BUILD_S:
+            built = self._build_once(key, wait=True)
+            if built is not None and built.board_version >= board_version:
+                return built, False
+            board = built or board
+        self._schedule(key, board_version)
+        assert board is not None
+        return board, board.board_version < board_version
+
+    def changed(self, bench_ids: set[int] | list[int]) -> None:
+        """After a commit that changed these boards: build the small ones now, schedule the large ones."""
+        for bid in sorted(set(bench_ids)):
+            keys = [(bid, split) for split in SPLITS if (bid, split) in self._boards]
+            if not keys:
+                continue  # never read in this process: built when first read
+            with self.sessions() as session:
+                version = session.scalar(select(BenchmarkVersion.board_version).where(BenchmarkVersion.id == bid))
+            for key in keys:
+                board = self._boards[key]
+                if board.board_version >= (version or 0):
+                    continue
+                if board.build_seconds < SYNC_BUILD_S:
+                    self._build_once(key, wait=True)
+                else:
+                    self._schedule(key, version or 0)
+
+
+def interval(board: Board) -> float:
+    """The shortest time between two builds of this board: 4× its build time, at least MIN_INTERVAL_S."""
+    return max(MIN_INTERVAL_S, 4 * board.build_seconds)
+
+
+def leaderboard_rows(session: Session, name: str, split: str = "public",
+                     version: int | None = None, boards: BoardCache | None = None) -> dict[str, Any]:
+    """The whole ranked table as plain data (the web pages' view), from ``boards`` when given."""
+    if split not in SPLITS:
+        raise ServiceError(422, f"split must be 'public' or 'hidden', got {split!r}")
+    bench_id, _, board_version = resolve_version(session, name, version)
+    if boards is None:
+        return build_board(session, bench_id, split)[1]
+    board, stale = boards.get(bench_id, split, board_version)
+    return {**board.data, "total": len(board.data["rows"]), "stale": stale, "built_at": board.built_at}

@@ -1,10 +1,17 @@
-"""Request dependencies: the database session, the caller (from the API token) and role checks."""
+"""Request dependencies: database sessions (with SQLite's write turn), the caller, role checks, CSRF.
+
+Who is calling: the JSON API takes ``Authorization: Bearer <token>``; it also takes the web console's
+session cookie, for reads only (GET / HEAD: artifact downloads and videos in the pages), so no other site
+can make a signed-in browser change anything through it. Web pages take the session cookie, and every
+form they post must carry the session's CSRF token.
+"""
 
 from __future__ import annotations
 
 import asyncio
+import hmac
 from collections.abc import AsyncIterator, Callable
-from typing import Annotated
+from typing import Annotated, TypeVar
 
 from fastapi import Depends, Request
 from sqlalchemy.orm import Session
@@ -13,11 +20,14 @@ from starlette.concurrency import run_in_threadpool
 from proxybench.server.config import Settings
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import User
-from proxybench.server.security import user_for_token
+from proxybench.server.security import csrf_token, user_for_session, user_for_token
 
-__all__ = ["DB", "Caller", "Conf", "require"]
+__all__ = ["DB", "SAFE_METHODS", "SESSION_COOKIE", "Caller", "Conf", "ReadDB", "WebCaller", "WebFormCaller",
+           "require", "require_reader", "run_write", "session_secret", "write_lock"]
 
-TOKEN_COOKIE = "proxybench_token"
+SESSION_COOKIE = "proxybench_session"
+SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+T = TypeVar("T")
 
 
 def write_lock(app) -> asyncio.Lock | None:
@@ -36,7 +46,7 @@ async def write_turn(request: Request) -> AsyncIterator[None]:
     thread. (SQLite's own busy-wait sleeps in steps of up to 100 ms: p99 of seconds under load; a thread
     lock deadlocked once waiting writers held every worker thread.) Reads (GET) never wait (WAL)."""
     lock = write_lock(request.app)
-    if lock is None or request.method in ("GET", "HEAD", "OPTIONS"):
+    if lock is None or request.method in SAFE_METHODS:
         yield
         return
     async with lock:
@@ -48,15 +58,63 @@ async def get_session(request: Request,
     """A session per request, committed when the endpoint returns (after its write turn was granted).
 
     Async on purpose: each sync dependency costs a worker-thread hop (and GIL hand-offs), which under
-    load dominated request time; only the endpoint and the commit run in worker threads.
+    load dominated request time; only the endpoint and the commit run in worker threads. GET requests
+    never write (the lease reaper, not a page view, returns lapsed leases to the queue).
     """
     session = request.app.state.sessions()
     try:
         yield session
-        await run_in_threadpool(session.commit)
+        if request.method not in SAFE_METHODS:  # reads write nothing: closing is enough
+            await run_in_threadpool(session.commit)
+            await _after_commit(request, session)
     except BaseException:
         await run_in_threadpool(session.rollback)
         raise
+    finally:
+        session.close()
+
+
+async def _after_commit(request: Request, session: Session) -> None:
+    """Leaderboards this transaction changed are rebuilt now (small) or scheduled (large)."""
+    changed = session.info.pop("changed_boards", None)
+    if changed:
+        await run_in_threadpool(request.app.state.boards.changed, changed)
+
+
+async def get_read_session(request: Request) -> AsyncIterator[Session]:
+    """A session that only reads (no write turn, never committed): for checking who calls before a long
+    upload is handled, which then writes in a short transaction of its own (:func:`run_write`)."""
+    session = request.app.state.sessions()
+    try:
+        yield session
+    finally:
+        session.rollback()
+        session.close()
+
+
+async def run_write(request: Request, work: Callable[[Session], T]) -> T:
+    """``work(session)`` in a worker thread, in one short transaction taken in SQLite's write turn."""
+    lock = write_lock(request.app)
+
+    session = request.app.state.sessions()
+
+    def unit() -> T:
+        try:
+            out = work(session)
+            session.commit()
+            return out
+        except BaseException:
+            session.rollback()
+            raise
+
+    try:
+        if lock is None:
+            out = await run_in_threadpool(unit)
+        else:
+            async with lock:
+                out = await run_in_threadpool(unit)
+        await _after_commit(request, session)
+        return out
     finally:
         session.close()
 
@@ -68,44 +126,121 @@ def get_settings(request: Request) -> Settings:
 # scope='function': commit (or roll back) *before* the response is sent, so that a client that got its answer
 # (or followed a redirect) reads what it wrote, and a failed commit is an error, not a lost write
 DB = Annotated[Session, Depends(get_session, scope="function")]
+ReadDB = Annotated[Session, Depends(get_read_session, scope="function")]
 Conf = Annotated[Settings, Depends(get_settings)]
 
 
-def _token(request: Request) -> str | None:
+def _bearer(request: Request) -> str | None:
     auth = request.headers.get("authorization", "")
-    if auth.lower().startswith("bearer "):
+    if auth[:7].lower() == "bearer ":
         return auth[7:].strip()
-    return request.cookies.get(TOKEN_COOKIE)
+    return None
+
+
+def session_secret(request: Request) -> str | None:
+    """The web session's secret from its cookie (None when signed out)."""
+    return request.cookies.get(SESSION_COOKIE)
+
+
+def _api_user(request: Request, session: Session) -> User:
+    token = _bearer(request)
+    if token:
+        user = user_for_token(session, token)
+        if user is None:
+            raise ServiceError(401, "invalid or revoked API token")
+        return user
+    secret = session_secret(request)
+    if secret and request.method in SAFE_METHODS:
+        user = user_for_session(session, secret)
+        if user is None:
+            raise ServiceError(401, "the web session has expired or was closed; sign in again")
+        return user
+    raise ServiceError(401, "no API token: send 'Authorization: Bearer <token>'")
 
 
 async def current_user(request: Request, session: DB) -> User:
     """The caller; 401 with a clear message when the token is missing, unknown or revoked.
 
     The token lookup (one indexed row) runs on the event loop: cheaper than a thread hop."""
-    token = _token(request)
-    if not token:
-        raise ServiceError(401, "no API token: send 'Authorization: Bearer <token>'")
-    user = user_for_token(session, token)
-    if user is None:
-        raise ServiceError(401, "invalid or revoked API token")
-    return user
+    return _api_user(request, session)
 
 
-def optional_user(request: Request, session: DB) -> User | None:
-    token = _token(request)
-    return user_for_token(session, token) if token else None
+async def current_reader(request: Request, session: ReadDB) -> User:
+    """The caller, looked up without taking SQLite's write turn (uploads: see :func:`run_write`)."""
+    return _api_user(request, session)
 
 
 def require(*roles: str) -> Callable[..., User]:
     """A dependency admitting only the given roles (super-users are always admitted)."""
 
     async def check(user: Annotated[User, Depends(current_user)]) -> User:
-        if user.role != "superuser" and user.role not in roles:
-            raise ServiceError(403, f"user {user.name!r} ({user.role}) may not do this; "
-                                    f"needs role {' or '.join(('superuser', *roles))}")
-        return user
+        return _admit(user, roles)
 
     return check
 
 
+def require_reader(*roles: str) -> Callable[..., User]:
+    """:func:`require` for endpoints that do their writing in :func:`run_write`."""
+
+    async def check(user: Annotated[User, Depends(current_reader)]) -> User:
+        return _admit(user, roles)
+
+    return check
+
+
+def _admit(user: User, roles: tuple[str, ...]) -> User:
+    if user.role != "superuser" and user.role not in roles:
+        raise ServiceError(403, f"user {user.name!r} ({user.role}) may not do this; "
+                                f"needs role {' or '.join(('superuser', *roles))}")
+    return user
+
+
 Caller = Annotated[User, Depends(current_user)]
+
+
+# -- the web console ------------------------------------------------------------------------------------
+
+
+def web_user(request: Request, session: Session) -> User | None:
+    """The signed-in browser's user, or None (no session cookie, expired, signed out, token revoked)."""
+    secret = session_secret(request)
+    return user_for_session(session, secret) if secret else None
+
+
+def check_same_origin(request: Request) -> None:
+    """Refuse a form posted from another site (the browser says so in Origin / Sec-Fetch-Site)."""
+    site = request.headers.get("sec-fetch-site")
+    if site is not None and site not in ("same-origin", "none"):
+        raise ServiceError(403, f"this form was sent from another site ({site}); open the page here and try again")
+    origin = request.headers.get("origin")
+    if origin is not None and origin != "null":
+        own = f"{request.url.scheme}://{request.headers.get('host', request.url.netloc)}"
+        if origin.rstrip("/") != own:
+            raise ServiceError(403, f"this form was sent from {origin}, not from this site; open the page here "
+                                    "and try again")
+
+
+async def _web_caller(request: Request, session: DB) -> User:
+    user = web_user(request, session)
+    if user is None:
+        raise ServiceError(401, "sign in")
+    return user
+
+
+async def _web_form_caller(request: Request, session: DB) -> User:
+    """The signed-in user of a form post whose CSRF token matches the session's."""
+    user = web_user(request, session)
+    if user is None:
+        raise ServiceError(401, "sign in")
+    check_same_origin(request)
+    form = await request.form()
+    sent = form.get("csrf")
+    secret = session_secret(request) or ""
+    if not isinstance(sent, str) or not hmac.compare_digest(sent, csrf_token(secret)):
+        raise ServiceError(403, "this form has no valid CSRF token (it is stale, or was not sent from this "
+                                "site's page); reload the page and try again")
+    return user
+
+
+WebCaller = Annotated[User, Depends(_web_caller)]
+WebFormCaller = Annotated[User, Depends(_web_form_caller)]
