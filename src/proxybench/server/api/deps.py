@@ -213,7 +213,7 @@ def check_same_origin(request: Request) -> None:
     if site is not None and site not in ("same-origin", "none"):
         raise ServiceError(403, f"this form was sent from another site ({site}); open the page here and try again")
     origin = request.headers.get("origin")
-    if origin is not None and origin != "null":
+    if origin is not None:  # "null" too: a sandboxed frame or a data: page of anyone's
         own = f"{request.url.scheme}://{request.headers.get('host', request.url.netloc)}"
         if origin.rstrip("/") != own:
             raise ServiceError(403, f"this form was sent from {origin}, not from this site; open the page here "
