@@ -37,7 +37,8 @@ from proxybench.server.errors import ServiceError
 from proxybench.server.leaderboards import BoardCache
 from proxybench.server.limits import BodyRules, RequestGate
 from proxybench.server.models import User
-from proxybench.server.security import create_user
+from proxybench.server.queue import install_board_bumps
+from proxybench.server.security import TokenCache, create_user
 
 __all__ = ["app_from_env", "bootstrap", "create_app", "prepare"]
 
@@ -130,14 +131,18 @@ def create_app(settings: Settings | None = None, *, prepared: bool = False) -> F
     if not prepared:
         migrate(engine)
     factory = sessionmaker(engine, expire_on_commit=False)
+    install_board_bumps(factory)
     app = FastAPI(title="proxybench challenges server", version=__version__, openapi_url=f"{API}/openapi.json",
                   docs_url=f"{API}/docs", redoc_url=None, lifespan=_lifespan)
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessions = factory
+    app.state.read_sessions = sessionmaker(engine.execution_options(isolation_level="AUTOCOMMIT"),
+                                           expire_on_commit=False)
     app.state.store = ArtifactStore(settings.artifact_dir)
     app.state.write_locks = weakref.WeakKeyDictionary() if settings.url.startswith("sqlite") else None
     app.state.boards = BoardCache(factory)
+    app.state.tokens = TokenCache(settings.token_cache_seconds)
     app.state.admin_token = None if prepared else bootstrap(settings, factory)
     rules = BodyRules(limits=[(f"{API}/artifacts/", settings.artifact_max_bytes),
                               (f"{API}/submissions/upload", settings.archive_max_bytes + (1 << 20))],

@@ -37,6 +37,9 @@ class Settings(BaseModel):
                                  "body_timeout seconds")
     send_timeout: float = Field(60.0, gt=0, description="a client that reads none of its reply for this long "
                                 "is disconnected")
+    token_cache_seconds: float = Field(2.0, ge=0, description="a process remembers a checked token this long "
+                                       "(a revoked one is refused at once by the process that revoked it, by "
+                                       "the others within this time; 0: check every request)")
     session_seconds: float = Field(8 * 3600.0, gt=0, description="how long a web console sign-in lasts")
     workers: int = Field(1, ge=1, le=64, description="server processes (uvicorn workers) sharing the port")
 

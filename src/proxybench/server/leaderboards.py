@@ -7,11 +7,13 @@ hidden test episodes (super-users only: the API refuses developers).
 Boards are built when they change, not when they are read. Every change (a success result, a retired
 submission) bumps its benchmark version's ``board_version`` in the same transaction; a board is built
 once per version and kept, serialised, in the process (:class:`BoardCache`), so a read costs one small
-query (the version) and a dictionary lookup. Who builds: the request that changed the board, right
-after its commit; else the first reader that finds it out of date. Small boards (built in under
-``SYNC_BUILD_S``) are built on the spot, so a read after a result always shows it. A large board is
-rebuilt in the background at most once per ``max(MIN_INTERVAL_S, 4 × its build time)`` however fast
-results arrive, and readers get the previous build meanwhile, marked ``"stale": true``.
+query (the version) and a dictionary lookup. Builds are incremental: only the results that arrived since
+the last build are read (all of them again after a retirement), then everything is re-ranked (a compiled
+pair loop). Who builds: the request that changed the board, right after its commit; else the first reader
+that finds it out of date. Small boards (built in under ``SYNC_BUILD_S``) are built on the spot, so a
+read after a result always shows it. A large board is rebuilt in the background at most once per
+``max(MIN_INTERVAL_S, 8 × its build time)`` however fast results arrive, and readers get the previous
+build meanwhile, marked ``"stale": true``. Each server process keeps (and builds) its own copy.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from proxybench.server.benchmarks import benchmark_of
@@ -35,8 +37,9 @@ from proxybench.tasks.scoring import leaderboard
 
 __all__ = ["MIN_INTERVAL_S", "SYNC_BUILD_S", "Board", "BoardCache", "build_board", "resolve_version"]
 
-SYNC_BUILD_S = 0.02  # boards built faster than this are always built before they are served [s]
-MIN_INTERVAL_S = 0.5  # the shortest pause between background rebuilds of one large board [s]
+SYNC_BUILD_S = 0.002  # boards built faster than this are always built before they are served [s]
+MIN_INTERVAL_S = 1.0  # the shortest pause between background rebuilds of one large board [s]
+INTERVAL_FACTOR = 8  # ... and at least this many times its build time: rebuilding takes ≤ 1/8 of a core
 SPLITS = ("public", "hidden")
 
 
@@ -57,8 +60,42 @@ def _json_number(v: float | None) -> float | None:
     return None if v is None or (isinstance(v, float) and not math.isfinite(v)) else v
 
 
-def build_board(session: Session, bench_id: int, split: str) -> tuple[int, dict[str, Any]]:
-    """(board_version it reflects, the ranked table as plain data: criteria, then rows best first).
+@dataclass
+class Entries:
+    """What a board is built from: the newest success of each active submission, and how far it has read
+    (the highest result id, and how many submissions were retired then: a retirement means reading all)."""
+
+    by_submission: dict[int, tuple] = field(default_factory=dict)  # sid -> (rid, at, scores, label, agent, user)
+    last_result: int = 0
+    retired: int = -1
+
+
+def _read_entries(session: Session, bench_id: int, split: str, since: Entries | None) -> Entries:
+    """The board's entries: only results newer than ``since`` when no submission was retired since."""
+    retired = session.scalar(select(func.count(Submission.id)).where(Submission.status != "active")) or 0
+    if since is None or since.retired != retired:
+        since = Entries(retired=retired)
+    out = Entries(dict(since.by_submission), since.last_result, retired)
+    score_col = Result.public_scores if split == "public" else Result.hidden_scores
+    rows = session.execute(
+        select(Result.id, Result.created_at, score_col, Submission.id, Submission.label, Submission.agent_name,
+               Submission.manifest, User.name)
+        .join(Submission, Result.submission_id == Submission.id).join(User, Submission.user_id == User.id)
+        .where(Result.benchmark_id == bench_id, Result.status == "success", Submission.status == "active",
+               Result.id > since.last_result)
+        .order_by(Result.id)
+    ).all()
+    for rid, at, scores, sid, label, agent, manifest, user in rows:  # the latest success per submission wins
+        out.by_submission[sid] = (rid, at, scores or {}, label, agent or (manifest or {}).get("name", "archive"),
+                                  user)
+        out.last_result = max(out.last_result, rid)
+    return out
+
+
+def build_board(session: Session, bench_id: int, split: str,
+                since: Entries | None = None) -> tuple[int, dict[str, Any], Entries]:
+    """(board_version it reflects, the ranked table as plain data: criteria, then rows best first, and the
+    entries it was built from, to build the next one incrementally).
 
     The version is read first: everything it counts was committed before, so the results read after it
     include at least those (a board is never newer than it claims).
@@ -69,24 +106,15 @@ def build_board(session: Session, bench_id: int, split: str) -> tuple[int, dict[
     session.refresh(row)
     board_version = row.board_version
     criteria = benchmark_of(row).criteria()
-    score_col = Result.public_scores if split == "public" else Result.hidden_scores
-    results = session.execute(
-        select(Result.id, Result.created_at, score_col, Submission.id, Submission.label, Submission.agent_name,
-               Submission.manifest, User.name)
-        .join(Submission, Result.submission_id == Submission.id).join(User, Submission.user_id == User.id)
-        .where(Result.benchmark_id == row.id, Result.status == "success", Submission.status == "active")
-        .order_by(Result.id)
-    ).all()
-    newest = {r[3]: r for r in results}  # the latest success per submission (a retried step replaces the older)
+    entries = _read_entries(session, bench_id, split, since)
     # a metric the evaluator could not compute arrives as null: NaN ranks it worst, as in proxybench evaluate
-    scores = {sid: {c.metric: _nan_if_none((r[2] or {}).get(c.metric)) for c in criteria}
-              for sid, r in newest.items() if r[2]}
+    scores = {sid: {c.metric: _nan_if_none(e[2].get(c.metric)) for c in criteria}
+              for sid, e in entries.by_submission.items() if e[2]}
     ranks = leaderboard(scores, criteria) if scores else []
     rows = []
     for rank in ranks:
-        rid, at, _, sid, label, agent, manifest, user = newest[rank.agent]
-        rows.append({"rank": rank.rank, "submission_id": sid, "label": label, "user": user,
-                     "agent": agent or (manifest or {}).get("name", "archive"),
+        rid, at, _, label, agent, user = entries.by_submission[rank.agent]
+        rows.append({"rank": rank.rank, "submission_id": rank.agent, "label": label, "user": user, "agent": agent,
                      "copeland": rank.copeland, "wins": rank.wins, "losses": rank.losses,
                      "scores": {c.metric: _json_number(scores[rank.agent].get(c.metric)) for c in criteria},
                      "result_id": rid, "at": at})
@@ -94,7 +122,7 @@ def build_board(session: Session, bench_id: int, split: str) -> tuple[int, dict[
         "benchmark": row.name, "version": row.version, "split": split,
         "criteria": [{"metric": c.metric, "higher_is_better": c.higher_is_better, "tolerance": c.tolerance}
                      for c in criteria],
-        "rows": rows}
+        "rows": rows}, entries
 
 
 def _nan_if_none(v: Any) -> float:
@@ -112,7 +140,8 @@ class Board:
     built_at: float
     build_seconds: float
     etag: str = ""
-    _pages: dict[tuple[int, int], bytes] = field(default_factory=dict, repr=False)
+    entries: Entries | None = field(default=None, repr=False)
+    _pages: dict[tuple[int, int, bool], bytes] = field(default_factory=dict, repr=False)
 
     def page(self, offset: int, limit: int | None, stale: bool) -> bytes:
         """The JSON reply for rows[offset : offset + limit], serialised once per page and build."""
@@ -147,11 +176,12 @@ class BoardCache:
 
     def _build(self, key: tuple[int, str]) -> Board:
         t0 = time.perf_counter()
+        previous = self._boards.get(key)
         with self.sessions() as session:
-            version, data = build_board(session, *key)
+            version, data, entries = build_board(session, *key, since=previous.entries if previous else None)
         seconds = time.perf_counter() - t0
         digest = hashlib.sha256(f"{key}{version}{time.time()}".encode()).hexdigest()[:20]
-        board = Board(key[0], key[1], version, data, time.time(), seconds, etag=f'"{digest}"')
+        board = Board(key[0], key[1], version, data, time.time(), seconds, etag=f'"{digest}"', entries=entries)
         with self._lock:
             old = self._boards.get(key)
             if old is None or old.board_version <= version:
@@ -206,6 +236,11 @@ class BoardCache:
 
     # -- reading -------------------------------------------------------------------------------------
 
+    def fresh(self, bench_id: int, split: str, board_version: int) -> Board | None:
+        """The board if this process has it built from ``board_version`` (or later), else None."""
+        board = self._boards.get((bench_id, split))
+        return board if board is not None and board.board_version >= board_version else None
+
     def get(self, bench_id: int, split: str, board_version: int) -> tuple[Board, bool]:
         """(the board to serve, whether it is older than ``board_version``)."""
         key = (bench_id, split)
@@ -240,8 +275,8 @@ class BoardCache:
 
 
 def interval(board: Board) -> float:
-    """The shortest time between two builds of this board: 4× its build time, at least MIN_INTERVAL_S."""
-    return max(MIN_INTERVAL_S, 4 * board.build_seconds)
+    """The shortest time between two background builds of this board."""
+    return max(MIN_INTERVAL_S, INTERVAL_FACTOR * board.build_seconds)
 
 
 def leaderboard_rows(session: Session, name: str, split: str = "public",

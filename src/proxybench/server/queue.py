@@ -18,21 +18,23 @@ import secrets
 import time
 from typing import Any
 
-from sqlalchemy import select, update
+from sqlalchemy import insert, select, update
 from sqlalchemy.exc import IntegrityError
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, joinedload
 
 from proxybench.contract import REPORTABLE, ResultUpload
 from proxybench.server import clock
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import FINAL_STATUSES, BenchmarkVersion, Evaluator, Job, JobEvent, Result, Submission
 
-__all__ = ["REPORTABLE", "abort_jobs", "bump_boards", "finish", "heartbeat", "lease", "log_event", "requeue_expired",
-           "retry"]
+__all__ = ["REPORTABLE", "abort_jobs", "bump_boards", "finish", "heartbeat", "install_board_bumps", "lease",
+           "log_event", "requeue_expired", "retry"]
 
 
 def log_event(session: Session, job: Job, kind: str, evaluator_id: int | None = None, message: str = "") -> None:
-    session.add(JobEvent(job_id=job.id, at=time.time(), kind=kind, evaluator_id=evaluator_id, message=message))
+    """One line of the job's history (a plain INSERT: no object for the unit of work to track)."""
+    session.execute(insert(JobEvent).values(job_id=job.id, at=time.time(), kind=kind, evaluator_id=evaluator_id,
+                                            message=message))
 
 
 def _release(job: Job, status: str, message: str = "") -> None:
@@ -47,7 +49,11 @@ def _release(job: Job, status: str, message: str = "") -> None:
 def requeue_expired(session: Session, now: float | None = None) -> int:
     """Return lapsed leases to the queue (or give the job up after its last attempt). Returns how many."""
     now = clock.now() if now is None else now
-    lapsed = session.scalars(select(Job).where(Job.status == "evaluating", Job.lease_expires_at < now)).all()
+    ids = session.scalars(select(Job.id).where(Job.status == "evaluating", Job.lease_expires_at < now)).all()
+    if not ids:  # the usual case: one cheap indexed query, no objects
+        return 0
+    lapsed = session.scalars(select(Job).where(Job.id.in_(ids), Job.status == "evaluating",
+                                               Job.lease_expires_at < now)).all()
     for job in lapsed:
         who = job.evaluator_id
         if job.attempts >= job.max_attempts:
@@ -88,8 +94,8 @@ def lease(session: Session, evaluator: Evaluator, lease_seconds: float) -> Job |
             .execution_options(synchronize_session=False)
         ).rowcount
         if got == 1:
-            job = session.get(Job, jid)
-            session.refresh(job)
+            job = session.get(Job, jid, populate_existing=True,
+                              options=[joinedload(Job.submission), joinedload(Job.benchmark)])
             log_event(session, job, "leased", evaluator.id, f"attempt {job.attempts}")
             return job
     return None
@@ -117,14 +123,33 @@ def heartbeat(session: Session, job_id: int, lease_id: str, evaluator: Evaluator
 
 
 def bump_boards(session: Session, benchmark_ids: set[int] | list[int]) -> None:
-    """Mark these benchmark versions' leaderboards changed (in the caller's transaction): they are rebuilt
-    once from it (see :mod:`.leaderboards`); the ids are noted in ``session.info["changed_boards"]`` so that
-    the request can have them rebuilt after its commit."""
+    """Mark these benchmark versions' leaderboards changed: their ``board_version`` is bumped just before
+    this transaction commits (:func:`install_board_bumps`; a hot row, locked as briefly as possible), and
+    the ids are noted in ``session.info["changed_boards"]`` so the request has the boards rebuilt after."""
     session.info.setdefault("changed_boards", set()).update(benchmark_ids)
-    for bid in sorted(set(benchmark_ids)):  # a fixed order: two transactions never lock rows crosswise
+
+
+def _bump_before_commit(session: Session) -> None:
+    changed = session.info.pop("changed_boards", set())
+    for bid in sorted(changed):  # a fixed order: no crosswise locks
         session.execute(update(BenchmarkVersion).where(BenchmarkVersion.id == bid)
                         .values(board_version=BenchmarkVersion.board_version + 1)
                         .execution_options(synchronize_session=False))
+    session.info.setdefault("bumped_boards", set()).update(changed)
+
+
+def _forget_on_rollback(session: Session) -> None:
+    session.info.pop("changed_boards", None)
+    session.info.pop("bumped_boards", None)
+
+
+def install_board_bumps(factory) -> None:
+    """Have every session of ``factory`` bump the board versions it changed as the last thing before commit
+    (then listed in ``session.info["bumped_boards"]``), and forget them on a rollback."""
+    from sqlalchemy import event
+
+    event.listen(factory, "before_commit", _bump_before_commit)
+    event.listen(factory, "after_soft_rollback", lambda session, _tx: _forget_on_rollback(session))
 
 
 def finish(session: Session, job_id: int, upload: ResultUpload, evaluator: Evaluator) -> tuple[Result | None, bool]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 import secrets
+import threading
 import time
 
 from sqlalchemy import delete, select
@@ -18,8 +19,9 @@ from sqlalchemy.orm import Session
 
 from proxybench.server.models import ROLES, ApiToken, User, WebSession
 
-__all__ = ["SESSION_PREFIX", "TOKEN_PREFIX", "close_web_session", "create_user", "csrf_token", "hash_token",
-           "issue_token", "open_web_session", "revoke_token", "token_row", "user_for_session", "user_for_token"]
+__all__ = ["SESSION_PREFIX", "TOKEN_PREFIX", "TokenCache", "close_web_session", "create_user", "csrf_token",
+           "hash_token", "issue_token", "open_web_session", "revoke_token", "token_row", "user_for_session",
+           "user_for_token"]
 
 TOKEN_PREFIX = "pbt_"
 SESSION_PREFIX = "pbs_"
@@ -32,7 +34,7 @@ def hash_token(token: str) -> str:
 def issue_token(session: Session, user: User, label: str = "") -> str:
     """A new token for ``user``; the plain text is returned once and never stored."""
     token = TOKEN_PREFIX + secrets.token_urlsafe(32)
-    session.add(ApiToken(user=user, token_hash=hash_token(token), prefix=token[:10], label=label,
+    session.add(ApiToken(user_id=user.id, token_hash=hash_token(token), prefix=token[:10], label=label,
                          created_at=time.time()))
     return token
 
@@ -56,12 +58,61 @@ def _plausible(secret: str, prefix: str) -> bool:
     return secret.startswith(prefix) and 10 < len(secret) < 200 and secret.isascii()
 
 
-def user_for_token(session: Session, token: str) -> User | None:
-    """The user a live token belongs to, or None (unknown or revoked). One indexed query."""
+def user_for_token(session: Session, token: str, cache: TokenCache | None = None) -> User | None:
+    """The user a live token belongs to, or None (unknown or revoked). One indexed query, or none when
+    ``cache`` knows the token (the user then comes detached from any session: read its columns only)."""
     if not _plausible(token, TOKEN_PREFIX):
         return None
-    return session.scalar(select(User).join(ApiToken, ApiToken.user_id == User.id)
-                          .where(ApiToken.token_hash == hash_token(token), ApiToken.revoked.is_(False)))
+    digest = hash_token(token)
+    if cache is not None:
+        hit = cache.get(digest)
+        if hit is not None:
+            return hit
+    row = session.execute(select(User, ApiToken.id).join(ApiToken, ApiToken.user_id == User.id)
+                          .where(ApiToken.token_hash == digest, ApiToken.revoked.is_(False))).first()
+    if row is None:
+        return None
+    user, token_id = row
+    if cache is not None:
+        session.expunge(user)
+        cache.put(digest, user, token_id)
+    return user
+
+
+class TokenCache:
+    """Live tokens this process looked up in the last ``ttl`` seconds: most requests need no token query.
+
+    Revoking a token drops it here at once; other server processes stop accepting it within ``ttl``
+    seconds (their entries expire). ``ttl = 0`` turns the cache off."""
+
+    def __init__(self, ttl: float, size: int = 4096) -> None:
+        self.ttl = ttl
+        self.size = size
+        self._entries: dict[str, tuple[User, int, float]] = {}
+        self._lock = threading.Lock()
+
+    def get(self, digest: str) -> User | None:
+        entry = self._entries.get(digest)
+        if entry is None or entry[2] < time.monotonic():
+            return None
+        return entry[0]
+
+    def put(self, digest: str, user: User, token_id: int) -> None:
+        if self.ttl <= 0:
+            return
+        with self._lock:
+            if len(self._entries) >= self.size:
+                now = time.monotonic()
+                self._entries = {k: v for k, v in self._entries.items() if v[2] >= now}
+                if len(self._entries) >= self.size:
+                    self._entries.clear()
+            self._entries[digest] = (user, token_id, time.monotonic() + self.ttl)
+
+    def forget(self, token_id: int | None = None, user_id: int | None = None) -> None:
+        """Drop a token's entry (or every entry of a user's)."""
+        with self._lock:
+            self._entries = {k: v for k, v in self._entries.items()
+                             if v[1] != token_id and (user_id is None or v[0].id != user_id)}
 
 
 def token_row(session: Session, token: str) -> ApiToken | None:
@@ -72,8 +123,11 @@ def token_row(session: Session, token: str) -> ApiToken | None:
                                                  ApiToken.revoked.is_(False)))
 
 
-def revoke_token(session: Session, row: ApiToken) -> None:
+def revoke_token(session: Session, row: ApiToken, cache: TokenCache | None = None) -> None:
     """Revoke a token for good; the web sessions opened with it end with it."""
+    if cache is not None:
+        cache.forget(token_id=row.id)
+    session.info.setdefault("revoked_tokens", set()).add(row.id)
     if not row.revoked:
         row.revoked = True
         row.revoked_at = time.time()

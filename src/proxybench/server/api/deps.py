@@ -20,9 +20,9 @@ from starlette.concurrency import run_in_threadpool
 from proxybench.server.config import Settings
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import User
-from proxybench.server.security import csrf_token, user_for_session, user_for_token
+from proxybench.server.security import TOKEN_PREFIX, csrf_token, hash_token, user_for_session, user_for_token
 
-__all__ = ["DB", "SAFE_METHODS", "SESSION_COOKIE", "Caller", "Conf", "ReadDB", "WebCaller", "WebFormCaller",
+__all__ = ["DB", "SAFE_METHODS", "SESSION_COOKIE", "Caller", "Conf", "WebCaller", "WebFormCaller",
            "require", "require_reader", "run_write", "session_secret", "write_lock"]
 
 SESSION_COOKIE = "proxybench_session"
@@ -59,14 +59,15 @@ async def get_session(request: Request,
 
     Async on purpose: each sync dependency costs a worker-thread hop (and GIL hand-offs), which under
     load dominated request time; only the endpoint and the commit run in worker threads. GET requests
-    never write (the lease reaper, not a page view, returns lapsed leases to the queue).
+    never write (the lease reaper, not a page view, returns lapsed leases to the queue), so they use
+    autocommit connections: each query is one round trip, with no BEGIN or ROLLBACK around it.
     """
-    session = request.app.state.sessions()
+    reading = request.method in SAFE_METHODS
+    session = (request.app.state.read_sessions if reading else request.app.state.sessions)()
     try:
         yield session
-        if request.method not in SAFE_METHODS:  # reads write nothing: closing is enough
-            await run_in_threadpool(session.commit)
-            await _after_commit(request, session)
+        if not reading:  # reads write nothing (and run without a transaction: no BEGIN / ROLLBACK trips)
+            await run_in_threadpool(_commit_then, request, session)
     except BaseException:
         await run_in_threadpool(session.rollback)
         raise
@@ -74,22 +75,15 @@ async def get_session(request: Request,
         session.close()
 
 
-async def _after_commit(request: Request, session: Session) -> None:
-    """Leaderboards this transaction changed are rebuilt now (small) or scheduled (large)."""
-    changed = session.info.pop("changed_boards", None)
+def _commit_then(request: Request, session: Session) -> None:
+    """Commit, then what the commit makes due (in one worker-thread hop): leaderboards this transaction
+    changed are rebuilt now (small) or scheduled (large); revoked tokens are forgotten once more."""
+    session.commit()
+    for token_id in session.info.pop("revoked_tokens", ()):  # again after the commit: no request re-cached it
+        request.app.state.tokens.forget(token_id=token_id)
+    changed = session.info.pop("bumped_boards", None)
     if changed:
-        await run_in_threadpool(request.app.state.boards.changed, changed)
-
-
-async def get_read_session(request: Request) -> AsyncIterator[Session]:
-    """A session that only reads (no write turn, never committed): for checking who calls before a long
-    upload is handled, which then writes in a short transaction of its own (:func:`run_write`)."""
-    session = request.app.state.sessions()
-    try:
-        yield session
-    finally:
-        session.rollback()
-        session.close()
+        request.app.state.boards.changed(changed)
 
 
 async def run_write(request: Request, work: Callable[[Session], T]) -> T:
@@ -101,7 +95,7 @@ async def run_write(request: Request, work: Callable[[Session], T]) -> T:
     def unit() -> T:
         try:
             out = work(session)
-            session.commit()
+            _commit_then(request, session)
             return out
         except BaseException:
             session.rollback()
@@ -109,12 +103,9 @@ async def run_write(request: Request, work: Callable[[Session], T]) -> T:
 
     try:
         if lock is None:
-            out = await run_in_threadpool(unit)
-        else:
-            async with lock:
-                out = await run_in_threadpool(unit)
-        await _after_commit(request, session)
-        return out
+            return await run_in_threadpool(unit)
+        async with lock:
+            return await run_in_threadpool(unit)
     finally:
         session.close()
 
@@ -126,7 +117,6 @@ def get_settings(request: Request) -> Settings:
 # scope='function': commit (or roll back) *before* the response is sent, so that a client that got its answer
 # (or followed a redirect) reads what it wrote, and a failed commit is an error, not a lost write
 DB = Annotated[Session, Depends(get_session, scope="function")]
-ReadDB = Annotated[Session, Depends(get_read_session, scope="function")]
 Conf = Annotated[Settings, Depends(get_settings)]
 
 
@@ -142,32 +132,40 @@ def session_secret(request: Request) -> str | None:
     return request.cookies.get(SESSION_COOKIE)
 
 
-def _api_user(request: Request, session: Session) -> User:
+def _api_user(request: Request) -> User:
     token = _bearer(request)
     if token:
-        user = user_for_token(session, token)
+        cache = request.app.state.tokens
+        user = cache.get(hash_token(token)) if token.startswith(TOKEN_PREFIX) else None
+        if user is None:
+            with request.app.state.read_sessions() as session:
+                user = user_for_token(session, token, cache)
         if user is None:
             raise ServiceError(401, "invalid or revoked API token")
         return user
     secret = session_secret(request)
     if secret and request.method in SAFE_METHODS:
-        user = user_for_session(session, secret)
+        with request.app.state.read_sessions() as session:
+            user = user_for_session(session, secret)
+            if user is not None:
+                session.expunge(user)
         if user is None:
             raise ServiceError(401, "the web session has expired or was closed; sign in again")
         return user
     raise ServiceError(401, "no API token: send 'Authorization: Bearer <token>'")
 
 
-async def current_user(request: Request, session: DB) -> User:
+async def current_user(request: Request) -> User:
     """The caller; 401 with a clear message when the token is missing, unknown or revoked.
 
-    The token lookup (one indexed row) runs on the event loop: cheaper than a thread hop."""
-    return _api_user(request, session)
+    Most requests are answered by the process's token cache; a lookup (one indexed row) runs on the
+    event loop: cheaper than a thread hop. The user comes detached from any session (read its columns)."""
+    return _api_user(request)
 
 
-async def current_reader(request: Request, session: ReadDB) -> User:
-    """The caller, looked up without taking SQLite's write turn (uploads: see :func:`run_write`)."""
-    return _api_user(request, session)
+async def current_reader(request: Request) -> User:
+    """The caller, for endpoints that do their writing in :func:`run_write` (the same lookup)."""
+    return _api_user(request)
 
 
 def require(*roles: str) -> Callable[..., User]:

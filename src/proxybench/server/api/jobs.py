@@ -1,6 +1,7 @@
 """The evaluators' side: lease a job, heartbeat, upload its result; plus the queue views and operator actions.
 
-Request and reply bodies of the first three are the shared models of :mod:`proxybench.contract`.
+Request and reply bodies of the first three are the shared models of :mod:`proxybench.contract`. They
+(and submissions) do all their database work in one worker-thread hop, commit included (``run_write``).
 """
 
 from __future__ import annotations
@@ -9,11 +10,11 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Path, Query, Request, Response
 from sqlalchemy import select
-from sqlalchemy.orm import Session, selectinload
+from sqlalchemy.orm import Session, joinedload
 
 from proxybench.contract import Heartbeat, HeartbeatReply, Lease, LeaseRequest, ResultUpload
 from proxybench.server import clock
-from proxybench.server.api.deps import DB, Caller, Conf, require
+from proxybench.server.api.deps import DB, Caller, Conf, require, run_write
 from proxybench.server.api.schemas import (
     MAX_ID,
     EvaluatorOut,
@@ -23,8 +24,9 @@ from proxybench.server.api.schemas import (
     ResultRecorded,
 )
 from proxybench.server.benchmarks import benchmark_of
+from proxybench.server.config import Settings
 from proxybench.server.errors import ServiceError
-from proxybench.server.models import JOB_STATUSES, ArtifactLink, Evaluator, Job, User
+from proxybench.server.models import JOB_STATUSES, ArtifactLink, BenchmarkVersion, Evaluator, Job, Submission, User
 from proxybench.server.queue import finish, heartbeat, lease, retry
 from proxybench.server.submissions import advance
 from proxybench.server.views import can_see, evaluator_view, job_events, job_view, result_view
@@ -56,8 +58,12 @@ def _evaluator(session: Session, user: User, name: str, features: list[str] | No
 
 
 @router.post("/jobs/lease", response_model=Lease, responses={204: {"description": "no job for these features now"}})
-def lease_job(body: LeaseRequest, session: DB, settings: Conf, user: EvaluatorUser) -> Any:
+async def lease_job(body: LeaseRequest, request: Request, settings: Conf, user: EvaluatorUser) -> Any:
     """Lease the oldest job this evaluator can run; 204 when there is none. Keep it with heartbeats."""
+    return await run_write(request, lambda session: _lease_job(body, session, settings, user))
+
+
+def _lease_job(body: LeaseRequest, session: Session, settings: Settings, user: User) -> Any:
     ev = _evaluator(session, user, body.evaluator, body.features, body.version)
     job = lease(session, ev, settings.lease_seconds)
     if job is None:
@@ -73,28 +79,41 @@ def lease_job(body: LeaseRequest, session: DB, settings: Conf, user: EvaluatorUs
 
 
 @router.post("/jobs/{job_id}/heartbeat", response_model=HeartbeatReply)
-def job_heartbeat(job_id: JobId, body: Heartbeat, session: DB, settings: Conf,
-                  user: EvaluatorUser) -> HeartbeatReply:
+async def job_heartbeat(job_id: JobId, body: Heartbeat, request: Request, settings: Conf,
+                        user: EvaluatorUser) -> HeartbeatReply:
     """Extend the lease; 409 means it was lost (stop and drop the work)."""
-    ev = _evaluator(session, user, body.evaluator)
-    job = heartbeat(session, job_id, body.lease_id, ev, settings.lease_seconds, body.progress)
-    return HeartbeatReply(job_id=job.id, lease_expires_at=job.lease_expires_at or 0.0)
+
+    def work(session: Session) -> HeartbeatReply:
+        ev = _evaluator(session, user, body.evaluator)
+        job = heartbeat(session, job_id, body.lease_id, ev, settings.lease_seconds, body.progress)
+        return HeartbeatReply(job_id=job.id, lease_expires_at=job.lease_expires_at or 0.0)
+
+    return await run_write(request, work)
 
 
 @router.post("/jobs/{job_id}/result", response_model=ResultRecorded | HostErrorRecorded,
              response_model_exclude_unset=True,
              responses={201: {"description": "stored"}, 202: {"description": "host-error: the job was queued again"}})
-def job_result(job_id: JobId, body: ResultUpload, request: Request, session: DB, settings: Conf,
-               response: Response, user: EvaluatorUser) -> Any:
+async def job_result(job_id: JobId, body: ResultUpload, request: Request, settings: Conf, response: Response,
+                     user: EvaluatorUser) -> Any:
     """Record the job's outcome. Safe to retry: the same lease's upload is stored once (200 on a repeat)."""
+    return await run_write(request, lambda session: _job_result(job_id, body, request, session, settings, response,
+                                                                user))
+
+
+def _job_result(job_id: int, body: ResultUpload, request: Request, session: Session, settings: Settings,
+                response: Response, user: User) -> Any:
     ev = _evaluator(session, user, body.evaluator)
+    job = session.get(Job, job_id, options=[joinedload(Job.benchmark), joinedload(Job.submission)])
+    if job is None:
+        raise ServiceError(404, f"no job {job_id}")
     store = request.app.state.store
     for k, ref in enumerate(body.artifacts):
         if not store.has(ref.sha256):
             raise ServiceError(422, f"artifacts.{k}: {ref.name!r} ({ref.sha256[:12]}…) was not uploaded; "
                                     "PUT it to /api/v1/artifacts/{sha256} first")
     if body.status == "success":
-        _check_scores(session, job_id, body)
+        _check_scores(job, body)
     result, created = finish(session, job_id, body, ev)
     if result is None:
         response.status_code = 202
@@ -109,14 +128,13 @@ def job_result(job_id: JobId, body: ResultUpload, request: Request, session: DB,
     else:
         opened = []
     session.flush()
-    return {**result_view(session, result, True), "recorded": created, "opened_jobs": [j.id for j in opened]}
+    links = [ref.model_dump() for ref in body.artifacts] if created else None  # a new result: its links are these
+    return {**result_view(session, result, True, links=links), "recorded": created,
+            "opened_jobs": [j.id for j in opened]}
 
 
-def _check_scores(session: Session, job_id: int, body: ResultUpload) -> None:
+def _check_scores(job: Job, body: ResultUpload) -> None:
     """A success must carry every score the benchmark ranks by (else its leaderboard could not rank it)."""
-    job = session.get(Job, job_id)
-    if job is None:
-        raise ServiceError(404, f"no job {job_id}")
     needed = [c.metric for c in benchmark_of(job.benchmark).criteria()]
     for field, scores in (("public_scores", body.public_scores), ("hidden_scores", body.hidden_scores)):
         if field == "hidden_scores" and job.benchmark.test_seed is None:
@@ -126,21 +144,33 @@ def _check_scores(session: Session, job_id: int, body: ResultUpload) -> None:
             raise ServiceError(422, f"{field}: missing {', '.join(missing)} (the benchmark ranks by them)")
 
 
-@router.get("/jobs", response_model=list[JobOut])
-def list_jobs(session: DB, user: Caller, status: str | None = None,
-              limit: Annotated[int, Query(ge=1, le=1000)] = 200) -> list[dict[str, Any]]:
-    """The queue, newest first (super-users and evaluators: every job; developers: their own)."""
+_JOB_COLUMNS = (Job.id, Job.submission_id, Job.step, BenchmarkVersion.name, BenchmarkVersion.version, Job.features,
+                Job.status, Job.attempts, Job.max_attempts, Job.message, Evaluator.name, Job.lease_expires_at,
+                Job.progress, Job.created_at, Job.started_at, Job.finished_at)
+_JOB_FIELDS = ("id", "submission_id", "step", "benchmark", "benchmark_version", "features", "status", "attempts",
+               "max_attempts", "message", "evaluator", "lease_expires_at", "progress", "created_at", "started_at",
+               "finished_at")
+
+
+def list_jobs(session: Session, user: User, status: str | None = None, limit: int = 200) -> list[dict[str, Any]]:
+    """The queue, newest first, as :func:`job_view` shows jobs: one query, no ORM objects."""
     if status is not None and status not in JOB_STATUSES:
         raise ServiceError(422, f"status must be one of {', '.join(JOB_STATUSES)}, got {status!r}")
-    q = (select(Job).order_by(Job.id.desc()).limit(limit)
-         .options(selectinload(Job.benchmark), selectinload(Job.evaluator), selectinload(Job.submission)))
+    q = (select(*_JOB_COLUMNS).join(BenchmarkVersion, Job.benchmark_id == BenchmarkVersion.id)
+         .outerjoin(Evaluator, Job.evaluator_id == Evaluator.id).order_by(Job.id.desc()).limit(limit))
     if status:
         q = q.where(Job.status == status)
     if user.role == "developer":
-        from proxybench.server.models import Submission
-
         q = q.join(Submission, Job.submission_id == Submission.id).where(Submission.user_id == user.id)
-    return [job_view(j) for j in session.scalars(q)]
+    return [dict(zip(_JOB_FIELDS, row, strict=True)) for row in session.execute(q)]
+
+
+@router.get("/jobs", response_model=list[JobOut])
+async def get_jobs(session: DB, user: Caller, status: str | None = None,
+                   limit: Annotated[int, Query(ge=1, le=1000)] = 200) -> list[dict[str, Any]]:
+    """The queue, newest first (super-users and evaluators: every job; developers: their own). One indexed
+    query, run on the event loop."""
+    return list_jobs(session, user, status, limit)
 
 
 @router.get("/jobs/{job_id}", response_model=JobDetail)

@@ -28,12 +28,16 @@ SubmissionId = Annotated[int, Path(ge=1, le=MAX_ID)]
 
 
 @router.post("/submissions", status_code=201, response_model=SubmissionOut, response_model_exclude_unset=True)
-def submit_builtin(body: SubmissionCreate, session: DB, settings: Conf, user: Developer) -> dict:
+async def submit_builtin(body: SubmissionCreate, request: Request, settings: Conf, user: Developer) -> dict:
     """Submit a built-in agent to a benchmark or a benchmark path."""
-    sub = create_submission(session, user, label=body.label, description=body.description, agent_name=body.agent,
-                            benchmark=body.benchmark, path=body.path, daily_limit=settings.daily_submission_limit,
-                            max_attempts=settings.max_attempts)
-    return submission_view(session, sub, user.role == "superuser")
+
+    def work(session: Session) -> dict:
+        sub = create_submission(session, user, label=body.label, description=body.description,
+                                agent_name=body.agent, benchmark=body.benchmark, path=body.path,
+                                daily_limit=settings.daily_submission_limit, max_attempts=settings.max_attempts)
+        return submission_view(session, sub, user.role == "superuser")
+
+    return await run_write(request, work)
 
 
 def _form_text(value: str | None, field: str, limit: int) -> str | None:

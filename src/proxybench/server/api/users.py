@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Path
+from fastapi import APIRouter, Depends, Path, Request
 from sqlalchemy import select
 
 from proxybench.server.api.deps import DB, Caller, require
@@ -76,14 +76,15 @@ def user_tokens(name: str, session: DB, _: Superuser) -> list[TokenOut]:
 
 
 @router.post("/tokens/{token_id}/revoke", response_model=TokenOut)
-def revoke(token_id: TokenId, session: DB, user: Caller) -> TokenOut:
+def revoke(token_id: TokenId, request: Request, session: DB, user: Caller) -> TokenOut:
     """Revoke a token for good (yours; super-users: anyone's). Requests with it are refused from now on, and
-    the web sessions opened with it end. Revoking a revoked token changes nothing."""
+    the web sessions opened with it end (other server processes refuse it within ``token_cache_seconds``).
+    Revoking a revoked token changes nothing."""
     row = session.get(ApiToken, token_id)
     if row is None:
         raise ServiceError(404, f"no token {token_id}")
     if row.user_id != user.id and user.role != "superuser":
         raise ServiceError(403, f"token {token_id} belongs to another user")
-    revoke_token(session, row)
+    revoke_token(session, row, request.app.state.tokens)
     owner = session.get(User, row.user_id)
     return _token_view(row, owner.name if owner else "?")
