@@ -9,6 +9,10 @@ A real ``proxybench serve`` process serves (``--workers``: its uvicorn worker pr
 tasks on one aiohttp connection pool (httpx's async client saturated a core at ~60 requests/s and measured
 itself, not the server). Each client loops over a mix like a busy challenge: 70 % leaderboard
 reads, 10 % queue listings, 10 % submissions, 10 % lease + result (an evaluator with an instant "run").
+By default the clients do not pause (closed loop: throughput is what the server can do, and the mean
+latency is clients / throughput, Little's law); ``--rate R`` paces them to R operations/s together,
+to measure the latency at that load. The server's CPU time per request is printed too: on a shared
+machine it is steadier than throughput.
 PostgreSQL is a throwaway server started from the installed binaries (or $PROXYBENCH_TEST_PG_URL).
 """
 
@@ -40,11 +44,20 @@ WEIGHTS = (0.7, 0.1, 0.1, 0.1, 0.0)  # the issue's mix; --only OP runs one opera
 
 
 async def _client(i: int, http: aiohttp.ClientSession, url: str, admin: dict, ev: dict, until: float,
-                  lat: dict[str, list[float]], errors: dict[str, int], weights: tuple[float, ...]) -> None:
+                  lat: dict[str, list[float]], errors: dict[str, int], weights: tuple[float, ...],
+                  period: float = 0.0) -> None:
     rng = random.Random(i)
     api = url + "/api/v1"
     n = 0
+    due = time.perf_counter() + rng.uniform(0, period)  # paced clients start spread over one period
     while time.perf_counter() < until:
+        if period:  # paced: one operation per period (never more; late ones go at once)
+            wait = due - time.perf_counter()
+            if wait > 0:
+                await asyncio.sleep(wait)
+            due = max(due + period, time.perf_counter() - period)
+            if time.perf_counter() >= until:
+                break
         op = rng.choices(OPS, weights)[0]
         t0 = time.perf_counter()
         try:
@@ -85,7 +98,7 @@ async def _client(i: int, http: aiohttp.ClientSession, url: str, admin: dict, ev
 
 
 async def _load(url: str, admin_token: str, clients: int, seconds: float,
-                weights: tuple[float, ...] = WEIGHTS) -> tuple[dict, dict, float]:
+                weights: tuple[float, ...] = WEIGHTS, rate: float | None = None) -> tuple[dict, dict, float]:
     conn = aiohttp.TCPConnector(limit=clients)
     async with aiohttp.ClientSession(connector=conn, timeout=aiohttp.ClientTimeout(total=120)) as http:
         admin = {"Authorization": f"Bearer {admin_token}"}
@@ -95,7 +108,8 @@ async def _load(url: str, admin_token: str, clients: int, seconds: float,
         lat: dict[str, list[float]] = {op: [] for op in OPS}
         errors = dict.fromkeys(OPS, 0)
         t0 = time.perf_counter()
-        await asyncio.gather(*(_client(i, http, url, admin, ev, t0 + seconds, lat, errors, weights)
+        period = clients / rate if rate else 0.0
+        await asyncio.gather(*(_client(i, http, url, admin, ev, t0 + seconds, lat, errors, weights, period)
                                for i in range(clients)))
         return lat, errors, time.perf_counter() - t0
 
@@ -117,7 +131,7 @@ def _group_cpu_seconds(pgid: int) -> float:
 
 
 def run_case(db: str, clients: int, seconds: float, console: Console, workers: int | None = None,
-             weights: tuple[float, ...] = WEIGHTS) -> list[tuple]:
+             weights: tuple[float, ...] = WEIGHTS, rate: float | None = None) -> list[tuple]:
     tmp = Path(tempfile.mkdtemp(prefix="pbbench-"))
     (tmp / "data").mkdir()
     pg = None
@@ -133,7 +147,7 @@ def run_case(db: str, clients: int, seconds: float, console: Console, workers: i
     try:
         console.print(f"{db}: {clients} clients × {seconds:g} s on {server.url} ({workers or 'default'} workers) …")
         cpu0 = _group_cpu_seconds(server.proc.pid)
-        lat, errors, wall = asyncio.run(_load(server.url, server.admin_token, clients, seconds, weights))
+        lat, errors, wall = asyncio.run(_load(server.url, server.admin_token, clients, seconds, weights, rate))
         cpu = _group_cpu_seconds(server.proc.pid) - cpu0
         board = httpx.get(f"{server.url}/api/v1/leaderboards/aido_lf?limit=1", timeout=60,
                           headers={"Authorization": f"Bearer {server.admin_token}"}).json()
@@ -163,6 +177,10 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--workers", type=int, default=None, help="server worker processes [as serve chooses]")
     ap.add_argument("--only", choices=OPS, default=None, help="one operation alone instead of the mix")
+    ap.add_argument("--rate", type=float, default=None,
+                    help="offered load [operations/s over all clients]: each client paces itself, and the "
+                         "latency is the server's at that load (default: closed loop, no pause between "
+                         "operations, where the mean latency is clients / throughput by Little's law)")
     ap.add_argument("--quick", action="store_true", help="20 clients × 5 s")
     args = ap.parse_args()
     if args.quick:
@@ -171,8 +189,9 @@ def main() -> None:
     rows = []
     for db in (("sqlite", "postgresql") if args.db == "both" else (args.db,)):
         weights = WEIGHTS if args.only is None else tuple(float(op == args.only) for op in OPS)
-        rows += run_case(db, args.clients, args.seconds, console, args.workers, weights)
-    table = Table(title=f"proxybench server load — {args.clients} clients × {args.seconds:g} s, "
+        rows += run_case(db, args.clients, args.seconds, console, args.workers, weights, args.rate)
+    load = f"paced at {args.rate:g} operations/s" if args.rate else "closed loop"
+    table = Table(title=f"proxybench server load — {args.clients} clients ({load}) × {args.seconds:g} s, "
                         f"{os.cpu_count()} cores, {args.workers or 'default'} uvicorn workers, clients on the same "
                         "machine")
     for col in ("database", "operation", "req/s", "p50 ms", "p99 ms", "errors"):

@@ -138,8 +138,10 @@ class ServerClient:
             return self.request("POST", "/submissions/upload", data=data,
                                 files={"archive": (archive.name, f, "application/octet-stream")}).json()
 
-    def leaderboard(self, benchmark: str, split: str = "public") -> dict[str, Any]:
-        return self.get(f"/leaderboards/{benchmark}", split=split)
+    def leaderboard(self, benchmark: str, split: str = "public", *, limit: int | None = None,
+                    offset: int = 0) -> dict[str, Any]:
+        """The ranked board (``rows`` [offset, offset + limit), ``total`` rows in all)."""
+        return self.get(f"/leaderboards/{benchmark}", split=split, limit=limit, offset=offset or None)
 
     # -- evaluators --------------------------------------------------------------------------------
 

@@ -95,7 +95,7 @@ def serve(
     database_url: str | None = typer.Option(None, envvar="PROXYBENCH_SERVER_DATABASE_URL",
                                             help="SQLAlchemy URL, e.g. postgresql+psycopg://u:p@host/db"),
     workers: int | None = typer.Option(None, min=1, max=64, help="server processes sharing the port "
-                                       "[PostgreSQL: the number of cores, at most 4; SQLite: 1]"),
+                                       "[the number of cores, at most 4]"),
     evaluators: int = typer.Option(0, min=0, help="local evaluator processes to start beside the server"),
     features: str = typer.Option("sim,target", help="features the local evaluators offer"),
     lease_seconds: float = typer.Option(120.0, min=0.1, help="a job lease lapses this long after the last heartbeat"),
@@ -109,7 +109,7 @@ def serve(
     from proxybench.server.config import Settings
 
     if workers is None:
-        workers = 1 if not database_url else max(1, min(4, os.cpu_count() or 1))
+        workers = max(1, min(4, len(os.sched_getaffinity(0))))
     settings = Settings.from_env(data_dir=data_dir, database_url=database_url, lease_seconds=lease_seconds,
                                  workers=workers)
     url = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}"
@@ -192,7 +192,7 @@ def submit(
                 console.print(f"  job {j['id']} {j['benchmark']} v{j['benchmark_version']}: {j['status']} "
                               f"{j['message'][:200]}", highlight=False)
             for name in sorted({j["benchmark"] for j in sub["jobs"]}):
-                _print_board(client.leaderboard(name))
+                _print_board(_settled_board(client, name))
             if any(j["status"] != "success" for j in sub["jobs"]):
                 raise typer.Exit(1)
     except ServerError as exc:
@@ -213,8 +213,21 @@ def _wait(client, sid: int, timeout: float) -> dict:
             time.sleep(1.0)
 
 
+def _settled_board(client, name: str, limit: int | None = 100, patience: float = 15.0) -> dict:
+    """The board once it includes every result (a large board is rebuilt about once a second)."""
+    deadline = time.monotonic() + patience
+    while True:
+        board = client.get(f"/leaderboards/{name}", limit=limit)
+        if not board.get("stale") or time.monotonic() > deadline:
+            return board
+        time.sleep(0.5)
+
+
 def _print_board(board: dict) -> None:
-    table = Table(title=f"{board['benchmark']} v{board['version']} ({board['split']})")
+    shown = len(board["rows"])
+    total = board.get("total", shown)
+    more = f", rows {board.get('offset', 0) + 1}-{board.get('offset', 0) + shown} of {total}" if shown < total else ""
+    table = Table(title=f"{board['benchmark']} v{board['version']} ({board['split']}{more})")
     for col in ("rank", "label", "user", "agent"):
         table.add_column(col)
     for c in board["criteria"]:
@@ -230,6 +243,8 @@ def _print_board(board: dict) -> None:
 def show_leaderboard(
     benchmark: str = typer.Argument(..., help="benchmark name on the server"),
     split: str = typer.Option("public", help="public (validation) or hidden (test; super-users)"),
+    limit: int = typer.Option(100, min=1, help="rows to show (the best first)"),
+    offset: int = typer.Option(0, min=0, help="rows to skip"),
     server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
 ) -> None:
     """Show a benchmark's leaderboard from a challenges server."""
@@ -237,7 +252,7 @@ def show_leaderboard(
     from proxybench.client import ServerError
 
     try:
-        _print_board(_client(server, token, token_file).leaderboard(benchmark, split))
+        _print_board(_client(server, token, token_file).leaderboard(benchmark, split, limit=limit, offset=offset))
     except ServerError as exc:
         raise _fail(exc) from None
 

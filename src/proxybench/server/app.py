@@ -14,7 +14,6 @@ from __future__ import annotations
 import asyncio
 import os
 import sys
-import weakref
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -39,6 +38,7 @@ from proxybench.server.limits import BodyRules, RequestGate
 from proxybench.server.models import User
 from proxybench.server.queue import install_board_bumps
 from proxybench.server.security import TokenCache, create_user
+from proxybench.server.writeturn import WriteTurn
 
 __all__ = ["app_from_env", "bootstrap", "create_app", "prepare"]
 
@@ -93,17 +93,15 @@ def _requeue(app: FastAPI) -> None:
 
 async def _reap(app: FastAPI) -> None:
     """Return lapsed leases to the queue even when no evaluator asks for work (the queue page stays true)."""
-    from proxybench.server.api.deps import write_lock
-
     period = max(0.5, app.state.settings.lease_seconds / 4)
     while True:
         await asyncio.sleep(period)
         try:
-            lock = write_lock(app)
-            if lock is None:
+            turn = app.state.write_turn
+            if turn is None:
                 await run_in_threadpool(_requeue, app)
             else:
-                async with lock:
+                async with turn.hold():
                     await run_in_threadpool(_requeue, app)
         except Exception as exc:  # a database hiccup must not kill the reaper
             print(f"lease reaper: {exc}", file=sys.stderr)
@@ -119,6 +117,8 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     finally:
         reaper.cancel()
         app.state.boards.close()
+        if app.state.write_turn is not None:
+            app.state.write_turn.close()
         app.state.engine.dispose()
 
 
@@ -140,7 +140,9 @@ def create_app(settings: Settings | None = None, *, prepared: bool = False) -> F
     app.state.read_sessions = sessionmaker(engine.execution_options(isolation_level="AUTOCOMMIT"),
                                            expire_on_commit=False)
     app.state.store = ArtifactStore(settings.artifact_dir)
-    app.state.write_locks = weakref.WeakKeyDictionary() if settings.url.startswith("sqlite") else None
+    sqlite = settings.url.startswith("sqlite")
+    app.state.write_turn = WriteTurn(settings.data_dir / "write.lock" if settings.workers > 1 else None) \
+        if sqlite else None
     app.state.boards = BoardCache(factory)
     app.state.tokens = TokenCache(settings.token_cache_seconds)
     app.state.admin_token = None if prepared else bootstrap(settings, factory)

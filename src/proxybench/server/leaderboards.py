@@ -9,11 +9,11 @@ submission) bumps its benchmark version's ``board_version`` in the same transact
 once per version and kept, serialised, in the process (:class:`BoardCache`), so a read costs one small
 query (the version) and a dictionary lookup. Builds are incremental: only the results that arrived since
 the last build are read (all of them again after a retirement), then everything is re-ranked (a compiled
-pair loop). Who builds: the request that changed the board, right after its commit; else the first reader
-that finds it out of date. Small boards (built in under ``SYNC_BUILD_S``) are built on the spot, so a
-read after a result always shows it. A large board is rebuilt in the background at most once per
-``max(MIN_INTERVAL_S, 8 × its build time)`` however fast results arrive, and readers get the previous
-build meanwhile, marked ``"stale": true``. Each server process keeps (and builds) its own copy.
+pair loop). A change asks for a rebuild in the background, right after its commit (the writing request
+does not wait for it); a reader that finds a small board (at most ``SYNC_BUILD_ROWS`` rows) out of date
+builds it on the spot, so a read after a result always shows it. A large board is rebuilt at most once
+per ``max(MIN_INTERVAL_S, 8 × its build time)`` however fast results arrive, and readers get the
+previous build meanwhile, marked ``"stale": true``. Each server process keeps (and builds) its own copy.
 """
 
 from __future__ import annotations
@@ -35,9 +35,9 @@ from proxybench.server.errors import ServiceError
 from proxybench.server.models import BenchmarkVersion, Result, Submission, User
 from proxybench.tasks.scoring import leaderboard
 
-__all__ = ["MIN_INTERVAL_S", "SYNC_BUILD_S", "Board", "BoardCache", "build_board", "resolve_version"]
+__all__ = ["MIN_INTERVAL_S", "SYNC_BUILD_ROWS", "Board", "BoardCache", "build_board", "resolve_version"]
 
-SYNC_BUILD_S = 0.002  # boards built faster than this are always built before they are served [s]
+SYNC_BUILD_ROWS = 100  # boards of at most this many rows are always built before they are served
 MIN_INTERVAL_S = 1.0  # the shortest pause between background rebuilds of one large board [s]
 INTERVAL_FACTOR = 8  # ... and at least this many times its build time: rebuilding takes ≤ 1/8 of a core
 SPLITS = ("public", "hidden")
@@ -159,14 +159,19 @@ class Board:
 
 
 class BoardCache:
-    """The boards this process has built, by (benchmark version id, split); thread-safe."""
+    """The boards this process has built, by (benchmark version id, split); thread-safe.
+
+    Rebuilds asked for by changes run on one background thread, at most one per board at a time and no
+    sooner than the board's :func:`interval` after its last build; a change during a build asks for one
+    more. Readers build small out-of-date boards on the spot (so a read after a write shows it)."""
 
     def __init__(self, sessions: sessionmaker) -> None:
         self.sessions = sessions
         self._boards: dict[tuple[int, str], Board] = {}
         self._lock = threading.Lock()
         self._building: set[tuple[int, str]] = set()
-        self._wanted: dict[tuple[int, str], int] = {}
+        self._pending: set[tuple[int, str]] = set()
+        self._again: set[tuple[int, str]] = set()
         self._background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="board-builder")
 
     def close(self) -> None:
@@ -198,7 +203,7 @@ class BoardCache:
             if not wait:
                 return None
             while True:
-                time.sleep(0.005)
+                time.sleep(0.002)
                 with self._lock:
                     if key not in self._building:
                         return self._boards.get(key)
@@ -207,18 +212,20 @@ class BoardCache:
         finally:
             with self._lock:
                 self._building.discard(key)
-                wanted = self._wanted.pop(key, None)
-            board = self._boards.get(key)
-            if wanted is not None and board is not None and board.board_version < wanted:
-                self._schedule(key, wanted)  # changes arrived while it was being built
+                again = key in self._again
+                self._again.discard(key)
+            if again:
+                self.request(key)  # changes arrived while it was being built
 
-    def _schedule(self, key: tuple[int, str], version: int) -> None:
-        """Rebuild in the background, no sooner than the board's interval after its last build."""
+    def request(self, key: tuple[int, str]) -> None:
+        """Ask for a rebuild in the background (coalesced; no sooner than the board's interval)."""
         with self._lock:
-            if key in self._building or key in self._wanted:
-                self._wanted[key] = max(version, self._wanted.get(key, version))
+            if key in self._building:
+                self._again.add(key)
                 return
-            self._wanted[key] = version
+            if key in self._pending:
+                return
+            self._pending.add(key)
         board = self._boards.get(key)
         delay = 0.0 if board is None else max(0.0, board.built_at + interval(board) - time.time())
 
@@ -226,10 +233,10 @@ class BoardCache:
             if delay:
                 time.sleep(delay)
             with self._lock:
-                self._wanted.pop(key, None)
+                self._pending.discard(key)
             try:
                 self._build_once(key, wait=False)
-            except Exception as exc:
+            except Exception as exc:  # a failed rebuild leaves the old board; the next change asks again
                 print(f"leaderboard rebuild of {key} failed: {exc}")
 
         self._background.submit(run)
@@ -247,31 +254,21 @@ class BoardCache:
         board = self._boards.get(key)
         if board is not None and board.board_version >= board_version:
             return board, False
-        if board is None or board.build_seconds < SYNC_BUILD_S:
+        if board is None or len(board.data["rows"]) <= SYNC_BUILD_ROWS:
             built = self._build_once(key, wait=True)
             if built is not None and built.board_version >= board_version:
                 return built, False
             board = built or board
-        self._schedule(key, board_version)
+        self.request(key)
         assert board is not None
         return board, board.board_version < board_version
 
     def changed(self, bench_ids: set[int] | list[int]) -> None:
-        """After a commit that changed these boards: build the small ones now, schedule the large ones."""
-        for bid in sorted(set(bench_ids)):
-            keys = [(bid, split) for split in SPLITS if (bid, split) in self._boards]
-            if not keys:
-                continue  # never read in this process: built when first read
-            with self.sessions() as session:
-                version = session.scalar(select(BenchmarkVersion.board_version).where(BenchmarkVersion.id == bid))
-            for key in keys:
-                board = self._boards[key]
-                if board.board_version >= (version or 0):
-                    continue
-                if board.build_seconds < SYNC_BUILD_S:
-                    self._build_once(key, wait=True)
-                else:
-                    self._schedule(key, version or 0)
+        """After a commit that changed these boards: rebuild the ones this process serves, in the background
+        (cheap to call: no query, no build here)."""
+        ids = set(bench_ids)
+        for key in [k for k in list(self._boards) if k[0] in ids]:
+            self.request(key)
 
 
 def interval(board: Board) -> float:

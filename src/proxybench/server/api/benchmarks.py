@@ -71,10 +71,10 @@ def list_paths(session: DB, _: Caller) -> list[dict]:
             responses={304: {"description": "not modified since the ETag sent in If-None-Match"}})
 async def get_leaderboard(name: str, request: Request, session: DB, user: Caller,
                           split: Literal["public", "hidden"] = "public", version: Version = None,
-                          limit: Annotated[int | None, Query(ge=1, le=100_000, description="rows [all]")] = None,
+                          limit: Annotated[int, Query(ge=1, le=10_000, description="rows per page")] = 100,
                           offset: Annotated[int, Query(ge=0, le=MAX_ID)] = 0) -> Response:
-    """Ranked submissions; ``split=hidden`` (test scores) for super-users only. ``limit`` / ``offset`` page
-    through the rows (``total`` counts them all). Served from the board built when it last changed, with an
+    """Ranked submissions; ``split=hidden`` (test scores) for super-users only. ``limit`` (default 100) and
+    ``offset`` page through the rows, best first (``total`` counts them all). Served from the board built when it last changed, with an
     ETag (send it back in If-None-Match: 304 when unchanged).
 
     The hot path of the server: on the event loop (one indexed query and a dictionary lookup; a thread

@@ -8,7 +8,6 @@ form they post must carry the session's CSRF token.
 
 from __future__ import annotations
 
-import asyncio
 import hmac
 from collections.abc import AsyncIterator, Callable
 from typing import Annotated, TypeVar
@@ -23,33 +22,21 @@ from proxybench.server.models import User
 from proxybench.server.security import TOKEN_PREFIX, csrf_token, hash_token, user_for_session, user_for_token
 
 __all__ = ["DB", "SAFE_METHODS", "SESSION_COOKIE", "Caller", "Conf", "WebCaller", "WebFormCaller",
-           "require", "require_reader", "run_write", "session_secret", "write_lock"]
+           "require", "require_reader", "run_write", "session_secret"]
 
 SESSION_COOKIE = "proxybench_session"
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 T = TypeVar("T")
 
 
-def write_lock(app) -> asyncio.Lock | None:
-    """The SQLite writers' lock of the running event loop (None on PostgreSQL: row locks suffice)."""
-    locks = app.state.write_locks
-    if locks is None:
-        return None
-    loop = asyncio.get_running_loop()
-    if loop not in locks:
-        locks[loop] = asyncio.Lock()
-    return locks[loop]
-
-
 async def write_turn(request: Request) -> AsyncIterator[None]:
-    """SQLite allows one writer: writing requests queue on an event-loop lock *before* they take a worker
-    thread. (SQLite's own busy-wait sleeps in steps of up to 100 ms: p99 of seconds under load; a thread
-    lock deadlocked once waiting writers held every worker thread.) Reads (GET) never wait (WAL)."""
-    lock = write_lock(request.app)
-    if lock is None or request.method in SAFE_METHODS:
+    """Writing requests on SQLite take the write turn (:mod:`..writeturn`) before a worker thread; reads
+    (GET) never wait (WAL). Nothing to take on PostgreSQL."""
+    turn = request.app.state.write_turn
+    if turn is None or request.method in SAFE_METHODS:
         yield
         return
-    async with lock:
+    async with turn.hold():
         yield
 
 
@@ -88,7 +75,7 @@ def _commit_then(request: Request, session: Session) -> None:
 
 async def run_write(request: Request, work: Callable[[Session], T]) -> T:
     """``work(session)`` in a worker thread, in one short transaction taken in SQLite's write turn."""
-    lock = write_lock(request.app)
+    turn = request.app.state.write_turn
 
     session = request.app.state.sessions()
 
@@ -102,9 +89,9 @@ async def run_write(request: Request, work: Callable[[Session], T]) -> T:
             raise
 
     try:
-        if lock is None:
+        if turn is None:
             return await run_in_threadpool(unit)
-        async with lock:
+        async with turn.hold():
             return await run_in_threadpool(unit)
     finally:
         session.close()
