@@ -64,7 +64,7 @@ def test_restart_under_load_loses_nothing(tmp_path, database_url):
         server.kill()  # SIGKILL mid-traffic
         before = len(accepted)
         server.start()
-        time.sleep(2.0)
+        time.sleep(5.0)  # clients come back from their retry back-off (up to 5 s) and carry on
     finally:
         stop.set()
         for t in threads:
