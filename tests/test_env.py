@@ -271,12 +271,12 @@ def test_render_modes_return_uint8_images():
     frame = env.render()
     assert frame.dtype == np.uint8 and frame.shape == (60, 80, 3)
     np.testing.assert_array_equal(frame, obs)
-    top = LaneFollowingEnv(params=SMALL, render_mode="top_down")
+    top = LaneFollowingEnv(params=SMALL, render_mode="rgb_array", render_view="top_down")
     top.reset(seed=0)
     img = top.render()
     assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3 and img.shape[0] > 10
     assert LaneFollowingEnv(params=SMALL).render() is None
-    vec = LaneFollowingVectorEnv(num_envs=2, params=SMALL, render_mode="top_down")
+    vec = LaneFollowingVectorEnv(num_envs=2, params=SMALL, render_mode="rgb_array", render_view="top_down")
     vec.reset(seed=0)
     img = vec.render()
     assert img.dtype == np.uint8 and img.ndim == 3

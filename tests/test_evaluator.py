@@ -27,6 +27,7 @@ import uvicorn
 
 from proxybench.client import ServerClient, ServerError
 from proxybench.evaluator import Evaluator, EvaluatorConfig
+from support.sandbox import processes_left, require_safe_sandbox
 
 TINY = """\
 name: tiny_eval
@@ -185,6 +186,7 @@ def test_builtin_agent_succeeds_and_is_ranked(served: Served, tmp_path: Path) ->
 
 
 def test_archive_agent_runs_sandboxed_and_succeeds(served: Served, tmp_path: Path) -> None:
+    require_safe_sandbox()
     sub = submit_archive(served, tmp_path, make_package("ok"), "fwd")
     ev = evaluator(served, tmp_path, video=False)
     assert ev.take_one() == "success"
@@ -192,10 +194,12 @@ def test_archive_agent_runs_sandboxed_and_succeeds(served: Served, tmp_path: Pat
     assert job["status"] == "success", job["message"]
     assert result["public_scores"]["survival_time_median"] == pytest.approx(2.0)
     assert result["public_scores"]["driven_lanedir_consec_median"] > 0.05  # it drove forward
-    assert ev.isolation.note in result["public_report"]["sandbox"]
+    sandbox = result["public_report"]["sandbox"]
+    assert sandbox == ev.isolation.report() and sandbox["safe"] and sandbox["user"] == "proxybench-agent"
 
 
 def test_crashing_archive_agent_fails_with_its_stderr(served: Served, tmp_path: Path) -> None:
+    require_safe_sandbox()
     sub = submit_archive(served, tmp_path, make_package("crash"), "crashy")
     ev = evaluator(served, tmp_path, video=False)
     assert ev.take_one() == "failed"
@@ -211,6 +215,7 @@ def test_crashing_archive_agent_fails_with_its_stderr(served: Served, tmp_path: 
 
 @pytest.mark.parametrize("served", ["sqlite", "postgresql"], indirect=True)
 def test_killed_evaluator_job_is_released_and_finished_once(served: Served, tmp_path: Path) -> None:
+    require_safe_sandbox()
     sub = submit_archive(served, tmp_path, make_package("slow"), "slow")
     proc, work = start_cli_evaluator(served, tmp_path, "victim", "--once")
     try:
@@ -225,6 +230,7 @@ def test_killed_evaluator_job_is_released_and_finished_once(served: Served, tmp_
     time.sleep(0.5)
     leftovers = [p.name for p in Path("/proc").iterdir() if p.name.isdigit() and _works_in(p, work)]
     assert leftovers == [], "the killed evaluator's worker or agent outlived it"
+    assert processes_left(require_safe_sandbox().uid, 5) == [], "the agent outlived the killed evaluator"
     rescuer = evaluator(served, tmp_path, name="rescuer", video=False)
     deadline = time.monotonic() + 20
     status = None
@@ -269,6 +275,7 @@ def wait_for_episodes(proc: subprocess.Popen, work: Path) -> None:
 
 
 def test_sigterm_aborts_the_job(served: Served, tmp_path: Path) -> None:
+    require_safe_sandbox()
     sub = submit_archive(served, tmp_path, make_package("slow"), "slow-stopped")
     proc, work = start_cli_evaluator(served, tmp_path, "stopped")
     try:
@@ -286,6 +293,7 @@ def test_sigterm_aborts_the_job(served: Served, tmp_path: Path) -> None:
 
 
 def test_lost_lease_kills_the_work_and_uploads_nothing(served: Served, tmp_path: Path) -> None:
+    require_safe_sandbox()
     sub = submit_archive(served, tmp_path, make_package("slow"), "slow-retired")
     ev = evaluator(served, tmp_path, video=False)
     statuses: list[str | None] = []
@@ -326,3 +334,25 @@ def test_server_refuses_path_traversal_archives(served: Served, tmp_path: Path, 
     with pytest.raises(ServerError) as err:
         submit_archive(served, tmp_path, buf.getvalue(), "evil")
     assert err.value.status == 422 and "leaves the package folder" in err.value.message
+
+
+def test_without_a_safe_sandbox_archives_go_back_to_the_queue(served: Served, tmp_path: Path) -> None:
+    sub = submit_archive(served, tmp_path, make_package("ok"), "no-user")
+    ev = evaluator(served, tmp_path, name="misconfigured", agent_user="no-such-agent-user", video=False)
+    assert ev.take_one() == "host-error"
+    job, results = the_job(served, sub["id"])
+    events = served.admin.get(f"/jobs/{job['id']}")["events"]
+    assert job["status"] == "queued" and results == []
+    assert any(e["kind"] == "host-error" and "proxybench sandbox setup" in e["message"] for e in events), events
+    assert ev.take_one() is None  # excluded from this job: it waits for an evaluator that can run it
+
+
+def test_the_developer_flag_runs_the_agent_and_every_report_says_so(served: Served, tmp_path: Path) -> None:
+    require_safe_sandbox()  # bubblewrap must work here (as the evaluator's own user)
+    sub = submit_archive(served, tmp_path, make_package("ok"), "dev-mode")
+    ev = evaluator(served, tmp_path, name="laptop", agent_user="no-such-agent-user", dev_unsafe=True, video=False)
+    assert ev.take_one() == "success"
+    _, (result,) = the_job(served, sub["id"])
+    assert result["message"].startswith("UNSAFE SANDBOX") and "--dev-unsafe-same-user" in result["message"]
+    assert result["public_report"]["sandbox"]["safe"] is False
+    assert "UNSAFE" in result["public_report"]["sandbox"]["note"]

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import io
+import json
 import math
 import os
 import socket
@@ -19,7 +21,16 @@ import pytest
 from proxybench.agents.package import PackageError, check_archive, extract_archive
 from proxybench.evaluator.compliance import check_calibration, check_frame, check_reality_model
 from proxybench.evaluator.report import clean
-from proxybench.evaluator.sandbox import ArchiveMismatch, Isolation, Limits, confine, detect_isolation, prepare_agent
+from proxybench.evaluator.sandbox import (
+    ArchiveMismatch,
+    Isolation,
+    Limits,
+    SandboxError,
+    confine,
+    detect_isolation,
+    prepare_agent,
+)
+from support.sandbox import require_safe_sandbox
 
 MANIFEST = b"name: t\nprotocol: aido-z2\ncommand: [python3, agent.py]\n"
 
@@ -89,53 +100,126 @@ def test_prepare_agent_checks_the_hash_then_unpacks(tmp_path: Path) -> None:
 
 # -- the sandbox ------------------------------------------------------------------------------------
 
+FACTS = """\
+import ctypes, json, os, resource, socket, sys
+facts = {"uid": os.getuid(), "euid": os.geteuid(), "cwd": os.getcwd(), "env": sorted(os.environ),
+         "home": os.environ.get("HOME"), "root": sorted(os.listdir("/")), "pids": [p for p in os.listdir("/proc")
+         if p.isdigit()], "nproc": resource.getrlimit(resource.RLIMIT_NPROC)[0]}
+status = dict(line.split(":", 1) for line in open("/proc/self/status") if ":" in line)
+facts.update(caps=status["CapEff"].strip(), bounding=status["CapBnd"].strip(), nnp=status["NoNewPrivs"].strip())
+for name, path in (("package", "x"), ("scratch", "/scratch/x"), ("tmp", "/tmp/x"), ("shm", "/dev/shm/x")):
+    try:
+        open(path, "w").write("x"); facts[name] = "writable"
+    except OSError as exc:
+        facts[name] = exc.strerror
+try:
+    socket.create_connection(("127.0.0.1", int(sys.argv[1])), timeout=3); facts["net"] = "connected"
+except OSError as exc:
+    facts["net"] = str(exc)
+facts["userns"] = ctypes.CDLL(None).unshare(0x10000000)
+print(json.dumps(facts))
+"""
+
+
+def _package(tmp_path: Path, files: dict[str, str]) -> Path:
+    folder = tmp_path / "agent"
+    folder.mkdir()
+    for name, text in files.items():
+        (folder / name).write_text(text)
+    folder.chmod(0o755)
+    for p in folder.iterdir():
+        p.chmod(0o644)
+    return folder
+
+
 def _run(argv: list[str], folder: Path, limits: Limits, isolation: Isolation, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run(confine(argv, folder, limits, isolation), capture_output=True, text=True, timeout=60, **kw)
+    return subprocess.run(confine(argv, folder, limits, isolation, parent=None), capture_output=True, text=True,
+                          timeout=60, **kw)
 
 
 @pytest.fixture(scope="module")
 def isolation() -> Isolation:
-    return detect_isolation("auto")
+    return require_safe_sandbox()
 
 
-def test_sandbox_blocks_the_network(tmp_path: Path, isolation: Isolation) -> None:
-    if not isolation.blocks_network:
-        pytest.skip(f"no network isolation on this host ({isolation.note})")
+def test_agents_run_as_the_agent_user_with_nothing_of_the_evaluator(tmp_path: Path, isolation: Isolation) -> None:
+    import json
+
+    folder = _package(tmp_path, {"facts.py": FACTS})
     with socket.socket() as srv:
         srv.bind(("127.0.0.1", 0))
         srv.listen()
-        code = f"import socket; socket.create_connection(('127.0.0.1', {srv.getsockname()[1]}), timeout=3); print('in')"
-        inside = _run(["python3", "-c", code], tmp_path, Limits(), isolation)
-        outside = _run(["python3", "-c", code], tmp_path, Limits(), Isolation("none", drop_root=isolation.drop_root))
-    assert inside.returncode != 0 and "in" not in inside.stdout
-    assert "unreachable" in inside.stderr or "refused" in inside.stderr or "Errno" in inside.stderr
-    assert outside.returncode == 0 and outside.stdout.strip() == "in"  # the same code does connect unconfined
+        done = _run(["python3", "facts.py", str(srv.getsockname()[1])], folder, Limits(processes=64), isolation,
+                    env={**os.environ, "PROXYBENCH_TOKEN": "pbt_secret"})
+    assert done.returncode == 0, done.stderr
+    facts = json.loads(done.stdout)
+    assert facts["uid"] == facts["euid"] == isolation.uid != 0 and facts["uid"] != os.geteuid()
+    assert facts["caps"] == facts["bounding"] == "0000000000000000" and facts["nnp"] == "1"
+    assert facts["userns"] != 0  # no user namespace of its own (the way to capabilities inside)
+    assert facts["pids"] == ["1", "2"]  # bubblewrap's init and the agent: nothing else of the host
+    assert facts["cwd"] == "/agent" and facts["package"] == "Read-only file system"
+    assert facts["scratch"] == facts["tmp"] == facts["shm"] == "writable" and facts["home"] == "/scratch"
+    assert "PROXYBENCH_TOKEN" not in facts["env"]
+    assert set(facts["root"]) <= {"agent", "scratch", "tmp", "dev", "proc", "etc", "usr", "bin", "sbin", "lib",
+                                  "lib32", "lib64", "libx32", *(p.split("/")[1] for p in isolation.runtime)}
+    assert "refused" in facts["net"] or "unreachable" in facts["net"]
+    assert 64 <= facts["nproc"] < 64 + 1000  # the agent user's threads now, plus 64
 
 
-def test_sandbox_limits_file_size_cpu_and_environment(tmp_path: Path, isolation: Isolation) -> None:
-    limits = Limits(cpu_seconds=1, file_bytes=1 << 20)
-    small = _run(["python3", "-c", "open('ok.bin', 'wb').write(b'x' * 500_000)"], tmp_path, limits, isolation)
-    assert small.returncode == 0, small.stderr
-    big = _run(["python3", "-c", "open('big.bin', 'wb').write(b'x' * 3_000_000)"], tmp_path, limits, isolation)
-    assert big.returncode != 0 and ("File too large" in big.stderr or big.returncode == -25)  # EFBIG or SIGXFSZ
-    assert (tmp_path / "big.bin").stat().st_size <= 1 << 20
-    spin = _run(["python3", "-c", "while True: pass"], tmp_path, limits, isolation)
-    assert spin.returncode in (-signal_number("SIGXCPU"), -signal_number("SIGKILL"))
-    env = _run(["python3", "-c", "import os; print(os.getcwd()); print(sorted(os.environ))"], tmp_path, limits,
-               isolation, env={**os.environ, "PROXYBENCH_TOKEN": "pbt_secret"})
-    cwd, names = env.stdout.splitlines()
-    assert Path(cwd) == tmp_path.resolve() and "PROXYBENCH_TOKEN" not in names and "'HOME'" in names
+def test_runtime_behind_a_closed_folder_is_visible_alone(tmp_path: Path, isolation: Isolation) -> None:
+    """The issue's failure: the runtime in a home folder the agent user may not enter. Staged, it works; the
+    rest of that folder stays out of sight."""
+    home = tmp_path / "home"
+    (home / "runtime").mkdir(parents=True)
+    home.chmod(0o700)
+    (home / "runtime" / "helper.py").write_text("VALUE = 42\n")
+    (home / "runtime" / "helper.py").chmod(0o644)
+    (home / "secret.txt").write_text("not for agents")
+    (home / "secret.txt").chmod(0o644)
+    mine = dataclasses.replace(isolation, runtime=(*isolation.runtime, str(home / "runtime")))
+    code = (f"import sys; sys.path.insert(0, {str(home / 'runtime')!r}); import helper; print(helper.VALUE); "
+            f"print(open({str(home / 'secret.txt')!r}).read())")
+    done = _run(["python3", "-c", code], _package(tmp_path, {}), Limits(), mine)
+    assert done.stdout.startswith("42\n") and "No such file" in done.stderr and "not for agents" not in done.stdout
 
 
-def signal_number(name: str) -> int:
-    import signal
-
-    return int(getattr(signal, name))
+def test_limits_cpu_file_size_scratch_and_memory(tmp_path: Path, isolation: Isolation) -> None:
+    limits = Limits(cpu_seconds=1, file_bytes=2 << 20, scratch_bytes=4 << 20, tmp_bytes=1 << 20,
+                    memory_bytes=512 << 20)
+    folder = _package(tmp_path, {})
+    big = _run(["python3", "-c", "open('/scratch/big', 'wb').write(b'x' * 3_000_000)"], folder, limits, isolation)
+    assert big.returncode != 0 and ("File too large" in big.stderr or big.returncode in (-25, 128 + 25))
+    fill = ("import os\nn = 0\ntry:\n    while True:\n        f = open(f'/scratch/f{n}', 'wb'); "
+            "f.write(b'x' * 1_000_000); f.close(); n += 1\nexcept OSError as e:\n    print(n, e.strerror)")
+    out = _run(["python3", "-c", fill], folder, limits, isolation).stdout.split(maxsplit=1)
+    assert int(out[0]) <= 4 and "No space left" in out[1]
+    shm = _run(["python3", "-c", "open('/dev/shm/x', 'wb').write(b'x' * 2_000_000)"], folder, limits, isolation)
+    assert "No space left" in shm.stderr
+    spin = _run(["python3", "-c", "while True: pass"], folder, limits, isolation)
+    assert spin.returncode in (-24, -9, 128 + 24, 128 + 9)  # SIGXCPU, then SIGKILL
+    hog = _run(["python3", "-c", "x = bytearray(1 << 30)"], folder, limits, isolation)
+    assert "MemoryError" in hog.stderr
 
 
 def test_python_means_the_evaluators_interpreter(tmp_path: Path) -> None:
-    argv = confine(["python3", "agent.py"], tmp_path, Limits(), Isolation("none", drop_root=False))
-    assert argv[argv.index("--") + 1:] == [sys.executable, "agent.py"]
+    argv = confine(["python3", "agent.py"], tmp_path, Limits(), Isolation("none", "me"))
+    assert argv[argv.index("--") + 1:] == [os.path.abspath(sys.executable), "agent.py"]
+
+
+def test_without_the_agent_user_packages_are_refused_with_the_fix(monkeypatch) -> None:
+    missing = detect_isolation.__wrapped__("no-such-agent-user")
+    assert not missing.usable and "proxybench sandbox setup" in missing.problem
+    with pytest.raises(SandboxError, match="no-such-agent-user"):
+        confine(["python3", "x.py"], "/tmp", Limits(), missing)
+    monkeypatch.setattr(os, "geteuid", lambda: 1000)
+    not_root = detect_isolation.__wrapped__()
+    assert not not_root.usable and "not root" in not_root.problem
+
+
+def test_the_developer_flag_says_unsafe() -> None:
+    unsafe = detect_isolation.__wrapped__("no-such-agent-user", dev_unsafe=True)
+    assert unsafe.usable and not unsafe.safe and unsafe.note.startswith("UNSAFE developer mode")
+    assert unsafe.report()["safe"] is False
 
 
 # -- compliance and scores --------------------------------------------------------------------------
@@ -197,3 +281,39 @@ def test_target_on_a_robot_node(tmp_path: Path) -> None:
     summary = summarize(ev, "validation", domain_kind=report.domain_kind)
     assert summary.problems == [] and summary.failures == []
     assert summary.scores["survival_time_median"] == pytest.approx(1.0)
+
+
+def test_an_agent_cannot_pass_its_failure_off_as_the_hosts(tmp_path: Path, isolation: Isolation) -> None:
+    """Sandbox words on an agent's stderr make the worker probe the sandbox: working → the agent's fault."""
+    from proxybench.evaluator.outcome import HostFault
+    from proxybench.evaluator.run import _Job
+
+    tail = [["bwrap: Creating new namespace failed: No space left on device"]]
+    _Job(tmp_path, {"lease": {}, "isolation": dataclasses.asdict(isolation)}).check_sandbox(tail)  # no fault
+    broken = dataclasses.replace(isolation, bwrap="/bin/false")
+    with pytest.raises(HostFault, match="the sandbox stopped working on this host"):
+        _Job(tmp_path, {"lease": {}, "isolation": dataclasses.asdict(broken)}).check_sandbox(tail)
+
+
+def test_the_evaluator_uploads_only_files_of_the_job_folder(tmp_path: Path) -> None:
+    """Even an outcome naming /etc/shadow or a link to it (say, from a buggy worker) uploads nothing of it."""
+    from proxybench.evaluator.outcome import Artifact, Outcome
+    from proxybench.evaluator.worker import job_artifacts_only, read_plain_file
+
+    job = tmp_path / "job"
+    job.mkdir()
+    (job / "evaluator.log").write_text("fine")
+    (job / "trajectories-validation.zip").symlink_to("/etc/passwd")
+    zipped = "trajectories-validation.zip"
+    sent = Outcome("success", artifacts=[Artifact("evaluator.log", str(job / "evaluator.log")),
+                                         Artifact("shadow", "/etc/shadow"),
+                                         Artifact("../evaluator.log", str(job / "../evaluator.log")),
+                                         Artifact(zipped, str(job / zipped))])
+    kept = job_artifacts_only(Outcome.parse(json.dumps(dataclasses.asdict(sent))), job)
+    assert [a.name for a in kept.artifacts] == ["evaluator.log", "trajectories-validation.zip"]
+    assert "'shadow' refused" in kept.message and "'../evaluator.log' refused" in kept.message
+    assert read_plain_file(job / "evaluator.log") == b"fine"
+    with pytest.raises(OSError):  # a link is never followed when uploading
+        read_plain_file(job / "trajectories-validation.zip")
+    with pytest.raises(ValueError, match="unknown status"):
+        Outcome.parse('{"status": "rank-1"}')

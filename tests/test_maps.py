@@ -12,6 +12,7 @@ from proxybench.domain.maps import (
     Direction,
     Map,
     MapError,
+    MapWarning,
     builtin_map_names,
     load_map,
     parse_map,
@@ -289,7 +290,7 @@ def test_object_missing_kind_and_pos(tmp_path):
     assert_located(msg, path, line=7)
     assert "objects[1]: missing or invalid 'kind'" in msg
     assert_located(msg, path, line=8)
-    assert "objects[2]: 'pos' must be [x, y]" in msg
+    assert "objects[2]: no position: give 'pos: [x, y]' (tiles), 'pose: {~SE2Transform" in msg
     assert_located(msg, path, line=9)
     assert "objects[3]: 'rotate' must be a number" in msg
 
@@ -303,19 +304,26 @@ def test_named_object_with_bad_height(tmp_path):
     assert "object 'duck1': 'height' must be a positive number" in msg
 
 
-def test_start_tile_outside_map(tmp_path):
+def test_start_tile_outside_map_falls_back_with_a_warning(tmp_path):
+    """gym-duckietown accepts it and starts on a random drivable tile: a warning, not a refusal."""
     path = write_map(tmp_path, "tiles:\n- [straight/E, straight/E]\ntile_size: 0.585\nstart_tile: [5, 0]\n")
-    msg = str(load_error(path))
-    assert_located(msg, path, line=4)
-    assert "'start_tile' [5, 0] is outside the map" in msg
+    with pytest.warns(MapWarning, match="is outside the map"):
+        m = load_map(path)
+    assert m.start_tile is None
+    (w,) = m.warnings
+    assert_located(str(w), path, line=4)
+    assert "'start_tile' [5, 0] is outside the map (2×1 tiles): robots start on a random drivable tile" in str(w)
 
 
-def test_start_tile_not_drivable(tmp_path):
+def test_start_tile_not_drivable_falls_back_with_a_warning(tmp_path):
     path = write_map(tmp_path, "tiles:\n- [straight/N, grass]\n- [straight/N, grass]\ntile_size: 0.585\n"
                                "start_tile: [1, 0]\n")
-    msg = str(load_error(path))
-    assert_located(msg, path, line=5, row=0, col=1)
-    assert "'start_tile' [1, 0] is not a drivable tile" in msg
+    with pytest.warns(MapWarning, match="not a drivable tile"):
+        m = load_map(path)
+    assert m.start_tile is None
+    (w,) = m.warnings
+    assert_located(str(w), path, line=5, row=0, col=1)
+    assert "'start_tile' [1, 0] is 'grass', not a drivable tile" in str(w)
 
 
 def test_start_tile_is_column_then_file_row(tmp_path):

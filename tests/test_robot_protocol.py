@@ -12,6 +12,7 @@ import pytest
 
 from proxybench.domain.maps import load_map
 from proxybench.domain.params import DomainParams
+from proxybench.domain.simulator import start_pose
 from proxybench.protocol import jpeg, wire
 from proxybench.protocol import robot_wire as rw
 from proxybench.protocol.language import ROBOT_INPUTS, RobotLanguage
@@ -20,6 +21,7 @@ from proxybench.protocol.robot_process import map_yaml
 
 PARAMS = DomainParams(image_width=64, image_height=48, texture_size=32)
 LOOP = map_yaml(load_map("loop_3x3"))
+START = start_pose(load_map("loop_3x3"), 3)  # where the node would put the robot for seed 3
 
 
 def node() -> RobotNode:
@@ -54,7 +56,7 @@ def answers(msgs: list[dict]) -> list[list[dict]]:
     return out
 
 
-def setup(payload: dict | None = None, pose=None, camera: bool = True) -> list[bytes]:
+def setup(payload: dict | None = None, pose=START, camera: bool = True) -> list[bytes]:
     payload = {"seed": 3, "proxybench": True} if payload is None else payload
     return [wire.encode_seed(3), rw.encode_clear(), rw.encode_set_map(LOOP),
             rw.encode_spawn_robot("ego", pose, simulate_camera=camera),
@@ -70,11 +72,11 @@ def test_describe_protocol_and_node():
     assert caps == [{"control": "capabilities", "data": {"z2": {"protocol-reflection": True}}}]
     data = desc[0]["data"]["data"]
     assert sorted(data["inputs"]) == sorted(ROBOT_INPUTS)
-    assert {"robot_observations", "robot_state", "sim_state", "robot_performance",
-            "robot_interface_description"} == set(data["outputs"])
+    assert {"robot_observations", "robot_state", "sim_state", "robot_performance", "robot_interface_description",
+            "duckie_state", "state_dump", "ui_image"} == set(data["outputs"])  # all of AIDO's
     assert data["inputs"]["set_robot_commands"]["properties"]["commands"]["title"] == "DB20Commands"
     obs = data["outputs"]["robot_observations"]["properties"]["observations"]
-    assert obs["order"] == ["camera", "odometry"] and "proxybench" in obs["properties"]  # optional extension
+    assert obs["order"] == ["camera", "odometry"] and "proxybench" not in obs["properties"]  # AIDO's type, as is
     assert "SIMULATED" in node_desc[0]["data"]["description"]
 
 
@@ -100,8 +102,12 @@ def test_an_episode_message_by_message():
     assert state1.trace["t"].size == 2 * 4 and state1.trace["t"][-1] == pytest.approx(2 * frame_dt)
     st = s1["data"]["state"]
     assert list(st) == ["pwm", "leds", "pose", "velocity", "proxybench"]  # canonical key order, as zuper writes
-    assert st["pose"]["theta_deg"] == pytest.approx(math.degrees(state1.pose[2]))
-    assert st["velocity"]["x"] == state1.v > 0 and st["velocity"]["y"] == 0.0
+    assert list(st["pose"]) == ["data", "dtype", "shape"] and st["pose"]["shape"] == [3, 3]  # AIDO's SE(2) array
+    pose = np.frombuffer(st["pose"]["data"], "<f8").reshape(3, 3)
+    assert pose[:2, 2].tolist() == list(state1.pose[:2]) and math.atan2(pose[1, 0], pose[0, 0]) == pytest.approx(
+        state1.pose[2])
+    twist = np.frombuffer(st["velocity"]["data"], "<f8").reshape(3, 3)
+    assert twist[0, 2] == state1.v > 0 and twist[1, 2] == 0.0 and twist[1, 0] == pytest.approx(state1.omega)
 
     obs0, obs1 = rw.parse_robot_observations(o0["data"]), rw.parse_robot_observations(o1["data"])
     assert obs1.t_effective == obs1.observations.timestamp == pytest.approx(2 * frame_dt)
@@ -163,7 +169,7 @@ def aborted(msgs: list[dict]) -> str:
     ([wire.encode_seed(1), rw.encode_clear(), rw.encode_set_map(LOOP), wire.encode_episode_start("e")],
      "episode_start: no robot spawned"),
     ([rw.encode_clear(), rw.encode_set_map("tiles: [[banana]]\n")], "set_map: map_data is not a valid map"),
-    ([rw.encode_clear(), rw.encode_set_map(LOOP), rw.encode_spawn_robot("a", None), rw.encode_spawn_robot("b", None)],
+    ([rw.encode_clear(), rw.encode_set_map(LOOP), rw.encode_spawn_robot("a", START), rw.encode_spawn_robot("b", START)],
      "already spawned"),
     ([*setup(), rw.encode_step(0.2), rw.encode_step(0.1)], "time cannot go back"),
     ([*setup(), rw.encode_set_robot_commands("other", 0.0, 0.1, 0.1)], "set_robot_commands: unknown robot 'other'"),
@@ -183,11 +189,11 @@ def test_bad_input_aborts_naming_the_fault(inputs, words):
 def test_unknown_topic_is_not_understood_and_non_z2_is_ignored():
     msgs, code = run(wire.encode_seed(1), cbor2.dumps({"compat": ["z9"], "topic": "clear", "data": None,
                                                        "timing": None}),
-                     wire.encode_topic("spawn_duckie", {"name": "d"}))
+                     wire.encode_topic("spawn_pedestrian", {"name": "d"}))
     assert code == 1
-    assert msgs[2]["control"] == "not-understood" and 'Input channel "spawn_duckie" not found' in msgs[2]["data"]
+    assert msgs[2]["control"] == "not-understood" and 'Input channel "spawn_pedestrian" not found' in msgs[2]["data"]
     assert "'set_robot_commands'" in msgs[2]["data"] and msgs[4]["control"] == "aborted"
-    assert len(msgs) == 6  # seed: understood, over; the z9 message: nothing; spawn_duckie: 4 messages
+    assert len(msgs) == 6  # seed: understood, over; the z9 message: nothing; spawn_pedestrian: 4 messages
 
 
 def test_language_follows_aido_order():
@@ -222,6 +228,6 @@ def test_caller_messages_are_aido_shaped():
 
 def test_same_map_text_reuses_the_prepared_simulator():
     robot = node()
-    sim = robot._sims[LOOP]
+    sim = robot._sims[(LOOP, ())]
     run(*setup(), robot=robot)
     assert robot.sim is sim and np.isfinite(robot.sim.state).all()

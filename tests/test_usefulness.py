@@ -92,50 +92,72 @@ def test_paired_results_must_match():
 
 
 def test_predictivity_experiment_end_to_end_on_a_tiny_config(tmp_path):
-    from proxybench.usefulness.predictivity import PredictivityConfig, run_predictivity
+    from proxybench.usefulness.experiment import ExperimentConfig
+    from proxybench.usefulness.predictivity import run_predictivity
     from proxybench.usefulness.report import write_report
 
-    cfg = PredictivityConfig(agents=("straight", "pid", "vision"), episodes=2, seconds=3.0, trim_sweep=(-0.3, 0.0),
-                             grid={"camera_pitch": (15.0, 19.15)}, n_boot=10, pod_seconds=1.0)
+    cfg = ExperimentConfig(agents=["straight", "pid", "vision"], episodes=2, seconds=3.0,
+                           sweep={"trim": (-0.3, 0.0), "camera_pitch": (15.0, 19.15)}, n_boot=10, pod_seconds=1.0)
     res = run_predictivity(cfg, tmp_path / "runs")
     df = res.frame()
-    assert list(df.parameter) == ["trim-sweep", "trim-sweep", "camera_pitch", "camera_pitch"]
+    assert list(df.parameter) == ["trim", "trim", "camera_pitch", "camera_pitch"]  # each parameter once
     assert set(res.target_scores) == {"straight", "pid", "vision"}
     assert (df.pod >= 0).all() and (df.prpv >= 0).all() and (df.prpv <= 6).all()
+    assert res.target.info.simulated is True and res.target.info.kind == "reality-model"
+    assert 0 <= res.noise.low <= res.noise.value <= res.noise.high <= 6
+    assert set(res.claims) == {"trim", "camera_pitch"} and "delta_best" in df
+    # proxies replay the target's episodes: same seeds and start poses
+    poses = {(e.agent, e.episode): e.pose for e in res.target.episodes}
+    assert len(poses) == 6 and all(p is not None for p in poses.values())
     files = write_report(res, tmp_path / "report")
     html = files["html"].read_text()
-    assert "reality model" in html and "data:image/png;base64" in html
+    assert "SIMULATED TARGET" in html and "data:image/png;base64" in html
     for key in ("fig3_3", "fig3_4"):
         assert files[key].exists() and files[key].with_suffix(".svg").exists()
     again = run_predictivity(cfg, tmp_path / "runs")  # resumes from the cache, same numbers
-    assert again.frame().prpv.tolist() == df.prpv.tolist()
+    assert again.frame().prpv.tolist() == df.prpv.tolist() and again.proxy_episodes == 0
 
 
 def test_optimizer_runs_trials_into_a_sqlite_study_and_resumes(tmp_path):
-    from proxybench.usefulness.optimize import OptimizeConfig, optimize_proxy, plot_optimization
+    from proxybench.usefulness.experiment import ExperimentConfig, SearchConfig
+    from proxybench.usefulness.optimize import optimize_proxy, plot_optimization
 
-    cfg = OptimizeConfig(space={"trim": (-0.3, 0.3)}, n_trials=3, agents=("straight", "pid"), episodes=1,
-                         seconds=2.0, storage=str(tmp_path / "study.db"), sampler="random")
+    cfg = ExperimentConfig(agents=["straight", "pid"], episodes=1, seconds=2.0, n_boot=10,
+                           search=SearchConfig(space={"trim": (-0.3, 0.3)}, trials=3, sampler="random",
+                                               storage=str(tmp_path / "study.db")))
     res = optimize_proxy(cfg, tmp_path / "runs")
     assert len(res.trials) == 3 and -0.3 <= res.best_params["trim"] <= 0.3
     assert res.truth == {"trim": 0.0} and res.best_value == min(t["value"] for t in res.trials)
     assert {"prpv", "ppv"} <= set(res.trials[0])
     assert set(res.recovered) == {"trim"} and set(res.errors()) == {"trim"}
+    assert res.noise_floor is not None and res.target is not None and res.target.simulated is True
     again = optimize_proxy(cfg, tmp_path / "runs")  # the study is loaded, not repeated
-    assert len(again.trials) == 3
+    assert len(again.trials) == 3 and again.target_episodes_run == 0
     paths = plot_optimization(res, tmp_path / "plots")
     assert all(p.exists() for p in paths)
 
 
-def test_optimizer_config_names_bad_fields():
-    from proxybench.usefulness.optimize import OptimizeConfig
+def test_experiment_config_names_bad_fields(tmp_path):
+    from proxybench.usefulness.experiment import ConfigError, load_config
 
-    with pytest.raises(ValueError, match="unknown domain parameter 'trimm'"):
-        OptimizeConfig(space={"trimm": (0.0, 1.0)})
-    with pytest.raises(ValueError, match="trim needs low < high"):
-        OptimizeConfig(space={"trim": (1.0, 0.0)})
-    with pytest.raises(ValueError, match="objective must be one of"):
-        OptimizeConfig(objective="best")
+    cases = [
+        ({"search": {"space": {"trimm": [0.0, 1.0]}}}, "search.space: Value error, unknown domain parameter 'trimm'"),
+        ({"search": {"space": {"trim": [1.0, 0.0]}}}, "trim needs low < high"),
+        ({"search": {"objective": "best"}}, "search.objective"),
+        ({"metrics": ["survival"]}, "metrics: Value error, unknown metric 'survival' (did you mean 'survival_time'?)"),
+        ({"sweep": {"camera_pich": [1, 2]}}, "unknown domain parameter 'camera_pich' (did you mean 'camera_pitch'?)"),
+        ({"episdoes": 3}, "episdoes: unknown key (did you mean 'episodes'?)"),
+        ({"episodes": 0}, "episodes: Input should be greater than or equal to 1"),
+        ({"proxy": {"trim": 7}}, "proxy.trim"),
+        ({"image_size": [4, 4]}, "image_size"),
+    ]
+    for data, message in cases:
+        f = tmp_path / "exp.yaml"
+        f.write_text(__import__("yaml").safe_dump(data))
+        with pytest.raises(ConfigError) as err:
+            load_config(f)
+        assert str(f) in str(err.value) and message.replace("Value error, ", "") in str(err.value), str(err.value)
+    assert load_config(None, {"episodes": 2}).episodes == 2  # the command line alone
 
 
 def test_best_decile_is_the_mean_of_the_best_trials():

@@ -153,7 +153,10 @@ class ServerClient:
 
     def heartbeat(self, job_id: int, lease_id: str, evaluator: str,
                   progress: dict[str, Any] | None = None) -> HeartbeatReply:
-        body = Heartbeat(lease_id=lease_id, evaluator=evaluator, progress=progress)
+        try:
+            body = Heartbeat(lease_id=lease_id, evaluator=evaluator, progress=progress)
+        except ValueError:  # progress the server would refuse (NaN, …): keep the lease, drop the progress
+            body = Heartbeat(lease_id=lease_id, evaluator=evaluator)
         return HeartbeatReply.model_validate(self.post(f"/jobs/{job_id}/heartbeat", body.model_dump()))
 
     def put_artifact(self, data: bytes, media_type: str = "application/octet-stream") -> str:

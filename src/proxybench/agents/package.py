@@ -1,11 +1,17 @@
-"""Agent packages: an archive (zip or tar[.gz|.bz2|.xz]) holding an agent node and a manifest saying how to start it.
+"""Agent packages: an archive (zip or tar[.gz]) holding an agent node and a manifest saying how to start it.
 
 The manifest, ``proxybench-agent.yaml`` at the archive root::
 
     name: my-agent
     protocol: aido-z2            # the AIDO lane-following agent protocol (docs/protocol.md)
     command: [python3, agent.py] # started in the unpacked folder; speaks the protocol on stdin/stdout
+    # or, as typed in a shell:  command: cd solution && exec python3 solution.py
     description: optional text
+    cwd: solution                # optional: working directory inside the package
+    transport: pipe              # optional: pipe | fifo (AIDO's default)
+    start_timeout: 60            # optional [s]: start + handshake, and each setup message (at most 600)
+    step_timeout: 2              # optional [s]: each observations + get_commands exchange (at most 30)
+    reflection: false            # optional: skip describe_protocol (e.g. zuper-nodes on Python >= 3.11)
 
 Archives come from strangers, so :func:`check_archive` refuses anything that could write outside the
 folder it is unpacked in (absolute paths, ``..``, links, devices) or blow up on unpacking, naming the
@@ -34,10 +40,10 @@ import time
 import zipfile
 import zlib
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from proxybench.untrusted import UntrustedInputError, load_yaml
 
@@ -45,6 +51,9 @@ __all__ = ["MANIFEST_NAME", "AgentManifest", "ArchiveLimits", "PackageError", "c
 
 MANIFEST_NAME = "proxybench-agent.yaml"
 PROTOCOLS = ("aido-z2",)
+SHELL = "/bin/sh"
+#: the shell snippet that runs "$@" in the folder "$1" (what ``cwd`` adds in front of the command)
+_CD = 'cd -- "$1" && shift && exec "$@"'
 _ZIP_METHODS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate", zipfile.ZIP_BZIP2: "bzip2",
                 zipfile.ZIP_LZMA: "lzma"}
 _CHUNK = 1 << 20
@@ -69,20 +78,65 @@ class ArchiveLimits(BaseModel):
 
 
 class AgentManifest(BaseModel):
+    """A package's manifest. ``command`` is always an argv list here: a string in the file (shell syntax, as
+    typed in a shell) becomes ``["/bin/sh", "-c", string]``, and ``cwd`` (a folder inside the package) a
+    ``cd`` in front, so whatever runs the argv from the package folder honours both. The start-up options
+    (``transport``, timeouts, ``reflection``) are those of :class:`~proxybench.protocol.options.NodeOptions`,
+    with caps so that a package cannot hold an evaluator for long."""
+
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     name: str = Field(min_length=1, max_length=64)
     protocol: str = Field(description=f"one of {', '.join(PROTOCOLS)}")
-    command: list[str] = Field(min_length=1, max_length=256, description="argv, run in the unpacked folder")
+    command: list[str] = Field(min_length=1, max_length=256, description="argv, or a string as typed in a shell; "
+                                                                         "run in the unpacked folder (or cwd)")
     description: str = Field("", max_length=10_000)
+    cwd: str | None = Field(None, min_length=1, max_length=1024,
+                            description="working directory, a folder inside the package")
+    transport: Literal["pipe", "fifo"] = Field("pipe", description="pipe (stdin/stdout) or fifo (AIDO's default)")
+    start_timeout: float = Field(30.0, gt=0.0, le=600.0, allow_inf_nan=False, description="[s], at most 600")
+    step_timeout: float = Field(5.0, gt=0.0, le=30.0, allow_inf_nan=False, description="[s], at most 30")
+    reflection: bool = Field(True, description="ask describe_protocol (a node failing it is restarted without)")
 
-    @field_validator("name", "command", "description")
+    @field_validator("command", mode="before")
+    @classmethod
+    def _shell_string(cls, cmd: Any) -> Any:
+        if isinstance(cmd, str):
+            if not cmd.strip():
+                raise ValueError("empty command")
+            return [SHELL, "-c", cmd]
+        return cmd
+
+    @field_validator("name", "command", "description", "cwd")
     @classmethod
     def _no_nul(cls, v: Any) -> Any:
-        for s in [v] if isinstance(v, str) else v:
-            if "\x00" in s:
+        for s in [v] if isinstance(v, str) else (v or []):
+            if isinstance(s, str) and "\x00" in s:
                 raise ValueError("contains a NUL character")
         return v
+
+    @field_validator("cwd")
+    @classmethod
+    def _inside(cls, cwd: str | None) -> str | None:
+        if cwd is None:
+            return None
+        norm = posixpath.normpath(cwd.replace("\\", "/"))
+        if cwd.startswith(("/", "\\")) or norm == ".." or norm.startswith("../"):
+            raise ValueError(f"{cwd!r} leaves the package folder (give a folder inside it)")
+        return norm
+
+    @model_validator(mode="after")
+    def _in_cwd(self) -> AgentManifest:
+        if self.cwd is not None and self.cwd != "." and self.command[:3] != [SHELL, "-c", _CD]:
+            object.__setattr__(self, "command", [SHELL, "-c", _CD, "cd", self.cwd, *self.command])
+        return self
+
+    def node_options(self, **overrides: Any):
+        """The :class:`~proxybench.protocol.options.NodeOptions` to start the package's node with."""
+        from proxybench.protocol.options import NodeOptions
+
+        return NodeOptions(transport=self.transport, start_timeout=self.start_timeout,
+                           step_timeout=self.step_timeout, reflection=self.reflection, **overrides)
 
 
 # -- the checks ----------------------------------------------------------------------------------------

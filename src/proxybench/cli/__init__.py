@@ -1,6 +1,18 @@
 """The ``proxybench`` command line: thin Typer commands over the library, one module per topic."""
 
-from proxybench.cli import agents, drive, evaluate, evaluator, learning, maps, robot, server, usefulness  # noqa: F401 - importing registers the commands
+from proxybench.cli import (  # noqa: F401 - importing registers the commands
+    agents,
+    drive,
+    evaluate,
+    evaluator,
+    learning,
+    maps,
+    robot,
+    sandbox,
+    server,
+    targets,
+    usefulness,
+)
 from proxybench.cli.app import app
 
 __all__ = ["app", "main"]

@@ -1,10 +1,22 @@
-"""`proxybench agent ...`: the built-in agent zoo."""
+"""`proxybench agent ...`: the built-in agent zoo, serving an agent as a node, checking an agent node."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import typer
+from rich.markup import escape
 
 from proxybench.cli.app import agent_app, console, err_console
+from proxybench.cli.node_options import (
+    AGENT_CWD_HELP,
+    NO_REFLECTION_HELP,
+    START_TIMEOUT_HELP,
+    STEP_TIMEOUT_HELP,
+    TRANSPORT_HELP,
+    node_options,
+    remote_agent,
+)
 
 
 @agent_app.command("list")
@@ -38,6 +50,74 @@ def agent_serve(
     try:
         agent = load_agent(name)
     except (KeyError, ImportError, AttributeError) as exc:
-        err_console.print(f"[red]error:[/red] cannot load agent {name!r}: {exc}", highlight=False)
+        err_console.print(f"[red]error:[/red] cannot load agent {name!r}: {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from exc
     raise typer.Exit(serve(agent, node_name=node_name))
+
+
+@agent_app.command("check")
+def agent_check(
+    command: str = typer.Argument(..., help="the agent node's command, as typed in a shell"),
+    agent_cwd: Path | None = typer.Option(None, "--agent-cwd", help=AGENT_CWD_HELP),
+    transport: str = typer.Option("pipe", "--transport", help=TRANSPORT_HELP),
+    start_timeout: float = typer.Option(30.0, "--start-timeout", help=START_TIMEOUT_HELP),
+    step_timeout: float = typer.Option(5.0, "--step-timeout", help=STEP_TIMEOUT_HELP),
+    no_reflection: bool = typer.Option(False, "--no-reflection", help=NO_REFLECTION_HELP),
+    seconds: float = typer.Option(2.0, min=0.1, help="length of the test episode [s] (simulated time)"),
+    map_name: str = typer.Option("loop_3x3", "--map", help="map of the test episode"),
+) -> None:
+    """Start an agent node as `run` and `evaluate` would and drive it through one short simulated episode.
+
+    Reports how it started (protocol reflection, privileged or camera-only), each exchange's time and the
+    commands it sent; a node that fails says why (reason, exit code, last stderr lines) and the command
+    exits 1. E.g. `proxybench agent check "cd sub && exec python3 solution.py" --transport fifo`.
+    """
+    import time
+
+    import numpy as np
+
+    from proxybench.domain.params import DomainParams
+    from proxybench.domain.simulator import Simulator
+    from proxybench.protocol import AgentFailure
+    from proxybench.runner.episode import run_episode
+    from proxybench.runner.jobs import camera_filter
+
+    options = node_options(agent_cwd, transport, start_timeout, step_timeout, no_reflection)
+    t0 = time.perf_counter()
+    agent = remote_agent(command, options)
+    started = time.perf_counter() - t0
+    proc = agent.process
+    how = ("described its protocol" if proc.description is not None else
+           "no protocol description (--no-reflection)" if not options.reflection else
+           proc.reflection_note or "no protocol reflection offered")
+    console.print(f"[green]✓[/green] started and handshaken in {started:.2f} s over {options.transport} "
+                  f"(pid {proc.pid}); {escape(how)}; "
+                  f"{'privileged (reads the true lane pose)' if agent.privileged else 'camera only'}", highlight=False)
+    times: list[float] = []
+    commands: list[np.ndarray] = []
+    inner = agent.act
+
+    def timed(obs):
+        t = time.perf_counter()
+        out = inner(obs)
+        times.append(time.perf_counter() - t)
+        commands.append(np.asarray(out))
+        return out
+
+    agent.act = timed  # type: ignore[method-assign]
+    sim = Simulator(map_name, DomainParams(image_width=160, image_height=120))
+    try:
+        traj = run_episode(sim, agent, 0, seconds, camera=not agent.privileged, image_filter=camera_filter())
+    finally:
+        code = agent.close()
+    failure = next((e["message"] for e in traj.events if e["kind"] == "agent_failure"), None)
+    if failure is not None or isinstance(proc.failure, AgentFailure):
+        err_console.print(f"[red]✗[/red] the agent failed after {len(times)} frames: {escape(str(failure))}",
+                          highlight=False)
+        raise typer.Exit(1)
+    ms = np.array(times) * 1000
+    cmd = np.array(commands)
+    console.print(f"[green]✓[/green] {len(times)} frames (160x120 JPEG, {seconds:g} s simulated): exchange median "
+                  f"{np.median(ms):.1f} ms, max {ms.max():.1f} ms; wheel PWM left {cmd[:, 0].min():+.2f}..."
+                  f"{cmd[:, 0].max():+.2f}, right {cmd[:, 1].min():+.2f}...{cmd[:, 1].max():+.2f}; episode end: "
+                  f"{traj.termination}; node exit code {code}", highlight=False)

@@ -2,12 +2,24 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.node_options import (
+    AGENT_CWD_HELP,
+    NO_REFLECTION_HELP,
+    START_TIMEOUT_HELP,
+    STEP_TIMEOUT_HELP,
+    TRANSPORT_HELP,
+    node_options,
+)
+from proxybench.cli.options import positive
+from proxybench.cli.progress import progress_bar, status
 
 _SCORE_METRICS = ("survival_time", "driven_lanedir_consec", "driven_any", "deviation_center_line",
                   "deviation_heading", "in_drivable_lane", "lane_score")
@@ -17,7 +29,9 @@ _SCORE_METRICS = ("survival_time", "driven_lanedir_consec", "driven_any", "devia
 def score(
     files: list[Path] = typer.Argument(..., help="trajectory files: proxybench Parquet, or recorded CSV/Parquet"),
     map_name: str = typer.Option("loop_3x3", "--map", help="map of recorded runs (t, x, y, theta in its frame)"),
-    episode_seconds: float | None = typer.Option(None, help="cap survival_time at this episode length [s]"),
+    episode_seconds: float | None = typer.Option(None, callback=positive,
+                                                 help="cap survival_time at this episode length [s]"),
+    out: Path | None = typer.Option(None, "--out", help="also save the table: FILE.csv or FILE.parquet"),
 ) -> None:
     """Score trajectories with the task metrics: imported real runs and simulated ones alike.
 
@@ -27,6 +41,9 @@ def score(
     from proxybench.tasks.metrics import METRICS
     from proxybench.tasks.trajectory import Trajectory, TrajectoryError
 
+    if out is not None and out.suffix.lower() not in (".csv", ".parquet"):
+        raise typer.BadParameter(f"{out}: the table is saved as .csv or .parquet", param_hint="--out")
+    rows: list[dict] = []
     table = Table(title="scores")
     for col in ("file", "source", "end", *_SCORE_METRICS):
         table.add_column(col, justify="left" if col in ("file", "source", "end") else "right")
@@ -35,16 +52,35 @@ def score(
         try:
             traj = _load_any(f, map_name, Trajectory, TrajectoryError)
         except (TrajectoryError, FileNotFoundError) as exc:
-            err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+            err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
             bad += 1
             continue
         if episode_seconds:
             traj.meta["episode_seconds"] = episode_seconds
-        table.add_row(f.name, str(traj.meta.get("source", "?")), traj.termination,
-                      *(f"{METRICS[m](traj):.3f}" for m in _SCORE_METRICS))
+        scores = {m: METRICS[m](traj) for m in _SCORE_METRICS}
+        rows.append({"file": str(f), "source": str(traj.meta.get("source", "?")), "agent": traj.meta.get("agent"),
+                     "episode": traj.meta.get("episode"), "termination": traj.termination, **scores})
+        table.add_row(f.name, rows[-1]["source"], traj.termination, *(f"{v:.3f}" for v in scores.values()))
     console.print(table)
+    if out is not None:
+        _save_table(rows, out)
+        console.print(f"wrote {out} ({len(rows)} row(s))", highlight=False)
     if bad:
         raise typer.Exit(1)
+
+
+def _save_table(rows: list[dict], out: Path) -> None:
+    """The scores as CSV or Parquet (by suffix), written atomically."""
+    import pandas as pd
+
+    df = pd.DataFrame(rows, columns=["file", "source", "agent", "episode", "termination", *_SCORE_METRICS])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp")
+    if out.suffix.lower() == ".csv":
+        df.to_csv(tmp, index=False)
+    else:
+        df.to_parquet(tmp, index=False)
+    tmp.replace(out)
 
 
 def _load_any(path: Path, map_name: str, Trajectory, TrajectoryError):
@@ -61,44 +97,111 @@ def _load_any(path: Path, map_name: str, Trajectory, TrajectoryError):
 @app.command()
 def repeatability(
     agent: str = typer.Option("vision", help="zoo agent"),
-    runs: int = typer.Option(10, min=2, help="runs per setting"),
-    seconds: float = typer.Option(30.0, help="length of each run [s]"),
+    design: list[str] = typer.Option([], "--design", help="repeatability | inter-robot | inter-lab | LABSxROBOTSxRUNS "
+                                     "(repeat; default: the thesis' three, 1×1×9, 1×3×3, 2×1×6)"),
+    runs: int | None = typer.Option(None, min=2, help="runs per robot, overriding every design's"),
+    seconds: float = typer.Option(30.0, callback=positive, help="length of each run [s]"),
     map_name: str = typer.Option("loop_3x3", "--map"),
-    seed: int = typer.Option(0),
-    out: Path = typer.Option(Path("out/repeatability"), help="folder for the table and the trajectory plot"),
+    seed: int = typer.Option(0, min=0),
+    placement_cm: float = typer.Option(0.5, min=0.0, help="operator's placement error across the lane, std [cm]"),
+    placement_deg: float = typer.Option(1.0, min=0.0, help="operator's placement error of the heading, std [deg]"),
+    recorded: list[Path] = typer.Option([], "--recorded", help="recorded runs instead: a LAB/ROBOT/run.csv folder "
+                                        "or run files (repeat); t, x, y, theta in the map frame"),
+    robot_cmd: list[str] = typer.Option([], "--robot-cmd", help="NAME=COMMAND of a robot node (repeat: one per "
+                                        "robot); runs --runs (default 3) per robot"),
+    out: Path = typer.Option(Path("out/repeatability"), help="folder for the tables and the plots"),
 ) -> None:
-    """MPD / MOD of one agent: one robot N times, N robots, N labs (thesis figs. 5.8–5.10), simulated.
+    """MPD / MOD of one agent, thesis §5.4: one robot, robots, labs (figs. 5.8–5.10).
 
-    All three settings run on the reality model, a simulated stand-in for real Duckiebots.
+    MPD is the mean signed lateral offset from the lane centre along the route [cm] (+ = left), MOD the
+    mean heading error [deg]; STD is the run-to-run standard deviation along the route. The target is the
+    reality model (simulated stand-ins for Duckiebots) unless --recorded or --robot-cmd is given.
     """
-    import json
+    from proxybench.runner.repeatability import Design, recorded_study, repeatability_study, robot_study
+
+    if recorded and robot_cmd:
+        raise typer.BadParameter("give --recorded or --robot-cmd, not both", param_hint="--recorded")
+    try:
+        if recorded:
+            res = recorded_study(recorded, map_name)
+        elif robot_cmd:
+            cmds = {}
+            for item in robot_cmd:
+                name, sep, cmd = item.partition("=")
+                if not sep or not name.strip() or not cmd.strip():
+                    raise typer.BadParameter(f"{item!r}: expected NAME=COMMAND", param_hint="--robot-cmd")
+                cmds[name.strip()] = cmd.strip()
+            with status("driving robot nodes") as spinner:
+                res = robot_study(agent, cmds, runs or 3, seconds, map_name, seed,
+                                  progress=lambda n, k, t: spinner.update(f"{n}: run {k}/{t}"))
+        else:
+            designs = dict(Design.parse(d) for d in design) if design else None
+            if runs is not None:
+                from proxybench.runner.repeatability import DESIGNS
+
+                designs = {k: Design(d.labs, d.robots, runs) for k, d in (designs or DESIGNS).items()}
+            with status("running") as spinner:
+                res = repeatability_study(agent, designs, seconds, map_name, seed,
+                                          placement=(placement_cm / 100.0, placement_deg),
+                                          progress=lambda n, k, t: spinner.update(f"{n}: {t} runs side by side"))
+    except (ValueError, FileNotFoundError) as exc:
+        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        raise typer.Exit(2) from exc
+    _repeatability_report(res, agent, seconds, map_name, out)
+
+
+def _repeatability_report(res, agent: str, seconds: float, map_name: str, out: Path) -> None:
+    """The table (beside the thesis' figures), repeatability.json / .csv, trajectories and MPD/MOD curves."""
+    import pandas as pd
 
     from proxybench.domain.maps import load_map
-    from proxybench.plots import plot_trajectories
-    from proxybench.runner.repeatability import SETTINGS, repeatability_study
+    from proxybench.plots import plot_deviation_curves, plot_trajectories
+    from proxybench.runner.repeatability import THESIS_FIGURES
+    from proxybench.tasks.metrics import deviation_curves
 
     out.mkdir(parents=True, exist_ok=True)
-    with console.status("running") as status:
-        res = repeatability_study(agent, runs, seconds, map_name, seed,
-                                  progress=lambda s, k: status.update(f"{s}: run {k + 1}/{runs}"))
-    table = Table(title=f"repeatability of {agent}: {runs} runs × {seconds:g} s per setting (simulated, reality model)")
-    for col in ("setting", "MPD (cm)", "± std", "MOD (deg)", "± std", "runs ended early"):
-        table.add_column(col, justify="left" if col == "setting" else "right")
-    for s in SETTINGS:
-        f = res.figures[s]
-        early = sum(t.termination != "timeout" for t in res.runs[s])
-        table.add_row(s, f"{f['MPD_cm']:.2f}", f"{f['MPD_std_cm']:.2f}", f"{f['MOD_deg']:.2f}",
-                      f"{f['MOD_std_deg']:.2f}", str(early))
+    table = Table(title=escape(f"repeatability of {agent} ({res.source}; {seconds:g} s runs): MPD [cm] (+ = left of "
+                               "the lane centre), MOD [deg]; STD = run-to-run"))
+    cols = ("design", "labs×robots×runs", "AVG MPD", "STD MPD", "AVG MOD", "STD MOD", "within / between STD MPD",
+            "ended early", "route (m)", "thesis (real robots): MPD ± STD, MOD ± STD")
+    for col in cols:
+        table.add_column(col, justify="left" if col == "design" else "right")
+    rows = []
+    for name, r in res.designs.items():
+        f = r.figures
+        split = (f"{f['MPD_within_std_cm']:.2f} / {f['MPD_between_std_cm']:.2f}" if "MPD_within_std_cm" in f else "–")
+        th = THESIS_FIGURES.get(name)
+        thesis = (f"{th['MPD_cm']:+.1f} ± {th['MPD_std_cm']:.1f}, {th['MOD_deg']:+.1f} ± {th['MOD_std_deg']:.1f}"
+                  if th else "–")
+        table.add_row(name, r.design.label, f"{f['MPD_cm']:+.2f}", f"{f['MPD_std_cm']:.2f}", f"{f['MOD_deg']:+.2f}",
+                      f"{f['MOD_std_deg']:.2f}", split, f"{r.early}/{len(r.runs)}", f"{f['route_m']:.1f}", thesis)
+        rows.append({"design": name, "labs": r.design.labs, "robots": r.design.robots, "runs": r.design.runs,
+                     "source": res.source, "ended_early": r.early, **f})
     console.print(table)
-    (out / "repeatability.json").write_text(json.dumps(res.figures, indent=2))
-    png = plot_trajectories(load_map(map_name), res.runs, out / "trajectories.png")
-    console.print(f"wrote {out / 'repeatability.json'}, {png} (+ .svg)")
+    for name, note in res.notes.items():
+        console.print(f"{name}: {note}", highlight=False)
+    (out / "repeatability.json").write_text(json.dumps({"source": res.source, "agent": agent, "seconds": seconds,
+                                                        "map": map_name, "figures": res.figures, "notes": res.notes},
+                                                       indent=2))
+    pd.DataFrame(rows).to_csv(out / "repeatability.csv", index=False)
+    titles = {k: f"{k} ({r.design.label})" for k, r in res.designs.items()}
+    png = plot_trajectories(load_map(map_name), res.runs, out / "trajectories.png", titles)
+    curves = plot_deviation_curves({k: deviation_curves(r.runs) for k, r in res.designs.items()},
+                                   out / "mpd_mod.png", titles)
+    console.print(f"wrote {out / 'repeatability.json'}, {out / 'repeatability.csv'}, {png}, {curves} (+ .svg)",
+                  highlight=False)
 
 
-def _agent_specs(names: list[str], commands: list[str]) -> list:
+def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:
+    """--agent and --agent-cmd, else the benchmark file's ``agents:``, else every zoo agent."""
     from proxybench.agents import ZOO
     from proxybench.runner.jobs import AgentSpec
 
+    if not names and not commands:
+        if bench.agents:
+            return [AgentSpec.node(e.name, e.command_line, e.node_options()) if e.is_node else AgentSpec(e.name)
+                    for e in bench.agents]
+        names = list(ZOO)
     specs = []
     for n in names:
         if n not in ZOO:
@@ -108,7 +211,7 @@ def _agent_specs(names: list[str], commands: list[str]) -> list:
         name, sep, cmd = item.partition("=")
         if not sep or not name.strip() or not cmd.strip():
             raise typer.BadParameter(f"{item!r}: expected NAME=COMMAND", param_hint="--agent-cmd")
-        specs.append(AgentSpec(name.strip(), cmd.strip()))
+        specs.append(AgentSpec.node(name.strip(), cmd.strip(), options))
     return specs
 
 
@@ -119,17 +222,25 @@ def evaluate(
     agent_cmd: list[str] = typer.Option([], "--agent-cmd", help="NAME=COMMAND of an external agent node (repeat)"),
     domain: str | None = typer.Option(None, help="run in this named domain instead (default, reality)"),
     backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
-    workers: int | None = typer.Option(None, help="parallel workers (default: one per core)"),
+    workers: int | None = typer.Option(None, min=1, help="parallel workers (default: one per core)"),
     run_dir: Path | None = typer.Option(None, help="run directory (default: out/evaluate/<benchmark>)"),
     video: bool = typer.Option(False, "--video", help="also record episode 0 of every agent (MP4 + PNG strip)"),
     quick: bool = typer.Option(False, "--quick", help="smoke test: the first 2 episodes, at most 15 s each"),
+    agent_cwd: Path | None = typer.Option(None, "--agent-cwd", help=AGENT_CWD_HELP + " (of every --agent-cmd)"),
+    transport: str = typer.Option("pipe", "--transport", help=TRANSPORT_HELP),
+    start_timeout: float = typer.Option(30.0, "--start-timeout", help=START_TIMEOUT_HELP),
+    step_timeout: float = typer.Option(5.0, "--step-timeout", help=STEP_TIMEOUT_HELP),
+    no_reflection: bool = typer.Option(False, "--no-reflection", help=NO_REFLECTION_HELP),
 ) -> None:
     """Run agents on a benchmark and print the leaderboard in the benchmark's lexicographic semiorder.
 
-    Episodes are cached in the run directory: run again to resume an interrupted evaluation. The table
-    counts the episodes that ended in a collision (with a map object, a duckie, a pedestrian or a robot).
+    Without --agent / --agent-cmd the agents are the benchmark file's `agents:` list, else the whole zoo.
+    --agent-cmd takes NAME=COMMAND, the command as you would type it (shell syntax works); --agent-cwd,
+    --transport, the timeouts and --no-reflection apply to every --agent-cmd. Episodes are cached in the
+    run directory: run again to resume an interrupted evaluation. The table counts the episodes that
+    ended in a collision (with a map object, a duckie, a pedestrian or a robot).
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 
     from proxybench.agents import ZOO
     from proxybench.runner.backends import make_backend
@@ -139,14 +250,15 @@ def evaluate(
     try:
         bench = Benchmark.load(benchmark)
     except BenchmarkError as exc:
-        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(1) from exc
     if quick:
         bench = _quick(bench)
-    specs = _agent_specs(agent or list(ZOO) if not agent_cmd else agent, agent_cmd)
+    options = node_options(agent_cwd, transport, start_timeout, step_timeout, no_reflection)
+    specs = _agent_specs(agent, agent_cmd, options, bench)
     run_dir = run_dir or Path("out/evaluate") / bench.name
     be = make_backend(backend, workers)
-    with Progress(TextColumn(f"[bold]{bench.name}[/bold] episodes"), BarColumn(), MofNCompleteColumn(),
+    with progress_bar(TextColumn(f"[bold]{bench.name}[/bold] episodes"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), console=console, transient=True) as bar:
         task = bar.add_task("episodes", total=None)
         try:
@@ -154,7 +266,7 @@ def evaluate(
                                     privileged=lambda s: s.command is None and ZOO[s.name].privileged,
                                     progress=lambda d, t: bar.update(task, completed=d, total=t))
         except BenchmarkError as exc:
-            err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+            err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
             raise typer.Exit(2) from exc
         finally:
             be.close()
@@ -190,7 +302,7 @@ def _videos(ev, specs, run_dir: Path) -> None:
             continue
         agent = make_agent_for(spec)
         try:
-            with console.status(f"recording {spec.label}"):
+            with status(f"recording {spec.label}"):
                 _, files = record_episode(Simulator(bench.map, params, npcs=bench.traffic()), agent, ep.seed,
                                           bench.duration,
                                           run_dir / "videos", stem=spec.label, pose=ep.pose, route=ep.route)
@@ -248,10 +360,11 @@ def _print_leaderboard(ev, run_dir: Path) -> None:
                      "wins": r.wins, "losses": r.losses, "ties": r.ties, "collisions": hit, "collided_with": what})
     console.print(table)
     for name, why in ev.refused.items():
-        console.print(f"[yellow]not admitted:[/yellow] {name}: {why}", highlight=False)
+        console.print(f"[yellow]not admitted:[/yellow] {escape(str(name))}: {escape(str(why))}", highlight=False)
     failures = [r for r in ev.sweep.results if r.termination == "agent_failure"]
     for r in failures[:5]:
-        console.print(f"[red]agent failure[/red] {r.agent} episode {r.episode}: {r.message}", highlight=False)
+        console.print(f"[red]agent failure[/red] {r.agent} episode {r.episode}: {escape(str(r.message))}",
+                      highlight=False)
     (run_dir / "leaderboard.json").write_text(json.dumps(rows, indent=1, default=str))
     ev.aggregates.to_csv(run_dir / "aggregates.csv", index=False)
     console.print(f"wrote {run_dir / 'leaderboard.json'}, {run_dir / 'aggregates.csv'}, {run_dir / 'results.parquet'}")

@@ -9,16 +9,18 @@ from pathlib import Path
 from typing import Any
 
 import typer
+from rich.markup import escape
 
 from proxybench.cli.app import app, console, err_console, require_extra
+from proxybench.cli.options import positive
 
 KNOWN_FEATURES = ("sim", "target")
 
 
 def _reporter():
-    from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from proxybench.cli.progress import progress_bar
     from proxybench.evaluator import Reporter
 
     class RichReporter(Reporter):
@@ -34,8 +36,8 @@ def _reporter():
             console.print(f"[bold]job {lease['job_id']}[/bold] (attempt {lease.get('attempt', 1)}): "
                           + escape(f"{b['name']} v{b['version']} ← submission {s.get('id')} {s.get('label', '')} "
                                    f"[{who}]"), highlight=False)
-            self.progress = Progress(TextColumn("  {task.description}"), BarColumn(), MofNCompleteColumn(),
-                                     TimeElapsedColumn(), console=console, transient=True)
+            self.progress = progress_bar(TextColumn("  {task.description}"), BarColumn(), MofNCompleteColumn(),
+                                         TimeElapsedColumn(), console=console, transient=True)
             self.progress.start()
             self.task = self.progress.add_task("setting up", total=None)
 
@@ -69,12 +71,20 @@ def evaluator(
     name: str | None = typer.Option(None, help="this evaluator's name, unique per token [host name]"),
     features: str = typer.Option("sim", help="what this evaluator offers, comma-separated: sim, target"),
     once: bool = typer.Option(False, "--once", help="try to take one job, evaluate it, and exit"),
-    poll: float = typer.Option(2.0, min=0.1, help="seconds between lease attempts while the queue is empty"),
+    poll: float = typer.Option(2.0, min=0.1, callback=positive,
+                               help="seconds between lease attempts while the queue is empty"),
     work_dir: Path | None = typer.Option(None, help="folder for job files [<tmp>/proxybench-evaluator/<name>]"),
-    sandbox: str = typer.Option("auto", help="agent network isolation: auto, bwrap, unshare or none"),
+    agent_user: str = typer.Option("proxybench-agent", help="unprivileged user that agent packages run as "
+                                                            "(`proxybench sandbox setup` makes it)"),
+    dev_unsafe_same_user: bool = typer.Option(False, "--dev-unsafe-same-user",
+                                              help="DEVELOPMENT ONLY: where the agent user's sandbox is impossible, "
+                                                   "run agent packages as this evaluator's own user (root too); "
+                                                   "every report says so"),
     cpu_seconds: int = typer.Option(600, min=1, help="CPU time limit of each agent process [s]"),
     memory_mb: int = typer.Option(4096, min=64, help="address-space limit of each agent process [MiB]"),
     file_mb: int = typer.Option(256, min=1, help="largest file an agent process may write [MiB]"),
+    scratch_mb: int = typer.Option(256, min=1, help="size of the agent's writable /scratch [MiB]; /tmp and "
+                                                    "/dev/shm get a quarter each"),
     video: bool = typer.Option(True, help="upload a short top-down video of the first validation episode"),
     keep_work: bool = typer.Option(False, help="keep each job's folder after its result is uploaded"),
     robot_cmd: str | None = typer.Option(None, help="robot node (robot protocol) that target jobs run on "
@@ -82,8 +92,10 @@ def evaluator(
 ) -> None:
     """Pull jobs from a challenges server and evaluate them, until stopped (SIGTERM / Ctrl-C).
 
-    Agent packages run sandboxed: own folder, CPU / memory / file-size limits, no network (bwrap or
-    unshare where the OS allows). Target jobs run on the reality model (a simulated stand-in for a real
+    Agent packages run as an unprivileged user (--agent-user) in bubblewrap: no network, no other
+    processes, a read-only view of their package and the runtime, bounded scratch space, CPU / memory /
+    file-size / process limits. The evaluator must run as root to switch to that user; see
+    `proxybench sandbox check`. Target jobs run on the reality model (a simulated stand-in for a real
     robot), or on the robot node of --robot-cmd, after a compliance check. Many evaluators, on many
     machines, can pull from one server.
     """
@@ -96,7 +108,6 @@ def evaluator(
 
     from proxybench.client import ServerError
     from proxybench.evaluator import Evaluator, EvaluatorConfig, Limits
-    from proxybench.evaluator.sandbox import ISOLATIONS
 
     feats = tuple(dict.fromkeys(f.strip() for f in features.split(",") if f.strip()))
     if not feats:
@@ -105,28 +116,27 @@ def evaluator(
     if unknown:
         err_console.print(f"[yellow]![/yellow] feature(s) {', '.join(unknown)} are not known to this evaluator "
                           f"({', '.join(KNOWN_FEATURES)}); jobs needing them will end in host-error")
-    if sandbox not in ISOLATIONS:
-        raise typer.BadParameter(f"one of {', '.join(ISOLATIONS)}", param_hint="--sandbox")
     if robot_cmd and "target" not in feats:
         err_console.print("[yellow]![/yellow] --robot-cmd is used for target jobs only; add 'target' to --features")
     name = name or socket.gethostname()
     logging.basicConfig(level=logging.WARNING, handlers=[RichHandler(console=err_console, show_path=False)],
                         format="%(message)s")
     config = EvaluatorConfig(
-        name=name, features=feats, poll=poll, sandbox=sandbox,
+        name=name, features=feats, poll=poll, agent_user=agent_user, dev_unsafe=dev_unsafe_same_user,
         work_dir=work_dir or Path(tempfile.gettempdir()) / "proxybench-evaluator" / name,
-        limits=Limits(cpu_seconds=cpu_seconds, memory_bytes=memory_mb << 20, file_bytes=file_mb << 20),
+        limits=Limits(cpu_seconds=cpu_seconds, memory_bytes=memory_mb << 20, file_bytes=file_mb << 20,
+                      scratch_bytes=scratch_mb << 20, tmp_bytes=max(1, scratch_mb // 4) << 20),
         video=video, keep_work=keep_work, robot_cmd=robot_cmd)
     try:
         ev = Evaluator(server or "http://127.0.0.1:8000", secret, config, _reporter())
     except RuntimeError as exc:
-        err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+        err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
     ev.install_signal_handlers()
     try:
         done = ev.run(once=once)
     except ServerError as exc:
-        err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+        err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
     if ev.stop_reason:
         console.print(f"evaluator {name!r} stopped ({ev.stop_reason}) after {done} job(s)")

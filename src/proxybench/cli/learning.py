@@ -12,33 +12,36 @@ from dataclasses import asdict
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.options import non_negative, positive
+from proxybench.cli.progress import progress_bar
 
 learn_app = typer.Typer(no_args_is_help=True, help="Behaviour cloning: datasets, training, fine-tuning, evaluation.")
 app.add_typer(learn_app, name="learn")
 
 
 def _bars() -> Progress:
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    TimeRemainingColumn(), console=console, transient=True)
+    return progress_bar(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                        TimeRemainingColumn(), console=console, transient=True)
 
 
 def _fail(msg: str, code: int = 2) -> typer.Exit:
-    err_console.print(f"[red]error:[/red] {msg}", highlight=False)
+    err_console.print(f"[red]error:[/red] {escape(str(msg))}", highlight=False)
     return typer.Exit(code)
 
 
 @app.command()
 def plv(
-    quick: bool = typer.Option(False, "--quick", help="40×30 frames, short ladder, 2 seeds (a few minutes)"),
+    quick: bool = typer.Option(False, "--quick", help="40×30 frames, short ladder, 3 seeds (minutes)"),
     out: Path = typer.Option(Path("out/plv"), help="report folder (figure, tables, report.html) and cache"),
     config: Path | None = typer.Option(None, help="JSON file overriding PLVConfig fields (nested: train, eval, ...)"),
     dagger: bool = typer.Option(False, "--dagger", help="spend half of every rung on on-policy (DAgger) samples"),
-    eta_on: float = typer.Option(1.0, help="cost of one on-policy target sample (generalised PLV)"),
-    eta_off: float = typer.Option(1.0, help="cost of one off-policy target sample"),
+    eta_on: float = typer.Option(1.0, callback=positive, help="cost of one on-policy target sample (generalised PLV)"),
+    eta_off: float = typer.Option(1.0, callback=positive, help="cost of one off-policy target sample"),
 ) -> None:
     """How many target samples does pre-training on a proxy save a behaviour-cloning agent? (Table 3.1, Fig. 3.6)
 
@@ -47,7 +50,7 @@ def plv(
     so an interrupted run resumes.
     """
     from proxybench.learning.experiment import PLVConfig, run_plv
-    from proxybench.learning.report import findings, needed_column, summarize, write_report
+    from proxybench.learning.report import findings, summarize, table_rows, write_report
 
     cfg = PLVConfig.quick() if quick else PLVConfig()
     try:
@@ -70,18 +73,18 @@ def plv(
     s = summarize(res)
     wall = time.perf_counter() - t0
     note = f", {res.cached} units from the cache" if res.cached else ""
-    table = Table(title=f"Table 3.1 — PLV of proxies (target: reality model, simulated) — {wall:.0f} s{note}")
-    for col in ("domain", "zero-shot", "in own domain", needed_column(res), "PLV", "reduction"):
+    rows = table_rows(res, s)
+    table = Table(title=f"Table 3.1 — PLV of proxies (target: reality model, simulated) — {len(cfg.seeds)} seeds, "
+                        f"95 % bootstrap intervals over seeds — {wall:.0f} s{note}")
+    for col in rows[0]:
         table.add_column(col, justify="left" if col == "domain" else "right")
-    need = "not reached" if s.target_needed is None else f"{s.target_needed.weighted(cfg.eta_on, cfg.eta_off):,.0f}"
-    table.add_row("target only", "–", "–", need, "–", "–")
-    for r in s.rows:
-        table.add_row(r["proxy"], f"{r['zero_shot']:.2f}", f"{r['in_proxy']:.2f}", r["needed_label"], r["plv_label"],
-                      r["reduction_label"])
+    for r in rows:
+        table.add_row(*(escape(str(v)) for v in r.values()))  # "[not reached, 900]" is not markup
     console.print(table)
     for line in findings(res, s):
-        console.print(f"• {line}", highlight=False)
-    console.print(f"wrote {files['html']}, {files['fig3_6']} (+ .svg), {files['table']}, {files['runs']}")
+        console.print(f"• {escape(line)}", highlight=False)
+    console.print(f"wrote {files['html']}, {files['fig3_6']} and {files['fig_plv']} (+ .svg), {files['table']}, "
+                  f"{files['runs']}", highlight=False)
 
 
 @learn_app.command("dataset")
@@ -89,12 +92,13 @@ def learn_dataset(
     domain: str = typer.Argument(..., help="reality | proxy[:NAME=VALUE,...] | randomized | family.yaml"),
     out: Path = typer.Option(..., help="dataset folder (NPZ shards + dataset.json)"),
     samples: int = typer.Option(5000, min=1),
-    width: int = typer.Option(64, help="image width [px]"),
-    height: int = typer.Option(48, help="image height [px]"),
+    width: int = typer.Option(64, min=8, max=4096, help="image width [px]"),
+    height: int = typer.Option(48, min=8, max=4096, help="image height [px]"),
     robots: int = typer.Option(32, min=1, help="robots driven at once by the batched simulator"),
-    noise: float = typer.Option(0.15, help="std of the noise added to the executed expert command [PWM]"),
+    noise: float = typer.Option(0.15, callback=non_negative,
+                                help="std of the noise added to the executed expert command [PWM]"),
     map_name: str = typer.Option("loop_3x3", "--map"),
-    seed: int = typer.Option(0),
+    seed: int = typer.Option(0, min=0),
 ) -> None:
     """Let the privileged expert drive DOMAIN (with recovery noise) and record camera frames + its commands."""
     from proxybench.learning.collection import CollectConfig, collect
@@ -120,12 +124,13 @@ def learn_train(
     data: list[Path] = typer.Argument(..., help="dataset folder(s)"),
     out: Path = typer.Option(..., help="checkpoint path (NAME.pt; NAME.json is written beside it)"),
     init: Path | None = typer.Option(None, help="fine-tune this checkpoint instead of starting from scratch"),
-    samples: int | None = typer.Option(None, help="use only this many samples (whole episodes, seeded)"),
-    epochs: float = typer.Option(15.0),
-    max_steps: int = typer.Option(2000),
-    lr: float | None = typer.Option(None, help="learning rate (default 1e-3 from scratch, 3e-4 fine-tuning)"),
+    samples: int | None = typer.Option(None, min=1, help="use only this many samples (whole episodes, seeded)"),
+    epochs: float = typer.Option(15.0, callback=positive),
+    max_steps: int = typer.Option(2000, min=1),
+    lr: float | None = typer.Option(None, callback=positive,
+                                    help="learning rate (default 1e-3 from scratch, 3e-4 fine-tuning)"),
     output: str = typer.Option("wheels", help="wheels (PWM) | vw (v, ω) — from scratch only"),
-    seed: int = typer.Option(0),
+    seed: int = typer.Option(0, min=0),
 ) -> None:
     """Train a PilotNet-style network on expert data (or fine-tune a checkpoint) and save a checkpoint."""
     from proxybench.learning.dataset import Dataset, DatasetError
@@ -160,7 +165,7 @@ def learn_evaluate(
     checkpoint: Path = typer.Argument(..., help="checkpoint (.pt with its .json)"),
     domain: str = typer.Option("reality", help="reality | proxy[:NAME=VALUE,...] | randomized | family.yaml"),
     episodes: int = typer.Option(6, min=1),
-    seconds: float = typer.Option(30.0),
+    seconds: float = typer.Option(30.0, callback=positive),
     map_name: str = typer.Option("loop_3x3", "--map"),
 ) -> None:
     """Lane score of a checkpoint over evaluation episodes (all episodes in one batched simulator)."""

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import typer
+from rich.markup import escape
 
 from proxybench.cli.app import console, err_console, robot_app
 
@@ -45,7 +46,7 @@ def robot_serve(
     map_name: str | None = typer.Option("loop_3x3", "--map", help="map to prepare (built-in name or YAML file); "
                                         "set_map may choose another"),
     param: list[str] = typer.Option([], "--param", help="domain parameter k=v (repeatable), e.g. image_width=160"),
-    seed: int = typer.Option(0, help="episode seed when neither `seed` nor episode_start gives one"),
+    seed: int = typer.Option(0, min=0, help="episode seed when neither `seed` nor episode_start gives one"),
     name: str = typer.Option("robot", help="node name in timing information"),
 ) -> None:
     """Serve the proxybench simulator as a robot node on stdin/stdout (or $AIDONODE_DATA_IN/_OUT).
@@ -60,7 +61,7 @@ def robot_serve(
     try:
         node = RobotNode(params, map_name, seed=seed, node_name=name)
     except (MapError, ValueError) as exc:
-        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(1) from exc
     print(f"[{name}] serving a SIMULATED robot (proxybench simulator, {params.image_width}x{params.image_height} "
           f"at {params.frame_rate:g} Hz) on the robot protocol", file=sys.stderr, flush=True)
@@ -78,7 +79,7 @@ def run_on_robot(robot_cmd: str, agent: Agent, map_name: str, seconds: float, se
     try:
         m = load_map(map_name)
     except (MapError, FileNotFoundError) as exc:
-        err_console.print(f"[red]error:[/red] {exc}")
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}")
         raise typer.Exit(1) from exc
     frames: list[np.ndarray] = []
     labels: list[str] = []
@@ -99,7 +100,7 @@ def run_on_robot(robot_cmd: str, agent: Agent, map_name: str, seconds: float, se
             err_console.print(f"    {line}", highlight=False, markup=False)
         raise typer.Exit(1) from exc
     except ValueError as exc:  # e.g. a privileged agent on a robot without ground truth
-        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(1) from exc
     finally:
         getattr(agent, "close", lambda: None)()
@@ -118,7 +119,7 @@ def run_on_robot(robot_cmd: str, agent: Agent, map_name: str, seconds: float, se
     console.print(f"wrote {', '.join(str(f) for f in names)}")
     for e in traj.events:
         if e["kind"] == "agent_failure":
-            err_console.print(f"[red]agent failure:[/red] {e['message']}", highlight=False)
+            err_console.print(f"[red]agent failure:[/red] {escape(str(e['message']))}", highlight=False)
     console.print(f"metrics: map={m.name} agent={agent.name} robot={source} "
                   + " ".join(f"{k}={v:.2f}" for k, v in scores.items()) + f" end={traj.termination} "
                   f"wall={elapsed:.1f}s", highlight=False)

@@ -16,9 +16,12 @@ import time
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console, require_extra
+from proxybench.cli.options import positive
+from proxybench.cli.progress import status
 
 server_app = typer.Typer(no_args_is_help=True, help="Administer a challenges server (users, benchmarks, paths).")
 app.add_typer(server_app, name="server")
@@ -43,10 +46,10 @@ def read_token(token: str | None, token_file: Path | None, default_file: Path | 
     try:
         value, where = load_token(token_file, default_file)
     except TokenError as exc:
-        err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+        err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None
     if "warning" in where:
-        err_console.print(f"[yellow]![/yellow] token file {where}", highlight=False)
+        err_console.print(f"[yellow]![/yellow] token file {escape(where)}", highlight=False)
     return value
 
 
@@ -58,7 +61,7 @@ def _client(server: str | None, token: str | None, token_file: Path | None):
 
 
 def _fail(exc: Exception) -> typer.Exit:
-    err_console.print(f"[red]✗[/red] {exc}", highlight=False)
+    err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
     return typer.Exit(1)
 
 
@@ -90,7 +93,7 @@ def _evaluator_token(settings) -> Path:
 @app.command()
 def serve(
     host: str = typer.Option("127.0.0.1", help="address to listen on (0.0.0.0 for remote evaluators)"),
-    port: int = typer.Option(8000, min=0, max=65535, help="TCP port"),
+    port: int = typer.Option(8000, min=1, max=65535, help="TCP port"),
     data_dir: Path = typer.Option(DEFAULT_DATA, help="SQLite database, artifacts and tokens"),
     database_url: str | None = typer.Option(None, envvar="PROXYBENCH_SERVER_DATABASE_URL",
                                             help="SQLAlchemy URL, e.g. postgresql+psycopg://u:p@host/db"),
@@ -98,7 +101,8 @@ def serve(
                                        "[the number of cores, at most 4]"),
     evaluators: int = typer.Option(0, min=0, help="local evaluator processes to start beside the server"),
     features: str = typer.Option("sim,target", help="features the local evaluators offer"),
-    lease_seconds: float = typer.Option(120.0, min=0.1, help="a job lease lapses this long after the last heartbeat"),
+    lease_seconds: float = typer.Option(120.0, callback=positive,
+                                        help="a job lease lapses this long after the last heartbeat"),
 ) -> None:
     """Run the challenges server (SQLite in --data-dir unless --database-url), optionally with evaluators."""
     require_extra("server")
@@ -167,7 +171,7 @@ def submit(
     label: str | None = typer.Option(None, help="submission label [the agent name]; an older one is retired"),
     description: str = typer.Option("", help="free text"),
     wait: bool = typer.Option(False, help="wait until every job has finished, then show the leaderboard"),
-    timeout: float = typer.Option(1800.0, help="give up waiting after this many seconds"),
+    timeout: float = typer.Option(1800.0, callback=positive, help="give up waiting after this many seconds"),
     server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
 ) -> None:
     """Submit an agent to a benchmark (or a benchmark path) on a challenges server."""
@@ -201,7 +205,7 @@ def submit(
 
 def _wait(client, sid: int, timeout: float) -> dict:
     deadline = time.monotonic() + timeout
-    with console.status("waiting for evaluation…") as status:
+    with status("waiting for evaluation…") as spinner:
         while True:
             sub = client.get(f"/submissions/{sid}")
             open_jobs = [j for j in sub["jobs"] if j["status"] in ("queued", "evaluating")]
@@ -209,7 +213,7 @@ def _wait(client, sid: int, timeout: float) -> dict:
                 return sub
             if time.monotonic() > deadline:
                 raise _fail(TimeoutError(f"submission {sid}: {len(open_jobs)} job(s) still open after {timeout:g} s"))
-            status.update("waiting for evaluation… " + ", ".join(f"job {j['id']}: {j['status']}" for j in open_jobs))
+            spinner.update("waiting for evaluation… " + ", ".join(f"job {j['id']}: {j['status']}" for j in open_jobs))
             time.sleep(1.0)
 
 
@@ -260,7 +264,7 @@ def show_leaderboard(
 @server_app.command("user-add")
 def user_add(
     name: str = typer.Argument(...), role: str = typer.Option("developer", help="superuser, developer or evaluator"),
-    daily_limit: int | None = typer.Option(None, help="submissions per 24 h [server default]"),
+    daily_limit: int | None = typer.Option(None, min=0, help="submissions per 24 h [server default]"),
     server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
 ) -> None:
     """Create a user (super-user token needed); prints the new user's token once."""

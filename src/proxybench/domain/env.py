@@ -17,15 +17,16 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from proxybench.domain.dynamics import ST
+from proxybench.domain.env_render import RENDER_MODES, EnvView, check_render_args, view_frame
 from proxybench.domain.lane_pose import LANE_POSE_FIELDS, LP, LanePose
 from proxybench.domain.maps import Map
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator, StartDistribution
 from proxybench.domain.topdown import top_down
 
-__all__ = ["LaneFollowingEnv", "LaneFollowingVectorEnv", "RewardWeights", "lane_following_reward"]
+__all__ = ["RENDER_MODES", "LaneFollowingEnv", "LaneFollowingVectorEnv", "RewardWeights", "lane_following_reward"]
 
-RENDER_MODES = ["rgb_array", "top_down"]
+VECTOR_RENDER_MODES = ["rgb_array"]
 OBSERVATIONS = ("camera", "state")
 
 
@@ -150,9 +151,15 @@ class LaneFollowingEnv(gym.Env):
     Terminated when the robot centre leaves the drivable area or comes too close to a map object
     (0.10 m from a duckie, 0.15 m from a robot); truncated after ``episode_seconds``.
 
+    ## Rendering
+    ``render_mode`` ``"rgb_array"`` or ``"human"`` (a window; needs a screen), and ``"rgb_array_list"``
+    through ``gymnasium.make``; ``render_view`` ``"camera"``, ``"top_down"`` or ``"both"``
+    (``proxybench.domain.env_render``). Randomise θ per episode with
+    ``proxybench.domain.randomization.DomainRandomization``.
+
     ## Arguments
     ``map`` (name or ``Map``), ``params`` (``DomainParams`` or dict), ``observation``, ``episode_seconds``
-    (60), ``reward`` (``RewardWeights``), ``start`` (``StartDistribution``), ``render_mode``.
+    (60), ``reward`` (``RewardWeights``), ``start`` (``StartDistribution``), ``render_mode``, ``render_view``.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": RENDER_MODES, "render_fps": 15}
@@ -166,11 +173,12 @@ class LaneFollowingEnv(gym.Env):
         reward: RewardWeights | None = None,
         start: StartDistribution | None = None,
         render_mode: str | None = None,
+        render_view: str = "camera",
     ):
-        if render_mode is not None and render_mode not in RENDER_MODES:
-            raise ValueError(f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
+        check_render_args(render_mode, render_view)
         self._core = _Core(map, params, 1, observation, episode_seconds, reward, start)
         self.render_mode = render_mode
+        self._view = EnvView(render_mode, render_view, self._core.sim.params[0].frame_rate)
         self.observation_space = self._core.obs_space
         self.action_space = spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
         self.metadata = {**self.metadata, "render_fps": self.params.frame_rate}
@@ -198,23 +206,24 @@ class LaneFollowingEnv(gym.Env):
         self.sim.reset(0, episode, None if pose is None else tuple(float(v) for v in pose))
         self._core.__dict__.pop("terms", None)
         self._obs = self._core.observe()[0]
+        self._view.after_update(self.sim, self._camera())
         return self._obs, _info_one(self._core, 0)
 
     def step(self, action):
         reward, term, trunc = self._core.step(np.asarray(action, dtype=np.float64).reshape(1, 2))
         self._obs = self._core.observe()[0]
+        self._view.after_update(self.sim, self._camera())
         return self._obs, float(reward[0]), bool(term[0]), bool(trunc[0]), _info_one(self._core, 0)
 
+    def _camera(self) -> np.ndarray | None:
+        return self._obs if self._core.observation == "camera" else None
+
     def render(self):
-        if self.render_mode == "rgb_array":
-            if self._core.observation == "camera" and self._obs is not None:
-                return self._obs.copy()
-            self.sim.enable_rendering()  # state observations: render the camera on demand
-            return self.sim.render()[0]
-        if self.render_mode == "top_down":
-            objects, npcs = self.sim.world_view(0)
-            return top_down(self.sim.map, self.sim.state[:1, :3], params=self.params, objects=objects, npc_poses=npcs)
-        return None
+        return self._view.render(self.sim, self._camera())
+
+    def close(self):
+        self._view.close()
+        super().close()
 
 
 class LaneFollowingVectorEnv(VectorEnv):
@@ -223,11 +232,12 @@ class LaneFollowingVectorEnv(VectorEnv):
     Arguments as :class:`LaneFollowingEnv`, plus ``num_envs``; ``params`` may be one ``DomainParams``
     or a list of N (structural fields such as the image size must agree). ``info`` holds arrays:
     ``pose`` (N, 3), ``velocity`` (N, 2), ``lane_pose`` (N, len(LANE_POSE_FIELDS)), ``on_road`` (N,),
-    ``time`` (N,) and ``reward_terms``.
+    ``time`` (N,) and ``reward_terms``. ``render()`` (``render_mode="rgb_array"``) returns every robot's frame
+    (N, H, W, 3) for ``render_view`` ``"camera"`` or ``"both"``, and one map with all robots for ``"top_down"``.
     """
 
     metadata: ClassVar[dict[str, Any]] = {
-        "render_modes": RENDER_MODES, "render_fps": 15, "autoreset_mode": AutoresetMode.NEXT_STEP
+        "render_modes": VECTOR_RENDER_MODES, "render_fps": 15, "autoreset_mode": AutoresetMode.NEXT_STEP
     }
 
     def __init__(
@@ -240,14 +250,14 @@ class LaneFollowingVectorEnv(VectorEnv):
         reward: RewardWeights | None = None,
         start: StartDistribution | None = None,
         render_mode: str | None = None,
+        render_view: str = "camera",
     ):
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        if render_mode is not None and render_mode not in RENDER_MODES:
-            raise ValueError(f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
+        check_render_args(render_mode, render_view, VECTOR_RENDER_MODES)
         self._core = _Core(map, params, num_envs, observation, episode_seconds, reward, start)
         self.num_envs = self._core.sim.n
-        self.render_mode = render_mode
+        self.render_mode, self.render_view = render_mode, render_view
         self.single_observation_space = self._core.obs_space
         self.single_action_space = spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -310,9 +320,12 @@ class LaneFollowingVectorEnv(VectorEnv):
         return info
 
     def render(self):
-        if self.render_mode == "rgb_array":
-            self.sim.enable_rendering()
-            return self.sim.render()
-        if self.render_mode == "top_down":
+        if self.render_mode != "rgb_array":
+            return None
+        if self.render_view == "top_down":
             return top_down(self.sim.map, self.sim.state[:, :3], params=self.sim.params[0])
-        return None
+        self.sim.enable_rendering()
+        frames = self.sim.render()
+        if self.render_view == "camera":
+            return frames
+        return np.stack([view_frame(self.sim, i, "both", frames[i]) for i in range(self.num_envs)])

@@ -27,7 +27,7 @@ from functools import cached_property
 
 import numpy as np
 
-from proxybench.domain.maps import DRIVABLE_KINDS, Direction, Map
+from proxybench.domain.maps import DRIVABLE_KINDS, GROUND_KINDS, Direction, Map
 
 __all__ = ["ROAD", "LaneNetwork", "LaneSegment", "RoadGeometry", "SegmentKind"]
 
@@ -250,7 +250,7 @@ class LaneArrays:
                     )
             else:
                 tile_kind[t.i, t.j] = -1
-                tile_base[t.i, t.j] = base_codes[t.kind]
+                tile_base[t.i, t.j] = base_codes[GROUND_KINDS[t.kind]]
         return LaneArrays(
             seg_kind, seg_f, tile_segs, tile_kind, tile_orient, tile_base, curve_corner,
             m.tile_size, 0.5 * net.geometry.lane_width * m.tile_size,

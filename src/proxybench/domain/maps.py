@@ -6,7 +6,9 @@ listing), headings are counter-clockwise from +x. Tile ``(i, j)`` covers
 *bottom* of the ``tiles:`` listing, so the file reads like a map with north up.
 
 Every problem is reported with the file, the YAML line and column, and the tile's row/column in the
-listing, so a user can fix a hand-written map without guessing.
+listing, so a user can fix a hand-written map without guessing. What gym-duckietown accepts with a
+fallback loads with a warning (``Map.warnings``): a start tile outside the map or off the road, an
+unknown object kind. Objects in every placement are read by ``proxybench.domain.map_objects``.
 
 >>> m = load_map("loop_3x3")
 >>> (m.width, m.height, m.tile_size)
@@ -18,6 +20,7 @@ listing, so a user can fix a hand-written map without guessing.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from enum import IntEnum
 from importlib import resources
@@ -26,18 +29,11 @@ from typing import Any
 
 import yaml
 
+from proxybench.domain.map_objects import AprilTag, parse_objects
+
 __all__ = [
-    "DRIVABLE_KINDS",
-    "NON_DRIVABLE_KINDS",
-    "Direction",
-    "Map",
-    "MapError",
-    "MapIssue",
-    "MapObject",
-    "Tile",
-    "builtin_map_names",
-    "load_map",
-    "parse_map",
+    "DRIVABLE_KINDS", "GROUND_KINDS", "NON_DRIVABLE_KINDS", "ROAD_END_KINDS", "Direction", "Map", "MapError",
+    "MapIssue", "MapObject", "MapWarning", "Tile", "builtin_map_names", "load_map", "parse_map",
 ]
 
 
@@ -66,7 +62,11 @@ class Direction(IntEnum):
 _UNIT = {Direction.E: (1, 0), Direction.N: (0, 1), Direction.W: (-1, 0), Direction.S: (0, -1)}
 
 DRIVABLE_KINDS = ("straight", "curve_left", "curve_right", "3way_left", "3way_right", "4way")
-NON_DRIVABLE_KINDS = ("asphalt", "grass", "floor")
+NON_DRIVABLE_KINDS = ("asphalt", "grass", "floor", "calibration_tile")
+#: the plain ground each non-drivable kind is drawn with (a calibration tile is a floor a road may end on)
+GROUND_KINDS = {"asphalt": "asphalt", "grass": "grass", "floor": "floor", "calibration_tile": "floor"}
+#: non-drivable kinds a road may lead onto, like the map's edge (duckietown-world's calibration maps)
+ROAD_END_KINDS = ("calibration_tile",)
 EMPTY_KIND = "empty"
 DEFAULT_ORIENTATION = Direction.E
 
@@ -128,6 +128,7 @@ class MapObject:
     optional: bool = False
     static: bool = True
     name: str | None = None
+    tag: AprilTag | None = None
 
 
 @dataclass(frozen=True)
@@ -156,6 +157,10 @@ class MapIssue:
         return f"{where}:{cell} {self.message}"
 
 
+class MapWarning(UserWarning):
+    """A map loaded with a fallback (``Map.warnings``), warned when a file is loaded."""
+
+
 class MapError(ValueError):
     """A map file could not be loaded; ``issues`` lists every problem found."""
 
@@ -175,7 +180,10 @@ class Map:
     objects: tuple[MapObject, ...] = ()
     start_pose: tuple[float, float, float] | None = None
     start_tile: tuple[int, int] | None = None
+    #: (i, j, edge) where a road leaves the map, or runs onto a ``ROAD_END_KINDS`` tile
     road_ends: tuple[tuple[int, int, Direction], ...] = field(default=())
+    #: what was accepted with a fallback (unknown object kinds, a start tile off the road), for ``map check``
+    warnings: tuple[MapIssue, ...] = field(default=(), compare=False)
 
     @property
     def width(self) -> int:
@@ -214,7 +222,10 @@ class Map:
             kinds[t.kind] = kinds.get(t.kind, 0) + 1
         kinds_s = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items()))
         w, h = self.size_m
-        ends = f", {len(self.road_ends)} road ends at the map edge" if self.road_ends else ""
+        n_edge = sum(self.tile(i + d.unit[0], j + d.unit[1]) is None for i, j, d in self.road_ends)
+        ends = f", {n_edge} road ends at the map edge" if n_edge else ""
+        if len(self.road_ends) > n_edge:
+            ends += f", {len(self.road_ends) - n_edge} onto {'/'.join(ROAD_END_KINDS)}"
         return (
             f"{self.width}×{self.height} tiles of {self.tile_size:g} m ({w:.2f} × {h:.2f} m); "
             f"{len(self.drivable_tiles())} drivable ({kinds_s}); {len(self.objects)} objects{ends}"
@@ -254,7 +265,10 @@ def load_map(name_or_path: str | Path) -> Map:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise MapError([MapIssue(str(path), f"cannot read map file: {exc}")]) from exc
-    return parse_map(text, path=str(path), name=path.stem)
+    m = parse_map(text, path=str(path), name=path.stem)
+    for w in m.warnings:  # where nobody prints Map.warnings (an env, a runner): once per message and place
+        warnings.warn(str(w), MapWarning, stacklevel=2)
+    return m
 
 
 def parse_map(text: str, path: str = "<string>", name: str = "map") -> Map:
@@ -271,6 +285,12 @@ class _MapParser:
     def __init__(self, text: str, path: str, name: str):
         self.text, self.path, self.name = text, path, name
         self.issues: list[MapIssue] = []
+        self.warnings: list[MapIssue] = []
+
+    def warn(self, message: str, node: yaml.Node | None = None, row: int | None = None, col: int | None = None):
+        line = node.start_mark.line + 1 if node is not None else None
+        column = node.start_mark.column + 1 if node is not None else None
+        self.warnings.append(MapIssue(self.path, message, line, column, row, col))
 
     def issue(self, message: str, node: yaml.Node | None = None, row: int | None = None, col: int | None = None):
         line = node.start_mark.line + 1 if node is not None else None
@@ -297,15 +317,18 @@ class _MapParser:
         if self.issues:
             raise self.fail()
         assert tiles is not None and tile_size is not None
-        grid_h = len(tiles)
-        objects = self._objects(keys.get("objects"), tile_size, grid_h)
-        start_tile = self._start_tile(keys.get("start_tile"), tiles)
-        start_pose = self._start_pose(keys.get("start_pose"), tile_size, grid_h)
+        grid_h, grid_w = len(tiles), len(tiles[0])
+        objects = self._objects(keys.get("objects"), tile_size, grid_w, grid_h)
+        origin, start_tile = self._start_tile(keys.get("start_tile"), tiles)
+        start_pose = self._start_pose(keys.get("start_pose"), tile_size, grid_h, origin)
         m = Map(self.name, self.path, tile_size, tiles, tuple(objects), start_pose, start_tile)
         ends = self._check_connections(m, keys["tiles"][1])
         if self.issues:
             raise self.fail()
-        return Map(self.name, self.path, tile_size, tiles, tuple(objects), start_pose, start_tile, tuple(ends))
+        if not m.drivable_tiles():
+            self.warn("no drivable tile: the map loads and draws, but no robot can drive on it", root)
+        return Map(self.name, self.path, tile_size, tiles, tuple(objects), start_pose, start_tile, tuple(ends),
+                   tuple(self.warnings))
 
     # -- fields ------------------------------------------------------------------------------------
 
@@ -372,11 +395,9 @@ class _MapParser:
             orientation = Direction[orient]
         return Tile(kind, orientation, i=c, j=n_rows - 1 - r, row=r, col=c)
 
-    def _objects(self, entry: tuple | None, ts: float, grid_h: int) -> list[MapObject]:
-        if entry is None:
-            return []
-        node = entry[1]
-        if isinstance(node, yaml.ScalarNode) and self._data(node) is None:
+    def _objects(self, entry: tuple | None, ts: float, grid_w: int, grid_h: int) -> list[MapObject]:
+        node = entry[1] if entry is not None else None
+        if node is None or (isinstance(node, yaml.ScalarNode) and self._data(node) is None):
             return []
         if isinstance(node, yaml.MappingNode):
             items = [(str(self._data(k)), v) for k, v in node.value]
@@ -385,80 +406,58 @@ class _MapParser:
         else:
             self.issue("'objects' must be a list or a mapping of objects", node)
             return []
-        out = []
-        for idx, (name, obj_node) in enumerate(items):
-            label = f"object {name!r}" if name else f"objects[{idx}]"
-            obj = self._data(obj_node)
-            if not isinstance(obj, dict):
-                self.issue(f"{label} must be a mapping with 'kind' and 'pos'", obj_node)
-                continue
-            kind, pos = obj.get("kind"), obj.get("pos")
-            if not isinstance(kind, str) or not kind:
-                self.issue(f"{label}: missing or invalid 'kind'", obj_node)
-                continue
-            if (
-                not isinstance(pos, list)
-                or len(pos) < 2
-                or not all(isinstance(p, _NUM) and not isinstance(p, bool) for p in pos[:2])
-            ):
-                self.issue(f"{label}: 'pos' must be [x, y] in tile units, got {pos!r}", obj_node)
-                continue
-            rotate = obj.get("rotate", 0.0)
-            if not isinstance(rotate, _NUM) or isinstance(rotate, bool):
-                self.issue(f"{label}: 'rotate' must be a number of degrees, got {rotate!r}", obj_node)
-                continue
-            height, scale = obj.get("height"), obj.get("scale")
-            for key, val in (("height", height), ("scale", scale)):
-                if val is not None and (not isinstance(val, _NUM) or isinstance(val, bool) or val <= 0):
-                    self.issue(f"{label}: '{key}' must be a positive number, got {val!r}", obj_node)
-            # gym-duckietown positions count tiles east and *down* the listing; rotate is CCW degrees.
-            out.append(
-                MapObject(
-                    kind=kind,
-                    x=float(pos[0]) * ts,
-                    y=(grid_h - float(pos[1])) * ts,
-                    heading=math.radians(float(rotate)),
-                    height=float(height) if isinstance(height, _NUM) else None,
-                    scale=float(scale) if isinstance(scale, _NUM) else None,
-                    optional=bool(obj.get("optional", False)),
-                    static=bool(obj.get("static", True)),
-                    name=name,
-                )
-            )
-        return out
+        objects, errors, warnings = parse_objects(items, self._data, ts, grid_w, grid_h, MapObject)
+        for message, at in errors:
+            self.issue(message, at)
+        for message, at in warnings:
+            self.warn(message, at)
+        return objects
 
-    def _start_tile(self, entry: tuple | None, tiles) -> tuple[int, int] | None:
+    def _start_tile(self, entry: tuple | None, tiles) -> tuple[tuple[int, int] | None, tuple[int, int] | None]:
+        """(origin (i, j) of a relative start pose, start tile of the start distribution). As in gym-duckietown, one
+        outside the map or off the road falls back to a random drivable tile (a warning); off-road, it anchors."""
         if entry is None:
-            return None
+            return None, None
         node = entry[1]
         value = self._data(node)
-        if not (isinstance(value, list) and len(value) == 2 and all(isinstance(v, int) for v in value)):
+        if not (isinstance(value, list) and len(value) == 2
+                and all(isinstance(v, int) and not isinstance(v, bool) for v in value)):
             self.issue(f"'start_tile' must be [column, row], got {value!r}", node)
-            return None
+            return None, None
         c, r = value
         if not (0 <= r < len(tiles) and 0 <= c < len(tiles[r])):
-            self.issue(f"'start_tile' {value} is outside the map", node)
-            return None
+            self.warn(f"'start_tile' {value} is outside the map ({len(tiles[0])}×{len(tiles)} tiles): "
+                      "robots start on a random drivable tile instead (as gym-duckietown does)", node)
+            return None, None
         tile = tiles[r][c]
+        origin = (c, len(tiles) - 1 - r)
         if tile is None or not tile.drivable:
-            self.issue(f"'start_tile' {value} is not a drivable tile", node, r, c)
-            return None
-        return (tile.i, tile.j)
+            what = "an empty cell" if tile is None else repr(tile.kind)
+            self.warn(f"'start_tile' {value} is {what}, not a drivable tile: robots start on a random drivable "
+                      "tile instead (as gym-duckietown does)", node, r, c)
+            return origin, None
+        return origin, (tile.i, tile.j)
 
-    def _start_pose(self, entry: tuple | None, ts: float, grid_h: int) -> tuple[float, float, float] | None:
+    def _start_pose(self, entry: tuple | None, ts: float, grid_h: int,
+                    origin: tuple[int, int] | None) -> tuple[float, float, float] | None:
+        """The map-frame start pose. gym-duckietown writes ``[[x, y, z], angle]`` with z counting down the
+        listing, absolute (its original maps), or from the north-west corner of ``start_tile`` when the
+        map gives one (duckietown-world-daffy's maps, whose simulator reads it so)."""
         if entry is None:
             return None
         node = entry[1]
         value = self._data(node)
-        # gym-duckietown: [[x, y, z], angle] with z counting down the listing, angle in radians.
         ok = isinstance(value, list) and len(value) == 2 and isinstance(value[0], list)
         if ok:
             pos, angle = value
-            ok = len(pos) in (2, 3) and all(isinstance(p, _NUM) for p in pos) and isinstance(angle, _NUM)
+            ok = (len(pos) in (2, 3) and all(isinstance(p, _NUM) and not isinstance(p, bool) for p in pos)
+                  and isinstance(angle, _NUM) and not isinstance(angle, bool))
         if not ok:
             self.issue(f"'start_pose' must be [[x, y, z], angle] (metres, radians), got {value!r}", node)
             return None
         x, z = float(pos[0]), float(pos[-1])
+        if origin is not None:
+            x, z = x + origin[0] * ts, z + (grid_h - 1 - origin[1]) * ts
         return (x, grid_h * ts - z, float(angle))
 
     # -- topology ----------------------------------------------------------------------------------
@@ -480,6 +479,8 @@ class _MapParser:
                         )
                     else:
                         ends.append((tile.i, tile.j, edge))
+                elif other.kind in ROAD_END_KINDS:
+                    ends.append((tile.i, tile.j, edge))
                 elif not other.drivable:
                     self.issue(
                         f"{tile.label}: the road leaves through the {edge.name} edge into "

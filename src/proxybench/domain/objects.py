@@ -16,7 +16,13 @@ kind                          shape                                             
 ``house``, ``building``       box 0.40 × 0.40 m, h 0.30 m                        duckie-like
 ``tree``                      green cylinder r 0.10 m, h 0.30 m                  duckie-like
 ``bus``, ``truck``            box 0.40 × 0.16 m, h 0.16 m                        robot-like
+``trafficlight``              dark box 0.08 × 0.08 m from 0.30 to 0.40 m (the    none
+                              head; its stand is beside the road in a lab)
+``floor_tag``                 AprilTag on the floor: black square of the tag's   none
+                              ``size`` (0.08 m) in a white border, 1 mm high
+``checkerboard``              grey board 0.01 × 0.30 m, h 0.25 m                 duckie-like
 anything else                 grey box 0.10 × 0.10 m, h 0.10 m                   duckie-like
+                              (``map check`` warns once per unknown kind)
 ============================  =================================================  ============
 
 Collision rule (AIDO): a robot collides with a *duckie-like* object when its centre comes within
@@ -39,6 +45,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from proxybench.domain.map_objects import object_family
 from proxybench.domain.maps import MapObject
 from proxybench.domain.params import DUCKIE_RGB, DUCKIEBOT_RGB
 
@@ -51,6 +58,7 @@ __all__ = [
     "ObjectArrays",
     "Primitive",
     "collision_check",
+    "object_collides",
     "object_primitives",
     "pack_objects",
 ]
@@ -90,35 +98,58 @@ class Primitive:
 _GREY = (150.0, 150.0, 150.0)
 
 
-def _shapes(kind: str) -> tuple[list[Primitive], bool]:
+def _shapes(kind: str, tag_size: float | None = None) -> tuple[list[Primitive], bool]:
     """(primitives at scale 1, robot-like?) for an object kind."""
+    family = object_family(kind)
     k = kind.lower()
-    if k.startswith("duckie") and k != "duckiebot":
+    if family == "duckie":
         return [Primitive(CYLINDER, 0.04, 0.04, 0.0, 0.06, DUCKIE_RGB, material=MAT_DUCKIE)], False
-    if k == "cone":
+    if family == "cone":
         return [Primitive(CYLINDER, 0.05, 0.05, 0.0, 0.10, (245.0, 110.0, 20.0))], False
-    if k == "barrier":
+    if family == "barrier":
         return [Primitive(BOX, 0.25, 0.03, 0.0, 0.12, (220.0, 60.0, 50.0))], False
-    if k.startswith("sign"):
+    if family == "sign":
         plate = (200.0, 30.0, 30.0) if ("stop" in k or "yield" in k) else (40.0, 80.0, 200.0)
         return [
             Primitive(CYLINDER, 0.01, 0.01, 0.0, 0.16, _GREY),
             Primitive(BOX, 0.005, 0.05, 0.16, 0.24, plate),
         ], False
-    if k == "duckiebot":
+    if family == "duckiebot":
         return [Primitive(BOX, 0.09, 0.065, 0.0, 0.10, DUCKIEBOT_RGB, material=MAT_DUCKIEBOT)], True
-    if k in ("house", "building"):
+    if family in ("house", "building"):
         return [Primitive(BOX, 0.20, 0.20, 0.0, 0.30, (190.0, 120.0, 90.0))], False
-    if k == "tree":
+    if family == "tree":
         return [Primitive(CYLINDER, 0.10, 0.10, 0.0, 0.30, (40.0, 110.0, 40.0))], False
-    if k in ("bus", "truck"):
+    if family in ("bus", "truck"):
         return [Primitive(BOX, 0.20, 0.08, 0.0, 0.16, (230.0, 170.0, 30.0))], True
+    if family == "trafficlight":
+        # the head only: in a lab it hangs over the intersection from a stand beside the road
+        return [Primitive(BOX, 0.04, 0.04, 0.30, 0.40, (40.0, 40.0, 40.0))], False
+    if family == "floor_tag":
+        # an AprilTag printed on the floor: its black square inside a white border (tag size / 0.8)
+        half = 0.5 * (tag_size or 0.08)
+        return [
+            Primitive(BOX, half / 0.8, half / 0.8, 0.0, 0.0005, (235.0, 235.0, 235.0)),
+            Primitive(BOX, half, half, 0.0, 0.001, (25.0, 25.0, 25.0)),
+        ], False
+    if family == "checkerboard":
+        # the upright intrinsic-calibration board
+        return [Primitive(BOX, 0.005, 0.15, 0.0, 0.25, (120.0, 120.0, 120.0))], False
     return [Primitive(BOX, 0.05, 0.05, 0.0, 0.10, _GREY)], False
+
+
+#: kinds nothing collides with: a tag lying on the floor, and a traffic light (gym-duckietown's rule too)
+NON_COLLIDING = ("floor_tag", "trafficlight")
+
+
+def object_collides(kind: str) -> bool:
+    """Whether robots can hit an object of this kind."""
+    return object_family(kind) not in NON_COLLIDING
 
 
 def object_primitives(obj: MapObject) -> tuple[list[Primitive], bool]:
     """The object's primitives, scaled by ``obj.scale`` and to ``obj.height``, and whether it is robot-like."""
-    prims, robot = _shapes(obj.kind)
+    prims, robot = _shapes(obj.kind, obj.tag.size if obj.tag is not None else None)
     s = obj.scale or 1.0
     top = max(p.z1 for p in prims) * s
     hz = (obj.height / top) if obj.height else 1.0
@@ -149,6 +180,8 @@ def pack_objects(objects: Sequence[MapObject]) -> ObjectArrays:
             y = obj.y + s * p.dx + c * p.dy
             prims.append([p.shape, x, y, c, s, p.a, p.b, p.z0, p.z1, *p.rgb, p.material])
             owner.append(i)
+        if not object_collides(obj.kind):
+            continue
         if robot:
             cols.append([obj.x, obj.y, c, s, 0.0, 0.0, ROBOT_MARGIN])
         else:

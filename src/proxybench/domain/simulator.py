@@ -22,18 +22,20 @@ from proxybench.domain.lane_pose import LP, lane_pose_into, point_on_road
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
 from proxybench.domain.npcs import Traffic, npc_start
-from proxybench.domain.objects import collision_check, pack_objects
+from proxybench.domain.objects import CF_MARGIN, collision_check, footprint_distance, pack_objects
 from proxybench.domain.params import STRUCTURAL_FIELDS, DomainParams
 from proxybench.domain.renderer import Renderer
 from proxybench.domain.routes import RouteTracker
 from proxybench.domain.worlds import Worlds
 
-__all__ = ["Simulator", "StartDistribution", "episode_seed"]
+__all__ = ["Simulator", "StartDistribution", "episode_seed", "start_pose"]
 
 _MASK64 = (1 << 64) - 1
 _WHEEL_DISTANCE = DYN_FIELDS.index("wheel_distance")
 _NO_TRACE = np.zeros((0, 0, len(TRACE_FIELDS)))
 _NPC_STREAM = 0x4E5043  # spawn key of NPC start draws: independent of the ego's start and route draws
+#: redraws of a random start that lands within a map object's collision margin plus this clearance [m]
+_START_TRIES, _START_CLEARANCE = 50, 0.05
 
 
 @nb.njit(cache=True)
@@ -66,6 +68,48 @@ class StartDistribution:
     lateral: float = 0.04
     heading: float = 0.35
     use_map_start: bool = True
+
+
+def _start_segments(m: Map, net: LaneNetwork) -> list:
+    """Lanes an episode may start on: plain road tiles, never a lane that leaves the map before the next tile."""
+    segs = [s for s in net.segments
+            if m.tile(*s.tile).kind in ("straight", "curve_left", "curve_right") and net.successors(s.index)
+            ] or list(net.segments)
+    if not segs:
+        raise ValueError(f"map {m.name!r} has no lanes to start on")
+    return segs
+
+
+def _clear_of_objects(x: float, y: float, colliders: np.ndarray) -> bool:
+    """Whether a robot at (x, y) [m] is ``_START_CLEARANCE`` beyond every map object's collision margin."""
+    return all(footprint_distance(x, y, c) >= c[CF_MARGIN] + _START_CLEARANCE for c in colliders)
+
+
+def _draw_start(m: Map, segs: list, start: StartDistribution, rng: np.random.Generator,
+                colliders: np.ndarray) -> tuple[float, float, float]:
+    if start.use_map_start and m.start_pose is not None:
+        return m.start_pose
+    if start.use_map_start and m.start_tile is not None:
+        segs = [s for s in segs if s.tile == m.start_tile] or segs
+    lengths = np.array([s.length for s in segs])
+    for _ in range(_START_TRIES):  # like gym-duckietown, never start on (or right at) a map object
+        seg = segs[int(rng.choice(len(segs), p=lengths / lengths.sum()))]
+        s = float(rng.uniform(0.1, 0.9)) * seg.length
+        r = float(rng.uniform(-start.lateral, start.lateral))
+        dh = float(rng.uniform(-start.heading, start.heading))
+        x, y = seg.position(s, r)
+        if _clear_of_objects(x, y, colliders):
+            break
+    return x, y, math.remainder(seg.heading_at(s) + dh, 2 * math.pi)
+
+
+def start_pose(m: Map, seed: int, start: StartDistribution | None = None,
+               net: LaneNetwork | None = None) -> tuple[float, float, float]:
+    """The start (x [m], y [m], θ [rad]) that ``Simulator.reset`` draws for ``seed`` on ``m``, for a caller
+    that must send it (a robot node is told where its robot stands, as AIDO's ``spawn_robot`` requires)."""
+    net = net or LaneNetwork(m)
+    return _draw_start(m, _start_segments(m, net), start or StartDistribution(), np.random.default_rng(seed),
+                       pack_objects(m.objects).colliders)
 
 
 class Simulator:
@@ -135,13 +179,7 @@ class Simulator:
         self._trace = np.zeros((rows, first.substeps, len(TRACE_FIELDS)))
         self.npc_frames: np.ndarray | None = None  # (K, H, W, 3) NPC camera frames of the last render, if asked
         self.renderer = Renderer(self.arrays, self._row_params(), self.objects) if render else None
-        # start on plain road tiles, never on a lane that leaves the map before the next tile
-        self._start_segments = [
-            s for s in self.net.segments
-            if self.map.tile(*s.tile).kind in ("straight", "curve_left", "curve_right") and self.net.successors(s.index)
-        ] or list(self.net.segments)
-        if not self._start_segments:
-            raise ValueError(f"map {self.map.name!r} has no lanes to start on")
+        self._start_segments = _start_segments(self.map, self.net)
         self.routes = RouteTracker(self.net, rows)  # exits chosen at intersections (domain.routes)
         for i, p in enumerate(plist):
             self.set_params(i, p)
@@ -202,18 +240,7 @@ class Simulator:
 
     def sample_start(self, rng: np.random.Generator) -> tuple[float, float, float]:
         """A start pose (x, y, θ) from the start distribution (or the map's own start)."""
-        if self.start.use_map_start and self.map.start_pose is not None:
-            return self.map.start_pose
-        segs = self._start_segments
-        if self.start.use_map_start and self.map.start_tile is not None:
-            segs = [s for s in segs if s.tile == self.map.start_tile] or segs
-        lengths = np.array([s.length for s in segs])
-        seg = segs[int(rng.choice(len(segs), p=lengths / lengths.sum()))]
-        s = float(rng.uniform(0.1, 0.9)) * seg.length
-        r = float(rng.uniform(-self.start.lateral, self.start.lateral))
-        dh = float(rng.uniform(-self.start.heading, self.start.heading))
-        x, y = seg.position(s, r)
-        return x, y, math.remainder(seg.heading_at(s) + dh, 2 * math.pi)
+        return _draw_start(self.map, self._start_segments, self.start, rng, self.objects.colliders)
 
     def reset(self, i: int, seed: int, pose: tuple[float, float, float] | None = None,
               route: Sequence[str] | None = None) -> None:

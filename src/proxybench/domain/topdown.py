@@ -15,7 +15,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from proxybench.domain.lanes import LaneNetwork
-from proxybench.domain.maps import DRIVABLE_KINDS, Map
+from proxybench.domain.maps import DRIVABLE_KINDS, GROUND_KINDS, Map
 from proxybench.domain.objects import BOX, MATERIAL_PARAMS, PF_MATERIAL, pack_objects
 from proxybench.domain.params import DomainParams
 from proxybench.domain.textures import marking_textures
@@ -41,8 +41,8 @@ def _map_image(m: Map, px_per_tile: int, p: DomainParams) -> np.ndarray:
             cov = tex.level_image(t.kind, level)  # rows south → north, drawn heading north
             rgb = road * (1.0 - cov.sum(axis=-1, keepdims=True)) + cov @ paint
             img[rows, cols] = np.rot90(np.flipud(rgb), k=(int(t.orientation) - 1) % 4)
-        elif t.kind in _BASE_COLOUR:
-            img[rows, cols] = getattr(p, _BASE_COLOUR[t.kind])
+        elif t.kind in GROUND_KINDS:
+            img[rows, cols] = getattr(p, _BASE_COLOUR[GROUND_KINDS[t.kind]])
     assert len(DRIVABLE_KINDS) > 0
     out = np.clip(img * np.asarray(p.light_rgb), 0, 255).astype(np.uint8)
     if s != px_per_tile:

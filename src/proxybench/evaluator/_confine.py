@@ -1,10 +1,21 @@
-"""Exec shim that confines an agent node: ``python -I -S _confine.py [options] -- ARGV...``.
+"""Exec shim that starts an agent node in its sandbox: ``python -I -S _confine.py [options] -- ARGV...``.
 
-Run as a script (standard library only, no proxybench import, so it starts in milliseconds) between the
-network isolation (``unshare`` / ``bwrap``) and the agent's own command. In this order it changes into
-the agent's folder, sets resource limits, drops root to an unprivileged user when asked, forbids gaining
-privileges again, asks the kernel to kill it when its parent dies, and then replaces itself with the agent
-command under a clean environment, so the process the caller kills is the agent itself.
+Run as a script (standard library only, no proxybench import, so it starts in milliseconds) by the job's
+worker; it ends by ``exec``-ing bubblewrap (or, in the developer's unsafe mode without bubblewrap, the
+agent itself), so the process the caller kills is the sandbox. In this order it:
+
+1. opens every folder the agent may see (the runtime and the package) while it can still reach them;
+2. as root: stages them in a private mount namespace, on a fresh ``/tmp`` of its own, where the agent
+   user can reach them (the runtime may sit under a home folder only root may enter, e.g. a pyenv
+   Python in /root; the evaluator's own folders stay unreachable);
+3. sets the resource limits (before the user switch, so that RLIMIT_NPROC also bounds the user
+   namespace bubblewrap creates), drops to the agent user (no supplementary groups), makes it the first
+   choice of the kernel's out-of-memory killer, forbids gaining privileges again, and asks the kernel to
+   kill it when the worker dies;
+4. ``exec``-s ``bwrap``: new user, PID, network, IPC, UTS and cgroup namespaces, no capabilities, no
+   further user namespaces, a new session, a read-only view of only ``/usr``, the runtime and the package
+   (at ``/agent``), bounded tmpfs for ``/scratch`` (``$HOME``), ``/tmp`` and ``/dev/shm``, its own
+   ``/proc`` and ``/dev``, a read-only root, and a clean environment.
 """
 
 from __future__ import annotations
@@ -18,9 +29,33 @@ import sys
 
 PR_SET_PDEATHSIG = 1
 PR_SET_NO_NEW_PRIVS = 38
+CLONE_NEWNS = 0x00020000
+MS_RDONLY, MS_NOSUID, MS_NODEV, MS_BIND, MS_REMOUNT, MS_REC, MS_PRIVATE = 1, 2, 4, 4096, 32, 16384, 1 << 18
+STAGE = "/tmp"  # over-mounted in the shim's private mount namespace only
+PACKAGE_AT = "/agent"
+SCRATCH_AT = "/scratch"
+#: host files the dynamic linker and the C library read; nothing else of /etc is visible
+ETC_FILES = ("/etc/ld.so.cache", "/etc/ld.so.conf", "/etc/ld.so.conf.d", "/etc/localtime", "/etc/alternatives")
+ROOT_LINKS = ("/bin", "/sbin", "/lib", "/lib32", "/lib64", "/libx32")
 
 _LIMITS = (("cpu", resource.RLIMIT_CPU), ("memory", resource.RLIMIT_AS), ("fsize", resource.RLIMIT_FSIZE),
            ("nproc", resource.RLIMIT_NPROC), ("core", resource.RLIMIT_CORE))
+_libc = ctypes.CDLL(None, use_errno=True)
+
+
+def _check(ret: int, what: str) -> None:
+    if ret != 0:
+        errno = ctypes.get_errno()
+        raise OSError(errno, f"{what}: {os.strerror(errno)}")
+
+
+def _enc(text: str | None) -> bytes | None:
+    return None if text is None else text.encode()
+
+
+def _mount(source: str | None, target: str, fstype: str | None, flags: int, data: str | None = None) -> None:
+    _check(_libc.mount(_enc(source), _enc(target), _enc(fstype), ctypes.c_ulong(flags), _enc(data)),
+           f"mount {source} on {target}")
 
 
 def _set_limit(which: int, soft: int, hard: int) -> None:
@@ -32,45 +67,115 @@ def _set_limit(which: int, soft: int, hard: int) -> None:
 
 
 def _prctl(option: int, arg: int) -> None:
-    libc = ctypes.CDLL(None, use_errno=True)
-    if libc.prctl(option, arg, 0, 0, 0) != 0:
-        raise OSError(ctypes.get_errno(), f"prctl({option}) failed")
+    _check(_libc.prctl(option, arg, 0, 0, 0), f"prctl({option})")
 
 
-def main(argv: list[str]) -> int:
+def _stage(sources: list[str]) -> list[str]:
+    """Bind ``sources`` under a fresh tmpfs on ``/tmp`` of a private mount namespace; the staged paths, which
+    the agent user can reach. The sources are opened before ``/tmp`` is covered (one may lie under it)."""
+    _check(_libc.unshare(CLONE_NEWNS), "unshare(CLONE_NEWNS)")
+    _mount(None, "/", None, MS_REC | MS_PRIVATE)  # nothing of this namespace leaks back to the host
+    fds = [os.open(s, os.O_PATH | os.O_DIRECTORY | os.O_CLOEXEC) for s in sources]  # of this namespace
+    _mount("proxybench-stage", STAGE, "tmpfs", MS_NOSUID | MS_NODEV, "mode=0755,size=1m")
+    staged = []
+    for i, fd in enumerate(fds):
+        target = f"{STAGE}/{i}"
+        os.mkdir(target, 0o755)
+        _mount(f"/proc/self/fd/{fd}", target, None, MS_BIND | MS_REC)
+        _mount(None, target, None, MS_BIND | MS_REMOUNT | MS_RDONLY | MS_NOSUID | MS_NODEV)
+        os.close(fd)
+        staged.append(target)
+    return staged
+
+
+def _data_fd(text: str) -> str:
+    fd = os.memfd_create("proxybench-etc", 0)
+    os.write(fd, text.encode())
+    os.lseek(fd, 0, os.SEEK_SET)
+    os.set_inheritable(fd, True)
+    return str(fd)
+
+
+def _bwrap_argv(args: argparse.Namespace, runtime: list[tuple[str, str]], package: str, env: dict[str, str],
+                uid: int, gid: int) -> list[str]:
+    argv = [args.bwrap, "--unshare-user", "--unshare-pid", "--unshare-net", "--unshare-ipc", "--unshare-uts",
+            "--unshare-cgroup-try", "--disable-userns", "--die-with-parent", "--new-session", "--cap-drop", "ALL",
+            "--hostname", "sandbox", "--clearenv"]
+    for key, value in env.items():
+        argv += ["--setenv", key, value]
+    argv += ["--ro-bind", "/usr", "/usr"]
+    for link in ROOT_LINKS:
+        if os.path.islink(link):
+            argv += ["--symlink", os.readlink(link), link]
+        elif os.path.isdir(link):
+            argv += ["--ro-bind", link, link]
+    for path in ETC_FILES:
+        argv += ["--ro-bind-try", path, path]
+    user = f"agent:x:{uid}:{gid}:agent:{SCRATCH_AT}:/usr/sbin/nologin\n"
+    argv += ["--ro-bind-data", _data_fd(user), "/etc/passwd",
+             "--ro-bind-data", _data_fd(f"agent:x:{gid}:\n"), "/etc/group",
+             "--proc", "/proc", "--dev", "/dev",
+             "--perms", "1777", "--size", str(args.tmp), "--tmpfs", "/tmp",
+             "--perms", "1777", "--size", str(args.tmp), "--tmpfs", "/dev/shm",
+             "--perms", "0700", "--size", str(args.scratch), "--tmpfs", SCRATCH_AT]
+    for source, dest in runtime:  # after /tmp: a runtime under /tmp must not be covered by the private one
+        argv += ["--ro-bind", source, dest]
+    argv += ["--ro-bind", package, PACKAGE_AT, "--remount-ro", "/", "--chdir", PACKAGE_AT, "--"]
+    return argv
+
+
+def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="_confine")
-    p.add_argument("--cwd", required=True)
+    p.add_argument("--package", required=True, help="the unpacked agent package (read-only at /agent)")
+    p.add_argument("--runtime", action="append", default=[], help="a folder of the runtime (read-only, same path)")
     for name, _ in _LIMITS:
         p.add_argument(f"--{name}", type=int)
-    p.add_argument("--uid", type=int)
+    p.add_argument("--scratch", type=int, default=256 << 20, help="bytes of /scratch")
+    p.add_argument("--tmp", type=int, default=64 << 20, help="bytes of /tmp and of /dev/shm, each")
+    p.add_argument("--uid", type=int, help="the agent user (needs root): the sandbox runs as this user")
     p.add_argument("--gid", type=int)
+    p.add_argument("--bwrap", help="bubblewrap executable; without it: no namespaces (developer's unsafe mode)")
     p.add_argument("--parent", type=int, help="exit at once unless this is still our parent process")
     p.add_argument("--env", action="append", default=[], help="KEY=VALUE for the agent's environment")
     p.add_argument("command", nargs=argparse.REMAINDER)
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
     command = args.command[1:] if args.command[:1] == ["--"] else args.command
     if not command:
         print("_confine: no command given", file=sys.stderr)
         return 2
+    env = dict(item.split("=", 1) for item in args.env if "=" in item)
     try:
-        os.chdir(args.cwd)
+        if args.bwrap and args.uid is not None:
+            staged = _stage([*args.runtime, args.package])
+            runtime, package = list(zip(staged, args.runtime, strict=False)), staged[-1]
+        else:
+            runtime, package = [(r, r) for r in args.runtime], args.package
         for name, which in _LIMITS:
             value = getattr(args, name)
             if value is not None:
                 _set_limit(which, value, value + 5 if name == "cpu" else value)  # CPU: SIGXCPU, then SIGKILL
-        if args.gid is not None:
-            os.setgroups([])
-            os.setgid(args.gid)
+        with open("/proc/self/oom_score_adj", "w") as f:  # out of memory: the agent goes first, not the worker
+            f.write("1000")
         if args.uid is not None:
+            os.setgroups([])
+            os.setgid(args.gid if args.gid is not None else args.uid)
             os.setuid(args.uid)
         _prctl(PR_SET_NO_NEW_PRIVS, 1)
         _prctl(PR_SET_PDEATHSIG, signal.SIGKILL)  # after setuid: a credential change clears it
         if args.parent is not None and os.getppid() != args.parent:
-            return 3  # the caller is already gone
+            return 3  # the worker is already gone
+        if args.bwrap:
+            command = _bwrap_argv(args, runtime, package, env, os.getuid(), os.getgid()) + command
+            env = {}
+        else:
+            os.chdir(package)
     except OSError as exc:
         print(f"_confine: cannot confine the agent: {exc}", file=sys.stderr)
         return 126
-    env = dict(item.split("=", 1) for item in args.env if "=" in item)
     try:
         os.execvpe(command[0], command, env)
     except OSError as exc:

@@ -8,7 +8,10 @@ out). Per job:
    (it lapsed and another evaluator has the job, or an operator aborted it): the worker is killed and the
    work dropped, nothing is uploaded;
 3. the submission's archive is downloaded (hash-checked), and ``python -m proxybench.evaluator.run`` does
-   the job in its own process group (:mod:`.run`), dying with this process if it is killed;
+   the job in its own process group (:mod:`.run`), dying with this process if it is killed; its outcome
+   comes back through a pipe only it holds, and is taken only from a worker that exited normally (a
+   worker that died is the evaluator's ``error``); artifacts are plain files of the job folder, which
+   only the evaluator's user can enter;
 4. artifacts are uploaded by content hash, then the result is posted, retried through network failures
    (the server stores it exactly once per lease, so a retry after a lost reply is harmless).
 
@@ -25,8 +28,6 @@ import logging
 import os
 import shutil
 import signal
-import subprocess
-import sys
 import threading
 import time
 from dataclasses import asdict, dataclass, field
@@ -39,25 +40,27 @@ from proxybench import __version__
 from proxybench.client import ServerClient, ServerError
 from proxybench.contract import ResultUpload
 from proxybench.evaluator.outcome import Artifact, Outcome
-from proxybench.evaluator.sandbox import Isolation, Limits, detect_isolation
+from proxybench.evaluator.sandbox import AGENT_USER, Isolation, Limits, detect_isolation
+from proxybench.evaluator.worker import Worker, job_artifacts_only, read_plain_file
 
 __all__ = ["Evaluator", "EvaluatorConfig", "Reporter"]
 
 log = logging.getLogger("proxybench.evaluator")
 _MAX_MESSAGE = 100_000
-
-
 @dataclass(frozen=True)
 class EvaluatorConfig:
     """One evaluator's settings. ``features``: what it offers (``sim``, ``target``); ``poll`` [s] between
     lease attempts when the queue is empty; ``robot_cmd``: the robot node that target jobs run on (default:
-    the reality model); ``post_retry_s`` [s]: how long a result upload is retried."""
+    the reality model); ``post_retry_s`` [s]: how long a result upload is retried; ``agent_user``: the
+    unprivileged user agent packages run as; ``dev_unsafe``: the developer's flag that lets them run as the
+    evaluator's own user where that is impossible (every report says so)."""
 
     name: str
     work_dir: Path
     features: tuple[str, ...] = ("sim",)
     poll: float = 2.0
-    sandbox: str = "auto"
+    agent_user: str = AGENT_USER
+    dev_unsafe: bool = False
     limits: Limits = field(default_factory=Limits)
     video: bool = True
     keep_work: bool = False
@@ -123,7 +126,12 @@ class Evaluator:
         self.server, self._token = server, token
         self.client = ServerClient(server, token)
         self.reporter = reporter or Reporter()
-        self.isolation: Isolation = detect_isolation(config.sandbox)
+        self.isolation: Isolation = detect_isolation(config.agent_user, config.dev_unsafe)
+        work = str(config.work_dir.resolve())
+        for root in self.isolation.runtime:
+            if work == root or work.startswith(root.rstrip("/") + "/"):
+                raise RuntimeError(f"work dir {config.work_dir} lies inside {root}, which agents see (the runtime): "
+                                   "choose a work dir elsewhere")
         self._stopping = threading.Event()
         self._wake = threading.Event()
         self.stop_reason = ""
@@ -136,6 +144,9 @@ class Evaluator:
             self._lock.close()
             raise RuntimeError(f"work dir {config.work_dir} is in use by another evaluator; give each evaluator "
                                "its own --name or --work-dir") from None
+        self._spare: Worker | None = None
+        self._keep_spare = False  # run(): start the next job's worker as soon as one is free
+        self._worker_env = {k: v for k, v in os.environ.items() if not k.startswith("PROXYBENCH_TOKEN")}
         for stale in config.work_dir.glob("job-*"):  # left by a killed evaluator: never resumed, the lease is gone
             shutil.rmtree(stale, ignore_errors=True)
 
@@ -157,10 +168,16 @@ class Evaluator:
                   f"; target: robot node {self.config.robot_cmd!r}" if self.config.robot_cmd else
                   "; target: the reality model (a simulated stand-in, no real robot)")
         self.reporter.note(f"evaluator {self.config.name!r} (proxybench {__version__}) → {self.server}; features "
-                           f"{','.join(self.config.features)}{target}; sandbox: {self.isolation.note}")
-        if not self.isolation.blocks_network:
-            log.warning("agents are NOT cut off from the network: %s", self.isolation.note)
+                           f"{','.join(self.config.features)}{target}; sandbox: "
+                           f"{self.isolation.note or 'none (agent packages are refused)'}")
+        if not self.isolation.usable:
+            log.warning("%s; their jobs end in host-error and go to other evaluators", self.isolation.problem)
+        elif not self.isolation.safe:
+            log.warning("%s", self.isolation.note)
         while not self._stopping.is_set():
+            if self._spare is None or not self._spare.ready:
+                self._spare = self._new_worker()  # imports while we wait for a job
+            self._keep_spare = not once
             status = self.take_one()
             if once:
                 break
@@ -171,7 +188,10 @@ class Evaluator:
         return self.jobs_done
 
     def close(self) -> None:
-        """Release the server connection and the work dir."""
+        """Stop the spare worker, release the server connection and the work dir."""
+        if self._spare is not None:
+            self._spare.kill()
+            self._spare = None
         self.client.close()
         if not self._lock.closed:
             self._lock.close()
@@ -211,6 +231,7 @@ class Evaluator:
     def _process(self, lease: dict[str, Any]) -> str:
         job_dir = self.config.work_dir / f"job-{lease['job_id']}-{lease['lease_id'][:8]}"
         job_dir.mkdir(parents=True, exist_ok=True)
+        job_dir.chmod(0o700)  # job.json holds the hidden test seed: the evaluator's user only
         heart_client = ServerClient(self.server, self._token, retry_for=max(1.0, lease["lease_seconds"] / 4))
         heart = _Heartbeat(heart_client, lease, self.config.name, job_dir, self._wake)
         heart.start()
@@ -220,6 +241,8 @@ class Evaluator:
             except OSError as exc:  # e.g. a full disk while preparing the job
                 log.exception("job %s: cannot prepare the job", lease["job_id"])
                 outcome = Outcome("host-error", f"this host cannot prepare the job: {exc}")
+            if self._keep_spare and not self._stopping.is_set() and (self._spare is None or not self._spare.ready):
+                self._spare = self._new_worker()  # the next job's worker imports while this one uploads
             if heart.lost.is_set():
                 self.reporter.job_finished(lease, "lost", f"lease lost, work dropped: {heart.lost_reason}")
                 return "lost"
@@ -249,36 +272,42 @@ class Evaluator:
         if self._stopping.is_set():
             return Outcome("host-error", f"evaluator {self.config.name!r} is shutting down ({self.stop_reason}); "
                                          "job not started")
-        env = {k: v for k, v in os.environ.items() if k != "PROXYBENCH_TOKEN"}
-        with open(job_dir / "worker.log", "wb") as out:
-            proc = subprocess.Popen([sys.executable, "-m", "proxybench.evaluator.run", str(job_dir),
-                                     "--parent", str(os.getpid())], stdin=subprocess.DEVNULL, stdout=out,
-                                    stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        worker = self._spare if self._spare is not None and self._spare.ready else self._new_worker()
+        self._spare = None
+        worker.give(job_dir)
         try:
-            while proc.poll() is None and not heart.lost.is_set() and not self._stopping.is_set():
+            while worker.proc.poll() is None and not heart.lost.is_set() and not self._stopping.is_set():
                 self._wake.wait(0.25)
                 self._wake.clear()  # the events themselves say what happened
                 if heart.progress is not None:
                     self.reporter.job_progress(lease, heart.progress)
         finally:
-            if proc.poll() is None:
-                _kill_group(proc)
+            worker.kill()
+        sent = worker.outcome_text()
         if heart.lost.is_set():
             return Outcome("error", "lease lost")
-        outcome_file = job_dir / "outcome.json"
-        if outcome_file.is_file():
-            return Outcome.read(outcome_file)
+        if sent is not None:
+            try:
+                return job_artifacts_only(Outcome.parse(sent), job_dir)
+            except ValueError as exc:
+                log.error("job %s: the worker's outcome is unusable: %s", lease["job_id"], exc)
         if self._stopping.is_set():
             outcome = Outcome("aborted", f"evaluator {self.config.name!r} was stopped ({self.stop_reason}) while "
                                          "evaluating this job")
         else:
-            tail = (job_dir / "worker.log").read_text(errors="replace").splitlines()[-15:]
-            outcome = Outcome("error", f"evaluator worker died (exit status {proc.returncode}); last output:\n"
-                                       + "\n".join(tail))
+            log_file = job_dir / "worker.log"
+            if not log_file.is_file():  # it died before it took the job
+                log_file = self.config.work_dir / "spare-worker.log"
+            tail = log_file.read_text(errors="replace").splitlines()[-15:] if log_file.is_file() else []
+            outcome = Outcome("error", f"evaluator worker died (exit status {worker.proc.returncode}) without an "
+                                       "outcome; last output:\n" + "\n".join(tail))
         for name, hidden in (("evaluator.log", False), ("evaluator-hidden.log", True), ("worker.log", True)):
             if (job_dir / name).is_file():
                 outcome.artifacts.append(Artifact(name, str(job_dir / name), hidden, "text/plain"))
         return outcome
+
+    def _new_worker(self) -> Worker:
+        return Worker(self.config.work_dir / "spare-worker.log", self._worker_env)
 
     # -- reporting ---------------------------------------------------------------------------------
 
@@ -288,7 +317,7 @@ class Evaluator:
             if heart.lost.is_set():
                 break
             try:
-                sha = self.client.put_artifact(Path(a.path).read_bytes(), a.media_type)
+                sha = self.client.put_artifact(read_plain_file(Path(a.path)), a.media_type)
             except (ServerError, OSError) as exc:
                 notes.append(f"artifact {a.name} not uploaded: {exc}")
                 continue
@@ -338,16 +367,3 @@ class Evaluator:
                     raise
                 log.warning("posting the result of job %s failed (%s); retrying", lease["job_id"], exc)
                 time.sleep(2.0)
-
-
-def _kill_group(proc: subprocess.Popen) -> None:
-    """End the worker and everything it started (agents also die with it: PR_SET_PDEATHSIG)."""
-    with contextlib.suppress(ProcessLookupError, PermissionError):
-        os.killpg(proc.pid, signal.SIGTERM)
-    try:
-        proc.wait(timeout=3)
-    except subprocess.TimeoutExpired:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=10)
-

@@ -10,8 +10,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 __all__ = ["STATUSES", "Artifact", "Fault", "HostFault", "Outcome", "SubmissionFault"]
 
@@ -44,7 +43,7 @@ class Artifact:
 
 @dataclass
 class Outcome:
-    """What the worker hands back to the loop (``outcome.json``)."""
+    """What the worker hands back to the loop, through a pipe only the worker holds."""
 
     status: str
     message: str = ""
@@ -54,25 +53,34 @@ class Outcome:
     hidden_report: dict[str, Any] = field(default_factory=dict)
     artifacts: list[Artifact] = field(default_factory=list)
 
-    def write(self, path: Path) -> None:
-        """Strict JSON (NaN and ±inf anywhere become null: the server accepts nothing else), atomically."""
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(_strict(asdict(self)), indent=1, allow_nan=False, default=str))
-        tmp.replace(path)
+    def send(self, channel: TextIO) -> None:
+        """Write as strict JSON (NaN and ±inf anywhere become null: the server accepts nothing else)."""
+        channel.write(json.dumps(_strict(asdict(self)), allow_nan=False, default=str))
 
     @classmethod
-    def read(cls, path: Path) -> Outcome:
-        data = json.loads(path.read_text())
-        data["artifacts"] = [Artifact(**a) for a in data.get("artifacts", [])]
-        return cls(**data)
+    def parse(cls, text: str) -> Outcome:
+        """The outcome a worker sent; ValueError if it is not a complete, well-formed one."""
+        try:
+            data = json.loads(text)
+            data["artifacts"] = [Artifact(**a) for a in data.get("artifacts", [])]
+            outcome = cls(**data)
+        except (TypeError, KeyError, AttributeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"malformed outcome: {exc}") from None
+        if outcome.status not in STATUSES:
+            raise ValueError(f"unknown status {outcome.status!r}")
+        if not all(isinstance(a.name, str) and isinstance(a.path, str) for a in outcome.artifacts):
+            raise ValueError("artifact names and paths must be strings")
+        return outcome
 
 
 def _strict(value: Any) -> Any:
     if isinstance(value, dict):
-        return {str(k): _strict(v) for k, v in value.items()}
+        return {_strict(str(k)): _strict(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
         return [_strict(v) for v in value]
-    if isinstance(value, bool | int | str) or value is None:
+    if isinstance(value, str):
+        return value.replace("\x00", "\ufffd")  # agent-written text (stderr) may hold NUL: no database takes it
+    if isinstance(value, bool | int) or value is None:
         return value
     try:
         x = float(value)

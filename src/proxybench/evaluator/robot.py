@@ -48,7 +48,7 @@ def check_robot(bench: Benchmark, cmd: str, *, seed: int = 0) -> ComplianceRepor
     spec = bench.domain_params()
     report = ComplianceReport(f"robot node {cmd!r}", robot_domain_kind("unknown"))
     try:
-        with RemoteRobot(cmd, init_timeout=ROBOT_INIT_TIMEOUT_S) as robot:
+        with RemoteRobot(cmd, init_timeout=ROBOT_INIT_TIMEOUT_S, frame_rate=bench.frame_rate) as robot:
             t0 = time.monotonic()
             info = robot.start_episode(load_map(bench.map), seed, seconds=2.0)
             report.domain_kind = robot_domain_kind(info.kind)
@@ -110,7 +110,7 @@ def evaluate_on_robot(bench: Benchmark, spec: AgentSpec, cmd: str, run_dir: Path
     t0 = time.perf_counter()
     if progress:
         progress(0, len(specs))
-    with RemoteRobot(cmd, init_timeout=ROBOT_INIT_TIMEOUT_S) as robot:
+    with RemoteRobot(cmd, init_timeout=ROBOT_INIT_TIMEOUT_S, frame_rate=bench.frame_rate) as robot:
         for ep in specs:
             agent = make_agent_for(spec)
             try:

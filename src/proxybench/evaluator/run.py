@@ -2,8 +2,10 @@
 
 The evaluator loop runs ``python -m proxybench.evaluator.run JOB_DIR --parent PID`` per job, so that it
 can kill the whole job (lease lost, SIGTERM) without killing itself, and so that a crash in the job
-cannot take the evaluator down. The worker reads ``JOB_DIR/job.json``, writes ``progress.json`` as
-episodes finish and ``outcome.json`` at the end; it dies with its parent.
+cannot take the evaluator down. The worker reads ``JOB_DIR/job.json`` and writes ``progress.json`` as
+episodes finish; it sends the outcome through a pipe only it holds (``--outcome-fd``), never a file an
+agent could forge, and dies with its parent. Agent packages run in the sandbox (:mod:`.sandbox`) as
+another user, in their own PID namespace, and see none of the job's folder.
 
 Who is at fault decides the status: :class:`SubmissionFault` (archive refused, agent node crashed, hung
 or misbehaved, privileged agent on a camera-only benchmark) → ``failed``; :class:`HostFault` (this host
@@ -31,6 +33,8 @@ from proxybench.evaluator.outcome import Artifact, Fault, HostFault, Outcome, Su
 __all__ = ["main", "run_job"]
 
 log = logging.getLogger("proxybench.evaluator.job")
+UNSAFE_BANNER = ("UNSAFE SANDBOX: this evaluator ran the agent package outside the agent user's sandbox "
+                 "(developer flag --dev-unsafe-same-user); do not trust this result")
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
@@ -63,6 +67,7 @@ class _Job:
         self.lease = cfg["lease"]
         self.outcome = Outcome("success")
         self.phase = "setup"
+        self.unsafe = False  # an agent package ran outside the safe sandbox (developer's flag)
 
     def progress(self, done: int, total: int) -> None:
         _write_json(self.dir / "progress.json", {"phase": self.phase, "done": done, "total": total})
@@ -102,6 +107,9 @@ class _Job:
                                       f"{bench.name!r} admits camera-only agents")
             log.info("agent: built-in %r (in-process)", name)
             return AgentSpec(name)
+        isolation = sb.Isolation.from_dict(self.cfg["isolation"])
+        if not isolation.usable:  # checked before unpacking: nothing of the stranger's is touched
+            raise HostFault(isolation.problem)
         archive = (self.dir / "agent.archive").read_bytes()
         try:
             manifest = sb.prepare_agent(archive, sub["archive_sha256"], self.dir / "agent")
@@ -109,14 +117,19 @@ class _Job:
             raise SubmissionFault(f"agent archive refused: {exc}") from None
         except sb.ArchiveMismatch as exc:
             raise HostFault(str(exc)) from None
-        isolation = sb.Isolation(**{**self.cfg["isolation"], "prefix": tuple(self.cfg["isolation"]["prefix"])})
         try:
             command = sb.agent_command(manifest, self.dir / "agent", sb.Limits(**self.cfg["limits"]), isolation)
         except sb.SandboxError as exc:
             raise HostFault(str(exc)) from None
-        log.info("agent: package %r (%s), command %s; sandbox: %s", manifest.name, sub["archive_sha256"][:12],
-                 manifest.command, isolation.note)
-        return AgentSpec(manifest.name, command)
+        self.unsafe = not isolation.safe
+        log.log(logging.WARNING if self.unsafe else logging.INFO, "agent: package %r (%s), command %s; sandbox: %s",
+                manifest.name, sub["archive_sha256"][:12], manifest.command, isolation.note)
+        options = manifest.node_options()
+        if options.transport == "fifo":  # the sandbox shows the agent none of the evaluator's folders (for now)
+            log.warning("agent: the manifest asks for transport fifo; agents in the sandbox run over pipes, so "
+                        "what the agent prints to stdout breaks the protocol (print to stderr)")
+            options = options.model_copy(update={"transport": "pipe"})
+        return AgentSpec.node(manifest.name, command, options)
 
     # -- running -----------------------------------------------------------------------------------
 
@@ -145,11 +158,30 @@ class _Job:
                                       privileged=lambda s: s.command is None and ZOO[s.name].privileged,
                                       progress=self.progress)
         except AgentFailure as exc:  # the node could not even be started or handshaken
+            self.check_sandbox([exc.stderr_tail])
             raise SubmissionFault(f"agent node failed in the {split} episodes: {exc}") from None
         except (RobotFailure, RobotLacksGroundTruth) as exc:
             raise HostFault(f"the target robot cannot run this job: {exc}") from None
         except PrivilegedAgentError as exc:
             raise SubmissionFault(str(exc)) from None
+
+    def check_sandbox(self, stderr_tails: list[list[str]]) -> None:
+        """An agent that failed with the sandbox's own words on its stderr: is the sandbox still working here?
+
+        The agent writes its stderr too, so its words decide nothing: the probe (a fresh sandbox running
+        Python) does. Broken → :class:`HostFault` (the job goes to another evaluator); else the agent's fault.
+        """
+        from proxybench.evaluator import sandbox as sb
+
+        if not any(line.startswith(("bwrap:", "_confine:")) for tail in stderr_tails for line in tail[:5]):
+            return
+        isolation = sb.Isolation.from_dict(self.cfg["isolation"])
+        if isolation.kind != "bwrap":
+            return
+        problem = sb.probe(isolation)
+        if problem is not None:
+            raise HostFault(f"the sandbox stopped working on this host: {problem}")
+        log.info("the agent's failure mentions the sandbox, but the sandbox works here: the agent's fault")
 
     def split(self, bench, spec, split: str, target: bool, domain_kind: str, hidden: bool):
         from proxybench.evaluator.report import pack_trajectories, summarize
@@ -172,6 +204,7 @@ class _Job:
                 raise RuntimeError(text + " (our own simulator should never produce this)")
             raise HostFault(text)
         if summary.failures:
+            self.check_sandbox([f.get("stderr_tail") or [] for f in summary.failures])
             if hidden:
                 raise SubmissionFault(f"the agent failed in {len(summary.failures)} hidden test episodes "
                                       "(details are shown to the operators only)")
@@ -224,7 +257,10 @@ class _Job:
         bench = self.benchmark()
         target = "target" in features
         kind = "reality-model" if bench.domain.named == "reality" else "simulation"
-        self.outcome.public_report.update(evaluator=self.cfg["evaluator"], sandbox=self.cfg["isolation"]["note"])
+        from proxybench.evaluator.sandbox import Isolation
+
+        self.outcome.public_report.update(evaluator=self.cfg["evaluator"],
+                                          sandbox=Isolation.from_dict(self.cfg["isolation"]).report())
         if target:
             kind = self.compliance(bench)
         self.outcome.public_report["domain_kind"] = kind
@@ -270,6 +306,8 @@ def run_job(job_dir: Path) -> Outcome:
         outcome.status = "error"
         outcome.message = f"evaluator error (not the submission's fault): {type(exc).__name__}: {exc}"
         outcome.public_scores, outcome.hidden_scores = {}, {}
+    if job.unsafe:
+        outcome.message = f"{UNSAFE_BANNER}\n{outcome.message}"
     log.log(logging.INFO if outcome.status == "success" else logging.WARNING, "outcome %s after %.1f s: %s",
             outcome.status, time.perf_counter() - t0, outcome.message)
     logging.getLogger("proxybench").handlers.clear()
@@ -286,15 +324,51 @@ def _die_with(parent: int) -> None:
         sys.exit(3)
 
 
+def _warm_up() -> None:
+    """Import what every job needs, so that a spare worker starts its job at once."""
+    import proxybench.evaluator.report
+    import proxybench.evaluator.sandbox
+    import proxybench.protocol
+    import proxybench.runner.evaluate  # noqa: F401 - imported for its import time
+
+
+def _wait_for_job() -> Path | None:
+    """A spare worker's job folder, from the evaluator on stdin; its output then goes to the job's worker.log."""
+    line = sys.stdin.readline().strip()
+    if not line:
+        return None  # the evaluator closed without a job for us
+    job_dir = Path(line)
+    fd = os.open(job_dir / "worker.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC, 0o600)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+    return job_dir
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m proxybench.evaluator.run", description=__doc__.splitlines()[0])
-    p.add_argument("job_dir", type=Path)
+    p.add_argument("job_dir", type=Path, nargs="?", help="the job's folder (else: read from stdin, --spare)")
     p.add_argument("--parent", type=int, help="the evaluator's pid: die with it")
+    p.add_argument("--outcome-fd", type=int, help="pipe to the evaluator for the outcome [stdout]")
+    p.add_argument("--spare", action="store_true", help="import everything first, then read the job's folder "
+                                                        "from stdin (started ahead of its job)")
     args = p.parse_args(argv)
     if args.parent is not None and sys.platform.startswith("linux"):
         _die_with(args.parent)
-    outcome = run_job(args.job_dir)
-    outcome.write(args.job_dir / "outcome.json")
+    job_dir = args.job_dir
+    if args.spare:
+        _warm_up()
+        job_dir = _wait_for_job()
+        if job_dir is None:
+            return 0
+    if job_dir is None:
+        p.error("give JOB_DIR or --spare")
+    outcome = run_job(job_dir)
+    with os.fdopen(args.outcome_fd if args.outcome_fd is not None else sys.stdout.fileno(), "w",
+                   closefd=args.outcome_fd is not None) as channel:
+        outcome.send(channel)
     return 0
 
 

@@ -1,25 +1,27 @@
-"""The sandbox an agent package runs in: its own folder, resource limits, no network, no root.
+"""The sandbox an agent package runs in: a dedicated unprivileged user inside bubblewrap.
 
-Submissions are code from strangers, so an evaluator never runs one unconfined. The agent node is started
-through a chain of wrappers, each doing one thing, ending in an ``exec`` of the manifest's command:
+Submissions are code from strangers, so an evaluator never runs one with its own rights. The agent node
+is started through ``_confine.py`` (see there for each step), which ends in ``bwrap`` running the
+manifest's command
 
-1. network isolation, detected once per evaluator (:func:`detect_isolation`): ``bwrap`` (new network,
-   IPC and PID namespaces, the whole file system read-only except the agent's folder, a private
-   ``/tmp``) where it works, else ``unshare`` into a new network namespace (with ``--map-root-user``
-   when not root), else none, with a warning in the log;
-2. ``_confine.py``: working directory, ``RLIMIT_CPU`` / ``AS`` / ``FSIZE`` / ``NPROC`` / ``CORE``, the
-   unprivileged user ``nobody`` when the evaluator runs as root (and ``nobody`` can run this Python),
-   ``no_new_privs``, death with its parent, and a clean environment (no tokens or settings of the
-   evaluator leak into the agent).
+- as the **agent user** (default ``proxybench-agent``, made by ``proxybench sandbox setup``), never as
+  the evaluator's user or root: the evaluator must run as root to switch to it;
+- in new user, PID, network, IPC, UTS and cgroup namespaces, with no capabilities, ``no_new_privs``, no
+  further user namespaces, and the kernel killing it with the job's worker;
+- seeing only ``/usr``, the runtime (this Python, its packages and proxybench, read-only at their own
+  paths, even when they sit in a folder the agent user cannot enter) and its package (read-only at
+  ``/agent``, the working directory), with bounded tmpfs for ``/scratch`` (``$HOME``), ``/tmp`` and
+  ``/dev/shm``;
+- under CPU, address-space, file-size and process limits, with a clean environment.
 
-A network namespace holds only a loopback device that is down, so the agent can reach nothing, not even
-the evaluator's own host. ``python`` / ``python3`` as the command's program mean the evaluator's own
-interpreter (the one proxybench is installed in), since there are no container images here.
+Where this cannot be done (no bubblewrap, no user namespaces, no agent user, an evaluator that is not
+root) agent packages are refused with a message naming the fix (:attr:`Isolation.problem`), unless the
+developer's flag ``dev_unsafe`` allows agents to run as the evaluator's own user; every report of such a
+job says so. ``python`` / ``python3`` as the command's program mean the evaluator's own interpreter.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import hashlib
 import logging
@@ -27,24 +29,26 @@ import os
 import pwd
 import shlex
 import shutil
+import stat
 import subprocess
 import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from proxybench.agents.package import AgentManifest, PackageError, extract_archive
 
 __all__ = [
-    "ISOLATIONS", "ArchiveMismatch", "Isolation", "Limits", "SandboxError", "agent_command", "confine",
-    "detect_isolation", "prepare_agent",
+    "AGENT_USER", "ArchiveMismatch", "Isolation", "Limits", "SandboxError", "agent_command", "confine",
+    "detect_isolation", "prepare_agent", "probe", "runtime_paths",
 ]
 
 log = logging.getLogger("proxybench.evaluator")
 
-ISOLATIONS = ("auto", "bwrap", "unshare", "none")
+AGENT_USER = "proxybench-agent"
 _SHIM = Path(__file__).with_name("_confine.py")
-_NOBODY = 65534
+SETUP_HINT = "run `proxybench sandbox setup` as root"
 
 
 class SandboxError(RuntimeError):
@@ -57,99 +61,162 @@ class ArchiveMismatch(RuntimeError):
 
 @dataclass(frozen=True)
 class Limits:
-    """Resource limits of one agent process. ``cpu_seconds`` [s of CPU time], sizes [bytes];
-    ``processes``: threads/processes the agent may add to those its user already runs."""
+    """Resource limits of one agent sandbox. ``cpu_seconds`` [s of CPU time per process]; ``memory_bytes``
+    [address space per process]; ``file_bytes`` [largest file]; ``processes``: threads/processes the agent
+    may add to those its user already runs; ``scratch_bytes`` [/scratch]; ``tmp_bytes`` [/tmp and /dev/shm,
+    each]."""
 
     cpu_seconds: int = 600
     memory_bytes: int = 4 << 30
     file_bytes: int = 256 << 20
     processes: int = 256
+    scratch_bytes: int = 256 << 20
+    tmp_bytes: int = 64 << 20
 
 
 @dataclass(frozen=True)
 class Isolation:
-    """How agents are cut off: ``kind`` is ``bwrap``, ``unshare`` or ``none`` (network); ``drop_root``: a root
-    evaluator runs agents as ``nobody`` (off when ``nobody`` cannot run this Python, e.g. it lives in /root)."""
+    """How agent packages run on this host.
+
+    ``kind``: ``bwrap`` (namespaces), ``none`` (developer's unsafe mode without bubblewrap) or
+    ``unavailable`` (agent packages are refused: :attr:`problem` says why and what to do). ``uid`` /
+    ``gid``: the agent user the sandbox switches to (None: the evaluator's own user). ``safe``: agents run
+    as the dedicated unprivileged user in bubblewrap. ``runtime``: folders the agent sees read-only;
+    ``pythonpath``: where it imports proxybench from.
+    """
 
     kind: str
-    prefix: tuple[str, ...] = ()
+    user: str
+    uid: int | None = None
+    gid: int | None = None
+    safe: bool = False
     note: str = ""
-    drop_root: bool = True
+    problem: str = ""
+    bwrap: str | None = None
+    runtime: tuple[str, ...] = ()
+    pythonpath: str = ""
+
+    @property
+    def usable(self) -> bool:
+        return self.kind != "unavailable"
 
     @property
     def blocks_network(self) -> bool:
-        return self.kind != "none"
+        return self.kind == "bwrap"
+
+    def report(self) -> dict[str, Any]:
+        """What every job report says about the sandbox."""
+        return {"kind": self.kind, "user": self.user, "safe": self.safe, "note": self.note or self.problem}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Isolation:
+        return cls(**{**data, "runtime": tuple(data.get("runtime", ()))})
 
 
-def _bwrap_prefix(folder: str) -> tuple[str, ...]:
-    caps = ("--cap-add", "CAP_SETUID", "--cap-add", "CAP_SETGID") if os.geteuid() == 0 else ()  # to drop root
-    return ("bwrap", "--die-with-parent", "--unshare-net", "--unshare-ipc", "--unshare-pid", *caps,
-            "--ro-bind", "/", "/", "--dev", "/dev", "--proc", "/proc", "--tmpfs", "/tmp", "--bind", folder, folder,
-            "--")
+def runtime_paths() -> tuple[tuple[str, ...], str]:
+    """(folders the agent's Python needs, PYTHONPATH): this interpreter's prefixes and the proxybench package.
+
+    Only these are shown to the agent, never the folders around them (a repository checkout may hold a
+    server's database beside ``src/``). ``/usr`` is always visible and not listed.
+    """
+    import proxybench
+
+    package = Path(proxybench.__file__).resolve().parent
+    wanted = [os.path.abspath(p) for p in (sys.prefix, sys.exec_prefix, sys.base_prefix, sys.base_exec_prefix)]
+    interpreter = os.path.realpath(sys.executable)
+    if not any(_under(interpreter, w) for w in wanted):
+        wanted.append(os.path.dirname(interpreter))
+    roots: list[str] = []
+    for path in sorted(set(wanted), key=len):
+        if not _under(path, "/usr") and not any(_under(path, r) for r in roots) and os.path.isdir(path):
+            roots.append(path)
+    if any(_under(str(package), r) or _under(str(package), "/usr") for r in roots):
+        return tuple(roots), ""
+    return (*roots, str(package)), str(package.parent)
 
 
-def _candidates(prefer: str) -> list[Isolation]:
-    out = []
-    if prefer in ("auto", "bwrap") and shutil.which("bwrap"):
-        out.append(Isolation("bwrap", (), "bubblewrap: no network, read-only file system but the agent folder"))
-    if prefer in ("auto", "unshare") and shutil.which("unshare"):
-        prefix = ("unshare", "--net") if os.geteuid() == 0 else ("unshare", "--net", "--map-root-user")
-        out.append(Isolation("unshare", (*prefix, "--"), f"{' '.join(prefix)}: a network namespace, no devices"))
-    return out
+def _under(path: str, root: str) -> bool:
+    return path == root or path.startswith(root.rstrip("/") + "/")
 
 
-def _works(isolation: Isolation) -> bool:
-    """Whether the whole chain (isolation, limits, user switch) runs this Python here."""
+def _agent_ids(agent_user: str) -> tuple[int, int] | str:
+    """(uid, gid) of the agent user, or why it cannot be used."""
+    try:
+        pw = pwd.getpwnam(agent_user)
+    except KeyError:
+        return (f"the agent user {agent_user!r} does not exist: {SETUP_HINT} (it runs `useradd --system "
+                f"--user-group --no-create-home --shell /usr/sbin/nologin {agent_user}`)")
+    if pw.pw_uid == 0 or pw.pw_gid == 0:
+        return f"the agent user {agent_user!r} is root (uid or gid 0): agents must run as an unprivileged user"
+    if pw.pw_uid == os.geteuid():
+        return f"the agent user {agent_user!r} is the evaluator's own user: give agents a user of their own"
+    return pw.pw_uid, pw.pw_gid
+
+
+def _whoami() -> str:
+    try:
+        return pwd.getpwuid(os.geteuid()).pw_name
+    except KeyError:
+        return f"uid {os.geteuid()}"
+
+
+def probe(isolation: Isolation) -> str | None:
+    """Run ``python3 -c 'import proxybench.protocol'`` through the whole chain; None if it works, else why not."""
+    code = "import os, proxybench.protocol; open(os.path.join(os.environ['HOME'], 'w'), 'w').write('ok')"
     with tempfile.TemporaryDirectory(prefix="proxybench-probe-") as folder:
-        os.chmod(folder, 0o755)
+        os.chmod(folder, 0o755)  # a package folder, as prepare_agent leaves it
         try:
-            argv = confine(["python3", "-c", "pass"], folder, Limits(), isolation)
-            return subprocess.run(argv, capture_output=True, timeout=30).returncode == 0
-        except (OSError, subprocess.SubprocessError, SandboxError):
-            return False
-
-
-def _working(candidate: Isolation) -> Isolation | None:
-    """The candidate as it works here: as ``nobody`` if possible, else keeping the evaluator's user."""
-    if os.geteuid() == 0 and _works(candidate):
-        return candidate
-    kept = dataclasses.replace(candidate, drop_root=False)
-    if _works(kept):
-        if os.geteuid() == 0:
-            log.warning("user 'nobody' cannot run %s here: agents run as root (inside %s)", sys.executable,
-                        candidate.kind)
-            return dataclasses.replace(kept, note=kept.note + "; agents run as root (nobody cannot run Python)")
-        return kept
-    return None
+            argv = confine(["python3", "-c", code], folder, Limits(), isolation, parent=None)
+            done = subprocess.run(argv, capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+        except (OSError, subprocess.SubprocessError, SandboxError) as exc:
+            return str(exc)
+    if done.returncode == 0:
+        return None
+    tail = " / ".join(done.stderr.strip().splitlines()[-3:]) or f"exit status {done.returncode}"
+    if "namespace" in tail or "Operation not permitted" in tail:
+        tail += (" (the kernel refuses unprivileged user namespaces? allow them: sysctl "
+                 "kernel.unprivileged_userns_clone=1 and user.max_user_namespaces>0, or the AppArmor "
+                 "restriction kernel.apparmor_restrict_unprivileged_userns=0)")
+    return f"the sandbox does not start here: {tail}"
 
 
 @functools.cache
-def detect_isolation(prefer: str = "auto") -> Isolation:
-    """The network isolation that works on this host, probed once by running ``true`` through it.
+def detect_isolation(agent_user: str = AGENT_USER, dev_unsafe: bool = False) -> Isolation:
+    """How this host runs agent packages, probed once by starting Python in the sandbox.
 
-    ``prefer``: ``auto`` (bwrap, then unshare, then none) or one kind; ``none`` when nothing works.
+    The safe way (root evaluator, agent user, working bubblewrap) or, when it is impossible: with
+    ``dev_unsafe``, bubblewrap as the evaluator's own user, else no isolation at all (both reported as
+    unsafe); without it ``kind == "unavailable"`` and :attr:`Isolation.problem` says what to do.
     """
-    if prefer not in ISOLATIONS:
-        raise ValueError(f"sandbox must be one of {', '.join(ISOLATIONS)}, got {prefer!r}")
-    for candidate in _candidates(prefer):
-        found = _working(candidate)
-        if found is not None:
-            return found
-        log.warning("%s is installed but does not work here (user namespaces refused?)", candidate.kind)
-    note = ("network isolation switched off (--sandbox none)" if prefer == "none"
-            else "no working bwrap or unshare: agents CAN reach the network")
-    return _working(Isolation("none", (), note)) or Isolation("none", (), note, drop_root=False)
-
-
-def _drop_to() -> tuple[int, int] | None:
-    """(uid, gid) of ``nobody`` when this evaluator runs as root, else None (nothing to drop)."""
+    runtime, pythonpath = runtime_paths()
+    bwrap = shutil.which("bwrap")
+    common = {"runtime": runtime, "pythonpath": pythonpath}
     if os.geteuid() != 0:
-        return None
-    try:
-        pw = pwd.getpwnam("nobody")
-        return pw.pw_uid, pw.pw_gid
-    except KeyError:
-        return _NOBODY, _NOBODY
+        problem = (f"this evaluator runs as {_whoami()!r}, not root, so it cannot start agents as the unprivileged "
+                   f"user {agent_user!r}: run it as root (it drops to {agent_user!r} for agents only; {SETUP_HINT} "
+                   "first)")
+    elif isinstance(ids := _agent_ids(agent_user), str):
+        problem = ids
+    elif bwrap is None:
+        problem = "bubblewrap is not installed: apt-get install bubblewrap (Debian/Ubuntu), dnf install bubblewrap"
+    else:
+        safe = Isolation("bwrap", agent_user, ids[0], ids[1], True, f"bubblewrap as user {agent_user!r}: no network, "
+                         "no other processes, read-only runtime and package, bounded scratch", bwrap=bwrap, **common)
+        problem = probe(safe)
+        if problem is None:
+            return safe
+    if not dev_unsafe:
+        return Isolation("unavailable", agent_user, problem=f"agent packages cannot run safely here: {problem}",
+                         **common)
+    me = _whoami()
+    log.warning("UNSAFE developer mode: %s; agents run as %r", problem, me)
+    if bwrap is not None:
+        same = Isolation("bwrap", me, safe=False, bwrap=bwrap, note=f"UNSAFE developer mode: agents run as the "
+                         f"evaluator's user {me!r} in bubblewrap (no network, read-only view); {problem}", **common)
+        if probe(same) is None:
+            return same
+    return Isolation("none", me, note=f"UNSAFE developer mode: agents run as the evaluator's user {me!r} with no "
+                     f"isolation at all (network, files, processes); {problem}", **common)
 
 
 def _tasks_of(uid: int) -> int:
@@ -169,63 +236,74 @@ def _tasks_of(uid: int) -> int:
     return n
 
 
-def _agent_env(folder: str) -> dict[str, str]:
-    tmp = os.path.join(folder, ".tmp")
-    env = {"PATH": os.environ.get("PATH", "/usr/local/bin:/usr/bin:/bin"), "HOME": folder, "TMPDIR": tmp,
-           "LANG": "C.UTF-8", "PYTHONUNBUFFERED": "1", "PYTHONDONTWRITEBYTECODE": "1",
-           "MPLCONFIGDIR": os.path.join(tmp, "mpl")}
+def _agent_env(isolation: Isolation, folder: str) -> dict[str, str]:
+    home, tmp = ("/scratch", "/tmp") if isolation.kind == "bwrap" else (folder, os.path.join(folder, ".tmp"))
+    path = os.pathsep.join(dict.fromkeys([os.path.dirname(os.path.abspath(sys.executable)), "/usr/local/bin",
+                                          "/usr/bin", "/bin"]))
+    env = {"PATH": path, "HOME": home, "TMPDIR": tmp, "USER": "agent", "LOGNAME": "agent", "LANG": "C.UTF-8",
+           "PYTHONUNBUFFERED": "1", "PYTHONDONTWRITEBYTECODE": "1", "MPLCONFIGDIR": f"{home}/.matplotlib",
+           "NUMBA_CACHE_DIR": f"{home}/.numba"}
+    if isolation.pythonpath:
+        env["PYTHONPATH"] = isolation.pythonpath
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
         env[var] = "1"  # one evaluator, one core: the agent should not start a thread per core
     return env
 
 
 def confine(argv: list[str], folder: str | Path, limits: Limits, isolation: Isolation, *,
-            extra_env: dict[str, str] | None = None) -> list[str]:
-    """The command line that runs ``argv`` in ``folder`` inside the sandbox.
+            extra_env: dict[str, str] | None = None, parent: int | None = -1) -> list[str]:
+    """The command line that runs ``argv`` (from the package ``folder``) inside the sandbox.
 
-    ``python`` / ``python3`` as ``argv[0]`` become this interpreter. ``folder`` must exist; when the
-    evaluator is root and ``isolation.drop_root``, it is handed to ``nobody`` (who then runs the agent).
+    ``python`` / ``python3`` as ``argv[0]`` become this interpreter. ``parent``: the process that will
+    start it (default: this one); the shim exits if it is already gone. Raises :class:`SandboxError`
+    when ``isolation`` cannot run agents.
     """
+    if not isolation.usable:
+        raise SandboxError(isolation.problem)
     folder = str(Path(folder).resolve())
     argv = list(argv)
     if argv and argv[0] in ("python", "python3"):
-        argv[0] = sys.executable
-    owner = _drop_to() if isolation.drop_root else None
-    tmp = Path(folder, ".tmp")
-    tmp.mkdir(exist_ok=True)
-    if owner is not None:
-        for parent in Path(folder).parents:
-            if not parent.stat().st_mode & 0o001:
-                raise SandboxError(f"{parent} is not searchable by other users, so the unprivileged agent user "
-                                   f"cannot reach {folder}; choose a work dir under /tmp or chmod o+x {parent}")
-        for path in [Path(folder), *Path(folder).rglob("*")]:
-            os.chown(path, *owner, follow_symlinks=False)
-    nproc = _tasks_of(owner[0] if owner else os.getuid()) + limits.processes
-    shim = [sys.executable, "-I", "-S", str(_SHIM), "--cwd", folder, "--cpu", str(limits.cpu_seconds),
-            "--memory", str(limits.memory_bytes), "--fsize", str(limits.file_bytes), "--nproc", str(nproc),
-            "--core", "0"]
-    if owner is not None:
-        shim += ["--uid", str(owner[0]), "--gid", str(owner[1])]
-    if isolation.kind != "bwrap":
-        shim += ["--parent", str(os.getpid())]  # unshare execs: the shim's parent is this process
-    for key, value in {**_agent_env(folder), **(extra_env or {})}.items():
+        argv[0] = os.path.abspath(sys.executable)
+    if isolation.kind == "none":
+        Path(folder, ".tmp").mkdir(exist_ok=True)
+    uid = isolation.uid if isolation.uid is not None else os.getuid()
+    shim = [sys.executable, "-I", "-S", str(_SHIM), "--package", folder, "--cpu", str(limits.cpu_seconds),
+            "--memory", str(limits.memory_bytes), "--fsize", str(limits.file_bytes), "--core", "0",
+            "--nproc", str(_tasks_of(uid) + limits.processes), "--scratch", str(limits.scratch_bytes),
+            "--tmp", str(limits.tmp_bytes)]
+    if isolation.kind == "bwrap":
+        shim += ["--bwrap", str(isolation.bwrap)]
+        for path in isolation.runtime:
+            shim += ["--runtime", path]
+    if isolation.uid is not None:
+        shim += ["--uid", str(isolation.uid), "--gid", str(isolation.gid)]
+    if parent is not None:
+        shim += ["--parent", str(os.getpid() if parent == -1 else parent)]
+    for key, value in {**_agent_env(isolation, folder), **(extra_env or {})}.items():
         shim += ["--env", f"{key}={value}"]
-    prefix = list(_bwrap_prefix(folder)) if isolation.kind == "bwrap" else list(isolation.prefix)
-    return [*prefix, *shim, "--", *argv]
+    return [*shim, "--", *argv]
 
 
 def prepare_agent(archive: bytes, sha256: str, dest: Path, *, max_bytes: int | None = None) -> AgentManifest:
     """Check an agent archive against its expected hash and :func:`check_archive`, unpack it into ``dest``.
 
-    Raises :class:`PackageError` naming what is wrong (the submission's fault), or
-    :class:`ArchiveMismatch`.
+    The files are left readable (not writable) by every user and lose any set-id bits, so the agent
+    user can read its package through the read-only view. Raises :class:`PackageError` naming what is
+    wrong (the submission's fault), or :class:`ArchiveMismatch`.
     """
     got = hashlib.sha256(archive).hexdigest()
     if got != sha256:
         raise ArchiveMismatch(f"archive hash is {got}, not the submitted {sha256}: refusing to run it")
     if max_bytes is not None and len(archive) > max_bytes:
         raise PackageError(f"archive is {len(archive)} bytes; this evaluator accepts at most {max_bytes}")
-    return extract_archive(archive, dest)
+    manifest = extract_archive(archive, dest)
+    for path in [dest, *dest.rglob("*")]:
+        st = path.lstat()
+        if stat.S_ISDIR(st.st_mode):
+            path.chmod(0o755)
+        elif stat.S_ISREG(st.st_mode):
+            path.chmod(0o755 if st.st_mode & 0o111 else 0o644)
+    return manifest
 
 
 def agent_command(manifest: AgentManifest, folder: Path, limits: Limits, isolation: Isolation) -> str:

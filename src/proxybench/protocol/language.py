@@ -2,7 +2,7 @@
 
 Agent: ``(in:seed)? ; ((in:episode_start ; ((in:observations | (in:get_commands ; out:commands))*))*)``
 
-Robot: the part of AIDO's ``protocol_simulator`` a single-robot node speaks (see :data:`ROBOT_LANGUAGE`).
+Robot: AIDO's ``protocol_simulator`` (see :data:`ROBOT_LANGUAGE`).
 
 Every input is answered before the next one is read, so each language reduces to a small state machine
 over inputs plus, per input, the outputs its answer must hold. Meta topics (``wrapper.*``) are outside the
@@ -44,19 +44,22 @@ META_REPLIES: dict[str, frozenset[str]] = {
 #: every topic a node may write: the agent protocol's output, the meta outputs, and the meta ``aborted``
 NODE_OUTPUTS = frozenset({"commands", "aborted"}.union(*META_REPLIES.values()))
 
-#: the subset of AIDO's protocol_simulator language a single-robot node speaks (no duckies, dumps, UI images)
+#: AIDO's protocol_simulator language (as zuper writes it), which the robot node speaks whole
 ROBOT_LANGUAGE = (
-    "(in:seed)? ; ((in:clear ; in:set_map ; (in:spawn_robot)* ; (in:get_robot_interface_description ; "
-    "out:robot_interface_description)* ; in:episode_start ; (in:step | in:set_robot_commands | "
-    "(in:get_robot_observations ; out:robot_observations) | (in:get_robot_performance ; out:robot_performance) | "
-    "(in:get_robot_state ; out:robot_state) | (in:get_sim_state ; out:sim_state))*)*)"
+    "(in:seed)? ; ((in:clear ; in:set_map ; ((in:spawn_robot | in:spawn_duckie)*) ; "
+    "((in:get_robot_interface_description ; out:robot_interface_description)*) ; in:episode_start ; "
+    "((in:step | in:set_robot_commands | (in:get_robot_observations ; out:robot_observations) | "
+    "(in:get_robot_performance ; out:robot_performance) | (in:get_robot_state ; out:robot_state) | "
+    "(in:get_duckie_state ; out:duckie_state) | (in:get_sim_state ; out:sim_state) | (in:dump_state ; "
+    "out:state_dump) | (in:get_ui_image ; out:ui_image))*))*)"
 )
 #: robot input → the outputs its answer holds, in order (each exactly once)
 ROBOT_REPLIES: dict[str, tuple[str, ...]] = {
-    "seed": (), "clear": (), "set_map": (), "spawn_robot": (), "episode_start": (), "step": (),
+    "seed": (), "clear": (), "set_map": (), "spawn_robot": (), "spawn_duckie": (), "episode_start": (), "step": (),
     "set_robot_commands": (), "get_robot_interface_description": ("robot_interface_description",),
     "get_robot_observations": ("robot_observations",), "get_robot_performance": ("robot_performance",),
-    "get_robot_state": ("robot_state",), "get_sim_state": ("sim_state",),
+    "get_robot_state": ("robot_state",), "get_duckie_state": ("duckie_state",), "get_sim_state": ("sim_state",),
+    "dump_state": ("state_dump",), "get_ui_image": ("ui_image",),
 }
 ROBOT_INPUTS = tuple(sorted(ROBOT_REPLIES))
 #: every topic a robot node may write: its data outputs, the meta outputs, and the meta ``aborted``
@@ -105,20 +108,20 @@ class AgentLanguage(Language):
 
 
 class RobotLanguage(Language):
-    """The robot language: (seed) → per episode clear, set_map, spawn_robot*, describe*, episode_start, then
-    commands, steps and queries until the next clear."""
+    """The robot language: (seed) → per episode clear, set_map, spawn_robot / spawn_duckie*, describe*,
+    episode_start, then commands, steps and queries until the next clear."""
 
     _EPISODE = ("clear", "step", "set_robot_commands", "get_robot_observations", "get_robot_performance",
-                "get_robot_state", "get_sim_state")
+                "get_robot_state", "get_duckie_state", "get_sim_state", "dump_state", "get_ui_image")
     ALLOWED: ClassVar[dict[str, tuple[str, ...]]] = {
         "start": ("seed", "clear"),
         "seeded": ("clear",),
         "cleared": ("set_map",),
-        "mapped": ("spawn_robot", "get_robot_interface_description", "episode_start"),
+        "mapped": ("spawn_robot", "spawn_duckie", "get_robot_interface_description", "episode_start"),
         "described": ("get_robot_interface_description", "episode_start"),
         "episode": _EPISODE,
     }
     NEXT: ClassVar[dict[str, str]] = {
-        "seed": "seeded", "clear": "cleared", "set_map": "mapped", "spawn_robot": "mapped",
+        "seed": "seeded", "clear": "cleared", "set_map": "mapped", "spawn_robot": "mapped", "spawn_duckie": "mapped",
         "get_robot_interface_description": "described", "episode_start": "episode",
     }

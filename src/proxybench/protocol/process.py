@@ -12,10 +12,10 @@ attributes); :class:`AgentProcess` speaks the agent protocol, :class:`~.robot_pr
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import select
-import shlex
 import time
 import weakref
 from collections.abc import Callable, Sequence
@@ -37,13 +37,20 @@ from proxybench.protocol.language import (
     AgentLanguage,
     Language,
 )
-from proxybench.protocol.transport import Launch
+from proxybench.protocol.transport import Launch, node_argv
 
-__all__ = ["AgentProcess", "NodeProcess", "NodeSession"]
+__all__ = ["AgentProcess", "NodeProcess"]
+
+log = logging.getLogger("proxybench.protocol")
 
 _IN = select.POLLIN | select.POLLPRI | select.POLLHUP | select.POLLERR
-# let a node that is ending anyway end by itself, so its own exit status is reported
-_GRACE = {"aborted": 0.5, "not-understood": 0.5, "exited": 1.0, "truncated": 1.0}
+_TRANSPORTS = {"pipe": "pipes", "fifo": "fifos"}
+#: how describe_protocol may fail for a node whose data path works: then start it again without reflection
+_REFLECTION_FALLBACK = frozenset({"aborted", "not-understood", "exited", "out-of-order", "bad-message",
+                                  "unknown-topic", "garbage", "not-a-map", "truncated"})
+# let a node that is ending anyway end by itself, so its own exit status is reported (a Python node's exit
+# takes ~0.5 s on a loaded machine)
+_GRACE = {"aborted": 1.0, "not-understood": 1.0, "exited": 1.0, "truncated": 1.0}
 
 
 @dataclass(frozen=True)
@@ -59,11 +66,16 @@ class _Plan:
 class NodeProcess:
     """A node in a child process, started and handshaken on construction; the protocol-independent part.
 
-    ``cmd`` is an argv list or a string split like a shell would (no shell features). ``transport``:
-    ``"pipes"`` (stdin/stdout) or ``"fifos"`` (``AIDONODE_DATA_IN`` / ``AIDONODE_DATA_OUT=fifo:``, as AIDO
-    runs nodes). ``env`` is added to the inherited environment. ``init_timeout`` bounds start + handshake
-    and each setup or meta request; ``step_timeout`` bounds each per-frame request. ``on_stderr(line)`` is
-    called from the stderr drain thread for each line the node writes there.
+    ``cmd`` is an argv list, or a string: run through ``/bin/sh -c`` when it uses shell syntax (``cd dir &&
+    exec node``; ``shell`` forces either way), else split like a shell would. ``cwd``: its working
+    directory. ``transport``: ``"pipes"`` (stdin/stdout) or ``"fifos"`` (AIDO's way:
+    ``AIDONODE_DATA_IN`` / ``AIDONODE_DATA_OUT=fifo:``, so the node's stdout stays free for its prints;
+    ``fifo_dir``: where the FIFOs are made, e.g. a folder a container mounts); ``"pipe"`` / ``"fifo"`` are
+    accepted too. ``env`` is added to the inherited environment. ``init_timeout`` bounds start + handshake
+    and each setup or meta request; ``step_timeout`` bounds each per-frame request. ``reflection=False``
+    skips ``describe_protocol``; with True, a node that fails that request (the zuper-nodes wrapper on
+    Python ≥ 3.11 aborts on it) is started again once without it, and :attr:`reflection_note` says why.
+    ``on_stderr(line)`` is called from the stderr drain thread for each line the node writes there.
 
     Subclasses set the protocol: ``language_class``, ``data_replies`` (input → outputs of its answer),
     ``node_outputs`` (every topic the node may write), ``required_inputs`` / ``required_outputs`` (what its
@@ -79,15 +91,33 @@ class NodeProcess:
 
     def __init__(self, cmd: str | Sequence[str], *, init_timeout: float = 30.0, step_timeout: float = 5.0,
                  transport: str = "pipes", env: dict[str, str] | None = None, cwd: str | None = None,
+                 reflection: bool = True, shell: bool | None = None, fifo_dir: str | None = None,
                  max_reply_bytes: int = 8 << 20, max_reply_messages: int = 1000,
                  max_stderr_bytes: int = 4 << 20, stderr_lines: int = 50, close_timeout: float = 2.0,
                  on_stderr: Callable[[str], None] | None = None):
+        transport = _TRANSPORTS.get(transport, transport)
         if transport not in ("pipes", "fifos"):
-            raise ValueError(f"transport must be 'pipes' or 'fifos', not {transport!r}")
-        self.argv = shlex.split(cmd) if isinstance(cmd, str) else [str(a) for a in cmd]
+            raise ValueError(f"transport must be 'pipe' or 'fifo', not {transport!r}")
+        for name, value in (("init_timeout", init_timeout), ("step_timeout", step_timeout)):
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number of seconds, not {value!r}")
+        self.cmd = cmd
+        try:
+            self.argv = node_argv(cmd, shell)
+        except ValueError as exc:
+            raise self.failure_class("start-failed", f"cannot start {cmd!r}: {exc}") from None
         self.init_timeout, self.step_timeout, self.close_timeout = init_timeout, step_timeout, close_timeout
         self.max_reply_bytes, self.max_reply_messages = max_reply_bytes, max_reply_messages
         self.max_stderr_bytes = max_stderr_bytes
+        self.reflection = reflection
+        #: why the protocol description is missing although reflection was asked for (None: it is not)
+        self.reflection_note: str | None = None
+        self._launch_args = {"transport": transport, "env": env, "cwd": cwd, "stderr_lines": stderr_lines,
+                             "on_stderr": on_stderr, "fifo_dir": fifo_dir}
+        self._start(reflection)
+
+    def _start(self, reflect: bool) -> None:
+        """Launch the command and handshake (with ``describe_protocol`` when ``reflect`` and offered)."""
         self.language = self.language_class()
         self.failure: NodeFailure | None = None
         self.capabilities: dict = {}
@@ -95,16 +125,20 @@ class NodeProcess:
         self._closed = False
         self._stream = wire.CborStream()
         self._req_bytes = self._req_msgs = 0
-        deadline = time.monotonic() + init_timeout
+        self._stderr_tail: list[str] | None = None
+        deadline = time.monotonic() + self.init_timeout
+        cwd = self._launch_args["cwd"]
+        if cwd is not None and not os.path.isdir(cwd):
+            raise self.failure_class("start-failed", f"cannot start {self.cmd!r}: working directory {cwd!r} "
+                                                     f"does not exist")
         try:
-            self._os = Launch(self.argv, transport=transport, env=env, cwd=cwd, stderr_lines=stderr_lines,
-                              on_stderr=on_stderr)
+            self._os = Launch(self.argv, **self._launch_args)
         except OSError as exc:
             raise self.failure_class("start-failed", f"cannot start {self.argv!r}: {exc}") from exc
         self._finalizer = weakref.finalize(self, self._os.kill_quietly)
         self._poll = select.poll()
         self._await_output(deadline)
-        self._handshake(deadline)
+        self._handshake(deadline, reflect)
 
     # --------------------------------------------------------------------------------- public API
     @property
@@ -161,19 +195,33 @@ class NodeProcess:
             if fd is not None:
                 self._poll.register(fd, _IN)
 
-    def _handshake(self, deadline: float) -> None:
+    def _handshake(self, deadline: float, reflect: bool) -> None:
         plan = _Plan("capabilities", capabilities=True)
         self._request(wire.encode_control(wire.CTRL_CAPABILITIES, wire.CAPABILITIES), [plan], deadline,
                       "init-timeout")
-        if not (self.capabilities.get("z2") or {}).get("protocol-reflection"):
+        if not reflect or not (self.capabilities.get("z2") or {}).get("protocol-reflection"):
             self._described()
             return
         plan = _Plan("wrapper.describe_protocol", any_of=META_REPLIES["describe_protocol"])
-        (reply,) = self._request(wire.encode_topic("wrapper.describe_protocol", None), [plan], deadline,
-                                 "init-timeout")
+        try:
+            (reply,) = self._request(wire.encode_topic("wrapper.describe_protocol", None), [plan], deadline,
+                                     "init-timeout")
+        except NodeFailure as exc:
+            if exc.reason not in _REFLECTION_FALLBACK:
+                raise
+            self._reflection_failed(exc)
+            return
         self.description = reply[0].data
         self._check_compatible()
         self._described()
+
+    def _reflection_failed(self, exc: NodeFailure) -> None:
+        """The node could not describe its protocol (and is gone): start it again and do without."""
+        first = next((line for line in exc.detail.splitlines() if line.strip()), exc.detail)
+        self.reflection_note = (f"describe_protocol failed ({exc.reason}: {first.strip()[:200]}); the node was "
+                                f"started again without protocol reflection")
+        log.warning("node %r: %s", self.cmd, self.reflection_note)
+        self._start(reflect=False)
 
     def _described(self) -> None:
         """Hook after the handshake: :attr:`description` is the node's protocol description (None without
@@ -287,7 +335,11 @@ class NodeProcess:
             try:
                 obj = self._stream.next()
             except wire.WireError as exc:
-                self._fail(exc.reason, str(exc))
+                hint = ""
+                if str(exc).startswith("text where") and self._os.transport == "pipes":
+                    hint = (" (the node prints to stdout, which is the protocol stream over pipes: start it with "
+                            "transport 'fifo', AIDO's default, or print to stderr)")
+                self._fail(exc.reason, str(exc) + hint)
             if obj is not None:
                 self._req_msgs += 1
                 if self._req_msgs > self.max_reply_messages:
@@ -363,7 +415,7 @@ class NodeProcess:
 
     # ------------------------------------------------------------------------------- failing
     def _finish_stderr(self) -> list[str]:
-        if getattr(self, "_stderr_tail", None) is None:
+        if self._stderr_tail is None:
             self._stderr_tail = self._os.stderr.finish()
         return self._stderr_tail
 
@@ -374,34 +426,6 @@ class NodeProcess:
         self.failure = self.failure_class(reason, detail, code, self._finish_stderr(), pid=self._os.pid)
         self._finalizer.detach()
         raise self.failure
-
-
-class NodeSession:
-    """Caller-side life of a node across episodes (a mixin of RemoteAgent and RemoteRobot): the process is
-    seeded once (the languages allow one ``seed``) and, with ``restart``, replaced after a failure."""
-
-    process: NodeProcess
-
-    def _init_session(self, factory: Callable[[], NodeProcess], restart: bool) -> None:
-        self._factory = factory
-        self.restart = restart
-        self.restarts = 0
-        self.process = factory()
-        self._seeded = False
-        self._episodes = 0
-
-    def _begin_episode(self, seed: int, episode: str | None) -> str:
-        """Restart a failed process if allowed, send ``seed`` once per process; returns the episode's name."""
-        if not self.process.alive and self.process.failure is not None and self.restart:
-            self.process = self._factory()
-            self.restarts += 1
-            self._seeded = False
-        if not self._seeded:
-            self.process.seed(int(seed))
-            self._seeded = True
-        name = episode if episode is not None else f"episode-{self._episodes}"
-        self._episodes += 1
-        return name
 
 
 class AgentProcess(NodeProcess):

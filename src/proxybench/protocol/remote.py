@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from proxybench.agents.base import Agent, Observation
-from proxybench.protocol.process import AgentProcess, NodeSession
+from proxybench.protocol.process import AgentProcess
+from proxybench.protocol.session import NodeSession
 
 __all__ = ["RemoteAgent"]
 

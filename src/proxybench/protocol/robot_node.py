@@ -1,12 +1,15 @@
 """The proxybench simulator as a robot node: one *simulated* Duckiebot behind AIDO's simulator protocol.
 
-:class:`RobotNode` wraps a :class:`~proxybench.domain.simulator.Simulator` of one robot and answers the
-single-robot part of AIDO's ``protocol_simulator`` (``seed``; per episode ``clear``, ``set_map``,
-``spawn_robot``, ``get_robot_interface_description``, ``episode_start``; then ``set_robot_commands``,
-``step``, ``get_robot_observations``, ``get_robot_state``, ``get_sim_state``, ``get_robot_performance``),
-with the envelope, meta topics and error answers of :class:`~.node.NodeLogic`, which the agent node uses too.
-It is the reference implementation of docs/robot-protocol.md, and a test double for a physical robot's
-bridge: the runner cannot tell the two apart, except that this one says ``kind: "simulation"``.
+:class:`RobotNode` wraps a :class:`~proxybench.domain.simulator.Simulator` of one robot and answers AIDO's
+``protocol_simulator`` for the DB20 (``seed``; per episode ``clear``, ``set_map``, ``spawn_robot`` /
+``spawn_duckie``, ``get_robot_interface_description``, ``episode_start``; then ``set_robot_commands``,
+``step``, ``get_robot_observations``, ``get_robot_state``, ``get_duckie_state``, ``get_sim_state``,
+``get_robot_performance``, ``dump_state``, ``get_ui_image``), with the envelope, meta topics and error
+answers of :class:`~.node.NodeLogic`, which the agent node uses too, so that AIDO's experiment manager can
+drive it. One robot is playable; non-playable robots and duckies stand still where they were spawned, as
+map objects (seen by the camera, collided with). It is the reference implementation of
+docs/robot-protocol.md, and a test double for a physical robot's bridge: the runner cannot tell the two
+apart, except that this one says ``kind: "simulation"``.
 
 Time advances in whole camera frames (1/frame_rate s): ``step(until)`` runs every frame that ends at or
 before ``until``; the wheel commands set last are held through them (the simulator's own command delay
@@ -15,6 +18,7 @@ applies). Observations are rendered when asked, for the current time.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -26,11 +30,13 @@ import yaml
 
 from proxybench.domain.dynamics import ST, TRACE_FIELDS, wheel_ticks
 from proxybench.domain.lane_pose import LanePose
-from proxybench.domain.maps import Map, MapError, load_map, parse_map
+from proxybench.domain.maps import Map, MapError, MapObject, load_map, parse_map
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
+from proxybench.domain.topdown import top_down
 from proxybench.domain.worlds import HIT_KINDS
 from proxybench.protocol import jpeg, robot_wire, wire
+from proxybench.protocol.aido_arrays import robot_info_data
 from proxybench.protocol.description import _commands, _observations, encode_extras
 from proxybench.protocol.language import RobotLanguage
 from proxybench.protocol.node import NodeLogic, serve_node
@@ -44,6 +50,7 @@ _OFF_ROAD = "the robot centre left the drivable area"
 _TURNS = ("left", "straight", "right")
 _TRACE_IDX = [TRACE_FIELDS.index(k) for k in robot_wire.TRACE_COLUMNS[1:]]
 _MAX_SIMS = 4
+_UI_PX_PER_TILE = 48  # top-down image of get_ui_image
 
 
 def _map_text(m: Map) -> str | None:
@@ -118,23 +125,28 @@ class RobotNode(NodeLogic):
         self.params = params or DomainParams()
         self.default_seed = seed
         self.quality = quality
-        self._sims: dict[str, Simulator] = {}
+        self._sims: dict[tuple[str, tuple[MapObject, ...]], Simulator] = {}
         self.sim: Simulator | None = None
         self.robot: robot_wire.SpawnRobotData | None = None
         self.episode_name: str | None = None
+        self._map_text: str | None = None
+        self.parked: dict[str, tuple[float, float, float]] = {}  # non-playable robots: name → pose
+        self.duckies: dict[str, tuple[float, float, float]] = {}
         if map_ is not None:
             m = load_map(map_) if isinstance(map_, str) else map_
             text = _map_text(m)
             if text is None:
                 raise ValueError(f"map {m.name!r} has no source file, so set_map could never select it")
-            self._sims[text] = self._build(m)
+            self._sims[(text, ())] = self._build(m)
         super().__init__(node_name, RobotLanguage(), robot_protocol_description(), {
             "seed": self._on_seed, "clear": self._on_clear, "set_map": self._on_set_map,
-            "spawn_robot": self._on_spawn_robot, "get_robot_interface_description": self._on_describe,
-            "episode_start": self._on_episode_start, "step": self._on_step,
-            "set_robot_commands": self._on_set_robot_commands, "get_robot_observations": self._on_observations,
-            "get_robot_state": self._on_robot_state, "get_sim_state": self._on_sim_state,
-            "get_robot_performance": self._on_performance,
+            "spawn_robot": self._on_spawn_robot, "spawn_duckie": self._on_spawn_duckie,
+            "get_robot_interface_description": self._on_describe, "episode_start": self._on_episode_start,
+            "step": self._on_step, "set_robot_commands": self._on_set_robot_commands,
+            "get_robot_observations": self._on_observations, "get_robot_state": self._on_robot_state,
+            "get_duckie_state": self._on_duckie_state, "get_sim_state": self._on_sim_state,
+            "get_robot_performance": self._on_performance, "dump_state": self._on_dump_state,
+            "get_ui_image": self._on_ui_image,
         })
         self._trace = np.zeros((1, self.params.substeps, len(TRACE_FIELDS)))
 
@@ -171,33 +183,60 @@ class RobotNode(NodeLogic):
             raise wire.MessageTypeError(f"clear: data must be null, got {type(data).__name__}")
         self._advance("clear")
         self.robot, self.episode_name = None, None
+        self.parked, self.duckies = {}, {}
         return []
 
-    def _on_set_map(self, data: Any) -> list[bytes]:
-        text = robot_wire.parse_set_map(data)
-        self._advance("set_map")
-        if text not in self._sims:
+    def _simulator(self, text: str, extra: tuple[MapObject, ...] = ()) -> Simulator:
+        """The simulator of map ``text`` with ``extra`` objects (parked robots, duckies), built once."""
+        key = (text, extra)
+        if key not in self._sims:
             try:
                 m = parse_map(text, path="<set_map.map_data>", name="set_map")
             except MapError as exc:
                 raise ValueError(f"set_map: map_data is not a valid map:\n{exc}") from exc
+            if extra:
+                m = dataclasses.replace(m, objects=m.objects + extra)
             if len(self._sims) >= _MAX_SIMS:
                 self._sims.pop(next(iter(self._sims)))
-            self._sims[text] = self._build(m)
-        self.sim = self._sims[text]
+            self._sims[key] = self._build(m)
+        return self._sims[key]
+
+    def _on_set_map(self, data: Any) -> list[bytes]:
+        text = robot_wire.parse_set_map(data)
+        self._advance("set_map")
+        self.sim = self._simulator(text)
+        self._map_text = text
         return []
+
+    def _taken(self, name: str, topic: str) -> None:
+        if name in self.parked or name in self.duckies or (self.robot is not None and self.robot.robot_name == name):
+            raise ValueError(f"{topic}: the name {name!r} is already spawned in this episode")
 
     def _on_spawn_robot(self, data: Any) -> list[bytes]:
         spawn = robot_wire.parse_spawn_robot(data)
         self._advance("spawn_robot")
+        self._taken(spawn.robot_name, "spawn_robot")
         if not spawn.playable:
-            raise ValueError(f"spawn_robot: {spawn.robot_name!r} is not playable; this node simulates exactly one "
-                             f"playable robot and no NPCs")
+            if spawn.pose is None:
+                raise ValueError(f"spawn_robot: the non-playable robot {spawn.robot_name!r} needs a configuration")
+            self.parked[spawn.robot_name] = spawn.pose  # stands still: AIDO's simulator parks NPC robots too
+            return []
         if self.robot is not None:
-            raise ValueError(f"spawn_robot: this node simulates one robot and {self.robot.robot_name!r} is already "
-                             f"spawned; cannot add {spawn.robot_name!r}")
+            raise ValueError(f"spawn_robot: this node simulates one playable robot and {self.robot.robot_name!r} is "
+                             f"already spawned; cannot add {spawn.robot_name!r}")
         self.robot = spawn
         return []
+
+    def _on_spawn_duckie(self, data: Any) -> list[bytes]:
+        duckie = robot_wire.parse_spawn_duckie(data)
+        self._advance("spawn_duckie")
+        self._taken(duckie.name, "spawn_duckie")
+        self.duckies[duckie.name] = duckie.pose
+        return []
+
+    def _extra_objects(self) -> tuple[MapObject, ...]:
+        return tuple([MapObject("duckiebot", x, y, th, name=k) for k, (x, y, th) in self.parked.items()]
+                     + [MapObject("duckie", x, y, th, name=k) for k, (x, y, th) in self.duckies.items()])
 
     def _info(self) -> dict[str, Any]:
         p = self.params
@@ -219,6 +258,9 @@ class RobotNode(NodeLogic):
         if self.robot is None:
             raise ValueError("episode_start: no robot spawned (send spawn_robot after set_map)")
         self._advance("episode_start")
+        extra = self._extra_objects()
+        if extra:
+            self.sim = self._simulator(self._map_text, extra)
         sim = self.sim
         seed = options.get("seed", self.default_seed)
         sim.reset(0, int(seed), options.get("pose", self.robot.pose), options.get("route"))
@@ -315,6 +357,9 @@ class RobotNode(NodeLogic):
         name, _t = robot_wire.parse_named_request(data, "get_robot_state")
         self._advance("get_robot_state")
         start = time.time_ns()
+        if name in self.parked:
+            return [robot_wire.encode_robot_state(name, self._time, self.parked[name], 0.0, 0.0, np.zeros(2),
+                                                  wire.DEFAULT_LEDS, None, self._timing(start))]
         self._robot_named(name, "get_robot_state")
         s = self.sim.state[0]
         pose = (float(s[ST.X]), float(s[ST.Y]), float(s[ST.THETA]))
@@ -337,8 +382,36 @@ class RobotNode(NodeLogic):
             raise wire.MessageTypeError(f"get_sim_state: data must be null, got {type(data).__name__}")
         self._advance("get_sim_state")
         start = time.time_ns()
-        terms = {self.robot.robot_name: self.termination}
+        terms = {self.robot.robot_name: self.termination, **dict.fromkeys(self.parked)}
         return [robot_wire.encode_sim_state(self.termination is not None, terms, self._timing(start))]
+
+    def _on_duckie_state(self, data: Any) -> list[bytes]:
+        name, _t = robot_wire.parse_named_request(data, "get_duckie_state", "duckie_name")
+        self._advance("get_duckie_state")
+        start = time.time_ns()
+        if name not in self.duckies:
+            raise ValueError(f"get_duckie_state: unknown duckie {name!r}; spawned: {sorted(self.duckies)}")
+        return [robot_wire.encode_duckie_state(name, self._time, self.duckies[name], self._timing(start))]
+
+    def _on_dump_state(self, data: Any) -> list[bytes]:
+        robot_wire.parse_dump_state(data)
+        self._advance("dump_state")
+        start = time.time_ns()
+        s = self.sim.state[0]
+        bots = {self.robot.robot_name: robot_info_data(
+            (float(s[ST.X]), float(s[ST.Y]), float(s[ST.THETA])), s[ST.V], s[ST.OMEGA], self.commands, self.leds)}
+        for name, pose in self.parked.items():
+            bots[name] = robot_info_data(pose, 0.0, 0.0, (0.0, 0.0), wire.DEFAULT_LEDS)
+        return [robot_wire.encode_state_dump(self._time, bots, self.duckies, self._timing(start))]
+
+    def _on_ui_image(self, data: Any) -> list[bytes]:
+        if data is not None:
+            raise wire.MessageTypeError(f"get_ui_image: data must be null, got {type(data).__name__}")
+        self._advance("get_ui_image")
+        start = time.time_ns()
+        sim = self.sim
+        img = top_down(sim.map, sim.state[:1, :3], _UI_PX_PER_TILE, sim.params[0])
+        return [robot_wire.encode_ui_image(jpeg.encode(img, self.quality), self._timing(start))]
 
     def _on_performance(self, data: Any) -> list[bytes]:
         name = robot_wire.parse_robot_name(data, "get_robot_performance")

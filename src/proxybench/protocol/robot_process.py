@@ -22,7 +22,8 @@ from proxybench.protocol import robot_wire as rw
 from proxybench.protocol import wire
 from proxybench.protocol.failures import ROBOT_REASONS, RobotFailure
 from proxybench.protocol.language import ROBOT_OUTPUTS, ROBOT_REPLIES, RobotLanguage
-from proxybench.protocol.process import NodeProcess, NodeSession
+from proxybench.protocol.process import NodeProcess
+from proxybench.protocol.session import NodeSession
 
 __all__ = ["ROBOT_REASONS", "RemoteRobot", "RobotProcess", "map_yaml"]
 
@@ -62,16 +63,18 @@ class RobotProcess(NodeProcess):
         self._exchange([("seed", wire.encode_seed(seed))])
 
     def setup_episode(self, map_text: str, robot_name: str, episode_name: str, payload: dict[str, Any], *,
-                      pose: tuple[float, float, float] | None = None, simulate_camera: bool = True) -> rw.RobotInfo:
-        """clear, set_map, spawn_robot, get_robot_interface_description and episode_start in one write;
-        what the robot says it is. ``payload`` becomes ``episode_start.yaml_payload`` (as JSON)."""
+                      pose: tuple[float, float, float], simulate_camera: bool = True,
+                      default_frame_rate: float = 15.0) -> rw.RobotInfo:
+        """clear, set_map, spawn_robot (at ``pose``), get_robot_interface_description and episode_start in
+        one write; what the robot says it is (a robot that does not say is stepped at
+        ``default_frame_rate``). ``payload`` becomes ``episode_start.yaml_payload`` (as JSON)."""
         replies = self._exchange([
             ("clear", rw.encode_clear()), ("set_map", rw.encode_set_map(map_text)),
             ("spawn_robot", rw.encode_spawn_robot(robot_name, pose, simulate_camera=simulate_camera)),
             ("get_robot_interface_description", rw.encode_get_robot_interface_description(robot_name)),
             ("episode_start", wire.encode_episode_start(episode_name, json.dumps(payload))),
         ])
-        return self._parse(rw.parse_robot_info, replies[3][0], None)
+        return self._parse(lambda d: rw.parse_robot_info(d, default_frame_rate), replies[3][0], None)
 
     # ------------------------------------------------------------------------------ per-frame requests
     def set_commands(self, robot_name: str, t_effective: float, wheels: np.ndarray) -> None:
@@ -154,18 +157,23 @@ def _performance(data: Any) -> dict[str, float]:
 class RemoteRobot(NodeSession):
     """A robot node process driving one robot named ``robot_name``, as the runner uses it.
 
-    :meth:`start_episode` sends ``seed`` on the first episode of each process, then the episode setup;
-    the per-episode seed, exact start pose and episode length travel in ``episode_start.yaml_payload``
-    with ``proxybench: true`` (ask for the extensions: exact state, tick trace, true lane pose). With
-    ``restart=True`` the episode after a failure starts a fresh process (counted in ``restarts``).
-    Other keyword arguments go to :class:`RobotProcess`.
+    :meth:`start_episode` sends ``seed`` on the first episode of each process, then the episode setup:
+    ``spawn_robot`` at the start pose (given, or drawn from the seed as the simulator draws it: AIDO's
+    simulators are told where the robot stands), and ``episode_start`` whose ``yaml_payload`` carries the
+    per-episode seed, the exact start pose and the episode length with ``proxybench: true`` (ask for the
+    extensions: exact state, tick trace, true lane pose; robots that do not know them ignore the keys).
+    A robot that does not say its frame rate is stepped at ``frame_rate`` [Hz]. With ``restart=True`` the
+    episode after a failure starts a fresh process (counted in ``restarts``). Other keyword arguments go
+    to :class:`RobotProcess`.
     """
 
     def __init__(self, cmd: str | Sequence[str], *, robot_name: str = "ego", restart: bool = True,
-                 **process_kwargs: Any):
+                 frame_rate: float = 15.0, **process_kwargs: Any):
         self._cmd = cmd
         self._kwargs = process_kwargs
         self.robot_name = robot_name
+        self.frame_rate = float(frame_rate)
+        self._nets: dict[str, Any] = {}  # map path → its LaneNetwork, to draw starts
         self._init_session(lambda: RobotProcess(self._cmd, **self._kwargs), restart)
 
     @property
@@ -175,17 +183,23 @@ class RemoteRobot(NodeSession):
     def start_episode(self, map_: Map, seed: int, *, pose: tuple[float, float, float] | None = None,
                       seconds: float | None = None, episode: str | None = None, camera: bool = True,
                       route: Sequence[str] | None = None) -> rw.RobotInfo:
-        """Set up and start one episode on ``map_`` from ``seed`` (and ``pose``, else drawn by the robot)."""
+        """Set up and start one episode on ``map_`` from ``seed`` (and ``pose``, else drawn from the seed)."""
         name = self._begin_episode(seed, episode)
-        payload: dict[str, Any] = {"seed": int(seed), "proxybench": True}
-        if pose is not None:
-            payload["pose"] = [float(v) for v in pose]
+        if pose is None:  # imported here: an agent node importing proxybench.protocol needs no simulator
+            from proxybench.domain.lanes import LaneNetwork
+            from proxybench.domain.simulator import start_pose
+
+            net = self._nets.get(map_.path)
+            if net is None:
+                net = self._nets[map_.path] = LaneNetwork(map_)
+            pose = start_pose(map_, int(seed), net=net)
+        payload: dict[str, Any] = {"seed": int(seed), "proxybench": True, "pose": [float(v) for v in pose]}
         if seconds is not None:
             payload["episode_seconds"] = float(seconds)
         if route is not None:
             payload["route"] = [str(t) for t in route]
         return self.process.setup_episode(map_yaml(map_), self.robot_name, name, payload, pose=pose,
-                                          simulate_camera=camera)
+                                          simulate_camera=camera, default_frame_rate=self.frame_rate)
 
     def observations(self, t: float) -> rw.RobotObservationsData:
         return self.process.get_observations(self.robot_name, t)

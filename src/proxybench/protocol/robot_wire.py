@@ -1,11 +1,14 @@
 """The robot (simulator) protocol's messages: encoders for both sides and strict parsers.
 
-Field names and nesting follow AIDO's ``protocol_simulator`` for the DB20 Duckiebot (``aido_schemas``):
-``SpawnRobot`` with a ``RobotConfiguration`` of ``FriendlyPose`` / ``FriendlyVelocity`` (degrees),
-``DB20SetRobotCommands``, ``GetRobotObservations`` → ``DB20RobotObservations`` whose ``observations`` are
-exactly the agent protocol's ``observations`` (camera JPEG + odometry, timestamped), ``DTSimRobotState``,
-``SimulationState`` with per-robot ``Termination``, ``RobotPerformance``. proxybench additions are optional
-``proxybench`` fields (docs/robot-protocol.md). Like the agent messages in :mod:`.wire`, floats are always
+Field names, nesting and types are AIDO's ``protocol_simulator`` for the DB20 Duckiebot (``aido_schemas``
+6.1.1, ``protocol_simulator_DB20_timestamps``): ``SpawnRobot`` with a ``RobotConfiguration`` of
+``FriendlyPose`` / ``FriendlyVelocity`` (degrees) and ``dynamics`` / ``dynamics_params``, ``SpawnDuckie``,
+``DB20SetRobotCommands``, ``GetRobotObservations`` → ``DB20RobotObservationsWithTimestamp`` whose
+``observations`` are exactly the agent protocol's, ``DTSimRobotState`` whose pose and velocity are
+NumPy arrays as zuper encodes them (``{data, dtype, shape}``: the SE(2) matrix and the se(2) twist),
+``DTSimDuckieState``, ``SimulationState`` with per-robot ``Termination``, ``RobotPerformance``,
+``DTSimStateDump``, ``JPGImage``. proxybench additions are optional ``proxybench`` fields that AIDO's
+decoder ignores (docs/robot-protocol.md). Like the agent messages in :mod:`.wire`, floats are always
 written as CBOR floats, node parsers reject an int where a float is declared, and every error names the
 message and field at fault.
 """
@@ -21,19 +24,21 @@ import numpy as np
 from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.routes import RouteInfo
 from proxybench.protocol import wire
+from proxybench.protocol.aido_arrays import ndarray_data, parse_ndarray, pose_of, robot_info_data, se2_matrix
 from proxybench.protocol.description import decode_extras
 from proxybench.protocol.wire import MessageTypeError, _is_float, _is_number, _need
 
 __all__ = [
-    "TERMINATION_CODES", "TRACE_COLUMNS", "Ending", "RobotInfo", "RobotObservationsData", "RobotStateData", "RouteData",
-    "SimState",
-    "SpawnRobotData", "encode_clear", "encode_get_robot_interface_description", "encode_get_robot_observations",
+    "DEFAULT_DYNAMICS", "TERMINATION_CODES", "TRACE_COLUMNS", "Ending", "RobotInfo", "RobotObservationsData",
+    "RobotStateData", "RouteData", "SimState", "SpawnDuckieData", "SpawnRobotData", "encode_clear",
+    "encode_duckie_state", "encode_get_robot_interface_description", "encode_get_robot_observations",
     "encode_get_robot_performance", "encode_get_robot_state", "encode_get_sim_state",
     "encode_robot_interface_description", "encode_robot_observations", "encode_robot_performance",
     "encode_robot_state", "encode_set_map", "encode_set_robot_commands", "encode_sim_state", "encode_spawn_robot",
-    "encode_step", "parse_named_request", "parse_robot_info", "parse_robot_name", "parse_robot_observations",
-    "parse_robot_state", "parse_set_map", "parse_set_robot_commands", "parse_sim_state", "parse_spawn_robot",
-    "parse_step",
+    "encode_state_dump", "encode_step", "encode_ui_image", "parse_dump_state",
+    "parse_named_request", "parse_robot_info", "parse_robot_name", "parse_robot_observations",
+    "parse_robot_state", "parse_set_map", "parse_set_robot_commands", "parse_sim_state", "parse_spawn_duckie",
+    "parse_spawn_robot", "parse_step",
 ]
 
 #: termination code a robot may report → proxybench's termination (AIDO's out-of-lane / out-of-tile: off road)
@@ -42,6 +47,8 @@ TERMINATION_CODES = {"collision": "collision", "off_road": "off_road", "timeout"
 #: the columns of the proxybench tick trace in ``robot_state.state.proxybench.trace``
 TRACE_COLUMNS = ("t", "x", "y", "theta", "v", "omega", "pwm_left", "pwm_right")
 _ZERO_VELOCITY = {"x": 0.0, "y": 0.0, "theta_deg": 0.0}
+#: ``spawn_robot.dynamics`` the caller sends: the robot's own dynamics (a robot node's θ is fixed at its start)
+DEFAULT_DYNAMICS = "DB18"
 
 
 def _str(x: Any) -> bool:
@@ -65,15 +72,15 @@ def encode_set_map(map_yaml: str) -> bytes:
     return wire.encode_topic("set_map", {"map_data": str(map_yaml)})
 
 
-def encode_spawn_robot(robot_name: str, pose: tuple[float, float, float] | None, *,
-                       simulate_camera: bool = True, color: str = "red") -> bytes:
-    """``configuration`` null when ``pose`` is None: the node draws the start from the episode seed."""
-    config = None
-    if pose is not None:
-        x, y, theta = (float(v) for v in pose)
-        config = {"pose": {"x": x, "y": y, "theta_deg": math.degrees(theta)}, "velocity": dict(_ZERO_VELOCITY)}
+def encode_spawn_robot(robot_name: str, pose: tuple[float, float, float], *, simulate_camera: bool = True,
+                       color: str = "red", dynamics: str = DEFAULT_DYNAMICS, dynamics_params: dict | None = None
+                       ) -> bytes:
+    """AIDO's ``SpawnRobot`` of the playable robot at rest at ``pose`` (x [m], y [m], θ [rad])."""
+    x, y, theta = (float(v) for v in pose)
+    config = {"pose": {"x": x, "y": y, "theta_deg": math.degrees(theta)}, "velocity": dict(_ZERO_VELOCITY)}
     return wire.encode_topic("spawn_robot", {"playable": True, "owned_by_player": True, "robot_name": robot_name,
-                                             "configuration": config, "color": color,
+                                             "configuration": config, "dynamics": str(dynamics),
+                                             "dynamics_params": dict(dynamics_params or {}), "color": color,
                                              "simulate_camera": bool(simulate_camera)})
 
 
@@ -114,7 +121,8 @@ def parse_set_map(data: Any) -> str:
 
 @dataclass(frozen=True, slots=True)
 class SpawnRobotData:
-    """A decoded ``spawn_robot``; ``pose`` (x [m], y [m], θ [rad]) is None when ``configuration`` is null."""
+    """A decoded ``spawn_robot``; ``pose`` (x [m], y [m], θ [rad]) is None when ``configuration`` is null
+    (accepted from older proxybench callers: the start is then drawn from the episode seed)."""
 
     robot_name: str
     pose: tuple[float, float, float] | None
@@ -122,6 +130,17 @@ class SpawnRobotData:
     owned_by_player: bool = True
     color: str = "red"
     simulate_camera: bool = True
+    dynamics: str = DEFAULT_DYNAMICS
+    dynamics_params: dict | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class SpawnDuckieData:
+    """A decoded ``spawn_duckie``: a duckie standing at ``pose`` (x [m], y [m], θ [rad])."""
+
+    name: str
+    color: str
+    pose: tuple[float, float, float]
 
 
 def _friendly(data: Any, topic: str) -> tuple[float, float, float]:
@@ -137,8 +156,12 @@ def parse_spawn_robot(data: Any) -> SpawnRobotData:
     owned = data.get("owned_by_player", True)
     color = data.get("color", "red")
     camera = data.get("simulate_camera", True)
+    dynamics = data.get("dynamics", DEFAULT_DYNAMICS)
+    dynamics_params = data.get("dynamics_params")
     for key, value, check, what in (("owned_by_player", owned, _bool, "a boolean"), ("color", color, _str, "a string"),
-                                    ("simulate_camera", camera, _bool, "a boolean")):
+                                    ("simulate_camera", camera, _bool, "a boolean"),
+                                    ("dynamics", dynamics, _str, "a string"),
+                                    ("dynamics_params", dynamics_params, lambda v: v is None or _map(v), "a map")):
         if not check(value):
             raise MessageTypeError(f"spawn_robot: field {key!r} must be {what}, got {type(value).__name__}")
     if "configuration" not in data:
@@ -155,7 +178,20 @@ def parse_spawn_robot(data: Any) -> SpawnRobotData:
             raise MessageTypeError(f"spawn_robot.configuration.velocity must be zero (robots start at rest), "
                                    f"got {vel}")
         pose = (x, y, math.radians(th))
-    return SpawnRobotData(name, pose, playable, owned, color, camera)
+    return SpawnRobotData(name, pose, playable, owned, color, camera, dynamics, dynamics_params)
+
+
+def parse_spawn_duckie(data: Any) -> SpawnDuckieData:
+    name = _need(data, "name", _str, "a string", "spawn_duckie")
+    color = _need(data, "color", _str, "a string", "spawn_duckie")
+    x, y, th = _friendly(_need(data, "pose", _map, "a map (FriendlyPose)", "spawn_duckie"), "spawn_duckie.pose")
+    return SpawnDuckieData(name, color, (x, y, math.radians(th)))
+
+
+def parse_dump_state(data: Any) -> None:
+    """``dump_state`` carries an empty ``DumpState`` (``{}``, perhaps with its ``$schema``), or null."""
+    if data is not None and not _map(data):
+        raise MessageTypeError(f"dump_state: data must be a map (DumpState) or null, got {type(data).__name__}")
 
 
 def parse_robot_name(data: Any, topic: str) -> str:
@@ -164,9 +200,10 @@ def parse_robot_name(data: Any, topic: str) -> str:
     return data
 
 
-def parse_named_request(data: Any, topic: str) -> tuple[str, float]:
-    """(robot_name, t_effective) of get_robot_observations / get_robot_state."""
-    name = _need(data, "robot_name", _str, "a string", topic)
+def parse_named_request(data: Any, topic: str, key: str = "robot_name") -> tuple[str, float]:
+    """(robot_name, t_effective) of get_robot_observations / get_robot_state (``key="duckie_name"``:
+    get_duckie_state)."""
+    name = _need(data, key, _str, "a string", topic)
     t = _need(data, "t_effective", _is_float, "a float", topic)
     return name, t
 
@@ -202,16 +239,32 @@ def encode_robot_observations(robot_name: str, t_effective: float, obs_data: dic
 
 def encode_robot_state(robot_name: str, t_effective: float, pose: tuple[float, float, float], v: float,
                        omega: float, pwm: np.ndarray, leds: dict, extras: dict | None, timing: dict) -> bytes:
-    x, y, theta = (float(c) for c in pose)
-    state: dict[str, Any] = {
-        "pose": {"x": x, "y": y, "theta_deg": math.degrees(theta)},
-        "velocity": {"x": float(v), "y": 0.0, "theta_deg": math.degrees(float(omega))},
-        "pwm": {"motor_left": float(pwm[0]), "motor_right": float(pwm[1])}, "leds": leds,
-    }
+    """AIDO's ``DTSimRobotState`` (pose as SE(2), velocity as se(2)); ``extras``: the proxybench extension."""
+    state: dict[str, Any] = robot_info_data(pose, v, omega, pwm, leds)
     if extras is not None:
         state["proxybench"] = extras
     data = {"robot_name": robot_name, "t_effective": float(t_effective), "state": state}
     return wire.encode_topic("robot_state", wire.canonical(data), timing)
+
+
+def encode_duckie_state(duckie_name: str, t_effective: float, pose: tuple[float, float, float], timing: dict) -> bytes:
+    """AIDO's ``DTSimDuckieState`` of a duckie standing at ``pose``."""
+    state = {"pose": ndarray_data(se2_matrix(*pose)), "velocity": ndarray_data(np.zeros((3, 3)))}
+    data = {"duckie_name": duckie_name, "t_effective": float(t_effective), "state": state}
+    return wire.encode_topic("duckie_state", wire.canonical(data), timing)
+
+
+def encode_state_dump(t_effective: float, duckiebots: dict[str, dict], duckies: dict[str, tuple[float, float, float]],
+                      timing: dict) -> bytes:
+    """AIDO's ``DTSimStateDump``: ``duckiebots`` name → :func:`robot_info_data`, ``duckies`` name → pose."""
+    zero = ndarray_data(np.zeros((3, 3)))
+    state = {"t_effective": float(t_effective), "duckiebots": duckiebots,
+             "duckies": {k: {"pose": ndarray_data(se2_matrix(*p)), "velocity": zero} for k, p in duckies.items()}}
+    return wire.encode_topic("state_dump", wire.canonical({"state": state}), timing)
+
+
+def encode_ui_image(jpg: bytes, timing: dict) -> bytes:
+    return wire.encode_topic("ui_image", {"jpg_data": bytes(jpg)}, timing)
 
 
 def encode_sim_state(done: bool, terminations: dict[str, dict | None], timing: dict) -> bytes:
@@ -302,19 +355,29 @@ def _numbers(value: Any, where: str) -> np.ndarray:
     return np.asarray(value, dtype=np.float64)
 
 
+def _state_motion(state: dict) -> tuple[tuple[float, float, float], float, float]:
+    """(pose, v, ω) of a ``DTSimRobotInfo``: AIDO's SE(2) / se(2) arrays, or ``FriendlyPose`` /
+    ``FriendlyVelocity`` maps (degrees), which some bridges send."""
+    pose_m = _need(state, "pose", _map, "a map", "robot_state.state")
+    vel = _need(state, "velocity", _map, "a map", "robot_state.state")
+    if "shape" in pose_m or "data" in pose_m:
+        pose = pose_of(parse_ndarray(pose_m, "robot_state.state.pose", (3, 3)))
+        twist = parse_ndarray(vel, "robot_state.state.velocity", (3, 3))
+        return pose, float(twist[0, 2]), float(twist[1, 0])
+    x, y, th = (float(_need(pose_m, k, _is_number, "a number", "robot_state.state.pose"))
+                for k in ("x", "y", "theta_deg"))
+    v, w = (float(_need(vel, k, _is_number, "a number", "robot_state.state.velocity")) for k in ("x", "theta_deg"))
+    return (x, y, math.radians(th)), v, math.radians(w)
+
+
 def parse_robot_state(data: Any) -> RobotStateData:
     name = _need(data, "robot_name", _str, "a string", "robot_state")
     t = _need(data, "t_effective", _is_number, "a number", "robot_state")
     state = _need(data, "state", _map, "a map", "robot_state")
-    pose_m = _need(state, "pose", _map, "a map", "robot_state.state")
-    x, y, th = (float(_need(pose_m, k, _is_number, "a number", "robot_state.state.pose"))
-                for k in ("x", "y", "theta_deg"))
-    vel = _need(state, "velocity", _map, "a map", "robot_state.state")
-    v, w = (float(_need(vel, k, _is_number, "a number", "robot_state.state.velocity")) for k in ("x", "theta_deg"))
+    pose, v, omega = _state_motion(state)
     pwm_m = _need(state, "pwm", _map, "a map", "robot_state.state")
     pwm = tuple(float(_need(pwm_m, k, _is_number, "a number", "robot_state.state.pwm"))
                 for k in ("motor_left", "motor_right"))
-    pose, omega = (x, y, math.radians(th)), math.radians(w)
     extras = state.get("proxybench")
     if extras is None:
         return RobotStateData(name, float(t), pose, v, omega, pwm)
@@ -389,11 +452,12 @@ def parse_sim_state(data: Any) -> SimState:
 
 @dataclass(frozen=True, slots=True)
 class RobotInfo:
-    """What a robot node says it is (``robot_interface_description.proxybench``).
+    """What a robot node says it is (``robot_interface_description.proxybench``), or what the caller assumes
+    when it says nothing (a stock AIDO simulator, a bridge without the extension: :attr:`reported` False).
 
-    ``kind``: "simulation" for a simulator node, "robot" for a physical robot's bridge; ``frame_rate``
-    [Hz]: camera frames per second, the period the caller steps by; ``physics_rate`` [Hz]: trace samples
-    per second (None: no trace); ``wheel_distance`` [m]; ``params``: the domain parameters θ, if any.
+    ``kind``: "simulation" for a simulator node, "robot" for a physical robot's bridge, "unreported";
+    ``frame_rate`` [Hz]: camera frames per second, the period the caller steps by; ``physics_rate`` [Hz]:
+    trace samples per second (None: no trace); ``wheel_distance`` [m]; ``params``: the domain parameters θ.
     """
 
     kind: str
@@ -402,12 +466,24 @@ class RobotInfo:
     wheel_distance: float
     params: dict
     raw: dict
+    reported: bool = True
 
 
-def parse_robot_info(data: Any) -> RobotInfo:
+#: the Duckiebot's wheel distance [m] (DB18 / DB21), assumed when a robot does not report its own
+DEFAULT_WHEEL_DISTANCE = 0.102
+
+
+def parse_robot_info(data: Any, default_frame_rate: float = 15.0) -> RobotInfo:
+    """The robot's self-description; without the optional ``proxybench`` field (AIDO's
+    ``RobotInterfaceDescription`` has none), a robot of kind "unreported" stepped at ``default_frame_rate``."""
+    if not _map(data):
+        raise MessageTypeError(f"robot_interface_description: data must be a map, got {type(data).__name__}")
+    info = data.get("proxybench")
+    if info is None:
+        return RobotInfo("unreported", float(default_frame_rate), None, DEFAULT_WHEEL_DISTANCE, {}, {}, False)
     where = "robot_interface_description.proxybench"
-    info = _need(data, "proxybench", _map, "a map (what the robot is; see docs/robot-protocol.md)",
-                 "robot_interface_description")
+    if not _map(info):
+        raise MessageTypeError(f"{where} must be a map (what the robot is; see docs/robot-protocol.md)")
     kind = _need(info, "kind", _str, "a string", where)
     rate = float(_need(info, "frame_rate", _is_number, "a number", where))
     if not (math.isfinite(rate) and rate > 0):
@@ -415,7 +491,7 @@ def parse_robot_info(data: Any) -> RobotInfo:
     physics = info.get("physics_rate")
     if physics is not None and not (_is_number(physics) and physics > 0):
         raise MessageTypeError(f"{where}: physics_rate must be a positive number [Hz] or absent")
-    wheel = info.get("wheel_distance", 0.102)
+    wheel = info.get("wheel_distance", DEFAULT_WHEEL_DISTANCE)
     if not (_is_number(wheel) and wheel > 0):
         raise MessageTypeError(f"{where}: wheel_distance must be a positive number [m]")
     params = info.get("params") or {}

@@ -11,7 +11,9 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import re
 import select
+import shlex
 import shutil
 import signal
 import subprocess
@@ -19,13 +21,58 @@ import tempfile
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from proxybench.protocol.wire import ENV_DATA_IN, ENV_DATA_OUT
 
-__all__ = ["Launch", "StderrDrain"]
+__all__ = ["SHELL", "Launch", "StderrDrain", "needs_shell", "node_argv"]
 
 _PIPE_SIZE = 1 << 20  # a whole 640×480 observation fits in one write
+#: the shell that runs command strings using shell syntax (``cd dir && exec node``)
+SHELL = "/bin/sh"
+_SHELL_CHARS = frozenset("|&;<>()$`*?[]~{}!#\n")
+_SHELL_WORDS = frozenset({"cd", "exec", "export", "source", ".", "set", "ulimit", "umask", "eval", "unset",
+                          "if", "for", "while", "case", "[[", "!"})
+
+
+def needs_shell(cmd: str) -> bool:
+    """Whether a command string uses shell syntax: operators, expansions, redirections, globs, builtins
+    such as ``cd``, or ``VAR=value`` prefixes *outside quotes*. Plain ``prog 'arg with spaces'`` does not,
+    so a string built with :func:`shlex.join` is still executed directly."""
+    lexer = shlex.shlex(cmd, posix=False, punctuation_chars=True)
+    lexer.whitespace_split = True
+    lexer.commenters = ""
+    try:
+        tokens = list(lexer)
+    except ValueError:  # an unclosed quote: let the shell report it
+        return True
+    for k, tok in enumerate(tokens):
+        quoted = len(tok) >= 2 and tok[0] == tok[-1] and tok[0] in "'\""
+        if quoted:
+            if tok[0] == '"' and any(c in tok for c in "$`\\"):
+                return True  # expansions happen inside double quotes
+            continue
+        if any(c in _SHELL_CHARS or c in "'\"" for c in tok):
+            return True
+        if k == 0 and (tok in _SHELL_WORDS or re.match(r"^[A-Za-z_][A-Za-z0-9_]*=", tok)):
+            return True
+    return False
+
+
+def node_argv(cmd: str | Sequence[str], shell: bool | None = None) -> list[str]:
+    """The argv that starts a node. A list is used as is; a string runs through ``/bin/sh -c`` when
+    ``shell`` is True, or when None (auto) and it uses shell syntax (:func:`needs_shell`), else it is split
+    like a shell would. Either way the node starts in its own process group, which is killed whole."""
+    if not isinstance(cmd, str):
+        argv = [str(a) for a in cmd]
+        if not argv:
+            raise ValueError("empty node command")
+        return argv
+    if not cmd.strip():
+        raise ValueError("empty node command")
+    if shell or (shell is None and needs_shell(cmd)):
+        return [SHELL, "-c", cmd]
+    return shlex.split(cmd)
 
 
 class StderrDrain:
@@ -143,10 +190,12 @@ class Launch:
     """One agent process and the parent's ends of its streams (``in_fd`` write, ``out_fd`` read)."""
 
     def __init__(self, argv: list[str], *, transport: str = "pipes", env: dict[str, str] | None = None,
-                 cwd: str | None = None, stderr_lines: int = 50, on_stderr: Callable[[str], None] | None = None):
+                 cwd: str | None = None, stderr_lines: int = 50, on_stderr: Callable[[str], None] | None = None,
+                 fifo_dir: str | None = None):
         if transport not in ("pipes", "fifos"):
             raise ValueError(f"transport must be 'pipes' or 'fifos', not {transport!r}")
         self.transport = transport
+        self.fifo_dir = fifo_dir
         self.tmpdir: str | None = None
         self.dummy_fd: int | None = None
         self.out_fd = -1
@@ -191,10 +240,13 @@ class Launch:
         return proc
 
     def _start_fifos(self, argv: list[str], env: dict, cwd: str | None, err_w: int) -> subprocess.Popen:
-        self.tmpdir = tempfile.mkdtemp(prefix="proxybench-node-")
+        self.tmpdir = tempfile.mkdtemp(prefix="proxybench-node-", dir=self.fifo_dir)
         in_path = os.path.join(self.tmpdir, "in")
         self.out_path = os.path.join(self.tmpdir, "out")
-        os.mkfifo(in_path)
+        os.mkfifo(in_path, 0o600)
+        if self.fifo_dir is not None:  # a shared folder (container mount, sandbox): the node may run as another
+            os.chmod(self.tmpdir, 0o777)  # user, who must open our FIFO and create its own next to it
+            os.chmod(in_path, 0o666)
         env.update({ENV_DATA_IN: in_path, ENV_DATA_OUT: "fifo:" + self.out_path})
         # read-write: opening never blocks, and the node's open for reading returns at once
         self.in_fd = os.open(in_path, os.O_RDWR | os.O_NONBLOCK)

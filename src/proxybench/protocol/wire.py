@@ -329,7 +329,12 @@ def item_end(buf: bytes | bytearray, pos: int = 0, end: int | None = None) -> in
 
 
 def _looks_like_text(raw: bytes | bytearray) -> bool:
-    return all(32 <= b < 127 or b in (9, 10, 13) for b in raw)
+    """Printable text (a stray ``print``): all of ``raw``, or a first line ending in a newline (protocol
+    messages may follow it in the same read)."""
+    line = raw.find(b"\n")
+    if line > 0:
+        raw = raw[:line]
+    return all(32 <= b < 127 or b in (9, 13) for b in raw)
 
 
 class CborStream:

@@ -24,36 +24,87 @@ ENGINE_VERSION = 4  # 2: camera agents see JPEG-decoded frames, as over the AIDO
 # 4: NPC robots and pedestrians simulated (benchmark ``npcs:``), object colours and extra duckies in θ
 
 __all__ = [
-    "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "batch_group", "camera_filter", "execute",
-    "execute_batch", "make_agent_for",
+    "DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "batch_group",
+    "camera_filter", "execute", "execute_batch", "make_agent_for",
 ]
 
 
 @dataclass(frozen=True)
 class AgentSpec:
-    """A zoo agent by ``name``, or an external node started with ``command`` (any language)."""
+    """A zoo agent by ``name``, or an external node started with ``command`` (any language; a string may use
+    shell syntax) and ``options``: the non-default fields of :class:`~proxybench.protocol.options.NodeOptions`
+    (working directory, transport, timeouts, reflection) as sorted pairs, so the spec stays hashable."""
 
     name: str
     command: str | None = None
+    options: tuple[tuple[str, Any], ...] = ()
+
+    @classmethod
+    def node(cls, name: str, command: str, options: Any = None) -> AgentSpec:
+        """A node agent; ``options``: a ``NodeOptions`` (or None for the defaults)."""
+        return cls(name, command, options.items() if options is not None else ())
 
     @property
     def label(self) -> str:
         return self.name
+
+    def node_options(self):
+        """The ``NodeOptions`` of a node agent."""
+        from proxybench.protocol.options import NodeOptions
+
+        return NodeOptions(**dict(self.options))
+
+    def key_data(self) -> dict[str, Any]:
+        """What identifies the agent in a job's hash (options only when set, so older keys stay valid)."""
+        data: dict[str, Any] = {"name": self.name, "command": self.command}
+        if self.options:
+            data["options"] = dict(self.options)
+        return data
+
+
+#: what a domain can be: a proxy instance S_θ, the built-in reality model, or a robot node (the robot protocol)
+DOMAIN_KINDS = ("simulation", "reality-model", "robot")
 
 
 @dataclass(frozen=True)
 class DomainSpec:
     """A domain instance: a label, its parameters θ (DomainParams fields) and what kind of domain it is.
 
-    ``kind`` is "simulation" for proxy instances and "reality-model" for the stand-in target.
+    ``kind`` is "simulation" for proxy instances, "reality-model" for the built-in stand-in target, and
+    "robot" for a robot node started with ``command`` (docs/robot-protocol.md: a physical robot's bridge,
+    another simulator, or ``proxybench robot serve``). A robot is what it is: its θ is not ours to set, so
+    ``params`` stays empty, and its episodes are cached by *what was asked* (the command string, map,
+    episode, agent), not by what the robot is: after changing the robot (recalibration, new firmware), use
+    a fresh run directory or delete its cached episodes. ``nodes``: how many processes of ``command`` may
+    run at once on this machine (one per busy worker, up to this; not part of any key): keep 1 for a bridge
+    to one physical robot, raise it for a simulator node.
     """
 
     name: str
     params: dict[str, Any] = field(default_factory=dict)
     kind: str = "simulation"
+    command: str | None = None
+    nodes: int = 1
+
+    def __post_init__(self) -> None:
+        if self.kind not in DOMAIN_KINDS:
+            raise ValueError(f"DomainSpec {self.name!r}: kind must be one of {DOMAIN_KINDS}, got {self.kind!r}")
+        if self.kind == "robot":
+            if not (isinstance(self.command, str) and self.command.strip()):
+                raise ValueError(f"DomainSpec {self.name!r}: a robot domain needs command= (the robot node to start)")
+            if self.params:
+                raise ValueError(f"DomainSpec {self.name!r}: a robot domain takes no params (the robot's θ is its "
+                                 f"own; pass settings in its command), got {sorted(self.params)}")
+            if not (isinstance(self.nodes, int) and self.nodes >= 1):
+                raise ValueError(f"DomainSpec {self.name!r}: nodes must be a positive integer, got {self.nodes!r}")
+        elif self.command is not None:
+            raise ValueError(f"DomainSpec {self.name!r}: command= is only for kind='robot', not {self.kind!r}")
 
     def canonical(self) -> str:
-        return json.dumps({"params": self.params, "kind": self.kind}, sort_keys=True)
+        doc: dict[str, Any] = {"params": self.params, "kind": self.kind}
+        if self.command is not None:  # absent otherwise, so simulated domains keep their keys
+            doc["command"] = self.command
+        return json.dumps(doc, sort_keys=True)
 
 
 @dataclass(frozen=True)
@@ -72,11 +123,16 @@ class Job:
     route: tuple[str, ...] | None = None  # turns at intersections (domain.routes); None: drawn from the seed
     npcs: Traffic | None = None  # NPC robots and pedestrians of the episode's world (domain.npcs)
 
+    def __post_init__(self) -> None:
+        if self.domain.kind == "robot" and self.npcs is not None and not self.npcs.empty:
+            raise ValueError(f"job {self.agent.label} / {self.domain.name}: a robot node drives one robot and no "
+                             f"NPCs; this job has npcs (a benchmark with `npcs:` needs a simulated domain)")
+
     @property
     def key(self) -> str:
         """Content hash: equal keys ⇔ the same result (given deterministic agents)."""
         blob = json.dumps(
-            {"agent": asdict(self.agent), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
+            {"agent": self.agent.key_data(), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
              "seed": self.seed, "pose": self.pose, "duration": self.duration, "camera_only": self.camera_only,
              "route": self.route, "npcs": None if self.npcs is None else self.npcs.to_dict(),
              "version": __version__, "engine": ENGINE_VERSION},
@@ -135,13 +191,19 @@ def _simulator(job: Job, n: int = 1):
 
 
 def batch_group(job: Job) -> tuple:
-    """Jobs with equal groups can share one batched simulator: same agent, domain, map, NPCs, length, rules."""
+    """Jobs with equal groups can share one batched simulator: same agent, domain, map, NPCs, length, rules.
+
+    Jobs on one robot domain share a node process whatever their agent, map or length (one after another).
+    """
+    if job.domain.kind == "robot":
+        return ("robot", job.domain.canonical())
     return (job.agent, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs)
 
 
-def _refused(job: Job, agent, setup_s: float) -> JobResult:
-    """A privileged agent on a camera-only job: no episode, a recorded reason, NaN scores."""
-    msg = f"agent {agent.name!r} is privileged (reads the true lane pose); this benchmark is camera-only"
+def _refused(job: Job, agent, setup_s: float, msg: str | None = None) -> JobResult:
+    """A privileged agent on a camera-only job (or on a robot without ground truth): no episode, a recorded
+    reason, NaN scores."""
+    msg = msg or f"agent {agent.name!r} is privileged (reads the true lane pose); this benchmark is camera-only"
     return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed,
                      dict.fromkeys(job.metrics or _all_metrics(), float("nan")), "agent_failure", None, msg,
                      {"setup_s": setup_s})
@@ -165,7 +227,7 @@ def make_agent_for(spec: AgentSpec):
     if spec.command:
         from proxybench.protocol import RemoteAgent
 
-        agent = RemoteAgent(spec.command)
+        agent = RemoteAgent(spec.command, **spec.node_options().process_kwargs())
         agent.name = spec.name
         return agent
     from proxybench.agents import make_agent
@@ -181,7 +243,8 @@ def execute(job: Job, out_dir: str | None) -> JobResult:
 def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
     """Run jobs of one :func:`batch_group` together: one simulator of N robots, one agent per robot.
 
-    In-process agents are batched; node agents (one process each) run one by one.
+    In-process agents are batched; node agents (one process each) run one by one. Robot domains go to
+    :func:`execute_robot_batch`.
     """
     import time
 
@@ -190,6 +253,10 @@ def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
 
     if len({batch_group(j) for j in jobs}) != 1:
         raise ValueError("execute_batch: the jobs do not share one batch group")
+    if jobs[0].domain.kind == "robot":
+        from proxybench.runner.robot_jobs import execute_robot_batch
+
+        return execute_robot_batch(jobs, out_dir)
     if len(jobs) > 1 and jobs[0].agent.command:
         return [r for j in jobs for r in execute_batch([j], out_dir)]
     job0 = jobs[0]
@@ -230,3 +297,4 @@ def _result(job: Job, traj, out_dir: str | None, setup_s: float, episode_s: floa
                "simulated_s": traj.duration}
     return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed, scores, traj.termination,
                      path, message, timings)
+

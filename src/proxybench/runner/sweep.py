@@ -8,7 +8,9 @@ Layout of a run directory::
     results.parquet           long table: agent, domain, episode, seed, metric, value, termination
 
 A job whose ``<key>.json`` exists is not run again, so a sweep killed at any point (Ctrl-C, a dead
-worker, power loss) resumes where it stopped, and two sweeps sharing episodes share their work.
+worker, power loss) resumes where it stopped, and two sweeps sharing episodes share their work. A job
+whose robot node failed (termination ``robot_failure``: no episode happened) is reported but not stored,
+so the next run retries it.
 """
 
 from __future__ import annotations
@@ -24,7 +26,10 @@ from pathlib import Path
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import Job, JobResult, batch_group
 
-__all__ = ["SweepResult", "results_frame", "run_jobs"]
+__all__ = ["UNSTORED", "SweepResult", "results_frame", "run_jobs"]
+
+#: terminations that say the episode did not happen (the plant failed): reported, never cached
+UNSTORED = frozenset({"robot_failure"})
 
 
 @dataclass
@@ -70,8 +75,9 @@ def run_jobs(
     """Run every job not already done in ``run_dir``; return all results in job order.
 
     Jobs that can share a simulator run in batches of up to ``batch_size`` robots (smaller when that
-    would leave workers idle). ``progress(done, total, result)`` is called once at the start (result
-    None) and after each job.
+    would leave workers idle); jobs on one robot domain run one after another on one node process per
+    batch, at most ``DomainSpec.nodes`` such processes at once (``runner.robot_jobs``).
+    ``progress(done, total, result)`` is called once at the start (result None) and after each job.
     """
     backend = backend or InlineBackend()
     run_dir = Path(run_dir)
@@ -97,7 +103,8 @@ def run_jobs(
         progress(cached, len(jobs), None)
     out = str(ep_dir) if keep_trajectories else None
     for res in backend.run(_batches(todo, batch_size, backend.workers), out):
-        _write_atomic(ep_dir / f"{res.key}.json", res.to_json())
+        if res.termination not in UNSTORED:
+            _write_atomic(ep_dir / f"{res.key}.json", res.to_json())
         by_key[res.key] = res
         if progress:
             progress(len(by_key), len(jobs), res)

@@ -10,7 +10,9 @@ rad] in the map frame, each checked to lie on the road. ``routes`` (one list of 
 fixes the exits taken at intersections; with explicit poses each plan is checked against the map.
 Scoring criteria name aggregated columns as :mod:`proxybench.tasks.aggregate` writes them
 (``<metric>_<stat>``; a bare ``<metric>`` means its mean). ``npcs`` lists NPC Duckiebots and pedestrians
-that every episode's world holds (schema in :mod:`proxybench.tasks.npcs`).
+that every episode's world holds (schema in :mod:`proxybench.tasks.npcs`); ``agents`` the agents that
+``proxybench evaluate`` runs when none are named: zoo agents or agent nodes with their start-up options
+(:mod:`proxybench.tasks.agent_entries`).
 
 >>> b = Benchmark.load("aido_lf")
 >>> b.domain_params().frame_rate, [c.metric for c in b.criteria()][:2]
@@ -43,10 +45,12 @@ from pydantic import (
     model_validator,
 )
 
+from proxybench.agents.zoo import ZOO
 from proxybench.domain.maps import Map, MapError, load_map
 from proxybench.domain.npcs import Traffic
 from proxybench.domain.params import DomainParams
 from proxybench.domain.reality import reality_params
+from proxybench.tasks.agent_entries import AgentEntry, agent_entry_issues, as_entry, resolve_agent_cwd
 from proxybench.tasks.aggregate import STATS
 from proxybench.tasks.metrics import METRICS
 from proxybench.tasks.npcs import NpcEntry, npc_issues, traffic_of
@@ -231,6 +235,19 @@ class Benchmark(_Strict):
     scoring: list[ScoringEntry] = Field(min_length=1)
     npcs: list[NpcEntry] = Field(default_factory=list, description="NPC duckiebots and pedestrians of every episode")
     camera_only: bool = Field(False, description="refuse privileged agents (those reading the true lane pose)")
+    agents: list[AgentEntry] = Field(default_factory=list, description="agents `evaluate` runs when none are named: "
+                                     "zoo names, or {name, command, cwd, transport, ...} of agent nodes")
+
+    @field_validator("agents", mode="before")
+    @classmethod
+    def _bare_names(cls, entries: Any) -> Any:
+        return [as_entry(e) for e in entries] if isinstance(entries, list) else entries
+
+    @field_validator("agents")
+    @classmethod
+    def _agent_dirs(cls, entries: list[AgentEntry], info: ValidationInfo) -> list[AgentEntry]:
+        base = (info.context or {}).get("base_dir")
+        return [resolve_agent_cwd(e, base) for e in entries]
 
     @field_validator("map")
     @classmethod
@@ -245,7 +262,7 @@ class Benchmark(_Strict):
     @model_validator(mode="after")
     def _cross_checks(self) -> Benchmark:
         issues = [*self._metric_issues(), *self._rate_issues(), *self._pose_issues(), *self._route_issues(),
-                  *npc_issues(self.npcs, self.load_map())]
+                  *npc_issues(self.npcs, self.load_map()), *agent_entry_issues(self.agents, ZOO)]
         if issues:
             raise ValueError("\n".join(f"{path}: {msg}" for path, msg in issues))
         return self

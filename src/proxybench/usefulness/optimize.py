@@ -1,13 +1,18 @@
-"""Proxy optimisation: θ* = argmin PRPV (or PPV, or a mix) over a subset of simulator parameters.
+"""Proxy optimisation: θ* = argmin PRPV (or PPV, or a mix) over a subset of simulator parameters, against any target.
 
-Each Optuna trial proposes θ, the runner evaluates the agents in that proxy (cached, so repeated θ
-cost nothing, and Ray works), and the objective compares the proxy's results with the target's.
+Each Optuna trial proposes θ, the runner replays the target's episodes in that proxy (same agents, starts
+and seeds; cached, so repeated θ cost nothing, and Ray works), and the objective compares the proxy's
+results with the target's (:mod:`proxybench.targets`: the reality model, a recording, or a robot node,
+whose episodes are run once and re-used by every trial). The search space comes from the experiment
+(default: around the nominal calibration, :mod:`proxybench.usefulness.proxies`), never from a target's
+truth; a known truth is only printed beside what was recovered.
 Studies live in memory, in SQLite (default when a path is given) or in any SQLAlchemy database such as
 PostgreSQL, so many workers can share one study.
 """
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,57 +21,29 @@ from typing import Any
 import numpy as np
 
 from proxybench.domain.params import DomainParams
-from proxybench.domain.reality import TRUTH, reality_params
 from proxybench.runner.backends import Backend, InlineBackend
-from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
+from proxybench.runner.jobs import DomainSpec
 from proxybench.runner.sweep import run_jobs
+from proxybench.targets.spec import Target, TargetInfo
 from proxybench.tasks.metrics import METRICS
-from proxybench.usefulness.metrics import PairedResults, dominance, ppv_value, prpv_value
+from proxybench.usefulness.experiment import OBJECTIVES, Experiment, ExperimentConfig, resolve
+from proxybench.usefulness.metrics import Estimate, PairedResults, dominance, ppv_value, prpv_value
+from proxybench.usefulness.noise import noise_floor
+from proxybench.usefulness.predictivity import _by_agent, proxy_jobs
+from proxybench.usefulness.proxies import param_label, proxy_params
 
-__all__ = ["OBJECTIVES", "OptimizeConfig", "OptimizeResult", "optimize_proxy"]
-
-OBJECTIVES = ("prpv", "ppv", "mix")
-
-
-@dataclass
-class OptimizeConfig:
-    """What to search, how, and on which workload."""
-
-    space: dict[str, tuple[float, float]] = field(default_factory=lambda: {
-        "trim": (-0.3, 0.3), "camera_pitch": (12.0, 26.0)})
-    objective: str = "mix"
-    n_trials: int = 60
-    sampler: str = "tpe"
-    storage: str | None = None
-    study_name: str = "proxybench-proxy"
-    agents: tuple[str, ...] = ("straight", "bang-bang", "pid", "pid-fast", "pid-twitchy", "pure-pursuit", "vision",
-                               "vision-fast", "vision-pitch25", "vision-twitchy", "vision-slow", "pid-sluggish")
-    episodes: int = 4
-    seconds: float = 20.0
-    map: str = "loop_3x3"
-    image_size: tuple[int, int] = (160, 120)
-    metrics: tuple[str, ...] = ("driven_lanedir_consec", "survival_time")
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if self.objective not in OBJECTIVES:
-            raise ValueError(f"objective must be one of {OBJECTIVES}, got {self.objective!r}")
-        if self.sampler not in ("tpe", "gp", "random"):
-            raise ValueError(f"sampler must be tpe, gp or random, got {self.sampler!r}")
-        for name, (lo, hi) in self.space.items():
-            if name not in DomainParams.model_fields:
-                raise ValueError(f"space: unknown domain parameter {name!r}")
-            if not lo < hi:
-                raise ValueError(f"space: {name} needs low < high, got [{lo}, {hi}]")
+__all__ = ["OBJECTIVES", "OptimizeResult", "optimize_proxy", "plot_optimization"]
 
 
 @dataclass
 class OptimizeResult:
-    """θ* and its objective value (the residual gap), the truth beside it, and the study.
+    """θ* and its objective value (the residual gap), the known truth beside it (if any), and the study.
 
     Each trial's objective is itself an estimate from a few episodes per agent, so the single best trial
     is partly luck; ``recovered`` is the mean θ of the best decile of trials (at least 3), a consensus
     that the noise of one evaluation cannot drag away. ``best_params`` is the single best trial.
+    ``noise_floor``: PRPV of the target against a replicate of itself (the PRPV no proxy can beat
+    reliably with this many episodes).
     """
 
     best_params: dict[str, float]
@@ -75,6 +52,10 @@ class OptimizeResult:
     study: Any
     trials: list[dict[str, Any]]
     recovered: dict[str, float] = field(default_factory=dict)
+    target: TargetInfo | None = None
+    experiment: Experiment | None = None
+    noise_floor: Estimate | None = None
+    target_episodes_run: int = 0
 
     def errors(self) -> dict[str, float]:
         return {k: v - self.truth[k] for k, v in self.recovered.items() if k in self.truth}
@@ -85,13 +66,6 @@ def best_decile(trials: list[dict[str, Any]], names: list[str]) -> dict[str, flo
     ranked = sorted((t for t in trials if t.get("value") is not None), key=lambda t: t["value"])
     top = ranked[: max(3, len(ranked) // 10)]
     return {n: float(np.mean([t[n] for t in top])) for n in names} if top else {}
-
-
-def _by_agent(results: list[JobResult], metrics: tuple[str, ...]) -> dict[str, np.ndarray]:
-    by: dict[str, list[list[float]]] = {}
-    for r in results:
-        by.setdefault(r.agent, []).append([r.scores[m] for m in metrics])
-    return {a: np.asarray(v) for a, v in by.items()}
 
 
 def _objective_value(kind: str, proxy: Mapping[str, np.ndarray], target: Mapping[str, np.ndarray],
@@ -111,61 +85,74 @@ def _is_count(name: str) -> bool:
     return field is not None and field.annotation is int
 
 
-def _sampler(cfg: OptimizeConfig):
+def _sampler(exp: Experiment):
     import optuna
 
-    if cfg.sampler == "gp":
-        return optuna.samplers.GPSampler(seed=cfg.seed)
-    if cfg.sampler == "random":
-        return optuna.samplers.RandomSampler(seed=cfg.seed)
-    return optuna.samplers.TPESampler(seed=cfg.seed, n_startup_trials=min(10, cfg.n_trials))
+    if exp.search.sampler == "gp":
+        return optuna.samplers.GPSampler(seed=exp.seed)
+    if exp.search.sampler == "random":
+        return optuna.samplers.RandomSampler(seed=exp.seed)
+    return optuna.samplers.TPESampler(seed=exp.seed, n_startup_trials=min(10, exp.trials))
 
 
 def optimize_proxy(
-    cfg: OptimizeConfig, run_dir: str | Path, backend: Backend | None = None,
-    progress: Callable[[int, int, float], None] | None = None,
+    cfg: ExperimentConfig | Experiment, run_dir: str | Path, backend: Backend | None = None,
+    progress: Callable[[int, int, float], None] | None = None, *, quick: bool = False, target: Target | None = None,
+    target_progress: Callable[[str, int, int], None] | None = None,
 ) -> OptimizeResult:
-    """Search ``cfg.space`` for the proxy θ whose verdicts best match the target (the reality model)."""
+    """Search ``search.space`` for the proxy θ whose verdicts best match the target's.
+
+    ``cfg`` as for :func:`~proxybench.usefulness.predictivity.run_predictivity`. The target's episodes are
+    run (or read) once; every trial replays them in its proxy.
+    """
     import optuna
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     backend = backend or InlineBackend()
-    w, h = cfg.image_size
-    higher = tuple(METRICS[m].higher_is_better for m in cfg.metrics)
+    run_dir = Path(run_dir)
+    if isinstance(cfg, ExperimentConfig):
+        exp, target = resolve(cfg, "optimize", quick=quick, work_dir=run_dir.parent / "agents", target=target)
+    else:
+        exp = cfg
+        if target is None:
+            from proxybench.targets.spec import open_target
 
-    def jobs_for(dom: DomainSpec) -> list[Job]:
-        return [Job(AgentSpec(a), dom, cfg.map, e, cfg.seed * 10_000 + e, cfg.seconds, metrics=cfg.metrics)
-                for a in cfg.agents for e in range(cfg.episodes)]
-
-    target_dom = DomainSpec("reality", reality_params(image_width=w, image_height=h).model_dump(), "reality-model")
-    target = _by_agent(run_jobs(jobs_for(target_dom), run_dir, backend).results, cfg.metrics)
+            target = open_target(exp.target_text)
+    higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
+    tgt = target.run(exp.agents, map_name=exp.map, seconds=exp.seconds, episodes=exp.episodes, seed=exp.seed,
+                     metrics=exp.metrics, image_size=exp.image_size, run_dir=run_dir, backend=backend,
+                     progress=target_progress)
+    space = exp.search.space
 
     def objective(trial) -> float:
         theta = {name: trial.suggest_int(name, int(lo), int(hi)) if _is_count(name)
-                 else trial.suggest_float(name, lo, hi) for name, (lo, hi) in cfg.space.items()}  # counts are ints
-        params = DomainParams(image_width=w, image_height=h, **{**TRUTH, **theta})
+                 else trial.suggest_float(name, lo, hi) for name, (lo, hi) in space.items()}  # counts are ints
+        params = proxy_params(exp.image_size, exp.proxy, **theta)
         dom = DomainSpec("proxy " + " ".join(f"{k}={v:.4g}" for k, v in theta.items()), params.model_dump())
-        proxy = _by_agent(run_jobs(jobs_for(dom), run_dir, backend).results, cfg.metrics)
-        value, parts = _objective_value(cfg.objective, proxy, target, higher)
+        jobs = proxy_jobs(exp, tgt, dom)
+        proxy = _by_agent(jobs, run_jobs(jobs, run_dir, backend).results, exp.metrics)
+        value, parts = _objective_value(exp.search.objective, proxy, tgt.results, higher)
         for k, v in parts.items():
             trial.set_user_attr(k, v)
         if progress:
-            progress(trial.number + 1, cfg.n_trials, value)
+            progress(trial.number + 1, exp.trials, value)
         return value
 
-    storage = cfg.storage
+    storage = exp.search.storage
     if storage and "://" not in storage:
         storage = f"sqlite:///{Path(storage).resolve()}"
-    study = optuna.create_study(direction="minimize", sampler=_sampler(cfg), storage=storage,
-                                study_name=cfg.study_name, load_if_exists=True)
-    remaining = cfg.n_trials - len([t for t in study.trials if t.state.is_finished()])
+    study = optuna.create_study(direction="minimize", sampler=_sampler(exp), storage=storage,
+                                study_name=exp.search.study_name, load_if_exists=True)
+    remaining = exp.trials - len([t for t in study.trials if t.state.is_finished()])
     if remaining > 0:
         study.optimize(objective, n_trials=remaining)
     trials = [{"number": t.number, "value": t.value, **t.params, **t.user_attrs} for t in study.trials
               if t.value is not None]
-    truth = {k: float(TRUTH[k]) for k in cfg.space if k in TRUTH}
+    known = {**tgt.truth, **exp.truth}
+    truth = {k: float(known[k]) for k in space if k in known}
+    floor = noise_floor(tgt.results, higher, n_boot=exp.n_boot, seed=exp.seed)
     return OptimizeResult(dict(study.best_params), float(study.best_value), truth, study, trials,
-                          best_decile(trials, list(cfg.space)))
+                          best_decile(trials, list(space)), tgt.info, exp, floor, tgt.ran)
 
 
 def plot_optimization(res: OptimizeResult, out: str | Path) -> list[Path]:
@@ -179,23 +166,35 @@ def plot_optimization(res: OptimizeResult, out: str | Path) -> list[Path]:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     values = [t["value"] for t in res.trials]
-    fig, axes = plt.subplots(1, 1 + len(res.best_params), figsize=(4.2 * (1 + len(res.best_params)), 3.4))
+    objective = res.experiment.search.objective if res.experiment is not None else "objective"
+    ylabel = {"prpv": "PRPV [0, K(K−1)] (↓)", "ppv": "PPV (↓)",
+              "mix": "PRPV/K(K−1) + PPV/(K·m) (↓)"}.get(objective, "objective (↓)")
+    fig, axes = plt.subplots(1, 1 + len(res.best_params), figsize=(4.4 * (1 + len(res.best_params)), 3.6),
+                             layout="constrained")
     axes = np.atleast_1d(axes)
     axes[0].plot(values, ".", alpha=0.6, label="trial")
     axes[0].plot(np.minimum.accumulate(values), "-", color="tab:red", label="best so far")
-    axes[0].set_xlabel("trial")
-    axes[0].set_ylabel("objective")
+    if objective == "prpv" and res.noise_floor is not None:
+        axes[0].axhspan(res.noise_floor.low, res.noise_floor.high, color="0.6", alpha=0.3, lw=0,
+                        label="target noise floor (95%)")
+    axes[0].set_xlabel("trial number")
+    axes[0].set_ylabel(ylabel)
     axes[0].legend(fontsize=8)
+    points = None
     for ax, name in zip(axes[1:], res.best_params, strict=True):
-        ax.scatter([t[name] for t in res.trials], values, s=12, c=range(len(values)), cmap="viridis")
+        points = ax.scatter([t[name] for t in res.trials], values, s=12, c=range(len(values)), cmap="viridis",
+                            label="trial (colour: trial number)")
         if name in res.truth:
-            ax.axvline(res.truth[name], color="tab:red", ls="--", lw=1, label="truth")
+            ax.axvline(res.truth[name], color="tab:red", ls="--", lw=1, label="known truth (not used by the search)")
         ax.axvline(res.recovered.get(name, res.best_params[name]), color="k", ls=":", lw=1,
                    label="recovered (best decile)")
-        ax.set_xlabel(name)
-        ax.legend(fontsize=8)
-    fig.suptitle("proxy optimisation against the reality model (simulated target)", fontsize=10)
-    fig.tight_layout()
+        ax.set_xlabel(param_label(name))
+        ax.set_ylabel(ylabel)
+        ax.legend(fontsize=7)
+    if points is not None:
+        fig.colorbar(points, ax=list(axes[1:]), label="trial number", fraction=0.03)
+    what = res.target.label if res.target is not None else "the target"
+    fig.suptitle(textwrap.shorten(f"proxy optimisation against {what}", 150, placeholder=" …"), fontsize=10)
     paths = [out / "optimization_history.png"]
     fig.savefig(paths[0], dpi=110)
     fig.savefig(paths[0].with_suffix(".svg"))

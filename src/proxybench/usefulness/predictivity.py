@@ -1,153 +1,188 @@
-"""The thesis' predictivity experiment (figures 3.3 and 3.4), as an importable function.
+"""The thesis' predictivity experiment (figures 3.3 and 3.4) against any target, as an importable function.
 
-K zoo agents are evaluated on the *target* (the reality model, a simulated stand-in for a real
-Duckiebot) and on proxy instances θ of the simulator swept around the target's calibrated values:
-trim over [-0.3, 0.3] (figure 3.3) and three values each of trim, command delay, blur time and camera
-pitch (figure 3.4). For every θ: PRPV, PPV, SRCC, Spearman, Kendall, MMRV with bootstrap intervals, and
-POD. The question the figures answer: is the usefulness metric smallest at the truth, and does it grow
-away from it?
+K agents are evaluated on the *target* (the reality model, a recorded directory or a robot node:
+:mod:`proxybench.targets`) and on proxy instances θ of the simulator swept around its nominal calibration
+(:mod:`proxybench.usefulness.proxies`). Each proxy replays every agent's target episodes from the same
+start poses and seeds, so proxy and target episodes are paired. For every θ: PRPV, PPV, SRCC, Spearman,
+Kendall, MMRV with bootstrap intervals, and POD where the target's θ is known; beside them the target's
+own noise floor and paired comparisons between θ values (:mod:`proxybench.usefulness.noise`), so that a
+minimum is only claimed where the data separate it from its neighbours.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from proxybench.domain.params import DomainParams
-from proxybench.domain.reality import TRUTH, reality_params
 from proxybench.runner.backends import Backend, InlineBackend
-from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
+from proxybench.runner.jobs import DomainSpec, Job, JobResult
 from proxybench.runner.sweep import run_jobs
+from proxybench.targets.spec import Target, TargetRun
 from proxybench.tasks.metrics import METRICS
-from proxybench.usefulness.metrics import PairedResults, usefulness
+from proxybench.usefulness.experiment import Experiment, ExperimentConfig, resolve
+from proxybench.usefulness.metrics import Estimate, PairedResults, usefulness
+from proxybench.usefulness.noise import compare_paired, lowest_claim, noise_floor, paired_prpv_samples
 from proxybench.usefulness.pod import pod
+from proxybench.usefulness.proxies import proxy_params
 
-__all__ = ["PredictivityConfig", "PredictivityResult", "proxy_params", "run_predictivity"]
+__all__ = ["PredictivityResult", "SweepClaim", "proxy_jobs", "run_predictivity"]
 
-FULL_AGENTS = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
-               "pure-pursuit-fast", "vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",
-               "vision-wide", "vision-twitchy")
-QUICK_AGENTS = ("straight", "bang-bang", "pid", "pid-fast", "pid-twitchy", "pure-pursuit", "vision", "vision-fast",
-                "vision-pitch25", "vision-twitchy", "vision-slow", "pid-sluggish")
+Progress = Callable[[str, int, int], None]
 
 
-@dataclass
-class PredictivityConfig:
-    """Every knob of the experiment. ``quick()`` is the small version used by tests and first tries."""
+@dataclass(frozen=True)
+class SweepClaim:
+    """What the data say about the minimum of PRPV along one parameter."""
 
-    agents: tuple[str, ...] = FULL_AGENTS
-    episodes: int = 10
-    seconds: float = 60.0
-    map: str = "loop_3x3"
-    image_size: tuple[int, int] = (160, 120)
-    metrics: tuple[str, ...] = ("driven_lanedir_consec", "survival_time")  # the thesis: distance and survival
-    trim_sweep: tuple[float, ...] = tuple(np.round(np.linspace(-0.3, 0.3, 7), 3))
-    grid: dict[str, tuple[float, ...]] = field(default_factory=lambda: {
-        "trim": (-0.1, 0.0, 0.1),
-        "command_delay": (0.05, 0.10, 0.15),
-        "blur_time": (0.0, 0.05, 0.10),
-        "camera_pitch": (15.0, 19.15, 23.0),
-    })
-    n_boot: int = 300
-    pod_seconds: float = 10.0
-    seed: int = 0
-
-    @classmethod
-    def quick(cls) -> PredictivityConfig:
-        return cls(agents=QUICK_AGENTS, episodes=3, seconds=20.0, n_boot=100, pod_seconds=4.0)
-
-
-def proxy_params(cfg: PredictivityConfig, **changes: Any) -> DomainParams:
-    """A proxy instance: the plain simulator at the target's calibrated values, with ``changes``."""
-    w, h = cfg.image_size
-    return DomainParams(image_width=w, image_height=h, **{**TRUTH, **changes})
+    parameter: str
+    best: float
+    separated: bool  # lower than each neighbour, with paired intervals excluding 0
+    plausible: tuple[float, ...]  # every value not separated from the best
+    neighbours: tuple[tuple[float, Estimate], ...]  # (neighbour value, ΔPRPV best − neighbour)
 
 
 @dataclass
 class PredictivityResult:
-    """One row per (swept parameter, value): the usefulness figures, and the raw results."""
+    """One row per (swept parameter, value) with the usefulness figures; the target, its noise floor, claims."""
 
     rows: list[dict[str, Any]]
-    config: PredictivityConfig
+    experiment: Experiment
+    target: TargetRun
     target_scores: dict[str, dict[str, float]]
+    noise: Estimate
+    claims: dict[str, SweepClaim] = field(default_factory=dict)
+    proxy_episodes: int = 0  # proxy episodes simulated now (not cached)
 
     def frame(self):
         import pandas as pd
 
         return pd.DataFrame(self.rows)
 
+    @property
+    def config(self) -> Experiment:
+        return self.experiment
 
-def _domains(cfg: PredictivityConfig) -> list[tuple[str, float, DomainSpec]]:
-    """(swept parameter, value, domain) for every proxy instance; each θ appears once per parameter."""
+    def best_row(self) -> dict[str, Any]:
+        return min(self.rows, key=lambda r: r["prpv"])
+
+
+def _domains(exp: Experiment) -> list[tuple[str, float, DomainSpec]]:
+    """(parameter, value, proxy domain) for every sweep point; equal θ share one cached result."""
     out = []
-    for v in cfg.trim_sweep:
-        out.append(("trim-sweep", float(v), DomainSpec(f"trim={v:g}", proxy_params(cfg, trim=float(v)).model_dump())))
-    for name, values in cfg.grid.items():
+    for name, values in exp.sweep.items():
         for v in values:
-            out.append((name, float(v), DomainSpec(f"{name}={v:g}", proxy_params(cfg, **{name: v}).model_dump())))
+            params = proxy_params(exp.image_size, exp.proxy, **{name: v})
+            out.append((name, float(v), DomainSpec(f"{name}={v:g}", params.model_dump())))
     return out
 
 
-def _results_by_agent(results: list[JobResult], metrics: tuple[str, ...]) -> dict[str, np.ndarray]:
+def proxy_jobs(exp: Experiment, tgt: TargetRun, dom: DomainSpec) -> list[Job]:
+    """The target's episodes replayed in one proxy: same agents, episode ids, seeds and start poses."""
+    specs = {a.label: a for a in exp.agents}
+    return [Job(specs[e.agent], dom, tgt.map, e.episode, e.seed, tgt.seconds, pose=e.pose, metrics=exp.metrics)
+            for e in tgt.episodes]
+
+
+def _by_agent(jobs: list[Job], results: list[JobResult], metrics: tuple[str, ...]) -> dict[str, np.ndarray]:
     by: dict[str, list[list[float]]] = {}
-    for r in results:
-        by.setdefault(r.agent, []).append([r.scores[m] for m in metrics])
-    return {a: np.asarray(v) for a, v in by.items()}
+    for job, r in zip(jobs, results, strict=True):
+        by.setdefault(job.agent.label, []).append([r.scores[m] for m in metrics])
+    return {a: np.asarray(v, dtype=float) for a, v in by.items()}
 
 
 def run_predictivity(
-    cfg: PredictivityConfig, run_dir: str | Path, backend: Backend | None = None,
-    progress: Callable[[str, int, int], None] | None = None,
+    cfg: ExperimentConfig | Experiment, run_dir: str | Path, backend: Backend | None = None,
+    progress: Progress | None = None, *, quick: bool = False, target: Target | None = None,
 ) -> PredictivityResult:
-    """Run (or resume) the whole experiment; episodes are cached in ``run_dir``."""
+    """Run (or resume) the whole experiment; episodes are cached in ``run_dir``.
+
+    ``cfg``: an experiment file's content (resolved against the target and the command's defaults, the quick
+    ones with ``quick``) or an already resolved :class:`Experiment` (then ``target`` too, or its text is opened).
+    """
     backend = backend or InlineBackend()
-    w, h = cfg.image_size
-    target = DomainSpec("reality", reality_params(image_width=w, image_height=h).model_dump(), kind="reality-model")
-    domains = _domains(cfg)
-    unique = {d.name: d for d in [target] + [d for _, _, d in domains]}  # trim=0 is in both sweeps
-    jobs = [Job(AgentSpec(a), d, cfg.map, e, cfg.seed * 10_000 + e, cfg.seconds, metrics=cfg.metrics)
-            for d in unique.values() for a in cfg.agents for e in range(cfg.episodes)]
+    run_dir = Path(run_dir)
+    if isinstance(cfg, ExperimentConfig):
+        exp, target = resolve(cfg, "predictivity", quick=quick, work_dir=run_dir.parent / "agents", target=target)
+    else:
+        exp = cfg
+        if target is None:
+            from proxybench.targets.spec import open_target
+
+            target = open_target(exp.target_text)
+    tgt = target.run(exp.agents, map_name=exp.map, seconds=exp.seconds, episodes=exp.episodes, seed=exp.seed,
+                     metrics=exp.metrics, image_size=exp.image_size, run_dir=run_dir, backend=backend,
+                     progress=progress)
+    domains = _domains(exp)
+    jobs = [j for _, _, d in domains for j in proxy_jobs(exp, tgt, d)]
     sweep = run_jobs(jobs, run_dir, backend,
-                     progress=(lambda done, total, _r: progress("episodes", done, total)) if progress else None)
-    # group by the job's domain, not the result's: equal θ under two names share one cached result
-    by_domain: dict[str, list[JobResult]] = {}
+                     progress=(lambda done, total, _r: progress("proxy episodes", done, total)) if progress else None)
+    by_domain: dict[str, tuple[list[Job], list[JobResult]]] = {}
     for job, r in zip(jobs, sweep.results, strict=True):
-        by_domain.setdefault(job.domain.name, []).append(r)
-    higher = tuple(METRICS[m].higher_is_better for m in cfg.metrics)
-    tgt = _results_by_agent(by_domain["reality"], cfg.metrics)
-    commands = _pod_commands(cfg, target)
+        js, rs = by_domain.setdefault(job.domain.name, ([], []))
+        js.append(job)
+        rs.append(r)
+    proxies = {name: _by_agent(js, rs, exp.metrics) for name, (js, rs) in by_domain.items()}
+    higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
+    truth = {**tgt.truth, **exp.truth}
+    commands = _pod_commands(exp, tgt) if _has_pod(exp, target, tgt) else None
     rows = []
     for k, (param, value, dom) in enumerate(domains):
-        prx = _results_by_agent(by_domain[dom.name], cfg.metrics)
-        est = usefulness(PairedResults(prx, tgt, higher), n_boot=cfg.n_boot, seed=cfg.seed)
+        est = usefulness(PairedResults(proxies[dom.name], tgt.results, higher), n_boot=exp.n_boot, seed=exp.seed)
         row: dict[str, Any] = {"parameter": param, "value": value, "domain": dom.name,
-                               "truth": float(TRUTH.get("trim" if param == "trim-sweep" else param, np.nan))}
+                               "truth": float(truth.get(param, np.nan))}
         for name, e in est.items():
             row[name], row[f"{name}_low"], row[f"{name}_high"] = e.value, e.low, e.high
-        row["pod"] = pod(DomainParams.model_validate(dom.params), DomainParams.model_validate(target.params),
-                         cfg.map, commands, seed=cfg.seed)
+        row["pod"] = (pod(DomainParams.model_validate(dom.params), DomainParams.model_validate(tgt.params), tgt.map,
+                          commands, seed=exp.seed) if commands is not None else float("nan"))
         rows.append(row)
         if progress:
             progress("usefulness", k + 1, len(domains))
-    target_scores = {a: dict(zip(cfg.metrics, np.mean(v, axis=0).tolist(), strict=True)) for a, v in tgt.items()}
-    return PredictivityResult(rows, cfg, target_scores)
+    floor = noise_floor(tgt.results, higher, n_boot=exp.n_boot, seed=exp.seed)
+    claims = _claims(exp, tgt, domains, proxies, rows, higher)
+    target_scores = {a: dict(zip(exp.metrics, np.nanmean(v, axis=0).tolist(), strict=True))
+                     for a, v in tgt.results.items()}
+    return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran)
 
 
-def _pod_commands(cfg: PredictivityConfig, target: DomainSpec) -> np.ndarray:
+def _claims(exp: Experiment, tgt: TargetRun, domains, proxies, rows, higher) -> dict[str, SweepClaim]:
+    """Per parameter: the paired comparison of every value with the best (adds delta_best columns to rows)."""
+    out = {}
+    for name in exp.sweep:
+        idx = [k for k, (p, _, _) in enumerate(domains) if p == name]
+        order = sorted(idx, key=lambda k: domains[k][1])
+        values = [domains[k][1] for k in order]
+        labels = [domains[k][2].name for k in order]
+        points = [rows[k]["prpv"] for k in order]
+        samples = paired_prpv_samples(tgt.results, [proxies[lb] for lb in labels], higher, n_boot=exp.n_boot,
+                                      seed=exp.seed)
+        best, comps, plausible = lowest_claim(labels, points, samples)
+        for j, k in enumerate(order):
+            c = compare_paired(labels, points, samples, j, best)
+            rows[k].update({"delta_best": c.delta.value, "delta_best_low": c.delta.low,
+                            "delta_best_high": c.delta.high, "plausible": j in plausible})
+        neigh = tuple((values[labels.index(c.b)], c.delta) for c in comps)
+        out[name] = SweepClaim(name, values[best], bool(comps) and all(c.a_lower for c in comps),
+                               tuple(values[j] for j in plausible), neigh)
+    return out
+
+
+def _has_pod(exp: Experiment, target: Target, tgt: TargetRun) -> bool:
+    """POD needs the target's camera: known only for the live reality model."""
+    return exp.pod_seconds > 0 and target.kind == "reality-model" and tgt.params is not None
+
+
+def _pod_commands(exp: Experiment, tgt: TargetRun) -> np.ndarray:
     """The commands the privileged PID agent issues on the target: a realistic open-loop sequence for POD."""
     from proxybench.agents import make_agent
     from proxybench.domain.simulator import Simulator
     from proxybench.runner.episode import run_episode
 
-    sim = Simulator(cfg.map, DomainParams.model_validate(target.params), render=False)
-    traj = run_episode(sim, make_agent("pid"), cfg.seed, cfg.pod_seconds, camera=False)
+    sim = Simulator(tgt.map, DomainParams.model_validate(tgt.params), render=False)
+    traj = run_episode(sim, make_agent("pid"), exp.seed, exp.pod_seconds, camera=False)
     per_frame = sim.substeps
     return np.stack([traj["pwm_left"][1::per_frame], traj["pwm_right"][1::per_frame]], axis=1)
-
-
-def config_dict(cfg: PredictivityConfig) -> dict[str, Any]:
-    return asdict(cfg)

@@ -1,23 +1,76 @@
-"""Figures 3.3 / 3.4, tables and a self-contained HTML page for a predictivity run."""
+"""Figures 3.3 / 3.4, tables and a self-contained HTML page for a predictivity run.
+
+The page says first what the target was (simulated, real, or unknown: never a simulated result presented
+as a real one), defines every metric with its range, puts the target's noise floor beside every PRPV, and
+claims "lowest at X" only where paired intervals separate X from its neighbours.
+"""
 
 from __future__ import annotations
 
 import base64
 import html
 import json
-from dataclasses import asdict
+import subprocess
+import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from proxybench import __version__
 from proxybench.usefulness.predictivity import PredictivityResult
+from proxybench.usefulness.proxies import param_label
 
-__all__ = ["findings", "write_report"]
+__all__ = ["DEFINITIONS", "THESIS", "findings", "noise_statement", "source_commit", "write_report"]
 
-_FIG33 = (("prpv", "PRPV (↓)"), ("ppv", "PPV (↓)"), ("srcc", "SRCC, Pearson (↑)"), ("pod", "POD (↓)"))
-_PARAM_LABEL = {"trim": "trim", "command_delay": "command delay [s]", "blur_time": "blur time [s]",
-                "camera_pitch": "camera pitch [deg]"}
+THESIS = ("A. Courchesne, “On quantifying the value of simulation for training and evaluating robotic agents”, "
+          "M.Sc. thesis, Université de Montréal (chapter 3: A. Courchesne, A. Censi, L. Paull, “On Assessing the "
+          "Usefulness of Proxy Domains for Developing and Evaluating Embodied Agents”, IROS 2021)")
+
+#: (name, range and direction, definition) of every figure in the report
+DEFINITIONS = (
+    ("PRPV", "[0, K(K−1)], lower is better",
+     "Proxy Relative Predictive Value (thesis eq. 3.4.4): Σ_ij |α^proxy_ij − α^target_ij| over the dominance "
+     "matrices of the K agents (α_ij = 1 if agent i is at least as good as j on every task metric and better on "
+     "one, 0 if the reverse, 0.5 if incomparable or equal). 0: the proxy orders every pair as the target does; "
+     "one swapped pair costs 2."),
+    ("PPV", "[0, ∞), lower is better",
+     "Proxy Performance Value: Σ over agents and metrics of |mean in proxy − mean in target| divided by the "
+     "metric's spread across agents in the target (dimensionless; grows with K and the number of metrics)."),
+    ("SRCC", "[−1, 1], higher is better",
+     "Sim-to-real correlation coefficient (Habitat): Pearson's r between proxy and target mean performance of "
+     "the agents, averaged over metrics. Spearman's ρ and Kendall's τ (same range) are rank versions."),
+    ("MMRV", "[0, ∞) in the metric's units, lower is better",
+     "SIMPLER's mean maximum rank violation: for each agent, the largest target-performance gap to an agent the "
+     "proxy orders the other way; averaged over agents and metrics."),
+    ("POD", "[0, 1], lower is better",
+     "Naive pixel distance: the same open-loop commands (the PID agent's on the target) from the same start in "
+     "proxy and target; mean |Δpixel| / 255 between the camera streams. Needs the target's camera, so it is "
+     "only computed against the live reality model."),
+    ("noise floor", "[0, K(K−1)]",
+     "PRPV of the target against a replicate of itself: two independent resamples of its own episodes (same "
+     "count per agent). A proxy whose PRPV lies within it cannot be told from a perfect proxy with these data."),
+    ("95% intervals", "",
+     "Percentile bootstrap over episodes (resampled per agent). Resampling adds noise to both domains, and PRPV "
+     "grows with noise, so a PRPV interval can lie above its point value; read it with the noise floor."),
+    ("Δ vs best", "PRPV units",
+     "PRPV of this θ minus PRPV of the best θ of the same parameter, over paired resamples (the same target "
+     "episodes, replayed from the same starts in both proxies). An interval above 0 separates the two."),
+)
+
+
+def source_commit() -> str:
+    """The git commit of the proxybench sources in use (``+dirty`` with local changes), or why it is unknown."""
+    here = Path(__file__).resolve().parent
+    try:
+        rev = subprocess.run(["git", "-C", str(here), "rev-parse", "--short=12", "HEAD"], capture_output=True,
+                             text=True, timeout=5)
+        if rev.returncode != 0:
+            return "unknown (not a git checkout)"
+        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=5)
+        return rev.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown (git not available)"
 
 
 def _pyplot():
@@ -29,45 +82,82 @@ def _pyplot():
     return plt
 
 
-def _band(ax, x, df, key):
-    ax.plot(x, df[key], "o-", color="tab:blue")
+def _main_parameter(res: PredictivityResult) -> str:
+    """The parameter figure 3.3 shows: trim when swept (as in the thesis), else the one with most values."""
+    sweep = res.experiment.sweep
+    return "trim" if "trim" in sweep else max(sweep, key=lambda k: len(sweep[k]))
+
+
+_PANELS = (("prpv", "PRPV (↓)", "PRPV  [0, {kk}]"), ("ppv", "PPV (↓)", "PPV  [dimensionless]"),
+           ("srcc", "SRCC, Pearson (↑)", "SRCC  [−1, 1]"), ("pod", "POD (↓)", "POD  [0, 1]"))
+
+
+def _band(ax, df, key, label):
+    ax.plot(df.value, df[key], "o-", color="tab:blue", label=label)
     if f"{key}_low" in df:
-        ax.fill_between(x, df[f"{key}_low"], df[f"{key}_high"], color="tab:blue", alpha=0.2, lw=0)
+        ax.fill_between(df.value, df[f"{key}_low"], df[f"{key}_high"], color="tab:blue", alpha=0.2, lw=0,
+                        label="95% bootstrap interval")
+
+
+def _marks(ax, res: PredictivityResult, d, floor: bool) -> None:
+    if floor:
+        nf = res.noise
+        ax.axhspan(nf.low, nf.high, color="0.55", alpha=0.25, lw=0, label="target noise floor (95%)")
+    truth = d.truth.iloc[0]
+    if np.isfinite(truth):
+        ax.axvline(truth, color="tab:red", ls="--", lw=1, label="target's known θ")
 
 
 def figure_3_3(res: PredictivityResult, path: Path) -> Path:
-    """PRPV, PPV, SRCC and POD against trim, side by side; the target's true trim marked."""
+    """PRPV, PPV, SRCC (and POD where known) against the main swept parameter, side by side."""
     plt = _pyplot()
+    name = _main_parameter(res)
     df = res.frame()
-    df = df[df.parameter == "trim-sweep"].sort_values("value")
-    fig, axes = plt.subplots(1, 4, figsize=(15, 3.4))
-    for ax, (key, label) in zip(axes, _FIG33, strict=True):
-        _band(ax, df.value, df, key)
-        ax.axvline(df.truth.iloc[0], color="tab:red", ls="--", lw=1, label="target's true trim")
-        ax.set_xlabel("proxy trim")
-        ax.set_title(label, fontsize=10)
-    axes[0].legend(fontsize=8)
-    fig.suptitle("Usefulness of proxies with different trim for predicting the target's ranking "
-                 "(target: reality model, simulated)", fontsize=10)
-    fig.tight_layout()
+    d = df[df.parameter == name].sort_values("value")
+    panels = [p for p in _PANELS if p[0] != "pod" or d.pod.notna().any()]
+    k = len(res.experiment.agents)
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.9 * len(panels), 3.6), layout="constrained")
+    for ax, (key, title, ylabel) in zip(np.atleast_1d(axes), panels, strict=True):
+        _band(ax, d, key, "proxy")
+        _marks(ax, res, d, key == "prpv")
+        ax.set_xlabel(f"proxy {param_label(name)}")
+        ax.set_ylabel(ylabel.format(kk=k * (k - 1)))
+        ax.set_title(title, fontsize=10)
+        ax.legend(fontsize=7)
+    fig.suptitle(_short(f"Usefulness of proxies with different {name} for predicting the ranking of {k} agents "
+                        f"(target: {res.target.info.label})", 40 * len(panels)), fontsize=10)
     return _save(fig, path)
 
 
 def figure_3_4(res: PredictivityResult, path: Path) -> Path:
-    """PRPV for three values of each parameter around the truth."""
+    """PRPV against every swept parameter, with the target's noise floor."""
     plt = _pyplot()
     df = res.frame()
-    params = list(res.config.grid)
-    fig, axes = plt.subplots(1, len(params), figsize=(3.8 * len(params), 3.4), squeeze=False)
+    params = list(res.experiment.sweep)
+    k = len(res.experiment.agents)
+    fig, axes = plt.subplots(1, len(params), figsize=(3.9 * len(params), 3.6), squeeze=False, layout="constrained")
     for ax, name in zip(axes[0], params, strict=True):
         d = df[df.parameter == name].sort_values("value")
-        _band(ax, d.value, d, "prpv")
-        ax.axvline(d.truth.iloc[0], color="tab:red", ls="--", lw=1)
-        ax.set_xlabel(_PARAM_LABEL.get(name, name))
+        _band(ax, d, "prpv", "proxy")
+        _marks(ax, res, d, True)
+        claim = res.claims.get(name)
+        if claim is not None and claim.separated:
+            ax.plot([claim.best], [float(d.prpv[d.value == claim.best].iloc[0])], "*", color="k", ms=11,
+                    label="lowest (separated)")
+        ax.set_xlabel(f"proxy {param_label(name)}")
+        ax.set_ylabel(f"PRPV  [0, {k * (k - 1)}]")
         ax.set_title("PRPV (↓)", fontsize=10)
-    fig.suptitle("PRPV around the target's calibrated values (red: truth)", fontsize=10)
-    fig.tight_layout()
+        ax.legend(fontsize=7)
+    fig.suptitle(_short(f"PRPV for each swept parameter (target: {res.target.info.label})", 40 * len(params)),
+                 fontsize=10)
     return _save(fig, path)
+
+
+def _short(text: str, width: int) -> str:
+    """A figure title that fits its figure (the full target statement is on the page)."""
+    import textwrap
+
+    return textwrap.shorten(text, max(width, 60), placeholder=" …")
 
 
 def _save(fig, path: Path) -> Path:
@@ -78,41 +168,97 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
+def _fmt(v: float) -> str:
+    return f"{v:g}"
+
+
+def noise_statement(res: PredictivityResult) -> str:
+    """How much of the best proxy's PRPV is what two replicates of the target differ by."""
+    best, nf = res.best_row(), res.noise
+    where = f"{best['parameter']} = {_fmt(best['value'])}"
+    if best["prpv"] <= 0:
+        return (f"The best proxy ({where}) orders the agents exactly as the target (PRPV 0); the target's noise "
+                f"floor is {nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}].")
+    share = min(1.0, nf.value / best["prpv"])
+    within = best["prpv"] <= nf.high
+    return (f"Best PRPV {best['prpv']:.1f} [{best['prpv_low']:.1f}, {best['prpv_high']:.1f}] at {where}; the "
+            f"target's own noise floor (PRPV of the target against a replicate of itself, "
+            f"{res.experiment.episodes} episodes per agent) is {nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}]: about "
+            f"{100 * share:.0f}% of the residual gap is sampling noise"
+            + (", and the best proxy is within the noise floor (the data cannot tell it from a perfect proxy)."
+               if within else "; the rest is a gap no swept θ closed."))
+
+
 def findings(res: PredictivityResult) -> list[str]:
-    """Plain statements about the result: where each metric is best, and whether PRPV is monotone."""
+    """Plain statements: where PRPV is lowest per parameter, and only as strongly as the paired intervals allow."""
+    out = [noise_statement(res)]
     df = res.frame()
-    out = []
-    trim = df[df.parameter == "trim-sweep"].sort_values("value")
-    truth = float(trim.truth.iloc[0])
-    for key, label, best in (("prpv", "PRPV", np.argmin), ("ppv", "PPV", np.argmin), ("srcc", "SRCC", np.argmax),
-                             ("pod", "POD", np.argmin)):
-        v = trim[key].to_numpy()
-        at = float(trim.value.iloc[int(best(v))])
-        out.append(f"{label} is best at trim {at:+.2f} (truth {truth:+.2f}): "
-                   + ("at the truth." if abs(at - truth) < 1e-9 else f"off by {at - truth:+.2f}."))
-    v = trim.prpv.to_numpy()
-    k = int(np.argmin(v))
-    at_truth = trim[np.isclose(trim.value, truth)]
-    if len(at_truth) and k != int(np.argmax(np.isclose(trim.value, truth))):
-        overlap = float(at_truth.prpv_low.iloc[0]) <= float(trim.prpv_high.iloc[k])
-        out.append("The 95% intervals of PRPV at the truth and at the minimum "
-                   + ("overlap: the data do not separate them." if overlap else "do not overlap."))
-    mono = bool(np.all(np.diff(v[: k + 1]) <= 0) and np.all(np.diff(v[k:]) >= 0))
-    out.append(f"PRPV {'falls then rises monotonically' if mono else 'is not monotone'} around its minimum "
-               f"(values {', '.join(f'{x:.0f}' for x in v)}).")
-    for name in res.config.grid:
+    for name, claim in res.claims.items():
         d = df[df.parameter == name].sort_values("value")
+        truth = float(d.truth.iloc[0])
+        known = f" (the target's known {name}: {_fmt(truth)})" if np.isfinite(truth) else ""
+        if len(d) == 1:
+            continue
+        if claim.separated:
+            parts = ", ".join(f"Δ vs {_fmt(v)}: {e.value:+.1f} [{e.low:+.1f}, {e.high:+.1f}]"
+                              for v, e in claim.neighbours)
+            out.append(f"{name}: PRPV is lowest at {_fmt(claim.best)}, separated from its neighbours ({parts})"
+                       f"{known}.")
+        else:
+            plausible = ", ".join(_fmt(v) for v in claim.plausible)
+            low = float(d.prpv.min())
+            ties = [float(v) for v in d.value[np.isclose(d.prpv, low)]]
+            where = (f"is equally small ({low:.1f}) at {', '.join(_fmt(v) for v in ties)}" if len(ties) > 1
+                     else f"is smallest at {_fmt(claim.best)} ({low:.1f})")
+            out.append(f"{name}: PRPV {where}, but the paired intervals do not separate the minimum from its "
+                       f"neighbours; values the data cannot tell apart from it: {plausible}{known}.")
+    main = _main_parameter(res)
+    d = df[df.parameter == main].sort_values("value")
+    if len(d) >= 3:
         v = d.prpv.to_numpy()
-        lowest = [float(x) for x in d.value[np.isclose(v, v.min())]]
-        t = float(d.truth.iloc[0])
-        hit = any(abs(x - t) < 1e-9 for x in lowest)
-        where = " and ".join(f"{x:g}" for x in lowest) + (" (tie)" if len(lowest) > 1 else "")
-        out.append(f"{name}: PRPV lowest at {where} (truth {t:g})" + (" ✓" if hit else ""))
+        k = int(np.argmin(v))
+        mono = bool(np.all(np.diff(v[: k + 1]) <= 0) and np.all(np.diff(v[k:]) >= 0))
+        out.append(f"{main}: PRPV {'falls then rises monotonically' if mono else 'is not monotone'} around its "
+                   f"smallest value (point values {', '.join(f'{x:.0f}' for x in v)}; see the intervals).")
     return out
 
 
-def _img(path: Path) -> str:
-    return f'<img src="data:image/png;base64,{base64.b64encode(path.read_bytes()).decode()}" style="max-width:100%">'
+def _img(path: Path, alt: str) -> str:
+    data = base64.b64encode(path.read_bytes()).decode()
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}" style="max-width:100%">'
+
+
+def _target_box(res: PredictivityResult) -> str:
+    info = res.target.info
+    colour, tag = {True: ("#fff4e5", "SIMULATED TARGET"), False: ("#e8f5e9", "REAL ROBOTS (declared by the recording)"),
+                   None: ("#fffde7", "TARGET OF UNKNOWN NATURE")}[info.simulated]
+    return (f'<div style="background:{colour};border:1px solid #ccc;padding:.6em 1em"><b>{tag}.</b> '
+            f"{html.escape(info.statement)}</div>")
+
+
+def _compact_table(res: PredictivityResult) -> str:
+    df = res.frame()
+    head = ("parameter", "value", "PRPV [95% CI]", "Δ vs best [95% paired CI]", "PPV", "SRCC", "POD")
+    rows = []
+    for name in res.experiment.sweep:
+        d = df[df.parameter == name].sort_values("value")
+        for _, r in d.iterrows():
+            mark = []
+            if np.isfinite(r.truth) and abs(r.value - r.truth) < 1e-9:
+                mark.append("known θ")
+            if res.claims.get(name) and res.claims[name].best == r.value:
+                mark.append("lowest" + ("" if res.claims[name].separated else ", not separated"))
+            delta = ("—" if res.claims.get(name) and res.claims[name].best == r.value
+                     else f"{r.delta_best:+.1f} [{r.delta_best_low:+.1f}, {r.delta_best_high:+.1f}]")
+            pod = "n/a" if not np.isfinite(r.pod) else f"{r.pod:.3f}"
+            cells = (name, f"{_fmt(r.value)}" + (f" <small>({', '.join(mark)})</small>" if mark else ""),
+                     f"{r.prpv:.1f} [{r.prpv_low:.1f}, {r.prpv_high:.1f}]", delta, f"{r.ppv:.2f}", f"{r.srcc:.2f}", pod)
+            style = ' style="background:#eef6ff"' if "lowest" in " ".join(mark) else ""
+            rows.append(f"<tr{style}>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+    nf = res.noise
+    rows.append(f'<tr style="background:#f2f2f2"><td>target noise floor</td><td>—</td><td>{nf.value:.1f} '
+                f"[{nf.low:.1f}, {nf.high:.1f}]</td><td></td><td></td><td></td><td></td></tr>")
+    return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>")
 
 
 def write_report(res: PredictivityResult, out: str | Path, wall_s: float | None = None) -> dict[str, Path]:
@@ -129,29 +275,41 @@ def write_report(res: PredictivityResult, out: str | Path, wall_s: float | None 
     }
     df.to_csv(files["csv"], index=False)
     df.to_parquet(files["parquet"], index=False)
-    facts = findings(res)
-    cfg: dict[str, Any] = asdict(res.config)
+    exp = res.experiment
+    k = len(exp.agents)
+    defs = "".join(f"<dt><b>{html.escape(n)}</b> <small>{html.escape(r)}</small></dt><dd>{html.escape(d)}</dd>"
+                   for n, r, d in DEFINITIONS)
+    metrics = ", ".join(html.escape(m) for m in exp.metrics)
     target_rows = "".join(
         f"<tr><td>{html.escape(a)}</td>" + "".join(f"<td>{v:.2f}</td>" for v in s.values()) + "</tr>"
         for a, s in sorted(res.target_scores.items(), key=lambda kv: -next(iter(kv[1].values())))
     )
+    details = df.round(4).to_html(index=False, border=0)
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>proxybench predictivity</title>
-<style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;line-height:1.4}}
-table{{border-collapse:collapse;font-size:13px}}td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}</style>
-</head><body><h1>Predictivity of simulator instances</h1>
-<p><b>What is simulated:</b> everything. The target is proxybench's <i>reality model</i>, a simulated stand-in for a
-real Duckiebot with effects the proxy family cannot express (wheel slip, motor dead-band, latency jitter, fisheye
-lens, other light). No real robot was involved.</p>
-<p>{len(res.config.agents)} agents × {res.config.episodes} episodes × {res.config.seconds:g} s on
-{html.escape(res.config.map)}; metrics {", ".join(res.config.metrics)}; {res.config.n_boot} bootstrap resamples
-(shaded: 95% intervals){f"; wall time {wall_s:.0f} s" if wall_s else ""}.</p>
-<h2>Findings</h2><ul>{"".join(f"<li>{html.escape(f)}</li>" for f in facts)}</ul>
-<h2>Figure 3.3: usefulness metrics against proxy trim</h2>{_img(files["fig3_3"])}
-<h2>Figure 3.4: PRPV around the calibrated values</h2>{_img(files["fig3_4"])}
-<h2>Table</h2>{df.round(4).to_html(index=False)}
+<style>body{{font-family:sans-serif;max-width:1150px;margin:2em auto;line-height:1.4;padding:0 1em}}
+table{{border-collapse:collapse;font-size:13px;margin:.5em 0}}td,th{{border:1px solid #ccc;padding:2px 6px;
+text-align:right}}td:first-child{{text-align:left}}dt{{margin-top:.4em}}details{{margin:.8em 0}}
+.prov{{color:#555;font-size:13px}}</style></head><body>
+<h1>Predictivity of simulator instances</h1>
+{_target_box(res)}
+<p class="prov">proxybench {__version__}, commit {html.escape(source_commit())}; {time.strftime("%Y-%m-%d %H:%M")};
+method: {html.escape(THESIS)}.</p>
+<p>{k} agents × {exp.episodes} episodes × {exp.seconds:g} s on {html.escape(Path(exp.map).name)}; task metrics
+{metrics}; each proxy replays every target episode from the same start pose and seed; {exp.n_boot} bootstrap
+resamples (95% intervals){f"; wall time {wall_s:.0f} s" if wall_s else ""}.</p>
+<h2>Findings</h2><p><small>PRPV, PPV, SRCC, POD, noise floor: <a href="#definitions">definitions and
+ranges below</a>.</small></p><ul>{"".join(f"<li>{html.escape(f)}</li>" for f in findings(res))}</ul>
+<h2>Results</h2>{_compact_table(res)}
+<details><summary>every figure with its interval (Spearman, Kendall, MMRV, normalised PRPV, …)</summary>
+{details}</details>
+<h2>Figure 3.3: usefulness metrics against proxy {html.escape(_main_parameter(res))}</h2>
+{_img(files["fig3_3"], "figure 3.3")}
+<h2>Figure 3.4: PRPV for each swept parameter</h2>{_img(files["fig3_4"], "figure 3.4")}
+<h2 id="definitions">What the figures mean</h2><dl>{defs}</dl>
 <h2>Agents on the target (mean over episodes)</h2><table><tr><th>agent</th>
-{"".join(f"<th>{html.escape(m)}</th>" for m in res.config.metrics)}</tr>{target_rows}</table>
-<h2>Configuration</h2><pre>{html.escape(json.dumps(cfg, indent=1, default=str))}</pre>
+{"".join(f"<th>{html.escape(m)}</th>" for m in exp.metrics)}</tr>{target_rows}</table>
+<details><summary>configuration</summary><pre>{html.escape(json.dumps(
+        {"experiment": exp.to_dict(), "target": res.target.info.details}, indent=1, default=str))}</pre></details>
 </body></html>"""
     files["html"].write_text(page)
     return files

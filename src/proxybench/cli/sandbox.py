@@ -1,0 +1,80 @@
+"""`proxybench sandbox setup|check`: prepare and inspect the sandbox evaluators run agent packages in."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+
+import typer
+
+from proxybench.cli.app import app, console, err_console
+
+sandbox_app = typer.Typer(no_args_is_help=True, help="The sandbox that evaluators run agent packages in.")
+app.add_typer(sandbox_app, name="sandbox")
+
+AgentUserOpt = typer.Option("proxybench-agent", help="the unprivileged user agent packages run as")
+
+
+def _show(isolation) -> None:
+    from rich.markup import escape
+    from rich.table import Table
+
+    table = Table(show_header=False, box=None, pad_edge=False)
+    verdict = "[green]safe[/green]" if isolation.safe else \
+        "[red]UNSAFE[/red]" if isolation.usable else "[red]agent packages refused[/red]"
+    table.add_row("sandbox", f"{verdict} ({isolation.kind})")
+    table.add_row("agents run as", escape(isolation.user))
+    table.add_row("bubblewrap", escape(isolation.bwrap or "-"))
+    table.add_row("runtime (read-only)", escape(", ".join(["/usr", *isolation.runtime])))
+    if isolation.pythonpath:
+        table.add_row("PYTHONPATH", escape(isolation.pythonpath))
+    table.add_row("note", escape(isolation.note or isolation.problem))
+    console.print(table)
+
+
+@sandbox_app.command("check")
+def check(agent_user: str = AgentUserOpt) -> None:
+    """Say how this host would run agent packages (starts Python in the sandbox once); exit 1 unless safe."""
+    from proxybench.evaluator.sandbox import detect_isolation
+
+    isolation = detect_isolation(agent_user)
+    _show(isolation)
+    if not isolation.safe:
+        raise typer.Exit(1)
+
+
+@sandbox_app.command("setup")
+def setup(agent_user: str = AgentUserOpt) -> None:
+    """As root: create the agent user if missing, then check the sandbox (bubblewrap must be installed)."""
+    from proxybench.evaluator.sandbox import detect_isolation
+
+    if os.geteuid() != 0:
+        err_console.print("[red]✗[/red] run this as root: it creates a system user, and evaluators that run agent "
+                          "packages must run as root too (they drop to that user for the agents only)")
+        raise typer.Exit(2)
+    if shutil.which("bwrap") is None:
+        err_console.print("[red]✗[/red] bubblewrap is not installed: apt-get install bubblewrap "
+                          "(dnf install bubblewrap on Fedora)")
+        raise typer.Exit(1)
+    import pwd
+
+    try:
+        pwd.getpwnam(agent_user)
+        exists = True
+    except KeyError:
+        exists = False
+    if exists:
+        console.print(f"user {agent_user!r} exists", highlight=False)
+    else:
+        cmd = ["useradd", "--system", "--user-group", "--no-create-home", "--home-dir", "/nonexistent",
+               "--shell", "/usr/sbin/nologin", "--comment", "proxybench agent sandbox", agent_user]
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode != 0:
+            err_console.print(f"[red]✗[/red] {' '.join(cmd)} failed: {done.stderr.strip()}", highlight=False)
+            raise typer.Exit(1)
+        console.print(f"created the system user {agent_user!r}", highlight=False)
+    isolation = detect_isolation(agent_user)
+    _show(isolation)
+    if not isolation.safe:
+        raise typer.Exit(1)

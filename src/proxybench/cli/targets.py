@@ -1,0 +1,124 @@
+"""`proxybench target record` and `proxybench target check`: targets as data (docs/targets.md)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import typer
+from rich.table import Table
+
+from proxybench.cli.app import app, console, err_console
+from proxybench.cli.options import positive
+from proxybench.cli.progress import status
+
+target_app = typer.Typer(no_args_is_help=True, help="Record a target once (reality model or robot node), check "
+                                                    "recorded targets (your lab's runs).")
+app.add_typer(target_app, name="target")
+
+
+def _fail(message: str, code: int = 2) -> None:
+    for line in message.splitlines():
+        err_console.print(f"[red]✗[/red] {line}", highlight=False, markup=False)
+    raise typer.Exit(code)
+
+
+@target_app.command("record")
+def record(
+    out: Path = typer.Option(..., "--out", help="directory of the recorded target (created; resumed if it exists)"),
+    agent: list[str] = typer.Option(..., "--agent", help="zoo name, NAME=COMMAND, checkpoint or package (repeat)"),
+    reality: bool = typer.Option(False, "--reality", help="record the reality model (the default target)"),
+    robot_cmd: str | None = typer.Option(None, "--robot-cmd", help="record a robot node started with this command"),
+    robot_nodes: int = typer.Option(1, min=1, help="robot node processes at once (1 for a physical robot)"),
+    target_param: list[str] = typer.Option([], "--target-param", help="reality model θ, k=v (repeat)"),
+    episodes: int = typer.Option(10, min=1, help="episodes per agent"),
+    seconds: float = typer.Option(60.0, callback=positive, max=3600.0, help="episode length in s"),
+    map_name: str = typer.Option("loop_3x3", "--map", help="built-in map or map file"),
+    seed: int = typer.Option(0, min=0, help="episode seeds are seed·10000 + episode"),
+    image_size: str = typer.Option("160x120", help="camera WIDTHxHEIGHT (reality model)"),
+    description: str = typer.Option("", help="free text for the manifest"),
+    who: str = typer.Option("", help="who recorded it"),
+    where: str = typer.Option("", help="where"),
+    when: str = typer.Option("", help="when (default: today)"),
+    backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
+    workers: int | None = typer.Option(None, min=1),
+) -> None:
+    """Record agents on a live target into DIR: one trajectory per (agent, episode) plus target.yaml.
+
+    Every finished episode is written at once; run the same command again after an interruption and only
+    the missing episodes are recorded. Robot episodes run one after another.
+    """
+    from proxybench.cli.usefulness import _image_size, _kv
+    from proxybench.runner.backends import make_backend
+    from proxybench.targets.manifest import TargetError
+    from proxybench.targets.record import record_target
+    from proxybench.targets.spec import open_target
+    from proxybench.usefulness.agent_args import AgentArgError, parse_agents
+
+    if reality and robot_cmd:
+        _fail("give --reality or --robot-cmd, not both")
+    try:
+        target = open_target(f"robot:{robot_cmd}" if robot_cmd else "reality",
+                             params=_kv(target_param, "--target-param") or None, robot_nodes=robot_nodes)
+        specs = parse_agents(agent, out / ".agents")
+    except (TargetError, AgentArgError) as exc:
+        _fail(str(exc))
+    size = _image_size(image_size)
+    assert size is not None
+    be = make_backend(backend, min(workers or robot_nodes, robot_nodes) if robot_cmd else workers)
+    t0 = time.perf_counter()
+    with status("recording") as spinner:
+        try:
+            summary = record_target(out, target, specs, map_name=map_name, seconds=seconds, episodes=episodes,
+                                    seed=seed, image_size=(size[0], size[1]), description=description, who=who,
+                                    where=where, when=when or time.strftime("%Y-%m-%d"), backend=be,
+                                    progress=lambda d, t: spinner.update(f"recording: episode {d}/{t}"))
+        except TargetError as exc:
+            _fail(str(exc))
+        finally:
+            be.close()
+    m = summary.manifest
+    console.print(f"recorded {summary.recorded} episode(s), kept {summary.kept} already recorded, in "
+                  f"{time.perf_counter() - t0:.0f} s: {len(m.agents)} agents × {len(m.episodes)} episodes × "
+                  f"{m.seconds:g} s on {m.map} (source: {m.source}) → {out}", highlight=False)
+    for line in summary.failed:
+        err_console.print(f"[yellow]agent failure recorded:[/yellow] {line}", highlight=False, markup=False)
+    console.print(f"check it with: proxybench target check {out}", highlight=False)
+
+
+@target_app.command("check")
+def check(
+    root: Path = typer.Argument(..., help="directory of a recorded target (or its target.yaml)"),
+    metric: list[str] = typer.Option([], "--metric", help="metrics to score and show (repeat) "
+                                     "(default: survival_time, driven_lanedir_consec, or the table's)"),
+) -> None:
+    """Validate a recorded target and print a summary; every problem names its file, row and column."""
+    import numpy as np
+
+    from proxybench.targets.recorded import check_recording
+    from proxybench.targets.spec import RecordedTarget
+
+    report = check_recording(root, tuple(metric) or None)
+    if not report.ok:
+        err_console.print(f"[red]✗[/red] {root}: {len(report.problems)} problem(s)", highlight=False)
+        _fail("\n".join(report.problems), code=1)
+    m = report.manifest
+    assert m is not None
+    console.print(f"[green]✓[/green] {report.root}: {RecordedTarget(report.root).info().statement}", highlight=False)
+    console.print(f"map {m.map}, {m.seconds:g} s episodes, {len(m.agents)} agents × {len(m.episodes)} episodes "
+                  f"({m.kind}: {m.metrics_table or m.pattern})", highlight=False)
+    metrics = list(report.episodes[0].scores) if report.episodes else []
+    table = Table(title="mean over episodes [min … max]")
+    for col in ("agent", "episodes", *metrics, "ended early"):
+        table.add_column(col, justify="left" if col == "agent" else "right")
+    for a in m.agents:
+        eps = [e for e in report.episodes if e.agent == a]
+        cells = []
+        for k in metrics:
+            v = np.array([e.scores[k] for e in eps], dtype=float)
+            cells.append(f"{np.nanmean(v):.2f} [{np.nanmin(v):.2f} … {np.nanmax(v):.2f}]")
+        early = sum(e.termination not in ("timeout",) for e in eps) if m.kind == "trajectories" else "–"
+        table.add_row(a, str(len(eps)), *cells, str(early))
+    console.print(table)
+    for note in report.notes:
+        console.print(f"note: {note}", highlight=False, markup=False)

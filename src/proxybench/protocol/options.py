@@ -1,0 +1,61 @@
+"""How to start a node and talk to it: the options a user writes next to an agent command.
+
+One validated model, :class:`NodeOptions`, serves every place a node command is accepted — the CLI
+(``--agent-cwd``, ``--transport``, ``--start-timeout``, ``--step-timeout``, ``--no-reflection``), benchmark
+files (``agents:`` entries), agent package manifests, :class:`~proxybench.runner.jobs.AgentSpec` — so
+each spells the same fields the same way and rejects the same mistakes, naming the field.
+
+>>> NodeOptions(transport="fifo", step_timeout=2).process_kwargs()["transport"]
+'fifos'
+>>> NodeOptions().non_default()
+{}
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = ["NODE_OPTION_FIELDS", "NodeOptions"]
+
+
+class NodeOptions(BaseModel):
+    """Start-up and transport options of one node process (agent or robot).
+
+    ``cwd``: working directory of the command (relative paths are taken from where it is written: the
+    benchmark file's folder, the package folder). ``transport``: ``pipe`` (stdin/stdout) or ``fifo``
+    (AIDO's default: the node reads ``AIDONODE_DATA_IN`` and creates ``AIDONODE_DATA_OUT``, so what it
+    prints to stdout cannot break the protocol). ``fifo_dir``: where the FIFOs are made (default: a
+    private temporary folder; give a folder a container mounts). ``start_timeout`` [s]: start +
+    handshake, and each setup message (seed, episode start). ``step_timeout`` [s]: each per-frame
+    exchange. ``reflection``: ask the node for its protocol description (``describe_protocol``); a node
+    that fails the request is started again without it, so ``false`` only saves that restart.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    cwd: str | None = Field(None, min_length=1, description="working directory of the command")
+    transport: Literal["pipe", "fifo"] = Field("pipe", description="pipe (stdin/stdout) or fifo (AIDO's default)")
+    fifo_dir: str | None = Field(None, min_length=1, description="folder for the FIFOs (transport fifo)")
+    start_timeout: float = Field(30.0, gt=0.0, allow_inf_nan=False, description="start + handshake, setup [s]")
+    step_timeout: float = Field(5.0, gt=0.0, allow_inf_nan=False, description="each per-frame exchange [s]")
+    reflection: bool = Field(True, description="ask describe_protocol (falls back without it on failure)")
+
+    def process_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of :class:`~proxybench.protocol.process.NodeProcess` (and its subclasses)."""
+        return {"cwd": self.cwd, "transport": self.transport + "s", "fifo_dir": self.fifo_dir,
+                "init_timeout": self.start_timeout, "step_timeout": self.step_timeout,
+                "reflection": self.reflection}
+
+    def non_default(self) -> dict[str, Any]:
+        """The fields that differ from the defaults (what identifies these options in a job's hash)."""
+        return self.model_dump(exclude_defaults=True)
+
+    def items(self) -> tuple[tuple[str, Any], ...]:
+        """:meth:`non_default` as sorted pairs: hashable, for frozen dataclasses such as ``AgentSpec``."""
+        return tuple(sorted(self.non_default().items()))
+
+
+#: the option names, for error messages and manifests
+NODE_OPTION_FIELDS = tuple(NodeOptions.model_fields)

@@ -1,0 +1,75 @@
+"""A robot node as the target: ``--target "robot:CMD"``.
+
+CMD starts a process that speaks the robot protocol (docs/robot-protocol.md): a physical Duckiebot's
+bridge, another simulator, or ``proxybench robot serve``. Its episodes run through the runner as a robot
+domain (``DomainSpec(kind="robot")``), one after another on one node process, cached in the experiment's
+run directory like every other episode: a sweep or an optimisation runs the target's episodes once and
+re-uses them for every θ, and an interrupted run resumes. proxybench cannot see a robot's θ nor tell a
+real robot from a simulator except by what the node says of itself, and reports it that way.
+"""
+
+from __future__ import annotations
+
+from proxybench.runner.backends import InlineBackend
+from proxybench.runner.jobs import DomainSpec, Job
+from proxybench.runner.sweep import run_jobs
+from proxybench.targets.manifest import TargetError
+from proxybench.targets.spec import Target, TargetEpisode, TargetInfo, TargetRun, _by_agent, episode_seed, start_poses
+
+__all__ = ["RobotTarget"]
+
+
+class RobotTarget(Target):
+    """A robot node started with ``command``; ``nodes``: how many of its processes may run at once (keep 1 for
+    a bridge to one physical robot; a simulator node can take one per worker)."""
+
+    kind = "robot"
+
+    def __init__(self, command: str, nodes: int = 1):
+        self.command = command
+        self.nodes = nodes
+        self._said: str = ""
+
+    def domain(self, image_size: tuple[int, int] | None = None) -> DomainSpec:
+        return DomainSpec(f"robot:{self.command}", kind="robot", command=self.command, nodes=self.nodes)
+
+    def info(self) -> TargetInfo:
+        simulated = {"simulation": True, "robot": None}.get(self._said)
+        said = f"; it described itself as a {self._said}" if self._said else ""
+        return TargetInfo(
+            "robot", simulated, f"robot node: {self.command}",
+            f"The target is a robot node started with `{self.command}`{said}. proxybench cannot tell a real robot "
+            "from a simulator behind the robot protocol: treat results as real only if you know the node drives "
+            "a physical robot.", {"command": self.command, "kind": self._said, "nodes": self.nodes})
+
+    def run(self, agents, *, map_name, seconds, episodes, seed, metrics, image_size, run_dir, backend=None,
+            progress=None) -> TargetRun:
+        seeds = [episode_seed(seed, e) for e in range(episodes)]
+        poses = start_poses(map_name, seeds)
+        dom = self.domain()
+        eps = [TargetEpisode(a.label, e, seeds[e], poses[e]) for a in agents for e in range(episodes)]
+        jobs = [Job(a, dom, map_name, e, seeds[e], seconds, pose=poses[e], metrics=metrics)
+                for a in agents for e in range(episodes)]
+        sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
+                         progress=(lambda d, t, _r: progress("target episodes (robot)", d, t)) if progress else None)
+        failed = [r for r in sweep.results if r.termination == "robot_failure"]
+        if failed:
+            shown = "\n  ".join(f"{r.agent} episode {r.episode}: {r.message}" for r in failed[:5])
+            raise TargetError(f"target: the robot node `{self.command}` failed on {len(failed)} of {len(jobs)} "
+                              f"episode(s); finished episodes are cached, run again to retry the rest:\n  {shown}")
+        self._said = _robot_kind(sweep.results)
+        return TargetRun(self.info(), map_name, seconds, metrics, eps, _by_agent(jobs, sweep.results, metrics),
+                         {}, None, sweep.ran)
+
+
+def _robot_kind(results) -> str:
+    """What the node said it is (``simulation`` or ``robot``), read from a trajectory it produced."""
+    from proxybench.tasks.trajectory import Trajectory
+
+    for r in results:
+        if r.trajectory:
+            try:
+                return str(Trajectory.load(r.trajectory).meta.get("robot", {}).get("kind", ""))
+            except (ValueError, OSError):
+                return ""
+    return ""

@@ -1,0 +1,256 @@
+"""What the usefulness experiments compare proxies against: a target, of one of three kinds.
+
+- ``reality``: the built-in reality model (:mod:`proxybench.domain.reality`), a *simulated* stand-in for a
+  Duckiebot, its θ overridable;
+- a **recorded** directory (:mod:`proxybench.targets.recorded`): a lab's runs, or runs recorded earlier
+  with ``proxybench target record``; it costs no simulation;
+- ``robot:CMD``: a robot node started with CMD (the robot protocol, docs/robot-protocol.md), its episodes
+  run one after another through the runner, cached like any other episode.
+
+Every target gives the experiments the same thing, a :class:`TargetRun`: the episodes (agent, id, seed,
+start pose) and each agent's per-episode scores. Proxies replay each agent's target episodes from the
+same start poses and seeds, so proxy and target episodes are paired. :class:`TargetInfo` says plainly
+what the target was, so that no report presents a simulated result as a real one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from proxybench.runner.backends import Backend, InlineBackend
+from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
+from proxybench.runner.sweep import run_jobs
+from proxybench.targets.manifest import TargetError
+
+__all__ = ["RealityTarget", "RecordedTarget", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "episode_seed",
+           "open_target", "start_poses"]
+
+Progress = Callable[[str, int, int], None]
+
+
+def episode_seed(seed: int, episode: int) -> int:
+    """The seed of episode ``episode`` of an experiment seeded ``seed`` (as every runner sweep uses)."""
+    return seed * 10_000 + episode
+
+
+@dataclass(frozen=True)
+class TargetEpisode:
+    """One target episode: whose, which, its seed and its start pose (None: drawn from the seed)."""
+
+    agent: str
+    episode: int
+    seed: int
+    pose: tuple[float, float, float] | None
+
+
+@dataclass(frozen=True)
+class TargetInfo:
+    """What a target is, in words a report can print: ``kind`` (reality-model | recorded | robot),
+    ``simulated`` (True, False, or None when proxybench cannot tell), a short ``label`` and a ``statement``."""
+
+    kind: str
+    simulated: bool | None
+    label: str
+    statement: str
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class TargetRun:
+    """The target's side of an experiment: episodes (agent-major) and per-agent (episodes × metrics) scores."""
+
+    info: TargetInfo
+    map: str
+    seconds: float
+    metrics: tuple[str, ...]
+    episodes: list[TargetEpisode]
+    results: dict[str, np.ndarray]
+    truth: dict[str, float] = field(default_factory=dict)
+    params: dict[str, Any] | None = None  # θ of a simulated target when known (POD needs it)
+    ran: int = 0  # episodes simulated or driven now (not cached, not read from files)
+
+    def episodes_of(self, agent: str) -> list[TargetEpisode]:
+        return [e for e in self.episodes if e.agent == agent]
+
+
+class Target:
+    """Base of the three kinds. A recorded target fixes its map, length, agents and episodes; the others
+    take them from the experiment."""
+
+    kind = "target"
+    fixed_map: str | None = None
+    fixed_seconds: float | None = None
+    fixed_agents: list[str] | None = None
+    n_episodes: int | None = None
+
+    def info(self) -> TargetInfo:
+        raise NotImplementedError
+
+    def run(self, agents: list[AgentSpec], *, map_name: str, seconds: float, episodes: int, seed: int,
+            metrics: tuple[str, ...], image_size: tuple[int, int], run_dir: str | Path,
+            backend: Backend | None = None, progress: Progress | None = None) -> TargetRun:
+        raise NotImplementedError
+
+
+def start_poses(map_name: str, seeds: list[int]) -> list[tuple[float, float, float]]:
+    """The start pose each seed draws (the simulator's start distribution), made explicit for pairing."""
+    from proxybench.domain.simulator import Simulator
+
+    sim = Simulator(map_name, render=False)
+    return [tuple(float(v) for v in sim.sample_start(np.random.default_rng(s))) for s in seeds]
+
+
+def _by_agent(jobs: list[Job], results: list[JobResult], metrics: tuple[str, ...]) -> dict[str, np.ndarray]:
+    by: dict[str, list[list[float]]] = {}
+    for job, r in zip(jobs, results, strict=True):
+        by.setdefault(job.agent.label, []).append([r.scores[m] for m in metrics])
+    return {a: np.asarray(v, dtype=float) for a, v in by.items()}
+
+
+class _LiveTarget(Target):
+    """A target whose episodes the runner plays: the reality model, or a robot node."""
+
+    def domain(self, image_size: tuple[int, int]) -> DomainSpec:
+        raise NotImplementedError
+
+    def truth(self) -> dict[str, float]:
+        return {}
+
+    def run(self, agents, *, map_name, seconds, episodes, seed, metrics, image_size, run_dir, backend=None,
+            progress=None) -> TargetRun:
+        seeds = [episode_seed(seed, e) for e in range(episodes)]
+        poses = start_poses(map_name, seeds)
+        dom = self.domain(image_size)
+        eps = [TargetEpisode(a.label, e, seeds[e], poses[e]) for a in agents for e in range(episodes)]
+        jobs = [Job(a, dom, map_name, e, seeds[e], seconds, pose=poses[e], metrics=metrics)
+                for a in agents for e in range(episodes)]
+        sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
+                         progress=(lambda d, t, _r: progress("target episodes", d, t)) if progress else None)
+        return TargetRun(self.info(), map_name, seconds, metrics, eps, _by_agent(jobs, sweep.results, metrics),
+                         self.truth(), dom.params, sweep.ran)
+
+
+class RealityTarget(_LiveTarget):
+    """The built-in reality model, optionally with some of its parameters changed."""
+
+    kind = "reality-model"
+
+    def __init__(self, overrides: dict[str, Any] | None = None):
+        from pydantic import ValidationError
+
+        from proxybench.domain.reality import reality_params
+
+        self.overrides = dict(overrides or {})
+        try:
+            reality_params(**self.overrides)
+        except ValidationError as exc:
+            bad = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+            raise TargetError(f"target_params: {bad}") from None
+
+    def domain(self, image_size: tuple[int, int]) -> DomainSpec:
+        from proxybench.domain.reality import reality_params
+
+        w, h = image_size
+        params = reality_params(**{**self.overrides, "image_width": w, "image_height": h})
+        return DomainSpec("reality", params.model_dump(), kind="reality-model")
+
+    def truth(self) -> dict[str, float]:
+        from proxybench.domain.reality import TRUTH
+
+        out = {k: float(v) for k, v in TRUTH.items() if isinstance(v, int | float) and not isinstance(v, bool)}
+        out.update({k: float(v) for k, v in self.overrides.items() if k in out})
+        return out
+
+    def info(self) -> TargetInfo:
+        changed = ", ".join(f"{k}={v}" for k, v in self.overrides.items())
+        return TargetInfo(
+            "reality-model", True, "reality model (simulated)" + (f", {changed}" if changed else ""),
+            "SIMULATED: the target is proxybench's reality model, a simulated stand-in for a Duckiebot with effects "
+            "the proxies cannot express (wheel slip, motor dead-band, latency jitter, a lens that differs from its "
+            "calibration, other light, sensor noise)" + (f", with {changed}" if changed else "") + ". No real robot "
+            "was involved.", {"overrides": self.overrides})
+
+
+class RecordedTarget(Target):
+    """A directory of recorded episodes (see :mod:`proxybench.targets.recorded`)."""
+
+    kind = "recorded"
+
+    def __init__(self, root: str | Path):
+        from proxybench.targets.manifest import load_manifest
+
+        self.root = Path(root)
+        self.manifest = load_manifest(self.root)  # fail early, before any proxy runs
+        if self.root.is_file():
+            self.root = self.root.parent
+        self.fixed_map = self.manifest.map
+        self.fixed_seconds = self.manifest.seconds
+        self.fixed_agents = list(self.manifest.agents)
+        self.n_episodes = len(self.manifest.episodes)
+
+    def info(self) -> TargetInfo:
+        m = self.manifest
+        who = " ".join(f"{w} {x}" for w, x in (("by", m.who), ("at", m.where), ("on", m.when)) if x)
+        what = {
+            "real": "REAL robots (as its manifest declares)",
+            "reality-model": "SIMULATED runs of proxybench's reality model (a stand-in for a Duckiebot)",
+            "robot-node": (f"runs on a robot node ({m.robot.command if m.robot else '?'}"
+                           + (f", which described itself as a {m.robot.kind}" if m.robot and m.robot.kind else "")
+                           + "); proxybench cannot tell whether a robot node is a real robot or a simulator"),
+            "simulation": "SIMULATED runs of another simulator",
+        }[m.source]
+        simulated = {"real": False, "reality-model": True, "simulation": True,
+                     "robot-node": True if m.robot and m.robot.kind == "simulation" else None}[m.source]
+        return TargetInfo(
+            "recorded", simulated, f"recorded: {self.root} (source: {m.source})",
+            f"The target is a recording at {self.root.resolve()} (source: {m.source}): {what}"
+            + (f"; recorded {who}" if who else "") + (f". {m.description}" if m.description else "") + ".",
+            {"root": str(self.root.resolve()), "source": m.source, "who": m.who, "where": m.where, "when": m.when,
+             "kind": m.kind, "robot": m.robot.model_dump() if m.robot else None})
+
+    def run(self, agents, *, map_name, seconds, episodes, seed, metrics, image_size, run_dir, backend=None,
+            progress=None) -> TargetRun:
+        from proxybench.targets.recorded import load_recording, resolve_map
+
+        rec = load_recording(self.root, metrics)
+        chosen = rec.select([a.label for a in agents], episodes)
+        if progress:
+            progress("target episodes (recorded)", len(chosen), len(chosen))
+        eps = [TargetEpisode(e.agent, e.episode, e.seed, e.pose) for e in chosen]
+        results: dict[str, list[list[float]]] = {}
+        for e in chosen:
+            results.setdefault(e.agent, []).append([e.scores[m] for m in metrics])
+        m = self.manifest
+        params = m.params if m.source == "reality-model" else None
+        return TargetRun(self.info(), resolve_map(self.root, m.map), m.seconds, metrics, eps,
+                         {a: np.asarray(v, dtype=float) for a, v in results.items()}, dict(m.truth or {}), params, 0)
+
+
+def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes: int = 1) -> Target:
+    """The target ``text`` names: ``reality``, ``robot:CMD``, or a directory (or manifest file) of recordings.
+
+    ``params``: θ overrides of the reality model (only with ``reality``); ``robot_nodes``: how many processes
+    of a robot node may run at once (only with ``robot:``).
+    """
+    text = text.strip()
+    if params and text != "reality":
+        raise TargetError("target_params: only the reality model's parameters can be overridden "
+                          f"(the target is {text!r})")
+    if text == "reality":
+        return RealityTarget(params)
+    if text.startswith("robot:"):
+        from proxybench.targets.robot import RobotTarget
+
+        command = text.removeprefix("robot:").strip()
+        if not command:
+            raise TargetError("target: robot: needs the command that starts the robot node, e.g. "
+                              "'robot:proxybench robot serve --param trim=0.1'")
+        return RobotTarget(command, robot_nodes)
+    if Path(text).exists():
+        return RecordedTarget(text)
+    raise TargetError(f"target: {text!r} is not 'reality', 'robot:COMMAND' or an existing directory of recordings")

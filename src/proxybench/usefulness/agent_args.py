@@ -1,0 +1,95 @@
+"""Agents as users name them on the command line or in an experiment file, turned into runner specs.
+
+One string per agent:
+
+- ``pid``: a zoo agent (``proxybench agent list``);
+- ``models/bc.pt``: a behaviour-cloning checkpoint (``X.pt`` with ``X.json`` beside it);
+- ``my-agent.zip`` (or ``.tar``, ``.tar.gz``, ``.tgz``): an agent package, checked and unpacked, its node
+  run in the evaluator's sandbox (own folder, resource limits, no network where the host allows);
+- ``NAME=COMMAND``: an agent node started with COMMAND (the AIDO protocol on stdin/stdout), labelled NAME.
+
+The label (zoo name, checkpoint path, package name, NAME) is what results and recorded targets call it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+from proxybench.runner.jobs import AgentSpec
+
+__all__ = ["AgentArgError", "parse_agent", "parse_agents"]
+
+_ARCHIVES = (".zip", ".tar", ".tar.gz", ".tgz")
+
+
+class AgentArgError(ValueError):
+    """An agent argument that names nothing runnable; the message says which and why."""
+
+
+def _is_archive(text: str) -> bool:
+    return text.lower().endswith(_ARCHIVES) and Path(text).is_file()
+
+
+def _package(path: Path, work_dir: Path) -> AgentSpec:
+    """A checked, unpacked agent package, its node started in the evaluator's sandbox (refused without one)."""
+    import shlex
+    import shutil
+
+    from proxybench.agents.package import PackageError
+    from proxybench.evaluator.sandbox import Limits, SandboxError, confine, detect_isolation, prepare_agent
+
+    data = path.read_bytes()
+    digest = hashlib.sha256(data).hexdigest()
+    folder = (work_dir / "agents" / digest[:16]).resolve()
+    try:
+        if folder.exists():
+            shutil.rmtree(folder)  # unpack afresh: a package run never sees what an earlier run left
+        folder.mkdir(parents=True)
+        manifest = prepare_agent(data, digest, folder)
+        # started by whichever worker runs the episode, so no parent-process check (parent=None)
+        argv = confine(list(manifest.command), folder, Limits(), detect_isolation(), parent=None)
+    except PackageError as exc:
+        raise AgentArgError(f"agent package {path}: {exc}") from None
+    except SandboxError as exc:
+        raise AgentArgError(f"agent package {path}: {exc} (`proxybench sandbox setup` prepares this host; a "
+                            "package you trust can also run unconfined as --agent NAME=COMMAND from its unpacked "
+                            "folder)") from None
+    return AgentSpec(manifest.name, shlex.join(argv))
+
+
+def parse_agent(text: str, work_dir: str | Path = "out/agents") -> AgentSpec:
+    """The runner spec of one agent argument (see the module docstring); ``work_dir`` holds unpacked packages."""
+    from proxybench.agents.zoo import ZOO
+    from proxybench.learning import is_checkpoint
+
+    text = text.strip()
+    if not text:
+        raise AgentArgError("an agent argument is empty")
+    if text in ZOO:
+        return AgentSpec(text)
+    if _is_archive(text):
+        return _package(Path(text), Path(work_dir))
+    if is_checkpoint(text):
+        return AgentSpec(text)
+    name, sep, command = text.partition("=")
+    if sep and name.strip() and command.strip() and " " not in name.strip():
+        return AgentSpec(name.strip(), command.strip())
+    hint = ""
+    if text.endswith(".pt"):
+        hint = " (a checkpoint needs X.pt with X.json beside it)"
+    elif text.lower().endswith(_ARCHIVES):
+        hint = " (no such package file)"
+    raise AgentArgError(f"agent {text!r} is not a zoo agent, a checkpoint, an agent package or NAME=COMMAND{hint}; "
+                        f"zoo agents: {', '.join(ZOO)}")
+
+
+def parse_agents(texts: list[str] | tuple[str, ...], work_dir: str | Path = "out/agents") -> list[AgentSpec]:
+    """Specs of several agent arguments; two with the same label are an error (results are keyed by it)."""
+    specs = [parse_agent(t, work_dir) for t in texts]
+    seen: set[str] = set()
+    for s in specs:
+        if s.label in seen:
+            raise AgentArgError(f"agent {s.label!r} is given twice")
+        seen.add(s.label)
+    return specs

@@ -1,0 +1,62 @@
+"""Proxy instances and the neutral defaults of sweeps and searches.
+
+A proxy is the plain simulator (no effects outside its family) at the **nominal calibration** of a DB18
+Duckiebot — factory camera intrinsics and fisheye distortion, camera pitch 19.15°, height 0.108 m,
+vertical field of view 75°, no wheel trim, unit gain, 0.10 s actuation latency, 0.05 s exposure — with
+the swept or searched parameters changed. Sweeps and search ranges default to values *around this
+nominal calibration*, which is all a lab knows before it measures: they never come from a target's
+truth. (The built-in reality model was given the nominal values as its calibrated truth, so against
+that one target the defaults happen to be centred on the truth; against recorded and robot targets
+nothing is known. Set your own ranges with ``sweep:`` / ``search.space:`` in the experiment file.)
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from proxybench.domain.params import DUCKIEBOT_DISTORTION, DUCKIEBOT_INTRINSICS, DomainParams
+
+__all__ = ["DEFAULT_SEARCH", "DEFAULT_SWEEP", "NOMINAL", "param_label", "proxy_params"]
+
+#: the nominal calibration every proxy starts from (see the module docstring)
+NOMINAL: dict[str, Any] = {
+    "trim": 0.0,
+    "gain": 1.0,
+    "command_delay": 0.10,
+    "blur_time": 0.05,
+    "camera_pitch": 19.15,
+    "camera_height": 0.108,
+    "camera_fov_y": 75.0,
+    "fisheye": True,
+    "intrinsics": DUCKIEBOT_INTRINSICS,
+    "distortion": DUCKIEBOT_DISTORTION,
+}
+
+#: predictivity sweep: trim over its physical range in 7 steps (figure 3.3) and three values around the
+#: nominal value of each other parameter (figure 3.4)
+DEFAULT_SWEEP: dict[str, tuple[float, ...]] = {
+    "trim": tuple(float(v) for v in np.round(np.linspace(-0.3, 0.3, 7), 3)),
+    "command_delay": (0.05, 0.10, 0.15),
+    "blur_time": (0.0, 0.05, 0.10),
+    "camera_pitch": (15.0, 19.15, 23.0),
+}
+
+#: optimisation search space: trim over ±0.3 and camera pitch over 12…26°
+DEFAULT_SEARCH: dict[str, tuple[float, float]] = {"trim": (-0.3, 0.3), "camera_pitch": (12.0, 26.0)}
+
+
+def proxy_params(image_size: tuple[int, int], fixed: dict[str, Any] | None = None, **changes: Any) -> DomainParams:
+    """A proxy instance: the nominal calibration, then ``fixed`` (the experiment's proxy θ), then ``changes``."""
+    w, h = image_size
+    return DomainParams.model_validate({**NOMINAL, **(fixed or {}), **changes, "image_width": w, "image_height": h})
+
+
+def param_label(name: str) -> str:
+    """``name [unit]`` for axis labels, the unit read from the parameter's description."""
+    import re
+
+    field = DomainParams.model_fields.get(name)
+    m = re.search(r"\[([^\]]+)\]\s*(\(|$)", field.description or "") if field is not None else None
+    return f"{name} [{m.group(1)}]" if m else name
