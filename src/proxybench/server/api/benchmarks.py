@@ -74,8 +74,8 @@ async def get_leaderboard(name: str, request: Request, session: DB, user: Caller
                           limit: Annotated[int, Query(ge=1, le=10_000, description="rows per page")] = 100,
                           offset: Annotated[int, Query(ge=0, le=MAX_ID)] = 0) -> Response:
     """Ranked submissions; ``split=hidden`` (test scores) for super-users only. ``limit`` (default 100) and
-    ``offset`` page through the rows, best first (``total`` counts them all). Served from the board built when it last changed, with an
-    ETag (send it back in If-None-Match: 304 when unchanged).
+    ``offset`` page through the rows, best first (``total`` counts them all). Served from the board built
+    when it last changed, with an ETag (send it back in If-None-Match: 304 when unchanged).
 
     The hot path of the server: on the event loop (one indexed query and a dictionary lookup; a thread
     hop would cost more), unless the board must be built first."""
