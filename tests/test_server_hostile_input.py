@@ -225,3 +225,20 @@ def test_leases_follow_the_monotonic_server_clock(api, monkeypatch):
                     json={"evaluator": "e1", "lease_id": lease["lease_id"]})
     assert hb.status_code == 200
     assert api.finish(lease, name="e1").status_code == 201
+
+
+def test_large_uploads_without_a_valid_token_are_refused_before_their_body(api):
+    """An artifact or archive upload is read (and spooled to disk) only for a caller with a live token."""
+    import hashlib
+
+    data = b"x" * 200_000
+    sha = hashlib.sha256(data).hexdigest()
+    spool = api.app.state.settings.data_dir / "spool"
+    for headers in ({}, {"Authorization": "Bearer pbt_not-a-real-token-at-all"}):
+        r = api.c.put(f"/api/v1/artifacts/{sha}", headers=headers, content=data)
+        assert r.status_code == 401 and "before their body is read" in r.json()["detail"]
+        r = api.c.post("/api/v1/submissions/upload", headers=headers, data={"label": "x", "benchmark": "aido_lf"},
+                       files={"archive": ("a.zip", data, "application/zip")})
+        assert r.status_code == 401
+    assert not list(spool.glob(".body-*"))
+    assert api.c.put(f"/api/v1/artifacts/{sha}", headers=api.ev, content=data).status_code == 201

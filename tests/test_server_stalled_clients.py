@@ -36,8 +36,9 @@ def _stall(port: int, kind: int, ev_token: str) -> socket.socket:
         declared = 4_000_000
     elif kind == 2:  # the web console's sign-in form
         head, declared = b"POST /login HTTP/1.1\r\nContent-Type: application/x-www-form-urlencoded\r\n", 4_000
-    else:  # an archive upload
-        head = b"POST /api/v1/submissions/upload HTTP/1.1\r\nContent-Type: multipart/form-data; boundary=xx\r\n"
+    else:  # an archive upload (with a token: without one, large uploads are refused before their body)
+        head = (f"POST /api/v1/submissions/upload HTTP/1.1\r\nAuthorization: Bearer {ev_token}\r\n"
+                "Content-Type: multipart/form-data; boundary=xx\r\n").encode()
         declared = 3_000_000
     half = b"x" * min(declared // 2, 100_000)
     s.sendall(head + f"Host: 127.0.0.1\r\nContent-Length: {declared}\r\n\r\n".encode() + half)

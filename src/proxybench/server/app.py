@@ -84,6 +84,24 @@ def app_from_env() -> FastAPI:
     return create_app(Settings.from_env(), prepared=True)
 
 
+async def _has_valid_token(app: FastAPI, scope: dict) -> bool:
+    """Whether a request carries a live API token (checked before a large upload's body is read)."""
+    from proxybench.server.security import hash_token, user_for_token
+
+    auth = dict(scope.get("headers") or []).get(b"authorization", b"").decode("latin-1")
+    if auth[:7].lower() != "bearer ":
+        return False
+    token = auth[7:].strip()
+    if app.state.tokens.get(hash_token(token)) is not None:
+        return True
+
+    def lookup() -> bool:
+        with app.state.read_sessions() as session:
+            return user_for_token(session, token, app.state.tokens) is not None
+
+    return await run_in_threadpool(lookup)
+
+
 def _requeue(app: FastAPI) -> None:
     from proxybench.server.queue import requeue_expired
 
@@ -153,7 +171,8 @@ def create_app(settings: Settings | None = None, *, prepared: bool = False) -> F
     for stale in rules.spool_dir.glob(".body-*") if not prepared else ():  # left by a killed server
         stale.unlink(missing_ok=True)
     app.add_middleware(RequestGate, body=rules, concurrency=settings.max_concurrent_requests,
-                       queue=settings.max_queued_requests, send_timeout=settings.send_timeout)
+                       queue=settings.max_queued_requests, send_timeout=settings.send_timeout,
+                       authorize=lambda scope: _has_valid_token(app, scope))
 
     @app.exception_handler(ServiceError)
     async def _service_error(_: Request, exc: ServiceError) -> JSONResponse:

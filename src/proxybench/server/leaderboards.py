@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import threading
 import time
@@ -37,6 +38,7 @@ from proxybench.tasks.scoring import leaderboard
 
 __all__ = ["MIN_INTERVAL_S", "SYNC_BUILD_ROWS", "Board", "BoardCache", "build_board", "resolve_version"]
 
+log = logging.getLogger("proxybench.server")
 SYNC_BUILD_ROWS = 100  # boards of at most this many rows are always built before they are served
 MIN_INTERVAL_S = 1.0  # the shortest pause between background rebuilds of one large board [s]
 INTERVAL_FACTOR = 8  # ... and at least this many times its build time: rebuilding takes ≤ 1/8 of a core
@@ -237,7 +239,7 @@ class BoardCache:
             try:
                 self._build_once(key, wait=False)
             except Exception as exc:  # a failed rebuild leaves the old board; the next change asks again
-                print(f"leaderboard rebuild of {key} failed: {exc}")
+                log.warning("leaderboard rebuild of %s failed: %s", key, exc)
 
         self._background.submit(run)
 

@@ -25,7 +25,7 @@ import json
 import os
 import tempfile
 import weakref
-from collections.abc import Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -85,8 +85,9 @@ class RequestGate:
     """ASGI middleware: bounded body reading, then bounded admission (see the module's docstring)."""
 
     def __init__(self, app, *, body: BodyRules, concurrency: int, queue: int = 2048, queue_timeout: float = 60.0,
-                 send_timeout: float = 60.0) -> None:
+                 send_timeout: float = 60.0, authorize: Callable[[dict], Awaitable[bool]] | None = None) -> None:
         self.app = app
+        self.authorize = authorize
         self.rules = body
         self.concurrency = concurrency
         self.queue = queue
@@ -129,6 +130,10 @@ class RequestGate:
         declared = headers.get(b"content-length")
         if declared is not None and declared.isdigit() and int(declared) > limit:
             raise _Refusal(413, f"request body exceeds the limit of {limit} bytes")
+        if limit > rules.default and self.authorize is not None and not await self.authorize(scope):
+            # a large upload (artifact, archive) from someone without a valid token: not a byte of it is read
+            raise _Refusal(401, "invalid, revoked or missing API token: send 'Authorization: Bearer <token>' "
+                                "(large uploads are refused before their body is read)")
         if state["reading"] >= rules.max_readers:
             raise _Refusal(503, f"too many request bodies are being received ({rules.max_readers}); try again",
                            [(b"retry-after", b"2")])
