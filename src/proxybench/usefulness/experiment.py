@@ -18,7 +18,7 @@ Every field is optional and has a command-line option; what neither gives takes 
       camera_pitch: [15, 19.15, 23]
     search:                      # optimize
       space: {trim: [-0.3, 0.3], camera_pitch: [12, 26]}
-      objective: mix             # prpv | ppv | mix
+      objective: prpv            # prpv (θ* = argmin PRPV, the thesis) | ppv | mix
       trials: 60
       sampler: tpe               # tpe | gp | random
     n_boot: 300
@@ -85,7 +85,7 @@ class SearchConfig(_Strict):
     """What ``optimize`` searches and how."""
 
     space: dict[str, tuple[float, float]] = Field(default_factory=lambda: dict(DEFAULT_SEARCH))
-    objective: Literal["prpv", "ppv", "mix"] = "mix"
+    objective: Literal["prpv", "ppv", "mix"] = "prpv"
     trials: int | None = Field(None, ge=1, le=100_000)
     sampler: Literal["tpe", "gp", "random"] = "tpe"
     storage: str | None = None
