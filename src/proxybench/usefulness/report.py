@@ -20,7 +20,8 @@ from proxybench import __version__
 from proxybench.usefulness.predictivity import PredictivityResult
 from proxybench.usefulness.proxies import param_label
 
-__all__ = ["DEFINITIONS", "THESIS", "findings", "noise_statement", "ppv_agent_frame", "source_commit", "write_report"]
+__all__ = ["DEFINITIONS", "THESIS", "episodes_statement", "findings", "noise_statement", "plot_plan",
+           "ppv_agent_frame", "source_commit", "write_report"]
 
 THESIS = ("A. Courchesne, “On quantifying the value of simulation for training and evaluating robotic agents”, "
           "M.Sc. thesis, Université de Montréal (chapter 3: A. Courchesne, A. Censi, L. Paull, “On Assessing the "
@@ -204,9 +205,34 @@ def noise_statement(res: PredictivityResult) -> str:
                if within else "; the rest is a gap no swept θ closed."))
 
 
+def episodes_statement(res: PredictivityResult) -> str:
+    """How many of the target's pairs of agents are near ties, and what settling them would take."""
+    import math
+
+    from proxybench.tasks.metrics import METRICS
+    from proxybench.usefulness.plan import pair_needs
+
+    metrics = res.experiment.metrics
+    needs = pair_needs(res.target.results, tuple(METRICS[m].higher_is_better for m in metrics), metrics)
+    open_ = [p for p in needs if not p.settled]
+    if not open_:
+        return (f"Every pair of the {len(res.target.results)} agents is ordered on the target with "
+                f"{res.experiment.episodes} episodes per agent.")
+    finite = sorted(p.episodes for p in open_ if math.isfinite(p.episodes))
+    ties = len(open_) - len(finite)
+    cheapest = ", ".join(f"{p.a} – {p.b}" for p in open_[:3])
+    return (f"{len(open_)} of {len(needs)} pairs of agents are near ties on the target with {res.experiment.episodes} "
+            f"episodes per agent (their order is open, which widens every PRPV range)"
+            + (f"; the cheapest to settle ({cheapest}) need about {finite[0]}"
+               + (f"–{finite[min(2, len(finite) - 1)]}" if len(finite) > 1 else "") + " episodes per agent"
+               if finite else "")
+            + (f"; {ties} look like ties within the noise" if ties else "")
+            + ". `proxybench plan` works out the episodes and spends them where they settle most.")
+
+
 def findings(res: PredictivityResult) -> list[str]:
     """Plain statements: where PRPV is lowest per parameter, and only as strongly as the paired intervals allow."""
-    out = [noise_statement(res)]
+    out = [noise_statement(res), episodes_statement(res)]
     df = res.frame()
     for name, claim in res.claims.items():
         d = df[df.parameter == name].sort_values("value")
@@ -346,3 +372,30 @@ notes, …)</summary>
 </body></html>"""
     files["html"].write_text(page)
     return files
+
+
+def plot_plan(plan, path: Path, target_label: str) -> Path:
+    """The planner's curves against n episodes per agent: order-range width, and P(right θ) or open pairs."""
+    plt = _pyplot()
+    n = [r.n for r in plan.rows]
+    fig, axes = plt.subplots(1, 2, figsize=(9.5, 3.6), layout="constrained")
+    axes[0].plot(n, [r.width_mean for r in plan.rows], "o-", label="mean")
+    axes[0].plot(n, [r.width_q for r in plan.rows], "s--", label=f"{plan.confidence:.0%} of experiments below")
+    if plan.width is not None:
+        axes[0].axhline(plan.width, color="tab:red", lw=1, label=f"goal {plan.width:g}")
+    axes[0].set_ylabel("PRPV order-range width")
+    if plan.candidates:
+        axes[1].plot(n, [r.p_correct for r in plan.rows], "o-", color="tab:green")
+        if plan.p_correct_goal is not None:
+            axes[1].axhline(plan.p_correct_goal, color="tab:red", lw=1)
+        axes[1].set_ylabel(f"P(argmin PRPV = {', '.join(plan.best)})")
+        axes[1].set_ylim(0, 1.02)
+    else:
+        axes[1].plot(n, [r.open_pairs for r in plan.rows], "o-", color="tab:orange")
+        axes[1].set_ylabel("pairs of agents still open on the target")
+    for ax in axes:
+        ax.set_xscale("log")
+        ax.set_xlabel("target episodes per agent")
+    axes[0].legend(fontsize=7)
+    fig.suptitle(_short(f"Sample-size plan from a pilot (target: {target_label})", 110), fontsize=10)
+    return _save(fig, Path(path))
