@@ -137,6 +137,17 @@ def test_an_agent_refused_in_the_proxy_costs_prpv_and_is_named():
     assert est["ppv"].value == pytest.approx(0.0)  # b and c match exactly
 
 
+def test_ppv_noise_floor_is_zero_without_noise_and_positive_with_it():
+    from proxybench.usefulness.noise import ppv_noise_floor
+
+    exact = res(a=[[3.0], [3.0]], b=[[1.0], [1.0]])
+    assert ppv_noise_floor(exact, n_boot=20).value == 0.0
+    rng = np.random.default_rng(7)
+    noisy = {a: rng.normal(mu, 1.0, (4, 1)) for a, mu in (("a", 3.0), ("b", 1.0))}
+    floor = ppv_noise_floor(noisy, n_boot=100)
+    assert 0.0 < floor.low <= floor.value <= floor.high
+
+
 def test_noise_floor_with_a_missing_agent():
     target = res(a=[[3.0], [3.1]], b=[[NAN], [NAN]])
     assert noise_floor(target, (True,), n_boot=20).value == 0.0  # b is always worst: the order never changes

@@ -263,7 +263,9 @@ def usefulness(pr: PairedResults, *, n_boot: int = 500, level: float = 0.95, see
 
     out: dict[str, Estimate] = {}
     prpv, rng, open_pairs = _prpv(boot, lay, pairs, agents, names, level)
-    out["prpv"] = Estimate(prpv, *rng, "order range" if boot.replicates.shape[1] else "none")
+    if not boot.replicates.shape[1]:
+        rng = (float("nan"), float("nan"))
+    out["prpv"] = Estimate(prpv, *rng, "order range" if boot.replicates.shape[1] else boot.method[0])
     norm = max(k * (k - 1), 1)
     out["prpv_norm"] = Estimate(prpv / norm, rng[0] / norm, rng[1] / norm, out["prpv"].method)
     out["ppv"], out["ppv_sum"] = est("ppv"), est("ppv_sum")
@@ -291,7 +293,7 @@ def _prpv(boot: Bootstrap, lay: _Layout, pairs, agents, names, level) -> tuple[f
         else:
             lo, hi = point, point
         ranges.append((lo, hi, point))
-        for q in np.flatnonzero((lo != hi).any(-1)):
+        for q in np.flatnonzero(_alpha_options(lo, hi).sum(-1) > 1):  # α can take more than one value
             open_pairs.append(OpenPair(domain, agents[pairs[0][q]], agents[pairs[1][q]],
                                        tuple(n for n, o in zip(names, lo[q] != hi[q], strict=True) if o)))
     (lo_p, hi_p, pt_p), (lo_t, hi_t, pt_t) = ranges

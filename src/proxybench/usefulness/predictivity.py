@@ -28,7 +28,7 @@ from proxybench.tasks.metrics import METRICS
 from proxybench.usefulness.experiment import Experiment, ExperimentConfig, resolve
 from proxybench.usefulness.intervals import Usefulness, usefulness
 from proxybench.usefulness.metrics import Estimate, PairedResults, agent_means
-from proxybench.usefulness.noise import compare_paired, lowest_claim, noise_floor, paired_prpv_samples
+from proxybench.usefulness.noise import compare_paired, lowest_claim, noise_floor, paired_prpv_samples, ppv_noise_floor
 from proxybench.usefulness.pod import pod
 from proxybench.usefulness.proxies import proxy_params
 
@@ -60,6 +60,7 @@ class PredictivityResult:
     claims: dict[str, SweepClaim] = field(default_factory=dict)
     proxy_episodes: int = 0  # proxy episodes simulated now (not cached)
     details: dict[str, Usefulness] = field(default_factory=dict)  # per proxy domain: per-agent PPV, notes, open pairs
+    ppv_noise: Estimate | None = None  # PPV of the target against a replicate of itself
 
     def notes(self) -> list[str]:
         """Every distinct note of the usefulness figures (constant metrics, missing values, PPV scales)."""
@@ -153,10 +154,11 @@ def run_predictivity(
         if progress:
             progress("usefulness", k + 1, len(domains))
     floor = noise_floor(tgt.results, higher, n_boot=exp.n_boot, seed=exp.seed)
+    ppv_floor = ppv_noise_floor(tgt.results, n_boot=exp.n_boot, seed=exp.seed)
     claims = _claims(exp, tgt, domains, proxies, rows, higher)
     means = agent_means(tgt.results, list(tgt.results))
     target_scores = {a: dict(zip(exp.metrics, means[i].tolist(), strict=True)) for i, a in enumerate(tgt.results)}
-    return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran, details)
+    return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran, details, ppv_floor)
 
 
 def _claims(exp: Experiment, tgt: TargetRun, domains, proxies, rows, higher) -> dict[str, SweepClaim]:

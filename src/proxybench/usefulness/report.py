@@ -52,9 +52,10 @@ DEFINITIONS = (
      "Naive pixel distance: the same open-loop commands (the PID agent's on the target) from the same start in "
      "proxy and target; mean |Δpixel| / 255 between the camera streams. Needs the target's camera, so it is "
      "only computed against the live reality model."),
-    ("noise floor", "[0, K(K−1)]",
-     "PRPV of the target against a replicate of itself: two independent resamples of its own episodes (same "
-     "count per agent). A proxy whose PRPV lies within it cannot be told from a perfect proxy with these data."),
+    ("noise floor", "[0, K(K−1)] for PRPV",
+     "PRPV (and PPV) of the target against a replicate of itself: two independent resamples of its own episodes "
+     "(same count per agent). A proxy whose PRPV lies within it cannot be told from a perfect proxy with these "
+     "data; PPV, a sum of |differences|, is positive from noise alone: its floor is the reference, not 0."),
     ("PRPV interval (order range)", "",
      "The plug-in PRPV with the smallest and largest PRPV of any orders the data cannot rule out: on each metric, "
      "two agents whose mean difference does not keep its sign in 95% of the paired resamples may be ordered "
@@ -309,8 +310,10 @@ def _compact_table(res: PredictivityResult) -> str:
             style = ' style="background:#eef6ff"' if "lowest" in " ".join(mark) else ""
             rows.append(f"<tr{style}>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     nf = res.noise
+    pf = res.ppv_noise
+    ppv_cell = f"{pf.value:.2f} [{pf.low:.2f}, {pf.high:.2f}]" if pf is not None else ""
     rows.append(f'<tr style="background:#f2f2f2"><td>target noise floor</td><td>—</td><td>{nf.value:.1f} '
-                f"[{nf.low:.1f}, {nf.high:.1f}]</td><td></td><td></td><td></td><td></td><td></td></tr>")
+                f"[{nf.low:.1f}, {nf.high:.1f}]</td><td></td><td>{ppv_cell}</td><td></td><td></td><td></td></tr>")
     return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>")
 
 
