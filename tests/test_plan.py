@@ -70,6 +70,8 @@ def test_plan_probability_of_the_right_candidate_grows_with_episodes():
     assert p.best == ["good"] and p.pilot_prpv["bad"] > p.pilot_prpv["good"]
     assert p.rows[-1].p_correct >= 0.95 and p.rows[0].p_correct < p.rows[-1].p_correct
     assert p.n_for_p_correct is not None and p.n_for_p_correct <= 80
+    with pytest.raises(ValueError, match=r"at least 2 pilot episodes with values per agent.*c has fewer"):
+        plan({**target, "c": target["c"][:1]}, (True,), ("x",))
     with pytest.raises(ValueError, match="must replay the pilot's episodes"):
         plan(target, (True,), ("x",), proxies={"short": {a: v[:2] for a, v in good.items()}})
 

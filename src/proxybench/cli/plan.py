@@ -115,9 +115,12 @@ def plan(
             be.close()
     higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
     grid = [n for n in DEFAULT_GRID if n <= max_episodes] + ([max_episodes] if max_episodes not in DEFAULT_GRID else [])
-    p = make_plan(tgt.results, higher, exp.metrics, proxies=proxies, width=width, p_correct=p_correct,
-                  confidence=confidence, grid=grid, reps=reps or (150 if quick else 400), power=power, batch=batch,
-                  seed=exp.seed)
+    try:
+        p = make_plan(tgt.results, higher, exp.metrics, proxies=proxies, width=width, p_correct=p_correct,
+                      confidence=confidence, grid=grid, reps=reps or (150 if quick else 400), power=power,
+                      batch=batch, seed=exp.seed)
+    except ValueError as exc:
+        _fail(exc)
     wall = time.perf_counter() - t0
     _print_plan(p, tgt, seq, wall)
     _write(p, tgt, seq, out, wall)

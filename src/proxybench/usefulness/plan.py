@@ -254,6 +254,10 @@ def plan(target: Results, higher: Sequence[bool], names: Sequence[str], *, proxi
     (default: the pilot's count, 5, 10, … 320) that reaches it, refined between grid points.
     """
     agents = list(target)
+    few = [a for a in agents if _counts(target[a]).min() < 2]
+    if few:
+        raise ValueError(f"a plan needs at least 2 pilot episodes with values per agent (to see their spread); "
+                         f"{', '.join(few)} {'has' if len(few) == 1 else 'have'} fewer")
     proxies = dict(proxies or {})
     for label, pres in proxies.items():
         for a in agents:
