@@ -129,12 +129,15 @@ def plan(
 def _print_plan(p, tgt, seq, wall: float) -> None:
     console.print(f"[bold]target:[/bold] {tgt.info.statement}", highlight=False)
     pilot = ", ".join(f"{a} {n}" for a, n in p.pilot_episodes.items())
-    console.print(f"pilot episodes per agent: {pilot}; {len(p.agents)} agents, PRPV in [0, "
+    what = "pilot episodes" if seq is None else "target episodes (pilot + sequential)"
+    console.print(f"{what} per agent: {pilot}; {len(p.agents)} agents, PRPV in [0, "
                   f"{len(p.agents) * (len(p.agents) - 1)}]; {wall:.0f} s", highlight=False)
     if seq is not None:
-        console.print(f"sequential: ran {sum(len(h['agents']) for h in seq.history)} more episodes "
-                      f"({seq.stopped}); open pairs after each round: "
-                      f"{', '.join(str(h['open_pairs']) for h in seq.history) or '—'}", highlight=False)
+        rounds = ", ".join(f"{'+'.join(h['agents'])} → {h['open_pairs']}" for h in seq.history)
+        console.print(f"sequential: {sum(len(h['agents']) for h in seq.history)} more episodes "
+                      f"({'every pair settled' if seq.stopped == 'settled' else 'budget spent'}); open pairs: "
+                      f"{seq.open_after_pilot} after the pilot" + (f", then {rounds}" if rounds else ""),
+                      highlight=False)
     table = Table(title="what n target episodes per agent give (simulated from the pilot)")
     cols = ["n per agent", "order range width: mean", f"{p.confidence:.0%} of runs ≤", "open pairs"]
     if p.width is not None:
@@ -193,6 +196,7 @@ def _write(p, tgt, seq, out: Path, wall: float) -> None:
     data = {"target": tgt.info.statement, "wall_s": round(wall, 1), **p.to_dict()}
     if seq is not None:
         data["sequential"] = {"episodes": seq.episodes, "stopped": seq.stopped,
+                              "open_after_pilot": seq.open_after_pilot,
                               "rounds": [{"agents": h["agents"], "open_pairs": h["open_pairs"]} for h in seq.history]}
     (out / "plan.json").write_text(json.dumps(data, indent=1, default=str))
     pd.DataFrame([r.__dict__ for r in p.rows]).to_csv(out / "plan.csv", index=False)

@@ -41,6 +41,7 @@ class SequentialResult:
     history: list[dict] = field(default_factory=list)  # per batch: agents run, pairs still open after it
     stopped: str = "budget"  # "settled" (no open pair left) | "budget"
     ran: int = 0  # episodes run now (not from the cache)
+    open_after_pilot: int = 0  # target pairs whose order the pilot left open
 
     def open_pairs(self, level: float = 0.95) -> list[PairNeed]:
         """The target's pairs of agents whose order is still open."""
@@ -67,6 +68,7 @@ def run_sequential(target: Target, agents: list[AgentSpec], *, map_name: str, se
     poses = start_poses(map_name, seeds)
     dom = target.domain(image_size)
     out = SequentialResult(results, counts, tuple(metrics), higher, ran=tgt.ran)
+    out.open_after_pilot = len(out.open_pairs(level))
     spent = 0
     while spent < budget:
         picks = next_agents(results, higher, k=min(batch, budget - spent), level=level)
