@@ -136,3 +136,23 @@ def test_cli_plan_on_a_recorded_target_and_sequential_refused(tmp_path):
     assert res.exit_code == 2 and "cannot run more episodes" in res.output
     res = runner.invoke(app, ["plan", "--confidence", "1.5"])
     assert res.exit_code == 2 and "between 0 and 1" in res.output
+
+
+def test_planned_width_matches_the_order_range_usefulness_reports():
+    """The planner's simulated width at n agrees with what `usefulness` reports on experiments of n episodes."""
+    from proxybench.usefulness import PairedResults, usefulness
+
+    rng = np.random.default_rng(6)
+    k, n = 6, 8
+    mu = np.stack([np.linspace(0, 2.5, k), np.linspace(0, 1.2, k)], 1)
+    widths = []
+    for r in range(25):
+        t = {f"a{i}": mu[i] + rng.normal(0, 1, (n, 2)) for i in range(k)}
+        p = {a: v + rng.normal(0, 0.3, v.shape) for a, v in t.items()}
+        e = usefulness(PairedResults(p, t, (True, True)), n_boot=150, seed=r)["prpv"]
+        widths.append(e.high - e.low)
+    big = {f"a{i}": mu[i] + rng.normal(0, 1, (2000, 2)) for i in range(k)}  # a pilot as good as the truth
+    planned = plan(big, (True, True), ("x", "y"), proxies={"p": {a: v + rng.normal(0, 0.3, v.shape)
+                                                                 for a, v in big.items()}}, grid=[n], reps=300)
+    row = next(r for r in planned.rows if r.n == n)
+    assert row.width_mean == pytest.approx(np.mean(widths), rel=0.35), (row.width_mean, np.mean(widths))
