@@ -10,7 +10,10 @@ criteria even "beats" can form cycles. :func:`leaderboard` therefore ranks by Co
 compares between two domains (1 / 0 / 0.5 for dominates / dominated / incomparable or equal).
 
 NaN values (a metric that could not be computed) count as the *worst* possible value in every
-comparison, whatever the direction and tolerance: a NaN never beats a number, two NaNs tie.
+comparison, whatever the direction and tolerance: a NaN never beats a number, two NaNs tie. This is the
+project's one rule for missing values: an *episode* without a value is left out of its agent's statistics
+(:mod:`proxybench.tasks.aggregate`), an *agent* without any value is worst on that metric — here and in
+PRPV's dominance matrices (:mod:`proxybench.usefulness.metrics`); docs/usefulness.md gives the reasons.
 
 >>> crit = [Criterion("distance_mean", True, 0.5), Criterion("survival_time_mean", True, 1.0)]
 >>> scores = {"a": {"distance_mean": 10.0, "survival_time_mean": 50.0},
