@@ -30,9 +30,11 @@ directories in the file are taken from its folder; ``NAME=COMMAND`` strings run 
       camera_pitch: [15, 19.15, 23]
     search:                      # optimize
       space: {trim: [-0.3, 0.3], camera_pitch: [12, 26]}
-      objective: prpv            # prpv (θ* = argmin PRPV, the thesis) | ppv | mix
+      objective: prpv            # prpv (θ* = argmin PRPV, the thesis) | ppv | mix | plv (argmax PLV, eq. 3.6.2)
       trials: 60
-      sampler: tpe               # tpe | gp | random
+      sampler: tpe               # tpe | gp | random (plv: tpe | random)
+      family: false              # plv only: search families p(θ) (a uniform range per parameter), not instances
+    plv: {}                      # objective plv: PLV settings (PLVConfig fields, e.g. ladder, seeds, train: {...})
     n_boot: 300
     pod_seconds: 10
     seed: 0
@@ -62,7 +64,7 @@ FULL_AGENTS = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggi
                "vision-wide", "vision-twitchy")
 QUICK_AGENTS = ("straight", "bang-bang", "pid", "pid-fast", "pid-twitchy", "pure-pursuit", "vision", "vision-fast",
                 "vision-pitch25", "vision-twitchy", "vision-slow", "pid-sluggish")
-OBJECTIVES = ("prpv", "ppv", "mix")
+OBJECTIVES = ("prpv", "ppv", "mix", "plv")
 
 #: what a field left unset takes, per command and mode (a recorded target's map, length, agents and
 #: episodes come first)
@@ -104,11 +106,18 @@ class SearchConfig(_Strict):
     """What ``optimize`` searches and how."""
 
     space: dict[str, tuple[float, float]] = Field(default_factory=lambda: dict(DEFAULT_SEARCH))
-    objective: Literal["prpv", "ppv", "mix"] = "prpv"
+    objective: Literal["prpv", "ppv", "mix", "plv"] = "prpv"
     trials: int | None = Field(None, ge=1, le=100_000)
     sampler: Literal["tpe", "gp", "random"] = "tpe"
     storage: str | None = None
-    study_name: str = "proxybench-proxy"
+    study_name: str = "proxybench-proxy"  # objective plv: "proxybench-plv" unless given
+    family: bool = False  # objective plv: each trial proposes a family p(θ), a uniform range per parameter
+
+    @model_validator(mode="after")
+    def _family_is_plv(self) -> SearchConfig:
+        if self.family and self.objective != "plv":
+            raise ValueError(f"family: searching families p(θ) needs objective plv, not {self.objective!r}")
+        return self
 
     @field_validator("space")
     @classmethod
@@ -142,6 +151,7 @@ class ExperimentConfig(_Strict):
     pod_seconds: float | None = Field(None, ge=0.0, le=600.0)
     seed: int = Field(0, ge=0, le=100_000)
     truth: dict[str, float] = Field(default_factory=dict)
+    plv: dict[str, Any] = Field(default_factory=dict)  # PLVConfig fields for objective plv, checked when used
 
     @model_validator(mode="before")
     @classmethod

@@ -8,7 +8,8 @@ or a robot node, whose episodes are run once and re-used by every trial). The se
 truth; a known truth is only printed beside what was recovered.
 The objective is PRPV by default, as the thesis defines θ*; ``ppv`` (the mean per-agent PPV) and ``mix``
 (PRPV/K(K−1) + PPV/m: both in [0, 1]-ish units, and PPV's slope gives the sampler something to follow where
-PRPV is flat) can be chosen.
+PRPV is flat) can be chosen. The teaching objective, argmax PLV (eq. 3.6.2), trains an agent instead:
+:mod:`proxybench.usefulness.optimize_plv`.
 Studies live in memory, in SQLite (default when a path is given) or in any SQLAlchemy database such as
 PostgreSQL, so many workers can share one study.
 """
@@ -113,6 +114,9 @@ def optimize_proxy(
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     backend = backend or InlineBackend()
     run_dir = Path(run_dir)
+    if cfg.search.objective == "plv":
+        raise ValueError("search.objective: plv trains a learning agent; run it with "
+                         "proxybench.usefulness.optimize_plv.run_plv_search (or `proxybench optimize --objective plv`)")
     if isinstance(cfg, ExperimentConfig):
         exp, target = resolve(cfg, "optimize", quick=quick, work_dir=run_dir.parent / "agents", target=target)
     else:
