@@ -117,6 +117,33 @@ def test_predictivity_cli_passes_robot_options_to_the_target(tmp_path: Path, bri
     assert wrong.exit_code == 2 and "only a robot node" in wrong.output
 
 
+def test_evaluator_target_jobs_start_the_robot_node_with_its_options(tmp_path: Path, bridge: Path) -> None:
+    """`proxybench evaluator --robot-cmd CMD --robot-cwd DIR --robot-transport fifo`: the compliance check and
+    the episodes start the node that way (the job's config carries the options to the worker)."""
+    from proxybench.evaluator.report import summarize
+    from proxybench.evaluator.robot import check_robot, evaluate_on_robot
+    from proxybench.evaluator.run import _Job
+    from proxybench.tasks.benchmark import Benchmark
+
+    bench = Benchmark.from_dict({
+        "name": "tiny_robot", "map": "loop_3x3", "episodes": {"count": 1, "seed": 1}, "duration": 1.0,
+        "domain": {"params": {"image_width": 80, "image_height": 60}}, "metrics": ["survival_time"],
+        "scoring": [{"metric": "survival_time_median"}]})
+    options = _Job(tmp_path, {"lease": {}, "robot_options": {"cwd": str(bridge), "transport": "fifo"}}).robot_options()
+    assert options == RobotNodeOptions(cwd=str(bridge), transport="fifo")
+    report = check_robot(bench, ROBOT, options=options)
+    assert report.ok, report.failures()
+    plain = check_robot(bench, ROBOT)  # over a pipe, from here: no local.yaml, and its boot message
+    assert not plain.ok and "the robot node failed" in plain.failures()
+    ev = evaluate_on_robot(bench, AgentSpec("pid"), ROBOT, tmp_path / "run", options=options)
+    summary = summarize(ev, "validation", domain_kind=report.domain_kind)
+    assert summary.problems == [] and summary.failures == []
+    res = runner.invoke(app, ["repeatability", "--agent", "pid", "--robot-cmd", f"r1={ROBOT}", "--robot-cwd",
+                              str(bridge), "--robot-transport", "fifo", "--runs", "2", "--seconds", "1", "--out",
+                              str(tmp_path / "rep")], env={"COLUMNS": "200"})
+    assert res.exit_code == 0, res.output
+
+
 # ------------------------------------------------------------------------ agents in the experiment file
 def _solution(tmp_path: Path) -> Path:
     sub = tmp_path / "submissions" / "lf"

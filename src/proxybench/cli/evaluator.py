@@ -12,6 +12,14 @@ import typer
 from rich.markup import escape
 
 from proxybench.cli.app import app, console, err_console, require_extra
+from proxybench.cli.node_options import (
+    RobotCwd,
+    RobotNoReflection,
+    RobotStartTimeout,
+    RobotStepTimeout,
+    RobotTransport,
+    robot_node_options,
+)
 from proxybench.cli.options import positive
 
 KNOWN_FEATURES = ("sim", "target")
@@ -89,6 +97,11 @@ def evaluator(
     keep_work: bool = typer.Option(False, help="keep each job's folder after its result is uploaded"),
     robot_cmd: str | None = typer.Option(None, help="robot node (robot protocol) that target jobs run on "
                                                     "[the reality model]"),
+    robot_cwd: RobotCwd = None,
+    robot_transport: RobotTransport = None,
+    robot_start_timeout: RobotStartTimeout = None,
+    robot_step_timeout: RobotStepTimeout = None,
+    robot_no_reflection: RobotNoReflection = False,
 ) -> None:
     """Pull jobs from a challenges server and evaluate them, until stopped (SIGTERM / Ctrl-C).
 
@@ -101,6 +114,9 @@ def evaluator(
     """
     require_extra("server", ("httpx",))
     from rich.logging import RichHandler
+
+    robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
+                                       robot_no_reflection, command=robot_cmd)
 
     from proxybench.cli.server import read_token
 
@@ -126,7 +142,7 @@ def evaluator(
         work_dir=work_dir or Path(tempfile.gettempdir()) / "proxybench-evaluator" / name,
         limits=Limits(cpu_seconds=cpu_seconds, memory_bytes=memory_mb << 20, file_bytes=file_mb << 20,
                       scratch_bytes=scratch_mb << 20, tmp_bytes=max(1, scratch_mb // 4) << 20),
-        video=video, keep_work=keep_work, robot_cmd=robot_cmd)
+        video=video, keep_work=keep_work, robot_cmd=robot_cmd, robot_options=robot_options.non_default())
     try:
         ev = Evaluator(server or "http://127.0.0.1:8000", secret, config, _reporter())
     except RuntimeError as exc:

@@ -51,7 +51,8 @@ _MAX_MESSAGE = 100_000
 class EvaluatorConfig:
     """One evaluator's settings. ``features``: what it offers (``sim``, ``target``); ``poll`` [s] between
     lease attempts when the queue is empty; ``robot_cmd``: the robot node that target jobs run on (default:
-    the reality model); ``post_retry_s`` [s]: how long a result upload is retried; ``agent_user``: the
+    the reality model), ``robot_options``: how to start it (the non-default fields of ``RobotNodeOptions``);
+    ``post_retry_s`` [s]: how long a result upload is retried; ``agent_user``: the
     unprivileged user agent packages run as; ``dev_unsafe``: the developer's flag that lets them run as the
     evaluator's own user where that is impossible (every report says so)."""
 
@@ -65,6 +66,7 @@ class EvaluatorConfig:
     video: bool = True
     keep_work: bool = False
     robot_cmd: str | None = None
+    robot_options: dict[str, Any] = field(default_factory=dict)
     post_retry_s: float = 600.0
 
 
@@ -267,7 +269,7 @@ class Evaluator:
                "evaluator": {"name": self.config.name, "features": list(self.config.features),
                              "version": __version__},
                "isolation": asdict(self.isolation), "limits": asdict(self.config.limits), "video": self.config.video,
-               "robot_cmd": self.config.robot_cmd}
+               "robot_cmd": self.config.robot_cmd, "robot_options": dict(self.config.robot_options)}
         (job_dir / "job.json").write_text(json.dumps(cfg, indent=1))
         if self._stopping.is_set():
             return Outcome("host-error", f"evaluator {self.config.name!r} is shutting down ({self.stop_reason}); "

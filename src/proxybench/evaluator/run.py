@@ -149,7 +149,7 @@ class _Job:
             if robot:
                 from proxybench.evaluator.robot import evaluate_on_robot
 
-                return evaluate_on_robot(bench, spec, robot, run_dir, self.progress)
+                return evaluate_on_robot(bench, spec, robot, run_dir, self.progress, options=self.robot_options())
             return evaluate_benchmark(bench, [spec], run_dir, InlineBackend(), domain="reality" if target else None,
                                       privileged=lambda s: s.command is None and ZOO[s.name].privileged,
                                       progress=self.progress)
@@ -222,6 +222,12 @@ class _Job:
             return
         self.outcome.artifacts.append(Artifact(path.name, str(path), False, "video/mp4"))
 
+    def robot_options(self):
+        """How the evaluator's robot node is started (``--robot-cwd``, ``--robot-transport``, ...)."""
+        from proxybench.protocol.options import RobotNodeOptions
+
+        return RobotNodeOptions(**self.cfg.get("robot_options", {}))
+
     def compliance(self, bench) -> str:
         """Check the target before a target job; its ``domain_kind``. Not compliant: :class:`HostFault`."""
         from proxybench.domain.params import DomainParams
@@ -234,7 +240,7 @@ class _Job:
             from proxybench.evaluator.robot import check_robot
 
             log.info("target job: the target is the robot node %r", robot)
-            report = check_robot(bench, robot)
+            report = check_robot(bench, robot, options=self.robot_options())
         else:
             log.info("target job: the target is the reality model, a simulated stand-in (no real robot here)")
             report = check_reality_model(bench, DomainParams.model_validate(benchmark_domain(bench, "reality").params))
