@@ -60,6 +60,7 @@ def test_optimize_plv_through_the_cli(tmp_path: Path, exp: Path) -> None:
     best = summary["best"]
     if best["plv"] is not None:  # the table marks the best, and says whether its interval stands apart
         assert ("best, stands apart" if summary["separated"] else "best (not separated)") in res.output
+        assert f"PLV {best['plv_ci']}" in res.output  # with its interval, as printed (not eaten as markup)
     again = runner.invoke(app, args, env=ENV)  # the stored study has its trials: nothing is trained again
     assert again.exit_code == 0 and json.loads((out / "trials.json").read_text()) == trials
     fam = runner.invoke(app, [*args[:-1], str(tmp_path / "fam"), "--family", "--trials", "1",

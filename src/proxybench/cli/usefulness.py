@@ -382,22 +382,24 @@ def _optimize_plv(cfg, out: Path, quick: bool) -> None:
         mark = ""
         if t["number"] == best and res.reached:
             mark = "best" + (", stands apart" if res.search.separated else " (not separated)")
-        table.add_row(str(t["number"]), *(res.theta_label(t, n) for n in names), escape(str(t["plv_ci"])),
+        table.add_row(str(t["number"]), *(escape(res.theta_label(t, n)) for n in names), escape(str(t["plv_ci"])),
                       f"{t['reached_share']:.0%}", f"{t['zero_shot']:.2f}", mark)
     console.print(table)
     for name, v in res.truth.items():
-        console.print(f"• {name}: the target's known value {v:g} (not used by the search)", highlight=False)
+        console.print(f"• {name}: the target's known value {v:g} (not used by the search)", highlight=False,
+                      markup=False)
     b = res.best
     theta = ", ".join(f"{n} {res.theta_label(b, n)}" for n in names)
     if not res.reached:
         console.print(f"• no proxy tried let the agent settle above P within the ladder (largest rung "
-                      f"{plv_cfg.ladder[-1]:,}): PLV not reached for all {len(res.trials)} trials", highlight=False)
+                      f"{plv_cfg.ladder[-1]:,}): PLV not reached for all {len(res.trials)} trials", highlight=False,
+                      markup=False)
     elif res.search.separated:
         console.print(f"• best: trial {b['number']} ({theta}), PLV {b['plv_ci']}: its interval lies above every "
-                      "other trial's", highlight=False)
+                      "other trial's", highlight=False, markup=False)
     else:
         console.print(f"• highest PLV: trial {b['number']} ({theta}), PLV {b['plv_ci']}; its interval overlaps "
                       "other trials': the seeds cannot tell them apart (more seeds: plv: {seeds: [...]})",
-                      highlight=False)
+                      highlight=False, markup=False)
     console.print(f"wrote {', '.join(str(p) for p in paths)} (+ .svg), {out / 'trials.json'}, {out / 'summary.json'}",
-                  highlight=False)
+                  highlight=False, markup=False)

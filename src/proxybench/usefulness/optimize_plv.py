@@ -144,8 +144,9 @@ def run_plv_search(cfg: ExperimentConfig, out: str | Path, progress=None, *, qui
 def plot_plv_search(res: PLVOptimizeResult, out: str | Path) -> list[Path]:
     """PLV of every trial with its 95 % interval, by trial number and by each searched parameter (PNG + SVG).
 
-    A proxy whose agent never settled above P has no PLV: it is drawn as a cross under the axis's
-    zero ("not reached"), not as a number.
+    A proxy whose agent never settled above P has no PLV: it is drawn as a cross on a dotted line under
+    zero ("not reached"), not as a number; an interval whose lower end is "not reached" runs down to
+    that line and ends in a triangle.
     """
     import matplotlib
 
@@ -167,12 +168,18 @@ def plot_plv_search(res: PLVOptimizeResult, out: str | Path) -> list[Path]:
     def draw(ax, xs_ok, xs_missing, xerr=None) -> None:
         if ok:
             y = np.array([t["plv"] for t in ok], float)
-            lo = np.array([t["plv"] if t.get("plv_low") is None else t["plv_low"] for t in ok], float)
+            lo = np.array([floor if t.get("plv_low") is None else t["plv_low"] for t in ok], float)
             hi = np.array([t["plv"] if t.get("plv_high") is None else t["plv_high"] for t in ok], float)
             ax.errorbar(xs_ok, y, yerr=[y - lo, hi - y], xerr=xerr, fmt="o", ms=4, capsize=3, color="tab:blue",
                         label="trial: PLV [95 % CI over seeds]")
+            open_low = [x for x, t in zip(xs_ok, ok, strict=True) if t.get("plv_low") is None]
+            if open_low:  # the interval's lower end is "not reached": the bar runs down to that level
+                ax.plot(open_low, [floor] * len(open_low), "v", color="tab:blue", ms=6,
+                        label="interval's lower end: not reached")
         if xs_missing:
-            ax.plot(xs_missing, [floor] * len(xs_missing), "x", color="tab:red", label="not reached (no PLV)")
+            ax.plot(xs_missing, [floor] * len(xs_missing), "x", color="tab:red", ms=8, label="not reached (no PLV)")
+        if xs_missing or any(t.get("plv_low") is None for t in ok):
+            ax.axhline(floor, color="tab:red", lw=0.6, ls=":")
         best = res.best
         if best.get("plv") is not None:
             bx = xs_ok[ok.index(next(t for t in ok if t["number"] == best["number"]))]
