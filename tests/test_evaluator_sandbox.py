@@ -12,6 +12,7 @@ import socket
 import subprocess
 import sys
 import tarfile
+import time
 import zipfile
 from pathlib import Path
 
@@ -267,10 +268,14 @@ def test_a_fifo_package_printing_to_stdout_runs_in_the_sandbox(tmp_path: Path, i
         for k in range(3):
             out = agent.act(Observation(np.zeros((12, 16, 3), np.uint8), k / 15, (0.0, 0.0), 0.01))
         assert list(out) == [0.2, 0.25]
-        tail = agent.process._os.stderr.tail()
     finally:
         agent.close()
-    assert any("loading the model" in line for line in tail)  # its stdout: beside the protocol, not in it
+    drain = agent.process._os.stderr  # read after the end: the drain thread has seen every line by then
+    deadline = time.monotonic() + 10
+    while not any("FACTS" in line for line in drain.tail()) and time.monotonic() < deadline:
+        time.sleep(0.05)  # (a loaded machine may schedule the drain thread late)
+    tail = drain.tail()
+    assert any("loading the model" in line for line in tail), tail  # its stdout: beside the protocol, not in it
     facts = json.loads(next(line for line in tail if line.startswith("FACTS "))[6:])
     assert facts["uid"] == isolation.uid and facts["in"] == "/fifo/in" and facts["out"] == "fifo:/fifo/out"
     assert facts["fifo"] == ["in", "out"]
