@@ -12,6 +12,7 @@ import socket
 import subprocess
 import sys
 import tarfile
+import time
 import zipfile
 from pathlib import Path
 
@@ -220,6 +221,95 @@ def test_the_developer_flag_says_unsafe() -> None:
     unsafe = detect_isolation.__wrapped__("no-such-agent-user", dev_unsafe=True)
     assert unsafe.usable and not unsafe.safe and unsafe.note.startswith("UNSAFE developer mode")
     assert unsafe.report()["safe"] is False
+
+
+# -- the FIFO transport in the sandbox -----------------------------------------------------------------
+
+NODE = Path(__file__).resolve().parent / "protocol_agents" / "zuper311_like.py"
+FIFO_FACTS = """\
+import json, os
+facts = {"uid": os.getuid(), "fifo": sorted(os.listdir("/fifo")), "in": os.environ.get("AIDONODE_DATA_IN"),
+         "out": os.environ.get("AIDONODE_DATA_OUT"), "root": sorted(os.listdir("/"))}
+for name, attempt in (("create", lambda: open("/fifo/x", "w")), ("replace", lambda: os.unlink("/fifo/out")),
+                      ("link", lambda: os.symlink("/etc/shadow", "/fifo/y"))):
+    try:
+        attempt()
+        facts[name] = "done"
+    except OSError as exc:
+        facts[name] = exc.strerror
+print("FACTS " + json.dumps(facts), flush=True)  # to stdout: over FIFOs that cannot break the protocol
+"""
+
+
+def test_a_fifo_package_printing_to_stdout_runs_in_the_sandbox(tmp_path: Path, isolation: Isolation) -> None:
+    """A manifest's ``transport: fifo`` through the evaluator's own path: the node, as the agent user, finds its
+    two FIFOs read-only at /fifo and prints to stdout freely; nothing else of the job folder is in view."""
+    from proxybench.agents.base import Observation
+    from proxybench.evaluator.report import summarize
+    from proxybench.evaluator.run import _Job
+    from proxybench.runner.jobs import make_agent_for
+    from proxybench.tasks.benchmark import Benchmark
+
+    manifest = (b"name: printer\nprotocol: aido-z2\ntransport: fifo\nreflection: false\ncommand: python3 facts.py "
+                b"&& exec python3 solution.py --print --starts-log /scratch/starts.log\n")
+    data = _zip({"proxybench-agent.yaml": manifest, "facts.py": FIFO_FACTS.encode(), "solution.py": NODE.read_bytes()})
+    job_dir = tmp_path / "job"
+    job_dir.mkdir(mode=0o700)
+    (job_dir / "agent.archive").write_bytes(data)
+    (job_dir / "job.json").write_text('{"hidden_seed": 123}')
+    cfg = {"lease": {"submission": {"agent": None, "archive_sha256": hashlib.sha256(data).hexdigest()}},
+           "isolation": dataclasses.asdict(isolation), "limits": dataclasses.asdict(Limits())}
+    job = _Job(job_dir, cfg)
+    spec = job.agent(None)
+    assert spec.node_options().transport == "fifo"
+    agent = make_agent_for(spec)
+    try:
+        agent.reset(seed=1)
+        for k in range(3):
+            out = agent.act(Observation(np.zeros((12, 16, 3), np.uint8), k / 15, (0.0, 0.0), 0.01))
+        assert list(out) == [0.2, 0.25]
+    finally:
+        agent.close()
+    drain = agent.process._os.stderr  # read after the end: the drain thread has seen every line by then
+    deadline = time.monotonic() + 10
+    while not any("FACTS" in line for line in drain.tail()) and time.monotonic() < deadline:
+        time.sleep(0.05)  # (a loaded machine may schedule the drain thread late)
+    tail = drain.tail()
+    assert any("loading the model" in line for line in tail), tail  # its stdout: beside the protocol, not in it
+    facts = json.loads(next(line for line in tail if line.startswith("FACTS "))[6:])
+    assert facts["uid"] == isolation.uid and facts["in"] == "/fifo/in" and facts["out"] == "fifo:/fifo/out"
+    assert facts["fifo"] == ["in", "out"]
+    assert set(facts["root"]) <= {"agent", "fifo", "scratch", "tmp", "dev", "proc", "etc", "usr", "bin", "sbin", "lib",
+                                  "lib32", "lib64", "libx32", *(p.split("/")[1] for p in isolation.runtime)}
+    assert facts["create"] == facts["replace"] == facts["link"] == "Read-only file system"
+    fifos = job_dir / "agent.fifos"
+    assert (fifos.stat().st_mode & 0o777) == 0o700 and list(fifos.iterdir()) == []  # each start's folder removed
+    bench = Benchmark.from_dict({
+        "name": "tiny_fifo", "map": "small_loop", "episodes": {"count": 1, "seed": 1}, "duration": 1.0,
+        "physics_rate": 30.0, "frame_rate": 5.0, "metrics": ["survival_time"],
+        "scoring": [{"metric": "survival_time_median"}]})
+    summary = summarize(job.evaluate(bench, spec, "validation", False), "validation", domain_kind="simulation")
+    assert summary.failures == [] and summary.problems == []
+
+
+def test_the_shim_shows_only_a_fifo_folder_directly_in_its_root(tmp_path: Path) -> None:
+    """The shim checks what the caller names before showing it: a folder elsewhere (or a link out of the root)
+    is refused, so the FIFO transport can never widen the agent's view."""
+    root, elsewhere = tmp_path / "fifos", tmp_path / "elsewhere"
+    root.mkdir()
+    elsewhere.mkdir()
+    for name in ("in", "out"):
+        os.mkfifo(elsewhere / name)
+    (root / "link").symlink_to(elsewhere)
+    argv = confine(["python3", "-c", "pass"], _package(tmp_path, {}), Limits(), Isolation("none", "me"),
+                   parent=None, fifo_root=root)
+    for folder in (elsewhere, root / "link"):
+        env = {**os.environ, "AIDONODE_DATA_IN": f"{folder}/in", "AIDONODE_DATA_OUT": f"fifo:{folder}/out"}
+        done = subprocess.run(argv, capture_output=True, text=True, timeout=30, env=env)
+        assert done.returncode == 126 and "not a folder directly inside --fifo-root" in done.stderr
+    env = {**os.environ, "AIDONODE_DATA_IN": f"{elsewhere}/in", "AIDONODE_DATA_OUT": "fifo:/etc/out"}
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=30, env=env)
+    assert done.returncode == 126 and "must be FOLDER/in and fifo:FOLDER/out" in done.stderr
 
 
 # -- compliance and scores --------------------------------------------------------------------------

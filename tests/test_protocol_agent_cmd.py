@@ -132,6 +132,20 @@ def test_fifos_in_a_given_folder(solution: Path, tmp_path: Path) -> None:
     assert list(shared.iterdir()) == []  # removed with the node
 
 
+@pytest.mark.parametrize("plant", ["os.symlink(SECRET, OUT)", "open(OUT, 'w').write(open(SECRET).read())"])
+def test_only_a_fifo_is_read_as_the_nodes_output(tmp_path: Path, plant: str) -> None:
+    """A node that puts a link to (or a copy of) a file where its output FIFO belongs gets the caller to read
+    nothing of it: a ``garbage`` failure that quotes none of the file."""
+    secret = tmp_path / "job.json"
+    secret.write_text('{"hidden_seed": 424242}')
+    code = (f"import os, time; SECRET = {str(secret)!r}; OUT = os.environ['AIDONODE_DATA_OUT'][5:]; {plant}; "
+            "time.sleep(30)")
+    with pytest.raises(AgentFailure) as info:
+        RemoteAgent([sys.executable, "-c", code], transport="fifo", init_timeout=20)
+    assert info.value.reason == "garbage" and "FIFO" in info.value.detail
+    assert "424242" not in str(info.value)
+
+
 # ------------------------------------------------------------------------------------------ reflection
 def test_describe_protocol_crash_falls_back_once(solution: Path, caplog: pytest.LogCaptureFixture) -> None:
     with RemoteAgent(f"{PY} solution.py", cwd=str(solution), init_timeout=20) as agent:

@@ -4,8 +4,9 @@ Like the zuper-nodes wrapper on Python >= 3.11 it crashes on ``wrapper.describe_
 aborted with a traceback, over, exit 1) although its data path works; like many user nodes it prints to
 stdout (``--print``), needs its working directory (``--need FILE``: a file it reads relative to it), and
 may take long to start (``--slow S``). Each start appends a line to ``starts.log`` in its working
-directory; ``--pid-file F`` writes its pid there (to check that it was killed). Streams: stdin/stdout or
-``AIDONODE_DATA_IN`` / ``AIDONODE_DATA_OUT`` (``fifo:`` creates the FIFO), as zuper nodes do.
+directory (or ``--starts-log``); ``--pid-file F`` writes its pid there (to check that it was killed).
+Streams: stdin/stdout or ``AIDONODE_DATA_IN`` / ``AIDONODE_DATA_OUT`` (``fifo:`` creates the FIFO unless it
+exists), as zuper nodes do.
 """
 
 import argparse
@@ -21,7 +22,8 @@ def streams():
     fin = open(path_in, "rb", buffering=0) if path_in else sys.stdin.buffer  # noqa: SIM115 - kept open
     if path_out and path_out.startswith("fifo:"):
         path_out = path_out[5:]
-        os.mkfifo(path_out)
+        if not os.path.exists(path_out):  # as zuper-nodes: a FIFO made by the caller is used as it is
+            os.mkfifo(path_out)
     return fin, (open(path_out, "wb") if path_out else sys.stdout.buffer)
 
 
@@ -32,8 +34,9 @@ def main() -> int:
     p.add_argument("--slow", type=float, default=0.0, help="seconds to sleep before starting")
     p.add_argument("--hang-on", default=None, help="hang at this input topic")
     p.add_argument("--pid-file", default=None)
+    p.add_argument("--starts-log", default="starts.log", help="where to log starts (a read-only package: /scratch)")
     args = p.parse_args()
-    with open("starts.log", "a") as f:
+    with open(args.starts_log, "a") as f:
         f.write(f"{os.getpid()}\n")
     if args.pid_file:
         with open(args.pid_file, "w") as f:

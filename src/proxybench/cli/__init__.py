@@ -7,6 +7,7 @@ from proxybench.cli import (  # noqa: F401 - importing registers the commands
     evaluator,
     learning,
     maps,
+    plan,
     robot,
     sandbox,
     server,

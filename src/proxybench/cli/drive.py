@@ -17,8 +17,14 @@ from proxybench.cli.node_options import (
     START_TIMEOUT_HELP,
     STEP_TIMEOUT_HELP,
     TRANSPORT_HELP,
+    RobotCwd,
+    RobotNoReflection,
+    RobotStartTimeout,
+    RobotStepTimeout,
+    RobotTransport,
     node_options,
     remote_agent,
+    robot_node_options,
 )
 from proxybench.cli.options import positive
 from proxybench.cli.progress import progress_bar
@@ -46,6 +52,11 @@ def run(
     start_timeout: float = typer.Option(30.0, "--start-timeout", help=START_TIMEOUT_HELP),
     step_timeout: float = typer.Option(5.0, "--step-timeout", help=STEP_TIMEOUT_HELP),
     no_reflection: bool = typer.Option(False, "--no-reflection", help=NO_REFLECTION_HELP),
+    robot_cwd: RobotCwd = None,
+    robot_transport: RobotTransport = None,
+    robot_start_timeout: RobotStartTimeout = None,
+    robot_step_timeout: RobotStepTimeout = None,
+    robot_no_reflection: RobotNoReflection = False,
 ) -> None:
     """Drive an agent (default: the privileged PID controller) around a map in simulation and record it.
 
@@ -54,7 +65,8 @@ def run(
     a node process (docs/robot-protocol.md) that decides camera size and rates; no video is written and
     the metrics say what the robot reported it is (``source``). --agent-cmd takes a command as you would
     type it (shell syntax such as `cd dir && exec node` works); --agent-cwd, --transport, the timeouts and
-    --no-reflection say how to start and talk to it (docs/protocol.md §7).
+    --no-reflection say how to start and talk to it (docs/protocol.md §7); the --robot-* options do the
+    same for the robot node of --robot-cmd.
     """
     from proxybench.agents import make_agent
     from proxybench.cli.maps import load_map_printing_warnings
@@ -65,6 +77,8 @@ def run(
     from proxybench.tasks.metrics import METRICS
 
     options = node_options(agent_cwd, transport, start_timeout, step_timeout, no_reflection)
+    robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
+                                       robot_no_reflection, command=robot_cmd)
     try:
         m = load_map_printing_warnings(map_name)
     except (MapError, OSError) as exc:
@@ -88,7 +102,7 @@ def run(
         except KeyError as exc:
             err_console.print(f"[red]error:[/red] {escape(str(exc.args[0]))}", highlight=False)
             raise typer.Exit(2) from exc
-        run_on_robot(robot_cmd, agent, map_name, seconds, seed, out)
+        run_on_robot(robot_cmd, agent, map_name, seconds, seed, out, robot_options)
         return
     params = DomainParams(image_width=width, image_height=height)
     sim = Simulator(m, params)

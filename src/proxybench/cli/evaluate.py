@@ -16,7 +16,13 @@ from proxybench.cli.node_options import (
     START_TIMEOUT_HELP,
     STEP_TIMEOUT_HELP,
     TRANSPORT_HELP,
+    RobotCwd,
+    RobotNoReflection,
+    RobotStartTimeout,
+    RobotStepTimeout,
+    RobotTransport,
     node_options,
+    robot_node_options,
 )
 from proxybench.cli.options import positive
 from proxybench.cli.progress import progress_bar, status
@@ -109,6 +115,11 @@ def repeatability(
                                         "or run files (repeat); t, x, y, theta in the map frame"),
     robot_cmd: list[str] = typer.Option([], "--robot-cmd", help="NAME=COMMAND of a robot node (repeat: one per "
                                         "robot); runs --runs (default 3) per robot"),
+    robot_cwd: RobotCwd = None,
+    robot_transport: RobotTransport = None,
+    robot_start_timeout: RobotStartTimeout = None,
+    robot_step_timeout: RobotStepTimeout = None,
+    robot_no_reflection: RobotNoReflection = False,
     out: Path = typer.Option(Path("out/repeatability"), help="folder for the tables and the plots"),
 ) -> None:
     """MPD / MOD of one agent, thesis §5.4: one robot, robots, labs (figs. 5.8–5.10).
@@ -121,6 +132,8 @@ def repeatability(
 
     if recorded and robot_cmd:
         raise typer.BadParameter("give --recorded or --robot-cmd, not both", param_hint="--recorded")
+    robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
+                                       robot_no_reflection, command=robot_cmd[0] if robot_cmd else None)
     try:
         if recorded:
             res = recorded_study(recorded, map_name)
@@ -133,7 +146,7 @@ def repeatability(
                 cmds[name.strip()] = cmd.strip()
             with status("driving robot nodes") as spinner:
                 res = robot_study(agent, cmds, runs or 3, seconds, map_name, seed,
-                                  progress=lambda n, k, t: spinner.update(f"{n}: run {k}/{t}"))
+                                  progress=lambda n, k, t: spinner.update(f"{n}: run {k}/{t}"), options=robot_options)
         else:
             designs = dict(Design.parse(d) for d in design) if design else None
             if runs is not None:

@@ -12,22 +12,17 @@ import typer
 from rich.markup import escape
 
 from proxybench.cli.app import app, console, err_console, require_extra
+from proxybench.cli.node_options import (
+    RobotCwd,
+    RobotNoReflection,
+    RobotStartTimeout,
+    RobotStepTimeout,
+    RobotTransport,
+    robot_node_options,
+)
 from proxybench.cli.options import positive
 
 KNOWN_FEATURES = ("sim", "target")
-
-
-def _token(token: str | None, token_file: Path | None) -> str:
-    if token:
-        return token.strip()
-    if token_file is None:
-        err_console.print("[red]✗[/red] no token: pass --token, set PROXYBENCH_TOKEN, or pass --token-file")
-        raise typer.Exit(2)
-    try:
-        return token_file.read_text().strip()
-    except OSError as exc:
-        err_console.print(f"[red]✗[/red] cannot read the token file {token_file}: {escape(str(exc))}", highlight=False)
-        raise typer.Exit(2) from None
 
 
 def _reporter():
@@ -78,8 +73,9 @@ def _reporter():
 def evaluator(
     server: str | None = typer.Option(None, "--server", envvar="PROXYBENCH_SERVER",
                                       help="challenges server URL [http://127.0.0.1:8000]"),
-    token: str | None = typer.Option(None, "--token", envvar="PROXYBENCH_TOKEN", help="API token (role evaluator)"),
-    token_file: Path | None = typer.Option(None, "--token-file", help="file holding the API token"),
+    token: str | None = typer.Option(None, "--token", hidden=True, help="refused: argv is visible to every user"),
+    token_file: Path | None = typer.Option(None, "--token-file", help="file holding the API token (role evaluator; "
+                                                                      "or $PROXYBENCH_TOKEN, $PROXYBENCH_TOKEN_FILE)"),
     name: str | None = typer.Option(None, help="this evaluator's name, unique per token [host name]"),
     features: str = typer.Option("sim", help="what this evaluator offers, comma-separated: sim, target"),
     once: bool = typer.Option(False, "--once", help="try to take one job, evaluate it, and exit"),
@@ -101,6 +97,11 @@ def evaluator(
     keep_work: bool = typer.Option(False, help="keep each job's folder after its result is uploaded"),
     robot_cmd: str | None = typer.Option(None, help="robot node (robot protocol) that target jobs run on "
                                                     "[the reality model]"),
+    robot_cwd: RobotCwd = None,
+    robot_transport: RobotTransport = None,
+    robot_start_timeout: RobotStartTimeout = None,
+    robot_step_timeout: RobotStepTimeout = None,
+    robot_no_reflection: RobotNoReflection = False,
 ) -> None:
     """Pull jobs from a challenges server and evaluate them, until stopped (SIGTERM / Ctrl-C).
 
@@ -113,6 +114,13 @@ def evaluator(
     """
     require_extra("server", ("httpx",))
     from rich.logging import RichHandler
+
+    robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
+                                       robot_no_reflection, command=robot_cmd)
+
+    from proxybench.cli.server import read_token
+
+    secret = read_token(token, token_file)
 
     from proxybench.client import ServerError
     from proxybench.evaluator import Evaluator, EvaluatorConfig, Limits
@@ -134,9 +142,9 @@ def evaluator(
         work_dir=work_dir or Path(tempfile.gettempdir()) / "proxybench-evaluator" / name,
         limits=Limits(cpu_seconds=cpu_seconds, memory_bytes=memory_mb << 20, file_bytes=file_mb << 20,
                       scratch_bytes=scratch_mb << 20, tmp_bytes=max(1, scratch_mb // 4) << 20),
-        video=video, keep_work=keep_work, robot_cmd=robot_cmd)
+        video=video, keep_work=keep_work, robot_cmd=robot_cmd, robot_options=robot_options.non_default())
     try:
-        ev = Evaluator(server or "http://127.0.0.1:8000", _token(token, token_file), config, _reporter())
+        ev = Evaluator(server or "http://127.0.0.1:8000", secret, config, _reporter())
     except RuntimeError as exc:
         err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None

@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 
     from proxybench.agents.base import Agent
     from proxybench.domain.params import DomainParams
+    from proxybench.protocol.options import RobotNodeOptions
 
 
 def parse_params(items: list[str]) -> DomainParams:
@@ -68,11 +69,14 @@ def robot_serve(
     raise typer.Exit(serve_robot(node, exit_on_abort=False))
 
 
-def run_on_robot(robot_cmd: str, agent: Agent, map_name: str, seconds: float, seed: int, out: Path) -> None:
-    """The `proxybench run --robot-cmd` path: one episode of ``agent`` on a robot node, recorded to ``out``."""
+def run_on_robot(robot_cmd: str, agent: Agent, map_name: str, seconds: float, seed: int, out: Path,
+                 options: RobotNodeOptions | None = None) -> None:
+    """The `proxybench run --robot-cmd` path: one episode of ``agent`` on a robot node started with ``options``
+    (default: :class:`~proxybench.protocol.options.RobotNodeOptions`' own), recorded to ``out``."""
     from proxybench.domain.maps import MapError, load_map
     from proxybench.media import write_strip
     from proxybench.protocol import RemoteRobot, RobotFailure
+    from proxybench.protocol.options import RobotNodeOptions
     from proxybench.runner.robot_episode import run_episode_on_robot
     from proxybench.tasks.metrics import METRICS
 
@@ -91,7 +95,7 @@ def run_on_robot(robot_cmd: str, agent: Agent, map_name: str, seconds: float, se
 
     t0 = time.perf_counter()
     try:
-        with RemoteRobot(robot_cmd) as robot:
+        with RemoteRobot(robot_cmd, **(options or RobotNodeOptions()).process_kwargs()) as robot:
             traj = run_episode_on_robot(robot, agent, seed, seconds, map_=m, camera=not agent.privileged,
                                         on_frame=keep, meta={"map": m.name})
     except RobotFailure as exc:
@@ -114,7 +118,9 @@ def run_on_robot(robot_cmd: str, agent: Agent, map_name: str, seconds: float, se
                                             "in_drivable_lane", "lane_score")}
     source = traj.meta["source"]
     record = {"map": m.name, "agent": agent.name, "privileged": agent.privileged, "seed": seed, "source": source,
-              "robot": robot_cmd, "termination": traj.termination, **scores, "wall_s": round(elapsed, 2)}
+              "robot": robot_cmd, **({"robot_options": options.non_default()} if options and options.non_default()
+                                     else {}),
+              "termination": traj.termination, **scores, "wall_s": round(elapsed, 2)}
     names[1].write_text(json.dumps(record, indent=2))
     console.print(f"wrote {', '.join(str(f) for f in names)}")
     for e in traj.events:

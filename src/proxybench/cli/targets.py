@@ -9,6 +9,14 @@ import typer
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.node_options import (
+    RobotCwd,
+    RobotNoReflection,
+    RobotStartTimeout,
+    RobotStepTimeout,
+    RobotTransport,
+    robot_node_options,
+)
 from proxybench.cli.options import positive
 from proxybench.cli.progress import status
 
@@ -30,6 +38,11 @@ def record(
     reality: bool = typer.Option(False, "--reality", help="record the reality model (the default target)"),
     robot_cmd: str | None = typer.Option(None, "--robot-cmd", help="record a robot node started with this command"),
     robot_nodes: int = typer.Option(1, min=1, help="robot node processes at once (1 for a physical robot)"),
+    robot_cwd: RobotCwd = None,
+    robot_transport: RobotTransport = None,
+    robot_start_timeout: RobotStartTimeout = None,
+    robot_step_timeout: RobotStepTimeout = None,
+    robot_no_reflection: RobotNoReflection = False,
     target_param: list[str] = typer.Option([], "--target-param", help="reality model θ, k=v (repeat)"),
     episodes: int = typer.Option(10, min=1, help="episodes per agent"),
     seconds: float = typer.Option(60.0, callback=positive, max=3600.0, help="episode length in s"),
@@ -57,9 +70,12 @@ def record(
 
     if reality and robot_cmd:
         _fail("give --reality or --robot-cmd, not both")
+    robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
+                                       robot_no_reflection, command=robot_cmd)
     try:
         target = open_target(f"robot:{robot_cmd}" if robot_cmd else "reality",
-                             params=_kv(target_param, "--target-param") or None, robot_nodes=robot_nodes)
+                             params=_kv(target_param, "--target-param") or None, robot_nodes=robot_nodes,
+                             robot_options=robot_options)
         specs = parse_agents(agent, out / ".agents")
     except (TargetError, AgentArgError) as exc:
         _fail(str(exc))

@@ -12,10 +12,19 @@ from pathlib import Path
 from typing import Any
 
 import typer
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.node_options import (
+    RobotCwd,
+    RobotNoReflection,
+    RobotStartTimeout,
+    RobotStepTimeout,
+    RobotTransport,
+    robot_option_values,
+)
 from proxybench.cli.options import non_negative, positive
 from proxybench.cli.progress import progress_bar
 
@@ -116,6 +125,11 @@ def predictivity(
     target: str | None = typer.Option(None, help=f"{_TARGET_HELP} (default: reality)"),
     target_param: list[str] = typer.Option([], "--target-param", help="reality model θ, k=v (repeat)"),
     robot_nodes: int | None = typer.Option(None, min=1, help="robot node processes at once (default: 1)"),
+    robot_cwd: RobotCwd = None,
+    robot_transport: RobotTransport = None,
+    robot_start_timeout: RobotStartTimeout = None,
+    robot_step_timeout: RobotStepTimeout = None,
+    robot_no_reflection: RobotNoReflection = False,
     agent: list[str] = typer.Option([], "--agent", help=f"{_AGENT_HELP} (default: the target's, else the zoo set)"),
     map_name: str | None = typer.Option(None, "--map", help="map (default: the target's, else loop_3x3)"),
     episodes: int | None = typer.Option(None, min=1, help="episodes per agent (default: 10; --quick 3)"),
@@ -146,6 +160,8 @@ def predictivity(
     from proxybench.usefulness.report import findings, write_report
 
     over = _overrides(target=target, target_params=_kv(target_param, "--target-param"), robot_nodes=robot_nodes,
+                      robot_options=robot_option_values(robot_cwd, robot_transport, robot_start_timeout,
+                                                        robot_step_timeout, robot_no_reflection),
                       agents=agent, map=map_name,
                       episodes=episodes, seconds=seconds, metrics=metric, image_size=_image_size(image_size),
                       proxy=_kv(proxy_param, "--proxy-param"), sweep=_sweep(sweep), n_boot=n_boot,
@@ -177,8 +193,9 @@ def _print_table(res, wall: float) -> None:
     title = (f"usefulness of proxy instances — target: {res.target.info.label}; {len(exp.agents)} agents × "
              f"{exp.episodes} episodes × {exp.seconds:g} s; {wall:.0f} s")
     table = Table(title=title)
-    for col in ("parameter", "value", "PRPV [95% CI]", "Δ vs best [paired CI]", "PPV", "SRCC", "Kendall τ", "POD"):
-        table.add_column(col, justify="left" if col == "parameter" else "right")
+    for col in ("parameter", "value", "PRPV [order range]", "Δ vs best [paired CI]", "PPV (mean/agent)", "Pearson r",
+                "Spearman ρ", "Kendall τ", "POD"):
+        table.add_column(escape(col), justify="left" if col == "parameter" else "right")  # "[…]" is not markup
     df = res.frame()
     for name in exp.sweep:
         claim = res.claims.get(name)
@@ -188,20 +205,29 @@ def _print_table(res, wall: float) -> None:
             delta = "best" + ("" if claim.separated else " (not separated)") if best else \
                 f"{r.delta_best:+.1f} [{r.delta_best_low:+.1f}, {r.delta_best_high:+.1f}]"
             table.add_row(name, f"{r.value:g}{mark}", f"{r.prpv:.1f} [{r.prpv_low:.1f}, {r.prpv_high:.1f}]", delta,
-                          f"{r.ppv:.2f}", f"{r.srcc:.2f}", f"{r.kendall:.2f}",
+                          f"{r.ppv:.2f} [{r.ppv_low:.2f}, {r.ppv_high:.2f}]", f"{r.pearson:.2f}", f"{r.spearman:.2f}",
+                          f"{r.kendall:.2f}",
                           "n/a" if not np.isfinite(r.pod) else f"{r.pod:.3f}")
     nf = res.noise
-    table.add_row("target noise floor", "", f"{nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}]", "", "", "", "", "")
+    pf = res.ppv_noise
+    table.add_row("target noise floor", "", f"{nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}]", "",
+                  f"{pf.value:.2f} [{pf.low:.2f}, {pf.high:.2f}]" if pf is not None else "", "", "", "", "")
     console.print(table)
 
 
 @app.command()
 def optimize(
-    quick: bool = typer.Option(False, "--quick", help="8 agents × 2 episodes × 12 s, at most 20 trials"),
+    quick: bool = typer.Option(False, "--quick", help="8 agents × 2 episodes × 12 s, at most 20 trials (plv: "
+                               "PLVConfig.quick(), 4 trials)"),
     config: Path | None = typer.Option(None, "--config", help="experiment file (YAML; see docs/targets.md)"),
     target: str | None = typer.Option(None, help=f"{_TARGET_HELP} (default: reality)"),
     target_param: list[str] = typer.Option([], "--target-param", help="reality model θ, k=v (repeat)"),
     robot_nodes: int | None = typer.Option(None, min=1, help="robot node processes at once (default: 1)"),
+    robot_cwd: RobotCwd = None,
+    robot_transport: RobotTransport = None,
+    robot_start_timeout: RobotStartTimeout = None,
+    robot_step_timeout: RobotStepTimeout = None,
+    robot_no_reflection: RobotNoReflection = False,
     agent: list[str] = typer.Option([], "--agent", help=f"{_AGENT_HELP} (default: the target's, else 12 zoo agents)"),
     map_name: str | None = typer.Option(None, "--map", help="map (default: the target's, else loop_3x3)"),
     episodes: int | None = typer.Option(None, min=1, help="episodes per agent (default: 4; --quick 2)"),
@@ -212,8 +238,13 @@ def optimize(
     proxy_param: list[str] = typer.Option([], "--proxy-param", help="θ every proxy has, k=v (repeat)"),
     param: list[str] = typer.Option([], "--param", help="a parameter to search, NAME=LOW:HIGH (repeat) "
                                     "(default: trim=-0.3:0.3, camera_pitch=12:26)"),
-    objective: str | None = typer.Option(None, help="prpv | ppv | mix (normalised PRPV + PPV) (default: mix)"),
-    trials: int | None = typer.Option(None, min=1, help="(default: 60; --quick 20)"),
+    objective: str | None = typer.Option(None, help="prpv (the thesis' θ* = argmin PRPV) | ppv | mix "
+                                         "(PRPV/K(K−1) + PPV/m) | plv (argmax PLV, eq. 3.6.2: trains a "
+                                         "behaviour-cloning agent per trial; needs the learning extra) "
+                                         "(default: prpv)"),
+    family: bool = typer.Option(False, "--family", help="objective plv: search families p(θ) (a uniform range "
+                                "per parameter) instead of instances θ"),
+    trials: int | None = typer.Option(None, min=1, help="(default: 60; --quick 20; plv: 12, --quick 4)"),
     sampler: str | None = typer.Option(None, help="tpe | gp | random (default: tpe)"),
     storage: str | None = typer.Option(None, help="SQLite file or SQLAlchemy URL (PostgreSQL to share a study)"),
     study_name: str | None = typer.Option(None, help="(default: proxybench-proxy)"),
@@ -228,6 +259,8 @@ def optimize(
 
     The target's episodes run (or are read) once; every trial replays them in its proxy. A known truth
     (the reality model's, or --truth) is printed beside what was recovered; the search never sees it.
+    With --objective plv: the proxy (θ, or with --family p(θ)) that saves a learning agent the most target
+    samples, against the reality model; PLV settings in the experiment file's `plv:` (docs/learning.md).
     """
     import json
 
@@ -236,13 +269,18 @@ def optimize(
     from proxybench.usefulness.optimize import optimize_proxy, plot_optimization
 
     search = _overrides(space=_space(param) or None, objective=objective, trials=trials, sampler=sampler,
-                        storage=storage, study_name=study_name)
+                        storage=storage, study_name=study_name, family=family or None)
     over = _overrides(target=target, target_params=_kv(target_param, "--target-param"), robot_nodes=robot_nodes,
+                      robot_options=robot_option_values(robot_cwd, robot_transport, robot_start_timeout,
+                                                        robot_step_timeout, robot_no_reflection),
                       agents=agent, map=map_name,
                       episodes=episodes, seconds=seconds, metrics=metric, image_size=_image_size(image_size),
                       proxy=_kv(proxy_param, "--proxy-param"), search=search or None, n_boot=n_boot, seed=seed,
                       truth=_kv(truth, "--truth"))
     cfg = _load(config, over)
+    if cfg.search.objective == "plv":
+        _optimize_plv(cfg, out, quick)
+        return
     be = make_backend(backend, workers)
     t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
@@ -284,7 +322,7 @@ def optimize(
                         f"{len(exp.agents)} agents × {exp.episodes} episodes × {exp.seconds:g} s, {wall:.0f} s "
                         f"(target: {res.target.label})")
     for col in ("parameter", "searched", "recovered (best decile)", "known truth", "error", "single best trial"):
-        table.add_column(col, justify="left" if col == "parameter" else "right")
+        table.add_column(escape(col), justify="left" if col == "parameter" else "right")  # "[…]" is not markup
     for name, v in res.recovered.items():
         t = res.truth.get(name)
         lo, hi = exp.search.space[name]
@@ -298,3 +336,70 @@ def optimize(
                   f"{nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}]" if nf else "", highlight=False)
     console.print(f"wrote {', '.join(str(p) for p in paths)}, {out / 'trials.json'}, {out / 'summary.json'}",
                   highlight=False)
+
+
+def _optimize_plv(cfg, out: Path, quick: bool) -> None:
+    """`optimize --objective plv`: argmax PLV over the search space, its table, plot, trials and summary."""
+    import json
+
+    from proxybench.usefulness.experiment import ConfigError
+    from proxybench.usefulness.optimize_plv import plot_plv_search, plv_search_settings, run_plv_search, torch_available
+
+    if not torch_available():
+        err_console.print("[red]✗[/red] --objective plv trains a behaviour-cloning network and needs PyTorch, the "
+                          "'learning' extra: pip install 'proxybench\\[learning]'", highlight=False)
+        raise typer.Exit(2)
+    try:
+        plv_cfg, _search, ignored = plv_search_settings(cfg, quick=quick)
+    except ConfigError as exc:
+        _fail(exc)
+    if ignored:
+        err_console.print(f"[yellow]![/yellow] not used by --objective plv (it trains its own agent on its own frames "
+                          f"and episodes): {', '.join(ignored)}", highlight=False)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    with _bars() as bar:
+        try:
+            res = run_plv_search(cfg, out, _stage_progress(bar), quick=quick)
+        except (ConfigError, ValueError) as exc:
+            _fail(exc)
+    wall = time.perf_counter() - t0
+    paths = plot_plv_search(res, out)
+    (out / "trials.json").write_text(json.dumps(res.trials, indent=1, default=str))
+    (out / "summary.json").write_text(json.dumps({**res.summary(), "wall_s": round(wall, 1)}, indent=1, default=str))
+    console.print("[bold]target:[/bold] the reality model, a SIMULATED stand-in for a real Duckiebot (PLV needs target "
+                  "samples and evaluation episodes in the target as the agent trains)", highlight=False)
+    what = "families p(θ)" if res.family else "instances θ"
+    need = "not reached" if res.target_cost is None else f"{res.target_cost:,.0f}"
+    table = Table(title=escape(f"argmax PLV over {what}: {len(res.trials)} trials; {len(plv_cfg.seeds)} seeds, "
+                               f"95 % bootstrap intervals over seeds; P = {res.reference:.2f} (expert "
+                               f"{res.expert:.2f}), |D_target| = {need} target samples; {wall:.0f} s"))
+    names = list(res.space)
+    for col in ("trial", *names, "PLV [95% CI]", "settled (share of replicates)", "zero-shot score", ""):
+        table.add_column(escape(col), justify="left" if col == "trial" else "right")
+    best = res.best["number"]
+    for t in sorted(res.trials, key=lambda t: -t["value"]):
+        mark = ""
+        if t["number"] == best and res.reached:
+            mark = "best" + (", stands apart" if res.search.separated else " (not separated)")
+        table.add_row(str(t["number"]), *(escape(res.theta_label(t, n)) for n in names), escape(str(t["plv_ci"])),
+                      f"{t['reached_share']:.0%}", f"{t['zero_shot']:.2f}", mark)
+    console.print(table)
+    for name, v in res.truth.items():
+        console.print(f"• {name}: the target's known value {v:g} (not used by the search)", highlight=False,
+                      markup=False)
+    b = res.best
+    theta = ", ".join(f"{n} {res.theta_label(b, n)}" for n in names)
+    if not res.reached:
+        console.print(f"• no proxy tried let the agent settle above P within the ladder (largest rung "
+                      f"{plv_cfg.ladder[-1]:,}): PLV not reached for all {len(res.trials)} trials", highlight=False,
+                      markup=False)
+    elif res.search.separated:
+        console.print(f"• best: trial {b['number']} ({theta}), PLV {b['plv_ci']}: its interval lies above every "
+                      "other trial's", highlight=False, markup=False)
+    else:
+        console.print(f"• highest PLV: trial {b['number']} ({theta}), PLV {b['plv_ci']}; its interval overlaps "
+                      "other trials': the seeds cannot tell them apart (more seeds: plv: {seeds: [...]})",
+                      highlight=False, markup=False)
+    console.print(f"wrote {', '.join(str(p) for p in paths)} (+ .svg), {out / 'trials.json'}, {out / 'summary.json'}",
+                  highlight=False, markup=False)

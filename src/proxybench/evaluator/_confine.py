@@ -16,6 +16,11 @@ agent itself), so the process the caller kills is the sandbox. In this order it:
    further user namespaces, a new session, a read-only view of only ``/usr``, the runtime and the package
    (at ``/agent``), bounded tmpfs for ``/scratch`` (``$HOME``), ``/tmp`` and ``/dev/shm``, its own
    ``/proc`` and ``/dev``, a read-only root, and a clean environment.
+
+With ``--fifo-root ROOT`` (the node's FIFO transport) the caller has made a folder directly in ROOT
+holding the two FIFOs and named them in ``AIDONODE_DATA_IN`` / ``AIDONODE_DATA_OUT``; that one folder,
+checked, is shown read-only at ``/fifo`` (a FIFO on a read-only mount can still be opened both ways) and
+the two variables, pointing there, are the only ones passed through.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import ctypes
 import os
 import resource
 import signal
+import stat
 import sys
 
 PR_SET_PDEATHSIG = 1
@@ -34,6 +40,8 @@ MS_RDONLY, MS_NOSUID, MS_NODEV, MS_BIND, MS_REMOUNT, MS_REC, MS_PRIVATE = 1, 2, 
 STAGE = "/tmp"  # over-mounted in the shim's private mount namespace only
 PACKAGE_AT = "/agent"
 SCRATCH_AT = "/scratch"
+FIFO_AT = "/fifo"
+ENV_DATA_IN, ENV_DATA_OUT = "AIDONODE_DATA_IN", "AIDONODE_DATA_OUT"  # as proxybench.protocol.wire (not imported)
 #: host files the dynamic linker and the C library read; nothing else of /etc is visible
 ETC_FILES = ("/etc/ld.so.cache", "/etc/ld.so.conf", "/etc/ld.so.conf.d", "/etc/localtime", "/etc/alternatives")
 ROOT_LINKS = ("/bin", "/sbin", "/lib", "/lib32", "/lib64", "/libx32")
@@ -88,6 +96,30 @@ def _stage(sources: list[str]) -> list[str]:
     return staged
 
 
+class Refused(ValueError):
+    """The caller asked for something this shim will not show the agent."""
+
+
+def _fifo_folder(root: str) -> str | None:
+    """The node's FIFO folder named by ``AIDONODE_DATA_IN`` / ``_OUT`` (None: no FIFO transport), checked to be
+    a real folder directly inside ``root`` that holds the two FIFOs ``in`` and ``out``."""
+    data_in, data_out = os.environ.get(ENV_DATA_IN), os.environ.get(ENV_DATA_OUT)
+    if data_in is None and data_out is None:
+        return None
+    folder = os.path.dirname(data_in or "")
+    if not (data_in and os.path.basename(data_in) == "in" and data_out == f"fifo:{folder}/out"):
+        raise Refused(f"{ENV_DATA_IN} / {ENV_DATA_OUT} must be FOLDER/in and fifo:FOLDER/out, got {data_in!r}, "
+                      f"{data_out!r}")
+    real_root = os.path.realpath(root)
+    if os.path.realpath(folder) != os.path.join(real_root, os.path.basename(folder)) or \
+            not stat.S_ISDIR(os.lstat(folder).st_mode):
+        raise Refused(f"the FIFO folder {folder!r} is not a folder directly inside --fifo-root {root!r}")
+    for name in ("in", "out"):
+        if not stat.S_ISFIFO(os.lstat(os.path.join(folder, name)).st_mode):
+            raise Refused(f"{os.path.join(folder, name)!r} is not a FIFO")
+    return os.path.join(real_root, os.path.basename(folder))
+
+
 def _data_fd(text: str) -> str:
     fd = os.memfd_create("proxybench-etc", 0)
     os.write(fd, text.encode())
@@ -96,8 +128,8 @@ def _data_fd(text: str) -> str:
     return str(fd)
 
 
-def _bwrap_argv(args: argparse.Namespace, runtime: list[tuple[str, str]], package: str, env: dict[str, str],
-                uid: int, gid: int) -> list[str]:
+def _bwrap_argv(args: argparse.Namespace, runtime: list[tuple[str, str]], package: str, fifo: str | None,
+                env: dict[str, str], uid: int, gid: int) -> list[str]:
     argv = [args.bwrap, "--unshare-user", "--unshare-pid", "--unshare-net", "--unshare-ipc", "--unshare-uts",
             "--unshare-cgroup-try", "--disable-userns", "--die-with-parent", "--new-session", "--cap-drop", "ALL",
             "--hostname", "sandbox", "--clearenv"]
@@ -120,6 +152,8 @@ def _bwrap_argv(args: argparse.Namespace, runtime: list[tuple[str, str]], packag
              "--perms", "0700", "--size", str(args.scratch), "--tmpfs", SCRATCH_AT]
     for source, dest in runtime:  # after /tmp: a runtime under /tmp must not be covered by the private one
         argv += ["--ro-bind", source, dest]
+    if fifo is not None:
+        argv += ["--ro-bind", fifo, FIFO_AT]
     argv += ["--ro-bind", package, PACKAGE_AT, "--remount-ro", "/", "--chdir", PACKAGE_AT, "--"]
     return argv
 
@@ -137,6 +171,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--bwrap", help="bubblewrap executable; without it: no namespaces (developer's unsafe mode)")
     p.add_argument("--parent", type=int, help="exit at once unless this is still our parent process")
     p.add_argument("--env", action="append", default=[], help="KEY=VALUE for the agent's environment")
+    p.add_argument("--fifo-root", help="FIFO transport: the folder in which the caller makes each node's FIFO folder")
     p.add_argument("command", nargs=argparse.REMAINDER)
     return p
 
@@ -149,11 +184,16 @@ def main(argv: list[str]) -> int:
         return 2
     env = dict(item.split("=", 1) for item in args.env if "=" in item)
     try:
+        fifo = _fifo_folder(args.fifo_root) if args.fifo_root else None
         if args.bwrap and args.uid is not None:
-            staged = _stage([*args.runtime, args.package])
-            runtime, package = list(zip(staged, args.runtime, strict=False)), staged[-1]
+            staged = _stage([*args.runtime, args.package, *([fifo] if fifo else [])])
+            runtime, package = list(zip(staged, args.runtime, strict=False)), staged[len(args.runtime)]
+            fifo_view = staged[-1] if fifo else None
         else:
-            runtime, package = [(r, r) for r in args.runtime], args.package
+            runtime, package, fifo_view = [(r, r) for r in args.runtime], args.package, fifo
+        if fifo is not None:  # the node finds its FIFOs where it sees them
+            at = FIFO_AT if args.bwrap else fifo
+            env.update({ENV_DATA_IN: f"{at}/in", ENV_DATA_OUT: f"fifo:{at}/out"})
         for name, which in _LIMITS:
             value = getattr(args, name)
             if value is not None:
@@ -169,11 +209,11 @@ def main(argv: list[str]) -> int:
         if args.parent is not None and os.getppid() != args.parent:
             return 3  # the worker is already gone
         if args.bwrap:
-            command = _bwrap_argv(args, runtime, package, env, os.getuid(), os.getgid()) + command
+            command = _bwrap_argv(args, runtime, package, fifo_view, env, os.getuid(), os.getgid()) + command
             env = {}
         else:
             os.chdir(package)
-    except OSError as exc:
+    except (OSError, Refused) as exc:
         print(f"_confine: cannot confine the agent: {exc}", file=sys.stderr)
         return 126
     try:

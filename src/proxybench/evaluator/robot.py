@@ -25,6 +25,7 @@ from proxybench.evaluator.compliance import (
     check_calibration,
     check_frame,
 )
+from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.evaluate import Evaluation
 from proxybench.runner.jobs import AgentSpec
 from proxybench.tasks.benchmark import Benchmark
@@ -32,23 +33,30 @@ from proxybench.tasks.benchmark import Benchmark
 __all__ = ["check_robot", "evaluate_on_robot", "robot_domain_kind"]
 
 _PWM = 0.5
-#: a robot node may compile its kernels or home its hardware at start: more time than an agent gets
-ROBOT_INIT_TIMEOUT_S = 120.0
+#: a robot node may compile its kernels or home its hardware at start: more time than an agent gets (the default
+#: of ``RobotNodeOptions``, which the evaluator's --robot-* options change)
+ROBOT_INIT_TIMEOUT_S = RobotNodeOptions().start_timeout
+
+
+def _process_kwargs(options: RobotNodeOptions | None) -> dict:
+    return (options or RobotNodeOptions()).process_kwargs()  # defaults: 120 s to start, 10 s per step
 
 
 def robot_domain_kind(kind: str) -> str:
     return f"robot-node/{kind}"
 
 
-def check_robot(bench: Benchmark, cmd: str, *, seed: int = 0) -> ComplianceReport:
-    """Start the robot node, then check that it responds, sends valid frames and is calibrated to spec."""
+def check_robot(bench: Benchmark, cmd: str, *, seed: int = 0, options: RobotNodeOptions | None = None,
+                ) -> ComplianceReport:
+    """Start the robot node (with ``options``), then check that it responds, sends valid frames and is
+    calibrated to spec."""
     from proxybench.domain.maps import load_map
     from proxybench.protocol import RemoteRobot, RobotFailure
 
     spec = bench.domain_params()
     report = ComplianceReport(f"robot node {cmd!r}", robot_domain_kind("unknown"))
     try:
-        with RemoteRobot(cmd, init_timeout=ROBOT_INIT_TIMEOUT_S, frame_rate=bench.frame_rate) as robot:
+        with RemoteRobot(cmd, frame_rate=bench.frame_rate, **_process_kwargs(options)) as robot:
             t0 = time.monotonic()
             info = robot.start_episode(load_map(bench.map), seed, seconds=2.0)
             report.domain_kind = robot_domain_kind(info.kind)
@@ -87,8 +95,10 @@ def check_robot(bench: Benchmark, cmd: str, *, seed: int = 0) -> ComplianceRepor
 
 
 def evaluate_on_robot(bench: Benchmark, spec: AgentSpec, cmd: str, run_dir: Path,
-                      progress: Callable[[int, int], None] | None = None) -> Evaluation:
-    """Every episode of ``bench`` with the agent ``spec`` on the robot node ``cmd``, as an :class:`Evaluation`.
+                      progress: Callable[[int, int], None] | None = None, *,
+                      options: RobotNodeOptions | None = None) -> Evaluation:
+    """Every episode of ``bench`` with the agent ``spec`` on the robot node ``cmd`` (started with ``options``),
+    as an :class:`Evaluation`.
 
     Raises :class:`~proxybench.protocol.AgentFailure` when the agent node cannot start, ``RobotFailure``
     when the robot fails, ``PrivilegedAgentError`` for a privileged agent on a camera-only benchmark.
@@ -110,7 +120,7 @@ def evaluate_on_robot(bench: Benchmark, spec: AgentSpec, cmd: str, run_dir: Path
     t0 = time.perf_counter()
     if progress:
         progress(0, len(specs))
-    with RemoteRobot(cmd, init_timeout=ROBOT_INIT_TIMEOUT_S, frame_rate=bench.frame_rate) as robot:
+    with RemoteRobot(cmd, frame_rate=bench.frame_rate, **_process_kwargs(options)) as robot:
         for ep in specs:
             agent = make_agent_for(spec)
             try:

@@ -117,19 +117,15 @@ class _Job:
             raise SubmissionFault(f"agent archive refused: {exc}") from None
         except sb.ArchiveMismatch as exc:
             raise HostFault(str(exc)) from None
-        try:
-            command = sb.agent_command(manifest, self.dir / "agent", sb.Limits(**self.cfg["limits"]), isolation)
+        try:  # FIFO transport: a folder of FIFOs beside the package, in the job folder (mode 700)
+            spec = sb.package_spec(manifest, self.dir / "agent", sb.Limits(**self.cfg["limits"]), isolation)
         except sb.SandboxError as exc:
             raise HostFault(str(exc)) from None
         self.unsafe = not isolation.safe
-        log.log(logging.WARNING if self.unsafe else logging.INFO, "agent: package %r (%s), command %s; sandbox: %s",
-                manifest.name, sub["archive_sha256"][:12], manifest.command, isolation.note)
-        options = manifest.node_options()
-        if options.transport == "fifo":  # the sandbox shows the agent none of the evaluator's folders (for now)
-            log.warning("agent: the manifest asks for transport fifo; agents in the sandbox run over pipes, so "
-                        "what the agent prints to stdout breaks the protocol (print to stderr)")
-            options = options.model_copy(update={"transport": "pipe"})
-        return AgentSpec.node(manifest.name, command, options)
+        log.log(logging.WARNING if self.unsafe else logging.INFO,
+                "agent: package %r (%s), command %s, transport %s; sandbox: %s", manifest.name,
+                sub["archive_sha256"][:12], manifest.command, manifest.transport, isolation.note)
+        return spec
 
     # -- running -----------------------------------------------------------------------------------
 
@@ -153,7 +149,7 @@ class _Job:
             if robot:
                 from proxybench.evaluator.robot import evaluate_on_robot
 
-                return evaluate_on_robot(bench, spec, robot, run_dir, self.progress)
+                return evaluate_on_robot(bench, spec, robot, run_dir, self.progress, options=self.robot_options())
             return evaluate_benchmark(bench, [spec], run_dir, InlineBackend(), domain="reality" if target else None,
                                       privileged=lambda s: s.command is None and ZOO[s.name].privileged,
                                       progress=self.progress)
@@ -226,6 +222,12 @@ class _Job:
             return
         self.outcome.artifacts.append(Artifact(path.name, str(path), False, "video/mp4"))
 
+    def robot_options(self):
+        """How the evaluator's robot node is started (``--robot-cwd``, ``--robot-transport``, ...)."""
+        from proxybench.protocol.options import RobotNodeOptions
+
+        return RobotNodeOptions(**self.cfg.get("robot_options", {}))
+
     def compliance(self, bench) -> str:
         """Check the target before a target job; its ``domain_kind``. Not compliant: :class:`HostFault`."""
         from proxybench.domain.params import DomainParams
@@ -238,7 +240,7 @@ class _Job:
             from proxybench.evaluator.robot import check_robot
 
             log.info("target job: the target is the robot node %r", robot)
-            report = check_robot(bench, robot)
+            report = check_robot(bench, robot, options=self.robot_options())
         else:
             log.info("target job: the target is the reality model, a simulated stand-in (no real robot here)")
             report = check_reality_model(bench, DomainParams.model_validate(benchmark_domain(bench, "reality").params))

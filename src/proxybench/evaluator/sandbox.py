@@ -12,7 +12,10 @@ manifest's command
   paths, even when they sit in a folder the agent user cannot enter) and its package (read-only at
   ``/agent``, the working directory), with bounded tmpfs for ``/scratch`` (``$HOME``), ``/tmp`` and
   ``/dev/shm``;
-- under CPU, address-space, file-size and process limits, with a clean environment.
+- under CPU, address-space, file-size and process limits, with a clean environment;
+- with the FIFO transport (``transport: fifo`` in its manifest): its own FIFO folder, made by the
+  evaluator beside the package (mode 700), read-only at ``/fifo``, and ``AIDONODE_DATA_IN`` /
+  ``AIDONODE_DATA_OUT`` pointing there (:func:`package_spec`).
 
 Where this cannot be done (no bubblewrap, no user namespaces, no agent user, an evaluator that is not
 root) agent packages are refused with a message naming the fix (:attr:`Isolation.problem`), unless the
@@ -41,7 +44,7 @@ from proxybench.agents.package import AgentManifest, PackageError, extract_archi
 
 __all__ = [
     "AGENT_USER", "ArchiveMismatch", "Isolation", "Limits", "SandboxError", "agent_command", "confine",
-    "detect_isolation", "prepare_agent", "probe", "runtime_paths",
+    "detect_isolation", "fifo_root", "package_spec", "prepare_agent", "probe", "runtime_paths",
 ]
 
 log = logging.getLogger("proxybench.evaluator")
@@ -251,12 +254,15 @@ def _agent_env(isolation: Isolation, folder: str) -> dict[str, str]:
 
 
 def confine(argv: list[str], folder: str | Path, limits: Limits, isolation: Isolation, *,
-            extra_env: dict[str, str] | None = None, parent: int | None = -1) -> list[str]:
+            extra_env: dict[str, str] | None = None, parent: int | None = -1,
+            fifo_root: str | Path | None = None) -> list[str]:
     """The command line that runs ``argv`` (from the package ``folder``) inside the sandbox.
 
     ``python`` / ``python3`` as ``argv[0]`` become this interpreter. ``parent``: the process that will
-    start it (default: this one); the shim exits if it is already gone. Raises :class:`SandboxError`
-    when ``isolation`` cannot run agents.
+    start it (default: this one); the shim exits if it is already gone. ``fifo_root``: for the FIFO
+    transport, the folder in which the caller makes each start's FIFO folder (the ``fifo_dir`` of its
+    node options, see :func:`fifo_root`); the shim shows the agent that one folder. Raises
+    :class:`SandboxError` when ``isolation`` cannot run agents.
     """
     if not isolation.usable:
         raise SandboxError(isolation.problem)
@@ -279,6 +285,8 @@ def confine(argv: list[str], folder: str | Path, limits: Limits, isolation: Isol
         shim += ["--uid", str(isolation.uid), "--gid", str(isolation.gid)]
     if parent is not None:
         shim += ["--parent", str(os.getpid() if parent == -1 else parent)]
+    if fifo_root is not None:
+        shim += ["--fifo-root", str(Path(fifo_root).resolve())]
     for key, value in {**_agent_env(isolation, folder), **(extra_env or {})}.items():
         shim += ["--env", f"{key}={value}"]
     return [*shim, "--", *argv]
@@ -306,6 +314,40 @@ def prepare_agent(archive: bytes, sha256: str, dest: Path, *, max_bytes: int | N
     return manifest
 
 
-def agent_command(manifest: AgentManifest, folder: Path, limits: Limits, isolation: Isolation) -> str:
+def agent_command(manifest: AgentManifest, folder: Path, limits: Limits, isolation: Isolation, *,
+                  fifo_root: str | Path | None = None, parent: int | None = -1) -> str:
     """The sandboxed command (one string, as ``AgentSpec.command`` takes it) of an unpacked package."""
-    return shlex.join(confine(list(manifest.command), folder, limits, isolation))
+    return shlex.join(confine(list(manifest.command), folder, limits, isolation, parent=parent, fifo_root=fifo_root))
+
+
+def fifo_root(folder: str | Path) -> Path:
+    """Where the FIFO folders of the package unpacked in ``folder`` are made: beside it, never inside (the agent
+    sees its package), mode 700, so that no one but the evaluator's user reaches them except through the
+    sandbox's view of one of them."""
+    root = Path(folder).resolve()
+    root = root.with_name(root.name + ".fifos")
+    try:
+        root.mkdir(mode=0o700, exist_ok=True)
+        st = root.lstat()
+        if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.geteuid():
+            raise SandboxError(f"{root} is not a folder of the evaluator's user: cannot make the agent's FIFOs there")
+        root.chmod(0o700)
+    except OSError as exc:
+        raise SandboxError(f"cannot make the FIFO folder {root}: {exc.strerror}") from None
+    return root
+
+
+def package_spec(manifest: AgentManifest, folder: str | Path, limits: Limits, isolation: Isolation, *,
+                 parent: int | None = -1):
+    """The runner's ``AgentSpec`` of a package unpacked in ``folder``: its sandboxed command and the start-up
+    options of its manifest. With ``transport: fifo`` the FIFOs are made in :func:`fifo_root` (the
+    options' ``fifo_dir``), one folder per start, shown to the agent read-only at ``/fifo``."""
+    from proxybench.runner.jobs import AgentSpec
+
+    options = manifest.node_options()
+    root = None
+    if options.transport == "fifo":
+        root = fifo_root(folder)
+        options = manifest.node_options(fifo_dir=str(root))
+    command = agent_command(manifest, Path(folder), limits, isolation, fifo_root=root, parent=parent)
+    return AgentSpec.node(manifest.name, command, options)

@@ -68,7 +68,7 @@ class PLVTrial:
         return {"proxy": self.proxy, "plv": self.plv.value, "plv_label": self.plv.label, "plv_status": self.plv.status,
                 "plv_ci": self.interval.label(), "plv_low": self.interval.low, "plv_high": self.interval.high,
                 "reduction": self.plv.reduction, "reached_share": self.reached_share, "needed": self.needed,
-                "zero_shot": self.zero_shot}
+                "zero_shot": self.zero_shot, "target_cost": self.plv.target_cost}
 
 
 def objective_value(value: PLVValue, largest_rung: float) -> float:
@@ -131,7 +131,7 @@ class PLVSearch:
 
     With ``family=True`` each trial proposes, per parameter, a centre in [lo, hi] and a half-width in
     [0, (hi − lo) / 2]: the proxy is the uniform family over [centre ± half-width] ∩ [lo, hi], drawn
-    per episode (eq. 3.6.2's p(θ)).
+    per episode (eq. 3.6.2's p(θ)). ``fixed``: values every proposal has besides (not searched).
     """
 
     space: dict[str, tuple[float, float]]
@@ -141,6 +141,7 @@ class PLVSearch:
     seed: int = 0
     storage: str | None = None  # an Optuna storage URL or a SQLite file, so a search resumes
     study_name: str = "plv"
+    fixed: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.space:
@@ -162,12 +163,13 @@ class PLVSearchResult:
     best: dict[str, Any]
     separated: bool  # the best trial's lower PLV bound is above every other trial's upper bound
     study: Any = field(repr=False, default=None)
+    objective: PLVObjective | None = field(repr=False, default=None)  # its target curve: ``objective.target()``
 
 
 def _propose(trial, search: PLVSearch) -> dict[str, Any]:
     if not search.family:
-        return {k: trial.suggest_float(k, lo, hi) for k, (lo, hi) in search.space.items()}
-    dists = {}
+        return {**search.fixed, **{k: trial.suggest_float(k, lo, hi) for k, (lo, hi) in search.space.items()}}
+    dists: dict[str, Any] = {k: {"choice": [v]} for k, v in search.fixed.items()}
     for k, (lo, hi) in search.space.items():
         c = trial.suggest_float(f"{k}.centre", lo, hi)
         w = trial.suggest_float(f"{k}.half_width", 0.0, (hi - lo) / 2)
@@ -213,4 +215,4 @@ def optimize_plv(search: PLVSearch, cfg: PLVConfig, out: str | Path, progress: P
     others = [r["plv_high"] for r in rows if r is not best]
     separated = bool(others) and best.get("plv_low") is not None and all(h is None or best["plv_low"] > h
                                                                         for h in others)
-    return PLVSearchResult(rows, best, separated, study)
+    return PLVSearchResult(rows, best, separated, study, objective)

@@ -9,6 +9,8 @@ each spells the same fields the same way and rejects the same mistakes, naming t
 'fifos'
 >>> NodeOptions().non_default()
 {}
+>>> RobotNodeOptions().process_kwargs()["init_timeout"]
+120.0
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-__all__ = ["NODE_OPTION_FIELDS", "NodeOptions"]
+__all__ = ["NODE_OPTION_FIELDS", "NodeOptions", "RobotNodeOptions"]
 
 
 class NodeOptions(BaseModel):
@@ -55,6 +57,15 @@ class NodeOptions(BaseModel):
     def items(self) -> tuple[tuple[str, Any], ...]:
         """:meth:`non_default` as sorted pairs: hashable, for frozen dataclasses such as ``AgentSpec``."""
         return tuple(sorted(self.non_default().items()))
+
+
+class RobotNodeOptions(NodeOptions):
+    """:class:`NodeOptions` of a robot node (``run --robot-cmd``, ``--target robot:CMD``, a robot domain): the
+    same fields, with longer default timeouts, since a robot node may start a simulator or reach hardware
+    before it answers (120 s), and a robot stepping in real time needs longer than one step (10 s)."""
+
+    start_timeout: float = Field(120.0, gt=0.0, allow_inf_nan=False, description="start + handshake, setup [s]")
+    step_timeout: float = Field(10.0, gt=0.0, allow_inf_nan=False, description="each per-frame exchange [s]")
 
 
 #: the option names, for error messages and manifests

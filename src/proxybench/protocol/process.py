@@ -37,7 +37,7 @@ from proxybench.protocol.language import (
     AgentLanguage,
     Language,
 )
-from proxybench.protocol.transport import Launch, node_argv
+from proxybench.protocol.transport import Launch, NotAFifo, node_argv
 
 __all__ = ["AgentProcess", "NodeProcess"]
 
@@ -185,7 +185,7 @@ class NodeProcess:
 
     # ------------------------------------------------------------------------------- handshake
     def _await_output(self, deadline: float) -> None:
-        while not self._os.output_ready():
+        while not self._ready():
             if self._os.exited():
                 self._fail("exited", "the node ended before creating its output FIFO")
             if time.monotonic() >= deadline:
@@ -194,6 +194,13 @@ class NodeProcess:
         for fd in (self._os.out_fd, self._os.pidfd, self._os.stderr.wake_fd):
             if fd is not None:
                 self._poll.register(fd, _IN)
+
+    def _ready(self) -> bool:
+        try:
+            return self._os.output_ready()
+        except NotAFifo as exc:
+            self._fail("garbage", str(exc))
+            raise  # unreachable: _fail raises
 
     def _handshake(self, deadline: float, reflect: bool) -> None:
         plan = _Plan("capabilities", capabilities=True)

@@ -16,6 +16,7 @@ import select
 import shlex
 import shutil
 import signal
+import stat
 import subprocess
 import tempfile
 import threading
@@ -25,7 +26,7 @@ from collections.abc import Callable, Sequence
 
 from proxybench.protocol.wire import ENV_DATA_IN, ENV_DATA_OUT
 
-__all__ = ["SHELL", "Launch", "StderrDrain", "needs_shell", "node_argv"]
+__all__ = ["SHELL", "Launch", "NotAFifo", "StderrDrain", "needs_shell", "node_argv"]
 
 _PIPE_SIZE = 1 << 20  # a whole 640×480 observation fits in one write
 #: the shell that runs command strings using shell syntax (``cd dir && exec node``)
@@ -33,6 +34,10 @@ SHELL = "/bin/sh"
 _SHELL_CHARS = frozenset("|&;<>()$`*?[]~{}!#\n")
 _SHELL_WORDS = frozenset({"cd", "exec", "export", "source", ".", "set", "ulimit", "umask", "eval", "unset",
                           "if", "for", "while", "case", "[[", "!"})
+
+
+class NotAFifo(OSError):
+    """The node's output path is a link or a file, not the FIFO it was to create (nothing else is read)."""
 
 
 def needs_shell(cmd: str) -> bool:
@@ -245,8 +250,10 @@ class Launch:
         self.out_path = os.path.join(self.tmpdir, "out")
         os.mkfifo(in_path, 0o600)
         if self.fifo_dir is not None:  # a shared folder (container mount, sandbox): the node may run as another
-            os.chmod(self.tmpdir, 0o777)  # user, who must open our FIFO and create its own next to it
-            os.chmod(in_path, 0o666)
+            os.mkfifo(self.out_path, 0o600)  # user and see the folder read-only, so both FIFOs are made here
+            os.chmod(self.tmpdir, 0o755)  # (AIDO's nodes open an existing output FIFO); nothing else can be
+            for path in (in_path, self.out_path):  # written to the folder
+                os.chmod(path, 0o666)
         env.update({ENV_DATA_IN: in_path, ENV_DATA_OUT: "fifo:" + self.out_path})
         # read-write: opening never blocks, and the node's open for reading returns at once
         self.in_fd = os.open(in_path, os.O_RDWR | os.O_NONBLOCK)
@@ -263,10 +270,20 @@ class Launch:
         spare write end stays open, so that reading before the node opens its end cannot look like EOF."""
         if self.out_fd >= 0:
             return True
-        if not os.path.exists(self.out_path):
+        if not os.path.lexists(self.out_path):
             return False
-        self.out_fd = os.open(self.out_path, os.O_RDONLY | os.O_NONBLOCK)
-        self.dummy_fd = os.open(self.out_path, os.O_WRONLY | os.O_NONBLOCK)
+        try:  # never follow a link the node may have put there, never read anything but a FIFO
+            fd = os.open(self.out_path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW)
+        except OSError as exc:
+            raise NotAFifo(f"cannot open the node's output FIFO {self.out_path}: {exc.strerror}") from None
+        if not stat.S_ISFIFO(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise NotAFifo(f"the node's output {self.out_path} is not a FIFO: refused")
+        self.out_fd = fd
+        try:  # the same FIFO, whatever its path names by now
+            self.dummy_fd = os.open(f"/proc/self/fd/{fd}", os.O_WRONLY | os.O_NONBLOCK)
+        except OSError:  # no /proc (macOS)
+            self.dummy_fd = os.open(self.out_path, os.O_WRONLY | os.O_NONBLOCK | os.O_NOFOLLOW)
         return True
 
     def got_output(self) -> None:

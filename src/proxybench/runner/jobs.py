@@ -81,7 +81,10 @@ class DomainSpec:
     episode, agent), not by what the robot is: after changing the robot (recalibration, new firmware), use
     a fresh run directory or delete its cached episodes. ``nodes``: how many processes of ``command`` may
     run at once on this machine (one per busy worker, up to this; not part of any key): keep 1 for a bridge
-    to one physical robot, raise it for a simulator node.
+    to one physical robot, raise it for a simulator node. ``options``: how to start and talk to the node,
+    the non-default fields of :class:`~proxybench.protocol.options.RobotNodeOptions` (working directory,
+    transport, timeouts, reflection) as sorted pairs; of them only ``cwd`` is part of the key (it changes
+    what the command runs; a timeout or the transport does not change an episode).
     """
 
     name: str
@@ -89,6 +92,19 @@ class DomainSpec:
     kind: str = "simulation"
     command: str | None = None
     nodes: int = 1
+    options: tuple[tuple[str, Any], ...] = ()
+
+    @classmethod
+    def robot(cls, command: str, *, name: str | None = None, nodes: int = 1, options: Any = None) -> DomainSpec:
+        """A robot domain; ``options``: a ``RobotNodeOptions`` (or None for the defaults)."""
+        return cls(name or f"robot:{command}", kind="robot", command=command, nodes=nodes,
+                   options=options.items() if options is not None else ())
+
+    def node_options(self):
+        """The ``RobotNodeOptions`` of a robot domain."""
+        from proxybench.protocol.options import RobotNodeOptions
+
+        return RobotNodeOptions(**dict(self.options))
 
     def __post_init__(self) -> None:
         if self.kind not in DOMAIN_KINDS:
@@ -101,13 +117,17 @@ class DomainSpec:
                                  f"own; pass settings in its command), got {sorted(self.params)}")
             if not (isinstance(self.nodes, int) and self.nodes >= 1):
                 raise ValueError(f"DomainSpec {self.name!r}: nodes must be a positive integer, got {self.nodes!r}")
-        elif self.command is not None:
-            raise ValueError(f"DomainSpec {self.name!r}: command= is only for kind='robot', not {self.kind!r}")
+        elif self.command is not None or self.options:
+            raise ValueError(f"DomainSpec {self.name!r}: command= and options= are only for kind='robot', not "
+                             f"{self.kind!r}")
 
     def canonical(self) -> str:
         doc: dict[str, Any] = {"params": self.params, "kind": self.kind}
         if self.command is not None:  # absent otherwise, so simulated domains keep their keys
             doc["command"] = self.command
+        cwd = dict(self.options).get("cwd")
+        if cwd is not None:  # absent otherwise, so robot domains without one keep their keys
+            doc["cwd"] = cwd
         return json.dumps(doc, sort_keys=True)
 
 

@@ -29,6 +29,7 @@ import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -39,6 +40,9 @@ from proxybench.domain.simulator import Simulator
 from proxybench.runner.episode import run_episodes
 from proxybench.tasks.metrics import repeatability
 from proxybench.tasks.trajectory import Trajectory
+
+if TYPE_CHECKING:
+    from proxybench.protocol.options import RobotNodeOptions
 
 __all__ = ["DESIGNS", "THESIS_FIGURES", "Design", "DesignResult", "RepeatabilityResult", "lab_variation",
            "recorded_study", "repeatability_study", "robot_study"]
@@ -249,14 +253,18 @@ def _load_run(path: Path, map_name: str, T) -> Trajectory:
 
 def robot_study(agent: str, commands: Mapping[str, str], runs: int = 3, seconds: float = 30.0,
                 map_name: str = "loop_3x3", seed: int = 0, start: tuple[float, float, float] | None = None,
-                progress: Callable[[str, int, int], None] | None = None) -> RepeatabilityResult:
+                progress: Callable[[str, int, int], None] | None = None,
+                options: RobotNodeOptions | None = None,
+                ) -> RepeatabilityResult:
     """``runs`` runs of ``agent`` on each robot node (name → command on the robot protocol): 1 × robots × runs.
 
     The robots are whatever the commands drive — physical robots' bridges or simulators; the result
-    says ``source: robot node`` and names the commands. Every run asks for the same start pose.
+    says ``source: robot node`` and names the commands. Every run asks for the same start pose. ``options``:
+    how each node is started (a ``RobotNodeOptions``; None: its defaults).
     """
     from proxybench.domain.maps import load_map
     from proxybench.protocol import RemoteRobot
+    from proxybench.protocol.options import RobotNodeOptions
     from proxybench.runner.robot_episode import run_episode_on_robot
 
     if not commands:
@@ -267,7 +275,7 @@ def robot_study(agent: str, commands: Mapping[str, str], runs: int = 3, seconds:
     d = Design(1, len(commands), runs)
     trajs, labels = [], []
     for r, (name, cmd) in enumerate(commands.items()):
-        with RemoteRobot(cmd) as robot:
+        with RemoteRobot(cmd, **(options or RobotNodeOptions()).process_kwargs()) as robot:
             for i in range(runs):
                 a = make_agent(agent)
                 tr = run_episode_on_robot(robot, a, seed * 1000 + 100 * r + i, seconds, map_=m, pose=start,

@@ -27,7 +27,8 @@ from proxybench.runner.robot_episode import RobotLacksGroundTruth, run_episode_o
 
 __all__ = ["ROBOT_INIT_TIMEOUT_S", "ROBOT_STEP_TIMEOUT_S", "execute_robot_batch", "robot_slot"]
 
-#: a robot node may need to start a simulator (or reach hardware) before it answers its handshake
+#: the default timeouts of a robot node (``RobotNodeOptions``; a domain's ``options`` may change them): it may need
+#: to start a simulator (or reach hardware) before it answers its handshake
 ROBOT_INIT_TIMEOUT_S = 120.0
 ROBOT_STEP_TIMEOUT_S = 10.0
 #: after this many robot failures in a row the rest of a batch is not tried (each may cost a timeout)
@@ -94,10 +95,9 @@ def execute_robot_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]
                     if agent.privileged and job.camera_only:
                         results.append(_refused(job, agent, time.perf_counter() - t0))
                         continue
-                    if robot is None:
-                        robot = RemoteRobot(domain.command, init_timeout=ROBOT_INIT_TIMEOUT_S,
-                                            step_timeout=ROBOT_STEP_TIMEOUT_S,  # a robot not saying its rate:
-                                            frame_rate=float(domain.params.get("frame_rate", 15.0)))  # the domain's
+                    if robot is None:  # a robot not saying its rate is stepped at the domain's
+                        robot = RemoteRobot(domain.command, frame_rate=float(domain.params.get("frame_rate", 15.0)),
+                                            **domain.node_options().process_kwargs())
                     if job.map not in maps:
                         maps[job.map] = load_map(job.map)
                     t1 = time.perf_counter()

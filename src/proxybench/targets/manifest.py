@@ -22,6 +22,7 @@ The model is strict: an unknown key or a value of the wrong kind is an error nam
 from __future__ import annotations
 
 import difflib
+import typing
 from datetime import date, datetime
 from pathlib import Path
 from typing import Any, Literal
@@ -133,20 +134,36 @@ class TargetManifest(BaseModel):
 def _allowed(model: type[BaseModel], loc: tuple) -> list[str]:
     fields = model.model_fields
     for part in loc:
-        f = fields.get(str(part)) if isinstance(part, str) else None
-        sub = getattr(f.annotation, "model_fields", None) if f is not None else None
+        if isinstance(part, int):  # an item of a list
+            continue
+        f = fields.get(str(part))
+        sub = _model_fields(f.annotation) if f is not None else None
         if sub is None:
             return list(fields)
         fields = sub
     return list(fields)
 
 
+def _model_fields(annotation: Any) -> dict[str, Any] | None:
+    """The fields of the model in ``annotation`` (itself, or inside ``X | None`` / ``list[X]``), if any."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation.model_fields
+    for arg in typing.get_args(annotation):
+        found = _model_fields(arg)
+        if found is not None:
+            return found
+    return None
+
+
 def format_errors(exc: ValidationError, origin: str, model: type[BaseModel]) -> str:
     """One ``<origin>: <field>: <message>`` line per problem; unknown keys get a did-you-mean hint."""
     lines = []
     for err in exc.errors():
-        loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        loc = ".".join(str(p) for p in err["loc"])
         msg = err["msg"].removeprefix("Value error, ")
+        if not loc:  # checks of the whole model name their fields in the message, one line each
+            lines.extend(f"{origin}: {line}" for line in msg.splitlines())
+            continue
         if err["type"] == "extra_forbidden":
             allowed = _allowed(model, err["loc"][:-1])
             close = difflib.get_close_matches(str(err["loc"][-1]), allowed, n=1)

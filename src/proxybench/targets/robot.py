@@ -10,6 +10,7 @@ real robot from a simulator except by what the node says of itself, and reports 
 
 from __future__ import annotations
 
+from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.backends import InlineBackend
 from proxybench.runner.jobs import DomainSpec, Job
 from proxybench.runner.sweep import run_jobs
@@ -21,17 +22,20 @@ __all__ = ["RobotTarget"]
 
 class RobotTarget(Target):
     """A robot node started with ``command``; ``nodes``: how many of its processes may run at once (keep 1 for
-    a bridge to one physical robot; a simulator node can take one per worker)."""
+    a bridge to one physical robot; a simulator node can take one per worker); ``options``: how to start and
+    talk to it (:class:`~proxybench.protocol.options.RobotNodeOptions`: working directory, transport,
+    timeouts, reflection; None: the defaults)."""
 
     kind = "robot"
 
-    def __init__(self, command: str, nodes: int = 1):
+    def __init__(self, command: str, nodes: int = 1, options: RobotNodeOptions | None = None):
         self.command = command
         self.nodes = nodes
+        self.options = options or RobotNodeOptions()
         self._said: str = ""
 
     def domain(self, image_size: tuple[int, int] | None = None) -> DomainSpec:
-        return DomainSpec(f"robot:{self.command}", kind="robot", command=self.command, nodes=self.nodes)
+        return DomainSpec.robot(self.command, nodes=self.nodes, options=self.options)
 
     def info(self) -> TargetInfo:
         simulated = {"simulation": True, "robot": None}.get(self._said)
@@ -40,7 +44,8 @@ class RobotTarget(Target):
             "robot", simulated, f"robot node: {self.command}",
             f"The target is a robot node started with `{self.command}`{said}. proxybench cannot tell a real robot "
             "from a simulator behind the robot protocol: treat results as real only if you know the node drives "
-            "a physical robot.", {"command": self.command, "kind": self._said, "nodes": self.nodes})
+            "a physical robot.", {"command": self.command, "kind": self._said, "nodes": self.nodes,
+                                  **({"options": self.options.non_default()} if self.options.non_default() else {})})
 
     def run(self, agents, *, map_name, seconds, episodes, seed, metrics, image_size, run_dir, backend=None,
             progress=None) -> TargetRun:

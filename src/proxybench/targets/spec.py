@@ -231,16 +231,21 @@ class RecordedTarget(Target):
                          {a: np.asarray(v, dtype=float) for a, v in results.items()}, dict(m.truth or {}), params, 0)
 
 
-def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes: int = 1) -> Target:
+def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes: int = 1,
+                robot_options: Any = None) -> Target:
     """The target ``text`` names: ``reality``, ``robot:CMD``, or a directory (or manifest file) of recordings.
 
     ``params``: θ overrides of the reality model (only with ``reality``); ``robot_nodes``: how many processes
-    of a robot node may run at once (only with ``robot:``).
+    of a robot node may run at once, ``robot_options``: how to start and talk to it (a
+    :class:`~proxybench.protocol.options.RobotNodeOptions`; both only with ``robot:``).
     """
     text = text.strip()
     if params and text != "reality":
         raise TargetError("target_params: only the reality model's parameters can be overridden "
                           f"(the target is {text!r})")
+    if robot_options is not None and robot_options.non_default() and not text.startswith("robot:"):
+        raise TargetError(f"robot_options (--robot-cwd, --robot-transport, ...): only a robot node (robot:COMMAND) is "
+                          f"started with them; the target is {text!r}")
     if text == "reality":
         return RealityTarget(params)
     if text.startswith("robot:"):
@@ -250,7 +255,7 @@ def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes:
         if not command:
             raise TargetError("target: robot: needs the command that starts the robot node, e.g. "
                               "'robot:proxybench robot serve --param trim=0.1'")
-        return RobotTarget(command, robot_nodes)
+        return RobotTarget(command, robot_nodes, robot_options)
     if Path(text).exists():
         return RecordedTarget(text)
     raise TargetError(f"target: {text!r} is not 'reality', 'robot:COMMAND' or an existing directory of recordings")

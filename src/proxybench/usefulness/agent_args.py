@@ -8,6 +8,10 @@ One string per agent:
   run in the evaluator's sandbox (own folder, resource limits, no network where the host allows);
 - ``NAME=COMMAND``: an agent node started with COMMAND (the AIDO protocol on stdin/stdout), labelled NAME.
 
+An experiment file may also give an agent as a benchmark file's mapping (:class:`~proxybench.tasks.agent_entries.
+AgentEntry`): ``{name, command, cwd, transport, start_timeout, step_timeout, reflection}`` for a node started
+with those options, or ``{name}`` alone for any of the strings above.
+
 The label (zoo name, checkpoint path, package name, NAME) is what results and recorded targets call it.
 """
 
@@ -17,6 +21,7 @@ import hashlib
 from pathlib import Path
 
 from proxybench.runner.jobs import AgentSpec
+from proxybench.tasks.agent_entries import AgentEntry
 
 __all__ = ["AgentArgError", "parse_agent", "parse_agents"]
 
@@ -32,12 +37,12 @@ def _is_archive(text: str) -> bool:
 
 
 def _package(path: Path, work_dir: Path) -> AgentSpec:
-    """A checked, unpacked agent package, its node started in the evaluator's sandbox (refused without one)."""
-    import shlex
+    """A checked, unpacked agent package, its node started in the evaluator's sandbox (refused without one) with
+    the start-up options of its manifest (transport, timeouts, reflection)."""
     import shutil
 
     from proxybench.agents.package import PackageError
-    from proxybench.evaluator.sandbox import Limits, SandboxError, confine, detect_isolation, prepare_agent
+    from proxybench.evaluator.sandbox import Limits, SandboxError, detect_isolation, package_spec, prepare_agent
 
     data = path.read_bytes()
     digest = hashlib.sha256(data).hexdigest()
@@ -48,21 +53,24 @@ def _package(path: Path, work_dir: Path) -> AgentSpec:
         folder.mkdir(parents=True)
         manifest = prepare_agent(data, digest, folder)
         # started by whichever worker runs the episode, so no parent-process check (parent=None)
-        argv = confine(list(manifest.command), folder, Limits(), detect_isolation(), parent=None)
+        return package_spec(manifest, folder, Limits(), detect_isolation(), parent=None)
     except PackageError as exc:
         raise AgentArgError(f"agent package {path}: {exc}") from None
     except SandboxError as exc:
         raise AgentArgError(f"agent package {path}: {exc} (`proxybench sandbox setup` prepares this host; a "
                             "package you trust can also run unconfined as --agent NAME=COMMAND from its unpacked "
                             "folder)") from None
-    return AgentSpec(manifest.name, shlex.join(argv))
 
 
-def parse_agent(text: str, work_dir: str | Path = "out/agents") -> AgentSpec:
+def parse_agent(text: str | AgentEntry, work_dir: str | Path = "out/agents") -> AgentSpec:
     """The runner spec of one agent argument (see the module docstring); ``work_dir`` holds unpacked packages."""
     from proxybench.agents.zoo import ZOO
     from proxybench.learning import is_checkpoint
 
+    if isinstance(text, AgentEntry):
+        if text.is_node:
+            return AgentSpec.node(text.name, text.command_line, text.node_options())
+        text = text.name
     text = text.strip()
     if not text:
         raise AgentArgError("an agent argument is empty")
@@ -84,7 +92,8 @@ def parse_agent(text: str, work_dir: str | Path = "out/agents") -> AgentSpec:
                         f"zoo agents: {', '.join(ZOO)}")
 
 
-def parse_agents(texts: list[str] | tuple[str, ...], work_dir: str | Path = "out/agents") -> list[AgentSpec]:
+def parse_agents(texts: list[str | AgentEntry] | tuple[str | AgentEntry, ...], work_dir: str | Path = "out/agents",
+                 ) -> list[AgentSpec]:
     """Specs of several agent arguments; two with the same label are an error (results are keyed by it)."""
     specs = [parse_agent(t, work_dir) for t in texts]
     seen: set[str] = set()

@@ -1,12 +1,24 @@
-"""One experiment file for ``proxybench predictivity`` and ``proxybench optimize`` (``--config FILE``).
+"""One experiment file for ``proxybench predictivity``, ``optimize`` and ``plan`` (``--config FILE``).
 
 Every field is optional and has a command-line option; what neither gives takes the command's default
-(shown by ``--help``). Unknown keys and bad values are errors naming the field::
+(shown by ``--help``). Unknown keys and bad values are errors naming the field. Relative working
+directories in the file are taken from its folder; ``NAME=COMMAND`` strings run where proxybench runs::
 
     target: reality              # reality | DIR (a recorded target) | robot:COMMAND
     target_params: {}            # the reality model's θ, overridden (reality only)
     robot_nodes: 1               # processes of a robot node at once (robot:CMD only; 1 for a physical robot)
+    robot_options:               # how to start and talk to the robot node (robot:CMD only; all optional)
+      cwd: ../my-bridge          # working directory of the command
+      transport: fifo            # pipe | fifo (AIDO's default)
+      start_timeout: 120         # s: start + handshake, and each episode's setup
+      step_timeout: 10           # s: each per-frame exchange
+      reflection: false          # skip describe_protocol
     agents: [pid, vision, my-agent=python3 agent.py, models/bc.pt, my-agent.zip]
+    # or, as in benchmark files, an agent node with how to start it (tasks/agent_entries.py):
+    #   - name: my-lf                # its label
+    #     command: cd solution && exec python3 solution.py
+    #     cwd: ../submissions/my-lf  # relative to this file (default: this file's folder)
+    #     transport: fifo            # pipe | fifo; also start_timeout, step_timeout, reflection
     map: loop_3x3                # default: the recorded target's map, else loop_3x3
     episodes: 10                 # per agent; a recorded target: how many of its episodes (default all)
     seconds: 60                  # episode length; a recorded target fixes it
@@ -18,9 +30,11 @@ Every field is optional and has a command-line option; what neither gives takes 
       camera_pitch: [15, 19.15, 23]
     search:                      # optimize
       space: {trim: [-0.3, 0.3], camera_pitch: [12, 26]}
-      objective: mix             # prpv | ppv | mix
+      objective: prpv            # prpv (θ* = argmin PRPV, the thesis) | ppv | mix | plv (argmax PLV, eq. 3.6.2)
       trials: 60
-      sampler: tpe               # tpe | gp | random
+      sampler: tpe               # tpe | gp | random (plv: tpe | random)
+      family: false              # plv only: search families p(θ) (a uniform range per parameter), not instances
+    plv: {}                      # objective plv: PLV settings (PLVConfig fields, e.g. ladder, seeds, train: {...})
     n_boot: 300
     pod_seconds: 10
     seed: 0
@@ -35,9 +49,11 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
+from proxybench.protocol.options import RobotNodeOptions
 from proxybench.targets.manifest import TargetError, format_errors
+from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
 from proxybench.usefulness.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP
 
 __all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "SearchConfig", "load_config",
@@ -48,7 +64,7 @@ FULL_AGENTS = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggi
                "vision-wide", "vision-twitchy")
 QUICK_AGENTS = ("straight", "bang-bang", "pid", "pid-fast", "pid-twitchy", "pure-pursuit", "vision", "vision-fast",
                 "vision-pitch25", "vision-twitchy", "vision-slow", "pid-sluggish")
-OBJECTIVES = ("prpv", "ppv", "mix")
+OBJECTIVES = ("prpv", "ppv", "mix", "plv")
 
 #: what a field left unset takes, per command and mode (a recorded target's map, length, agents and
 #: episodes come first)
@@ -61,6 +77,11 @@ COMMAND_DEFAULTS: dict[tuple[str, bool], dict[str, Any]] = {
                           "pod_seconds": 0.0, "trials": 60},
     ("optimize", True): {"agents": QUICK_AGENTS[:8], "episodes": 2, "seconds": 12.0, "n_boot": 100,
                          "pod_seconds": 0.0, "trials": 20},
+    # plan: ``episodes`` is the pilot's size per agent
+    ("plan", False): {"agents": QUICK_AGENTS, "episodes": 3, "seconds": 20.0, "n_boot": 300,
+                      "pod_seconds": 0.0, "trials": 0},
+    ("plan", True): {"agents": QUICK_AGENTS[:6], "episodes": 3, "seconds": 8.0, "n_boot": 100,
+                     "pod_seconds": 0.0, "trials": 0},
 }
 
 
@@ -85,11 +106,18 @@ class SearchConfig(_Strict):
     """What ``optimize`` searches and how."""
 
     space: dict[str, tuple[float, float]] = Field(default_factory=lambda: dict(DEFAULT_SEARCH))
-    objective: Literal["prpv", "ppv", "mix"] = "mix"
+    objective: Literal["prpv", "ppv", "mix", "plv"] = "prpv"
     trials: int | None = Field(None, ge=1, le=100_000)
     sampler: Literal["tpe", "gp", "random"] = "tpe"
     storage: str | None = None
-    study_name: str = "proxybench-proxy"
+    study_name: str = "proxybench-proxy"  # objective plv: "proxybench-plv" unless given
+    family: bool = False  # objective plv: each trial proposes a family p(θ), a uniform range per parameter
+
+    @model_validator(mode="after")
+    def _family_is_plv(self) -> SearchConfig:
+        if self.family and self.objective != "plv":
+            raise ValueError(f"family: searching families p(θ) needs objective plv, not {self.objective!r}")
+        return self
 
     @field_validator("space")
     @classmethod
@@ -109,7 +137,8 @@ class ExperimentConfig(_Strict):
     target: str = "reality"
     target_params: dict[str, Any] = Field(default_factory=dict)
     robot_nodes: int = Field(1, ge=1, le=64)
-    agents: list[str] | None = Field(None, min_length=1)
+    robot_options: RobotNodeOptions | None = None
+    agents: list[str | AgentEntry] | None = Field(None, min_length=1)
     map: str | None = None
     episodes: int | None = Field(None, ge=1, le=10_000)
     seconds: float | None = Field(None, gt=0.0, le=3600.0)
@@ -122,6 +151,30 @@ class ExperimentConfig(_Strict):
     pod_seconds: float | None = Field(None, ge=0.0, le=600.0)
     seed: int = Field(0, ge=0, le=100_000)
     truth: dict[str, float] = Field(default_factory=dict)
+    plv: dict[str, Any] = Field(default_factory=dict)  # PLVConfig fields for objective plv, checked when used
+
+    @model_validator(mode="before")
+    @classmethod
+    def _agent_entries(cls, data: Any, info: ValidationInfo) -> Any:
+        """Agents given as mappings (the form of benchmark files) are checked here, each problem named by its
+        entry (``agents.1.transprot: unknown key (did you mean 'transport'?)``), and a relative ``cwd`` is
+        taken from the file's folder (the default for a node entry, as in benchmark files)."""
+        agents = data.get("agents") if isinstance(data, dict) else None
+        if not isinstance(agents, list):
+            return data
+        base = (info.context or {}).get("base_dir")
+        out, problems = [], []
+        for i, item in enumerate(agents):
+            if not isinstance(item, dict):
+                out.append(item)
+                continue
+            try:
+                out.append(resolve_agent_cwd(AgentEntry.model_validate(item), base))
+            except ValidationError as exc:
+                problems += [f"agents.{i}{_entry_problem(e)}" for e in exc.errors()]
+        if problems:
+            raise ValueError("\n".join(problems))
+        return {**data, "agents": out}
 
     @field_validator("metrics")
     @classmethod
@@ -178,6 +231,28 @@ class ExperimentConfig(_Strict):
         return self
 
 
+def _entry_problem(err: Any) -> str:
+    """``.field: message`` of one error of an agent entry (an unknown key with its likely meaning)."""
+    loc = "".join(f".{p}" for p in err["loc"])
+    msg = err["msg"].removeprefix("Value error, ")
+    if err["type"] == "extra_forbidden":
+        close = difflib.get_close_matches(str(err["loc"][-1]), list(AgentEntry.model_fields), n=1)
+        msg = "unknown key" + (f" (did you mean {close[0]!r}?)" if close
+                               else f"; known: {', '.join(AgentEntry.model_fields)}")
+    elif err["type"] == "missing":
+        msg = "required, missing"
+    return f"{loc}: {msg}"
+
+
+def _robot_cwd_from(data: dict[str, Any], base: Path) -> dict[str, Any]:
+    """The file's ``robot_options.cwd``, when relative, taken from the file's folder ``base``."""
+    options = data.get("robot_options")
+    cwd = options.get("cwd") if isinstance(options, dict) else None
+    if not isinstance(cwd, str) or not cwd or Path(cwd).expanduser().is_absolute():
+        return data
+    return {**data, "robot_options": {**options, "cwd": str((base / cwd).resolve())}}
+
+
 def load_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> ExperimentConfig:
     """The experiment file at ``path`` (or none), with ``overrides`` (the command line) on top."""
     data: dict[str, Any] = {}
@@ -193,13 +268,15 @@ def load_config(path: str | Path | None, overrides: dict[str, Any] | None = None
             raise ConfigError(f"{path}: not valid YAML ({exc})") from None
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{path}: expected a mapping of fields, got {type(loaded).__name__}")
-        data = loaded or {}
+        data = _robot_cwd_from(loaded or {}, path.parent)
     over = dict(overrides or {})
-    if "search" in over:
-        data["search"] = {**(data.get("search") or {}), **over.pop("search")}
+    for section in ("search", "robot_options"):  # an option on the command line changes one field of the file's
+        if section in over:
+            data[section] = {**(data.get(section) or {}), **over.pop(section)}
     data.update(over)
+    context = {"base_dir": Path(path).parent.resolve()} if path is not None and "agents" not in over else None
     try:
-        return ExperimentConfig.model_validate(data)
+        return ExperimentConfig.model_validate(data, context=context)
     except ValidationError as exc:
         raise ConfigError(format_errors(exc, origin, ExperimentConfig)) from None
 
@@ -239,7 +316,7 @@ class Experiment:
                 "truth": self.truth}
 
 
-def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize"], *, quick: bool = False,
+def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize", "plan"], *, quick: bool = False,
             work_dir: str | Path = "out/agents", target=None):
     """(Experiment, Target): the config's choices, the target's fixed ones, then the command's defaults.
 
@@ -249,7 +326,8 @@ def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize"],
     from proxybench.targets.spec import open_target
     from proxybench.usefulness.agent_args import AgentArgError, parse_agents
 
-    target = target or open_target(cfg.target, params=cfg.target_params, robot_nodes=cfg.robot_nodes)
+    target = target or open_target(cfg.target, params=cfg.target_params, robot_nodes=cfg.robot_nodes,
+                                   robot_options=cfg.robot_options)
     d = COMMAND_DEFAULTS[(command, quick)]
     if target.fixed_map is not None and cfg.map is not None and cfg.map != target.fixed_map:
         raise ConfigError(f"map: the target was recorded on {target.fixed_map!r}, the experiment asks for {cfg.map!r}")
