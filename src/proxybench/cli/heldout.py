@@ -10,7 +10,21 @@ from rich.table import Table
 
 from proxybench.cli.app import app, console
 from proxybench.cli.options import positive
-from proxybench.cli.usefulness import _AGENT_HELP, _bars, _fail, _stage_progress, _sweep
+from proxybench.cli.usefulness import _AGENT_HELP, _bars, _fail, _stage_progress
+
+
+def _grid(items: list[str]) -> dict[str, list[float]]:
+    out = {}
+    for item in items:
+        name, sep, raw = item.partition("=")
+        try:
+            if not sep or not name.strip():
+                raise ValueError
+            out[name.strip()] = [float(v) for v in raw.split(",") if v.strip()]
+        except ValueError:
+            raise typer.BadParameter(f"{item!r}: expected NAME=V1,V2,…, e.g. trim=-0.2,0,0.2",
+                                     param_hint="--grid") from None
+    return out
 
 
 @app.command()
@@ -53,7 +67,7 @@ def heldout(
     from proxybench.usefulness.heldout_report import findings, write_heldout_report
 
     over = _overrides(targets=targets, negative_case=negative_case, agents=agent, map=map_name, episodes=episodes,
-                      reference_episodes=reference_episodes, seconds=seconds, grid=_sweep(grid) or None,
+                      reference_episodes=reference_episodes, seconds=seconds, grid=_grid(grid) or None,
                       n_boot=n_boot, agent_boot=agent_boot, seed=seed)
     try:
         cfg = load_heldout_config(config, over)
