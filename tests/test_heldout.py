@@ -190,3 +190,22 @@ def test_heldout_cli_rejects_bad_options(tmp_path):
     res = runner.invoke(app, ["heldout", "--agent", "nobody-xyz", "--agent", "pid", "--out", str(tmp_path),
                               "--targets", "1"])
     assert res.exit_code == 2 and "nobody-xyz" in res.output
+
+
+def test_predictivity_with_a_mixed_agent_set_reports_agent_set_sensitivity(tmp_path, checkpoint):
+    from proxybench.usefulness.experiment import ExperimentConfig
+    from proxybench.usefulness.predictivity import run_predictivity
+    from proxybench.usefulness.report import findings, write_report
+
+    cfg = ExperimentConfig(agents=["straight", "pid", "vision", str(checkpoint)], episodes=2, seconds=2.0,
+                           metrics=("driven_lanedir_consec", "survival_time"), sweep={"trim": (-0.3, 0.0)}, n_boot=10,
+                           pod_seconds=0.0)
+    res = run_predictivity(cfg, tmp_path / "runs")
+    assert set(res.target_scores) == {"straight", "pid", "vision", str(checkpoint)}
+    sens = res.agent_sensitivity["trim"]
+    assert len(sens.loo_argmin) == 4 and sens.boot_prpv_norm.shape == (10, 2) and sens.full_argmin in (0, 1)
+    assert res.order["pairs"] == 6 and "agents_at_cap_1" in res.order
+    lines = findings(res)
+    assert any(line.startswith("trim, agent set: PRPV's smallest value") for line in lines)
+    assert any(line.startswith("Task order on the target: of 6 agent pairs") for line in lines)
+    assert "agent set" in write_report(res, tmp_path / "report")["html"].read_text()

@@ -282,17 +282,20 @@ def run_heldout(cfg: HeldOutConfig, out: str | Path, backend: Backend | None = N
         for g, p in enumerate(grid.points):
             params = proxy_params(tuple(s["image_size"]), case.proxy, **p)
             jobs.extend(_proxy_jobs(specs, tgt, DomainSpec(grid.label(g), params.model_dump()), metrics))
-    sweep = run_jobs(jobs, run_dir, backend,
+    keys = [j.key for j in jobs]
+    unique = list({k: j for k, j in zip(keys, jobs, strict=True)}.values())  # cases with equal θ share episodes
+    sweep = run_jobs(unique, run_dir, backend,
                      progress=(lambda d, t, _r: progress("proxy episodes", d, t)) if progress else None)
     ran += sweep.ran
+    result = {r.key: r for r in sweep.results}
     runs, i = [], 0
     for case, tgt in zip(cases, targets, strict=True):
         proxies = []
         for _ in grid.points:
             by: dict[str, list[list[float]]] = {}
             for _e in tgt.episodes:
-                job, r = jobs[i], sweep.results[i]
-                by.setdefault(job.agent.label, []).append([r.scores[m] for m in metrics])
+                r = result[keys[i]]
+                by.setdefault(jobs[i].agent.label, []).append([r.scores[m] for m in metrics])
                 i += 1
             proxies.append({a: np.asarray(v, dtype=float) for a, v in by.items()})
         runs.append(CaseRun(case, tgt, proxies, metrics))

@@ -24,6 +24,7 @@ from proxybench.runner.jobs import DomainSpec, Job, JobResult
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.spec import Target, TargetRun
 from proxybench.tasks.metrics import METRICS
+from proxybench.usefulness.agent_sets import means_of, order_structure, sensitivity
 from proxybench.usefulness.experiment import Experiment, ExperimentConfig, resolve
 from proxybench.usefulness.metrics import Estimate, PairedResults, usefulness
 from proxybench.usefulness.noise import compare_paired, lowest_claim, noise_floor, paired_prpv_samples
@@ -57,6 +58,8 @@ class PredictivityResult:
     noise: Estimate
     claims: dict[str, SweepClaim] = field(default_factory=dict)
     proxy_episodes: int = 0  # proxy episodes simulated now (not cached)
+    agent_sensitivity: dict[str, Any] = field(default_factory=dict)  # parameter → agent_sets.AgentSensitivity
+    order: dict[str, float] = field(default_factory=dict)  # agent_sets.order_structure of the target
 
     def frame(self):
         import pandas as pd
@@ -146,7 +149,23 @@ def run_predictivity(
     claims = _claims(exp, tgt, domains, proxies, rows, higher)
     target_scores = {a: dict(zip(exp.metrics, np.nanmean(v, axis=0).tolist(), strict=True))
                      for a, v in tgt.results.items()}
-    return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran)
+    caps = [tgt.seconds if m in ("survival_time", "lane_score") else None for m in exp.metrics]
+    return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran,
+                              _agent_sensitivity(exp, domains, proxies, tgt, higher),
+                              order_structure(tgt.results, higher, caps))
+
+
+def _agent_sensitivity(exp: Experiment, domains, proxies, tgt: TargetRun, higher) -> dict[str, Any]:
+    """Per swept parameter (in value order): PRPV's argmin without each agent, and over bootstrap agent sets."""
+    agents = list(tgt.results)
+    sign = np.where(np.asarray(higher), 1.0, -1.0)
+    tm = means_of(tgt.results, agents) * sign
+    out = {}
+    for name in exp.sweep:
+        order = sorted((k for k, (p, _, _) in enumerate(domains) if p == name), key=lambda k: domains[k][1])
+        pm = np.stack([means_of(proxies[domains[k][2].name], agents) * sign for k in order])
+        out[name] = sensitivity(agents, pm, tm, (True,) * tm.shape[1], n_boot=exp.n_boot, seed=exp.seed)
+    return out
 
 
 def _claims(exp: Experiment, tgt: TargetRun, domains, proxies, rows, higher) -> dict[str, SweepClaim]:
