@@ -81,13 +81,13 @@ def test_score_reads_simulated_and_recorded_runs_and_reports_bad_files(tmp_path)
     assert res.exit_code == 1 and "missing column(s) y, theta" in res.output
 
 
-def test_repeatability_prints_the_three_settings(tmp_path):
+def test_repeatability_prints_the_three_designs(tmp_path):
     res = runner.invoke(app, ["repeatability", "--runs", "2", "--seconds", "2", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    for setting in ("one robot", "robots", "labs"):
-        assert setting in res.output
-    figures = json.loads((tmp_path / "repeatability.json").read_text())
-    assert figures["one robot"]["MPD_cm"] <= figures["robots"]["MPD_cm"]
+    for design in ("repeatability", "inter-robot", "inter-lab"):
+        assert design in res.output
+    figures = json.loads((tmp_path / "repeatability.json").read_text())["figures"]
+    assert figures["repeatability"]["MPD_std_cm"] <= figures["inter-robot"]["MPD_std_cm"]
     assert (tmp_path / "trajectories.png").exists() and (tmp_path / "trajectories.svg").exists()
 
 

@@ -8,7 +8,7 @@ import pytest
 from typer.testing import CliRunner
 
 from proxybench.learning.experiment import PLVConfig, PLVResult
-from proxybench.learning.report import findings, summarize
+from proxybench.learning.report import figure_3_6, figure_plv, findings, score_range, summarize, table_rows
 from proxybench.learning.value import DataCost, first_reaching, mean_ci, plv, reference_score
 
 
@@ -49,24 +49,67 @@ def _runs(arm, curve):
             for n, v in curve for s in (0, 1)]
 
 
-def test_summary_of_a_run_where_one_proxy_never_reaches_the_target_score():
-    cfg = PLVConfig(width=32, height=24, ladder=(250, 500, 1000, 2000), seeds=(0, 1),
-                    proxies={"good": "proxy", "bad": "proxy:camera_pitch=35", "free": "randomized"})
-    runs = (_runs("target-only", [(250, 5.0), (500, 10.0), (1000, 19.0), (2000, 20.0)])
-            + _runs("good", [(250, 19.8)]) + _runs("bad", [(250, 2.0), (500, 3.0), (1000, 4.0), (2000, 5.0)]))
-    proxies = {"good": {"spec": "proxy", "zero_shot": 8.0, "in_proxy": 25.0},
-               "bad": {"spec": "proxy:camera_pitch=35", "zero_shot": 12.0, "in_proxy": 24.0},
-               "free": {"spec": "randomized", "zero_shot": 19.5, "in_proxy": 22.0}}
-    s = summarize(PLVResult(cfg, runs, proxies, expert_score=21.0))
-    assert s.reference == pytest.approx(0.95 * 20.05) and s.converged_ok
-    assert s.target_needed == DataCost(1000)
+def _proxy(spec, zero_shot):
+    return {"spec": spec, "zero_shot": zero_shot + 0.05, "in_proxy": 24.0,
+            "zero_shot_by_seed": {"0": zero_shot, "1": zero_shot + 0.1}}
+
+
+def test_summary_counts_a_rung_only_when_the_score_stays_above_the_reference():
+    """Hand-computed: seeds score v and v + 0.1, so each rung's mean is v + 0.05; P = 0.95 · 20.05 = 19.0475."""
+    cfg = PLVConfig(width=32, height=24, ladder=(250, 500, 1000, 2000), seeds=(0, 1), confirm=2,
+                    proxies={"good": "proxy", "flaky": "proxy:trim=0.1", "bad": "proxy:camera_pitch=35",
+                             "free": "randomized"})
+    runs = (_runs("target-only", [(250, 5.0), (500, 19.5), (1000, 18.0), (2000, 20.0)])  # 500 reaches P once
+            + _runs("good", [(250, 19.8), (500, 19.9), (1000, 19.5)])
+            + _runs("flaky", [(250, 15.0), (500, 19.5), (1000, 19.5), (2000, 19.5)])
+            + _runs("bad", [(250, 2.0), (500, 3.0), (1000, 4.0), (2000, 5.0)])
+            + _runs("free", [(250, 19.5), (500, 19.5)]))
+    proxies = {"good": _proxy("proxy", 8.0), "flaky": _proxy("proxy:trim=0.1", 19.5),
+               "bad": _proxy("proxy:camera_pitch=35", 12.0), "free": _proxy("randomized", 19.5)}
+    res = PLVResult(cfg, runs, proxies, expert_score=21.0)
+    s = summarize(res)
+    assert s.reference == pytest.approx(0.95 * 20.05) and not s.converged_ok  # 18.05 → 20.05 is > 5 %
+    assert s.target_first == DataCost(500) and s.target_needed == DataCost(2000)  # 500 fell below P at 1,000
     rows = {r["proxy"]: r for r in s.rows}
-    assert rows["good"]["plv"] == 750 and rows["good"]["reduction_label"] == "75 %"
+    assert rows["good"]["needed"] == 250 and rows["good"]["plv"] == 1750 and rows["good"]["reduction_label"] == "88 %"
+    assert rows["flaky"]["first_reached"] == 0 and rows["flaky"]["needed"] == 500  # zero-shot reached P, then fell
+    assert rows["flaky"]["plv"] == 1500
     assert rows["bad"]["plv"] is None and rows["bad"]["plv_label"] == "not reached"
     assert rows["bad"]["needed_label"] == "not reached" and rows["bad"]["tried_up_to"] == 2000
-    assert rows["free"]["needed"] == 0 and rows["free"]["reduction_label"] == "100 %"  # zero-shot already there
-    text = "\n".join(findings(PLVResult(cfg, runs, proxies, expert_score=21.0)))
-    assert "bad: zero-shot 12.00; P not reached with up to 2,000" in text and "Spearman" in text
+    assert rows["free"]["needed"] == 0 and rows["free"]["reduction_label"] == "100 %"  # zero-shot, and it stays
+    # every seed sits 0.05 from its rung's mean, far from P: the bootstrap cannot move any answer
+    assert rows["good"]["plv_ci"] == "1,750 [1,750, 1,750]" and rows["bad"]["plv_ci"] == "not reached"
+    assert rows["free"]["reached_share"] == 1.0 and rows["bad"]["reached_share"] == 0.0
+    assert s.intervals.target_needed.label() == "2,000 [2,000, 2,000]"
+    text = "\n".join(findings(res, s))
+    assert "flaky first reached P with 0 target samples but did not stay above it" in text
+    assert "Target-only first reached P with 500 samples but fell below it again" in text
+    assert "bad: zero-shot 12.05 [12.00, 12.10]; P not reached" in text and "Spearman" in text
+    table = table_rows(res, s)
+    assert table[0]["first reached P"] == "500" and "2,000 [2,000, 2,000]" in table[0].values()
+    assert table[2]["zero-shot score [95 % CI]"] == "19.55 [19.50, 19.60]"
+
+
+def test_score_bands_never_leave_the_seeds_range_or_the_possible_scores(tmp_path):
+    """Two seeds far apart gave t-bands below −T (the 'PLV bands below zero' report); bootstrap bands cannot."""
+    cfg = PLVConfig.from_dict({"ladder": [50, 100], "seeds": [0, 1, 2], "proxies": {"p": "proxy"},
+                               "eval": {"episodes": 2, "seconds": 10.0}})
+    runs = [{"arm": "target-only", "n": n, "seed": s, "off_policy": n, "on_policy": 0, "cost": float(n),
+             "score": v} for n, vs in ((50, (-9.5, 9.9, 0.0)), (100, (9.0, 9.5, 9.8))) for s, v in enumerate(vs)]
+    runs += [{**r, "arm": "p"} for r in runs if r["n"] == 50]
+    res = PLVResult(cfg, runs, {"p": {"spec": "proxy", "zero_shot": -3.0, "in_proxy": 5.0,
+                                      "zero_shot_by_seed": {"0": -10.0, "1": 1.0, "2": 0.0}}}, expert_score=9.0)
+    s = summarize(res)
+    for curve in s.curves.values():
+        for c in curve:
+            assert min(c["scores"]) <= c["low"] <= c["mean"] <= c["high"] <= max(c["scores"])
+    lo, hi = score_range(res)
+    assert (lo, hi) == (-10.0, 10.0)
+    from proxybench.learning.value import mean_ci
+
+    assert mean_ci([-9.5, 9.9, 0.0])[1] < lo  # the old Student-t band left the possible range
+    assert figure_3_6(res, s, tmp_path / "f.png").stat().st_size > 0
+    assert figure_plv(res, s, tmp_path / "g.png").stat().st_size > 0 and (tmp_path / "g.svg").exists()
 
 
 def test_config_from_dict_rejects_unknown_keys_and_merges_nested():
@@ -82,7 +125,7 @@ def test_plv_command_runs_a_tiny_experiment_and_writes_the_report(tmp_path):
     from proxybench.cli import learning  # noqa: F401 - registers the commands
     from proxybench.cli.app import app
 
-    tiny = {"width": 32, "height": 24, "ladder": [40, 80], "seeds": [0], "proxy_samples": 120,
+    tiny = {"width": 32, "height": 24, "ladder": [40, 80], "seeds": [0, 1], "proxy_samples": 120,
             "proxies": {"pitch 35°": "proxy:camera_pitch=35"},
             "model": {"channels": [8, 8, 8, 8, 8], "hidden": [16]},
             "train": {"min_steps": 3, "max_steps": 3}, "pretrain": {"min_steps": 3, "max_steps": 3},
@@ -90,19 +133,22 @@ def test_plv_command_runs_a_tiny_experiment_and_writes_the_report(tmp_path):
             "eval": {"episodes": 2, "seconds": 1.0}, "use_dagger": True, "dagger": {"rounds": 1}}
     (tmp_path / "tiny.json").write_text(json.dumps(tiny))
     out = tmp_path / "plv"
-    res = CliRunner().invoke(app, ["plv", "--out", str(out), "--config", str(tmp_path / "tiny.json"), "--eta-on", "2"])
+    args = ["plv", "--quick", "--out", str(out), "--config", str(tmp_path / "tiny.json"), "--eta-on", "2"]
+    res = CliRunner().invoke(app, args)  # the quick mode, shrunk further by the file
     assert res.exit_code == 0, res.output
-    assert "Table 3.1" in res.output and "target only" in res.output
+    assert "Table 3.1" in res.output and "target only" in res.output and "bootstrap" in res.output
     for name in ("report.html", "fig3_6_learning_curves.png", "fig3_6_learning_curves.svg", "table3_1.csv",
-                 "plv_runs.csv", "plv.json"):
+                 "fig_plv_intervals.png", "plv_runs.csv", "plv.json"):
         assert (out / name).stat().st_size > 0, name
     blob = json.loads((out / "plv.json").read_text())
     assert blob["config"]["eta_on"] == 2.0 and {r["arm"] for r in blob["runs"]} >= {"target-only"}
     assert all(r["on_policy"] > 0 for r in blob["runs"])  # DAgger spent part of each rung on-policy
+    assert blob["config"]["width"] == 32 and blob["config"]["replicates"] == 2000  # quick's, where not overridden
+    assert set(blob["proxies"]["pitch 35°"]["zero_shot_by_seed"]) == {"0", "1"}  # one pre-training per seed
+    assert blob["summary"]["intervals"]["method"] == "percentile bootstrap over seeds"
     assert "simulated stand-in" in (out / "report.html").read_text()
-    again = CliRunner().invoke(app, ["plv", "--out", str(out), "--config", str(tmp_path / "tiny.json"),
-                                     "--eta-on", "2"])
-    assert again.exit_code == 0  # resumed from the cache
+    again = CliRunner().invoke(app, args)
+    assert again.exit_code == 0 and "units from the cache" in again.output  # resumed from the cache
 
 
 def test_learn_commands_collect_train_finetune_and_evaluate(tmp_path):
@@ -120,7 +166,8 @@ def test_learn_commands_collect_train_finetune_and_evaluate(tmp_path):
     assert res.exit_code == 0, res.output
     res = cli.invoke(app, ["learn", "train", str(tmp_path / "target"), "--init", str(tmp_path / "pre.pt"),
                            "--samples", "32", "--out", str(tmp_path / "ft.pt"), "--max-steps", "3"])
-    assert res.exit_code == 0 and "fine-tuning" not in res.output, res.output  # the bar is transient
+    assert res.exit_code == 0 and "wrote" in res.output, res.output
+    assert "fine-tuning 3/3" in res.output  # off a terminal the bar prints plain lines (cli.progress)
     info = json.loads((tmp_path / "ft.json").read_text())
     assert info["init"].endswith("pre.pt") and info["data"]["samples"] == 32
     res = cli.invoke(app, ["learn", "evaluate", str(tmp_path / "ft.pt"), "--episodes", "2", "--seconds", "1"])

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from proxybench.domain.maps import load_map
-from proxybench.tasks.metrics import LANE_HALF_WIDTH, METRICS, repeatability
+from proxybench.tasks.metrics import LANE_HALF_WIDTH, METRICS, deviation_curves, repeatability
 from proxybench.tasks.trajectory import Trajectory, TrajectoryError
 
 TS = 0.585
@@ -134,12 +134,50 @@ def test_parquet_round_trip_keeps_columns_meta_and_events(road, tmp_path):
     assert not list(tmp_path.glob(".*tmp"))  # atomic write leaves no temporary file
 
 
-def test_repeatability_of_identical_runs_is_zero_and_grows_with_spread(road):
-    a = _drive(road, 0.3, 0.2, 10.0, EAST_LANE_Y, 0.0)
-    assert repeatability([a, a])["MPD_cm"] == pytest.approx(0.0, abs=1e-9)
-    b = _drive(road, 0.3, 0.2, 10.0, EAST_LANE_Y + 0.02, 0.0)
-    r = repeatability([a, b])
-    assert r["MPD_cm"] == pytest.approx(1.0)  # each run is 1 cm from the mean
-    assert r["MOD_deg"] == pytest.approx(0.0, abs=1e-9)
+def _runs_at(road, offsets_m, headings=None, seconds=10.0):
+    headings = headings or [0.0] * len(offsets_m)
+    return [_drive(road, 0.3, 0.2, seconds, EAST_LANE_Y + d, h) for d, h in zip(offsets_m, headings, strict=True)]
+
+
+def test_mpd_is_the_signed_mean_offset_from_the_lane_centre_as_the_thesis_defines_it(road):
+    """Thesis §5.4: MPD at a point = mean lateral displacement from the lane centre (not spread around the mean)."""
+    same = repeatability(_runs_at(road, [0.02, 0.02]))
+    assert same["MPD_cm"] == pytest.approx(2.0) and same["MPD_std_cm"] == pytest.approx(0.0, abs=1e-9)
+    r = repeatability(_runs_at(road, [0.01, 0.03]))  # 1 and 3 cm left: mean 2, std (ddof 1) √2
+    assert r["MPD_cm"] == pytest.approx(2.0) and r["MPD_std_cm"] == pytest.approx(np.sqrt(2.0))
+    assert r["MOD_deg"] == pytest.approx(0.0, abs=1e-9) and r["MPD_std_route_cm"] == pytest.approx(0.0, abs=1e-9)
+    right = repeatability(_runs_at(road, [-0.05, -0.07]))  # both right of the centre: negative, like the thesis' −6.2
+    assert right["MPD_cm"] == pytest.approx(-6.0)
+    sym = repeatability(_runs_at(road, [-0.01, 0.01]))  # the old spread-around-the-mean measure said 1 cm
+    assert sym["MPD_cm"] == pytest.approx(0.0, abs=1e-9) and sym["MPD_std_cm"] == pytest.approx(np.sqrt(2.0))
+    assert r["runs"] == 2 and r["route_m"] == pytest.approx(2.0, abs=0.03)
+
+
+def test_mod_is_the_signed_mean_heading_error(road):
+    r = repeatability(_runs_at(road, [0.0, 0.0], headings=[np.radians(2.0), np.radians(4.0)]))
+    assert r["MOD_deg"] == pytest.approx(3.0) and r["MOD_std_deg"] == pytest.approx(np.sqrt(2.0))
+
+
+def test_repeatability_splits_variability_within_and_between_robots(road):
+    # robot A: 0 and 2 cm; robot B: 4 and 6 cm. Within: each pair has variance 2 → √2; between: means 1 and 5
+    # → variance 8 → 2√2; all four: variance (9 + 1 + 1 + 9) / 3 → √(20/3).
+    r = repeatability(_runs_at(road, [0.0, 0.02, 0.04, 0.06]), groups=["A", "A", "B", "B"])
+    assert r["MPD_cm"] == pytest.approx(3.0) and r["MPD_std_cm"] == pytest.approx(np.sqrt(20 / 3))
+    assert r["MPD_within_std_cm"] == pytest.approx(np.sqrt(2.0))
+    assert r["MPD_between_std_cm"] == pytest.approx(2 * np.sqrt(2.0))
+    assert r["MOD_within_std_deg"] == pytest.approx(0.0, abs=1e-9)
+    with pytest.raises(ValueError, match="one label per run"):
+        repeatability(_runs_at(road, [0.0, 0.02]), groups=["A"])
+
+
+def test_runs_of_different_length_are_compared_where_two_reached(road):
+    # a 4 cm run that stops after 0.4 m: the first 0.4 m average three runs (2 cm), the rest two (1 cm)
+    runs = [*_runs_at(road, [0.0, 0.02], seconds=5.0), _drive(road, 0.3, 0.2, 2.0, EAST_LANE_Y + 0.04, 0.0)]
+    c = deviation_curves(runs, grid_step=0.05)
+    assert list(c.runs_at[:8]) == [3] * 8 and set(c.runs_at[10:]) == {2}
+    r = repeatability(runs, grid_step=0.05)
+    assert 1.0 < r["MPD_cm"] < 2.0
     with pytest.raises(ValueError, match="at least 2 runs"):
-        repeatability([a])
+        repeatability(runs[:1])
+    with pytest.raises(ValueError, match="share no driven distance"):
+        repeatability([runs[0], _drive(road, 0.3, 0.0, 2.0, EAST_LANE_Y, 0.0)])  # the second never moves

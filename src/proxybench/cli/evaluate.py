@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import typer
@@ -96,38 +97,99 @@ def _load_any(path: Path, map_name: str, Trajectory, TrajectoryError):
 @app.command()
 def repeatability(
     agent: str = typer.Option("vision", help="zoo agent"),
-    runs: int = typer.Option(10, min=2, help="runs per setting"),
+    design: list[str] = typer.Option([], "--design", help="repeatability | inter-robot | inter-lab | LABSxROBOTSxRUNS "
+                                     "(repeat; default: the thesis' three, 1×1×9, 1×3×3, 2×1×6)"),
+    runs: int | None = typer.Option(None, min=2, help="runs per robot, overriding every design's"),
     seconds: float = typer.Option(30.0, callback=positive, help="length of each run [s]"),
     map_name: str = typer.Option("loop_3x3", "--map"),
     seed: int = typer.Option(0, min=0),
-    out: Path = typer.Option(Path("out/repeatability"), help="folder for the table and the trajectory plot"),
+    placement_cm: float = typer.Option(0.5, min=0.0, help="operator's placement error across the lane, std [cm]"),
+    placement_deg: float = typer.Option(1.0, min=0.0, help="operator's placement error of the heading, std [deg]"),
+    recorded: list[Path] = typer.Option([], "--recorded", help="recorded runs instead: a LAB/ROBOT/run.csv folder "
+                                        "or run files (repeat); t, x, y, theta in the map frame"),
+    robot_cmd: list[str] = typer.Option([], "--robot-cmd", help="NAME=COMMAND of a robot node (repeat: one per "
+                                        "robot); runs --runs (default 3) per robot"),
+    out: Path = typer.Option(Path("out/repeatability"), help="folder for the tables and the plots"),
 ) -> None:
-    """MPD / MOD of one agent: one robot N times, N robots, N labs (thesis figs. 5.8–5.10), simulated.
+    """MPD / MOD of one agent, thesis §5.4: one robot, robots, labs (figs. 5.8–5.10).
 
-    All three settings run on the reality model, a simulated stand-in for real Duckiebots.
+    MPD is the mean signed lateral offset from the lane centre along the route [cm] (+ = left), MOD the
+    mean heading error [deg]; STD is the run-to-run standard deviation along the route. The target is the
+    reality model (simulated stand-ins for Duckiebots) unless --recorded or --robot-cmd is given.
     """
-    import json
+    from proxybench.runner.repeatability import Design, recorded_study, repeatability_study, robot_study
+
+    if recorded and robot_cmd:
+        raise typer.BadParameter("give --recorded or --robot-cmd, not both", param_hint="--recorded")
+    try:
+        if recorded:
+            res = recorded_study(recorded, map_name)
+        elif robot_cmd:
+            cmds = {}
+            for item in robot_cmd:
+                name, sep, cmd = item.partition("=")
+                if not sep or not name.strip() or not cmd.strip():
+                    raise typer.BadParameter(f"{item!r}: expected NAME=COMMAND", param_hint="--robot-cmd")
+                cmds[name.strip()] = cmd.strip()
+            with status("driving robot nodes") as spinner:
+                res = robot_study(agent, cmds, runs or 3, seconds, map_name, seed,
+                                  progress=lambda n, k, t: spinner.update(f"{n}: run {k}/{t}"))
+        else:
+            designs = dict(Design.parse(d) for d in design) if design else None
+            if runs is not None:
+                from proxybench.runner.repeatability import DESIGNS
+
+                designs = {k: Design(d.labs, d.robots, runs) for k, d in (designs or DESIGNS).items()}
+            with status("running") as spinner:
+                res = repeatability_study(agent, designs, seconds, map_name, seed,
+                                          placement=(placement_cm / 100.0, placement_deg),
+                                          progress=lambda n, k, t: spinner.update(f"{n}: {t} runs side by side"))
+    except (ValueError, FileNotFoundError) as exc:
+        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        raise typer.Exit(2) from exc
+    _repeatability_report(res, agent, seconds, map_name, out)
+
+
+def _repeatability_report(res, agent: str, seconds: float, map_name: str, out: Path) -> None:
+    """The table (beside the thesis' figures), repeatability.json / .csv, trajectories and MPD/MOD curves."""
+    import pandas as pd
 
     from proxybench.domain.maps import load_map
-    from proxybench.plots import plot_trajectories
-    from proxybench.runner.repeatability import SETTINGS, repeatability_study
+    from proxybench.plots import plot_deviation_curves, plot_trajectories
+    from proxybench.runner.repeatability import THESIS_FIGURES
+    from proxybench.tasks.metrics import deviation_curves
 
     out.mkdir(parents=True, exist_ok=True)
-    with status("running") as spinner:
-        res = repeatability_study(agent, runs, seconds, map_name, seed,
-                                  progress=lambda s, k: spinner.update(f"{s}: run {k + 1}/{runs}"))
-    table = Table(title=f"repeatability of {agent}: {runs} runs × {seconds:g} s per setting (simulated, reality model)")
-    for col in ("setting", "MPD (cm)", "± std", "MOD (deg)", "± std", "runs ended early"):
-        table.add_column(col, justify="left" if col == "setting" else "right")
-    for s in SETTINGS:
-        f = res.figures[s]
-        early = sum(t.termination != "timeout" for t in res.runs[s])
-        table.add_row(s, f"{f['MPD_cm']:.2f}", f"{f['MPD_std_cm']:.2f}", f"{f['MOD_deg']:.2f}",
-                      f"{f['MOD_std_deg']:.2f}", str(early))
+    table = Table(title=escape(f"repeatability of {agent} ({res.source}; {seconds:g} s runs): MPD [cm] (+ = left of "
+                               "the lane centre), MOD [deg]; STD = run-to-run"))
+    cols = ("design", "labs×robots×runs", "AVG MPD", "STD MPD", "AVG MOD", "STD MOD", "within / between STD MPD",
+            "ended early", "route (m)", "thesis (real robots): MPD ± STD, MOD ± STD")
+    for col in cols:
+        table.add_column(col, justify="left" if col == "design" else "right")
+    rows = []
+    for name, r in res.designs.items():
+        f = r.figures
+        split = (f"{f['MPD_within_std_cm']:.2f} / {f['MPD_between_std_cm']:.2f}" if "MPD_within_std_cm" in f else "–")
+        th = THESIS_FIGURES.get(name)
+        thesis = (f"{th['MPD_cm']:+.1f} ± {th['MPD_std_cm']:.1f}, {th['MOD_deg']:+.1f} ± {th['MOD_std_deg']:.1f}"
+                  if th else "–")
+        table.add_row(name, r.design.label, f"{f['MPD_cm']:+.2f}", f"{f['MPD_std_cm']:.2f}", f"{f['MOD_deg']:+.2f}",
+                      f"{f['MOD_std_deg']:.2f}", split, f"{r.early}/{len(r.runs)}", f"{f['route_m']:.1f}", thesis)
+        rows.append({"design": name, "labs": r.design.labs, "robots": r.design.robots, "runs": r.design.runs,
+                     "source": res.source, "ended_early": r.early, **f})
     console.print(table)
-    (out / "repeatability.json").write_text(json.dumps(res.figures, indent=2))
-    png = plot_trajectories(load_map(map_name), res.runs, out / "trajectories.png")
-    console.print(f"wrote {out / 'repeatability.json'}, {png} (+ .svg)")
+    for name, note in res.notes.items():
+        console.print(f"{name}: {note}", highlight=False)
+    (out / "repeatability.json").write_text(json.dumps({"source": res.source, "agent": agent, "seconds": seconds,
+                                                        "map": map_name, "figures": res.figures, "notes": res.notes},
+                                                       indent=2))
+    pd.DataFrame(rows).to_csv(out / "repeatability.csv", index=False)
+    titles = {k: f"{k} ({r.design.label})" for k, r in res.designs.items()}
+    png = plot_trajectories(load_map(map_name), res.runs, out / "trajectories.png", titles)
+    curves = plot_deviation_curves({k: deviation_curves(r.runs) for k, r in res.designs.items()},
+                                   out / "mpd_mod.png", titles)
+    console.print(f"wrote {out / 'repeatability.json'}, {out / 'repeatability.csv'}, {png}, {curves} (+ .svg)",
+                  highlight=False)
 
 
 def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:

@@ -36,7 +36,7 @@ def _fail(msg: str, code: int = 2) -> typer.Exit:
 
 @app.command()
 def plv(
-    quick: bool = typer.Option(False, "--quick", help="40×30 frames, short ladder, 2 seeds (a few minutes)"),
+    quick: bool = typer.Option(False, "--quick", help="40×30 frames, short ladder, 3 seeds (minutes)"),
     out: Path = typer.Option(Path("out/plv"), help="report folder (figure, tables, report.html) and cache"),
     config: Path | None = typer.Option(None, help="JSON file overriding PLVConfig fields (nested: train, eval, ...)"),
     dagger: bool = typer.Option(False, "--dagger", help="spend half of every rung on on-policy (DAgger) samples"),
@@ -50,7 +50,7 @@ def plv(
     so an interrupted run resumes.
     """
     from proxybench.learning.experiment import PLVConfig, run_plv
-    from proxybench.learning.report import findings, needed_column, summarize, write_report
+    from proxybench.learning.report import findings, summarize, table_rows, write_report
 
     cfg = PLVConfig.quick() if quick else PLVConfig()
     try:
@@ -73,18 +73,18 @@ def plv(
     s = summarize(res)
     wall = time.perf_counter() - t0
     note = f", {res.cached} units from the cache" if res.cached else ""
-    table = Table(title=f"Table 3.1 — PLV of proxies (target: reality model, simulated) — {wall:.0f} s{note}")
-    for col in ("domain", "zero-shot", "in own domain", needed_column(res), "PLV", "reduction"):
+    rows = table_rows(res, s)
+    table = Table(title=f"Table 3.1 — PLV of proxies (target: reality model, simulated) — {len(cfg.seeds)} seeds, "
+                        f"95 % bootstrap intervals over seeds — {wall:.0f} s{note}")
+    for col in rows[0]:
         table.add_column(col, justify="left" if col == "domain" else "right")
-    need = "not reached" if s.target_needed is None else f"{s.target_needed.weighted(cfg.eta_on, cfg.eta_off):,.0f}"
-    table.add_row("target only", "–", "–", need, "–", "–")
-    for r in s.rows:
-        table.add_row(r["proxy"], f"{r['zero_shot']:.2f}", f"{r['in_proxy']:.2f}", r["needed_label"], r["plv_label"],
-                      r["reduction_label"])
+    for r in rows:
+        table.add_row(*(escape(str(v)) for v in r.values()))  # "[not reached, 900]" is not markup
     console.print(table)
     for line in findings(res, s):
-        console.print(f"• {line}", highlight=False)
-    console.print(f"wrote {files['html']}, {files['fig3_6']} (+ .svg), {files['table']}, {files['runs']}")
+        console.print(f"• {escape(line)}", highlight=False)
+    console.print(f"wrote {files['html']}, {files['fig3_6']} and {files['fig_plv']} (+ .svg), {files['table']}, "
+                  f"{files['runs']}", highlight=False)
 
 
 @learn_app.command("dataset")

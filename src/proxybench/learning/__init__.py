@@ -4,8 +4,8 @@
 - ``expert``, ``collection``, ``dataset``: batched expert driving with recovery data, NPZ shards + JSON;
 - ``model``, ``training``, ``agent``: a PilotNet-style CNN, training / fine-tuning / checkpoints, ``BCAgent``;
 - ``onpolicy``: DAgger, on-policy target samples labelled by the expert;
-- ``evaluate``, ``value``, ``experiment``, ``report``: PLV arithmetic and the PLV experiment (thesis Table 3.1,
-  Figure 3.6).
+- ``evaluate``, ``value``, ``intervals``, ``experiment``, ``report``: PLV arithmetic, its bootstrap intervals over
+  seeds and the PLV experiment (thesis Table 3.1, Figure 3.6); ``objective``: PLV of one proxy, for argmax-PLV.
 
 Module names differ from the functions exported here (``collect``, ``train``, ``dagger``, ``plv``), so
 ``from proxybench.learning import train`` is always the function, whatever was imported before.
@@ -27,9 +27,10 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 __all__ = [
     "BCAgent", "CollectConfig", "DaggerConfig", "DataCost", "Dataset", "Domain", "EvalConfig", "ModelConfig",
-    "PLVConfig", "PLVResult", "PilotNet", "TrainConfig", "build_model", "collect", "dagger", "evaluate_expert",
-    "evaluate_policy", "expert_actions", "is_checkpoint", "load_checkpoint", "make_bc_agent", "parse_domain", "plv",
-    "proxy_domain", "randomized_domain", "reality_domain", "run_plv", "save_checkpoint", "train", "write_report",
+    "PLVConfig", "PLVObjective", "PLVResult", "PilotNet", "TrainConfig", "build_model", "collect", "dagger",
+    "evaluate_expert", "evaluate_policy", "expert_actions", "is_checkpoint", "load_checkpoint", "make_bc_agent",
+    "parse_domain", "plv", "proxy_domain", "randomized_domain", "reality_domain", "run_plv", "save_checkpoint",
+    "train", "write_report",
 ]
 
 _WHERE = {
@@ -44,6 +45,7 @@ _WHERE = {
     "expert_actions": "expert",
     "ModelConfig": "model", "PilotNet": "model",
     "PLVConfig": "experiment", "PLVResult": "experiment", "run_plv": "experiment",
+    "PLVObjective": "objective",
     "TrainConfig": "training", "build_model": "training", "load_checkpoint": "training",
     "save_checkpoint": "training", "train": "training",
     "write_report": "report",

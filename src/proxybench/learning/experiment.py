@@ -1,17 +1,22 @@
-"""The PLV experiment (thesis §3.7.3, Table 3.1, Figure 3.6) as an importable function.
+"""The PLV experiment (thesis §3.7.2, Table 3.1, Figure 3.6) as an importable function.
 
 1. **Target-only learning curve.** The expert drives the target (the reality model: a *simulated*
    stand-in for a real Duckiebot) with noise injection; a network is trained from scratch on n of
    those samples for every n of a ladder and every training seed, and scored by the lane score on
    evaluation episodes in the target. The score at the largest n is the converged score; the reference
-   P is that score less a tolerance, and |D_target| is the smallest n whose mean score reaches P.
+   P is that score less a tolerance, and |D_target| is the smallest n from which the mean score over
+   seeds *stays* at or above P (:func:`proxybench.learning.value.settled_rung`).
 2. **Each proxy.** The expert drives the proxy (an instance θ or a randomised family) for
-   ``proxy_samples`` frames; a network is pre-trained on them (zero-shot score: that network in the
-   target), then fine-tuned on n target samples up the same ladder until its mean score reaches P.
-3. PLV = |D_target| − |D_proxy→target| (weighted by η_on / η_off with DAgger), or "not reached".
+   ``proxy_samples`` frames; one network per seed is pre-trained on them (zero-shot score: that network
+   in the target, rung 0), then fine-tuned on n target samples up the same ladder until the mean over
+   seeds has stayed at or above P for ``confirm`` rungs after the first that reached it.
+3. PLV = |D_target| − |D_proxy→target| (weighted by η_on / η_off with DAgger), or "not reached";
+   intervals come from a bootstrap over seeds (:mod:`proxybench.learning.intervals`).
 
-Every unit of work (a dataset, a training run and its evaluation) is cached in the output folder under
-a hash of the settings it depends on, so an interrupted run resumes and a longer ladder reuses rungs.
+Every unit of work (a dataset, a pre-training, a training run and its evaluation) is cached in the
+output folder under a hash of the settings it depends on, so an interrupted run resumes and a longer
+ladder or more seeds reuse the work already done. :func:`target_arm` and :func:`proxy_arm` are the two
+halves, used apart by the PLV objective (:mod:`proxybench.learning.objective`).
 """
 
 from __future__ import annotations
@@ -36,7 +41,7 @@ from proxybench.learning.onpolicy import DaggerConfig, dagger
 from proxybench.learning.training import TrainConfig, build_model, save_checkpoint, train
 from proxybench.learning.value import DataCost
 
-__all__ = ["THESIS_PROXIES", "PLVConfig", "PLVResult", "run_plv"]
+__all__ = ["THESIS_PROXIES", "PLVConfig", "PLVResult", "Workspace", "proxy_arm", "run_plv", "target_arm"]
 
 #: the thesis' proxies (camera pitch 3°, 19°, 35°) and a domain-randomised family
 THESIS_PROXIES: dict[str, str] = {
@@ -45,6 +50,7 @@ THESIS_PROXIES: dict[str, str] = {
     "pitch 35°": "proxy:camera_pitch=35",
     "randomized": "randomized",
 }
+_CACHE_FORMAT = 2  # 2: one pre-training per seed
 _NESTED = {"model": ModelConfig, "train": TrainConfig, "pretrain": TrainConfig, "finetune": TrainConfig,
            "collect": CollectConfig, "eval": EvalConfig, "dagger": DaggerConfig}
 
@@ -57,11 +63,14 @@ class PLVConfig:
     height: int = 48
     # target samples (cost units with DAgger): the thesis' 250 … 9,000, plus 50 and 100 to resolve small needs
     ladder: tuple[int, ...] = (50, 100, 250, 500, 1000, 2000, 4000, 9000)
-    seeds: tuple[int, ...] = (0, 1, 2)  # training seeds: target-data subset, initialisation, minibatch order
+    # seeds: target-data subset, initialisation and minibatch order; for a proxy, also its pre-training
+    seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
     proxies: dict[str, str] = field(default_factory=lambda: dict(THESIS_PROXIES))
     proxy_samples: int = 20_000
-    tolerance: float = 0.05  # reach the converged target-only score less 5 % of it
-    stop_when_reached: bool = True  # stop a proxy's ladder at the first rung that reaches the reference
+    tolerance: float = 0.05  # reach the converged target-only score less 5 % of it, and stay there
+    confirm: int = 2  # rungs after the first one at or above P that must stay above it (the ladder's end counts)
+    stop_when_reached: bool = True  # stop a proxy's ladder once it has settled above P (else run it all)
+    replicates: int = 4000  # bootstrap replicates over seeds for the intervals
     model: ModelConfig = field(default_factory=ModelConfig)
     # target-only, from scratch: 10 epochs, at least 100 and at most 1,000 steps of 64 (fits 45 min on 2 cores)
     train: TrainConfig = field(default_factory=lambda: TrainConfig(epochs=10.0, min_steps=100, max_steps=1000))
@@ -83,11 +92,16 @@ class PLVConfig:
             raise ValueError(f"the ladder must be increasing positive sample counts, got {self.ladder}")
         if not 0.0 <= self.on_fraction <= 1.0:
             raise ValueError(f"on_fraction must be in [0, 1], got {self.on_fraction}")
+        if not self.seeds or len(set(self.seeds)) != len(self.seeds):
+            raise ValueError(f"seeds must be distinct and at least one, got {self.seeds}")
+        if self.confirm < 0:
+            raise ValueError(f"confirm must be >= 0, got {self.confirm}")
 
     @classmethod
     def quick(cls) -> PLVConfig:
-        """40×30 frames, two seeds, a short ladder and short training: a few minutes on two cores."""
-        return cls(width=40, height=30, ladder=(150, 400, 1000, 2500), seeds=(0, 1), proxy_samples=4000,
+        """40×30 frames, three seeds, a short ladder and short training: minutes on two cores."""
+        return cls(width=40, height=30, ladder=(150, 400, 1000, 2500), seeds=(0, 1, 2), proxy_samples=4000,
+                   replicates=2000,
                    train=TrainConfig(epochs=10.0, min_steps=60, max_steps=400),
                    pretrain=TrainConfig(epochs=4.0, min_steps=60, max_steps=300),
                    finetune=TrainConfig(epochs=10.0, min_steps=60, max_steps=400, lr=3e-4),
@@ -119,8 +133,10 @@ class PLVConfig:
     def work_key(self) -> str:
         """Hash of what a training run's result depends on (not the ladder, seeds, proxy list or tolerance)."""
         d = self.to_dict()
-        for k in ("ladder", "seeds", "proxies", "tolerance", "stop_when_reached", "eta_on", "eta_off"):
+        for k in ("ladder", "seeds", "proxies", "tolerance", "confirm", "stop_when_reached", "eta_on", "eta_off",
+                  "replicates"):
             d.pop(k)
+        d["cache_format"] = _CACHE_FORMAT
         return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:12]
 
 
@@ -145,21 +161,25 @@ class PLVResult:
 Progress = Callable[[str, int, int], None]
 
 
-class _Work:
-    """Caching and bookkeeping shared by the stages of one run."""
+class Workspace:
+    """Caching and bookkeeping shared by the stages of one run (``OUT/cache/<work key>/``)."""
 
-    def __init__(self, cfg: PLVConfig, out: Path, progress: Progress | None):
-        self.cfg, self.out, self.progress = cfg, out, progress
-        self.root = out / "cache" / cfg.work_key()
+    def __init__(self, cfg: PLVConfig, out: str | Path, progress: Progress | None = None):
+        self.cfg, self.out, self.progress = cfg, Path(out), progress
+        self.root = self.out / "cache" / cfg.work_key()
         self.device = default_device()
         self.target = reality_domain(cfg.width, cfg.height)
         self.eval_cfg = cfg.eval
         self.stage_s: dict[str, float] = {}
         self.cached = 0
+        self._pool: Dataset | None = None
 
     def tick(self, stage: str, done: int, total: int) -> None:
         if self.progress:
             self.progress(stage, done, total)
+
+    def add_time(self, stage: str, t0: float) -> None:
+        self.stage_s[stage] = self.stage_s.get(stage, 0.0) + time.perf_counter() - t0
 
     def dataset(self, name: str, domain: Domain, samples: int, seed: int) -> Dataset:
         folder = self.root / "data" / name
@@ -169,11 +189,18 @@ class _Work:
         data = collect(domain, replace(self.cfg.collect, samples=samples, seed=seed),
                        progress=lambda d, t: self.tick(f"data: {name}", d, t))
         data.save(folder)
-        self.stage_s["data"] = self.stage_s.get("data", 0.0) + time.perf_counter() - t0
+        self.add_time("data", t0)
         return data
 
-    def run(self, arm: str, n: int, seed: int, make: Callable[[int], Any], data: Dataset, tcfg: TrainConfig,
-            ) -> dict[str, Any]:
+    @property
+    def pool(self) -> Dataset:
+        """The target data every rung draws its seeded subsets from (expert-driven, off-policy)."""
+        if self._pool is None:
+            size = max(self.cfg.split(n).off_policy for n in self.cfg.ladder)
+            self._pool = self.dataset("target", self.target, max(size, 1), self.cfg.seed)
+        return self._pool
+
+    def run(self, arm: str, n: int, seed: int, make: Callable[[int], Any], tcfg: TrainConfig) -> dict[str, Any]:
         """One rung: train (``make`` gives the starting network), DAgger if asked, evaluate on the target."""
         cfg = self.cfg
         path = self.root / "runs" / _slug(arm) / f"n{n}-s{seed}.json"
@@ -183,7 +210,7 @@ class _Work:
         t0 = time.perf_counter()
         cost = cfg.split(n)
         model = make(seed)
-        off = data.take(cost.off_policy, seed) if cost.off_policy else None
+        off = self.pool.take(cost.off_policy, seed) if cost.off_policy else None
         losses = train(model, off, replace(tcfg, seed=seed)).losses if off is not None else []
         if cost.on_policy:
             ccfg = replace(cfg.collect, seed=10_000 + 97 * seed + n)
@@ -213,76 +240,125 @@ def _policy(model):
     return torch_policy(model)
 
 
-def _ladder(work: _Work, arm: str, make: Callable[[int], Any], pool: Dataset, tcfg: TrainConfig,
-            reference: float | None) -> list[dict[str, Any]]:
-    """Every seed on each rung; with a ``reference``, stop after the first rung whose mean reaches it."""
+def _rung_mean(rows: list[dict[str, Any]]) -> float:
+    return float(np.mean([r["score"] for r in rows]))
+
+
+def _ladder(work: Workspace, arm: str, make: Callable[[int], Any], tcfg: TrainConfig, reference: float | None,
+            zero_shot: float | None = None) -> list[dict[str, Any]]:
+    """Every seed on each rung; with a ``reference``, stop once the mean has settled above it.
+
+    Settled: the last ``confirm + 1`` rungs tried (the zero-shot score counting as rung 0) all have a
+    mean at or above the reference, so the "reach and stay" rule is decided whatever came before.
+    """
     cfg, rows = work.cfg, []
+    means = [] if zero_shot is None else [zero_shot]
     total = len(cfg.ladder) * len(cfg.seeds)
     for k, n in enumerate(cfg.ladder):
         rung = []
         for j, seed in enumerate(cfg.seeds):
-            rung.append(work.run(arm, n, seed, make, pool, tcfg))
+            rung.append(work.run(arm, n, seed, make, tcfg))
             work.tick(f"train: {arm}", k * len(cfg.seeds) + j + 1, total)
         rows += rung
-        if reference is not None and cfg.stop_when_reached and np.mean([r["score"] for r in rung]) >= reference:
+        means.append(_rung_mean(rung))
+        tail = means[-(cfg.confirm + 1):]
+        if (reference is not None and cfg.stop_when_reached and len(tail) == cfg.confirm + 1
+                and min(tail) >= reference):
             work.tick(f"train: {arm}", total, total)
             break
     return rows
 
 
-def _pretrain(work: _Work, name: str, spec: str, index: int) -> tuple[dict[str, Any], Any]:
-    """Proxy data, one pre-trained network, its zero-shot score on the target and its score in the proxy."""
-    cfg = work.cfg
-    domain = parse_domain(spec, cfg.width, cfg.height)
-    data = work.dataset(_slug(name), domain, cfg.proxy_samples, cfg.seed + 1 + index)
-    t0 = time.perf_counter()
-    ckpt = work.root / "models" / _slug(name) / "pretrained.pt"
-    record_path = ckpt.with_name("pretrained-record.json")
-    if record_path.exists():
-        from proxybench.learning.training import load_checkpoint
+def _domain(spec: str | Domain, cfg: PLVConfig) -> Domain:
+    domain = parse_domain(spec, cfg.width, cfg.height) if isinstance(spec, str) else spec
+    if domain.image_size != (cfg.width, cfg.height):
+        raise ValueError(f"proxy {domain.name!r}: images are {domain.image_size}, the experiment's network takes "
+                         f"{(cfg.width, cfg.height)}")
+    return domain
 
-        model, _ = load_checkpoint(ckpt, work.device)
-        work.cached += 1
-        return json.loads(record_path.read_text()), model
-    model = build_model(cfg.model, cfg.seed, work.device)
-    res = train(model, data, replace(cfg.pretrain, seed=cfg.seed),
-                progress=lambda s, t: work.tick(f"pre-train: {name}", s, t))
-    zero = evaluate_policy(_policy(model), work.target, work.eval_cfg)
-    own = evaluate_policy(_policy(model), domain, work.eval_cfg)
-    save_checkpoint(ckpt, model, {"arm": name, "domain": domain.describe(), "pretrain": asdict(cfg.pretrain),
-                                  "proxy_samples": cfg.proxy_samples, "zero_shot": zero.mean})
-    record = {"spec": spec, "domain": domain.describe(), "zero_shot": zero.mean, "zero_shot_scores": zero.scores,
-              "in_proxy": own.mean, "pretrain_losses": res.losses, "pretrain_s": time.perf_counter() - t0,
-              "samples_per_s": res.samples_per_s, "checkpoint": str(ckpt)}
-    record_path.write_text(json.dumps(record, indent=1))
-    work.stage_s["pretrain"] = work.stage_s.get("pretrain", 0.0) + time.perf_counter() - t0
-    return record, model
+
+def _pretrain(work: Workspace, name: str, spec: str | Domain, data_seed: int,
+              ) -> tuple[dict[str, Any], dict[int, Any]]:
+    """Proxy data, one pre-trained network per seed, each one's zero-shot score on the target and in the proxy."""
+    from proxybench.learning.training import load_checkpoint
+
+    cfg = work.cfg
+    domain = _domain(spec, cfg)
+    data = work.dataset(_slug(name), domain, cfg.proxy_samples, data_seed)
+    models, per_seed = {}, {}
+    for j, seed in enumerate(cfg.seeds):
+        ckpt = work.root / "models" / _slug(name) / f"pretrained-s{seed}.pt"
+        record_path = ckpt.with_name(f"pretrained-s{seed}-record.json")
+        if record_path.exists():
+            models[seed], _ = load_checkpoint(ckpt, work.device)
+            per_seed[seed] = json.loads(record_path.read_text())
+            work.cached += 1
+            continue
+        t0 = time.perf_counter()
+        model = build_model(cfg.model, seed, work.device)
+        res = train(model, data, replace(cfg.pretrain, seed=seed),
+                    progress=lambda s, t, j=j: work.tick(f"pre-train: {name}", j * t + s, t * len(cfg.seeds)))
+        zero = evaluate_policy(_policy(model), work.target, work.eval_cfg)
+        own = evaluate_policy(_policy(model), domain, work.eval_cfg)
+        save_checkpoint(ckpt, model, {"arm": name, "domain": domain.describe(), "pretrain": asdict(cfg.pretrain),
+                                      "seed": seed, "proxy_samples": cfg.proxy_samples, "zero_shot": zero.mean})
+        rec = {"seed": seed, "zero_shot": zero.mean, "zero_shot_scores": zero.scores, "in_proxy": own.mean,
+               "pretrain_losses": res.losses, "pretrain_s": time.perf_counter() - t0,
+               "samples_per_s": res.samples_per_s, "checkpoint": str(ckpt)}
+        record_path.write_text(json.dumps(rec, indent=1))
+        models[seed], per_seed[seed] = model, rec
+        work.add_time("pretrain", t0)
+    record = {"spec": spec if isinstance(spec, str) else domain.name, "domain": domain.describe(),
+              "data_seed": data_seed,
+              "zero_shot": float(np.mean([r["zero_shot"] for r in per_seed.values()])),
+              "in_proxy": float(np.mean([r["in_proxy"] for r in per_seed.values()])),
+              "zero_shot_by_seed": {str(k): r["zero_shot"] for k, r in per_seed.items()},
+              "in_proxy_by_seed": {str(k): r["in_proxy"] for k, r in per_seed.items()}, "seeds": per_seed}
+    return record, models
+
+
+def target_arm(work: Workspace) -> tuple[list[dict[str, Any]], float, float]:
+    """The target-only curve over the whole ladder: its runs, the expert's score and the reference P."""
+    from proxybench.learning.value import reference_score
+
+    cfg = work.cfg
+    _ = work.pool
+    expert = evaluate_expert(work.target, work.eval_cfg).mean
+    t1 = time.perf_counter()
+    runs = _ladder(work, "target-only", lambda seed: build_model(cfg.model, seed, work.device), cfg.train, None)
+    work.add_time("target-only", t1)
+    reference = reference_score(_rung_mean([r for r in runs if r["n"] == cfg.ladder[-1]]), cfg.tolerance)
+    return runs, expert, reference
+
+
+def proxy_arm(work: Workspace, name: str, spec: str | Domain, reference: float,
+              data_seed: int | None = None) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """Pre-train on proxy ``spec`` (one network per seed) and fine-tune up the ladder until settled above P.
+
+    ``spec``: a domain spec (``parse_domain``) or a ``Domain`` at the experiment's image size; ``name``
+    keys its cache. ``data_seed`` seeds the proxy data; by default a stable hash of ``name``, so the
+    same proxy gets the same data in every experiment.
+    """
+    cfg = work.cfg
+    if data_seed is None:
+        data_seed = cfg.seed + 1 + int(hashlib.sha256(name.encode()).hexdigest()[:6], 16)
+    record, pre = _pretrain(work, name, spec, data_seed)
+    t2 = time.perf_counter()
+    record["reached_zero_shot"] = record["zero_shot"] >= reference
+    runs = _ladder(work, name, lambda seed: copy.deepcopy(pre[seed]), cfg.finetune, reference,
+                   zero_shot=record["zero_shot"])
+    work.add_time("fine-tune", t2)
+    return record, runs
 
 
 def run_plv(cfg: PLVConfig, out: str | Path, progress: Progress | None = None) -> PLVResult:
     """Run (or resume) the whole experiment; caches and checkpoints go under ``out/cache``."""
-    from proxybench.learning.value import reference_score
-
     t0 = time.perf_counter()
     configure_threads()
-    work = _Work(cfg, Path(out), progress)
-    pool_size = max(cfg.split(n).off_policy for n in cfg.ladder)
-    pool = work.dataset("target", work.target, pool_size, cfg.seed)
-    expert = evaluate_expert(work.target, work.eval_cfg).mean
-    t1 = time.perf_counter()
-    runs = _ladder(work, "target-only", lambda seed: build_model(cfg.model, seed, work.device), pool, cfg.train,
-                   None)
-    work.stage_s["target-only"] = time.perf_counter() - t1
-    top = [r["score"] for r in runs if r["n"] == cfg.ladder[-1]]
-    reference = reference_score(float(np.mean(top)), cfg.tolerance)
+    work = Workspace(cfg, out, progress)
+    runs, expert, reference = target_arm(work)
     proxies: dict[str, dict[str, Any]] = {}
     for k, (name, spec) in enumerate(cfg.proxies.items()):
-        record, pre = _pretrain(work, name, spec, k)
-        proxies[name] = record
-        t2 = time.perf_counter()
-        if record["zero_shot"] >= reference:
-            record["reached_zero_shot"] = True
-            continue
-        runs += _ladder(work, name, lambda _seed, pre=pre: copy.deepcopy(pre), pool, cfg.finetune, reference)
-        work.stage_s["fine-tune"] = work.stage_s.get("fine-tune", 0.0) + time.perf_counter() - t2
+        proxies[name], arm_runs = proxy_arm(work, name, spec, reference, data_seed=cfg.seed + 1 + k)
+        runs += arm_runs
     return PLVResult(cfg, runs, proxies, expert, time.perf_counter() - t0, work.stage_s, work.cached)

@@ -1,20 +1,34 @@
-"""Repeatability studies (thesis ch. 5): how much do runs of one agent differ, and why?
+"""Repeatability studies (thesis §5.4): do runs of one agent agree, on one robot, across robots, across labs?
 
-Three settings, each N runs of the same agent from the same start pose, all *simulated* on the
-reality model (a stand-in for real Duckiebots, see ``proxybench.domain.reality``):
+A *design* is labs × robots per lab × runs per robot. The thesis' three (figs. 5.8–5.10):
 
-- ``one robot``: the same robot N times; only latency jitter and sensor noise differ (episode seed);
-- ``robots``: N robots, each with its own hardware deviation (trim, gain, camera mounting);
-- ``labs``: N labs, each with its own light, road colour and surface texture.
+| design | labs × robots × runs | what differs between runs |
+| --- | --- | --- |
+| ``repeatability`` | 1 × 1 × 9 | only the run: latency jitter, sensor noise, the operator's placement |
+| ``inter-robot`` | 1 × 3 × 3 | also the robot: trim, gain, camera mounting |
+| ``inter-lab`` | 2 × 1 × 6 | also the lab (light, road paint, floor texture) and its own robot |
 
-MPD / MOD (``tasks.metrics.repeatability``) measure the spread of the lateral position and heading
-along the route.
+Every run starts from the same nominal pose; the operator's placement error (``placement``, default
+0.5 cm across the lane and 1° of heading, standard deviations) is drawn per run. MPD / MOD are the
+thesis' signed means (``tasks.metrics.repeatability``), with the run-to-run spread and, where a design
+has several robots or labs, the split into within- and between-group variability.
+
+Targets, all three kinds (and every result says which):
+
+- :func:`repeatability_study`: the reality model, a *simulated* stand-in for real Duckiebots. A robot is
+  ``hardware_variation`` drawn from (seed, lab, robot), so robot 0 of lab 0 is the same robot in every
+  design; a lab other than lab 0 is :func:`lab_variation` drawn from (seed, lab). All runs of a design
+  drive side by side in one batched simulator (robots of a batch are independent).
+- :func:`recorded_study`: trajectories recorded in real labs, ``LAB/ROBOT/run.csv`` (or Parquet).
+- :func:`robot_study`: robot nodes on the robot protocol, one command per robot.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -22,13 +36,95 @@ from proxybench.agents import make_agent
 from proxybench.domain.params import DomainParams
 from proxybench.domain.reality import hardware_variation, reality_params
 from proxybench.domain.simulator import Simulator
-from proxybench.runner.episode import run_episode
+from proxybench.runner.episode import run_episodes
 from proxybench.tasks.metrics import repeatability
 from proxybench.tasks.trajectory import Trajectory
 
-__all__ = ["SETTINGS", "RepeatabilityResult", "lab_variation", "repeatability_study"]
+__all__ = ["DESIGNS", "THESIS_FIGURES", "Design", "DesignResult", "RepeatabilityResult", "lab_variation",
+           "recorded_study", "repeatability_study", "robot_study"]
 
-SETTINGS = ("one robot", "robots", "labs")
+
+@dataclass(frozen=True)
+class Design:
+    """``labs`` × ``robots`` per lab × ``runs`` per robot."""
+
+    labs: int = 1
+    robots: int = 1
+    runs: int = 9
+
+    def __post_init__(self) -> None:
+        for name in ("labs", "robots", "runs"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"design: {name} must be >= 1, got {getattr(self, name)}")
+        if self.total < 2:
+            raise ValueError(f"design {self.label}: repeatability needs at least 2 runs")
+
+    @property
+    def total(self) -> int:
+        return self.labs * self.robots * self.runs
+
+    @property
+    def label(self) -> str:
+        return f"{self.labs}×{self.robots}×{self.runs}"
+
+    @property
+    def group(self) -> str | None:
+        """What the within/between split is over: robots (inside labs) or labs; None for one robot."""
+        return "lab" if self.labs > 1 else "robot" if self.robots > 1 else None
+
+    @classmethod
+    def parse(cls, text: str) -> tuple[str, Design]:
+        """A named design (``repeatability``, ``inter-robot``, ``inter-lab``) or ``LABSxROBOTSxRUNS``."""
+        if text in DESIGNS:
+            return text, DESIGNS[text]
+        m = re.fullmatch(r"\s*(\d+)\s*[x×]\s*(\d+)\s*[x×]\s*(\d+)\s*", text)
+        if not m:
+            raise ValueError(f"unknown design {text!r}: use {', '.join(DESIGNS)} or LABSxROBOTSxRUNS (e.g. 1x3x3)")
+        d = cls(*(int(g) for g in m.groups()))
+        return d.label, d
+
+
+DESIGNS: dict[str, Design] = {"repeatability": Design(1, 1, 9), "inter-robot": Design(1, 3, 3),
+                              "inter-lab": Design(2, 1, 6)}
+
+#: thesis §5.4 (real Duckiebots in the ETHZ and TTIC Autolabs): AVG / STD of MPD [cm] and MOD [deg]
+THESIS_FIGURES: dict[str, dict[str, float]] = {
+    "repeatability": {"MPD_cm": -6.2, "MPD_std_cm": 1.3, "MOD_deg": -0.8, "MOD_std_deg": 2.8},
+    "inter-robot": {"MPD_cm": 1.1, "MPD_std_cm": 3.4, "MOD_deg": -0.4, "MOD_std_deg": 5.2},
+    "inter-lab": {"MPD_cm": 2.2, "MPD_std_cm": 2.5, "MOD_deg": -0.4, "MOD_std_deg": 3.9},
+}
+
+
+@dataclass
+class DesignResult:
+    """The runs of one design, each run's lab / robot label, and the MPD / MOD figures."""
+
+    design: Design
+    runs: list[Trajectory]
+    labels: list[str]
+    figures: dict[str, float]
+
+    @property
+    def early(self) -> int:
+        """Runs that ended before their time (left the road, collided, failed)."""
+        return sum(t.termination != "timeout" for t in self.runs)
+
+
+@dataclass
+class RepeatabilityResult:
+    """Per design: the runs and their figures; ``source`` says what the target was."""
+
+    designs: dict[str, DesignResult]
+    source: str
+    notes: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def runs(self) -> dict[str, list[Trajectory]]:
+        return {k: v.runs for k, v in self.designs.items()}
+
+    @property
+    def figures(self) -> dict[str, dict[str, float]]:
+        return {k: v.figures for k, v in self.designs.items()}
 
 
 def lab_variation(rng: np.random.Generator, base: DomainParams) -> DomainParams:
@@ -39,41 +135,149 @@ def lab_variation(rng: np.random.Generator, base: DomainParams) -> DomainParams:
                         texture_seed=int(rng.integers(0, 2**31)), texture_noise=float(rng.uniform(0.05, 0.2)))
 
 
-@dataclass
-class RepeatabilityResult:
-    """Per setting: the runs and their MPD / MOD figures."""
+def _rng(*key: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence(list(key)))
 
-    runs: dict[str, list[Trajectory]]
-    figures: dict[str, dict[str, float]]
+
+def robot_params(base: DomainParams, seed: int, lab: int, robot: int) -> DomainParams:
+    """Lab ``lab``'s robot ``robot``: the lab's conditions (lab 0: ``base`` as is) and the robot's hardware."""
+    lab_params = base if lab == 0 else lab_variation(_rng(seed, 0x1AB, lab), base)
+    return hardware_variation(_rng(seed, 0xB07, lab, robot), lab_params)
+
+
+def placed(start: tuple[float, float, float], rng: np.random.Generator,
+           placement: tuple[float, float]) -> tuple[float, float, float]:
+    """The nominal start moved by the operator's placement error (σ across the lane [m], σ heading [deg])."""
+    x, y, th = start
+    d, a = rng.normal(0.0, placement[0]), np.radians(rng.normal(0.0, placement[1]))
+    return float(x - np.sin(th) * d), float(y + np.cos(th) * d), float(th + a)
 
 
 def repeatability_study(
-    agent: str, runs: int = 10, seconds: float = 30.0, map_name: str = "loop_3x3", seed: int = 0,
-    image_size: tuple[int, int] = (160, 120), progress: Callable[[str, int], None] | None = None,
+    agent: str, designs: Mapping[str, Design] | None = None, seconds: float = 30.0, map_name: str = "loop_3x3",
+    seed: int = 0, image_size: tuple[int, int] = (160, 120), placement: tuple[float, float] = (0.005, 1.0),
+    progress: Callable[[str, int, int], None] | None = None,
 ) -> RepeatabilityResult:
-    """Run ``agent`` ``runs`` times in each setting; the start pose is the same for every run."""
-    if runs < 2:
-        raise ValueError(f"repeatability needs at least 2 runs per setting, got {runs}")
+    """Run ``agent`` in each design on the reality model (simulated); every run from the same nominal start."""
+    designs = dict(DESIGNS if designs is None else designs)
+    if seconds <= 0:
+        raise ValueError(f"seconds must be > 0, got {seconds}")
     w, h = image_size
     base = reality_params(image_width=w, image_height=h)
-    start = Simulator(map_name, base, render=False).sample_start(np.random.default_rng(seed))
-    rng = np.random.default_rng(seed + 1)
-    params = {
-        "one robot": [base] * runs,
-        "robots": [hardware_variation(rng, base) for _ in range(runs)],
-        "labs": [lab_variation(rng, base) for _ in range(runs)],
-    }
-    out: dict[str, list[Trajectory]] = {}
-    figures: dict[str, dict[str, float]] = {}
-    for setting in SETTINGS:
-        trajs = []
-        for k, p in enumerate(params[setting]):
-            sim = Simulator(map_name, p)
-            a = make_agent(agent)
-            trajs.append(run_episode(sim, a, seed * 1000 + k, seconds, pose=start, camera=not a.privileged,
-                                     meta={"setting": setting, "run": k, "source": "reality-model"}))
-            if progress:
-                progress(setting, k)
-        out[setting] = trajs
-        figures[setting] = repeatability(trajs)
-    return RepeatabilityResult(out, figures)
+    start = tuple(Simulator(map_name, base, render=False).sample_start(np.random.default_rng(seed)))
+    out: dict[str, DesignResult] = {}
+    for k, (name, d) in enumerate(designs.items()):
+        cells = [(lab, r, i) for lab in range(d.labs) for r in range(d.robots) for i in range(d.runs)]
+        params = [robot_params(base, seed, lab, r) for lab, r, _ in cells]
+        seeds = [int(np.random.SeedSequence([seed, k, lab, r, i]).generate_state(1)[0] % 2**31)
+                 for lab, r, i in cells]
+        poses = [placed(start, _rng(seed, 0x9A5E, k, j), placement) for j in range(len(cells))]
+        agents = [make_agent(agent) for _ in cells]
+        labels = [f"lab {lab}/robot {r}" for lab, r, _ in cells]
+        metas = [{"design": name, "lab": lab, "robot": r, "run": i, "source": "reality-model"} for lab, r, i in cells]
+        if progress:
+            progress(name, 0, len(cells))
+        trajs = run_episodes(Simulator(map_name, params), agents, seeds, seconds, poses=poses,
+                             camera=not agents[0].privileged, metas=metas)
+        if progress:
+            progress(name, len(cells), len(cells))
+        out[name] = DesignResult(d, trajs, labels, _figures(trajs, labels, d))
+    return RepeatabilityResult(out, "reality-model (simulated stand-in for real Duckiebots)")
+
+
+def _figures(trajs: Sequence[Trajectory], labels: Sequence[str], d: Design) -> dict[str, float]:
+    """MPD / MOD, split over robots (one lab) or labs (several) when the design has more than one."""
+    if d.group is None:
+        return repeatability(trajs)
+    groups = [lab.split("/")[0] if d.group == "lab" else lab for lab in labels]
+    return repeatability(trajs, groups=groups)
+
+
+_RUN_SUFFIXES = (".csv", ".parquet")
+
+
+def recorded_study(paths: Sequence[str | Path], map_name: str = "loop_3x3") -> RepeatabilityResult:
+    """MPD / MOD of runs recorded in real labs: one design per call, laid out as ``LAB/ROBOT/run.csv``.
+
+    Each path is a folder of that layout (the design is read from it: labs × robots × runs; a folder
+    of run files is one robot of one lab) or run files (one robot). Files need t, x, y, theta in the
+    map frame (``proxybench score``'s import); lane poses are recomputed from ``map_name``.
+    """
+    from proxybench.tasks.trajectory import Trajectory as T
+
+    found: list[tuple[str, str, Path]] = []
+    for p in map(Path, paths):
+        if p.is_file():
+            found.append(("lab", "robot", p))
+        elif p.is_dir():
+            for f in sorted(p.rglob("*")):
+                if f.suffix in _RUN_SUFFIXES and f.is_file():
+                    parts = f.relative_to(p).parts
+                    lab, robot = (parts[-3], parts[-2]) if len(parts) >= 3 else ("lab", parts[-2] if len(parts) == 2
+                                                                                 else "robot")
+                    found.append((lab, robot, f))
+        else:
+            raise FileNotFoundError(f"{p}: no such file or folder")
+    if len(found) < 2:
+        raise ValueError(f"repeatability needs at least 2 recorded runs, found {len(found)} in {list(map(str, paths))}")
+    trajs = []
+    for lab, robot, f in found:
+        tr = _load_run(f, map_name, T)
+        tr.meta.update({"lab": lab, "robot": robot, "source": "recorded", "file": str(f)})
+        trajs.append(tr)
+    labs = list(dict.fromkeys(lab for lab, _, _ in found))
+    robots = list(dict.fromkeys((lab, r) for lab, r, _ in found))
+    per = [sum(1 for x in found if (x[0], x[1]) == g) for g in robots]
+    d = Design(len(labs), max(1, len(robots) // len(labs)), max(per))
+    labels = [f"{lab}/{robot}" for lab, robot, _ in found]
+    name = f"recorded {d.label}"
+    notes = {name: f"{len(found)} runs from {len(labs)} lab(s), {len(robots)} robot(s); runs per robot: {per}"}
+    return RepeatabilityResult({name: DesignResult(d, trajs, labels, _figures(trajs, labels, d))}, "recorded", notes)
+
+
+def _load_run(path: Path, map_name: str, T) -> Trajectory:
+    if path.suffix == ".parquet":
+        from proxybench.tasks.trajectory import TrajectoryError
+
+        try:
+            return T.load(path)
+        except TrajectoryError as exc:
+            if "no proxybench metadata" not in str(exc):
+                raise
+    return T.from_file(path, map_name)
+
+
+def robot_study(agent: str, commands: Mapping[str, str], runs: int = 3, seconds: float = 30.0,
+                map_name: str = "loop_3x3", seed: int = 0, start: tuple[float, float, float] | None = None,
+                progress: Callable[[str, int, int], None] | None = None) -> RepeatabilityResult:
+    """``runs`` runs of ``agent`` on each robot node (name → command on the robot protocol): 1 × robots × runs.
+
+    The robots are whatever the commands drive — physical robots' bridges or simulators; the result
+    says ``source: robot node`` and names the commands. Every run asks for the same start pose.
+    """
+    from proxybench.domain.maps import load_map
+    from proxybench.protocol import RemoteRobot
+    from proxybench.runner.robot_episode import run_episode_on_robot
+
+    if not commands:
+        raise ValueError("robot_study needs at least one robot command")
+    m = load_map(map_name)
+    if start is None:
+        start = tuple(Simulator(map_name, reality_params(), render=False).sample_start(np.random.default_rng(seed)))
+    d = Design(1, len(commands), runs)
+    trajs, labels = [], []
+    for r, (name, cmd) in enumerate(commands.items()):
+        with RemoteRobot(cmd) as robot:
+            for i in range(runs):
+                a = make_agent(agent)
+                tr = run_episode_on_robot(robot, a, seed * 1000 + 100 * r + i, seconds, map_=m, pose=start,
+                                          camera=not a.privileged,
+                                          meta={"robot": name, "run": i, "source": "robot node", "command": cmd})
+                trajs.append(tr)
+                labels.append(name)
+                if progress:
+                    progress(name, i + 1, runs)
+    label = f"robot nodes {d.label}"
+    notes = {label: "; ".join(f"{n}: {c}" for n, c in commands.items())}
+    return RepeatabilityResult({label: DesignResult(d, trajs, labels, _figures(trajs, labels, d))}, "robot node",
+                               notes)

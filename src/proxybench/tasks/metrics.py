@@ -24,7 +24,8 @@ import numpy as np
 from proxybench.domain.lane_pose import LP
 from proxybench.tasks.trajectory import Trajectory
 
-__all__ = ["METRICS", "Metric", "lane_progress", "lane_steps", "repeatability"]
+__all__ = ["METRICS", "DeviationCurves", "Metric", "deviation_curves", "lane_progress", "lane_steps",
+           "repeatability"]
 
 LANE_HALF_WIDTH = 0.5 * 0.376 * 0.585  # [m], Duckietown lane
 
@@ -167,28 +168,117 @@ def _metric_list() -> list[Metric]:
 METRICS: dict[str, Metric] = {m.name: m for m in _metric_list()}
 
 
-def repeatability(runs: Sequence[Trajectory], grid_step: float = 0.02) -> dict[str, float]:
-    """MPD [cm] and MOD [deg] over repeated runs of one route, with their standard deviations.
+@dataclass(frozen=True)
+class DeviationCurves:
+    """Every run's signed deviation from the lane centre against the distance driven along the lane.
 
-    Each run's lateral offset and heading error are resampled against the distance driven along the
-    lane (a common grid every ``grid_step`` m up to the shortest run); at every grid point each run's
-    deviation from the mean of all runs is taken. MPD / MOD are the means of the absolute deviations.
+    ``lateral_cm[k, j]``: run k's lateral offset from the centre of the right lane at distance ``s[j]``
+    [cm], + = left of the centre; ``heading_deg[k, j]``: its heading minus the lane's [deg], + = turned
+    left. NaN where run k did not get that far. The grid keeps the points at least two runs reached.
     """
+
+    s: np.ndarray
+    lateral_cm: np.ndarray
+    heading_deg: np.ndarray
+
+    @property
+    def runs_at(self) -> np.ndarray:
+        """How many runs reached each grid point."""
+        return np.sum(np.isfinite(self.lateral_cm), axis=0)
+
+
+def deviation_curves(runs: Sequence[Trajectory], grid_step: float = 0.02) -> DeviationCurves:
+    """Resample each run's lateral offset and heading error on a common grid of lane distance (step [m])."""
     if len(runs) < 2:
         raise ValueError(f"repeatability needs at least 2 runs, got {len(runs)}")
+    if grid_step <= 0:
+        raise ValueError(f"grid_step must be > 0 m, got {grid_step}")
     curves = []
     for tr in runs:
         s = np.cumsum(lane_progress(tr))
         lane = tr.lane
         keep = (lane[:, LP.VALID] > 0.5) & np.r_[True, np.diff(s) > 0]
         curves.append((s[keep], lane[keep, LP.LATERAL], lane[keep, LP.HEADING_ERROR]))
-    s_max = min(c[0][-1] for c in curves if c[0].size) if all(c[0].size for c in curves) else 0.0
-    if s_max <= grid_step:
-        raise ValueError("the runs share no driven distance to compare")
-    grid = np.arange(0.0, s_max, grid_step)
-    lat = np.stack([np.interp(grid, s, la) for s, la, _ in curves])
-    head = np.stack([np.interp(grid, s, he) for s, _, he in curves])
-    dp = np.abs(lat - lat.mean(axis=0)) * 100.0
-    do = np.degrees(np.abs(head - head.mean(axis=0)))
-    return {"MPD_cm": float(dp.mean()), "MPD_std_cm": float(dp.std()),
-            "MOD_deg": float(do.mean()), "MOD_std_deg": float(do.std())}
+    reach = sorted((c[0][-1] if c[0].size else 0.0 for c in curves), reverse=True)
+    if reach[1] <= grid_step:
+        raise ValueError("the runs share no driven distance to compare (fewer than 2 runs drove along the lane)")
+    grid = np.arange(0.0, reach[1], grid_step)
+
+    def resample(s: np.ndarray, v: np.ndarray) -> np.ndarray:
+        out = np.interp(grid, s, v) if s.size else np.full(grid.size, np.nan)
+        out[(grid > (s[-1] if s.size else -1.0)) | (grid < (s[0] if s.size else 0.0))] = np.nan
+        return out
+
+    lat = np.stack([resample(s, la) for s, la, _ in curves]) * 100.0
+    head = np.degrees(np.stack([resample(s, he) for s, _, he in curves]))
+    return DeviationCurves(grid, lat, head)
+
+
+def _pooled_std(values: np.ndarray) -> float:
+    """Across-run standard deviation at each grid point (ddof 1), pooled along the route (root mean variance)."""
+    ok = np.sum(np.isfinite(values), axis=0) >= 2
+    return float(np.sqrt(np.mean(np.nanvar(values[:, ok], axis=0, ddof=1))))
+
+
+def _components(values: np.ndarray, groups: Sequence[str]) -> tuple[float, float]:
+    """Within-group and between-group standard deviations, on grid points every run reached.
+
+    Within: runs around their own group's mean curve (variance pooled over groups by degrees of
+    freedom, then along the route); between: the group mean curves around each other (ddof 1).
+    """
+    labels = np.asarray(groups)
+    names = list(dict.fromkeys(groups))
+    means = np.stack([values[labels == g].mean(axis=0) for g in names])
+    df = sum(int(np.sum(labels == g)) - 1 for g in names)
+    ss = sum(np.sum((values[labels == g] - means[k]) ** 2, axis=0) for k, g in enumerate(names))
+    within = float(np.sqrt(np.mean(ss / df))) if df > 0 else float("nan")
+    between = float(np.sqrt(np.mean(np.var(means, axis=0, ddof=1)))) if len(names) >= 2 else float("nan")
+    return within, between
+
+
+def repeatability(runs: Sequence[Trajectory], grid_step: float = 0.02,
+                  groups: Sequence[str] | None = None) -> dict[str, float]:
+    """MPD [cm] and MOD [deg] of repeated runs of one route, as thesis §5.4 defines them.
+
+    "MPD at a point along a trajectory is computed as the mean lateral displacement of the Duckiebot
+    from the center of the lane. Similarly, MOD represents the mean orientation with respect to the
+    lane orientation. For each set of experiments, we compute the average and the standard deviation
+    along the trajectory itself." So, on a grid of distance along the lane:
+
+    - ``MPD_cm`` = the route average of MPD(s) = mean over runs of the *signed* lateral offset at s
+      (+ = left of the right lane's centre); ``MOD_deg`` likewise for the heading error. A robot that
+      keeps 6 cm right of the centre has MPD −6 cm, however repeatable it is (the thesis' 1×9 run: −6.2).
+    - ``MPD_std_cm`` / ``MOD_std_deg`` = the standard deviation across runs at each point, pooled along
+      the route: the run-to-run variability the thesis reads from it ("low variability ... on the same
+      hardware"). The other reading of its sentence, the spread of MPD(s) along the route, is
+      ``MPD_std_route_cm`` / ``MOD_std_route_deg``.
+    - With ``groups`` (one label per run: its robot, or lab), ``*_within_std`` is the spread of runs
+      around their own group's mean curve and ``*_between_std`` that of the group means: how much of
+      the variability is the robot (or lab) and how much the run (on the stretch every run reached).
+
+    >>> import numpy as np
+    >>> from proxybench.domain.maps import load_map
+    >>> road, t = load_map("straight_road"), np.arange(0, 5.0 + 1e-9, 0.05)
+    >>> y = 0.585 * 1.5 - 0.22 * 0.585                   # centre of the eastbound right lane
+    >>> runs = [Trajectory.from_poses(road, t, np.stack([0.3 + 0.2 * t, np.full_like(t, y + d), 0 * t], axis=1))
+    ...         for d in (0.01, 0.03)]                     # 1 cm and 3 cm left of the centre
+    >>> f = repeatability(runs)
+    >>> round(f["MPD_cm"], 6), round(f["MPD_std_cm"], 6), round(f["MOD_deg"], 6)
+    (2.0, 1.414214, 0.0)
+    """
+    c = deviation_curves(runs, grid_step)
+    ok = c.runs_at >= 2
+    mpd_s, mod_s = np.nanmean(c.lateral_cm[:, ok], axis=0), np.nanmean(c.heading_deg[:, ok], axis=0)
+    out = {"MPD_cm": float(mpd_s.mean()), "MPD_std_cm": _pooled_std(c.lateral_cm),
+           "MOD_deg": float(mod_s.mean()), "MOD_std_deg": _pooled_std(c.heading_deg),
+           "MPD_std_route_cm": float(mpd_s.std()), "MOD_std_route_deg": float(mod_s.std()),
+           "route_m": float(c.s[ok][-1] + grid_step) if ok.any() else 0.0, "runs": float(len(runs))}
+    if groups is not None:
+        if len(groups) != len(runs):
+            raise ValueError(f"groups: one label per run, got {len(groups)} labels for {len(runs)} runs")
+        full = c.runs_at == len(runs)
+        if not full.any():
+            raise ValueError("no stretch of the route was reached by every run: cannot split the variability")
+        out["MPD_within_std_cm"], out["MPD_between_std_cm"] = _components(c.lateral_cm[:, full], groups)
+        out["MOD_within_std_deg"], out["MOD_between_std_deg"] = _components(c.heading_deg[:, full], groups)
+    return out
