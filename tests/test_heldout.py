@@ -209,3 +209,17 @@ def test_predictivity_with_a_mixed_agent_set_reports_agent_set_sensitivity(tmp_p
     assert any(line.startswith("trim, agent set: PRPV's smallest value") for line in lines)
     assert any(line.startswith("Task order on the target: of 6 agent pairs") for line in lines)
     assert "agent set" in write_report(res, tmp_path / "report")["html"].read_text()
+
+
+def test_cached_episodes_are_scored_for_metrics_a_later_run_asks_for(tmp_path):
+    from proxybench.runner.jobs import DomainSpec, Job
+    from proxybench.runner.sweep import run_jobs
+
+    def jobs(metrics):
+        return [Job(AgentSpec("pid"), DomainSpec("nominal"), "loop_3x3", e, e, 2.0, metrics=metrics) for e in (0, 1)]
+
+    first = run_jobs(jobs(("survival_time",)), tmp_path)
+    again = run_jobs(jobs(("survival_time", "lane_score")), tmp_path)
+    assert first.ran == 2 and again.ran == 0
+    assert all(set(r.scores) >= {"survival_time", "lane_score"} for r in again.results)
+    assert [r.scores["survival_time"] for r in again.results] == [r.scores["survival_time"] for r in first.results]
