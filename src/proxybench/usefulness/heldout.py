@@ -168,11 +168,18 @@ class Case:
     target: Target
     proxy: dict[str, Any] = field(default_factory=dict)
     description: str = ""
+    truth: dict[str, Any] | None = None  # known θ of a target that cannot reveal one (scored only)
 
     def reveal(self) -> dict[str, Any]:
+        """The target's θ, for scoring after every episode ran: a held-out target's hidden draw, the given
+        ``truth``, or the reality model's calibrated values; {} when unknown (then only ``order`` is scored)."""
+        if self.truth is not None:
+            return dict(self.truth)
         reveal = getattr(self.target, "reveal", None)
-        return dict(reveal()) if reveal is not None else dict(self.target.truth() if hasattr(self.target, "truth")
-                                                              else {})
+        if reveal is not None:
+            return dict(reveal())
+        truth = getattr(self.target, "truth", None)
+        return dict(truth()) if truth is not None else {}
 
 
 def cases_for(cfg: HeldOutConfig, quick: bool = False) -> list[Case]:
