@@ -44,6 +44,41 @@ def test_make_vec_uses_the_batched_env():
         envs.close()
 
 
+def rollout(envs, steps: int = 6) -> list[np.ndarray]:
+    """Observations of a few steps of a vector env (reset with seed 3: env i gets seed 3 + i)."""
+    obs, _ = envs.reset(seed=3)
+    out = [obs.copy()]
+    for k in range(steps):
+        obs, *_ = envs.step(np.full((envs.num_envs, 2), 0.25 + 0.02 * k, dtype=np.float32))
+        out.append(obs.copy())
+    return out
+
+
+@pytest.mark.parametrize("mode", ["sync", "async"])
+def test_make_vec_sync_and_async_equal_the_batched_env(mode):
+    """Gymnasium's own vector envs (async: one forked worker per env) give the batched env's frames,
+    also after this process has run the renderer on all its threads (GNU OpenMP aborted forked children)."""
+    from proxybench.domain.parallelism import force_parallel
+
+    big = {**SMALL, "image_width": 320, "image_height": 240}
+    force_parallel(True)
+    try:
+        warm = LaneFollowingEnv(params=big)
+        warm.reset(seed=0)
+        warm.step(np.array([0.3, 0.3]))  # the parent enters the threading layer before the fork
+    finally:
+        force_parallel(None)
+    envs = gym.make_vec("proxybench/LaneFollowing-v0", num_envs=3, vectorization_mode=mode, params=big)
+    batched = gym.make_vec("proxybench/LaneFollowing-v0", num_envs=3, vectorization_mode="vector_entry_point",
+                           params=big)
+    try:
+        for a, b in zip(rollout(envs), rollout(batched), strict=True):
+            np.testing.assert_array_equal(a, b)
+    finally:
+        envs.close()
+        batched.close()
+
+
 def test_check_env_passes_camera():
     env = gym.make("proxybench/LaneFollowing-v0", params=NOISY)
     try:

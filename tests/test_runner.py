@@ -110,6 +110,22 @@ def test_local_pool_and_ray_give_the_same_table_as_inline(tmp_path):
     assert _table(on_ray) == _table(inline)
 
 
+
+def test_pool_workers_use_one_thread_each():
+    """Two workers on two cores: each runs its kernels, OpenMP and BLAS on one thread (no oversubscription)."""
+    import os
+
+    from proxybench.domain.parallelism import threads_available
+
+    pool = LocalBackend(2)
+    try:
+        list(pool.run([], None))  # starts the pool
+        assert pool._pool.submit(threads_available).result(timeout=120) == 1
+        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS"):
+            assert pool._pool.submit(os.getenv, var).result(timeout=60) == os.environ.get(var, "1")
+    finally:
+        pool.close()
+
 class _Crashing(Agent):
     name = "crashing"
 

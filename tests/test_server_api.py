@@ -205,9 +205,11 @@ def test_archive_submissions_checked_and_artifacts_scoped(api):
     assert api.c.get(f"/api/v1/artifacts/{sha}", headers=api.dev).status_code == 200
     r = api.c.get(f"/api/v1/artifacts/{sha}", headers=api.dev2)
     assert r.status_code == 403 and "another user" in r.json()["detail"]
-    assert api.c.get(f"/api/v1/artifacts/{sha}", headers=api.ev).status_code == 200  # evaluators fetch archives
-    # evaluator artifacts: hash checked; hidden ones stay hidden from the developer
+    r = api.c.get(f"/api/v1/artifacts/{sha}", headers=api.ev)  # evaluators: only archives of jobs they hold
+    assert r.status_code == 403
     lease = api.lease().json()
+    assert api.c.get(f"/api/v1/artifacts/{sha}", headers=api.ev).status_code == 200
+    # evaluator artifacts: hash checked; hidden ones stay hidden from the developer
     log, secret = b"episode log", b"hidden test trajectory"
     import hashlib
 
@@ -296,3 +298,39 @@ def test_migrations_match_models(database_url):
     with engine.connect() as conn:
         diff = compare_metadata(MigrationContext.configure(conn), Base.metadata)
     assert diff == []
+
+
+def test_leaderboards_are_built_once_per_change_incrementally_and_revalidate(api, monkeypatch):
+    """Boards are rebuilt when results arrive (incrementally: only new results read), never on a read; the
+    incremental board equals a full rebuild, retirements included; ETag / If-None-Match answer 304."""
+    from proxybench.server import leaderboards
+
+    builds = []
+    real = leaderboards.build_board
+    monkeypatch.setattr(leaderboards, "build_board", lambda *a, **k: builds.append(k.get("since")) or real(*a, **k))
+    subs = []
+    for k in range(6):
+        subs.append(api.submit(api.dev, label=f"s{k}").json()["id"])
+        lease = api.lease().json()
+        assert api.finish(lease, scores={**SCORES, "driven_lanedir_consec_median": float(k)}).status_code == 201
+        board = api.c.get("/api/v1/leaderboards/aido_lf", headers=api.dev).json()  # read after write: fresh
+        assert board["total"] == k + 1 and board["rows"][0]["label"] == f"s{k}" and not board["stale"]
+    n = len(builds)
+    for _ in range(5):  # reads without changes build nothing
+        r = api.c.get("/api/v1/leaderboards/aido_lf", headers=api.dev)
+    assert len(builds) == n and any(since is not None for since in builds)  # incremental after the first
+    etag = r.headers["etag"]
+    assert r.headers["cache-control"].startswith("private") and r.headers["last-modified"]
+    again = api.c.get("/api/v1/leaderboards/aido_lf", headers={**api.dev, "if-none-match": etag})
+    assert again.status_code == 304 and again.content == b""
+    assert api.c.post(f"/api/v1/submissions/{subs[5]}/retire", headers=api.dev).status_code == 200
+    board = api.c.get("/api/v1/leaderboards/aido_lf?limit=2&offset=1", headers=api.dev).json()
+    assert board["total"] == 5 and [r["label"] for r in board["rows"]] == ["s3", "s2"]
+    whole = api.c.get("/api/v1/leaderboards/aido_lf", headers=api.dev).json()
+    bench_id = api.c.get("/api/v1/benchmarks/aido_lf", headers=api.admin).json()
+    with api.app.state.sessions() as session:
+        from proxybench.server.leaderboards import resolve_version
+
+        full = real(session, resolve_version(session, "aido_lf", bench_id["version"])[0], "public")[1]
+    assert whole["rows"] == full["rows"]  # the incremental board is the full one
+    assert api.c.get("/api/v1/leaderboards/aido_lf", headers={**api.dev, "if-none-match": etag}).status_code == 200

@@ -4,6 +4,7 @@ and the result on the leaderboard page with its report."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 
@@ -45,13 +46,17 @@ def test_serve_submit_wait_and_see_it_on_the_leaderboard_page(tmp_path):
                    "--timeout", "240", server=server)
         assert out.returncode == 0, out.stdout + out.stderr
         assert "success" in out.stdout and "expert" in out.stdout  # the job, then the leaderboard table
-        cookies = {"proxybench_token": server.admin_token}
-        page = httpx.get(f"{server.url}/leaderboards/tiny_e2e", cookies=cookies, timeout=30)
-        assert page.status_code == 200 and "expert" in page.text
-        board = httpx.get(f"{server.url}/api/v1/leaderboards/tiny_e2e", timeout=30,
-                          headers={"Authorization": f"Bearer {server.admin_token}"}).json()
-        sid = board["rows"][0]["submission_id"]
-        sub_page = httpx.get(f"{server.url}/submissions/{sid}", cookies=cookies, timeout=30)
-        assert sub_page.status_code == 200 and "driven_lanedir_consec" in sub_page.text  # the report's table
+        with httpx.Client(base_url=server.url, timeout=30) as browser:  # signs in as a person does
+            form = browser.get("/login")
+            csrf = re.search(r'name="csrf" value="([0-9a-f]+)"', form.text).group(1)
+            r = browser.post("/login", data={"token": server.admin_token, "csrf": csrf})
+            assert r.status_code == 303
+            page = browser.get("/leaderboards/tiny_e2e")
+            assert page.status_code == 200 and "expert" in page.text
+            board = httpx.get(f"{server.url}/api/v1/leaderboards/tiny_e2e", timeout=30,
+                              headers={"Authorization": f"Bearer {server.admin_token}"}).json()
+            sid = board["rows"][0]["submission_id"]
+            sub_page = browser.get(f"/submissions/{sid}")
+            assert sub_page.status_code == 200 and "driven_lanedir_consec" in sub_page.text  # the report's table
     finally:
         server.stop()

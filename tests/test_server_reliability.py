@@ -35,10 +35,10 @@ def _evaluator(server: LiveServer, token: str, name: str, stop: threading.Event,
                 if job is None:
                     time.sleep(0.05)
                     continue
-                body = {"evaluator": name, "lease_id": job["lease_id"], "status": "success",
+                body = {"evaluator": name, "lease_id": job.lease_id, "status": "success",
                         "public_scores": SCORES, "hidden_scores": SCORES}
-                c.result(job["job_id"], body)  # retried through a restart: the same lease, stored once
-                recorded.append(job["job_id"])
+                c.result(job.job_id, body)  # retried through a restart: the same lease, stored once
+                recorded.append(job.job_id)
             except ServerError as exc:
                 errors.append(str(exc))
 
@@ -64,7 +64,7 @@ def test_restart_under_load_loses_nothing(tmp_path, database_url):
         server.kill()  # SIGKILL mid-traffic
         before = len(accepted)
         server.start()
-        time.sleep(2.0)
+        time.sleep(5.0)  # clients come back from their retry back-off (up to 5 s) and carry on
     finally:
         stop.set()
         for t in threads:

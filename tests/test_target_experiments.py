@@ -65,7 +65,7 @@ def test_round_trip_recorded_reality_model_gives_the_live_figures(tmp_path):
     a = pd.read_csv(tmp_path / "live" / "usefulness.csv")
     b = pd.read_csv(tmp_path / "replay" / "usefulness.csv")
     assert a.ppv.nunique() > 1  # the figures vary with θ: the comparison is not between constants
-    for col in ("prpv", "prpv_low", "prpv_high", "ppv", "ppv_low", "ppv_high", "srcc", "srcc_low", "srcc_high",
+    for col in ("prpv", "prpv_low", "prpv_high", "ppv", "ppv_low", "ppv_high", "pearson", "pearson_low", "pearson_high",
                 "kendall", "delta_best"):
         np.testing.assert_array_equal(a[col].to_numpy(), b[col].to_numpy(), err_msg=col)
     html = (tmp_path / "replay" / "report.html").read_text()

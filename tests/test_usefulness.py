@@ -61,10 +61,10 @@ def test_significance_turns_noisy_differences_into_ties():
     assert dominance(far, [True], significance=0.05)[0, 1] == 1.0
 
 
-def test_ppv_sums_scaled_absolute_differences():
+def test_ppv_is_per_agent_and_summarised_by_the_mean():
     t = res(x=[[2.0]], y=[[4.0]])  # target spread (std) = 1
-    p = res(x=[[3.0]], y=[[4.5]])
-    assert ppv_value(p, t) == pytest.approx(1.5)
+    p = res(x=[[3.0]], y=[[4.5]])  # PPV(x) = 1, PPV(y) = 0.5 (thesis eq. 3.4.1, β = 1)
+    assert ppv_value(p, t) == pytest.approx(0.75)
 
 
 def test_mmrv_counts_the_worst_violation_per_agent():
@@ -79,9 +79,9 @@ def test_usefulness_reports_intervals_around_the_point():
     target = {f"a{i}": rng.normal(i, 0.3, (5, 2)) for i in range(5)}
     proxy = {a: v + rng.normal(0, 0.3, v.shape) for a, v in target.items()}
     est = usefulness(PairedResults(proxy, target, (True, True)), n_boot=50)
-    for k in ("prpv", "ppv", "srcc", "spearman", "kendall", "mmrv"):
-        assert est[k].low <= est[k].high
-    assert est["srcc"].value > 0.9
+    for k in ("prpv", "ppv", "ppv_sum", "pearson", "spearman", "kendall", "mmrv_m0", "mmrv_m1", "mmrv_scaled"):
+        assert est[k].low <= est[k].value <= est[k].high, (k, est[k])
+    assert est["pearson"].value > 0.9 and est["prpv"].method == "order range"
 
 
 def test_paired_results_must_match():

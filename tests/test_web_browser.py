@@ -134,3 +134,57 @@ def test_operator_retry_requeues_a_failed_job(server, page):
     row = page.locator(f"#job-{new}")
     assert row.is_visible() and "queued" in row.inner_text()
 
+
+
+def test_a_form_on_another_site_cannot_act_for_a_signed_in_user(server, page, tmp_path):
+    """Another origin (here another port of 127.0.0.1: the same *site*, so SameSite=Strict still sends the
+    cookie) auto-submits the operator's Retry form: refused (no CSRF token, foreign Origin), nothing retried."""
+    import http.server
+    import threading
+
+    url, demo, _ = server
+    job = demo.jobs["failed"][1] if len(demo.jobs["failed"]) > 1 else demo.jobs["error"][0]
+    (tmp_path / "evil.html").write_text(
+        f'<form id="f" method="post" action="{url}/operator/jobs/{job}/retry"><input name="csrf" value="guess">'
+        '</form><script>document.getElementById("f").submit()</script>')
+    handler = lambda *a: http.server.SimpleHTTPRequestHandler(*a, directory=str(tmp_path))  # noqa: E731
+    evil = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=evil.serve_forever, daemon=True).start()
+    try:
+        sign_in(page, url, demo, "admin", "/operator")
+        assert page.locator(f"[data-testid=retry-{job}]").count() == 1
+        with page.expect_response(lambda r: "/retry" in r.url) as answer:
+            page.goto(f"http://127.0.0.1:{evil.server_address[1]}/evil.html")
+        assert answer.value.status == 403
+        assert "another site" in page.inner_text("[data-testid=error-message]") or \
+            "not from this site" in page.inner_text("[data-testid=error-message]")
+        page.goto(url + "/operator")
+        assert page.locator(f"[data-testid=retry-{job}]").count() == 1  # still not retried
+    finally:
+        evil.shutdown()
+
+
+def test_an_expired_or_revoked_session_goes_back_to_the_login_page(server, page):
+    from sqlalchemy import select, update
+
+    from proxybench.server.models import User, WebSession
+
+    url, demo, app = server
+    with TestClient(app) as client:
+        made = client.post("/api/v1/users", headers={"Authorization": f"Bearer {demo.tokens['admin']}"},
+                           json={"name": "frank", "role": "developer"}).json()
+    demo.tokens["frank"] = made["token"]
+    sign_in(page, url, demo, "frank", "/submissions")
+    with app.state.sessions() as session:  # the session's time is up
+        uid = session.scalar(select(User.id).where(User.name == "frank"))
+        session.execute(update(WebSession).where(WebSession.user_id == uid).values(expires_at=0.0))
+        session.commit()
+    page.goto(url + "/submissions")
+    assert page.url.startswith(url + "/login")
+    sign_in(page, url, demo, "frank", "/jobs")
+    with TestClient(app) as client:
+        frank = {"Authorization": f"Bearer {made['token']}"}
+        [tok] = client.get("/api/v1/me/tokens", headers=frank).json()
+        assert client.post(f"/api/v1/tokens/{tok['id']}/revoke", headers=frank).status_code == 200
+    page.goto(url + "/jobs")
+    assert page.url.startswith(url + "/login")

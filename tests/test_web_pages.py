@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import re
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from proxybench.server.api.deps import SESSION_COOKIE
 from proxybench.server.app import create_app
 from proxybench.server.config import Settings
+from proxybench.server.security import csrf_token
 from proxybench.server.web.demo import DemoData, seed_demo
 
 XSS = "<script>alert(1)</script>"
@@ -35,19 +38,40 @@ def site(tmp_path_factory) -> tuple[TestClient, DemoData]:
     return client, demo
 
 
+def sign_in(client: TestClient, token: str) -> str:
+    """Sign in through the form (its CSRF token included); returns the session cookie."""
+    client.cookies.clear()
+    form = client.get("/login")
+    csrf = re.search(r'name="csrf" value="([0-9a-f]+)"', form.text).group(1)
+    r = client.post("/login", data={"token": token, "csrf": csrf}, follow_redirects=False)
+    assert r.status_code == 303, r.text
+    return client.cookies.get(SESSION_COOKIE)
+
+
+_SESSIONS: dict[tuple[int, str], str] = {}
+
+
+def as_user(site, who: str | None) -> TestClient:
+    client, demo = site
+    if who is None:
+        client.cookies.clear()
+        return client
+    key = (id(client), who)
+    if key not in _SESSIONS:
+        _SESSIONS[key] = sign_in(client, demo.tokens[who])
+    client.cookies.clear()
+    client.cookies.set(SESSION_COOKIE, _SESSIONS[key])
+    return client
+
+
 def get(site, who: str | None, url: str, **kw):
-    client, demo = site
-    client.cookies.clear()
-    if who is not None:
-        client.cookies.set("proxybench_token", demo.tokens[who])
-    return client.get(url, follow_redirects=False, **kw)
+    return as_user(site, who).get(url, follow_redirects=False, **kw)
 
 
-def post(site, who: str, url: str, data: dict | None = None):
-    client, demo = site
-    client.cookies.clear()
-    client.cookies.set("proxybench_token", demo.tokens[who])
-    return client.post(url, data=data or {}, follow_redirects=False)
+def post(site, who: str, url: str, data: dict | None = None, csrf: bool = True):
+    client = as_user(site, who)
+    fields = {**(data or {}), **({"csrf": csrf_token(client.cookies.get(SESSION_COOKIE))} if csrf else {})}
+    return client.post(url, data=fields, follow_redirects=False)
 
 
 def test_every_page_renders_for_a_superuser(site):
@@ -68,29 +92,50 @@ def test_signed_out_visitors_go_to_the_login_page(site):
     r = get(site, None, "/jobs?status=queued")
     assert r.status_code == 303 and r.headers["location"] == "/login?next=%2Fjobs%3Fstatus%3Dqueued"
     assert get(site, None, "/login").status_code == 200
-    client, _ = site
+    client, demo = site
     client.cookies.clear()
-    client.cookies.set("proxybench_token", "pbt_revoked-or-made-up")
+    client.cookies.set(SESSION_COOKIE, "pbs_expired-or-made-up")
+    assert client.get("/", follow_redirects=False).status_code == 303
+    client.cookies.clear()
+    client.cookies.set("proxybench_token", demo.tokens["alice"])  # the raw token is no cookie any more
     assert client.get("/", follow_redirects=False).status_code == 303
     api = get(site, None, "/api/v1/me")  # the JSON API keeps its JSON errors
     assert api.status_code == 401 and api.json()["detail"].startswith("no API token")
 
 
-def test_login_sets_a_strict_httponly_cookie_and_logout_clears_it(site):
+def test_login_opens_an_expiring_session_of_its_own_and_logout_ends_it(site):
     client, demo = site
     client.cookies.clear()
+    form = client.get("/login")
+    csrf = re.search(r'name="csrf" value="([0-9a-f]+)"', form.text).group(1)
+    assert "proxybench_login=" in form.headers["set-cookie"]
     r = client.post("/login", data={"token": demo.tokens["alice"], "next": "/jobs"}, follow_redirects=False)
+    assert r.status_code == 403 and "sign-in form" in r.text  # no CSRF token: refused
+    r = client.post("/login", data={"token": demo.tokens["alice"], "next": "/jobs", "csrf": csrf},
+                    follow_redirects=False)
     assert r.status_code == 303 and r.headers["location"] == "/jobs"
     cookie = r.headers["set-cookie"]
-    assert cookie.startswith("proxybench_token=") and "HttpOnly" in cookie and "SameSite=strict" in cookie
-    assert "Path=/" in cookie
-    r = client.post("/login", data={"token": demo.tokens["alice"], "next": "//evil.example/x"},
+    secret = client.cookies.get(SESSION_COOKIE)
+    assert secret.startswith("pbs_") and demo.tokens["alice"] not in cookie  # the session's own secret
+    assert f"{SESSION_COOKIE}=" in cookie and "HttpOnly" in cookie and "SameSite=strict" in cookie
+    assert "Path=/" in cookie and "Max-Age=28800" in cookie
+    assert client.get("/api/v1/me").json()["name"] == "alice"  # the API reads with it (GET only)
+    r = client.post("/api/v1/me/tokens", json={"label": "x"})
+    assert r.status_code == 401  # no writes through the API with a cookie
+    form = client.get("/login")
+    csrf = re.search(r'name="csrf" value="([0-9a-f]+)"', form.text).group(1)
+    r = client.post("/login", data={"token": demo.tokens["alice"], "next": "//evil.example/x", "csrf": csrf},
                     follow_redirects=False)
     assert r.headers["location"] == "/"
-    r = client.post("/login", data={"token": "pbt_nope"}, follow_redirects=False)
+    form = client.get("/login")  # each sign-in form is good for one sign-in
+    csrf = re.search(r'name="csrf" value="([0-9a-f]+)"', form.text).group(1)
+    r = client.post("/login", data={"token": "pbt_nope", "csrf": csrf}, follow_redirects=False)
     assert r.status_code == 401 and "unknown or revoked" in r.text
-    r = client.post("/logout", follow_redirects=False)
-    assert r.status_code == 303 and 'proxybench_token=""' in r.headers["set-cookie"]
+    secret = client.cookies.get(SESSION_COOKIE)
+    r = client.post("/logout", data={"csrf": csrf_token(secret)}, follow_redirects=False)
+    assert r.status_code == 303 and f'{SESSION_COOKIE}=""' in r.headers["set-cookie"]
+    client.cookies.set(SESSION_COOKIE, secret)  # the old cookie, kept by a thief: ended on the server
+    assert client.get("/", follow_redirects=False).status_code == 303
 
 
 def test_developers_see_only_their_own_submissions_and_public_scores(site):
@@ -195,3 +240,61 @@ def test_retire_withdraws_an_own_submission_only(site):
     assert r.status_code == 303 and r.headers["location"] == f"/submissions/{made['id']}"
     html = get(site, "bob", f"/submissions/{made['id']}").text
     assert 'class="badge b-grey">retired' in html and "aborted" in html and 'action="/submissions/' not in html
+
+
+def test_every_form_needs_the_sessions_csrf_token(site):
+    _, demo = site
+    job = demo.jobs["failed"][0]
+    sub = demo.submissions["random walk"]
+    forms = ((f"/operator/jobs/{job}/retry", {}), ("/operator/users", {"name": "mallory", "role": "superuser"}),
+             ("/logout", {}))
+    for url, data in forms:
+        r = post(site, "admin", url, data, csrf=False)
+        assert r.status_code == 403 and "CSRF" in r.text, url
+        r = post(site, "admin", url, {**data, "csrf": "0" * 32}, csrf=False)
+        assert r.status_code == 403 and "CSRF" in r.text, url
+    assert post(site, "bob", f"/submissions/{sub}/retire", csrf=False).status_code == 403
+    client = as_user(site, "admin")  # a right token, but the browser says another site sent the form
+    r = client.post(f"/operator/jobs/{job}/retry", data={"csrf": csrf_token(client.cookies.get(SESSION_COOKIE))},
+                    headers={"origin": "https://evil.example"}, follow_redirects=False)
+    assert r.status_code == 403 and "evil.example" in r.text
+    r = client.post(f"/operator/jobs/{job}/retry", data={"csrf": csrf_token(client.cookies.get(SESSION_COOKIE))},
+                    headers={"sec-fetch-site": "cross-site"}, follow_redirects=False)
+    assert r.status_code == 403 and "another site" in r.text
+    page = get(site, "admin", "/operator").text
+    assert f'data-testid="retry-{job}"' in page and "mallory" not in page  # nothing happened
+    assert get(site, "bob", f"/submissions/{sub}").status_code == 200
+    forms = re.findall(r"<form[^>]*>\s*<input type=\"hidden\" name=\"csrf\" value=\"([0-9a-f]*)\"", page)
+    assert forms and set(forms) == {csrf_token(as_user(site, "admin").cookies.get(SESSION_COOKIE))}
+
+
+def test_sessions_expire_and_end_with_their_token(tmp_path):
+    app = create_app(Settings(data_dir=tmp_path / "data", session_seconds=1.0))
+    client = TestClient(app)
+    admin = {"Authorization": f"Bearer {app.state.admin_token}"}
+    made = client.post("/api/v1/users", headers=admin, json={"name": "dana", "role": "developer"}).json()
+    sign_in(client, made["token"])
+    assert client.get("/jobs", follow_redirects=False).status_code == 200
+    time.sleep(1.2)
+    r = client.get("/jobs", follow_redirects=False)
+    assert r.status_code == 303 and r.headers["location"].startswith("/login")  # expired
+    assert client.get("/api/v1/me").status_code == 401
+    # revoking the token ends the sessions opened with it (and the token itself)
+    app2 = create_app(Settings(data_dir=tmp_path / "data2"))
+    c2 = TestClient(app2)
+    admin2 = {"Authorization": f"Bearer {app2.state.admin_token}"}
+    made = c2.post("/api/v1/users", headers=admin2, json={"name": "erin", "role": "developer"}).json()
+    erin = {"Authorization": f"Bearer {made['token']}"}
+    sign_in(c2, made["token"])
+    assert c2.get("/submissions", follow_redirects=False).status_code == 200
+    [tok] = c2.get("/api/v1/me/tokens", headers=erin).json()
+    assert tok["prefix"] == made["token"][:10] and not tok["revoked"] and "token" not in tok
+    r = c2.post(f"/api/v1/tokens/{tok['id']}/revoke", headers=admin2)
+    assert r.status_code == 200 and r.json()["revoked"] and r.json()["revoked_at"] > 0
+    assert c2.get("/submissions", follow_redirects=False).status_code == 303
+    assert c2.get("/api/v1/me", headers=erin).status_code == 401
+    c2.cookies.clear()
+    form = c2.get("/login")
+    csrf = re.search(r'name="csrf" value="([0-9a-f]+)"', form.text).group(1)
+    r = c2.post("/login", data={"token": made["token"], "csrf": csrf}, follow_redirects=False)
+    assert r.status_code == 401 and "revoked" in r.text

@@ -1,21 +1,65 @@
 """A small HTTP client for the challenges server, used by the CLI and by evaluators.
 
 Connection failures and 5xx replies are retried with backoff (a server restart is a pause, not a lost
-result); 4xx replies raise :class:`ServerError` carrying the server's message.
+result); 4xx replies raise :class:`ServerError` carrying the server's message. The evaluators' calls
+(lease, heartbeat, result) speak the shared models of :mod:`proxybench.contract`.
+
+Tokens never travel on a command line (any user can read another's ``/proc/PID/cmdline``):
+:func:`load_token` takes them from ``$PROXYBENCH_TOKEN``, a file named by ``$PROXYBENCH_TOKEN_FILE`` or
+``--token-file``, or a default file.
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
+import stat
 import time
 from pathlib import Path
 from typing import Any
 
 import httpx
 
-__all__ = ["ServerClient", "ServerError"]
+from proxybench.contract import Heartbeat, HeartbeatReply, Lease, LeaseRequest, ResultUpload
+
+__all__ = ["TOKEN_ENV", "TOKEN_FILE_ENV", "ServerClient", "ServerError", "TokenError", "load_token"]
 
 API = "/api/v1"
+TOKEN_ENV = "PROXYBENCH_TOKEN"
+TOKEN_FILE_ENV = "PROXYBENCH_TOKEN_FILE"
+
+
+class TokenError(RuntimeError):
+    """No usable token: the message says where one was looked for."""
+
+
+def load_token(token_file: Path | None = None, default_file: Path | None = None) -> tuple[str, str]:
+    """(token, where it came from): ``token_file`` when given, else ``$PROXYBENCH_TOKEN``, else the file
+    named by ``$PROXYBENCH_TOKEN_FILE``, else ``default_file``. Raises :class:`TokenError` saying what was
+    tried. A token file that other users can read is still used; the second element then says so."""
+    if token_file is None:
+        env = os.environ.get(TOKEN_ENV, "").strip()
+        if env:
+            return env, f"${TOKEN_ENV}"
+    files = [("--token-file", token_file)] if token_file is not None else \
+        [(f"${TOKEN_FILE_ENV}", Path(p)) for p in [os.environ.get(TOKEN_FILE_ENV)] if p] + \
+        [("the default file", p) for p in [default_file] if p is not None]
+    tried = []
+    for where, path in files:
+        try:
+            text = path.read_text().strip()
+            mode = path.stat().st_mode
+        except OSError as exc:
+            tried.append(f"{where} {path}: {exc.strerror or exc}")
+            continue
+        if not text:
+            tried.append(f"{where} {path}: empty")
+            continue
+        if mode & (stat.S_IRGRP | stat.S_IROTH):
+            return text, f"{path} (warning: other users can read it; chmod 600 {path})"
+        return text, str(path)
+    raise TokenError(f"no API token: set ${TOKEN_ENV}, or pass --token-file FILE (or set ${TOKEN_FILE_ENV})"
+                     + (f"; tried {'; '.join(tried)}" if tried else ""))
 
 
 class ServerError(RuntimeError):
@@ -94,17 +138,26 @@ class ServerClient:
             return self.request("POST", "/submissions/upload", data=data,
                                 files={"archive": (archive.name, f, "application/octet-stream")}).json()
 
-    def leaderboard(self, benchmark: str, split: str = "public") -> dict[str, Any]:
-        return self.get(f"/leaderboards/{benchmark}", split=split)
+    def leaderboard(self, benchmark: str, split: str = "public", *, limit: int | None = None,
+                    offset: int = 0) -> dict[str, Any]:
+        """The ranked board (``rows`` [offset, offset + limit), ``total`` rows in all)."""
+        return self.get(f"/leaderboards/{benchmark}", split=split, limit=limit, offset=offset or None)
 
     # -- evaluators --------------------------------------------------------------------------------
 
-    def lease(self, evaluator: str, features: list[str], version: str = "") -> dict[str, Any] | None:
-        return self.post("/jobs/lease", {"evaluator": evaluator, "features": features, "version": version})
+    def lease(self, evaluator: str, features: list[str], version: str = "") -> Lease | None:
+        """The next job this evaluator can run, or None when there is none now."""
+        body = LeaseRequest(evaluator=evaluator, features=features, version=version)
+        reply = self.post("/jobs/lease", body.model_dump())
+        return None if reply is None else Lease.model_validate(reply)
 
-    def heartbeat(self, job_id: int, lease_id: str, evaluator: str, progress: dict[str, Any] | None = None) -> Any:
-        return self.post(f"/jobs/{job_id}/heartbeat", {"lease_id": lease_id, "evaluator": evaluator,
-                                                       "progress": progress})
+    def heartbeat(self, job_id: int, lease_id: str, evaluator: str,
+                  progress: dict[str, Any] | None = None) -> HeartbeatReply:
+        try:
+            body = Heartbeat(lease_id=lease_id, evaluator=evaluator, progress=progress)
+        except ValueError:  # progress the server would refuse (NaN, …): keep the lease, drop the progress
+            body = Heartbeat(lease_id=lease_id, evaluator=evaluator)
+        return HeartbeatReply.model_validate(self.post(f"/jobs/{job_id}/heartbeat", body.model_dump()))
 
     def put_artifact(self, data: bytes, media_type: str = "application/octet-stream") -> str:
         sha = hashlib.sha256(data).hexdigest()
@@ -118,5 +171,19 @@ class ServerClient:
             raise ServerError(0, f"artifact {sha256[:12]}…: downloaded bytes do not match their hash")
         return data
 
-    def result(self, job_id: int, body: dict[str, Any]) -> dict[str, Any]:
-        return self.post(f"/jobs/{job_id}/result", body)
+    def result(self, job_id: int, body: ResultUpload | dict[str, Any]) -> dict[str, Any]:
+        """Upload a job's outcome (validated and cleaned as the server will: NaN refused, NUL bytes replaced)."""
+        upload = body if isinstance(body, ResultUpload) else ResultUpload.model_validate(body)
+        return self.post(f"/jobs/{job_id}/result", upload.model_dump(mode="json"))
+
+    # -- tokens ------------------------------------------------------------------------------------
+
+    def tokens(self, user: str | None = None) -> list[dict[str, Any]]:
+        """Your tokens (super-users: ``user``'s), revoked ones included; never their text."""
+        return self.get("/me/tokens" if user is None else f"/users/{user}/tokens")
+
+    def new_token(self, label: str = "") -> dict[str, Any]:
+        return self.post("/me/tokens", {"label": label})
+
+    def revoke_token(self, token_id: int) -> dict[str, Any]:
+        return self.post(f"/tokens/{token_id}/revoke")

@@ -23,11 +23,13 @@ def free_port() -> int:
 
 class LiveServer:
     def __init__(self, data_dir: Path, database_url: str | None = None, lease_seconds: float = 120.0,
-                 evaluators: int = 0) -> None:
+                 evaluators: int = 0, workers: int | None = None, env: dict[str, str] | None = None) -> None:
         self.data_dir = data_dir
         self.database_url = database_url
         self.lease_seconds = lease_seconds
         self.evaluators = evaluators
+        self.workers = workers
+        self.env = env or {}
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.proc: subprocess.Popen | None = None
@@ -37,8 +39,11 @@ class LiveServer:
                str(self.data_dir), "--lease-seconds", str(self.lease_seconds), "--evaluators", str(self.evaluators)]
         if self.database_url:
             cmd += ["--database-url", self.database_url]
+        if self.workers is not None:
+            cmd += ["--workers", str(self.workers)]
         log = open(self.data_dir.parent / f"server-{self.port}.log", "ab")  # noqa: SIM115 - lives with the process
-        self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+                                     env={**os.environ, **self.env})
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:

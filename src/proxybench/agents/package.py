@@ -14,35 +14,67 @@ The manifest, ``proxybench-agent.yaml`` at the archive root::
     reflection: false            # optional: skip describe_protocol (e.g. zuper-nodes on Python >= 3.11)
 
 Archives come from strangers, so :func:`check_archive` refuses anything that could write outside the
-folder it is unpacked in (absolute paths, ``..``, links, devices) or blow up on unpacking (too many
-members, too many bytes), naming the member at fault. The server runs it on upload, the evaluator again
-before it runs the agent.
+folder it is unpacked in (absolute paths, ``..``, links, devices) or blow up on unpacking, naming the
+member at fault. The cheap checks come first and are bounded before anything is decompressed: a zip's
+member count and central-directory size are read from its end record; a tar is read as a stream, one
+header at a time, with extension headers (pax, GNU long names) size-limited, so an archive of millions
+of empty headers is refused after ``max_members`` of them. Then the manifest (at most ``max_manifest``
+bytes, YAML without aliases, bounded nesting), then every member's data is read once, bounded by
+``max_unpacked`` bytes and ``max_seconds``, so a bad CRC, a truncated stream or an encrypted member is a
+:class:`PackageError` here, not a crash later. The server runs it on upload, the evaluator again before
+it runs the agent.
 """
 
 from __future__ import annotations
 
+import bz2
+import gzip
 import io
+import lzma
+import os
 import posixpath
 import stat
+import struct
 import tarfile
+import time
 import zipfile
+import zlib
 from pathlib import Path
-from typing import Any, Literal
+from typing import IO, Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-__all__ = ["MANIFEST_NAME", "AgentManifest", "PackageError", "check_archive", "extract_archive"]
+from proxybench.untrusted import UntrustedInputError, load_yaml
+
+__all__ = ["MANIFEST_NAME", "AgentManifest", "ArchiveLimits", "PackageError", "check_archive", "extract_archive"]
 
 MANIFEST_NAME = "proxybench-agent.yaml"
 PROTOCOLS = ("aido-z2",)
 SHELL = "/bin/sh"
 #: the shell snippet that runs "$@" in the folder "$1" (what ``cwd`` adds in front of the command)
 _CD = 'cd -- "$1" && shift && exec "$@"'
+_ZIP_METHODS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate", zipfile.ZIP_BZIP2: "bzip2",
+                zipfile.ZIP_LZMA: "lzma"}
+_CHUNK = 1 << 20
+_MAX_NAME = 1024  # characters in a member's path
+_MAX_EXTENSION_HEADER = 1 << 20  # bytes of one pax / GNU long-name header
+_MAX_EXTENSION_CHAIN = 8  # extension headers in a row before a member
 
 
 class PackageError(ValueError):
     """An agent archive that is refused; the message names the member or field at fault."""
+
+
+class ArchiveLimits(BaseModel):
+    """What an agent archive may hold. Sizes in bytes, time in seconds."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    max_members: int = Field(10_000, ge=1)
+    max_unpacked: int = Field(512 << 20, ge=1, description="sum of the members' sizes")
+    max_manifest: int = Field(64 << 10, ge=1)
+    max_seconds: float = Field(60.0, gt=0, description="reading every member once may take this long")
 
 
 class AgentManifest(BaseModel):
@@ -56,10 +88,11 @@ class AgentManifest(BaseModel):
 
     name: str = Field(min_length=1, max_length=64)
     protocol: str = Field(description=f"one of {', '.join(PROTOCOLS)}")
-    command: list[str] = Field(min_length=1, description="argv, or a string as typed in a shell; run in the "
-                                                         "unpacked folder (or cwd)")
-    description: str = ""
-    cwd: str | None = Field(None, min_length=1, description="working directory, a folder inside the package")
+    command: list[str] = Field(min_length=1, max_length=256, description="argv, or a string as typed in a shell; "
+                                                                         "run in the unpacked folder (or cwd)")
+    description: str = Field("", max_length=10_000)
+    cwd: str | None = Field(None, min_length=1, max_length=1024,
+                            description="working directory, a folder inside the package")
     transport: Literal["pipe", "fifo"] = Field("pipe", description="pipe (stdin/stdout) or fifo (AIDO's default)")
     start_timeout: float = Field(30.0, gt=0.0, le=600.0, allow_inf_nan=False, description="[s], at most 600")
     step_timeout: float = Field(5.0, gt=0.0, le=30.0, allow_inf_nan=False, description="[s], at most 30")
@@ -73,6 +106,14 @@ class AgentManifest(BaseModel):
                 raise ValueError("empty command")
             return [SHELL, "-c", cmd]
         return cmd
+
+    @field_validator("name", "command", "description", "cwd")
+    @classmethod
+    def _no_nul(cls, v: Any) -> Any:
+        for s in [v] if isinstance(v, str) else (v or []):
+            if isinstance(s, str) and "\x00" in s:
+                raise ValueError("contains a NUL character")
+        return v
 
     @field_validator("cwd")
     @classmethod
@@ -98,68 +139,47 @@ class AgentManifest(BaseModel):
                            step_timeout=self.step_timeout, reflection=self.reflection, **overrides)
 
 
+# -- the checks ----------------------------------------------------------------------------------------
+
+
+class _Budget:
+    """Bytes read and time spent so far; raises PackageError when either runs out."""
+
+    def __init__(self, limits: ArchiveLimits) -> None:
+        self.limits = limits
+        self.deadline = time.monotonic() + limits.max_seconds
+        self.read = 0
+
+    def spend(self, n: int, where: str) -> None:
+        self.read += n
+        if self.read > self.limits.max_unpacked:
+            raise PackageError(f"{where}: unpacks to more than {self.limits.max_unpacked} bytes")
+        if time.monotonic() > self.deadline:
+            raise PackageError(f"{where}: checking the archive took longer than {self.limits.max_seconds:g} s")
+
+
 def _check_name(name: str) -> str:
+    if len(name) > _MAX_NAME:
+        raise PackageError(f"member {name[:80]!r}…: path longer than {_MAX_NAME} characters")
+    if "\x00" in name:
+        raise PackageError(f"member {name!r}: path contains a NUL character")
     norm = posixpath.normpath(name.replace("\\", "/"))
     if name.startswith(("/", "\\")) or (len(name) > 1 and name[1] == ":") or norm == ".." or norm.startswith("../"):
         raise PackageError(f"member {name!r}: path leaves the package folder")
     return norm
 
 
-def _members(data: bytes) -> list[tuple[str, int, bool]]:
-    """(name, size, is_dir) of every member, refusing links and special files."""
-    if zipfile.is_zipfile(io.BytesIO(data)):
-        out = []
-        with zipfile.ZipFile(io.BytesIO(data)) as zf:
-            for info in zf.infolist():
-                mode = info.external_attr >> 16
-                if stat.S_ISLNK(mode):
-                    raise PackageError(f"member {info.filename!r}: symbolic links are not allowed")
-                out.append((info.filename, info.file_size, info.is_dir()))
-        return out
+def _parse_manifest(raw_bytes: bytes, limits: ArchiveLimits) -> AgentManifest:
+    if len(raw_bytes) > limits.max_manifest:
+        raise PackageError(f"{MANIFEST_NAME}: larger than {limits.max_manifest} bytes")
     try:
-        with tarfile.open(fileobj=io.BytesIO(data), mode="r:*") as tf:
-            out = []
-            for m in tf.getmembers():
-                if m.issym() or m.islnk():
-                    raise PackageError(f"member {m.name!r}: links are not allowed")
-                if not (m.isfile() or m.isdir()):
-                    raise PackageError(f"member {m.name!r}: only files and folders are allowed")
-                out.append((m.name, m.size, m.isdir()))
-            return out
-    except tarfile.TarError as exc:
-        raise PackageError(f"not a zip or tar archive ({exc})") from None
-
-
-def _read_member(data: bytes, name: str) -> bytes:
-    if zipfile.is_zipfile(io.BytesIO(data)):
-        with zipfile.ZipFile(io.BytesIO(data)) as zf:
-            return zf.read(name)
-    with tarfile.open(fileobj=io.BytesIO(data), mode="r:*") as tf:
-        f = tf.extractfile(name)
-        assert f is not None
-        return f.read()
-
-
-def check_archive(data: bytes, *, max_members: int = 10_000, max_unpacked: int = 512 << 20) -> AgentManifest:
-    """Validate an agent archive (bytes) and return its manifest; :class:`PackageError` says what is wrong."""
-    members = _members(data)
-    if len(members) > max_members:
-        raise PackageError(f"{len(members)} members; at most {max_members} are allowed")
-    total = 0
-    manifest_member = None
-    for name, size, is_dir in members:
-        norm = _check_name(name)
-        total += size
-        if not is_dir and norm == MANIFEST_NAME:
-            manifest_member = name
-    if total > max_unpacked:
-        raise PackageError(f"unpacks to {total} bytes; at most {max_unpacked} are allowed")
-    if manifest_member is None:
-        raise PackageError(f"no {MANIFEST_NAME} at the archive root")
-    try:
-        raw = yaml.safe_load(_read_member(data, manifest_member))
+        raw = load_yaml(raw_bytes.decode("utf-8"), max_depth=16, allow_aliases=False)
+    except UnicodeDecodeError as exc:
+        raise PackageError(f"{MANIFEST_NAME}: not UTF-8 text (byte {exc.start})") from None
+    except UntrustedInputError as exc:
+        raise PackageError(f"{MANIFEST_NAME}: {exc}") from None
     except yaml.YAMLError as exc:
-        raise PackageError(f"{MANIFEST_NAME}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        raise PackageError(f"{MANIFEST_NAME}: not valid YAML ({getattr(exc, 'problem', None) or exc})") from None
     if not isinstance(raw, dict):
         raise PackageError(f"{MANIFEST_NAME}: expected a mapping with name, protocol, command")
     try:
@@ -174,27 +194,278 @@ def check_archive(data: bytes, *, max_members: int = 10_000, max_unpacked: int =
     return manifest
 
 
-def extract_archive(data: bytes, dest: Path, **limits: int) -> AgentManifest:
+class _Members:
+    """Names seen so far: duplicates are refused (which of two manifests would count?)."""
+
+    def __init__(self, limits: ArchiveLimits) -> None:
+        self.limits = limits
+        self.names: set[str] = set()
+        self.declared = 0
+
+    def add(self, name: str, size: int, is_dir: bool) -> str:
+        norm = _check_name(name)
+        if len(self.names) >= self.limits.max_members:
+            raise PackageError(f"more than {self.limits.max_members} members")
+        if not is_dir and norm in self.names:
+            raise PackageError(f"member {name!r} appears twice")
+        self.names.add(norm)
+        self.declared += max(0, size)
+        if self.declared > self.limits.max_unpacked:
+            raise PackageError(f"member {name!r}: the members add up to more than {self.limits.max_unpacked} bytes")
+        return norm
+
+
+# -- zip -----------------------------------------------------------------------------------------------
+
+_EOCD = struct.Struct("<4s4H2LH")
+_ZIP64_LOCATOR = struct.Struct("<4sLQL")
+_ZIP64_EOCD = struct.Struct("<4sQ2H2L4Q")
+
+
+def _zip_directory(f: IO[bytes], size: int) -> tuple[int, int]:
+    """(members, central-directory bytes) from the end record(s), before zipfile parses anything."""
+    tail_len = min(size, _EOCD.size + 0xFFFF)
+    f.seek(size - tail_len)
+    tail = f.read(tail_len)
+    at = tail.rfind(b"PK\x05\x06")
+    if at < 0 or at + _EOCD.size > len(tail):
+        raise PackageError("not a zip archive (no end-of-central-directory record)")
+    _, _, _, _, entries, cd_size, _, _ = _EOCD.unpack_from(tail, at)
+    if entries == 0xFFFF or cd_size == 0xFFFFFFFF:  # zip64: the counts are in the zip64 end record
+        loc = at - _ZIP64_LOCATOR.size
+        if loc < 0 or tail[loc:loc + 4] != b"PK\x06\x07":
+            raise PackageError("damaged zip64 archive (no zip64 end-record locator)")
+        offset = _ZIP64_LOCATOR.unpack_from(tail, loc)[2]
+        if offset + _ZIP64_EOCD.size > size:
+            raise PackageError("damaged zip64 archive (end record out of range)")
+        f.seek(offset)
+        rec = f.read(_ZIP64_EOCD.size)
+        if rec[:4] != b"PK\x06\x06":
+            raise PackageError("damaged zip64 archive (bad zip64 end record)")
+        fields = _ZIP64_EOCD.unpack(rec)
+        entries, cd_size = fields[7], fields[8]
+    return entries, cd_size
+
+
+def _check_zip(f: IO[bytes], size: int, limits: ArchiveLimits) -> AgentManifest:
+    entries, cd_size = _zip_directory(f, size)
+    if entries > limits.max_members:
+        raise PackageError(f"{entries} members; at most {limits.max_members} are allowed")
+    if cd_size > limits.max_members * (46 + _MAX_NAME + 256) or cd_size > size:
+        raise PackageError(f"central directory of {cd_size} bytes: too large for {entries} members")
+    budget = _Budget(limits)
+    members = _Members(limits)
+    manifest: AgentManifest | None = None
+    f.seek(0)
+    with zipfile.ZipFile(f) as zf:
+        infos = zf.infolist()
+        for info in infos:
+            members.add(info.filename, info.file_size, info.is_dir())
+            if stat.S_ISLNK(info.external_attr >> 16):
+                raise PackageError(f"member {info.filename!r}: symbolic links are not allowed")
+            if info.flag_bits & 0x1:
+                raise PackageError(f"member {info.filename!r}: encrypted members are not allowed")
+            if info.compress_type not in _ZIP_METHODS:
+                raise PackageError(f"member {info.filename!r}: compression method {info.compress_type} is not "
+                                   f"supported ({', '.join(_ZIP_METHODS.values())})")
+        entry = next((i for i in infos if not i.is_dir() and _check_name(i.filename) == MANIFEST_NAME), None)
+        if entry is None:
+            raise PackageError(f"no {MANIFEST_NAME} at the archive root")
+        if entry.file_size > limits.max_manifest:
+            raise PackageError(f"{MANIFEST_NAME}: {entry.file_size} bytes; at most {limits.max_manifest} are allowed")
+        for info in [entry, *(i for i in infos if i is not entry)]:  # the manifest first: its errors are clearest
+            if info.is_dir():
+                continue
+            data = _read_zip_member(zf, info, budget)
+            if info is entry:
+                manifest = _parse_manifest(data, limits)
+    assert manifest is not None
+    return manifest
+
+
+def _read_zip_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, budget: _Budget) -> bytes:
+    """Read a member through (the CRC is checked at its end); keeps the bytes only of a manifest-sized one."""
+    keep = info.file_size <= budget.limits.max_manifest
+    out = bytearray()
+    got = 0
+    try:
+        with zf.open(info) as m:
+            while chunk := m.read(_CHUNK):
+                got += len(chunk)
+                budget.spend(len(chunk), f"member {info.filename!r}")
+                if got > info.file_size:
+                    raise PackageError(f"member {info.filename!r}: more data than its declared {info.file_size} bytes")
+                if keep:
+                    out += chunk
+    except PackageError:
+        raise
+    except (zipfile.BadZipFile, zlib.error, lzma.LZMAError, EOFError, OSError, RuntimeError, ValueError,
+            NotImplementedError, struct.error) as exc:
+        raise PackageError(f"member {info.filename!r}: damaged ({exc})") from None
+    if got != info.file_size:
+        raise PackageError(f"member {info.filename!r}: {got} bytes, not the declared {info.file_size}")
+    return bytes(out)
+
+
+# -- tar -----------------------------------------------------------------------------------------------
+
+
+class _BoundedStream(io.RawIOBase):
+    """The decompressed tar stream, metered: every byte counts against the budget (and the clock)."""
+
+    def __init__(self, inner: IO[bytes], budget: _Budget) -> None:
+        self.inner, self.budget = inner, budget
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buf) -> int:  # type: ignore[no-untyped-def]
+        data = self.inner.read(len(buf))
+        n = len(data)
+        buf[:n] = data
+        self.budget.spend(n, "tar stream")
+        return n
+
+
+class _CheckedTarInfo(tarfile.TarInfo):
+    """Refuses oversized or endless chains of extension headers *before* tarfile reads them into memory."""
+
+    def _proc_member(self, tf):  # type: ignore[no-untyped-def]
+        if self.type in (tarfile.GNUTYPE_LONGNAME, tarfile.GNUTYPE_LONGLINK, tarfile.XHDTYPE, tarfile.XGLTYPE,
+                         tarfile.SOLARIS_XHDTYPE):
+            if self.size > _MAX_EXTENSION_HEADER:
+                raise PackageError(f"an extension header of {self.size} bytes (at most {_MAX_EXTENSION_HEADER})")
+            tf._pb_chain = getattr(tf, "_pb_chain", 0) + 1
+            if tf._pb_chain > _MAX_EXTENSION_CHAIN:
+                raise PackageError(f"more than {_MAX_EXTENSION_CHAIN} extension headers in a row")
+        elif self.type == tarfile.GNUTYPE_SPARSE:
+            raise PackageError(f"member {self.name!r}: sparse files are not allowed")
+        else:
+            tf._pb_chain = 0
+        return super()._proc_member(tf)
+
+
+def _decompressed(f: IO[bytes]) -> IO[bytes]:
+    head = f.read(6)
+    f.seek(0)
+    if head[:2] == b"\x1f\x8b":
+        return gzip.GzipFile(fileobj=f, mode="rb")  # type: ignore[return-value]
+    if head[:3] == b"BZh":
+        return bz2.BZ2File(f, mode="rb")  # type: ignore[return-value]
+    if head == b"\xfd7zXZ\x00":
+        return lzma.LZMAFile(f, mode="rb")  # type: ignore[return-value]
+    return f
+
+
+def _check_tar(f: IO[bytes], limits: ArchiveLimits) -> AgentManifest:
+    budget = _Budget(ArchiveLimits(max_members=limits.max_members, max_manifest=limits.max_manifest,
+                                   max_seconds=limits.max_seconds,
+                                   # headers count too: two 512-byte blocks per member at most, plus padding
+                                   max_unpacked=limits.max_unpacked + limits.max_members * 1024 + (1 << 20)))
+    members = _Members(limits)
+    manifest: AgentManifest | None = None
+    stream = io.BufferedReader(_BoundedStream(_decompressed(f), budget), _CHUNK)
+    try:
+        with tarfile.open(fileobj=stream, mode="r|", tarinfo=_CheckedTarInfo) as tf:
+            while (m := tf.next()) is not None:
+                norm = members.add(m.name, m.size, m.isdir())
+                tf.members.clear()  # a stream is read once: keep no list of every member seen
+                if m.issym() or m.islnk():
+                    raise PackageError(f"member {m.name!r}: links are not allowed")
+                if not (m.isfile() or m.isdir()):
+                    raise PackageError(f"member {m.name!r}: only files and folders are allowed")
+                if m.isfile() and norm == MANIFEST_NAME:
+                    if m.size > limits.max_manifest:
+                        raise PackageError(f"{MANIFEST_NAME}: {m.size} bytes; at most {limits.max_manifest} "
+                                           "are allowed")
+                    member = tf.extractfile(m)
+                    assert member is not None
+                    manifest = _parse_manifest(member.read(), limits)
+    except PackageError:
+        raise
+    except (tarfile.TarError, zlib.error, lzma.LZMAError, EOFError, OSError, ValueError, struct.error) as exc:
+        raise PackageError(f"not a readable zip or tar archive ({exc})") from None
+    if not members.names:
+        raise PackageError("not a zip or tar archive, or an empty one")
+    if manifest is None:
+        raise PackageError(f"no {MANIFEST_NAME} at the archive root")
+    return manifest
+
+
+# -- entry points --------------------------------------------------------------------------------------
+
+
+def _source(data: bytes | str | os.PathLike[str] | IO[bytes]) -> tuple[IO[bytes], int, bool]:
+    """(seekable binary file, size, whether we opened it)."""
+    if isinstance(data, bytes | bytearray | memoryview):
+        return io.BytesIO(data), len(data), True
+    if isinstance(data, str | os.PathLike):
+        f = open(data, "rb")  # noqa: SIM115 - closed by the caller
+        return f, os.fstat(f.fileno()).st_size, True
+    data.seek(0, os.SEEK_END)
+    size = data.tell()
+    data.seek(0)
+    return data, size, False
+
+
+def check_archive(data: bytes | str | os.PathLike[str] | IO[bytes], *, limits: ArchiveLimits | None = None,
+                  **overrides: Any) -> AgentManifest:
+    """Validate an agent archive (bytes, a path or a seekable binary file) and return its manifest.
+
+    Raises :class:`PackageError` saying what is wrong. ``overrides`` replace single limits
+    (``max_members=…``, ``max_unpacked=…``, ``max_manifest=…``, ``max_seconds=…``).
+    """
+    limits = limits or ArchiveLimits()
+    if overrides:
+        limits = limits.model_copy(update=overrides)
+    f, size, opened = _source(data)
+    try:
+        if size == 0:
+            raise PackageError("the archive is empty")
+        head = f.read(4)
+        f.seek(0)
+        if head in (b"PK\x03\x04", b"PK\x05\x06") or zipfile.is_zipfile(f):
+            f.seek(0)
+            return _check_zip(f, size, limits)
+        f.seek(0)
+        return _check_tar(f, limits)
+    except PackageError:
+        raise
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError, struct.error) as exc:
+        raise PackageError(f"not a readable zip or tar archive ({exc})") from None
+    finally:
+        if opened:
+            f.close()
+
+
+def extract_archive(data: bytes | str | os.PathLike[str] | IO[bytes], dest: Path, **limits: Any) -> AgentManifest:
     """Check, then unpack into ``dest`` (created; must be empty). Returns the manifest."""
     manifest = check_archive(data, **limits)
     dest.mkdir(parents=True, exist_ok=True)
     if any(dest.iterdir()):
         raise PackageError(f"{dest}: unpack folder is not empty")
     root = dest.resolve()
-    if zipfile.is_zipfile(io.BytesIO(data)):
-        with zipfile.ZipFile(io.BytesIO(data)) as zf:
-            for info in zf.infolist():
-                target = (root / _check_name(info.filename)).resolve()
-                if not target.is_relative_to(root):
-                    raise PackageError(f"member {info.filename!r}: path leaves the package folder")
-                if info.is_dir():
-                    target.mkdir(parents=True, exist_ok=True)
-                    continue
-                target.parent.mkdir(parents=True, exist_ok=True)
-                target.write_bytes(zf.read(info))
-                if (info.external_attr >> 16) & 0o111:
-                    target.chmod(0o755)
-    else:
-        with tarfile.open(fileobj=io.BytesIO(data), mode="r:*") as tf:
-            tf.extractall(root, filter="data")  # the stdlib's own refusal of links out, devices, absolute paths
+    f, _, opened = _source(data)
+    try:
+        if zipfile.is_zipfile(f):
+            f.seek(0)
+            with zipfile.ZipFile(f) as zf:
+                for info in zf.infolist():
+                    target = (root / _check_name(info.filename)).resolve()
+                    if not target.is_relative_to(root):
+                        raise PackageError(f"member {info.filename!r}: path leaves the package folder")
+                    if info.is_dir():
+                        target.mkdir(parents=True, exist_ok=True)
+                        continue
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    target.write_bytes(zf.read(info))
+                    if (info.external_attr >> 16) & 0o111:
+                        target.chmod(0o755)
+        else:
+            f.seek(0)
+            with tarfile.open(fileobj=f, mode="r:*") as tf:
+                tf.extractall(root, filter="data")  # the stdlib's own refusal of links out, devices, absolute paths
+    finally:
+        if opened:
+            f.close()
     return manifest

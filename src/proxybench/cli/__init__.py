@@ -8,6 +8,7 @@ from proxybench.cli import (  # noqa: F401 - importing registers the commands
     heldout,
     learning,
     maps,
+    plan,
     robot,
     sandbox,
     server,

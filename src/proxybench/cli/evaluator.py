@@ -17,19 +17,6 @@ from proxybench.cli.options import positive
 KNOWN_FEATURES = ("sim", "target")
 
 
-def _token(token: str | None, token_file: Path | None) -> str:
-    if token:
-        return token.strip()
-    if token_file is None:
-        err_console.print("[red]✗[/red] no token: pass --token, set PROXYBENCH_TOKEN, or pass --token-file")
-        raise typer.Exit(2)
-    try:
-        return token_file.read_text().strip()
-    except OSError as exc:
-        err_console.print(f"[red]✗[/red] cannot read the token file {token_file}: {escape(str(exc))}", highlight=False)
-        raise typer.Exit(2) from None
-
-
 def _reporter():
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -78,8 +65,9 @@ def _reporter():
 def evaluator(
     server: str | None = typer.Option(None, "--server", envvar="PROXYBENCH_SERVER",
                                       help="challenges server URL [http://127.0.0.1:8000]"),
-    token: str | None = typer.Option(None, "--token", envvar="PROXYBENCH_TOKEN", help="API token (role evaluator)"),
-    token_file: Path | None = typer.Option(None, "--token-file", help="file holding the API token"),
+    token: str | None = typer.Option(None, "--token", hidden=True, help="refused: argv is visible to every user"),
+    token_file: Path | None = typer.Option(None, "--token-file", help="file holding the API token (role evaluator; "
+                                                                      "or $PROXYBENCH_TOKEN, $PROXYBENCH_TOKEN_FILE)"),
     name: str | None = typer.Option(None, help="this evaluator's name, unique per token [host name]"),
     features: str = typer.Option("sim", help="what this evaluator offers, comma-separated: sim, target"),
     once: bool = typer.Option(False, "--once", help="try to take one job, evaluate it, and exit"),
@@ -114,6 +102,10 @@ def evaluator(
     require_extra("server", ("httpx",))
     from rich.logging import RichHandler
 
+    from proxybench.cli.server import read_token
+
+    secret = read_token(token, token_file)
+
     from proxybench.client import ServerError
     from proxybench.evaluator import Evaluator, EvaluatorConfig, Limits
 
@@ -136,7 +128,7 @@ def evaluator(
                       scratch_bytes=scratch_mb << 20, tmp_bytes=max(1, scratch_mb // 4) << 20),
         video=video, keep_work=keep_work, robot_cmd=robot_cmd)
     try:
-        ev = Evaluator(server or "http://127.0.0.1:8000", _token(token, token_file), config, _reporter())
+        ev = Evaluator(server or "http://127.0.0.1:8000", secret, config, _reporter())
     except RuntimeError as exc:
         err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from None

@@ -22,7 +22,7 @@ import math
 
 import typer
 
-__all__ = ["non_negative", "positive"]
+__all__ = ["non_negative", "positive", "probability"]
 
 
 def positive(value: float | None) -> float | None:
@@ -36,4 +36,11 @@ def non_negative(value: float | None) -> float | None:
     """Option callback: a finite number >= 0 (a noise level, a delay); None passes (an unset option)."""
     if value is not None and not (math.isfinite(value) and value >= 0):
         raise typer.BadParameter(f"must be a finite number >= 0, got {value}")
+    return value
+
+
+def probability(value: float | None) -> float | None:
+    """Option callback: a probability strictly between 0 and 1 (a confidence, a power); None passes."""
+    if value is not None and not (math.isfinite(value) and 0 < value < 1):
+        raise typer.BadParameter(f"must be a number between 0 and 1 (exclusive), got {value}")
     return value

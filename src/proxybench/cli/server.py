@@ -2,8 +2,9 @@
 
 ``proxybench serve --evaluators 1`` is the one-command local network: an SQLite server in a data folder
 and an evaluator process pulling its jobs. Clients find the server in ``--server`` / $PROXYBENCH_SERVER
-(default http://127.0.0.1:8000) and their token in ``--token`` / $PROXYBENCH_TOKEN / ``--token-file``
-(default: the local server's ``proxybench-server/admin.token``).
+(default http://127.0.0.1:8000) and their token in $PROXYBENCH_TOKEN, ``--token-file`` or
+$PROXYBENCH_TOKEN_FILE (default: the local server's ``proxybench-server/admin.token``). There is no
+``--token``: a command line is readable by every user of the machine (``/proc/PID/cmdline``).
 """
 
 from __future__ import annotations
@@ -27,21 +28,36 @@ app.add_typer(server_app, name="server")
 
 DEFAULT_DATA = Path("proxybench-server")
 ServerOpt = typer.Option(None, "--server", envvar="PROXYBENCH_SERVER", help="server URL [http://127.0.0.1:8000]")
-TokenOpt = typer.Option(None, "--token", envvar="PROXYBENCH_TOKEN", help="API token")
-TokenFileOpt = typer.Option(None, "--token-file", help="file holding the API token [proxybench-server/admin.token]")
+TokenOpt = typer.Option(None, "--token", hidden=True, help="refused: a command line is visible to every user")
+TokenFileOpt = typer.Option(None, "--token-file", help="file holding the API token (or $PROXYBENCH_TOKEN, "
+                                                       "$PROXYBENCH_TOKEN_FILE) [proxybench-server/admin.token]")
+NO_ARGV_TOKEN = ("--token is not accepted: a command line is readable by every user of the machine "
+                 "(/proc/PID/cmdline). Put the token in $PROXYBENCH_TOKEN, or in a file (chmod 600) "
+                 "passed as --token-file FILE or $PROXYBENCH_TOKEN_FILE.")
+
+
+def read_token(token: str | None, token_file: Path | None, default_file: Path | None = None) -> str:
+    """The API token from the environment or a file (never argv); exits with a clear message otherwise."""
+    from proxybench.client import TokenError, load_token
+
+    if token is not None:
+        err_console.print(f"[red]✗[/red] {NO_ARGV_TOKEN}", highlight=False)
+        raise typer.Exit(2)
+    try:
+        value, where = load_token(token_file, default_file)
+    except TokenError as exc:
+        err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
+        raise typer.Exit(2) from None
+    if "warning" in where:
+        err_console.print(f"[yellow]![/yellow] token file {escape(where)}", highlight=False)
+    return value
 
 
 def _client(server: str | None, token: str | None, token_file: Path | None):
     from proxybench.client import ServerClient
 
-    if token is None:
-        path = token_file or DEFAULT_DATA / "admin.token"
-        if not path.is_file():
-            err_console.print(f"[red]✗[/red] no token: pass --token, set PROXYBENCH_TOKEN or --token-file "
-                              f"({path} does not exist)")
-            raise typer.Exit(2)
-        token = path.read_text().strip()
-    return ServerClient(server or "http://127.0.0.1:8000", token, retry_for=10.0)
+    value = read_token(token, token_file, DEFAULT_DATA / "admin.token")
+    return ServerClient(server or "http://127.0.0.1:8000", value, retry_for=10.0)
 
 
 def _fail(exc: Exception) -> typer.Exit:
@@ -81,6 +97,8 @@ def serve(
     data_dir: Path = typer.Option(DEFAULT_DATA, help="SQLite database, artifacts and tokens"),
     database_url: str | None = typer.Option(None, envvar="PROXYBENCH_SERVER_DATABASE_URL",
                                             help="SQLAlchemy URL, e.g. postgresql+psycopg://u:p@host/db"),
+    workers: int | None = typer.Option(None, min=1, max=64, help="server processes sharing the port "
+                                       "[the number of cores, at most 4]"),
     evaluators: int = typer.Option(0, min=0, help="local evaluator processes to start beside the server"),
     features: str = typer.Option("sim,target", help="features the local evaluators offer"),
     lease_seconds: float = typer.Option(120.0, callback=positive,
@@ -90,13 +108,22 @@ def serve(
     require_extra("server")
     import uvicorn
 
-    from proxybench.server.app import create_app
+    from proxybench.server import clock
+    from proxybench.server.app import create_app, prepare
     from proxybench.server.config import Settings
 
-    settings = Settings.from_env(data_dir=data_dir, database_url=database_url, lease_seconds=lease_seconds)
-    application = create_app(settings)
+    if workers is None:
+        workers = max(1, min(4, len(os.sched_getaffinity(0))))
+    settings = Settings.from_env(data_dir=data_dir, database_url=database_url, lease_seconds=lease_seconds,
+                                 workers=workers)
     url = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}"
-    console.print(f"proxybench server on [bold]{url}[/bold]  (database: {settings.url.split('@')[-1]})")
+    if settings.workers == 1:
+        application = create_app(settings)
+    else:
+        prepare(settings)
+        _export(settings, clock.anchor())
+    console.print(f"proxybench server on [bold]{url}[/bold]  (database: {settings.url.split('@')[-1]}, "
+                  f"{settings.workers} worker process{'es' if settings.workers > 1 else ''})")
     console.print(f"  web console: {url}/   API docs: {url}/api/v1/docs")
     console.print(f"  admin token: {settings.data_dir / 'admin.token'}")
     procs = []
@@ -106,10 +133,15 @@ def serve(
             cmd = [sys.executable, "-m", "proxybench.cli", "evaluator", "--server", url,
                    "--token-file", str(token_file), "--name", f"local-{i + 1}", "--features", features,
                    "--work-dir", str(settings.data_dir / "evaluator-work" / f"local-{i + 1}")]
-            procs.append(subprocess.Popen(cmd))
+            env = {k: v for k, v in os.environ.items() if k not in ("PROXYBENCH_TOKEN", "PROXYBENCH_TOKEN_FILE")}
+            procs.append(subprocess.Popen(cmd, env=env))
         console.print(f"  {evaluators} local evaluator(s) started (features: {features})")
     try:
-        uvicorn.run(application, host=host, port=port, log_level="warning")
+        if settings.workers == 1:
+            uvicorn.run(application, host=host, port=port, log_level="warning", timeout_keep_alive=15)
+        else:
+            uvicorn.run("proxybench.server.app:app_from_env", factory=True, workers=settings.workers, host=host,
+                        port=port, log_level="warning", timeout_keep_alive=15)
     finally:
         for p in procs:
             p.terminate()
@@ -118,6 +150,17 @@ def serve(
                 p.wait(10)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def _export(settings, anchor: float) -> None:
+    """Hand the settings (and the server clock) to worker processes through their environment."""
+    from proxybench.server.clock import ANCHOR_ENV
+    from proxybench.server.config import _ENV_PREFIX
+
+    for name, value in settings.model_dump().items():
+        if value is not None:
+            os.environ[_ENV_PREFIX + name.upper()] = str(value)
+    os.environ[ANCHOR_ENV] = repr(anchor)
 
 
 @app.command()
@@ -153,7 +196,7 @@ def submit(
                 console.print(f"  job {j['id']} {j['benchmark']} v{j['benchmark_version']}: {j['status']} "
                               f"{j['message'][:200]}", highlight=False)
             for name in sorted({j["benchmark"] for j in sub["jobs"]}):
-                _print_board(client.leaderboard(name))
+                _print_board(_settled_board(client, name))
             if any(j["status"] != "success" for j in sub["jobs"]):
                 raise typer.Exit(1)
     except ServerError as exc:
@@ -174,8 +217,21 @@ def _wait(client, sid: int, timeout: float) -> dict:
             time.sleep(1.0)
 
 
+def _settled_board(client, name: str, limit: int | None = 100, patience: float = 15.0) -> dict:
+    """The board once it includes every result (a large board is rebuilt about once a second)."""
+    deadline = time.monotonic() + patience
+    while True:
+        board = client.get(f"/leaderboards/{name}", limit=limit)
+        if not board.get("stale") or time.monotonic() > deadline:
+            return board
+        time.sleep(0.5)
+
+
 def _print_board(board: dict) -> None:
-    table = Table(title=f"{board['benchmark']} v{board['version']} ({board['split']})")
+    shown = len(board["rows"])
+    total = board.get("total", shown)
+    more = f", rows {board.get('offset', 0) + 1}-{board.get('offset', 0) + shown} of {total}" if shown < total else ""
+    table = Table(title=f"{board['benchmark']} v{board['version']} ({board['split']}{more})")
     for col in ("rank", "label", "user", "agent"):
         table.add_column(col)
     for c in board["criteria"]:
@@ -191,6 +247,8 @@ def _print_board(board: dict) -> None:
 def show_leaderboard(
     benchmark: str = typer.Argument(..., help="benchmark name on the server"),
     split: str = typer.Option("public", help="public (validation) or hidden (test; super-users)"),
+    limit: int = typer.Option(100, min=1, help="rows to show (the best first)"),
+    offset: int = typer.Option(0, min=0, help="rows to skip"),
     server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
 ) -> None:
     """Show a benchmark's leaderboard from a challenges server."""
@@ -198,7 +256,7 @@ def show_leaderboard(
     from proxybench.client import ServerError
 
     try:
-        _print_board(_client(server, token, token_file).leaderboard(benchmark, split))
+        _print_board(_client(server, token, token_file).leaderboard(benchmark, split, limit=limit, offset=offset))
     except ServerError as exc:
         raise _fail(exc) from None
 
@@ -263,3 +321,69 @@ def path_add(
     except ServerError as exc:
         raise _fail(exc) from None
     console.print(f"path {out['name']}: {len(out['spec']['steps'])} steps, {len(out['spec']['edges'])} edges")
+
+
+@server_app.command("token-list")
+def token_list(
+    user: str | None = typer.Option(None, help="another user's tokens (super-users)"),
+    server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
+) -> None:
+    """List API tokens (yours, or --user's): id, prefix, label, created, revoked. Never their text."""
+    require_extra("server", ("httpx",))
+    from proxybench.client import ServerError
+
+    try:
+        rows = _client(server, token, token_file).tokens(user)
+    except ServerError as exc:
+        raise _fail(exc) from None
+    table = Table(title=f"API tokens of {user or 'you'}")
+    for col in ("id", "user", "prefix", "label", "created (UTC)", "revoked (UTC)"):
+        table.add_column(col)
+    for t in rows:
+        table.add_row(str(t["id"]), t["user"], t["prefix"] + "…", t["label"], _utc(t["created_at"]),
+                      _utc(t["revoked_at"]) if t["revoked"] else "")
+    console.print(table)
+
+
+@server_app.command("token-add")
+def token_add(
+    label: str = typer.Option("", help="what the token is for, e.g. the machine it lives on"),
+    out: Path | None = typer.Option(None, "--out", help="write the token to this file (mode 600) instead of "
+                                                      "printing it"),
+    server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
+) -> None:
+    """Make another token for yourself (one per machine makes revoking one painless)."""
+    require_extra("server", ("httpx",))
+    from proxybench.client import ServerError
+
+    try:
+        made = _client(server, token, token_file).new_token(label)
+    except ServerError as exc:
+        raise _fail(exc) from None
+    if out is not None:
+        fd = os.open(out, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.write(made["token"] + "\n")
+        console.print(f"token {made['id']} ({made['prefix']}…) written to {out}")
+    else:
+        console.print(f"token {made['id']}: [bold]{made['token']}[/bold]  (shown once)")
+
+
+@server_app.command("token-revoke")
+def token_revoke(
+    token_id: int = typer.Argument(..., min=1, help="the token's id (proxybench server token-list)"),
+    server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
+) -> None:
+    """Revoke a token for good (yours; super-users: anyone's); its web sessions end with it."""
+    require_extra("server", ("httpx",))
+    from proxybench.client import ServerError
+
+    try:
+        out = _client(server, token, token_file).revoke_token(token_id)
+    except ServerError as exc:
+        raise _fail(exc) from None
+    console.print(f"token {out['id']} of {out['user']} ({out['prefix']}…) revoked")
+
+
+def _utc(t: float | None) -> str:
+    return "" if t is None else time.strftime("%Y-%m-%d %H:%M", time.gmtime(t))

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import typer
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -179,8 +180,9 @@ def _print_table(res, wall: float) -> None:
     title = (f"usefulness of proxy instances — target: {res.target.info.label}; {len(exp.agents)} agents × "
              f"{exp.episodes} episodes × {exp.seconds:g} s; {wall:.0f} s")
     table = Table(title=title)
-    for col in ("parameter", "value", "PRPV [95% CI]", "Δ vs best [paired CI]", "PPV", "SRCC", "Kendall τ", "POD"):
-        table.add_column(col, justify="left" if col == "parameter" else "right")
+    for col in ("parameter", "value", "PRPV [order range]", "Δ vs best [paired CI]", "PPV (mean/agent)", "Pearson r",
+                "Spearman ρ", "Kendall τ", "POD"):
+        table.add_column(escape(col), justify="left" if col == "parameter" else "right")  # "[…]" is not markup
     df = res.frame()
     for name in exp.sweep:
         claim = res.claims.get(name)
@@ -190,10 +192,13 @@ def _print_table(res, wall: float) -> None:
             delta = "best" + ("" if claim.separated else " (not separated)") if best else \
                 f"{r.delta_best:+.1f} [{r.delta_best_low:+.1f}, {r.delta_best_high:+.1f}]"
             table.add_row(name, f"{r.value:g}{mark}", f"{r.prpv:.1f} [{r.prpv_low:.1f}, {r.prpv_high:.1f}]", delta,
-                          f"{r.ppv:.2f}", f"{r.srcc:.2f}", f"{r.kendall:.2f}",
+                          f"{r.ppv:.2f} [{r.ppv_low:.2f}, {r.ppv_high:.2f}]", f"{r.pearson:.2f}", f"{r.spearman:.2f}",
+                          f"{r.kendall:.2f}",
                           "n/a" if not np.isfinite(r.pod) else f"{r.pod:.3f}")
     nf = res.noise
-    table.add_row("target noise floor", "", f"{nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}]", "", "", "", "", "")
+    pf = res.ppv_noise
+    table.add_row("target noise floor", "", f"{nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}]", "",
+                  f"{pf.value:.2f} [{pf.low:.2f}, {pf.high:.2f}]" if pf is not None else "", "", "", "", "")
     console.print(table)
 
 
@@ -214,7 +219,8 @@ def optimize(
     proxy_param: list[str] = typer.Option([], "--proxy-param", help="θ every proxy has, k=v (repeat)"),
     param: list[str] = typer.Option([], "--param", help="a parameter to search, NAME=LOW:HIGH (repeat) "
                                     "(default: trim=-0.3:0.3, camera_pitch=12:26)"),
-    objective: str | None = typer.Option(None, help="prpv | ppv | mix (normalised PRPV + PPV) (default: mix)"),
+    objective: str | None = typer.Option(None, help="prpv (the thesis' θ* = argmin PRPV) | ppv | mix "
+                                         "(PRPV/K(K−1) + PPV/m) (default: prpv)"),
     trials: int | None = typer.Option(None, min=1, help="(default: 60; --quick 20)"),
     sampler: str | None = typer.Option(None, help="tpe | gp | random (default: tpe)"),
     storage: str | None = typer.Option(None, help="SQLite file or SQLAlchemy URL (PostgreSQL to share a study)"),
@@ -286,7 +292,7 @@ def optimize(
                         f"{len(exp.agents)} agents × {exp.episodes} episodes × {exp.seconds:g} s, {wall:.0f} s "
                         f"(target: {res.target.label})")
     for col in ("parameter", "searched", "recovered (best decile)", "known truth", "error", "single best trial"):
-        table.add_column(col, justify="left" if col == "parameter" else "right")
+        table.add_column(escape(col), justify="left" if col == "parameter" else "right")  # "[…]" is not markup
     for name, v in res.recovered.items():
         t = res.truth.get(name)
         lo, hi = exp.search.space[name]

@@ -4,7 +4,7 @@
 by tile, at two multiply-adds per pixel; ``pixel_ground`` shades one ground point (the general path, for
 lenses whose rows are curves). Surface grain is a small tileable table read at a per-tile offset, and
 sensor noise a counter-based hash, so every pixel is reproducible on its own, whatever the batch.
-These are inlined into ``renderer.render_kernel`` (after editing one, delete the Numba cache:
+These are inlined into ``renderer.render_rows`` (after editing one, delete the Numba cache:
 ``find src -name '*.nbi' -delete``).
 """
 

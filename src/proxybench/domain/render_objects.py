@@ -8,7 +8,7 @@ renderer's kernel (``proxybench.domain.renderer``) sends only image rows some bo
 frame) against the primitive and takes its colour where the hit is nearer than the ground.
 
 Kept apart from the ground renderer so that each stays readable; the kernels here are inlined into
-``render_kernel`` (after editing one, delete the Numba cache: ``find src -name '*.nbi' -delete``).
+``render_rows`` (after editing one, delete the Numba cache: ``find src -name '*.nbi' -delete``).
 """
 
 from __future__ import annotations

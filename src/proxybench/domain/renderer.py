@@ -5,8 +5,9 @@ frame costs one rotation + translation per pixel and sub-frame, a tile lookup, o
 mip level that matches the pixel's footprint, and a palette lookup. Light, contrast and the road
 colours are folded into each robot's palette beforehand (they are linear), so the inner loop does no
 colour arithmetic beyond ``palette * texture_noise * shade + offset``. No NumPy temporaries: the whole
-pipeline (motion blur, light, vignetting, contrast, sensor noise) is one Numba loop, parallel over the
-image rows of all robots.
+pipeline (motion blur, light, vignetting, contrast, sensor noise) is one Numba loop over the image rows of
+all robots (``render_rows``), run on one thread or on all (``render_parallel``) as
+``proxybench.domain.parallelism`` decides from timing both.
 
 Appearance is per robot (``Renderer.set_params``), so a batch can randomise it per episode.
 
@@ -19,6 +20,7 @@ object-free code, and frames without objects in view are bit-identical to frames
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 
 import numba as nb
@@ -28,27 +30,35 @@ from proxybench.domain.camera import CameraTable, camera_table
 from proxybench.domain.lanes import LaneArrays
 from proxybench.domain.maps import MapObject
 from proxybench.domain.objects import MATERIAL_PARAMS, ObjectArrays, pack_objects
+from proxybench.domain.parallelism import (
+    ThreadChoice,
+    claim_threads,
+    fetch_add,
+    release_threads,
+    threads_available,
+)
 from proxybench.domain.params import DomainParams
 from proxybench.domain.render_ground import GRAIN, gauss_from_hash, grain_table, mix64, pixel_ground, span_row
 from proxybench.domain.render_objects import OBJECT_RANGE, camera_row, cull_objects, draw_object_row, pixel_rays
 from proxybench.domain.textures import marking_textures
 
-__all__ = ["OBJECT_RANGE", "Renderer", "cull_objects", "render_kernel"]
+__all__ = ["OBJECT_RANGE", "Renderer", "cull_objects", "render_parallel", "render_rows"]
 
 # palette rows after the marking coverages: plain surfaces (indexed by LaneArrays.tile_base) and sky
 _BASES = ("road_rgb", "grass_rgb", "floor_rgb", "asphalt_rgb", "outside_rgb")
 _SKY, _HORIZON = 0, 1
 
 
-@nb.njit(cache=True, parallel=True, fastmath=True, error_model="numpy", boundscheck=False)
-def render_kernel(
-    out, poses, cam_index, linear, gx, gy, level_map, ground_from, sky_mix, vignette,
+@nb.njit(cache=True, fastmath=True, error_model="numpy", boundscheck=False)
+def render_rows(
+    lo, hi, out, poses, cam_index, linear, gx, gy, level_map, ground_from, sky_mix, vignette,
     tile_kind, tile_affine, tile_base, inv_ts, tex, tex_off, tex_size,
     palette, sky, offset, post, seeds, frames, k_count, grain, grain_index,
     rays, cams, prims, vis, nvis, obj_box, gain, mat_rgb,
 ):
-    """Render ``out[n]`` (H, W, 3 uint8) for every robot n from its K sub-frame poses ``poses[n]``.
+    """Render image rows ``lo .. hi - 1`` of the batch (row r is row r % H of robot r // H) into ``out``.
 
+    ``out[n]`` (H, W, 3 uint8) is robot n's frame from its K sub-frame poses ``poses[n]``.
     ``palette[n]`` holds robot n's colours already multiplied by light and contrast; ``offset[n]`` is
     the per-channel value added after (brightness and contrast pivot). ``level_map < 0`` marks sky;
     ``ground_from[c, v] < W`` if row v of camera c sees any ground. ``linear[c]``: camera c's rows are
@@ -63,9 +73,15 @@ def render_kernel(
     colours of the object materials (``objects.MATERIAL_PARAMS``). Rows no visible
     primitive's box touches take exactly the object-free path.
     """
-    n_envs, h, w, _ = out.shape
+    h, w = out.shape[1], out.shape[2]
     n_pal = palette.shape[1] - 5
-    for row in nb.prange(n_envs * h):
+    amp = np.empty(16)
+    acc = np.empty((w, 3))
+    tmp = np.empty((w, 3))
+    tbest = np.empty(w)
+    hit = np.zeros(w, dtype=np.bool_)
+    amp_of = -1
+    for row in range(lo, hi):
         n = row // h
         v = row % h
         if k_count[n] == 0:  # robot not rendered this frame (its episode has ended)
@@ -80,23 +96,21 @@ def render_kernel(
         pose_n = poses[n]
         k_sub = k_count[n]
         inv_k = 1.0 / k_sub
-        amp = np.empty(16)
-        for lv in range(16):
-            amp[lv] = tex_noise / (1 << lv)  # averaging 4^L texels shrinks the grain by 2^L
+        if amp_of != n:
+            amp_of = n
+            for lv in range(16):
+                amp[lv] = tex_noise / (1 << lv)  # averaging 4^L texels shrinks the grain by 2^L
         gx_r = gx[c, v]
         gy_r = gy[c, v]
         lv_r = level_map[c, v]
-        acc = np.empty((w, 3))
         is_ground = ground_from[c, v] < w
         any_obj = False
         for k in range(k_sub):
             for j in range(nvis[n, k]):
                 if obj_box[n, k, j, 2] <= v < obj_box[n, k, j, 3]:
                     any_obj = True
-        hit = np.zeros(w if any_obj else 1, dtype=np.bool_)
         if any_obj:
-            tmp = np.empty((w, 3))
-            tbest = np.empty(w)
+            hit[:] = False
             mix_o = sky_mix[c, v]
             rays_r = rays[c, v]
             fwd = cams[c, 0]
@@ -181,6 +195,35 @@ def render_kernel(
         o0 = offset[n, 0]
         o1 = offset[n, 1]
         o2 = offset[n, 2]
+        if not any_obj and vig <= 0.0 and noise_std <= 0.0 and (not is_ground or linear[c]):
+            # the common rows, all sky or all ground (pinhole), without per-pixel effects: branch-free loops
+            # with the same arithmetic as the general one below
+            if is_ground:
+                for u in range(w):
+                    r = acc[u, 0] * inv_k
+                    g = acc[u, 1] * inv_k
+                    b = acc[u, 2] * inv_k
+                    r += o0
+                    g += o1
+                    b += o2
+                    out_r[u, 0] = np.uint8(min(max(r, 0.0), 255.0) + 0.5)
+                    out_r[u, 1] = np.uint8(min(max(g, 0.0), 255.0) + 0.5)
+                    out_r[u, 2] = np.uint8(min(max(b, 0.0), 255.0) + 0.5)
+            else:
+                h0, h1, h2 = sky[n, _HORIZON, 0], sky[n, _HORIZON, 1], sky[n, _HORIZON, 2]
+                s0, s1, s2 = sky[n, _SKY, 0], sky[n, _SKY, 1], sky[n, _SKY, 2]
+                for u in range(w):
+                    m = mix_r[u]
+                    r = h0 * (1.0 - m) + s0 * m
+                    g = h1 * (1.0 - m) + s1 * m
+                    b = h2 * (1.0 - m) + s2 * m
+                    r += o0
+                    g += o1
+                    b += o2
+                    out_r[u, 0] = np.uint8(min(max(r, 0.0), 255.0) + 0.5)
+                    out_r[u, 1] = np.uint8(min(max(g, 0.0), 255.0) + 0.5)
+                    out_r[u, 2] = np.uint8(min(max(b, 0.0), 255.0) + 0.5)
+            continue
         for u in range(w):
             if lv_r[u] < 0 and not (any_obj and hit[u]):
                 m = mix_r[u]
@@ -207,6 +250,29 @@ def render_kernel(
             out_r[u, 0] = np.uint8(min(max(r, 0.0), 255.0) + 0.5)
             out_r[u, 1] = np.uint8(min(max(g, 0.0), 255.0) + 0.5)
             out_r[u, 2] = np.uint8(min(max(b, 0.0), 255.0) + 0.5)
+
+
+@nb.njit(cache=True, parallel=True)
+def render_parallel(
+    workers, counter, chunk, out, poses, cam_index, linear, gx, gy, level_map, ground_from, sky_mix, vignette,
+    tile_kind, tile_affine, tile_base, inv_ts, tex, tex_off, tex_size,
+    palette, sky, offset, post, seeds, frames, k_count, grain, grain_index,
+    rays, cams, prims, vis, nvis, obj_box, gain, mat_rgb,
+):
+    """:func:`render_rows` of the whole batch on ``workers`` threads, each taking ``chunk`` rows at a time
+    from ``counter[0]`` (0 on entry) until none are left (see ``proxybench.domain.parallelism``)."""
+    total = out.shape[0] * out.shape[1]
+    for _ in nb.prange(workers):
+        while True:
+            lo = fetch_add(counter, 0, chunk)
+            if lo >= total:
+                break
+            render_rows(
+                lo, min(lo + chunk, total), out, poses, cam_index, linear, gx, gy, level_map, ground_from, sky_mix,
+                vignette, tile_kind, tile_affine, tile_base, inv_ts, tex, tex_off, tex_size, palette, sky, offset,
+                post, seeds, frames, k_count, grain, grain_index, rays, cams, prims, vis, nvis, obj_box, gain,
+                mat_rgb,
+            )
 
 
 def _appearance(p: DomainParams, coverage: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -370,11 +436,28 @@ class Renderer:
         if prims.shape[0]:
             cull_objects(poses, k_count, self.cam_index, cams, prims, n_static, ranges, self.object_range, self.width,
                          self.height, vis, nvis, box)
-        render_kernel(
+        args = (
             out, poses, self.cam_index, linear, gx, gy, level_map,
             ground_from, sky_mix, vignette, la.tile_kind, self._affine, self._base, 1.0 / la.tile_size,
             tx.texels, tx.offsets, tx.size, self.palette, self.sky, self.offset, self.post,
             np.asarray(seeds).astype(np.uint64), np.asarray(frames).astype(np.int64),
             k_count, self._grain, self.grain_index, rays, cams, prims, vis, nvis, box, self.gain, self.mat_rgb,
         )
+        rows = out.shape[0] * self.height
+        work = int(k_count[: out.shape[0]].sum()) * self.height * self.width
+        # one thread or all, by timing both on batches of this size (domain.parallelism)
+        threads = ThreadChoice.shared((rows, self.width, poses.shape[1]))
+        parallel = threads.parallel(work) and claim_threads()
+        t0 = time.perf_counter()
+        if parallel:
+            try:
+                workers = threads_available()
+                # about 16 chunks per thread: small enough that a parked thread holds up little of the frame
+                chunk = max(1, rows // (16 * workers))
+                render_parallel(workers, np.zeros(1, dtype=np.int64), chunk, *args)
+            finally:
+                release_threads()
+        else:
+            render_rows(0, rows, *args)
+        threads.record(parallel, time.perf_counter() - t0, work)
         return out

@@ -6,7 +6,7 @@
 - :mod:`.report`: scores, per-episode report, data checks, trajectory archive and video;
 - :mod:`.compliance`: the check a target (the reality model, or a robot node) passes before a target job.
 
-``proxybench evaluator --server URL --token T`` runs one; see docs/evaluator.md.
+``PROXYBENCH_TOKEN=… proxybench evaluator --server URL`` (or ``--token-file F``) runs one; see docs/evaluator.md.
 """
 
 from proxybench.evaluator.loop import Evaluator, EvaluatorConfig, Reporter

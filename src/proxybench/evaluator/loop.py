@@ -34,8 +34,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
+
 from proxybench import __version__
 from proxybench.client import ServerClient, ServerError
+from proxybench.contract import ResultUpload
 from proxybench.evaluator.outcome import Artifact, Outcome
 from proxybench.evaluator.sandbox import AGENT_USER, Isolation, Limits, detect_isolation
 from proxybench.evaluator.worker import Worker, job_artifacts_only, read_plain_file
@@ -197,14 +200,18 @@ class Evaluator:
         """Lease one job and see it through. Returns the status reported, ``lost`` (the lease was lost: work
         dropped), ``unreported`` (the server stayed unreachable), or None when no job was free."""
         try:
-            lease = self.client.lease(self.config.name, list(self.config.features), __version__)
+            leased = self.client.lease(self.config.name, list(self.config.features), __version__)
         except ServerError as exc:
             if exc.status in (400, 401, 403, 404, 422):  # this evaluator's token or settings: asking again won't help
                 raise
             self.reporter.note(f"cannot lease a job: {exc}")
             return None
-        if lease is None:
+        except ValidationError as exc:  # a lease this evaluator cannot read (a server too new or too old)
+            self.reporter.note(f"cannot read the server's lease reply: {exc}")
             return None
+        if leased is None:
+            return None
+        lease = leased.model_dump(mode="json")  # proxybench.contract.Lease, as plain data for the worker
         self.reporter.job_started(lease)
         status = self._process(lease)
         self.jobs_done += 1
@@ -326,15 +333,16 @@ class Evaluator:
                 "message": message[:_MAX_MESSAGE], "artifacts": refs}
         try:
             try:
-                self._post(lease, body)
-            except ServerError as exc:
-                if exc.status != 422:
+                upload = ResultUpload.model_validate(body)  # the server's own checks, before sending
+                self._post(lease, upload)
+            except (ServerError, ValidationError) as exc:
+                if isinstance(exc, ServerError) and exc.status != 422:
                     raise
-                log.error("job %s: the server refused the result (%s); reporting an error instead",
-                          lease["job_id"], exc)
-                body.update(status="error", public_scores={}, hidden_scores={}, public_report={}, hidden_report={},
-                            message=f"the server refused this evaluator's result: {exc.message}"[:_MAX_MESSAGE])
-                self._post(lease, body)
+                why = exc.message if isinstance(exc, ServerError) else str(exc)
+                log.error("job %s: the result was refused (%s); reporting an error instead", lease["job_id"], why)
+                upload = ResultUpload(lease_id=lease["lease_id"], evaluator=self.config.name, status="error",
+                                      message=f"the server refused this evaluator's result: {why}"[:_MAX_MESSAGE])
+                self._post(lease, upload)
                 return "error"
         except ServerError as exc:
             if exc.status in (401, 403):
@@ -347,7 +355,7 @@ class Evaluator:
             return "unreported"
         return outcome.status
 
-    def _post(self, lease: dict[str, Any], body: dict[str, Any]) -> None:
+    def _post(self, lease: dict[str, Any], body: ResultUpload) -> None:
         """POST the result; network failures and 5xx are retried for ``post_retry_s`` (stored once per lease)."""
         deadline = time.monotonic() + self.config.post_retry_s
         while True:

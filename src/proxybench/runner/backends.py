@@ -41,11 +41,22 @@ class InlineBackend:
         pass
 
 
+#: thread-count variables a worker sets (unless the user did) for libraries that start after it
+_ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+
 def _init_worker() -> None:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")  # network agents: one thread per worker, like the kernels
+    """One compiled-kernel, OpenMP and PyTorch thread per worker: the pool already uses every core, and
+    threads that wait by spinning would take cores from the other workers."""
+    for var in _ONE_THREAD:
+        os.environ.setdefault(var, "1")  # PyTorch, BLAS and agent subprocesses started from here on
+    import sys
+
     import numba
 
     numba.set_num_threads(1)
+    if "torch" in sys.modules:  # already started with its own threads
+        sys.modules["torch"].set_num_threads(1)
 
 
 class LocalBackend:

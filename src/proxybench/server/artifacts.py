@@ -6,6 +6,7 @@ what it downloads.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
 import re
@@ -71,6 +72,27 @@ class ArtifactStore:
         finally:
             if os.path.exists(tmp):
                 os.unlink(tmp)
+
+    def adopt(self, path: Path, expected: str, size: int) -> int:
+        """Move a file already hashed (a spooled request body) into the store under ``expected``; returns
+        its size. The file is flushed to disk first, so a crash cannot leave a torn artifact."""
+        if not is_sha256(expected):
+            raise ValueError(f"not a SHA-256 hex digest: {expected!r}")
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        dest = self.path(expected)
+        dest.parent.mkdir(exist_ok=True)
+        try:
+            os.replace(path, dest)
+        except OSError as exc:
+            if exc.errno != errno.EXDEV:
+                raise
+            with open(path, "rb") as f:  # another file system: copy (and hash again)
+                return self.write(iter(lambda: f.read(1 << 20), b""), size, expected)[1]
+        return size
 
     def record(self, session: Session, sha256: str, size: int, media_type: str, user_id: int | None) -> Artifact:
         """The table row for a stored file (created once; later uploads of the same bytes reuse it)."""

@@ -20,6 +20,7 @@ from sqlalchemy.orm import Session
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import BenchmarkVersion
 from proxybench.tasks.benchmark import Benchmark, BenchmarkError, builtin_benchmark_names
+from proxybench.untrusted import UntrustedInputError, load_yaml
 
 __all__ = ["benchmark_of", "latest", "parse_benchmark", "public_view", "register_builtins", "store_benchmark"]
 
@@ -27,7 +28,9 @@ __all__ = ["benchmark_of", "latest", "parse_benchmark", "public_view", "register
 def parse_benchmark(text: str, origin: str = "<upload>") -> Benchmark:
     """Validate a benchmark text; maps must be built-in (the server holds no user map files)."""
     try:
-        data = yaml.safe_load(text)
+        data = load_yaml(text, max_depth=32)
+    except UntrustedInputError as exc:
+        raise ServiceError(422, f"{origin}: {exc}") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f":{mark.line + 1}:{mark.column + 1}" if mark is not None else ""
@@ -39,6 +42,8 @@ def parse_benchmark(text: str, origin: str = "<upload>") -> Benchmark:
         return Benchmark.from_dict(data, origin=origin)
     except BenchmarkError as exc:
         raise ServiceError(422, str(exc)) from None
+    except (ValueError, TypeError, RecursionError) as exc:  # anything the schema did not name: still a 422
+        raise ServiceError(422, f"{origin}: not a valid benchmark ({exc})") from None
 
 
 def latest(session: Session, name: str) -> BenchmarkVersion:

@@ -30,6 +30,18 @@ class Settings(BaseModel):
     max_concurrent_requests: int = Field(8, ge=1, le=200, description="requests in progress at once; "
                                          "the rest queue (one process has one GIL: more only adds switching)")
     json_max_bytes: int = Field(8 << 20, gt=0, description="largest JSON or YAML request body accepted")
+    max_queued_requests: int = Field(2048, ge=1, description="requests waiting for a turn; beyond: 503")
+    body_timeout: float = Field(30.0, gt=0, description="longest pause in a request body (and the grace period "
+                                "before body_min_rate applies); slower: 408")
+    body_min_rate: float = Field(16_384.0, gt=0, description="bytes/s a request body must average after "
+                                 "body_timeout seconds")
+    send_timeout: float = Field(60.0, gt=0, description="a client that reads none of its reply for this long "
+                                "is disconnected")
+    token_cache_seconds: float = Field(2.0, ge=0, description="a process remembers a checked token this long "
+                                       "(a revoked one is refused at once by the process that revoked it, by "
+                                       "the others within this time; 0: check every request)")
+    session_seconds: float = Field(8 * 3600.0, gt=0, description="how long a web console sign-in lasts")
+    workers: int = Field(1, ge=1, le=64, description="server processes (uvicorn workers) sharing the port")
 
     @property
     def url(self) -> str:

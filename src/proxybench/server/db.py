@@ -38,7 +38,9 @@ def make_engine(url: str, pool_size: int = 12) -> Engine:
             cur.close()
 
         return engine
-    return create_engine(url, pool_size=pool_size, max_overflow=8, pool_pre_ping=True)
+    # no pre-ping (a round trip per request); a connection that died with a database restart fails one
+    # request (a 500, retried by clients) and SQLAlchemy then replaces the whole pool
+    return create_engine(url, pool_size=pool_size, max_overflow=8, pool_recycle=3600)
 
 
 def migrate(engine: Engine) -> None:

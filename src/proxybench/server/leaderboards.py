@@ -3,99 +3,288 @@ benchmark's lexicographic semiorder (Copeland over pairwise comparisons, as ``pr
 
 ``split="public"`` ranks by validation scores (what developers see); ``split="hidden"`` by the
 hidden test episodes (super-users only: the API refuses developers).
+
+Boards are built when they change, not when they are read. Every change (a success result, a retired
+submission) bumps its benchmark version's ``board_version`` in the same transaction; a board is built
+once per version and kept, serialised, in the process (:class:`BoardCache`), so a read costs one small
+query (the version) and a dictionary lookup. Builds are incremental: only the results that arrived since
+the last build are read (all of them again after a retirement), then everything is re-ranked (a compiled
+pair loop). A change asks for a rebuild in the background, right after its commit (the writing request
+does not wait for it); a reader that finds a small board (at most ``SYNC_BUILD_ROWS`` rows) out of date
+builds it on the spot, so a read after a result always shows it. A large board is rebuilt at most once
+per ``max(MIN_INTERVAL_S, 8 × its build time)`` however fast results arrive, and readers get the
+previous build meanwhile, marked ``"stale": true``. Each server process keeps (and builds) its own copy.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import logging
 import math
 import threading
-from collections import OrderedDict
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 from typing import Any
 
 from sqlalchemy import func, select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, sessionmaker
 
-from proxybench.server.benchmarks import benchmark_of, latest
+from proxybench.server.benchmarks import benchmark_of
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import BenchmarkVersion, Result, Submission, User
 from proxybench.tasks.scoring import leaderboard
 
-__all__ = ["leaderboard_rows"]
+__all__ = ["MIN_INTERVAL_S", "SYNC_BUILD_ROWS", "Board", "BoardCache", "build_board", "resolve_version"]
+
+log = logging.getLogger("proxybench.server")
+SYNC_BUILD_ROWS = 100  # boards of at most this many rows are always built before they are served
+MIN_INTERVAL_S = 1.0  # the shortest pause between background rebuilds of one large board [s]
+INTERVAL_FACTOR = 8  # ... and at least this many times its build time: rebuilding takes ≤ 1/8 of a core
+SPLITS = ("public", "hidden")
 
 
-def _version(session: Session, name: str, version: int | None) -> BenchmarkVersion:
-    if version is None:
-        return latest(session, name)
-    row = session.scalar(select(BenchmarkVersion).where(BenchmarkVersion.name == name,
-                                                        BenchmarkVersion.version == version))
+def resolve_version(session: Session, name: str, version: int | None) -> tuple[int, int, int]:
+    """(benchmark id, version, board_version) of a benchmark's newest or given version, in one query."""
+    q = select(BenchmarkVersion.id, BenchmarkVersion.version, BenchmarkVersion.board_version) \
+        .where(BenchmarkVersion.name == name)
+    q = q.order_by(BenchmarkVersion.version.desc()).limit(1) if version is None else \
+        q.where(BenchmarkVersion.version == version)
+    row = session.execute(q).first()
     if row is None:
-        raise ServiceError(404, f"benchmark {name!r} has no version {version}")
-    return row
-
-
-_CACHE_LOCK = threading.Lock()
-_BOARD_CACHE: OrderedDict[tuple, dict[str, Any]] = OrderedDict()
+        raise ServiceError(404, f"no benchmark named {name!r}" if version is None else
+                           f"benchmark {name!r} has no version {version}")
+    return int(row[0]), int(row[1]), int(row[2])
 
 
 def _json_number(v: float | None) -> float | None:
-    return None if v is None or (isinstance(v, float) and math.isnan(v)) else v
+    return None if v is None or (isinstance(v, float) and not math.isfinite(v)) else v
 
 
-def _fingerprint(session: Session, bench_id: int) -> tuple:
-    """Changes whenever the board can: a new success on this version, or a submission retired."""
-    n, last = session.execute(select(func.count(Result.id), func.max(Result.id))
-                              .where(Result.benchmark_id == bench_id, Result.status == "success")).one()
-    retired = session.scalar(select(func.count(Submission.id)).where(Submission.status != "active"))
-    return (n, last, retired)
+@dataclass
+class Entries:
+    """What a board is built from: the newest success of each active submission, and how far it has read
+    (the highest result id, and how many submissions were retired then: a retirement means reading all)."""
+
+    by_submission: dict[int, tuple] = field(default_factory=dict)  # sid -> (rid, at, scores, label, agent, user)
+    last_result: int = 0
+    retired: int = -1
 
 
-def leaderboard_rows(session: Session, name: str, split: str = "public",
-                     version: int | None = None) -> dict[str, Any]:
-    """The ranked table as plain data: criteria, then one row per submission (best first).
-
-    Boards are cached per (version, split) and rebuilt only when their fingerprint changes, so polling
-    clients cost two small aggregate queries, not a scan of every result.
-    """
-    if split not in ("public", "hidden"):
-        raise ServiceError(422, f"split must be 'public' or 'hidden', got {split!r}")
-    row = _version(session, name, version)
-    bind = session.get_bind()
-    key = (id(bind), str(bind.url), row.id, split, _fingerprint(session, row.id))
-    with _CACHE_LOCK:
-        if key in _BOARD_CACHE:
-            _BOARD_CACHE.move_to_end(key)
-            return _BOARD_CACHE[key]
-    board = _build(session, row, split)
-    with _CACHE_LOCK:
-        _BOARD_CACHE[key] = board
-        while len(_BOARD_CACHE) > 64:
-            _BOARD_CACHE.popitem(last=False)
-    return board
-
-
-def _build(session: Session, row: BenchmarkVersion, split: str) -> dict[str, Any]:
-    criteria = benchmark_of(row).criteria()
+def _read_entries(session: Session, bench_id: int, split: str, since: Entries | None) -> Entries:
+    """The board's entries: only results newer than ``since`` when no submission was retired since."""
+    retired = session.scalar(select(func.count(Submission.id)).where(Submission.status != "active")) or 0
+    if since is None or since.retired != retired:
+        since = Entries(retired=retired)
+    out = Entries(dict(since.by_submission), since.last_result, retired)
     score_col = Result.public_scores if split == "public" else Result.hidden_scores
-    results = session.execute(
+    rows = session.execute(
         select(Result.id, Result.created_at, score_col, Submission.id, Submission.label, Submission.agent_name,
                Submission.manifest, User.name)
         .join(Submission, Result.submission_id == Submission.id).join(User, Submission.user_id == User.id)
-        .where(Result.benchmark_id == row.id, Result.status == "success", Submission.status == "active")
+        .where(Result.benchmark_id == bench_id, Result.status == "success", Submission.status == "active",
+               Result.id > since.last_result)
         .order_by(Result.id)
     ).all()
-    newest = {r[3]: r for r in results}  # the latest success per submission (a retried step replaces the older)
+    for rid, at, scores, sid, label, agent, manifest, user in rows:  # the latest success per submission wins
+        out.by_submission[sid] = (rid, at, scores or {}, label, agent or (manifest or {}).get("name", "archive"),
+                                  user)
+        out.last_result = max(out.last_result, rid)
+    return out
+
+
+def build_board(session: Session, bench_id: int, split: str,
+                since: Entries | None = None) -> tuple[int, dict[str, Any], Entries]:
+    """(board_version it reflects, the ranked table as plain data: criteria, then rows best first, and the
+    entries it was built from, to build the next one incrementally).
+
+    The version is read first: everything it counts was committed before, so the results read after it
+    include at least those (a board is never newer than it claims).
+    """
+    row = session.get(BenchmarkVersion, bench_id)
+    if row is None:
+        raise ServiceError(404, f"no benchmark version {bench_id}")
+    session.refresh(row)
+    board_version = row.board_version
+    criteria = benchmark_of(row).criteria()
+    entries = _read_entries(session, bench_id, split, since)
     # a metric the evaluator could not compute arrives as null: NaN ranks it worst, as in proxybench evaluate
-    scores = {sid: {k: (math.nan if v is None else v) for k, v in r[2].items()} for sid, r in newest.items() if r[2]}
-    ranks = leaderboard(scores, criteria) if scores else []  # Copeland: quadratic, hence the board cache
+    scores = {sid: {c.metric: _nan_if_none(e[2].get(c.metric)) for c in criteria}
+              for sid, e in entries.by_submission.items() if e[2]}
+    ranks = leaderboard(scores, criteria) if scores else []
     rows = []
     for rank in ranks:
-        rid, at, _, sid, label, agent, manifest, user = newest[rank.agent]
-        rows.append({"rank": rank.rank, "submission_id": sid, "label": label, "user": user,
-                     "agent": agent or (manifest or {}).get("name", "archive"),
+        rid, at, _, label, agent, user = entries.by_submission[rank.agent]
+        rows.append({"rank": rank.rank, "submission_id": rank.agent, "label": label, "user": user, "agent": agent,
                      "copeland": rank.copeland, "wins": rank.wins, "losses": rank.losses,
                      "scores": {c.metric: _json_number(scores[rank.agent].get(c.metric)) for c in criteria},
                      "result_id": rid, "at": at})
-    return {"benchmark": row.name, "version": row.version, "split": split,
-            "criteria": [{"metric": c.metric, "higher_is_better": c.higher_is_better, "tolerance": c.tolerance}
-                         for c in criteria],
-            "rows": rows}
+    return board_version, {
+        "benchmark": row.name, "version": row.version, "split": split,
+        "criteria": [{"metric": c.metric, "higher_is_better": c.higher_is_better, "tolerance": c.tolerance}
+                     for c in criteria],
+        "rows": rows}, entries
+
+
+def _nan_if_none(v: Any) -> float:
+    return math.nan if v is None else float(v)
+
+
+@dataclass
+class Board:
+    """One built board: the data, when it was built and how long that took."""
+
+    bench_id: int
+    split: str
+    board_version: int
+    data: dict[str, Any]
+    built_at: float
+    build_seconds: float
+    etag: str = ""
+    entries: Entries | None = field(default=None, repr=False)
+    _pages: dict[tuple[int, int, bool], bytes] = field(default_factory=dict, repr=False)
+
+    def page(self, offset: int, limit: int | None, stale: bool) -> bytes:
+        """The JSON reply for rows[offset : offset + limit], serialised once per page and build."""
+        key = (offset, -1 if limit is None else limit, stale)
+        cached = self._pages.get(key)
+        if cached is None:
+            rows = self.data["rows"]
+            chosen = rows[offset:] if limit is None else rows[offset:offset + limit]
+            body = {**self.data, "rows": chosen, "total": len(rows), "offset": offset,
+                    "board_version": self.board_version, "built_at": self.built_at, "stale": stale}
+            cached = json.dumps(body, separators=(",", ":"), allow_nan=False).encode()
+            if len(self._pages) < 32:
+                self._pages[key] = cached
+        return cached
+
+
+class BoardCache:
+    """The boards this process has built, by (benchmark version id, split); thread-safe.
+
+    Rebuilds asked for by changes run on one background thread, at most one per board at a time and no
+    sooner than the board's :func:`interval` after its last build; a change during a build asks for one
+    more. Readers build small out-of-date boards on the spot (so a read after a write shows it)."""
+
+    def __init__(self, sessions: sessionmaker) -> None:
+        self.sessions = sessions
+        self._boards: dict[tuple[int, str], Board] = {}
+        self._lock = threading.Lock()
+        self._building: set[tuple[int, str]] = set()
+        self._pending: set[tuple[int, str]] = set()
+        self._again: set[tuple[int, str]] = set()
+        self._background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="board-builder")
+
+    def close(self) -> None:
+        self._background.shutdown(wait=False, cancel_futures=True)
+
+    # -- building ------------------------------------------------------------------------------------
+
+    def _build(self, key: tuple[int, str]) -> Board:
+        t0 = time.perf_counter()
+        previous = self._boards.get(key)
+        with self.sessions() as session:
+            version, data, entries = build_board(session, *key, since=previous.entries if previous else None)
+        seconds = time.perf_counter() - t0
+        digest = hashlib.sha256(f"{key}{version}{time.time()}".encode()).hexdigest()[:20]
+        board = Board(key[0], key[1], version, data, time.time(), seconds, etag=f'"{digest}"', entries=entries)
+        with self._lock:
+            old = self._boards.get(key)
+            if old is None or old.board_version <= version:
+                self._boards[key] = board
+            return self._boards[key]
+
+    def _build_once(self, key: tuple[int, str], wait: bool) -> Board | None:
+        """Build unless this process is building it already (then wait for that build, or not)."""
+        with self._lock:
+            busy = key in self._building
+            if not busy:
+                self._building.add(key)
+        if busy:
+            if not wait:
+                return None
+            while True:
+                time.sleep(0.002)
+                with self._lock:
+                    if key not in self._building:
+                        return self._boards.get(key)
+        try:
+            return self._build(key)
+        finally:
+            with self._lock:
+                self._building.discard(key)
+                again = key in self._again
+                self._again.discard(key)
+            if again:
+                self.request(key)  # changes arrived while it was being built
+
+    def request(self, key: tuple[int, str]) -> None:
+        """Ask for a rebuild in the background (coalesced; no sooner than the board's interval)."""
+        with self._lock:
+            if key in self._building:
+                self._again.add(key)
+                return
+            if key in self._pending:
+                return
+            self._pending.add(key)
+        board = self._boards.get(key)
+        delay = 0.0 if board is None else max(0.0, board.built_at + interval(board) - time.time())
+
+        def run() -> None:
+            if delay:
+                time.sleep(delay)
+            with self._lock:
+                self._pending.discard(key)
+            try:
+                self._build_once(key, wait=False)
+            except Exception as exc:  # a failed rebuild leaves the old board; the next change asks again
+                log.warning("leaderboard rebuild of %s failed: %s", key, exc)
+
+        self._background.submit(run)
+
+    # -- reading -------------------------------------------------------------------------------------
+
+    def fresh(self, bench_id: int, split: str, board_version: int) -> Board | None:
+        """The board if this process has it built from ``board_version`` (or later), else None."""
+        board = self._boards.get((bench_id, split))
+        return board if board is not None and board.board_version >= board_version else None
+
+    def get(self, bench_id: int, split: str, board_version: int) -> tuple[Board, bool]:
+        """(the board to serve, whether it is older than ``board_version``)."""
+        key = (bench_id, split)
+        board = self._boards.get(key)
+        if board is not None and board.board_version >= board_version:
+            return board, False
+        if board is None or len(board.data["rows"]) <= SYNC_BUILD_ROWS:
+            built = self._build_once(key, wait=True)
+            if built is not None and built.board_version >= board_version:
+                return built, False
+            board = built or board
+        self.request(key)
+        assert board is not None
+        return board, board.board_version < board_version
+
+    def changed(self, bench_ids: set[int] | list[int]) -> None:
+        """After a commit that changed these boards: rebuild the ones this process serves, in the background
+        (cheap to call: no query, no build here)."""
+        ids = set(bench_ids)
+        for key in [k for k in list(self._boards) if k[0] in ids]:
+            self.request(key)
+
+
+def interval(board: Board) -> float:
+    """The shortest time between two background builds of this board."""
+    return max(MIN_INTERVAL_S, INTERVAL_FACTOR * board.build_seconds)
+
+
+def leaderboard_rows(session: Session, name: str, split: str = "public",
+                     version: int | None = None, boards: BoardCache | None = None) -> dict[str, Any]:
+    """The whole ranked table as plain data (the web pages' view), from ``boards`` when given."""
+    if split not in SPLITS:
+        raise ServiceError(422, f"split must be 'public' or 'hidden', got {split!r}")
+    bench_id, _, board_version = resolve_version(session, name, version)
+    if boards is None:
+        return build_board(session, bench_id, split)[1]
+    board, stale = boards.get(bench_id, split, board_version)
+    return {**board.data, "total": len(board.data["rows"]), "stale": stale, "built_at": board.built_at}

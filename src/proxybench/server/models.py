@@ -16,7 +16,7 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
 __all__ = [
     "FINAL_STATUSES", "JOB_STATUSES", "ROLES", "ApiToken", "Artifact", "ArtifactLink", "Base", "BenchmarkPath",
-    "BenchmarkVersion", "Evaluator", "Job", "JobEvent", "Result", "Submission", "User",
+    "BenchmarkVersion", "Evaluator", "Job", "JobEvent", "Result", "Submission", "User", "WebSession",
 ]
 
 ROLES = ("superuser", "developer", "evaluator")
@@ -48,7 +48,21 @@ class ApiToken(Base):
     label: Mapped[str] = mapped_column(String(64), default="")
     created_at: Mapped[float] = mapped_column(Float)
     revoked: Mapped[bool] = mapped_column(Boolean, default=False)
+    revoked_at: Mapped[float | None] = mapped_column(Float, nullable=True)
     user: Mapped[User] = relationship(back_populates="tokens")
+
+
+class WebSession(Base):
+    """A signed-in browser: its own random secret (hashed here), expiring, ended by signing out or by revoking
+    the API token it was opened with. The cookie never holds the API token itself."""
+
+    __tablename__ = "web_sessions"
+    id: Mapped[int] = mapped_column(primary_key=True)
+    secret_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id"), index=True)
+    token_id: Mapped[int] = mapped_column(ForeignKey("api_tokens.id"), index=True)
+    created_at: Mapped[float] = mapped_column(Float)
+    expires_at: Mapped[float] = mapped_column(Float)
 
 
 class BenchmarkVersion(Base):
@@ -63,6 +77,8 @@ class BenchmarkVersion(Base):
     features: Mapped[list[Any]] = mapped_column(default=list)  # what an evaluator must offer, e.g. ["sim"]
     test_seed: Mapped[int | None] = mapped_column(Integer, nullable=True)  # hidden split; never shown to developers
     created_at: Mapped[float] = mapped_column(Float)
+    # bumped in the transaction of every change to its leaderboards (a success result, a retirement)
+    board_version: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
 
 
 class BenchmarkPath(Base):
@@ -177,3 +193,4 @@ class ArtifactLink(Base):
     result_id: Mapped[int | None] = mapped_column(ForeignKey("results.id"), nullable=True)
     name: Mapped[str] = mapped_column(String(255))
     hidden: Mapped[bool] = mapped_column(Boolean, default=False)
+

@@ -1,9 +1,11 @@
 """The job queue: leases with heartbeats, bounded retries, and results recorded exactly once.
 
-Leasing is an optimistic compare-and-set (``UPDATE … WHERE status = 'queued'``), which is correct on
-SQLite and PostgreSQL alike without table locks: two evaluators racing for one job cannot both get it.
-A lease lapses ``lease_seconds`` after the last heartbeat; the next queue operation puts the job back
-(or, after ``max_attempts`` leases, gives it up as ``timeout``).
+Leasing is a compare-and-set (``UPDATE … WHERE status = 'queued'``), which is correct on SQLite and
+PostgreSQL alike: two evaluators racing for one job cannot both get it. On PostgreSQL the candidate is
+first locked with ``FOR UPDATE SKIP LOCKED``, so racing evaluators take different jobs instead of queueing
+behind one row lock. A lease lapses ``lease_seconds`` after the last heartbeat, on the server's monotonic
+clock (:mod:`.clock`: a wall-clock step cannot end leases); the next queue operation or the reaper puts
+the job back (or, after ``max_attempts`` leases, gives it up as ``timeout``).
 
 Outcomes an evaluator reports, as AIDO's: ``success``; ``failed`` (the submission's fault);
 ``error`` (the evaluator's fault, final until an operator retries); ``host-error`` (the job goes back to
@@ -16,20 +18,23 @@ import secrets
 import time
 from typing import Any
 
-from sqlalchemy import select, update
+from sqlalchemy import insert, select, update
 from sqlalchemy.exc import IntegrityError
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, joinedload
 
+from proxybench.contract import REPORTABLE, ResultUpload
+from proxybench.server import clock
 from proxybench.server.errors import ServiceError
-from proxybench.server.models import FINAL_STATUSES, Evaluator, Job, JobEvent, Result, Submission
+from proxybench.server.models import FINAL_STATUSES, BenchmarkVersion, Evaluator, Job, JobEvent, Result, Submission
 
-__all__ = ["REPORTABLE", "abort_jobs", "finish", "heartbeat", "lease", "log_event", "requeue_expired", "retry"]
-
-REPORTABLE = ("success", "failed", "error", "host-error", "aborted")
+__all__ = ["REPORTABLE", "abort_jobs", "bump_boards", "finish", "heartbeat", "install_board_bumps", "lease",
+           "log_event", "requeue_expired", "retry"]
 
 
 def log_event(session: Session, job: Job, kind: str, evaluator_id: int | None = None, message: str = "") -> None:
-    session.add(JobEvent(job_id=job.id, at=time.time(), kind=kind, evaluator_id=evaluator_id, message=message))
+    """One line of the job's history (a plain INSERT: no object for the unit of work to track)."""
+    session.execute(insert(JobEvent).values(job_id=job.id, at=time.time(), kind=kind, evaluator_id=evaluator_id,
+                                            message=message))
 
 
 def _release(job: Job, status: str, message: str = "") -> None:
@@ -43,8 +48,12 @@ def _release(job: Job, status: str, message: str = "") -> None:
 
 def requeue_expired(session: Session, now: float | None = None) -> int:
     """Return lapsed leases to the queue (or give the job up after its last attempt). Returns how many."""
-    now = time.time() if now is None else now
-    lapsed = session.scalars(select(Job).where(Job.status == "evaluating", Job.lease_expires_at < now)).all()
+    now = clock.now() if now is None else now
+    ids = session.scalars(select(Job.id).where(Job.status == "evaluating", Job.lease_expires_at < now)).all()
+    if not ids:  # the usual case: one cheap indexed query, no objects
+        return 0
+    lapsed = session.scalars(select(Job).where(Job.id.in_(ids), Job.status == "evaluating",
+                                               Job.lease_expires_at < now)).all()
     for job in lapsed:
         who = job.evaluator_id
         if job.attempts >= job.max_attempts:
@@ -59,20 +68,34 @@ def lease(session: Session, evaluator: Evaluator, lease_seconds: float) -> Job |
     """The oldest queued job this evaluator can run (features offered ⊇ required, not excluded), leased."""
     requeue_expired(session)
     offered = set(evaluator.features)
-    candidates = session.scalars(select(Job).where(Job.status == "queued").order_by(Job.id).limit(200)).all()
-    for job in candidates:
-        if not set(job.features) <= offered or evaluator.id in job.excluded:
-            continue
+    rows = session.execute(select(Job.id, Job.features, Job.excluded).where(Job.status == "queued")
+                           .order_by(Job.id).limit(200)).all()
+    eligible = [jid for jid, features, excluded in rows
+                if set(features) <= offered and evaluator.id not in (excluded or [])]
+    skip_locked = session.get_bind().dialect.name == "postgresql"
+    while eligible:
+        if skip_locked:  # take one nobody else is taking right now, without waiting for their row locks
+            jid = session.scalar(select(Job.id).where(Job.id.in_(eligible[:50]), Job.status == "queued")
+                                 .order_by(Job.id).limit(1).with_for_update(skip_locked=True))
+            if jid is None:
+                if len(eligible) <= 50:
+                    return None
+                eligible = eligible[50:]
+                continue
+        else:
+            jid = eligible[0]
+        eligible.remove(jid)
         lease_id = secrets.token_hex(16)
-        now = time.time()
+        now = clock.now()
         got = session.execute(
-            update(Job).where(Job.id == job.id, Job.status == "queued")
+            update(Job).where(Job.id == jid, Job.status == "queued")
             .values(status="evaluating", lease_id=lease_id, evaluator_id=evaluator.id, attempts=Job.attempts + 1,
-                    lease_expires_at=now + lease_seconds, started_at=now, message="")
+                    lease_expires_at=now + lease_seconds, started_at=time.time(), message="")
             .execution_options(synchronize_session=False)
         ).rowcount
         if got == 1:
-            session.refresh(job)
+            job = session.get(Job, jid, populate_existing=True,
+                              options=[joinedload(Job.submission), joinedload(Job.benchmark)])
             log_event(session, job, "leased", evaluator.id, f"attempt {job.attempts}")
             return job
     return None
@@ -92,20 +115,50 @@ def heartbeat(session: Session, job_id: int, lease_id: str, evaluator: Evaluator
               progress: dict[str, Any] | None = None) -> Job:
     """Extend a held lease; 409 when the lease was lost (lapsed and re-leased, or the job was aborted)."""
     job = _held(session, job_id, lease_id, evaluator)
-    job.lease_expires_at = time.time() + lease_seconds
+    job.lease_expires_at = clock.now() + lease_seconds
     if progress is not None:
         job.progress = progress
-    evaluator.last_seen_at = time.time()
+    evaluator.last_seen_at = clock.now()
     return job
 
 
-def finish(session: Session, job_id: int, lease_id: str, evaluator: Evaluator, status: str,
-           payload: dict[str, Any]) -> tuple[Result | None, bool]:
+def bump_boards(session: Session, benchmark_ids: set[int] | list[int]) -> None:
+    """Mark these benchmark versions' leaderboards changed: their ``board_version`` is bumped just before
+    this transaction commits (:func:`install_board_bumps`; a hot row, locked as briefly as possible), and
+    the ids are noted in ``session.info["changed_boards"]`` so the request has the boards rebuilt after."""
+    session.info.setdefault("changed_boards", set()).update(benchmark_ids)
+
+
+def _bump_before_commit(session: Session) -> None:
+    changed = session.info.pop("changed_boards", set())
+    for bid in sorted(changed):  # a fixed order: no crosswise locks
+        session.execute(update(BenchmarkVersion).where(BenchmarkVersion.id == bid)
+                        .values(board_version=BenchmarkVersion.board_version + 1)
+                        .execution_options(synchronize_session=False))
+    session.info.setdefault("bumped_boards", set()).update(changed)
+
+
+def _forget_on_rollback(session: Session) -> None:
+    session.info.pop("changed_boards", None)
+    session.info.pop("bumped_boards", None)
+
+
+def install_board_bumps(factory) -> None:
+    """Have every session of ``factory`` bump the board versions it changed as the last thing before commit
+    (then listed in ``session.info["bumped_boards"]``), and forget them on a rollback."""
+    from sqlalchemy import event
+
+    event.listen(factory, "before_commit", _bump_before_commit)
+    event.listen(factory, "after_soft_rollback", lambda session, _tx: _forget_on_rollback(session))
+
+
+def finish(session: Session, job_id: int, upload: ResultUpload, evaluator: Evaluator) -> tuple[Result | None, bool]:
     """Record the outcome of a held lease. Returns (result, created); idempotent for a retried upload.
 
     ``host-error`` stores no result: the job is queued again with this evaluator excluded (or given up
-    after the last attempt).
+    after the last attempt). The upload's text was cleaned by :class:`ResultUpload` (no NUL bytes).
     """
+    lease_id, status = upload.lease_id, upload.status
     if status not in REPORTABLE:
         raise ServiceError(422, f"field 'status': {status!r} is not one of {', '.join(REPORTABLE)}")
     existing = session.scalar(select(Result).where(Result.job_id == job_id))
@@ -114,18 +167,18 @@ def finish(session: Session, job_id: int, lease_id: str, evaluator: Evaluator, s
             return existing, False  # the same upload again (the first reply was lost): already recorded
         raise ServiceError(409, f"job {job_id} already has a result (from another lease)")
     job = _held(session, job_id, lease_id, evaluator)
-    evaluator.last_seen_at = time.time()
+    evaluator.last_seen_at = clock.now()
     if status == "host-error":
         job.excluded = [*job.excluded, evaluator.id]
         final = job.attempts >= job.max_attempts
-        _release(job, "host-error" if final else "queued", str(payload.get("message", "")))
+        _release(job, "host-error" if final else "queued", upload.message)
         log_event(session, job, "host-error", evaluator.id, job.message)
         return None, False
     result = Result(job_id=job.id, submission_id=job.submission_id, benchmark_id=job.benchmark_id,
                     lease_id=lease_id, evaluator_id=evaluator.id, status=status,
-                    public_scores=payload.get("public_scores") or {}, hidden_scores=payload.get("hidden_scores") or {},
-                    public_report=payload.get("public_report") or {}, hidden_report=payload.get("hidden_report") or {},
-                    message=str(payload.get("message", "")), created_at=time.time())
+                    public_scores=upload.public_scores, hidden_scores=upload.hidden_scores,
+                    public_report=upload.public_report, hidden_report=upload.hidden_report,
+                    message=upload.message, created_at=time.time())
     session.add(result)
     try:
         session.flush()
@@ -138,11 +191,16 @@ def finish(session: Session, job_id: int, lease_id: str, evaluator: Evaluator, s
     _release(job, status, result.message)
     evaluator.jobs_done += 1
     log_event(session, job, status, evaluator.id, result.message[:500])
+    if status == "success":
+        bump_boards(session, [job.benchmark_id])
     return result, True
 
 
 def abort_jobs(session: Session, submission: Submission, why: str) -> int:
-    """Abort a submission's unfinished jobs (it was retired or withdrawn)."""
+    """Abort a submission's unfinished jobs (it was retired or withdrawn); its boards change."""
+    boards = session.scalars(select(Result.benchmark_id).where(Result.submission_id == submission.id,
+                                                               Result.status == "success")).all()
+    bump_boards(session, set(boards))
     n = 0
     for job in submission.jobs:
         if job.status in ("queued", "evaluating"):

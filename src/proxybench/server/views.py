@@ -20,12 +20,15 @@ def can_see(user: User, sub: Submission) -> bool:
     return user.role == "superuser" or sub.user_id == user.id
 
 
-def result_view(session: Session, r: Result, superuser: bool) -> dict[str, Any]:
-    links = session.scalars(select(ArtifactLink).where(ArtifactLink.result_id == r.id)).all()
+def result_view(session: Session, r: Result, superuser: bool,
+                links: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+    """A result as the API shows it; ``links`` (name, sha256, hidden) when the caller has them already."""
+    if links is None:
+        links = [{"name": a.name, "sha256": a.sha256, "hidden": a.hidden}
+                 for a in session.scalars(select(ArtifactLink).where(ArtifactLink.result_id == r.id))]
     out = {"id": r.id, "job_id": r.job_id, "status": r.status, "public_scores": r.public_scores,
            "public_report": r.public_report, "message": r.message, "created_at": r.created_at,
-           "artifacts": [{"name": a.name, "sha256": a.sha256, "hidden": a.hidden} for a in links
-                         if superuser or not a.hidden]}
+           "artifacts": [a for a in links if superuser or not a["hidden"]]}
     if superuser:
         out.update(hidden_scores=r.hidden_scores, hidden_report=r.hidden_report)
     return out

@@ -11,8 +11,8 @@ computed over one finite set of agents. Here the agents are treated as a sample 
   whose second metric is constant for most agents (every good agent survives to the cap) is really a
   one-metric task, whatever its definition says.
 
-Everything works from per-agent means (``prpv_from_means`` of :mod:`proxybench.usefulness.noise`), so it
-costs no simulation.
+Everything works from per-agent means (``prpv_from_means`` of :mod:`proxybench.usefulness.metrics`), so it
+costs no simulation. Missing values follow :mod:`proxybench.usefulness.metrics`: no value is worst.
 
 >>> import numpy as np
 >>> t = {"a": np.array([[3.0, 1.0]]), "b": np.array([[2.0, 2.0]]), "c": np.array([[1.0, 1.0]])}
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from proxybench.usefulness.noise import prpv_from_means
+from proxybench.usefulness.metrics import agent_means, prpv_from_means
 
 __all__ = ["AgentSensitivity", "agent_bootstrap", "argmin_random_ties", "leave_one_out", "means_of",
            "order_structure", "sensitivity"]
@@ -37,9 +37,8 @@ Results = Mapping[str, np.ndarray]
 
 
 def means_of(res: Results, agents: Sequence[str]) -> np.ndarray:
-    """(K, m) per-agent means over episodes (NaN episodes left out)."""
-    with np.errstate(invalid="ignore"):
-        return np.stack([np.nanmean(np.asarray(res[a], dtype=float), axis=0) for a in agents])
+    """(K, m) per-agent means over the episodes that have a value (NaN where none has: worst in PRPV)."""
+    return agent_means(res, agents)
 
 
 def argmin_random_ties(values: np.ndarray, rng: np.random.Generator) -> tuple[int, int]:

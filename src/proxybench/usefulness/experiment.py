@@ -1,4 +1,4 @@
-"""One experiment file for ``proxybench predictivity`` and ``proxybench optimize`` (``--config FILE``).
+"""One experiment file for ``proxybench predictivity``, ``optimize`` and ``plan`` (``--config FILE``).
 
 Every field is optional and has a command-line option; what neither gives takes the command's default
 (shown by ``--help``). Unknown keys and bad values are errors naming the field::
@@ -18,7 +18,7 @@ Every field is optional and has a command-line option; what neither gives takes 
       camera_pitch: [15, 19.15, 23]
     search:                      # optimize
       space: {trim: [-0.3, 0.3], camera_pitch: [12, 26]}
-      objective: mix             # prpv | ppv | mix
+      objective: prpv            # prpv (θ* = argmin PRPV, the thesis) | ppv | mix
       trials: 60
       sampler: tpe               # tpe | gp | random
     n_boot: 300
@@ -61,6 +61,11 @@ COMMAND_DEFAULTS: dict[tuple[str, bool], dict[str, Any]] = {
                           "pod_seconds": 0.0, "trials": 60},
     ("optimize", True): {"agents": QUICK_AGENTS[:8], "episodes": 2, "seconds": 12.0, "n_boot": 100,
                          "pod_seconds": 0.0, "trials": 20},
+    # plan: ``episodes`` is the pilot's size per agent
+    ("plan", False): {"agents": QUICK_AGENTS, "episodes": 3, "seconds": 20.0, "n_boot": 300,
+                      "pod_seconds": 0.0, "trials": 0},
+    ("plan", True): {"agents": QUICK_AGENTS[:6], "episodes": 3, "seconds": 8.0, "n_boot": 100,
+                     "pod_seconds": 0.0, "trials": 0},
 }
 
 
@@ -85,7 +90,7 @@ class SearchConfig(_Strict):
     """What ``optimize`` searches and how."""
 
     space: dict[str, tuple[float, float]] = Field(default_factory=lambda: dict(DEFAULT_SEARCH))
-    objective: Literal["prpv", "ppv", "mix"] = "mix"
+    objective: Literal["prpv", "ppv", "mix"] = "prpv"
     trials: int | None = Field(None, ge=1, le=100_000)
     sampler: Literal["tpe", "gp", "random"] = "tpe"
     storage: str | None = None
@@ -239,7 +244,7 @@ class Experiment:
                 "truth": self.truth}
 
 
-def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize"], *, quick: bool = False,
+def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize", "plan"], *, quick: bool = False,
             work_dir: str | Path = "out/agents", target=None):
     """(Experiment, Target): the config's choices, the target's fixed ones, then the command's defaults.
 

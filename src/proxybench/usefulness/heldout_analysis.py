@@ -24,8 +24,9 @@ from proxybench.usefulness.heldout_scoring import (
     reference_stability,
     wilson,
 )
-from proxybench.usefulness.metrics import Estimate, PairedResults, usefulness
-from proxybench.usefulness.noise import compare_paired, noise_floor, paired_prpv_samples, prpv_from_means
+from proxybench.usefulness.intervals import usefulness
+from proxybench.usefulness.metrics import Estimate, PairedResults, prpv_from_means
+from proxybench.usefulness.noise import compare_paired, noise_floor, paired_prpv_samples
 
 __all__ = ["CaseScore", "HeldOutResult", "HitRate", "score_heldout"]
 
@@ -135,7 +136,8 @@ def _score_case(cr: CaseRun, k: int, task: str, tmetrics: tuple[str, ...], grid:
     n_eval = s["episodes"]
     t_ev, t_ref = _split(cr.target.results, cols, n_eval)
     p_split = [_split(p, cols, n_eval) for p in cr.proxies]
-    ests = [usefulness(PairedResults(ev, t_ev, higher), n_boot=s["n_boot"], seed=s["seed"]) for ev, _ in p_split]
+    ests = [usefulness(PairedResults(ev, t_ev, higher, tmetrics), n_boot=s["n_boot"], seed=s["seed"])
+            for ev, _ in p_split]
     values = _metric_values(ests)
     rng = np.random.default_rng([s["seed"], k, sum(map(ord, task))])
     picks, ties = {}, {}

@@ -233,7 +233,7 @@ def _cases_html(res: HeldOutResult, task: str) -> str:
                      f"{sc.noise.value:.1f} [{sc.noise.low:.1f}, {sc.noise.high:.1f}]", others,
                      f"{sum(p != pk for p in sc.loo_picks)}/{len(sc.loo_picks)}"])
     return _table(["case", "kind", "revealed truth", "nearest grid θ", "best available θ", "D min / resolved",
-                   "reference stable", "PRPV pick (value [95% CI])", "noise floor", "other metrics' picks",
+                   "reference stable", "PRPV pick (value [order range])", "noise floor", "other metrics' picks",
                    "agents whose removal moves PRPV's pick"], rows)
 
 

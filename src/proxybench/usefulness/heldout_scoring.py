@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from proxybench.usefulness.metrics import pair_signs
+
 __all__ = ["METRICS", "Grid", "best_available", "chance_rate", "disagreement_from_means", "mcnemar_p",
            "order_disagreement", "ordered_stats", "reference_stability", "wilson"]
 
@@ -41,10 +43,10 @@ Results = Mapping[str, np.ndarray]
 METRICS: tuple[tuple[str, str, str, int], ...] = (
     ("prpv", "prpv", "PRPV", -1),
     ("ppv", "ppv", "PPV", -1),
-    ("srcc", "pearson", "SRCC (Pearson r)", +1),
+    ("pearson", "srcc", "SRCC (Pearson r)", +1),
     ("spearman", "spearman", "Spearman ρ", +1),
     ("kendall", "kendall", "Kendall τ", +1),
-    ("mmrv", "mmrv", "MMRV", -1),
+    ("mmrv_scaled", "mmrv", "MMRV", -1),  # per metric, scaled by the target's spread, averaged
 )
 
 
@@ -124,8 +126,8 @@ def disagreement_from_means(proxy_means: np.ndarray, target_means: np.ndarray, t
     upper = np.triu(np.ones((k, k), dtype=bool), 1)[:, :, None]
     with np.errstate(invalid="ignore"):
         mask = np.isfinite(dt) & (np.abs(dt) > z * se) & (dt != 0) & upper
-    dp = np.nan_to_num(proxy_means[..., :, None, :] - proxy_means[..., None, :, :])
-    wrong = np.where(np.sign(dp) == 0, 0.5, (np.sign(dp) != np.sign(np.nan_to_num(dt))).astype(float))
+    sp = pair_signs(proxy_means, (True,) * proxy_means.shape[-1])  # a proxy mean without a value is worst
+    wrong = np.where(sp == 0, 0.5, (sp != np.sign(np.nan_to_num(dt))).astype(float))
     return (wrong * mask).sum((-1, -2, -3)), int(mask.sum())
 
 

@@ -1,5 +1,6 @@
 """How much of a PRPV is sampling noise: the target's own noise floor and paired comparisons of proxies.
 
+Dominance follows :mod:`proxybench.usefulness.metrics` (one implementation: a missing value is worst).
 Both resample episodes with replacement, per agent; the paired comparison resamples the *same* episode
 indices in the target and in every proxy, which replay the target's episodes from the same starts and
 seeds (``proxybench.targets``), so differences between θ values are not drowned by episode-to-episode
@@ -26,37 +27,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from proxybench.usefulness.metrics import Estimate
+from proxybench.usefulness.metrics import Estimate, dominance_from_means, prpv_from_means
+from proxybench.usefulness.metrics import resampled_means as _resampled_means
 
 __all__ = ["PairedComparison", "compare_paired", "dominance_from_means", "lowest_claim", "noise_floor",
-           "paired_prpv_samples", "prpv_from_means"]
+           "paired_prpv_samples", "ppv_noise_floor", "prpv_from_means"]
 
 Results = Mapping[str, np.ndarray]
-
-
-def dominance_from_means(means: np.ndarray, higher: Sequence[bool]) -> np.ndarray:
-    """(…, K, K) dominance matrices from (…, K, m) agent means (as :func:`~proxybench.usefulness.dominance`).
-
-    1 where agent i is at least as good as j on every metric and better on one, 0 the reverse, 0.5 otherwise.
-    """
-    signed = means * np.where(np.asarray(higher), 1.0, -1.0)
-    with np.errstate(invalid="ignore"):
-        d = np.sign(signed[..., :, None, :] - signed[..., None, :, :])
-    d = np.nan_to_num(d, nan=0.0)
-    ge, le = np.all(d >= 0, axis=-1), np.all(d <= 0, axis=-1)
-    return np.where(ge & ~le, 1.0, np.where(le & ~ge, 0.0, 0.5))
-
-
-def prpv_from_means(proxy_means: np.ndarray, target_means: np.ndarray, higher: Sequence[bool]) -> np.ndarray | float:
-    """PRPV from (…, K, m) agent means of proxy and target (vectorised over leading axes)."""
-    out = np.abs(dominance_from_means(proxy_means, higher) - dominance_from_means(target_means, higher)).sum((-1, -2))
-    return float(out) if np.ndim(out) == 0 else out
-
-
-def _resampled_means(arr: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """(B, m) means of ``arr`` (n, m) over resampled rows ``idx`` (B, n)."""
-    with np.errstate(invalid="ignore"):
-        return np.nanmean(arr[idx], axis=1)
 
 
 def _level(samples: np.ndarray, level: float) -> tuple[float, float]:
@@ -67,18 +44,42 @@ def _level(samples: np.ndarray, level: float) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
-def noise_floor(target: Results, higher: Sequence[bool], *, n_boot: int = 300, level: float = 0.95,
-                seed: int = 0) -> Estimate:
-    """PRPV of the target against a replicate of itself: median and interval over pairs of resamples."""
+def _replicates(target: Results, n_boot: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two independent (n_boot, K, m) resamples of the target's agent means (same episode count per agent)."""
     agents = list(target)
     rng = np.random.default_rng([seed, 0x4015E])
     a = np.stack([_resampled_means(np.asarray(target[k], float),
                                    rng.integers(0, len(target[k]), (n_boot, len(target[k])))) for k in agents], 1)
     b = np.stack([_resampled_means(np.asarray(target[k], float),
                                    rng.integers(0, len(target[k]), (n_boot, len(target[k])))) for k in agents], 1)
+    return a, b
+
+
+def noise_floor(target: Results, higher: Sequence[bool], *, n_boot: int = 300, level: float = 0.95,
+                seed: int = 0) -> Estimate:
+    """PRPV of the target against a replicate of itself: median and interval over pairs of resamples."""
+    a, b = _replicates(target, n_boot, seed)
     samples = prpv_from_means(a, b, higher)
     lo, hi = _level(np.asarray(samples), level)
-    return Estimate(float(np.median(samples)), lo, hi)
+    return Estimate(float(np.median(samples)), lo, hi, "target vs a replicate of itself")
+
+
+def ppv_noise_floor(target: Results, *, n_boot: int = 300, level: float = 0.95, seed: int = 0,
+                    scale: np.ndarray | None = None) -> Estimate:
+    """PPV (mean over agents, β fixed from the target) of the target against a replicate of itself.
+
+    PPV sums |differences|, so noise alone makes it positive; a proxy whose PPV lies within this floor is
+    as close to the target as the target's own replicates are (its interval cannot reach 0).
+    """
+    from proxybench.usefulness.metrics import agent_means, ppv_agents, target_scale
+
+    if scale is None:
+        scale = target_scale(agent_means(target, list(target)))[0]
+    a, b = _replicates(target, n_boot, seed)
+    with np.errstate(invalid="ignore"):
+        samples = np.nanmean(ppv_agents(a, b, scale), -1)
+    lo, hi = _level(samples, level)
+    return Estimate(float(np.nanmedian(samples)), lo, hi, "target vs a replicate of itself")
 
 
 def paired_prpv_samples(target: Results, proxies: Sequence[Results], higher: Sequence[bool], *, n_boot: int = 300,

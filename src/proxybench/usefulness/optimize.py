@@ -1,11 +1,14 @@
-"""Proxy optimisation: θ* = argmin PRPV (or PPV, or a mix) over a subset of simulator parameters, against any target.
+"""Proxy optimisation: θ* = argmin PRPV (thesis eq. 3.6.1; or PPV, or a mix) over simulator parameters.
 
-Each Optuna trial proposes θ, the runner replays the target's episodes in that proxy (same agents, starts
-and seeds; cached, so repeated θ cost nothing, and Ray works), and the objective compares the proxy's
-results with the target's (:mod:`proxybench.targets`: the reality model, a recording, or a robot node,
-whose episodes are run once and re-used by every trial). The search space comes from the experiment
+Any kind of target works. Each Optuna trial proposes θ, the runner replays the target's episodes in that
+proxy (same agents, starts and seeds; cached, so repeated θ cost nothing, and Ray works), and the objective
+compares the proxy's results with the target's (:mod:`proxybench.targets`: the reality model, a recording,
+or a robot node, whose episodes are run once and re-used by every trial). The search space comes from the experiment
 (default: around the nominal calibration, :mod:`proxybench.usefulness.proxies`), never from a target's
 truth; a known truth is only printed beside what was recovered.
+The objective is PRPV by default, as the thesis defines θ*; ``ppv`` (the mean per-agent PPV) and ``mix``
+(PRPV/K(K−1) + PPV/m: both in [0, 1]-ish units, and PPV's slope gives the sampler something to follow where
+PRPV is flat) can be chosen.
 Studies live in memory, in SQLite (default when a path is given) or in any SQLAlchemy database such as
 PostgreSQL, so many workers can share one study.
 """
@@ -73,8 +76,8 @@ def _objective_value(kind: str, proxy: Mapping[str, np.ndarray], target: Mapping
     pr = PairedResults(dict(proxy), dict(target), higher)
     k = len(pr.agents)
     prpv = prpv_value(dominance(pr.proxy, higher), dominance(pr.target, higher))
-    ppv = ppv_value(pr.proxy, pr.target)
-    norm_prpv, norm_ppv = prpv / max(k * (k - 1), 1), ppv / max(k * len(higher), 1)
+    ppv = ppv_value(pr.proxy, pr.target)  # mean over agents of the thesis' per-agent PPV
+    norm_prpv, norm_ppv = prpv / max(k * (k - 1), 1), ppv / len(higher)
     value = {"prpv": prpv, "ppv": ppv, "mix": norm_prpv + norm_ppv}[kind]
     return value, {"prpv": prpv, "ppv": ppv}
 
@@ -168,7 +171,7 @@ def plot_optimization(res: OptimizeResult, out: str | Path) -> list[Path]:
     values = [t["value"] for t in res.trials]
     objective = res.experiment.search.objective if res.experiment is not None else "objective"
     ylabel = {"prpv": "PRPV [0, K(K−1)] (↓)", "ppv": "PPV (↓)",
-              "mix": "PRPV/K(K−1) + PPV/(K·m) (↓)"}.get(objective, "objective (↓)")
+              "mix": "PRPV/K(K−1) + PPV/m (↓)"}.get(objective, "objective (↓)")
     fig, axes = plt.subplots(1, 1 + len(res.best_params), figsize=(4.4 * (1 + len(res.best_params)), 3.6),
                              layout="constrained")
     axes = np.atleast_1d(axes)

@@ -3,8 +3,9 @@
 K agents are evaluated on the *target* (the reality model, a recorded directory or a robot node:
 :mod:`proxybench.targets`) and on proxy instances θ of the simulator swept around its nominal calibration
 (:mod:`proxybench.usefulness.proxies`). Each proxy replays every agent's target episodes from the same
-start poses and seeds, so proxy and target episodes are paired. For every θ: PRPV, PPV, SRCC, Spearman,
-Kendall, MMRV with bootstrap intervals, and POD where the target's θ is known; beside them the target's
+start poses and seeds, so proxy and target episodes are paired. For every θ: PRPV with its order range,
+PPV (per agent, mean, sum), Pearson's r (SRCC), Spearman's ρ, Kendall's τ and MMRV per metric with paired
+BCa intervals (:mod:`proxybench.usefulness.intervals`), and POD where the target's θ is known; beside them the target's
 own noise floor and paired comparisons between θ values (:mod:`proxybench.usefulness.noise`), so that a
 minimum is only claimed where the data separate it from its neighbours.
 """
@@ -26,8 +27,9 @@ from proxybench.targets.spec import Target, TargetRun
 from proxybench.tasks.metrics import METRICS
 from proxybench.usefulness.agent_sets import means_of, order_structure, sensitivity
 from proxybench.usefulness.experiment import Experiment, ExperimentConfig, resolve
-from proxybench.usefulness.metrics import Estimate, PairedResults, usefulness
-from proxybench.usefulness.noise import compare_paired, lowest_claim, noise_floor, paired_prpv_samples
+from proxybench.usefulness.intervals import Usefulness, usefulness
+from proxybench.usefulness.metrics import Estimate, PairedResults, agent_means
+from proxybench.usefulness.noise import compare_paired, lowest_claim, noise_floor, paired_prpv_samples, ppv_noise_floor
 from proxybench.usefulness.pod import pod
 from proxybench.usefulness.proxies import proxy_params
 
@@ -58,8 +60,14 @@ class PredictivityResult:
     noise: Estimate
     claims: dict[str, SweepClaim] = field(default_factory=dict)
     proxy_episodes: int = 0  # proxy episodes simulated now (not cached)
+    details: dict[str, Usefulness] = field(default_factory=dict)  # per proxy domain: per-agent PPV, notes, open pairs
+    ppv_noise: Estimate | None = None  # PPV of the target against a replicate of itself
     agent_sensitivity: dict[str, Any] = field(default_factory=dict)  # parameter → agent_sets.AgentSensitivity
     order: dict[str, float] = field(default_factory=dict)  # agent_sets.order_structure of the target
+
+    def notes(self) -> list[str]:
+        """Every distinct note of the usefulness figures (constant metrics, missing values, PPV scales)."""
+        return list(dict.fromkeys(n for u in self.details.values() for n in u.notes))
 
     def frame(self):
         import pandas as pd
@@ -133,24 +141,28 @@ def run_predictivity(
     higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
     truth = {**tgt.truth, **exp.truth}
     commands = _pod_commands(exp, tgt) if _has_pod(exp, target, tgt) else None
-    rows = []
+    rows, details = [], {}
     for k, (param, value, dom) in enumerate(domains):
-        est = usefulness(PairedResults(proxies[dom.name], tgt.results, higher), n_boot=exp.n_boot, seed=exp.seed)
+        est = usefulness(PairedResults(proxies[dom.name], tgt.results, higher, exp.metrics), n_boot=exp.n_boot,
+                         seed=exp.seed)
+        details[dom.name] = est
         row: dict[str, Any] = {"parameter": param, "value": value, "domain": dom.name,
                                "truth": float(truth.get(param, np.nan))}
         for name, e in est.items():
             row[name], row[f"{name}_low"], row[f"{name}_high"] = e.value, e.low, e.high
+        row["notes"] = "; ".join(est.notes)
         row["pod"] = (pod(DomainParams.model_validate(dom.params), DomainParams.model_validate(tgt.params), tgt.map,
                           commands, seed=exp.seed) if commands is not None else float("nan"))
         rows.append(row)
         if progress:
             progress("usefulness", k + 1, len(domains))
     floor = noise_floor(tgt.results, higher, n_boot=exp.n_boot, seed=exp.seed)
+    ppv_floor = ppv_noise_floor(tgt.results, n_boot=exp.n_boot, seed=exp.seed)
     claims = _claims(exp, tgt, domains, proxies, rows, higher)
-    target_scores = {a: dict(zip(exp.metrics, np.nanmean(v, axis=0).tolist(), strict=True))
-                     for a, v in tgt.results.items()}
+    means = agent_means(tgt.results, list(tgt.results))
+    target_scores = {a: dict(zip(exp.metrics, means[i].tolist(), strict=True)) for i, a in enumerate(tgt.results)}
     caps = [tgt.seconds if m in ("survival_time", "lane_score") else None for m in exp.metrics]
-    return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran,
+    return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran, details, ppv_floor,
                               _agent_sensitivity(exp, domains, proxies, tgt, higher),
                               order_structure(tgt.results, higher, caps))
 

@@ -20,8 +20,8 @@ from proxybench import __version__
 from proxybench.usefulness.predictivity import PredictivityResult
 from proxybench.usefulness.proxies import param_label
 
-__all__ = ["DEFINITIONS", "THESIS", "agent_set_findings", "findings", "noise_statement", "source_commit",
-           "write_report"]
+__all__ = ["DEFINITIONS", "THESIS", "agent_set_findings", "episodes_statement", "findings", "noise_statement",
+           "plot_plan", "ppv_agent_frame", "source_commit", "write_report"]
 
 THESIS = ("A. Courchesne, “On quantifying the value of simulation for training and evaluating robotic agents”, "
           "M.Sc. thesis, Université de Montréal (chapter 3: A. Courchesne, A. Censi, L. Paull, “On Assessing the "
@@ -31,28 +31,44 @@ THESIS = ("A. Courchesne, “On quantifying the value of simulation for training
 DEFINITIONS = (
     ("PRPV", "[0, K(K−1)], lower is better",
      "Proxy Relative Predictive Value (thesis eq. 3.4.4): Σ_ij |α^proxy_ij − α^target_ij| over the dominance "
-     "matrices of the K agents (α_ij = 1 if agent i is at least as good as j on every task metric and better on "
-     "one, 0 if the reverse, 0.5 if incomparable or equal). 0: the proxy orders every pair as the target does; "
-     "one swapped pair costs 2."),
+     "matrices of the K agents' mean performance (α_ij = 1 if agent i is at least as good as j on every task "
+     "metric and better on one, 0 if the reverse, 0.5 if incomparable or equal). 0: the proxy orders every pair "
+     "as the target does; one swapped pair costs 2."),
     ("PPV", "[0, ∞), lower is better",
-     "Proxy Performance Value: Σ over agents and metrics of |mean in proxy − mean in target| divided by the "
-     "metric's spread across agents in the target (dimensionless; grows with K and the number of metrics)."),
-    ("SRCC", "[−1, 1], higher is better",
-     "Sim-to-real correlation coefficient (Habitat): Pearson's r between proxy and target mean performance of "
-     "the agents, averaged over metrics. Spearman's ρ and Kendall's τ (same range) are rank versions."),
-    ("MMRV", "[0, ∞) in the metric's units, lower is better",
-     "SIMPLER's mean maximum rank violation: for each agent, the largest target-performance gap to an agent the "
-     "proxy orders the other way; averaged over agents and metrics."),
+     "Proxy Predictivity Value (thesis eq. 3.4.1), per agent: Σ_m β_m |mean in proxy − mean in target|, with "
+     "β_m = 1 / (spread of metric m across the agents' target means), fixed from the target. The table shows "
+     "the mean over agents; the sum over agents (ppv_sum) and each agent's PPV are in the details and "
+     "usefulness.csv / ppv_agents.csv. Noise alone makes it positive: compare proxies with each other."),
+    ("Pearson r (SRCC)", "[−1, 1], higher is better",
+     "Habitat's sim-vs-real correlation coefficient: Pearson's r between proxy and target mean performance of "
+     "the agents, per metric (pearson_<metric>) and averaged over the metrics that vary across agents; a "
+     "metric with the same value for every agent has no correlation (the notes name it). Spearman's ρ and "
+     "Kendall's τ_b (same range) are the rank versions."),
+    ("MMRV", "[0, ∞) in the metric's unit, lower is better",
+     "SIMPLER's mean maximum rank violation, per metric (mmrv_<metric>): for each agent, the largest target-"
+     "performance gap to an agent the proxy orders the other way; averaged over agents. mmrv_scaled averages "
+     "MMRV_m·β_m over the metrics (dimensionless)."),
     ("POD", "[0, 1], lower is better",
      "Naive pixel distance: the same open-loop commands (the PID agent's on the target) from the same start in "
      "proxy and target; mean |Δpixel| / 255 between the camera streams. Needs the target's camera, so it is "
      "only computed against the live reality model."),
-    ("noise floor", "[0, K(K−1)]",
-     "PRPV of the target against a replicate of itself: two independent resamples of its own episodes (same "
-     "count per agent). A proxy whose PRPV lies within it cannot be told from a perfect proxy with these data."),
-    ("95% intervals", "",
-     "Percentile bootstrap over episodes (resampled per agent). Resampling adds noise to both domains, and PRPV "
-     "grows with noise, so a PRPV interval can lie above its point value; read it with the noise floor."),
+    ("noise floor", "[0, K(K−1)] for PRPV",
+     "PRPV (and PPV) of the target against a replicate of itself: two independent resamples of its own episodes "
+     "(same count per agent). A proxy whose PRPV lies within it cannot be told from a perfect proxy with these "
+     "data; PPV, a sum of |differences|, is positive from noise alone: its floor is the reference, not 0."),
+    ("PRPV interval (order range)", "",
+     "The plug-in PRPV with the smallest and largest PRPV of any orders the data cannot rule out: on each metric, "
+     "two agents whose mean difference does not keep its sign in 95% of the paired resamples may be ordered "
+     "either way (or tied) in that domain. It contains the point value, and is wide where pairs are near ties "
+     "(more episodes settle them: proxybench plan)."),
+    ("other intervals", "",
+     "95% BCa intervals (scipy.stats.bootstrap) over paired resamples: the same episode indices, per agent, in "
+     "the proxy and on the target (each proxy episode replays a target episode). Where BCa is undefined "
+     "(e.g. every resample gives the same value) the percentile interval is shown."),
+    ("Missing values", "",
+     "An episode without a value for a metric (a refused agent, a failed robot episode) is left out of that "
+     "metric's mean; an agent without any value is worst on it in PRPV, as on the benchmark's leaderboard, and "
+     "left out of PPV, correlations and MMRV (the notes name it)."),
     ("Δ vs best", "PRPV units",
      "PRPV of this θ minus PRPV of the best θ of the same parameter, over paired resamples (the same target "
      "episodes, replayed from the same starts in both proxies). An interval above 0 separates the two."),
@@ -89,15 +105,15 @@ def _main_parameter(res: PredictivityResult) -> str:
     return "trim" if "trim" in sweep else max(sweep, key=lambda k: len(sweep[k]))
 
 
-_PANELS = (("prpv", "PRPV (↓)", "PRPV  [0, {kk}]"), ("ppv", "PPV (↓)", "PPV  [dimensionless]"),
-           ("srcc", "SRCC, Pearson (↑)", "SRCC  [−1, 1]"), ("pod", "POD (↓)", "POD  [0, 1]"))
+_PANELS = (("prpv", "PRPV (↓)", "PRPV  [0, {kk}]"), ("ppv", "PPV, mean per agent (↓)", "PPV  [dimensionless]"),
+           ("pearson", "SRCC: Pearson's r (↑)", "r  [−1, 1]"), ("pod", "POD (↓)", "POD  [0, 1]"))
 
 
 def _band(ax, df, key, label):
     ax.plot(df.value, df[key], "o-", color="tab:blue", label=label)
     if f"{key}_low" in df:
         ax.fill_between(df.value, df[f"{key}_low"], df[f"{key}_high"], color="tab:blue", alpha=0.2, lw=0,
-                        label="95% bootstrap interval")
+                        label="order range (95%)" if key == "prpv" else "95% BCa interval")
 
 
 def _marks(ax, res: PredictivityResult, d, floor: bool) -> None:
@@ -190,9 +206,34 @@ def noise_statement(res: PredictivityResult) -> str:
                if within else "; the rest is a gap no swept θ closed."))
 
 
+def episodes_statement(res: PredictivityResult) -> str:
+    """How many of the target's pairs of agents are near ties, and what settling them would take."""
+    import math
+
+    from proxybench.tasks.metrics import METRICS
+    from proxybench.usefulness.plan import pair_needs
+
+    metrics = res.experiment.metrics
+    needs = pair_needs(res.target.results, tuple(METRICS[m].higher_is_better for m in metrics), metrics)
+    open_ = [p for p in needs if not p.settled]
+    if not open_:
+        return (f"Every pair of the {len(res.target.results)} agents is ordered on the target with "
+                f"{res.experiment.episodes} episodes per agent.")
+    finite = sorted(p.episodes for p in open_ if math.isfinite(p.episodes))
+    ties = len(open_) - len(finite)
+    cheapest = ", ".join(f"{p.a} – {p.b}" for p in open_[:3])
+    return (f"{len(open_)} of {len(needs)} pairs of agents are near ties on the target with {res.experiment.episodes} "
+            f"episodes per agent (their order is open, which widens every PRPV range)"
+            + (f"; the cheapest to settle ({cheapest}) need about {finite[0]}"
+               + (f"–{finite[min(2, len(finite) - 1)]}" if len(finite) > 1 else "") + " episodes per agent"
+               if finite else "")
+            + (f"; {ties} look like ties within the noise" if ties else "")
+            + ". `proxybench plan` works out the episodes and spends them where they settle most.")
+
+
 def findings(res: PredictivityResult) -> list[str]:
     """Plain statements: where PRPV is lowest per parameter, and only as strongly as the paired intervals allow."""
-    out = [noise_statement(res)]
+    out = [noise_statement(res), episodes_statement(res)]
     df = res.frame()
     for name, claim in res.claims.items():
         d = df[df.parameter == name].sort_values("value")
@@ -222,6 +263,7 @@ def findings(res: PredictivityResult) -> list[str]:
         mono = bool(np.all(np.diff(v[: k + 1]) <= 0) and np.all(np.diff(v[k:]) >= 0))
         out.append(f"{main}: PRPV {'falls then rises monotonically' if mono else 'is not monotone'} around its "
                    f"smallest value (point values {', '.join(f'{x:.0f}' for x in v)}; see the intervals).")
+    out += [f"Note: {n}." for n in res.notes()]
     return out
 
 
@@ -255,6 +297,15 @@ def agent_set_findings(res: PredictivityResult) -> list[str]:
     return out
 
 
+def ppv_agent_frame(res: PredictivityResult):
+    """One row per (proxy domain, agent): the agent's PPV (thesis eq. 3.4.1) with its BCa interval."""
+    import pandas as pd
+
+    rows = [{"domain": dom, "agent": a, "ppv": e.value, "ppv_low": e.low, "ppv_high": e.high, "method": e.method}
+            for dom, u in res.details.items() for a, e in u.ppv_agents.items()]
+    return pd.DataFrame(rows, columns=["domain", "agent", "ppv", "ppv_low", "ppv_high", "method"])
+
+
 def _img(path: Path, alt: str) -> str:
     data = base64.b64encode(path.read_bytes()).decode()
     return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}" style="max-width:100%">'
@@ -270,7 +321,8 @@ def _target_box(res: PredictivityResult) -> str:
 
 def _compact_table(res: PredictivityResult) -> str:
     df = res.frame()
-    head = ("parameter", "value", "PRPV [95% CI]", "Δ vs best [95% paired CI]", "PPV", "SRCC", "POD")
+    head = ("parameter", "value", "PRPV [order range]", "Δ vs best [95% paired CI]", "PPV (mean per agent) [95% CI]",
+            "Pearson r (SRCC)", "Spearman ρ", "POD")
     rows = []
     for name in res.experiment.sweep:
         d = df[df.parameter == name].sort_values("value")
@@ -284,12 +336,15 @@ def _compact_table(res: PredictivityResult) -> str:
                      else f"{r.delta_best:+.1f} [{r.delta_best_low:+.1f}, {r.delta_best_high:+.1f}]")
             pod = "n/a" if not np.isfinite(r.pod) else f"{r.pod:.3f}"
             cells = (name, f"{_fmt(r.value)}" + (f" <small>({', '.join(mark)})</small>" if mark else ""),
-                     f"{r.prpv:.1f} [{r.prpv_low:.1f}, {r.prpv_high:.1f}]", delta, f"{r.ppv:.2f}", f"{r.srcc:.2f}", pod)
+                     f"{r.prpv:.1f} [{r.prpv_low:.1f}, {r.prpv_high:.1f}]", delta,
+                     f"{r.ppv:.2f} [{r.ppv_low:.2f}, {r.ppv_high:.2f}]", f"{r.pearson:.2f}", f"{r.spearman:.2f}", pod)
             style = ' style="background:#eef6ff"' if "lowest" in " ".join(mark) else ""
             rows.append(f"<tr{style}>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     nf = res.noise
+    pf = res.ppv_noise
+    ppv_cell = f"{pf.value:.2f} [{pf.low:.2f}, {pf.high:.2f}]" if pf is not None else ""
     rows.append(f'<tr style="background:#f2f2f2"><td>target noise floor</td><td>—</td><td>{nf.value:.1f} '
-                f"[{nf.low:.1f}, {nf.high:.1f}]</td><td></td><td></td><td></td><td></td></tr>")
+                f"[{nf.low:.1f}, {nf.high:.1f}]</td><td></td><td>{ppv_cell}</td><td></td><td></td><td></td></tr>")
     return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>")
 
 
@@ -303,10 +358,13 @@ def write_report(res: PredictivityResult, out: str | Path, wall_s: float | None 
         "fig3_4": figure_3_4(res, out / "fig3_4_parameters.png"),
         "csv": out / "usefulness.csv",
         "parquet": out / "usefulness.parquet",
+        "ppv_agents": out / "ppv_agents.csv",
         "html": out / "report.html",
     }
     df.to_csv(files["csv"], index=False)
     df.to_parquet(files["parquet"], index=False)
+    per_agent = ppv_agent_frame(res)
+    per_agent.to_csv(files["ppv_agents"], index=False)
     exp = res.experiment
     k = len(exp.agents)
     defs = "".join(f"<dt><b>{html.escape(n)}</b> <small>{html.escape(r)}</small></dt><dd>{html.escape(d)}</dd>"
@@ -332,8 +390,11 @@ resamples (95% intervals){f"; wall time {wall_s:.0f} s" if wall_s else ""}.</p>
 <h2>Findings</h2><p><small>PRPV, PPV, SRCC, POD, noise floor: <a href="#definitions">definitions and
 ranges below</a>.</small></p><ul>{"".join(f"<li>{html.escape(f)}</li>" for f in findings(res))}</ul>
 <h2>Results</h2>{_compact_table(res)}
-<details><summary>every figure with its interval (Spearman, Kendall, MMRV, normalised PRPV, …)</summary>
+<details><summary>every figure with its interval (per-metric correlations and MMRV, PPV sum, normalised PRPV,
+notes, …)</summary>
 {details}</details>
+<details><summary>PPV of each agent (thesis eq. 3.4.1) in each proxy, with 95% BCa intervals</summary>
+{per_agent.round(4).to_html(index=False, border=0)}</details>
 <h2>Figure 3.3: usefulness metrics against proxy {html.escape(_main_parameter(res))}</h2>
 {_img(files["fig3_3"], "figure 3.3")}
 <h2>Figure 3.4: PRPV for each swept parameter</h2>{_img(files["fig3_4"], "figure 3.4")}
@@ -345,3 +406,30 @@ ranges below</a>.</small></p><ul>{"".join(f"<li>{html.escape(f)}</li>" for f in 
 </body></html>"""
     files["html"].write_text(page)
     return files
+
+
+def plot_plan(plan, path: Path, target_label: str) -> Path:
+    """The planner's curves against n episodes per agent: order-range width, and P(right θ) or open pairs."""
+    plt = _pyplot()
+    n = [r.n for r in plan.rows]
+    fig, axes = plt.subplots(1, 2, figsize=(9.5, 3.6), layout="constrained")
+    axes[0].plot(n, [r.width_mean for r in plan.rows], "o-", label="mean")
+    axes[0].plot(n, [r.width_q for r in plan.rows], "s--", label=f"{plan.confidence:.0%} of experiments below")
+    if plan.width is not None:
+        axes[0].axhline(plan.width, color="tab:red", lw=1, label=f"goal {plan.width:g}")
+    axes[0].set_ylabel("PRPV order-range width")
+    if plan.candidates:
+        axes[1].plot(n, [r.p_correct for r in plan.rows], "o-", color="tab:green")
+        if plan.p_correct_goal is not None:
+            axes[1].axhline(plan.p_correct_goal, color="tab:red", lw=1)
+        axes[1].set_ylabel(f"P(argmin PRPV = {', '.join(plan.best)})")
+        axes[1].set_ylim(0, 1.02)
+    else:
+        axes[1].plot(n, [r.open_pairs for r in plan.rows], "o-", color="tab:orange")
+        axes[1].set_ylabel("pairs of agents still open on the target")
+    for ax in axes:
+        ax.set_xscale("log")
+        ax.set_xlabel("target episodes per agent")
+    axes[0].legend(fontsize=7)
+    fig.suptitle(_short(f"Sample-size plan from a pilot (target: {target_label})", 110), fontsize=10)
+    return _save(fig, Path(path))

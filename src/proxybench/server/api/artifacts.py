@@ -1,20 +1,29 @@
-"""Artifacts by content hash: evaluators upload (PUT, hash-checked), owners and super-users download."""
+"""Artifacts by content hash: evaluators upload (PUT, hash-checked), owners and super-users download.
+
+An upload holds no database transaction while its bytes arrive: the front door (:mod:`..limits`) has
+received, spooled and hashed the whole body before the request is admitted; here the file is checked and
+renamed into the store, and one short transaction records it.
+"""
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import FileResponse
 from sqlalchemy import select
+from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
-from proxybench.server.api.deps import DB, Caller, Conf, require
+from proxybench.server.api.deps import DB, Caller, Conf, require_reader, run_write
+from proxybench.server.api.schemas import ArtifactStored
 from proxybench.server.artifacts import TooLarge, is_sha256
 from proxybench.server.errors import ServiceError
-from proxybench.server.models import Artifact, ArtifactLink, Job, Submission, User
+from proxybench.server.limits import BODY_SCOPE_KEY, SpooledBody
+from proxybench.server.models import Artifact, ArtifactLink, Evaluator, Job, Submission, User
 
 router = APIRouter(tags=["artifacts"])
-EvaluatorUser = Annotated[User, Depends(require("evaluator"))]
+Uploader = Annotated[User, Depends(require_reader("evaluator"))]
 
 
 def _check(sha256: str) -> None:
@@ -22,41 +31,52 @@ def _check(sha256: str) -> None:
         raise ServiceError(422, f"path: {sha256!r} is not a SHA-256 hex digest (64 lowercase hex digits)")
 
 
-@router.put("/artifacts/{sha256}", status_code=201)
-async def put_artifact(sha256: str, request: Request, session: DB, settings: Conf,
-                       user: EvaluatorUser) -> dict[str, Any]:
+@router.put("/artifacts/{sha256}", status_code=201, response_model=ArtifactStored)
+async def put_artifact(sha256: str, request: Request, settings: Conf, user: Uploader) -> ArtifactStored:
     """Store bytes whose SHA-256 is ``sha256`` (refused if they hash otherwise or exceed the size limit)."""
     _check(sha256)
     store = request.app.state.store
-    length = request.headers.get("content-length")
-    if length is not None and length.isdigit() and int(length) > settings.artifact_max_bytes:
-        raise ServiceError(413, f"artifact is {length} bytes; the limit is {settings.artifact_max_bytes}")
-    body = bytearray()
-    async for chunk in request.stream():
-        body += chunk
-        if len(body) > settings.artifact_max_bytes:
-            raise ServiceError(413, f"artifact exceeds the limit of {settings.artifact_max_bytes} bytes")
+    body: SpooledBody | None = request.scope.get(BODY_SCOPE_KEY)
+    if body is None:  # served without the front door (never in proxybench serve): read it here
+        data = await request.body()
+        import hashlib
+
+        body = SpooledBody(size=len(data), sha256=hashlib.sha256(data).hexdigest(), data=data)
+    if body.size > settings.artifact_max_bytes:
+        raise ServiceError(413, f"artifact exceeds the limit of {settings.artifact_max_bytes} bytes")
+    if body.sha256 != sha256:
+        raise ServiceError(422, f"content hash is {body.sha256}, not the {sha256} named in the request")
     try:
-        sha, size = store.write([bytes(body)], settings.artifact_max_bytes, expected=sha256)
+        if body.path is not None:
+            size = await run_in_threadpool(store.adopt, body.path, sha256, body.size)
+        else:
+            _, size = await run_in_threadpool(store.write, [body.data or b""], settings.artifact_max_bytes, sha256)
     except TooLarge as exc:
         raise ServiceError(413, str(exc)) from None
     except ValueError as exc:
         raise ServiceError(422, str(exc)) from None
     media = request.headers.get("content-type", "application/octet-stream")[:128]
-    store.record(session, sha, size, media, user.id)
-    return {"sha256": sha, "size": size}
+
+    def _record(session: Session) -> None:
+        store.record(session, sha256, size, media, user.id)
+
+    await run_write(request, _record)
+    return ArtifactStored(sha256=sha256, size=size)
 
 
 def _may_read(session: DB, user: User, sha256: str) -> bool:
     if user.role == "superuser":
         return True
     links = session.scalars(select(ArtifactLink).where(ArtifactLink.sha256 == sha256)).all()
-    if user.role == "evaluator":  # the archives of jobs it may run, and what it uploaded itself
+    if user.role == "evaluator":  # the archive of a job it holds a lease on now, and what it uploaded itself
         art = session.get(Artifact, sha256)
         if art is not None and art.uploaded_by == user.id:
             return True
         subs = {ln.submission_id for ln in links if ln.result_id is None}
-        return bool(subs) and session.scalar(select(Job.id).where(Job.submission_id.in_(subs)).limit(1)) is not None
+        mine = select(Evaluator.id).where(Evaluator.user_id == user.id)
+        return bool(subs) and session.scalar(
+            select(Job.id).where(Job.submission_id.in_(subs), Job.status == "evaluating",
+                                 Job.evaluator_id.in_(mine)).limit(1)) is not None
     for ln in links:
         sub = session.get(Submission, ln.submission_id)
         if sub is not None and sub.user_id == user.id and not ln.hidden:
@@ -64,9 +84,11 @@ def _may_read(session: DB, user: User, sha256: str) -> bool:
     return False
 
 
-@router.get("/artifacts/{sha256}")
+@router.get("/artifacts/{sha256}", response_class=FileResponse,
+            responses={200: {"description": "the file's bytes, with its media type"}})
 def get_artifact(sha256: str, request: Request, session: DB, user: Caller) -> FileResponse:
-    """Download an artifact: yours (not hidden), a job's archive (evaluators), anything (super-users)."""
+    """Download an artifact: yours (not hidden), the archive of a job you hold a lease on (evaluators),
+    anything (super-users)."""
     _check(sha256)
     art = session.get(Artifact, sha256)
     if art is None:

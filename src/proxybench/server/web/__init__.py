@@ -2,9 +2,10 @@
 
 Pages: ``/`` overview, ``/login`` and ``/logout``, ``/benchmarks`` (with paths), ``/benchmarks/{name}``,
 ``/leaderboards/{name}``, ``/submissions`` and ``/submissions/{id}``, ``/jobs``, ``/evaluators`` and
-``/operator`` (super-users). Signing in stores the API token in an HttpOnly, SameSite=Strict cookie, which
-the API also accepts, so artifact links and videos load with it. Errors outside ``/api/`` become pages:
-401 redirects to the login page, others say what is wrong.
+``/operator`` (super-users). Signing in checks the API token and opens a web session of its own (an
+expiring secret in an HttpOnly, SameSite=Strict cookie, never the token), which the API also accepts for
+reads, so artifact links and videos load with it; every form carries the session's CSRF token. Errors
+outside ``/api/`` become pages: 401 redirects to the login page, others say what is wrong.
 """
 
 from __future__ import annotations

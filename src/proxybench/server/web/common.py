@@ -22,9 +22,10 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from proxybench import __version__
-from proxybench.server.api.deps import optional_user
+from proxybench.server.api.deps import session_secret, web_user
 from proxybench.server.db import session_scope
 from proxybench.server.models import User
+from proxybench.server.security import csrf_token
 
 __all__ = ["STATIC_DIR", "episode_table", "error_page", "fmt_ago", "fmt_num", "fmt_time", "login_redirect", "me",
            "render", "safe_next", "templates", "user_names", "wbr"]
@@ -111,11 +112,21 @@ def me(user: User | None) -> dict[str, str] | None:
     return None if user is None else {"name": user.name, "role": user.role}
 
 
+def page_csrf(request: Request) -> str:
+    """The CSRF token every form of a signed-in page carries (derived from the session's secret)."""
+    secret = session_secret(request)
+    return csrf_token(secret) if secret else ""
+
+
 def render(request: Request, name: str, user: User | None, status_code: int = 200, **context: Any) -> HTMLResponse:
-    """A page from ``templates/<name>``; ``me`` (the signed-in user or None) is always in the context."""
+    """A page from ``templates/<name>``; ``me`` (the signed-in user or None) and ``csrf`` (for its forms)
+    are always in the context. Pages are never stored by caches: they show a user's own data."""
     context.setdefault("flash", None)
-    return templates.TemplateResponse(request, name, {"me": me(user), "now": time.time(), **context},
-                                      status_code=status_code)
+    context.setdefault("csrf", page_csrf(request))
+    response = templates.TemplateResponse(request, name, {"me": me(user), "now": time.time(), **context},
+                                          status_code=status_code)
+    response.headers["Cache-Control"] = "no-store"
+    return response
 
 
 def safe_next(target: str | None) -> str:
@@ -137,7 +148,7 @@ def login_redirect(request: Request) -> RedirectResponse:
 
 def _caller(request: Request) -> dict[str, str] | None:
     with session_scope(request.app.state.sessions) as session:
-        return me(optional_user(request, session))
+        return me(web_user(request, session))
 
 
 def error_page(request: Request, status: int, message: str) -> Response:
@@ -147,7 +158,8 @@ def error_page(request: Request, status: int, message: str) -> Response:
     titles = {403: "Not allowed", 404: "Not found", 409: "Conflict", 422: "Invalid request", 429: "Too many requests"}
     return templates.TemplateResponse(
         request, "error.html", {"me": _caller(request), "now": time.time(), "flash": None, "status": status,
-                                "title": titles.get(status, "Error"), "message": message}, status_code=status)
+                                "csrf": page_csrf(request), "title": titles.get(status, "Error"),
+                                "message": message}, status_code=status, headers={"Cache-Control": "no-store"})
 
 
 def episode_table(report: Mapping[str, Any] | None) -> tuple[list[str], list[dict[str, Any]]]:

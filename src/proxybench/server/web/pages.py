@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hmac
+import secrets
 import time
 from typing import Annotated, Any
 
@@ -10,36 +12,35 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from proxybench.server.api.benchmarks import get_benchmark, get_leaderboard, list_benchmarks, list_paths
-from proxybench.server.api.deps import DB, TOKEN_COOKIE, Caller, Conf, optional_user
+from proxybench.server.api.benchmarks import Version, get_benchmark, list_benchmarks, list_paths
+from proxybench.server.api.deps import DB, SESSION_COOKIE, Conf, WebCaller, WebFormCaller, check_same_origin, web_user
 from proxybench.server.api.jobs import list_evaluators
 from proxybench.server.benchmarks import parse_benchmark
 from proxybench.server.errors import ServiceError
 from proxybench.server.leaderboards import leaderboard_rows
 from proxybench.server.models import JOB_STATUSES, BenchmarkVersion, Job
-from proxybench.server.queue import requeue_expired
-from proxybench.server.security import user_for_token
+from proxybench.server.security import close_web_session, csrf_token, open_web_session, token_row
 from proxybench.server.web.common import render, safe_next
 from proxybench.server.web.svg import path_dag
 
 router = APIRouter(include_in_schema=False)
 
-COOKIE_MAX_AGE = 30 * 86_400  # s
+LOGIN_COOKIE = "proxybench_login"  # the sign-in form's own CSRF secret (double-submit)
+LEGACY_COOKIE = "proxybench_token"  # what older versions kept (the raw token): removed on sign-in and out
 
 
 def status_counts(session: Session) -> dict[str, int]:
     """Jobs per status over the whole queue (every status present, zeros included)."""
-    requeue_expired(session)
     counts = {status: n for status, n in session.execute(select(Job.status, func.count()).group_by(Job.status))}
     return {s: int(counts.get(s, 0)) for s in JOB_STATUSES}
 
 
 @router.get("/", response_class=HTMLResponse)
-def overview(request: Request, session: DB, settings: Conf, user: Caller) -> Response:
+def overview(request: Request, session: DB, settings: Conf, user: WebCaller) -> Response:
     """Benchmarks with their leaderboard's top 3, the queue in numbers, evaluators in health."""
     boards = []
     for bench in list_benchmarks(session, user):
-        board = leaderboard_rows(session, bench["name"], "public")
+        board = leaderboard_rows(session, bench["name"], "public", boards=request.app.state.boards)
         boards.append({**bench, "criteria": board["criteria"], "top": board["rows"][:3],
                        "entries": len(board["rows"])})
     evaluators = list_evaluators(session, settings, user)
@@ -49,33 +50,54 @@ def overview(request: Request, session: DB, settings: Conf, user: Caller) -> Res
 
 @router.get("/login", response_class=HTMLResponse)
 def login_form(request: Request, session: DB, next: str = "/") -> Response:
-    return render(request, "login.html", optional_user(request, session), next=safe_next(next), error=None)
-
-
-@router.post("/login", response_class=HTMLResponse)
-def login(request: Request, session: DB, token: Annotated[str, Form()],
-          next: Annotated[str, Form()] = "/") -> Response:
-    """Check the pasted API token and keep it in an HttpOnly, SameSite=Strict cookie."""
-    token = token.strip()
-    user = user_for_token(session, token) if token else None
-    if user is None:
-        return render(request, "login.html", None, status_code=401, next=safe_next(next),
-                      error="That token is unknown or revoked. Paste the whole token (it starts with 'pbt_').")
-    response = RedirectResponse(safe_next(next), status_code=303)
-    response.set_cookie(TOKEN_COOKIE, token, max_age=COOKIE_MAX_AGE, path="/", httponly=True, samesite="strict",
+    """The sign-in form; its CSRF token is bound to a cookie of its own (no session exists yet)."""
+    secret = request.cookies.get(LOGIN_COOKIE) or secrets.token_urlsafe(24)
+    response = render(request, "login.html", web_user(request, session), next=safe_next(next), error=None,
+                      csrf=csrf_token(secret))
+    response.set_cookie(LOGIN_COOKIE, secret, max_age=3600, path="/login", httponly=True, samesite="strict",
                         secure=request.url.scheme == "https")
     return response
 
 
-@router.api_route("/logout", methods=["GET", "POST"])
-def logout() -> Response:
+@router.post("/login", response_class=HTMLResponse)
+def login(request: Request, session: DB, settings: Conf, token: Annotated[str, Form(max_length=200)],
+          csrf: Annotated[str, Form(max_length=100)] = "",
+          next: Annotated[str, Form(max_length=2000)] = "/") -> Response:
+    """Check the pasted API token and open a web session: the cookie holds the session's own secret
+    (HttpOnly, SameSite=Strict, expiring), never the token."""
+    check_same_origin(request)
+    secret = request.cookies.get(LOGIN_COOKIE, "")
+    if not secret or not hmac.compare_digest(csrf, csrf_token(secret)):
+        raise ServiceError(403, "the sign-in form has expired or was not sent from this site; reload it and try "
+                                "again")
+    row = token_row(session, token.strip())
+    if row is None:
+        return render(request, "login.html", None, status_code=401, next=safe_next(next), csrf=csrf,
+                      error="That token is unknown or revoked. Paste the whole token (it starts with 'pbt_').")
+    old = request.cookies.get(SESSION_COOKIE)
+    if old:
+        close_web_session(session, old)
+    session_secret = open_web_session(session, row, settings.session_seconds)
+    response = RedirectResponse(safe_next(next), status_code=303)
+    response.set_cookie(SESSION_COOKIE, session_secret, max_age=int(settings.session_seconds), path="/",
+                        httponly=True, samesite="strict", secure=request.url.scheme == "https")
+    response.delete_cookie(LOGIN_COOKIE, path="/login")
+    response.delete_cookie(LEGACY_COOKIE, path="/")
+    return response
+
+
+@router.post("/logout")
+def logout(request: Request, session: DB, _: WebFormCaller) -> Response:
+    """End the web session (on the server, not only in this browser)."""
+    close_web_session(session, request.cookies.get(SESSION_COOKIE, ""))
     response = RedirectResponse("/login", status_code=303)
-    response.delete_cookie(TOKEN_COOKIE, path="/", httponly=True, samesite="strict")
+    response.delete_cookie(SESSION_COOKIE, path="/", httponly=True, samesite="strict")
+    response.delete_cookie(LEGACY_COOKIE, path="/")
     return response
 
 
 @router.get("/benchmarks", response_class=HTMLResponse)
-def benchmarks(request: Request, session: DB, user: Caller) -> Response:
+def benchmarks(request: Request, session: DB, user: WebCaller) -> Response:
     """Every benchmark (newest version) and every benchmark path, drawn."""
     paths = [{**p, "svg": path_dag(p["spec"])} for p in list_paths(session, user)]
     return render(request, "benchmarks.html", user, benchmarks=list_benchmarks(session, user), paths=paths)
@@ -88,7 +110,7 @@ def _versions(session: Session, name: str) -> list[dict[str, Any]]:
 
 
 @router.get("/benchmarks/{name}", response_class=HTMLResponse)
-def benchmark(request: Request, name: str, session: DB, user: Caller, version: int | None = None) -> Response:
+def benchmark(request: Request, name: str, session: DB, user: WebCaller, version: Version = None) -> Response:
     """One benchmark version: what it runs and how it scores, its versions, the paths it is a step of."""
     view = get_benchmark(name, session, user, version)
     spec = parse_benchmark(view["spec_yaml"], origin=f"{name} v{view['version']}")
@@ -99,12 +121,14 @@ def benchmark(request: Request, name: str, session: DB, user: Caller, version: i
 
 
 @router.get("/leaderboards/{name}", response_class=HTMLResponse)
-def leaderboard(request: Request, name: str, session: DB, user: Caller, split: str = "public",
-                version: int | None = None) -> Response:
+def leaderboard(request: Request, name: str, session: DB, user: WebCaller, split: str = "public",
+                version: Version = None) -> Response:
     """The ranked table (semiorder; Copeland score); the hidden-split tab for super-users only."""
     if split not in ("public", "hidden"):
         raise ServiceError(422, f"split must be 'public' or 'hidden', got {split!r}")
-    board = get_leaderboard(name, session, user, split, version)
+    if split == "hidden" and user.role != "superuser":
+        raise ServiceError(403, "hidden (test) scores are visible to super-users only")
+    board = leaderboard_rows(session, name, split, version, boards=request.app.state.boards)
     view = get_benchmark(name, session, user, board["version"])
     return render(request, "leaderboard.html", user, board=board, b=view, versions=_versions(session, name),
                   generated=time.time())

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, Form, Request
+from fastapi import APIRouter, Depends, Form, Query, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from pydantic import ValidationError
 
-from proxybench.server.api.deps import DB, Caller, Conf, require
-from proxybench.server.api.jobs import list_evaluators, list_jobs, retry_job
+from proxybench.server.api.deps import DB, Conf, WebCaller, WebFormCaller
+from proxybench.server.api.jobs import JobId, list_evaluators, list_jobs, retry_job
 from proxybench.server.api.schemas import UserCreate
-from proxybench.server.api.submissions import get_submission, list_submissions, retire
+from proxybench.server.api.submissions import SubmissionId, get_submission, list_submissions, retire
 from proxybench.server.api.users import add_user, list_users
 from proxybench.server.artifacts import ArtifactStore
 from proxybench.server.errors import ServiceError
@@ -22,7 +22,20 @@ from proxybench.server.web.pages import status_counts
 from proxybench.server.web.svg import episode_bars
 
 router = APIRouter(include_in_schema=False)
-Superuser = Annotated[User, Depends(require())]
+
+
+def _superuser(user: WebCaller) -> User:
+    if user.role != "superuser":
+        raise ServiceError(403, f"user {user.name!r} ({user.role}) may not do this; needs role superuser")
+    return user
+
+
+def _superuser_form(user: WebFormCaller) -> User:
+    return _superuser(user)
+
+
+Superuser = Annotated[User, Depends(_superuser)]
+SuperuserForm = Annotated[User, Depends(_superuser_form)]
 
 #: statuses an operator can retry (server.queue.retry)
 RETRYABLE = ("error", "host-error", "timeout", "failed", "aborted")
@@ -31,7 +44,7 @@ _TEXT_SUFFIXES = (".log", ".txt", ".json", ".yaml", ".yml", ".csv")
 
 
 @router.get("/submissions", response_class=HTMLResponse)
-def submissions(request: Request, session: DB, user: Caller, mine: bool = False) -> Response:
+def submissions(request: Request, session: DB, user: WebCaller, mine: bool = False) -> Response:
     """Your submissions; super-users see everyone's (``?mine=true``: their own)."""
     return render(request, "submissions.html", user, subs=list_submissions(session, user, mine), mine=mine)
 
@@ -63,7 +76,7 @@ def _report(scores: dict[str, Any], report: dict[str, Any]) -> dict[str, Any]:
 
 
 @router.get("/submissions/{sid}", response_class=HTMLResponse)
-def submission(request: Request, sid: int, session: DB, user: Caller) -> Response:
+def submission(request: Request, sid: SubmissionId, session: DB, user: WebCaller) -> Response:
     """Jobs with statuses and history, each result's scores, per-episode metrics and plot, artifacts."""
     sub = get_submission(sid, session, user)
     store = request.app.state.store
@@ -80,14 +93,15 @@ def submission(request: Request, sid: int, session: DB, user: Caller) -> Respons
 
 
 @router.post("/submissions/{sid}/retire")
-def retire_submission(sid: int, session: DB, user: Caller) -> Response:
+def retire_submission(sid: SubmissionId, session: DB, user: WebFormCaller) -> Response:
     """Withdraw a submission from the leaderboards (its results stay)."""
     retire(sid, session, user)
     return RedirectResponse(f"/submissions/{sid}", status_code=303)
 
 
 @router.get("/jobs", response_class=HTMLResponse)
-def jobs(request: Request, session: DB, user: Caller, status: str | None = None, limit: int = 100) -> Response:
+def jobs(request: Request, session: DB, user: WebCaller, status: str | None = None,
+         limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> Response:
     """The queue: counts per status (whole queue), recent jobs you may see, filtered by status."""
     if status and status not in JOB_STATUSES:
         raise ServiceError(422, f"status must be one of {', '.join(JOB_STATUSES)}, got {status!r}")
@@ -96,7 +110,7 @@ def jobs(request: Request, session: DB, user: Caller, status: str | None = None,
 
 
 @router.get("/evaluators", response_class=HTMLResponse)
-def evaluators(request: Request, session: DB, settings: Conf, user: Caller) -> Response:
+def evaluators(request: Request, session: DB, settings: Conf, user: WebCaller) -> Response:
     """Evaluators and their health: healthy when seen within one lease period."""
     owners = user_names(session)
     rows = [{**e, "owner": owners.get(e["owner_id"], "?")} for e in list_evaluators(session, settings, user)]
@@ -138,14 +152,14 @@ def operator(request: Request, session: DB, settings: Conf, user: Superuser) -> 
 
 
 @router.post("/operator/jobs/{job_id}/retry")
-def operator_retry(job_id: int, session: DB, settings: Conf, user: Superuser) -> Response:
+def operator_retry(job_id: JobId, session: DB, settings: Conf, user: SuperuserForm) -> Response:
     """Re-queue a job that ended without success (server.queue.retry), then back to the operator page."""
     new = retry_job(job_id, session, settings, user)
     return RedirectResponse(f"/operator?retried={job_id}&as={new['id']}", status_code=303)
 
 
 @router.post("/operator/users", response_class=HTMLResponse)
-def operator_add_user(request: Request, session: DB, settings: Conf, user: Superuser,
+def operator_add_user(request: Request, session: DB, settings: Conf, user: SuperuserForm,
                       name: Annotated[str, Form()], role: Annotated[str, Form()],
                       daily_limit: Annotated[str, Form()] = "") -> Response:
     """Create a user; its first token is shown once on the page that answers."""
