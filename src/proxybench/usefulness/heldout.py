@@ -237,15 +237,21 @@ def resolve_settings(cfg: HeldOutConfig, quick: bool) -> dict[str, Any]:
 
 def write_criteria(settings: dict[str, Any], out: Path) -> Path:
     """``criteria.json``: the pass criteria and settings, written before any episode runs (the report quotes
-    it with its time and hash, so the criteria cannot have been chosen after seeing the results)."""
+    it with its time and hash, so the criteria cannot have been chosen after seeing the results). A resumed
+    run with the same settings keeps the file, and so the time it was first written."""
     from proxybench.usefulness.heldout_scoring import __doc__ as definition
 
     out.mkdir(parents=True, exist_ok=True)
+    path = out / "criteria.json"
+    try:
+        if json.loads(path.read_text()).get("settings") == json.loads(json.dumps(settings)):
+            return path  # the same experiment resumed: the criteria keep the time they were first written
+    except (OSError, ValueError):
+        pass
     doc = {"written": time.strftime("%Y-%m-%d %H:%M:%S %z"), "settings": settings,
            "best_available_definition": (definition or "").split("**Best available θ**", 1)[-1].split(">>>")[0].strip(),
            "hit": "a metric's pick (its best θ on the evaluation episodes, ties broken at random) is a hit when it "
                   "lies within tolerance_steps grid steps (along every axis) of a θ in the reference set"}
-    path = out / "criteria.json"
     path.write_text(json.dumps(doc, indent=1))
     return path
 
