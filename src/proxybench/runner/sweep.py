@@ -63,6 +63,22 @@ def _load_done(ep_dir: Path, key: str) -> JobResult | None:
     return res
 
 
+def _with_metrics(res: JobResult | None, metrics: Sequence[str]) -> JobResult | None:
+    """A cached result that lacks some of ``metrics`` (asked for by a later run with other task metrics): scored
+    from its stored trajectory, or redone (None) when there is none."""
+    missing = [m for m in metrics if m not in (res.scores if res else {})]
+    if res is None or not missing:
+        return res
+    if not res.trajectory:
+        return None
+    from proxybench.tasks.metrics import METRICS
+    from proxybench.tasks.trajectory import Trajectory
+
+    traj = Trajectory.load(res.trajectory)
+    res.scores.update({m: float(METRICS[m](traj)) for m in missing})
+    return res
+
+
 def run_jobs(
     jobs: Sequence[Job],
     run_dir: str | Path,
@@ -89,7 +105,7 @@ def run_jobs(
     todo: list[Job] = []
     queued: set[str] = set()
     for job, key in zip(jobs, keys, strict=True):
-        done = _load_done(ep_dir, key)
+        done = _with_metrics(_load_done(ep_dir, key), job.metrics)
         if done is not None:
             by_key[key] = done
         elif key not in queued:
