@@ -53,7 +53,11 @@ def _init_worker() -> None:
     import sys
 
     import numba
+    from numba.core import config
+    from numba.np.ufunc import parallel
 
+    if not parallel._is_initialized:  # Numba read its config when the pickled initializer imported it: read it
+        config.reload_config()  # again, else the first compile in this worker finds the environment changed
     numba.set_num_threads(1)
     if "torch" in sys.modules:  # already started with its own threads
         sys.modules["torch"].set_num_threads(1)
