@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from proxybench.domain.dynamics import ST, pack_dynamics, pwm_from_velocity, wheel_ticks
+from proxybench.domain.dynamics import DYN_FIELDS, ST, pack_dynamics, pwm_from_velocity, wheel_ticks
 from proxybench.domain.lane_pose import LP
 from proxybench.domain.maps import load_map
 from proxybench.domain.params import DomainParams
@@ -338,5 +338,6 @@ def test_wheel_encoders_follow_the_wheels():
 def test_pack_dynamics_layout():
     row = pack_dynamics(DomainParams(dynamics="kinematic", trim=0.2, command_delay=0.1, physics_rate=60.0))
     assert row[0] == 1.0 and row[1] == 0.2
-    assert row[-3] == pytest.approx(1 / 60)  # physics_dt
-    assert row[-2] == 6.0  # delay ticks
+    assert row[DYN_FIELDS.index("physics_dt")] == pytest.approx(1 / 60)
+    assert row[DYN_FIELDS.index("delay_ticks")] == 6.0
+    assert row[DYN_FIELDS.index("motor_gamma_left")] == 1.0 and row[DYN_FIELDS.index("delay_jitter_shape")] == 1.0

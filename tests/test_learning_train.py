@@ -131,3 +131,24 @@ def test_package_exports_are_the_functions_not_same_named_modules():
 
     assert pl.train is train and pl.collect is collect and pl.dagger is dagger
     assert callable(pl.plv) and pl.BCAgent is BCAgent
+
+
+def test_runner_keys_follow_a_checkpoints_content(trained, tmp_path):
+    import torch
+
+    from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
+
+    model, _, _ = trained
+    model = __import__("copy").deepcopy(model)
+    path = save_checkpoint(tmp_path / "agent.pt", model)
+
+    def key() -> str:
+        return Job(AgentSpec(str(path)), DomainSpec("d"), "loop_3x3", 0, 1, 1.0).key
+
+    first = key()
+    assert key() == first
+    with torch.no_grad():
+        next(model.parameters()).add_(0.5)
+    save_checkpoint(path, model)  # retrained into the same file: cached episodes must not be re-used
+    assert key() != first
+    assert Job(AgentSpec("pid"), DomainSpec("d"), "loop_3x3", 0, 1, 1.0).key  # zoo names need no files

@@ -178,11 +178,27 @@ def test_imported_recording_scores_like_the_simulated_run(tmp_path):
 
 
 def test_batched_episodes_equal_single_episodes(tmp_path):
+    from proxybench.runner.sweep import _batches
+
     jobs = _jobs(agents=("pid", "vision", "straight"), episodes=3, duration=3.0)
+    assert any(len({j.agent for j in b}) > 1 for b in _batches(jobs, 4, 1))  # camera agents of both kinds share one
     single = run_jobs(jobs, tmp_path / "single", batch_size=1)
-    batched = run_jobs(jobs, tmp_path / "batched", batch_size=3)
+    batched = run_jobs(jobs, tmp_path / "batched", batch_size=4)
     assert _table(single) == _table(batched)
     for a, b in zip(single.results, batched.results, strict=True):
         ta, tb = Trajectory.load(a.trajectory), Trajectory.load(b.trajectory)
         for col in ("x", "y", "theta", "pwm_left", "pwm_right"):
             np.testing.assert_array_equal(ta[col], tb[col])
+
+
+def test_pool_worker_setup_survives_numba_reading_its_config_again():
+    """A worker imports Numba before its initializer runs; on a fresh install the first compile re-reads
+    Numba's config, which used to fail ("Cannot set NUMBA_NUM_THREADS ... once the threads have been launched")."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_NUM_THREADS"}
+    code = ("import numba; from proxybench.runner.backends import _init_worker; _init_worker(); "
+            "numba.core.config.reload_config(); print(numba.get_num_threads())")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "1"

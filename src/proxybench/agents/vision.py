@@ -17,6 +17,7 @@ import math
 from dataclasses import dataclass
 from functools import lru_cache
 
+import numba as nb
 import numpy as np
 
 from proxybench.agents.base import Agent, Observation
@@ -63,29 +64,98 @@ class LaneEstimate:
     n_white: int
 
 
-def _fit_line(x: np.ndarray, y: np.ndarray, trim: float = 0.03) -> tuple[float, float] | None:
-    """y = a + b x by least squares, refitted once without points further than ``trim`` [m]."""
-    if x.size < 6:
-        return None
-    for _ in range(2):
-        A = np.stack([np.ones_like(x), x], axis=1)
-        (a, b), *_ = np.linalg.lstsq(A, y, rcond=None)
-        keep = np.abs(y - (a + b * x)) < trim
-        if keep.sum() < 6 or keep.all():
+_MIN_POINTS = 6  # a line needs at least this many points
+_TRIM = 0.03  # [m] points further than this from the first fit are dropped before the second
+
+
+@nb.njit(cache=True)
+def _fit_line(x: np.ndarray, y: np.ndarray, n: int, trim: float) -> tuple[bool, float, float]:
+    """y = a + b x by least squares over the first ``n`` points, refitted once without points further than
+    ``trim`` [m] from the first fit (unless that leaves fewer than ``_MIN_POINTS`` or drops none).
+
+    The least-squares solution of ``np.linalg.lstsq``, in closed form (centred sums); where every x is
+    equal, its minimum-norm solution.
+    """
+    if n < _MIN_POINTS:
+        return False, 0.0, 0.0
+    a = b = 0.0
+    for rnd in range(2):
+        mx = my = 0.0
+        for k in range(n):
+            mx += x[k]
+            my += y[k]
+        mx /= n
+        my /= n
+        sxx = sxy = 0.0
+        for k in range(n):
+            dx = x[k] - mx
+            sxx += dx * dx
+            sxy += dx * (y[k] - my)
+        if sxx > 1e-300:
+            b = sxy / sxx
+            a = my - b * mx
+        else:  # one x only: the minimum-norm (a, b) with a + b x = mean y
+            a = my / (1.0 + mx * mx)
+            b = a * mx
+        if rnd == 1:
             break
-        x, y = x[keep], y[keep]
-    return float(a), float(b)
+        kept = 0
+        for k in range(n):
+            if abs(y[k] - (a + b * x[k])) < trim:
+                x[kept] = x[k]
+                y[kept] = y[k]
+                kept += 1
+        if kept < _MIN_POINTS or kept == n:
+            break
+        n = kept
+    return True, a, b
 
 
-def _segment(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Boolean (white, yellow) masks from fixed colour thresholds."""
-    rgb = img.astype(np.int16)
-    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
-    lo = np.minimum(np.minimum(r, g), b)
-    hi = np.maximum(np.maximum(r, g), b)
-    white = (lo > 150) & (hi - lo < 50)
-    yellow = (r > 140) & (g > 100) & (b < 110) & (r - b > 90)
-    return white, yellow
+@nb.njit(cache=True)
+def _lane_lines(sub: np.ndarray, gx: np.ndarray, gy: np.ndarray, max_range: float) -> np.ndarray:
+    """Segment the markings of a subsampled frame, project them to the ground and fit the yellow line and
+    the white line right of it: [has_yellow, a, b, n_yellow, has_white, a, b, n_white] (y = a + b x, [m]).
+
+    Colour thresholds (fixed RGB, so light matters): white = every channel > 150 and spread < 50;
+    yellow = r > 140, g > 100, b < 110, r − b > 90. Only pixels whose ground point lies 0.05–``max_range``
+    m ahead count.
+    """
+    h, w = gx.shape
+    xs = np.empty(h * w)
+    ys = np.empty(h * w)
+    wx = np.empty(h * w)
+    wy = np.empty(h * w)
+    white = np.zeros((h, w), dtype=np.bool_)
+    ny = nw = 0
+    for i in range(h):
+        for j in range(w):
+            x = gx[i, j]
+            if not (x > 0.05 and x < max_range):  # also False for NaN (above the horizon)
+                continue
+            r, g, b = np.int16(sub[i, j, 0]), np.int16(sub[i, j, 1]), np.int16(sub[i, j, 2])
+            if r > 140 and g > 100 and b < 110 and r - b > 90:
+                xs[ny] = x
+                ys[ny] = gy[i, j]
+                ny += 1
+            lo, hi = min(r, g, b), max(r, g, b)
+            if lo > 150 and hi - lo < 50:
+                white[i, j] = True
+    out = np.zeros(8)
+    ok, a, b = _fit_line(xs, ys, ny, _TRIM)
+    if ok:
+        out[0], out[1], out[2], out[3] = 1.0, a, b, ny
+    for i in range(h):
+        for j in range(w):
+            if white[i, j]:
+                x, y = gx[i, j], gy[i, j]
+                if (y < a + b * x - 0.1) if ok else (y < 0.15):  # only the white line right of the yellow one
+                    wx[nw] = x
+                    wy[nw] = y
+                    nw += 1
+    ok_w, a_w, b_w = _fit_line(wx, wy, nw, _TRIM)
+    if ok_w:
+        out[4], out[5], out[6], out[7] = 1.0, a_w, b_w, nw
+    return out
 
 
 def estimate_lane(img: np.ndarray, cam: AssumedCamera, step: int = 4, max_range: float = 0.45) -> LaneEstimate | None:
@@ -93,34 +163,20 @@ def estimate_lane(img: np.ndarray, cam: AssumedCamera, step: int = 4, max_range:
     h, w = img.shape[:2]
     gx, gy = _ground_grid(cam, w, h, step)
     sub = img[step // 2 :: step, step // 2 :: step][: gx.shape[0], : gx.shape[1]]
-    white, yellow = _segment(sub)
-    near = np.isfinite(gx) & (gx > 0.05) & (gx < max_range)
+    has_y, a, b, n_y, has_w, a_w, b_w, n_w = _lane_lines(sub, gx, gy, max_range)
     estimates, weights = [], []
-    n_y = n_w = 0
-    yl = yellow & near
-    line_y = _fit_line(gx[yl], gy[yl])
-    if line_y is not None:
-        n_y = int(yl.sum())
-        a, b = line_y
+    if has_y:
         estimates.append((-(a - YELLOW_OFFSET * math.hypot(1.0, b)), -math.atan(b)))
-        weights.append(n_y)
-    wl = white & near
-    if line_y is not None:
-        wl &= gy < line_y[0] + line_y[1] * gx - 0.1  # only the white line right of the yellow one
-    else:
-        wl &= gy < 0.15
-    line_w = _fit_line(gx[wl], gy[wl])
-    if line_w is not None:
-        n_w = int(wl.sum())
-        a, b = line_w
-        estimates.append((-(a + WHITE_OFFSET * math.hypot(1.0, b)), -math.atan(b)))
-        weights.append(n_w)
+        weights.append(int(n_y))
+    if has_w:
+        estimates.append((-(a_w + WHITE_OFFSET * math.hypot(1.0, b_w)), -math.atan(b_w)))
+        weights.append(int(n_w))
     if not estimates:
         return None
     wsum = float(sum(weights))
     lat = sum(e[0] * wt for e, wt in zip(estimates, weights, strict=True)) / wsum
     head = sum(e[1] * wt for e, wt in zip(estimates, weights, strict=True)) / wsum
-    return LaneEstimate(lat, head, n_y, n_w)
+    return LaneEstimate(lat, head, int(n_y) if has_y else 0, int(n_w) if has_w else 0)
 
 
 class LaneVisionAgent(Agent):

@@ -97,8 +97,10 @@ def _load(config: Path | None, overrides: dict[str, Any]):
 
 
 def _fail(exc: Exception) -> None:
+    from rich.markup import escape
+
     for line in str(exc).splitlines():
-        err_console.print(f"[red]✗[/red] {line}", highlight=False, markup=False)
+        err_console.print(f"[red]✗[/red] {escape(line)}", highlight=False)
     raise typer.Exit(2)
 
 

@@ -10,7 +10,8 @@ forward Euler on (v, ω) and then an exact SE(2) update of the pose with the new
 velocities (a circular arc). The "kinematic" model sets each wheel's speed to PWM × max speed at once.
 
 Effects that the reality model uses (and a proxy may or may not): motor dead-band and saturation,
-wheel slip that grows with speed and turn rate, and latency jitter on top of the fixed command delay.
+response curves that differ between the two motors, wheel slip that grows with speed and turn rate, and
+latency jitter on top of the fixed command delay (uniform, or mostly short with rare spikes).
 Every constant is a field of ``DomainParams``; ``pack_dynamics`` lays them out for the kernel.
 
 All arrays are per robot, so one call advances a whole batch; ``physics_ticks`` is compiled with
@@ -42,10 +43,10 @@ __all__ = [
 DYN_FIELDS = (
     "kinematic", "trim", "gain", "v_decay", "v_gain", "w_decay", "w_gain", "kinematic_max_speed",
     "wheel_distance", "wheel_radius", "motor_deadband", "motor_saturation", "slip_speed", "slip_turn",
-    "physics_dt", "delay_ticks", "jitter_ticks",
+    "physics_dt", "delay_ticks", "jitter_ticks", "motor_gamma_left", "motor_gamma_right", "delay_jitter_shape",
 )
 (_KIN, _TRIM, _GAIN, _VDEC, _VGAIN, _WDEC, _WGAIN, _VMAX, _WD, _WR, _DB, _SAT, _SLIPV, _SLIPW, _DT, _DELAY,
- _JITTER) = range(len(DYN_FIELDS))
+ _JITTER, _GAMMA_L, _GAMMA_R, _JSHAPE) = range(len(DYN_FIELDS))
 
 
 #: columns of a physics trace row: pose, velocities, the PWM applied during the tick, off-road flag
@@ -68,23 +69,31 @@ def pack_dynamics(p: DomainParams) -> np.ndarray:
 
 
 @nb.njit(cache=True, inline="always")
-def _motor(u, deadband, saturation):
-    """PWM → effective motor drive: clipped to ±saturation, zero inside the dead-band, rescaled above."""
+def _motor(u, deadband, saturation, gamma):
+    """PWM → effective motor drive: clipped to ±saturation, zero inside the dead-band, rescaled above, then
+    shaped by the motor's response curve |·|^gamma (gamma 1: linear, computed without the power)."""
     u = min(max(u, -saturation), saturation)
     a = abs(u)
     if a <= deadband:
         return 0.0
-    return math.copysign((a - deadband) / (1.0 - deadband), u)
+    drive = (a - deadband) / (1.0 - deadband)
+    if gamma != 1.0:
+        drive = drive**gamma
+    return math.copysign(drive, u)
 
 
 @nb.njit(cache=True, inline="always")
-def _jitter(seed, tick, max_ticks):
-    """Extra latency in whole ticks for this tick, uniform in [0, max_ticks], fixed by (seed, tick)."""
+def _jitter(seed, tick, max_ticks, shape):
+    """Extra latency in whole ticks for this tick, in [0, max_ticks], fixed by (seed, tick): uniform for
+    ``shape`` 1, else ⌊(max_ticks + 1)·U^shape⌋ (mostly short, with rare delays up to ``max_ticks``)."""
     z = np.uint64(seed) ^ (np.uint64(tick) * np.uint64(0x9E3779B97F4A7C15))
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
     z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
     z = z ^ (z >> np.uint64(31))
-    return int(z % np.uint64(max_ticks + 1))
+    if shape == 1.0:
+        return z % np.uint64(max_ticks + 1)
+    unit = float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)  # U[0, 1) from the top 53 bits
+    return min(np.uint64(math.floor((max_ticks + 1) * unit**shape)), np.uint64(max_ticks))
 
 
 @nb.njit(cache=True)
@@ -117,7 +126,7 @@ def physics_ticks(
             cmd_hist[n, t % depth, 1] = commands[n, 1]
             src = t - delay
             if jit > 0:
-                src -= _jitter(seeds[n], t, jit)
+                src -= _jitter(seeds[n], t, jit, d[_JSHAPE])
             src = max(src, applied_tick[n])
             applied_tick[n] = src
             if src < 0:
@@ -127,8 +136,8 @@ def physics_ticks(
                 ul = cmd_hist[n, src % depth, 0]
                 ur = cmd_hist[n, src % depth, 1]
             gain = d[_GAIN]
-            L = gain * (1.0 - d[_TRIM]) * _motor(ul, d[_DB], d[_SAT])
-            R = gain * (1.0 + d[_TRIM]) * _motor(ur, d[_DB], d[_SAT])
+            L = gain * (1.0 - d[_TRIM]) * _motor(ul, d[_DB], d[_SAT], d[_GAMMA_L])
+            R = gain * (1.0 + d[_TRIM]) * _motor(ur, d[_DB], d[_SAT], d[_GAMMA_R])
             if d[_KIN] > 0.5:
                 vl = L * d[_VMAX]
                 vr = R * d[_VMAX]

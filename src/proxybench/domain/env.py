@@ -18,6 +18,7 @@ from gymnasium.vector.utils import batch_space
 
 from proxybench.domain.dynamics import ST
 from proxybench.domain.env_render import RENDER_MODES, EnvView, check_render_args, view_frame
+from proxybench.domain.episode_end import ended
 from proxybench.domain.lane_pose import LANE_POSE_FIELDS, LP, LanePose
 from proxybench.domain.maps import Map
 from proxybench.domain.params import DomainParams
@@ -98,10 +99,11 @@ class _Core:
         ).astype(np.float32), box.low, box.high)
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Advance all robots; (reward, terminated, truncated). Leaving the road or hitting an object ends it."""
-        was_out = self.sim.off_road | self.sim.collided
+        """Advance all robots; (reward, terminated, truncated). The episode-end rule (``domain.episode_end``:
+        off the road, a collision) terminates; ``episode_seconds`` truncates."""
+        was_out = ended(self.sim)
         self.sim.step(actions)
-        out = self.sim.off_road | self.sim.collided
+        out = ended(self.sim)
         reward, self.terms = lane_following_reward(self.sim.state, self.sim.lane, out & ~was_out, self.weights)
         terminated = out.copy()
         truncated = (self.sim.frame_index >= self.max_steps) & ~terminated

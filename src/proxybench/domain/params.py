@@ -63,10 +63,19 @@ class DomainParams(BaseModel):
     encoder_resolution: float = Field(2 * math.pi / 135, gt=0.0, description="wheel encoder step [rad]")
     command_delay: float = Field(0.05, ge=0.0, le=2.0, description="age of the command being applied [s]")
     delay_jitter: float = Field(0.0, ge=0.0, le=1.0, description="extra random latency, uniform in [0, this] [s]")
+    delay_jitter_shape: float = Field(
+        1.0, ge=1.0, le=16.0,
+        description="latency distribution: extra = delay_jitter · U^shape; 1 uniform, > 1 mostly short with rare "
+                    "long delays (spikes) [-]")
     motor_deadband: float = Field(0.0, ge=0.0, lt=1.0, description="|PWM| below this does not move the wheel [-]")
     motor_saturation: float = Field(1.0, gt=0.0, le=1.0, description="|PWM| is clipped to this [-]")
     slip_speed: float = Field(0.0, ge=0.0, description="wheel slip growth with speed [1/(m/s)]")
     slip_turn: float = Field(0.0, ge=0.0, description="wheel slip growth with yaw rate [1/(rad/s)]")
+    motor_gamma_left: float = Field(
+        1.0, ge=0.25, le=4.0,
+        description="left motor response curve: drive = |PWM'|^γ after dead-band and saturation; unequal left and "
+                    "right curves make an imbalance that changes with speed, which trim cannot cancel [-]")
+    motor_gamma_right: float = Field(1.0, ge=0.25, le=4.0, description="right motor response curve (as left) [-]")
 
     # --- timing ---
     physics_rate: float = Field(60.0, gt=0.0, le=10000.0, description="physics steps per second [Hz]")
@@ -78,14 +87,21 @@ class DomainParams(BaseModel):
     camera_pitch: float = Field(19.15, ge=-60.0, le=89.0, description="camera tilt below horizontal [deg]")
     camera_height: float = Field(0.108, gt=0.0, description="camera height above the ground [m]")
     camera_forward: float = Field(0.066, description="camera position ahead of the wheel axle [m]")
+    camera_yaw: float = Field(0.0, ge=-45.0, le=45.0, description="camera turned left of the robot's heading [deg]")
+    camera_roll: float = Field(
+        0.0, ge=-45.0, le=45.0,
+        description="camera rotated about its optical axis, clockwise as seen from behind [deg]")
     camera_fov_y: float = Field(75.0, gt=1.0, lt=179.0, description="vertical field of view, pinhole model [deg]")
     fisheye: bool = Field(False, description="use the calibrated Duckiebot intrinsics and lens distortion")
     intrinsics: tuple[float, float, float, float] = Field(
         DUCKIEBOT_INTRINSICS, description="fx, fy, cx, cy at 640×480 [px], scaled to the image size"
     )
     distortion: tuple[float, float, float, float, float] = Field(
-        DUCKIEBOT_DISTORTION, description="plumb-bob k1, k2, p1, p2, k3 [-]"
+        DUCKIEBOT_DISTORTION, description="plumb-bob k1, k2, p1, p2, k3; equidistant lens: k1, k2, k3, k4, unused [-]"
     )
+    lens_model: Literal["plumb_bob", "equidistant"] = Field(
+        "plumb_bob", description="fisheye lens model: OpenCV's plumb-bob (radial-tangential, the Duckiebot "
+                                 "calibration) or the equidistant (Kannala-Brandt) fisheye model")
     blur_time: float = Field(0.05, ge=0.0, le=1.0, description="exposure averaged for motion blur [s]")
     blur_samples: int = Field(3, ge=1, le=32, description="sub-frames averaged when blur_time > 0 [-]")
     texture_size: int = Field(256, ge=16, le=2048, description="texels per tile edge of the road textures [-]")

@@ -279,7 +279,8 @@ def pixel_rays(model: CameraModel) -> np.ndarray:
 
 
 def camera_row(model: CameraModel) -> list[float]:
-    """(forward, height, sin pitch, cos pitch, fx, fy, cx, cy, pinhole) for ``cull_objects``."""
+    """(forward, height, sin pitch, cos pitch, fx, fy, cx, cy, pinhole) for ``cull_objects``; a camera with yaw
+    or roll counts as not pinhole there (its objects are tested over the whole image)."""
     a = math.radians(model.pitch)
     return [model.forward, model.mount_height, math.sin(a), math.cos(a), model.fx, model.fy, model.cx, model.cy,
-            1.0 if model.distortion is None else 0.0]
+            1.0 if model.distortion is None and model.yaw == 0.0 and model.roll == 0.0 else 0.0]

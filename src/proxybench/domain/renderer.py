@@ -386,7 +386,7 @@ class Renderer:
                 lv = np.clip(np.nan_to_num(lv, posinf=self.tex.levels - 1), 0, self.tex.levels - 1)
                 levels.append(np.where(t.sky, -1, lv).astype(np.int8))
             self._stack = (
-                np.array([t.model.distortion is None for t in self._tables]),
+                np.array([t.model.rows_are_lines for t in self._tables]),
                 np.stack([t.gx for t in self._tables]).astype(np.float64),
                 np.stack([t.gy for t in self._tables]).astype(np.float64),
                 np.stack(levels),

@@ -11,8 +11,11 @@ Who drives and who labels are separate, as BC practice wants:
   with the expert with probability ``beta``); the expert still labels every frame.
 
 The expert is pure pursuit on the true lane pose (privileged; only a simulator or a motion-capture lab
-knows it). A robot that leaves the road, hits an object of the map or completes ``episode_frames``
-starts a new episode with a new seed — and, for a domain family, a new θ.
+knows it). A robot whose episode ends by the engine's rule (``domain.episode_end``: off the road, a
+collision), completes ``episode_frames`` or has no valid expert label starts a new episode at once with a
+new seed — and, for a domain family, a new θ. (Data collection is a continuing stream with per-robot
+resets, not a set of episodes with trajectories, so it steps the simulator itself rather than through
+``runner.rollout``.)
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from proxybench import __version__
+from proxybench.domain.episode_end import ended
 from proxybench.domain.lane_pose import LP
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator, StartDistribution
@@ -156,7 +160,7 @@ def collect(
         rec.add(valid, images=images, actions=labels, executed=executed, episode=episode.copy(),
                 frame=sim.frame_index.copy(), on_policy=np.full(cfg.robots, on_policy))
         sim.step(executed)
-        done = sim.off_road | sim.collided | (sim.frame_index >= cfg.episode_frames) | ~valid
+        done = ended(sim) | (sim.frame_index >= cfg.episode_frames) | ~valid
         for i in np.flatnonzero(done):
             episode[i] = rec.new_episode(sim, int(i), on_policy)
             noise[i] = 0.0

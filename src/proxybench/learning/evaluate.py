@@ -1,29 +1,30 @@
 """Score a batched policy in a domain: all episodes side by side in one simulator, one network call per frame.
 
-Each robot of the batch runs exactly the episode ``run_episode`` would run for the same seed (robots of
-a ``Simulator`` batch are independent): it starts from the evaluation start distribution, sees a frame
-every 1/frame_rate s, and stops when it leaves the road or hits an object of the map. Its physics-rate
-trajectory is then scored by the same task metric code as every other run (by default the thesis' lane
-score: episode time, −1 per second with one wheel out of the lane, −2 per second with both out).
+The episode engine (``runner.rollout``) on a :class:`~proxybench.runner.episode.SimPlant` with a
+:class:`~proxybench.runner.rollout.BatchPolicy`: each robot of the batch runs exactly the episode
+``run_episode`` would run for the same seed: it starts from the evaluation start distribution, sees a
+frame every 1/frame_rate s (the rendered pixels, no JPEG round trip), and stops when it leaves the road
+or hits an object of the map. Its physics-rate trajectory is then scored by the same task metric code as
+every other run (by default the thesis' lane score: episode time, −1 per second with one wheel out of the
+lane, −2 per second with both out). One network call serves the whole batch.
 
-``runner.episode.run_episodes`` batches physics and rendering too, but asks each agent for its command
-one robot at a time; here one network call serves the whole batch.
+The PLV experiment caches these scores itself (per rung, next to the checkpoint), so they do not go
+through the runner's job cache.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from proxybench.domain.dynamics import TRACE_FIELDS
 from proxybench.domain.simulator import Simulator
 from proxybench.learning.collection import Policy
 from proxybench.learning.domains import Domain
 from proxybench.learning.expert import expert_actions
+from proxybench.runner.episode import SimPlant
+from proxybench.runner.rollout import BatchPolicy, rollout
 from proxybench.tasks.metrics import METRICS
-from proxybench.tasks.trajectory import Trajectory
 
 __all__ = ["EvalConfig", "EvalResult", "evaluate_expert", "evaluate_policy"]
 
@@ -51,50 +52,26 @@ class EvalResult:
         return float(np.mean(self.scores))
 
 
-def _trajectory(sim: Simulator, i: int, trace: np.ndarray, frames: int, start: np.ndarray, seconds: float,
-                termination: str, seed: int) -> Trajectory:
-    rows = trace[:frames, i].reshape(-1, len(TRACE_FIELDS))
-    p = sim.params[i]
-    t = np.arange(rows.shape[0] + 1) * p.physics_dt
-    poses = np.vstack([start[None], rows[:, :3]])
-    meta = {"source": "simulation", "seed": seed, "episode_seconds": seconds}
-    return Trajectory.from_poses(sim.map, t, poses, meta=meta, termination=termination,
-                                 wheel_distance=p.wheel_distance)
-
-
 def evaluate_policy(policy: Policy, domain: Domain, cfg: EvalConfig | None = None) -> EvalResult:
     """Run ``cfg.episodes`` episodes of ``policy`` in ``domain`` at once; score each with ``cfg.metric``."""
-    return _evaluate(lambda sim, alive: policy(sim.render(active=alive)), domain, cfg or EvalConfig(), render=True)
+    cfg = cfg or EvalConfig()
+    return _evaluate(BatchPolicy(lambda images, plant: policy(images), cfg.episodes, "network"), domain, cfg,
+                     render=True)
 
 
 def evaluate_expert(domain: Domain, cfg: EvalConfig | None = None) -> EvalResult:
     """The privileged expert (pure pursuit on the true pose) on the same episodes: the teacher's own score."""
-    return _evaluate(lambda sim, alive: expert_actions(sim.lane), domain, cfg or EvalConfig(), render=False)
+    cfg = cfg or EvalConfig()
+    return _evaluate(BatchPolicy(lambda images, plant: expert_actions(plant.sim.lane), cfg.episodes, "expert",
+                                 privileged=True), domain, cfg, render=False)
 
 
-def _evaluate(command: Callable[[Simulator, np.ndarray], np.ndarray], domain: Domain, cfg: EvalConfig,
-              render: bool) -> EvalResult:
-    """The episode loop of ``runner.episode.run_episodes``, with one batched ``command(sim, alive)`` per frame."""
+def _evaluate(policy: BatchPolicy, domain: Domain, cfg: EvalConfig, render: bool) -> EvalResult:
+    """The engine's rollout on a simulator of ``cfg.episodes`` robots, each with its own draw of θ."""
     seeds = [cfg.seed + e for e in range(cfg.episodes)]
     thetas = [domain.sample(np.random.default_rng(s)) for s in seeds]
     sim = Simulator(cfg.map, thetas, render=render)
-    for i, s in enumerate(seeds):
-        sim.reset(i, s)
-    start = sim.state[:, :3].copy()
-    steps = max(1, round(cfg.seconds / sim.frame_dt))
-    trace = np.zeros((steps, sim.n, sim.substeps, len(TRACE_FIELDS)))
-    frames = np.full(sim.n, steps)
-    running = np.ones(sim.n, dtype=bool)
-    ends = ["timeout"] * sim.n
-    for k in range(steps):
-        commands = np.asarray(command(sim, running), dtype=np.float64).reshape(sim.n, 2)
-        sim.step(np.where(running[:, None], commands, 0.0), trace[k])
-        for reason, hit in (("collision", sim.collided), ("off_road", sim.off_road)):
-            for i in np.flatnonzero(running & hit):
-                ends[i], frames[i], running[i] = reason, k + 1, False
-        if not running.any():
-            break
+    trajs = rollout(SimPlant(sim), policy, seeds, cfg.seconds, camera=render,
+                    metas=[{"domain": domain.name, "domain_kind": domain.kind}] * sim.n)
     metric = METRICS[cfg.metric]
-    scores = [metric(_trajectory(sim, i, trace, int(frames[i]), start[i], cfg.seconds, ends[i], seeds[i]))
-              for i in range(sim.n)]
-    return EvalResult(scores, ends)
+    return EvalResult([metric(t) for t in trajs], [t.termination for t in trajs])

@@ -29,12 +29,12 @@ import numpy as np
 import yaml
 
 from proxybench.domain.dynamics import ST, TRACE_FIELDS, wheel_ticks
+from proxybench.domain.episode_end import end_event, ended
 from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.maps import Map, MapError, MapObject, load_map, parse_map
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
 from proxybench.domain.topdown import top_down
-from proxybench.domain.worlds import HIT_KINDS
 from proxybench.protocol import jpeg, robot_wire, wire
 from proxybench.protocol.aido_arrays import robot_info_data
 from proxybench.protocol.description import _commands, _observations, encode_extras
@@ -44,9 +44,6 @@ from proxybench.protocol.robot_description import robot_protocol_description
 
 __all__ = ["RobotNode", "serve_robot"]
 
-#: the same words the in-process runner records, so that both give equal trajectories
-_COLLISION = "the robot came too close to a {}"
-_OFF_ROAD = "the robot centre left the drivable area"
 _TURNS = ("left", "straight", "right")
 _TRACE_IDX = [TRACE_FIELDS.index(k) for k in robot_wire.TRACE_COLUMNS[1:]]
 _MAX_SIMS = 4
@@ -322,11 +319,11 @@ class RobotNode(NodeLogic):
         if self.termination is not None:
             return
         sim, when = self.sim, self._time
-        if sim.collided[0]:
-            what = HIT_KINDS[int(sim.hit_kind[0])] or "map object"
-            self.termination = {"when": when, "desc": _COLLISION.format(what), "code": "collision", "with": what}
-        elif sim.off_road[0]:
-            self.termination = {"when": when, "desc": _OFF_ROAD, "code": "off_road"}
+        if ended(sim)[0]:  # the runner's rule, so that both give equal trajectories
+            end = end_event(sim, 0)
+            self.termination = {"when": end["t"], "desc": end["message"], "code": end["kind"]}
+            if "with" in end:
+                self.termination["with"] = end["with"]
         elif self.frame_limit is not None and sim.frame_index[0] >= self.frame_limit:
             self.termination = {"when": when, "desc": "the episode's time is up", "code": "timeout"}
 

@@ -56,8 +56,13 @@ def _init_worker() -> None:
     from numba.core import config
     from numba.np.ufunc import parallel
 
-    if not parallel._is_initialized:  # Numba read its config when the pickled initializer imported it: read it
-        config.reload_config()  # again, else the first compile in this worker finds the environment changed
+    # Numba read NUMBA_NUM_THREADS when it was imported, before this ran (unpickling the work imports it). Its
+    # next config reload (at the first compile, i.e. on a fresh install) would find the variable changed after
+    # the threads started and raise; so read it now, or where the threads already run, keep it as they are.
+    if not getattr(parallel, "_is_initialized", False):
+        config.reload_config()
+    elif os.environ.get("NUMBA_NUM_THREADS") != str(config.NUMBA_NUM_THREADS):
+        os.environ["NUMBA_NUM_THREADS"] = str(config.NUMBA_NUM_THREADS)
     numba.set_num_threads(1)
     if "torch" in sys.modules:  # already started with its own threads
         sys.modules["torch"].set_num_threads(1)

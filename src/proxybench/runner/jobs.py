@@ -2,7 +2,8 @@
 
 A ``Job`` is plain data (picklable, JSON-able), so any backend (process pool, Ray cluster) can carry it;
 its ``key`` is a content hash of everything that determines the result (agent spec, θ, map, episode,
-duration, code version), which is what makes sweeps cacheable and resumable.
+duration, code version; the content of map files and of checkpoint agents), which is what makes sweeps
+cacheable and resumable.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import hashlib
 import json
 import time
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -20,12 +22,14 @@ if TYPE_CHECKING:
     from proxybench.domain.npcs import Traffic
 
 #: bump when what an episode produces changes without a change of its inputs (it is part of every job key)
-ENGINE_VERSION = 4  # 2: camera agents see JPEG-decoded frames, as over the AIDO protocol; 3: intersection routes;
-# 4: NPC robots and pedestrians simulated (benchmark ``npcs:``), object colours and extra duckies in θ
+ENGINE_VERSION = 5  # 2: camera agents see JPEG-decoded frames, as over the AIDO protocol; 3: intersection routes;
+# 4: NPC robots and pedestrians simulated (benchmark ``npcs:``), object colours and extra duckies in θ;
+# 5: the vision agents' lane fit is compiled (closed-form least squares, equal to lstsq within 1e-9, so their
+# trajectories can differ in the last bits)
 
 __all__ = [
     "DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "batch_group",
-    "camera_filter", "execute", "execute_batch", "make_agent_for",
+    "camera_filter", "execute", "execute_batch", "is_privileged", "make_agent_for",
 ]
 
 
@@ -148,11 +152,12 @@ class Job:
             raise ValueError(f"job {self.agent.label} / {self.domain.name}: a robot node drives one robot and no "
                              f"NPCs; this job has npcs (a benchmark with `npcs:` needs a simulated domain)")
 
-    @property
+    @cached_property
     def key(self) -> str:
-        """Content hash: equal keys ⇔ the same result (given deterministic agents)."""
+        """Content hash: equal keys ⇔ the same result (given deterministic agents). Computed once per job
+        (it reads map and checkpoint files) and carried along when the job is pickled to a worker."""
         blob = json.dumps(
-            {"agent": self.agent.key_data(), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
+            {"agent": _agent_id(self.agent), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
              "seed": self.seed, "pose": self.pose, "duration": self.duration, "camera_only": self.camera_only,
              "route": self.route, "npcs": None if self.npcs is None else self.npcs.to_dict(),
              "version": __version__, "engine": ENGINE_VERSION},
@@ -184,6 +189,26 @@ class JobResult:
         return JobResult(**json.loads(text))
 
 
+def _agent_id(spec: AgentSpec) -> dict[str, Any]:
+    """What identifies an agent in a key: its spec, and for a behaviour-cloning checkpoint (a path given as
+    the name) the content of its files, so that retraining into the same path invalidates cached episodes.
+    A node command is identified by its string only (like a robot's: what was asked)."""
+    from proxybench.agents.zoo import ZOO
+
+    out = spec.key_data()
+    if spec.command is None and spec.name not in ZOO:
+        from proxybench.learning import is_checkpoint
+
+        if is_checkpoint(spec.name):
+            pt = Path(spec.name).with_suffix(".pt")
+            out["checkpoint"] = _file_digest(pt) + _file_digest(pt.with_suffix(".json"))
+    return out
+
+
+def _file_digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
 def _map_id(name: str) -> str:
     """Maps by name are built-in; a file path is identified by its content, so edits invalidate caches."""
     p = Path(name)
@@ -211,13 +236,23 @@ def _simulator(job: Job, n: int = 1):
 
 
 def batch_group(job: Job) -> tuple:
-    """Jobs with equal groups can share one batched simulator: same agent, domain, map, NPCs, length, rules.
-
-    Jobs on one robot domain share a node process whatever their agent, map or length (one after another).
+    """Jobs with equal groups can share one batched simulator: same domain, map, NPCs, length and rules, and
+    agents that see alike (all privileged or all camera); in-process agents may differ robot by robot. A node
+    agent groups only with itself. Jobs on one robot domain share a node process whatever their agent, map
+    or length (one after another).
     """
     if job.domain.kind == "robot":
         return ("robot", job.domain.canonical())
-    return (job.agent, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs)
+    who = job.agent if job.agent.command else ("in-process", is_privileged(job.agent))
+    return (who, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs)
+
+
+def is_privileged(spec: AgentSpec) -> bool:
+    """Whether the agent a spec names reads the true lane pose, without starting it: a zoo agent's flag;
+    False for node agents and checkpoints (camera only)."""
+    from proxybench.agents.zoo import ZOO
+
+    return bool(spec.command is None and spec.name in ZOO and ZOO[spec.name].privileged)
 
 
 def _refused(job: Job, agent, setup_s: float, msg: str | None = None) -> JobResult:
@@ -261,7 +296,8 @@ def execute(job: Job, out_dir: str | None) -> JobResult:
 
 
 def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
-    """Run jobs of one :func:`batch_group` together: one simulator of N robots, one agent per robot.
+    """Run jobs of one :func:`batch_group` together: one simulator of N robots, one agent per robot (agents
+    may differ from robot to robot; a batch gives the same trajectories as N single runs).
 
     In-process agents are batched; node agents (one process each) run one by one. Robot domains go to
     :func:`execute_robot_batch`.
@@ -280,9 +316,15 @@ def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
     if len(jobs) > 1 and jobs[0].agent.command:
         return [r for j in jobs for r in execute_batch([j], out_dir)]
     job0 = jobs[0]
-    t0 = time.perf_counter()
-    sim = _simulator(job0, len(jobs))
+    t0, c0 = time.perf_counter(), time.process_time()
     agents = [make_agent_for(j.agent) for j in jobs]
+    if len({a.privileged for a in agents}) > 1:  # an agent that is not what its name said: see alike, run alike
+        for a in agents:
+            getattr(a, "close", lambda: None)()
+        return [r for flag in (False, True)
+                for r in execute_batch([j for j, a in zip(jobs, agents, strict=True) if a.privileged == flag],
+                                       out_dir)]
+    sim = _simulator(job0, len(jobs))
     t1 = time.perf_counter()
     try:
         if agents[0].privileged and job0.camera_only:
@@ -298,8 +340,12 @@ def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
         for a in agents:
             getattr(a, "close", lambda: None)()
     t2 = time.perf_counter()
-    return [_result(j, tr, out_dir, (t1 - t0) / len(jobs), (t2 - t1) / len(jobs), METRICS)
-            for j, tr in zip(jobs, trajs, strict=True)]
+    results = [_result(j, tr, out_dir, (t1 - t0) / len(jobs), (t2 - t1) / len(jobs), METRICS)
+               for j, tr in zip(jobs, trajs, strict=True)]
+    cpu = (time.process_time() - c0) / len(jobs)
+    for r in results:
+        r.timings["cpu_s"] = cpu
+    return results
 
 
 def _result(job: Job, traj, out_dir: str | None, setup_s: float, episode_s: float, metrics) -> JobResult:

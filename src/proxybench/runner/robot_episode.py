@@ -1,45 +1,37 @@
-"""One episode of an agent driving a robot reached through the robot protocol (simulator node or real robot).
+"""Episodes on a robot reached through the robot protocol (simulator node or real robot's bridge).
 
-The control loop is the in-process runner's (:func:`~proxybench.runner.episode.run_episode`): one camera
-frame, one decision, one frame of physics with that command held; the same checks end the episode. Here
-each frame is one pipelined exchange with the robot node (commands, step, sim state, robot state, next
-observations), and the trajectory is built from what the robot reports: its physics-rate trace when it
-sends the proxybench extension (the simulator node does, so a run through the protocol equals the
-in-process run sample for sample), else one sample per frame from ``robot_state``.
+:class:`RobotPlant` makes a :class:`~proxybench.protocol.RemoteRobot` a plant of the episode engine
+(:func:`~proxybench.runner.rollout.rollout`), so the control loop, the ending rule and the trajectory
+assembly are the in-process runner's: one camera frame, one decision, one frame of physics with that
+command held. Here each frame is one pipelined exchange with the robot node (commands, step, sim state,
+robot state, next observations), the robot says when its episode ended (collision, off the road), and
+the trajectory is built from what it reports: its physics-rate trace when it sends the proxybench
+extension (the simulator node does, so a run through the protocol equals the in-process run sample for
+sample), else one sample per frame from ``robot_state``.
 """
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
-from proxybench import __version__
 from proxybench.agents.base import Agent, Observation
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
-from proxybench.domain.routes import given_route_samples
+from proxybench.domain.routes import RouteGraph
 from proxybench.protocol import jpeg
 from proxybench.protocol import robot_wire as rw
 from proxybench.protocol.robot_process import RemoteRobot
-from proxybench.runner.episode import PrivilegedAgentError, _failure_event
+from proxybench.runner.rollout import AgentPolicy, PrivilegedAgentError, rollout
 from proxybench.tasks.trajectory import Trajectory
 
-__all__ = ["RobotLacksGroundTruth", "run_episode_on_robot"]
+__all__ = ["RobotLacksGroundTruth", "RobotPlant", "run_episode_on_robot"]
 
 
 class RobotLacksGroundTruth(PrivilegedAgentError):
     """A privileged agent was given a robot that does not report the true lane pose."""
-
-
-def _observation(obs: rw.RobotObservationsData, privileged: bool) -> Observation:
-    o = obs.observations
-    image = jpeg.decode_received(o.jpg) if o.jpg else None
-    if not privileged:
-        return Observation(image, o.timestamp, o.odometry, o.resolution)
-    return Observation(image, o.timestamp, o.odometry, o.resolution, obs.lane_pose, obs.route)
 
 
 def _samples(state: rw.RobotStateData) -> np.ndarray:
@@ -47,6 +39,83 @@ def _samples(state: rw.RobotStateData) -> np.ndarray:
     if state.trace is not None:
         return np.column_stack([state.trace[k] for k in rw.TRACE_COLUMNS])
     return np.array([[state.t_effective, *state.pose, state.v, state.omega, *state.pwm]])
+
+
+class RobotPlant:
+    """One robot node as a plant of one robot, on ``map_`` (sent to the robot with ``set_map``).
+
+    A failing robot raises :class:`~proxybench.protocol.RobotFailure` from :meth:`begin` or
+    :meth:`advance`: an episode whose robot failed has no valid trajectory.
+    """
+
+    n = 1
+
+    def __init__(self, robot: RemoteRobot, map_: Map | str):
+        self.robot = robot
+        self.map = load_map(map_) if isinstance(map_, str) else map_
+        self._graph: RouteGraph | None = None
+
+    def begin(self, seeds: Sequence[int], poses: Sequence[Any], routes: Sequence[Any], seconds: float,
+              camera: bool, privileged: Sequence[bool]) -> int:
+        robot = self.robot
+        route = None if routes[0] is None else list(routes[0])
+        self.info = robot.start_episode(self.map, int(seeds[0]), pose=poses[0], seconds=seconds, camera=camera,
+                                        route=route)
+        self.frame_dt = 1.0 / self.info.frame_rate
+        self.steps = max(1, round(seconds / self.frame_dt))
+        self.states = [robot.state(0.0)]
+        self.obs: rw.RobotObservationsData | None = robot.observations(0.0)
+        if privileged[0] and self.obs.lane_pose is None:
+            raise RobotLacksGroundTruth(f"robot {robot.command!r} ({self.info.kind}) reports no true lane pose")
+        return self.steps
+
+    def frames(self, alive: np.ndarray) -> list[np.ndarray | None]:
+        o = self.obs.observations
+        return [jpeg.decode_received(o.jpg) if o.jpg else None]
+
+    def observation(self, i: int, image: np.ndarray | None, privileged: bool) -> Observation:
+        o = self.obs.observations
+        if not privileged:
+            return Observation(image, o.timestamp, o.odometry, o.resolution)
+        return Observation(image, o.timestamp, o.odometry, o.resolution, self.obs.lane_pose, self.obs.route)
+
+    def time(self, i: int) -> float:
+        return self.obs.observations.timestamp
+
+    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, dict[str, Any], bool]]:
+        robot = self.robot
+        sim_state, state, self.obs = robot.frame(self.time(0), np.clip(commands[0], -1.0, 1.0),
+                                                 (k + 1) * self.frame_dt, observe=k + 1 < self.steps)
+        self.states.append(state)
+        end = sim_state.terminations.get(robot.robot_name)
+        if end is None or end.termination == "timeout":  # the episode's length is the engine's to count
+            return []
+        event = {"t": end.when, "kind": end.termination, "message": end.desc}
+        return [(0, event if end.hit is None else event | {"with": end.hit}, True)]
+
+    def samples(self, i: int, frames: int) -> np.ndarray:
+        return np.vstack([_samples(s) for s in self.states])
+
+    def route_lanes(self, i: int, frames: int) -> tuple[Any, np.ndarray, np.ndarray, int, list] | None:
+        routes = [s.route for s in self.states if s.route is not None]
+        if not (routes and routes[-1].active and self.info.physics_rate is not None):
+            return None
+        if self._graph is None:
+            self._graph = RouteGraph(LaneNetwork(self.map))
+        pins = np.array([p for r in routes for p in r.pins], dtype=np.int64)
+        nexts = np.array([n for r in routes for n in r.nexts], dtype=np.int64)
+        return self._graph, pins, nexts, round(self.info.physics_rate / self.info.frame_rate), list(routes[-1].choices)
+
+    def meta(self, i: int) -> dict[str, Any]:
+        robot, info = self.robot, self.info
+        return {"source": info.kind, "params": info.params,
+                "robot": {"command": robot.command, "kind": info.kind, "name": robot.robot_name}}
+
+    def wheel_distance(self, i: int) -> float:
+        return self.info.wheel_distance
+
+    def end(self) -> None:
+        pass
 
 
 def run_episode_on_robot(
@@ -72,71 +141,9 @@ def run_episode_on_robot(
     termination ``agent_failure``; a failing robot raises :class:`~proxybench.protocol.RobotFailure`
     (there is no valid trajectory then). A privileged agent needs a robot that reports the true lane pose.
     """
-    if agent.privileged and not allow_privileged:
-        raise PrivilegedAgentError(
-            f"agent {agent.name!r} is privileged (reads the true lane pose); this run allows camera-only agents")
-    m = load_map(map_) if isinstance(map_, str) else map_
-    t_robot = t_agent = 0.0
-    t0 = time.perf_counter()
-    info = robot.start_episode(m, seed, pose=pose, seconds=seconds, camera=camera, route=route)
-    frame_dt = 1.0 / info.frame_rate
-    steps = max(1, round(seconds / frame_dt))
-    states = [robot.state(0.0)]
-    obs = robot.observations(0.0)
-    if agent.privileged and obs.lane_pose is None:
-        raise RobotLacksGroundTruth(f"robot {robot.command!r} ({info.kind}) reports no true lane pose, which the "
-                                    f"privileged agent {agent.name!r} needs")
-    t_robot += time.perf_counter() - t0
-    events: list[dict[str, Any]] = []
-    termination = "timeout"
+    hook = None if on_frame is None else (lambda k, images, alive, plant: on_frame(k, images[0]))
     try:
-        agent.reset(int(seed))
-        started = True
-    except Exception as exc:  # a failing agent ends its episode, never the run
-        events.append(_failure_event(0.0, exc))
-        termination, started = "agent_failure", False
-    for k in range(steps if started else 0):
-        observation = _observation(obs, agent.privileged)
-        if on_frame is not None:
-            on_frame(k, observation.camera)
-        t1 = time.perf_counter()
-        try:
-            command = np.asarray(agent.act(observation), dtype=np.float64)
-            if command.shape != (2,) or not np.all(np.isfinite(command)):
-                raise ValueError(f"agent returned {command!r}, expected 2 finite wheel PWM values")
-        except Exception as exc:  # likewise: recorded as the reason the episode ended
-            events.append(_failure_event(observation.time, exc))
-            termination = "agent_failure"
-            break
-        t2 = time.perf_counter()
-        sim_state, state, obs = robot.frame(observation.time, np.clip(command, -1.0, 1.0), (k + 1) * frame_dt,
-                                            observe=k + 1 < steps)
-        t_robot += time.perf_counter() - t2
-        t_agent += t2 - t1
-        states.append(state)
-        end = sim_state.terminations.get(robot.robot_name)
-        if end is not None and end.termination != "timeout":
-            event = {"t": end.when, "kind": end.termination, "message": end.desc}
-            events.append(event if end.hit is None else event | {"with": end.hit})
-            termination = end.termination
-            break
-    rows = np.vstack([_samples(s) for s in states])
-    extra = {"v": rows[:, 4], "omega": rows[:, 5], "pwm_left": rows[:, 6], "pwm_right": rows[:, 7]}
-    info_meta = {
-        "source": info.kind, "agent": agent.name, "privileged": agent.privileged, "seed": int(seed),
-        "episode_seconds": seconds, "params": info.params, "proxybench_version": __version__,
-        "robot": {"command": robot.command, "kind": info.kind, "name": robot.robot_name},
-        **(meta or {}), "timing": {"sim_s": t_robot, "agent_s": t_agent},
-    }
-    if route is not None:
-        info_meta["route_plan"] = list(route)
-    routes = [s.route for s in states if s.route is not None]
-    if agent.privileged and routes and routes[-1].active and info.physics_rate is not None:
-        pins = [p for r in routes for p in r.pins]
-        nexts = [n for r in routes for n in r.nexts]
-        substeps = round(info.physics_rate / info.frame_rate)
-        extra["route_segment"] = given_route_samples(LaneNetwork(m), rows[:, 1:4], np.array(pins, dtype=np.int64),
-                                                     np.array(nexts, dtype=np.int64), substeps)
-        info_meta["route_choices"] = list(routes[-1].choices)
-    return Trajectory.from_poses(m, rows[:, 0], rows[:, 1:4], extra=extra, meta=info_meta, events=events,
-                                 termination=termination, wheel_distance=info.wheel_distance)
+        return rollout(RobotPlant(robot, map_), AgentPolicy([agent]), [seed], seconds, poses=[pose], routes=[route],
+                       camera=camera, allow_privileged=allow_privileged, on_frame=hook, metas=[meta])[0]
+    except RobotLacksGroundTruth as exc:
+        raise RobotLacksGroundTruth(f"{exc}, which the privileged agent {agent.name!r} needs") from None

@@ -20,11 +20,11 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import Path
 
 from proxybench.runner.backends import Backend, InlineBackend
-from proxybench.runner.jobs import Job, JobResult, batch_group
+from proxybench.runner.jobs import Job, JobResult, batch_group, is_privileged
 
 __all__ = ["UNSTORED", "SweepResult", "results_frame", "run_jobs"]
 
@@ -63,6 +63,22 @@ def _load_done(ep_dir: Path, key: str) -> JobResult | None:
     return res
 
 
+def _with_metrics(res: JobResult | None, metrics: Sequence[str]) -> JobResult | None:
+    """A cached result that lacks some of ``metrics`` (asked for by a later run with other task metrics): scored
+    from its stored trajectory, or redone (None) when there is none."""
+    missing = [m for m in metrics if m not in (res.scores if res else {})]
+    if res is None or not missing:
+        return res
+    if not res.trajectory:
+        return None
+    from proxybench.tasks.metrics import METRICS
+    from proxybench.tasks.trajectory import Trajectory
+
+    traj = Trajectory.load(res.trajectory)
+    res.scores.update({m: float(METRICS[m](traj)) for m in missing})
+    return res
+
+
 def run_jobs(
     jobs: Sequence[Job],
     run_dir: str | Path,
@@ -74,9 +90,9 @@ def run_jobs(
 ) -> SweepResult:
     """Run every job not already done in ``run_dir``; return all results in job order.
 
-    Jobs that can share a simulator run in batches of up to ``batch_size`` robots (smaller when that
-    would leave workers idle); jobs on one robot domain run one after another on one node process per
-    batch, at most ``DomainSpec.nodes`` such processes at once (``runner.robot_jobs``).
+    Jobs that can share a simulator run in batches of up to ``batch_size`` robots (smaller towards the
+    end, so that no worker waits long for the last one); jobs on one robot domain run one after another on
+    one node process per batch, at most ``DomainSpec.nodes`` such processes at once (``runner.robot_jobs``).
     ``progress(done, total, result)`` is called once at the start (result None) and after each job.
     """
     backend = backend or InlineBackend()
@@ -84,14 +100,12 @@ def run_jobs(
     ep_dir = run_dir / "episodes"
     ep_dir.mkdir(parents=True, exist_ok=True)
     keys = [j.key for j in jobs]  # hashing is not free: once per job
-    _write_atomic(run_dir / "run.json", json.dumps(
-        {"jobs": [asdict(j) | {"key": k} for j, k in zip(jobs, keys, strict=True)],
-         "backend": type(backend).__name__, "workers": backend.workers}, indent=1, default=str))
+    _write_atomic(run_dir / "run.json", _run_record(jobs, keys, backend))
     by_key: dict[str, JobResult] = {}
     todo: list[Job] = []
     queued: set[str] = set()
     for job, key in zip(jobs, keys, strict=True):
-        done = _load_done(ep_dir, key)
+        done = _with_metrics(_load_done(ep_dir, key), job.metrics)
         if done is not None:
             by_key[key] = done
         elif key not in queued:
@@ -120,15 +134,54 @@ def run_jobs(
     return sweep
 
 
+def _run_record(jobs: Sequence[Job], keys: Sequence[str], backend: Backend) -> str:
+    """run.json: one job per line (JSON's C encoder; an indented dump of thousands of jobs took seconds)."""
+    head = json.dumps({"backend": type(backend).__name__, "workers": backend.workers})
+    lines = [json.dumps(_job_record(j) | {"key": k}, default=str) for j, k in zip(jobs, keys, strict=True)]
+    return head[:-1] + ', "jobs": [\n' + ",\n".join(lines) + "\n]}\n"
+
+
+def _job_record(job: Job) -> dict:
+    """A job as plain data (``dataclasses.asdict`` without its deep copies)."""
+    out = {}
+    for f in fields(job):
+        v = getattr(job, f.name)
+        if hasattr(v, "to_dict"):
+            v = v.to_dict()
+        elif is_dataclass(v):
+            v = {g.name: getattr(v, g.name) for g in fields(v)}
+        out[f.name] = v
+    return out
+
+
 def _batches(todo: Sequence[Job], batch_size: int, workers: int) -> list[list[Job]]:
-    """Group jobs by :func:`batch_group`, then cut each group into batches that keep every worker busy."""
+    """Group jobs by :func:`batch_group` and cut the groups into batches of at most ``batch_size``, costliest
+    first and smaller towards the end (guided self-scheduling: a batch takes about 1/(2·workers) of the work
+    left), so that every worker finishes at about the same time.
+
+    Cost estimate per job: seconds, ten times that for camera agents (rendering dominates). Robot domains
+    come first, in whole batches (a node start per batch; a real robot runs in real time, so the rest of the
+    work can go on beside it).
+    """
     groups: dict[tuple, list[Job]] = {}
     for job in todo:
         groups.setdefault(batch_group(job), []).append(job)
-    out = []
-    for jobs in groups.values():
-        size = max(1, min(batch_size, math.ceil(len(jobs) / max(1, workers))))
-        out += [jobs[i : i + size] for i in range(0, len(jobs), size)]
+
+    def cost(job: Job) -> float:
+        return max(job.duration, 1e-3) * (1.0 if is_privileged(job.agent) else 10.0)
+
+    out = [jobs[i : i + batch_size] for g, jobs in groups.items() if g[0] == "robot"
+           for i in range(0, len(jobs), batch_size)]
+    ordered = sorted((jobs for g, jobs in groups.items() if g[0] != "robot"), key=lambda jobs: -cost(jobs[0]))
+    left = sum(cost(jobs[0]) * len(jobs) for jobs in ordered)
+    for jobs in ordered:
+        c = cost(jobs[0])
+        i = 0
+        while i < len(jobs):
+            size = max(1, min(batch_size, len(jobs) - i, math.ceil(left / (2 * max(1, workers) * c))))
+            out.append(jobs[i : i + size])
+            i += size
+            left -= size * c
     return out
 
 

@@ -25,6 +25,7 @@ from proxybench.runner.jobs import DomainSpec, Job, JobResult
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.spec import Target, TargetRun
 from proxybench.tasks.metrics import METRICS
+from proxybench.usefulness.agent_sets import means_of, order_structure, sensitivity
 from proxybench.usefulness.experiment import Experiment, ExperimentConfig, resolve
 from proxybench.usefulness.intervals import Usefulness, usefulness
 from proxybench.usefulness.metrics import Estimate, PairedResults, agent_means
@@ -61,6 +62,8 @@ class PredictivityResult:
     proxy_episodes: int = 0  # proxy episodes simulated now (not cached)
     details: dict[str, Usefulness] = field(default_factory=dict)  # per proxy domain: per-agent PPV, notes, open pairs
     ppv_noise: Estimate | None = None  # PPV of the target against a replicate of itself
+    agent_sensitivity: dict[str, Any] = field(default_factory=dict)  # parameter → agent_sets.AgentSensitivity
+    order: dict[str, float] = field(default_factory=dict)  # agent_sets.order_structure of the target
 
     def notes(self) -> list[str]:
         """Every distinct note of the usefulness figures (constant metrics, missing values, PPV scales)."""
@@ -158,7 +161,23 @@ def run_predictivity(
     claims = _claims(exp, tgt, domains, proxies, rows, higher)
     means = agent_means(tgt.results, list(tgt.results))
     target_scores = {a: dict(zip(exp.metrics, means[i].tolist(), strict=True)) for i, a in enumerate(tgt.results)}
-    return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran, details, ppv_floor)
+    caps = [tgt.seconds if m in ("survival_time", "lane_score") else None for m in exp.metrics]
+    return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran, details, ppv_floor,
+                              _agent_sensitivity(exp, domains, proxies, tgt, higher),
+                              order_structure(tgt.results, higher, caps))
+
+
+def _agent_sensitivity(exp: Experiment, domains, proxies, tgt: TargetRun, higher) -> dict[str, Any]:
+    """Per swept parameter (in value order): PRPV's argmin without each agent, and over bootstrap agent sets."""
+    agents = list(tgt.results)
+    sign = np.where(np.asarray(higher), 1.0, -1.0)
+    tm = means_of(tgt.results, agents) * sign
+    out = {}
+    for name in exp.sweep:
+        order = sorted((k for k, (p, _, _) in enumerate(domains) if p == name), key=lambda k: domains[k][1])
+        pm = np.stack([means_of(proxies[domains[k][2].name], agents) * sign for k in order])
+        out[name] = sensitivity(agents, pm, tm, (True,) * tm.shape[1], n_boot=exp.n_boot, seed=exp.seed)
+    return out
 
 
 def _claims(exp: Experiment, tgt: TargetRun, domains, proxies, rows, higher) -> dict[str, SweepClaim]:

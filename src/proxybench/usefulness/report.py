@@ -20,8 +20,8 @@ from proxybench import __version__
 from proxybench.usefulness.predictivity import PredictivityResult
 from proxybench.usefulness.proxies import param_label
 
-__all__ = ["DEFINITIONS", "THESIS", "episodes_statement", "findings", "noise_statement", "plot_plan",
-           "ppv_agent_frame", "source_commit", "write_report"]
+__all__ = ["DEFINITIONS", "THESIS", "agent_set_findings", "episodes_statement", "findings", "noise_statement",
+           "plot_plan", "ppv_agent_frame", "source_commit", "write_report"]
 
 THESIS = ("A. Courchesne, “On quantifying the value of simulation for training and evaluating robotic agents”, "
           "M.Sc. thesis, Université de Montréal (chapter 3: A. Courchesne, A. Censi, L. Paull, “On Assessing the "
@@ -278,6 +278,7 @@ def findings(res: PredictivityResult) -> list[str]:
                      else f"is smallest at {_fmt(claim.best)} ({low:.1f})")
             out.append(f"{name}: PRPV {where}, but the paired intervals do not separate the minimum from its "
                        f"neighbours; values the data cannot tell apart from it: {plausible}{known}.")
+    out.extend(agent_set_findings(res))
     main = _main_parameter(res)
     d = df[df.parameter == main].sort_values("value")
     if len(d) >= 3:
@@ -287,6 +288,36 @@ def findings(res: PredictivityResult) -> list[str]:
         out.append(f"{main}: PRPV {'falls then rises monotonically' if mono else 'is not monotone'} around its "
                    f"smallest value (point values {', '.join(f'{x:.0f}' for x in v)}; see the intervals).")
     out += [f"Note: {n}." for n in res.notes()]
+    return out
+
+
+def agent_set_findings(res: PredictivityResult) -> list[str]:
+    """How much PRPV's argmin depends on which agents were ranked, and whether the task's order uses both
+    metrics (agents at a metric's cap tie on it, so only the other metric orders them)."""
+    out = []
+    for name, sens in res.agent_sensitivity.items():
+        values = sorted(res.experiment.sweep[name])
+        if len(values) < 2:
+            continue
+        k = len(sens.agents)
+        stay = sum(a == sens.full_argmin for a in sens.loo_argmin)
+        movers = [sens.agents[i] for i, a in enumerate(sens.loo_argmin) if a != sens.full_argmin]
+        lo, hi = sens.interval()
+        share = float(np.mean(sens.boot_argmin == sens.full_argmin))
+        out.append(f"{name}, agent set: PRPV's smallest value is at {_fmt(values[sens.full_argmin])} with all {k} "
+                   f"agents and stays there with any one agent left out in {stay}/{k} cases"
+                   + (f" (moves without {', '.join(movers)})" if movers else "")
+                   + f"; over {len(sens.boot_argmin)} bootstrap agent sets it stays in {100 * share:.0f}%, and "
+                   f"PRPV/K(K−1) there spans [{lo[sens.full_argmin]:.2f}, {hi[sens.full_argmin]:.2f}].")
+    o = res.order
+    if o:
+        caps = "; ".join(f"{int(o[key])} of {len(res.experiment.agents)} agents at the "
+                         f"{res.experiment.metrics[int(key.rsplit('_', 1)[1])]} cap in every episode"
+                         for key in o if key.startswith("agents_at_cap"))
+        out.append(f"Task order on the target: of {int(o['pairs'])} agent pairs, {int(o['both_agree'])} are ordered "
+                   f"alike by every metric, {int(o['decided_by_one_metric'])} by one metric while another ties, "
+                   f"{int(o['incomparable'])} are incomparable, {int(o['equal'])} equal"
+                   + (f" ({caps})" if caps else "") + ".")
     return out
 
 

@@ -1,0 +1,277 @@
+"""The episode engine: a plant (where the robots are), a policy (who drives them), one loop, one trajectory.
+
+Every episode proxybench plays goes through :func:`rollout`: the runner's jobs, ``proxybench run``,
+robots reached through the robot protocol, learning evaluation and POD. Per camera frame it asks the
+plant for what the robots see, the policy for their wheel commands, and the plant to advance one frame
+with those commands held; then it applies the ending rule and, at the end, assembles each robot's
+physics-rate :class:`~proxybench.tasks.trajectory.Trajectory` the same way for every plant.
+
+The ending rule: a robot's episode ends when its **agent fails** (raises, or returns anything but two
+finite numbers: recorded as ``agent_failure`` with the reason, never raised), when the **plant** says it
+ended (collision, off the road: ``domain.episode_end`` for the simulator; the robot node reports its own),
+or at the **timeout** (the episode's frames are spent). A robot whose episode ended keeps still (zero
+commands, no frames) until the others are done.
+
+Plants: :class:`~proxybench.runner.episode.SimPlant` (the batched simulator, with NPC drivers) and
+:class:`~proxybench.runner.robot_episode.RobotPlant` (a robot node). Policies: :class:`AgentPolicy`
+(one agent per robot, in-process or a protocol node) and :class:`BatchPolicy` (one call for the whole
+batch, e.g. a network, or an open-loop command sequence: :class:`OpenLoopPolicy`).
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol
+
+import numpy as np
+
+from proxybench import __version__
+from proxybench.agents.base import Agent, Observation
+from proxybench.domain.maps import Map
+from proxybench.domain.routes import given_route_samples
+from proxybench.tasks.trajectory import Trajectory
+
+__all__ = ["AgentPolicy", "BatchPolicy", "OpenLoopPolicy", "Plant", "Policy", "PrivilegedAgentError",
+           "failure_event", "rollout"]
+
+#: a frame hook: ``(k, images, alive, plant)``; ``images`` is what the robots saw (None without cameras),
+#: ``alive`` (N,) which robots' episodes are still running
+FrameHook = Callable[[int, Any, np.ndarray, "Plant"], None]
+
+
+class PrivilegedAgentError(ValueError):
+    """A privileged agent (one that reads the true lane pose) was given to a camera-only run."""
+
+
+class Plant(Protocol):
+    """Where N robots live and move, one camera frame at a time."""
+
+    n: int
+    map: Map
+
+    def begin(self, seeds: Sequence[int], poses: Sequence[Any], routes: Sequence[Any], seconds: float,
+              camera: bool, privileged: Sequence[bool]) -> int:
+        """Start every robot's episode of ``seconds``; how many frames that is. May raise if the plant cannot."""
+
+    def frames(self, alive: np.ndarray) -> Any:
+        """What the running robots see now: (N,) images (arrays, or None where not rendered), or None."""
+
+    def observation(self, i: int, image: np.ndarray | None, privileged: bool) -> Observation:
+        """Robot ``i``'s observation at the current frame (with its true lane pose if ``privileged``)."""
+
+    def time(self, i: int) -> float:
+        """Robot ``i``'s episode time now [s]."""
+
+    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, dict[str, Any], bool]]:
+        """Hold ``commands`` (N, 2) for frame ``k``; the events of running robots as (robot, event, ends it)."""
+
+    def samples(self, i: int, frames: int) -> np.ndarray:
+        """(m, 8) rows t, x, y, θ, v, ω, pwm_left, pwm_right of robot ``i``'s first ``frames`` frames."""
+
+    def route_lanes(self, i: int, frames: int) -> tuple[Any, np.ndarray, np.ndarray, int, list] | None:
+        """(graph, pins, nexts, substeps, choices): the route the plant chose for robot ``i``, if it did."""
+
+    def meta(self, i: int) -> dict[str, Any]:
+        """What the plant says about robot ``i``'s episode: ``source``, ``params``, anything else."""
+
+    def wheel_distance(self, i: int) -> float: ...
+
+    def end(self) -> None:
+        """The episodes are over (release per-episode helpers)."""
+
+
+class Policy(Protocol):
+    """Who drives the robots of a plant: wheel PWM (N, 2) per frame from what they see."""
+
+    names: list[str]
+    privileged: list[bool]
+
+    def reset(self, seeds: Sequence[int]) -> dict[int, BaseException]:
+        """New episodes; the robots whose driver failed to start, with the exception."""
+
+    def act(self, plant: Plant, images: Any, alive: np.ndarray) -> tuple[np.ndarray, dict[int, BaseException]]:
+        """Commands (N, 2) of the running robots, and the robots whose driver failed this frame."""
+
+
+class AgentPolicy:
+    """One agent per robot (in-process, or a node behind the protocol): robot i is driven by ``agents[i]``.
+
+    An agent that raises, or answers anything but two finite numbers, fails: its robot's episode ends
+    with ``agent_failure`` and the reason; the others go on.
+    """
+
+    def __init__(self, agents: Sequence[Agent]):
+        self.agents = list(agents)
+        self.names = [a.name for a in self.agents]
+        self.privileged = [bool(a.privileged) for a in self.agents]
+
+    def reset(self, seeds: Sequence[int]) -> dict[int, BaseException]:
+        failures = {}
+        for i, a in enumerate(self.agents):
+            try:
+                a.reset(int(seeds[i]))
+            except Exception as exc:  # a failing agent ends its episode, never the run
+                failures[i] = exc
+        return failures
+
+    def act(self, plant: Plant, images: Any, alive: np.ndarray) -> tuple[np.ndarray, dict[int, BaseException]]:
+        out = np.zeros((len(self.agents), 2))
+        failures = {}
+        for i in np.flatnonzero(alive):
+            try:
+                obs = plant.observation(i, None if images is None else images[i], self.privileged[i])
+                command = np.asarray(self.agents[i].act(obs), dtype=np.float64)
+                if command.shape != (2,) or not np.all(np.isfinite(command)):
+                    raise ValueError(f"agent returned {command!r}, expected 2 finite wheel PWM values")
+                out[i] = command
+            except Exception as exc:  # likewise: recorded as the reason the episode ended
+                failures[i] = exc
+        return out, failures
+
+
+class BatchPolicy:
+    """One call drives the whole batch: ``fn(images, plant) -> (N, 2)`` wheel PWM.
+
+    ``images``: the plant's frames (an (N, H, W, 3) array from the simulator without an image filter), or
+    None when ``camera`` is off. A batched policy is trusted code (a network, an expert): an exception is
+    a bug and is raised, not recorded as an agent failure.
+    """
+
+    def __init__(self, fn: Callable[[Any, Plant], np.ndarray], n: int, name: str = "policy",
+                 privileged: bool = False):
+        self.fn = fn
+        self.n = n
+        self.names = [name] * n
+        self.privileged = [privileged] * n
+
+    def reset(self, seeds: Sequence[int]) -> dict[int, BaseException]:
+        return {}
+
+    def act(self, plant: Plant, images: Any, alive: np.ndarray) -> tuple[np.ndarray, dict[int, BaseException]]:
+        return np.asarray(self.fn(images, plant), dtype=np.float64).reshape(self.n, 2).copy(), {}
+
+
+class OpenLoopPolicy(BatchPolicy):
+    """Every robot plays the same command sequence ``commands`` (T, 2), one row per frame (then zeros)."""
+
+    def __init__(self, commands: np.ndarray, n: int, name: str = "open-loop"):
+        self.commands = np.asarray(commands, dtype=np.float64).reshape(-1, 2)
+        self._k = 0
+        super().__init__(self._next, n, name)
+
+    def reset(self, seeds: Sequence[int]) -> dict[int, BaseException]:
+        self._k = 0
+        return {}
+
+    def _next(self, images: Any, plant: Plant) -> np.ndarray:
+        row = self.commands[self._k] if self._k < len(self.commands) else np.zeros(2)
+        self._k += 1
+        return np.broadcast_to(row, (self.n, 2))
+
+
+def rollout(
+    plant: Plant,
+    policy: Policy,
+    seeds: Sequence[int],
+    seconds: float,
+    *,
+    poses: Sequence[tuple[float, float, float] | None] | None = None,
+    routes: Sequence[Sequence[str] | None] | None = None,
+    camera: bool = True,
+    allow_privileged: bool = True,
+    on_frame: FrameHook | None = None,
+    metas: Sequence[dict[str, Any] | None] | None = None,
+) -> list[Trajectory]:
+    """Play one episode per robot of ``plant`` for ``seconds`` (at most), driven by ``policy``.
+
+    Robot i starts from ``seeds[i]`` (and ``poses[i]``, ``routes[i]``: turns at intersections, where
+    given); ``camera`` renders frames for the policy; with ``allow_privileged=False`` a privileged
+    driver is refused (:class:`PrivilegedAgentError`). ``on_frame(k, images, alive, plant)`` runs after each
+    frame is observed. ``metas[i]`` is added to robot i's trajectory metadata.
+    """
+    n = plant.n
+    if not (len(policy.names) == len(seeds) == n):
+        raise ValueError(f"{len(policy.names)} drivers and {len(seeds)} seeds for a plant of {n} robots")
+    poses = list(poses) if poses is not None else [None] * n
+    routes = list(routes) if routes is not None else [None] * n
+    metas = list(metas) if metas is not None else [None] * n
+    if not allow_privileged:
+        for name, privileged in zip(policy.names, policy.privileged, strict=True):
+            if privileged:
+                raise PrivilegedAgentError(f"agent {name!r} is privileged (reads the true lane pose); this run "
+                                           f"allows camera-only agents")
+    t0 = time.perf_counter()
+    steps = plant.begin(seeds, poses, routes, seconds, camera, policy.privileged)
+    t_plant, t_agent = time.perf_counter() - t0, 0.0
+    events: list[list[dict[str, Any]]] = [[] for _ in range(n)]
+    termination = ["timeout"] * n
+    frames = [steps] * n
+    alive = np.ones(n, dtype=bool)
+    at_start = policy.reset(seeds)
+    for i, exc in at_start.items():
+        events[i].append(failure_event(0.0, exc))
+        termination[i], frames[i], alive[i] = "agent_failure", 0, False
+    k = 0
+    while k < steps and alive.any():
+        t0 = time.perf_counter()
+        images = plant.frames(alive)
+        if on_frame is not None:
+            on_frame(k, images, alive, plant)
+        t1 = time.perf_counter()
+        commands, failed = policy.act(plant, images, alive)
+        t2 = time.perf_counter()
+        for i, exc in failed.items():
+            events[i].append(failure_event(plant.time(i), exc))
+            termination[i], frames[i], alive[i] = "agent_failure", k, False
+        commands[~alive] = 0.0
+        for i, event, final in plant.advance(commands, alive, k) if alive.any() else ():
+            events[i].append(event)
+            if final:
+                termination[i], frames[i], alive[i] = event["kind"], k + 1, False
+        t_plant += (t1 - t0) + (time.perf_counter() - t2)
+        t_agent += t2 - t1
+        k += 1
+    plant.end()
+    timing = {"sim_s": t_plant / n, "agent_s": t_agent / n}
+    return [_trajectory(plant, policy, i, int(seeds[i]), seconds, frames[i], termination[i], events[i], metas[i],
+                        routes[i], None if i in at_start else timing) for i in range(n)]
+
+
+def _trajectory(plant: Plant, policy: Policy, i: int, seed: int, seconds: float, frames: int, termination: str,
+                events: list[dict[str, Any]], meta: dict[str, Any] | None, route: Sequence[str] | None,
+                timing: dict[str, float] | None) -> Trajectory:
+    """The one trajectory assembly: the plant's samples and what it says, the driver, the caller's meta."""
+    said = plant.meta(i)
+    info = {"source": said.pop("source"), "agent": policy.names[i], "privileged": policy.privileged[i],
+            "seed": seed, "episode_seconds": seconds if timing is not None else 0.0,
+            "params": said.pop("params"), "proxybench_version": __version__, **said, **(meta or {})}
+    rows = plant.samples(i, frames)
+    pose = np.ascontiguousarray(rows[:, 1:4])
+    if timing is None:  # the driver failed before the first frame: the start, and why
+        return Trajectory.from_poses(plant.map, rows[:1, 0], pose[:1], meta=info, events=events,
+                                     termination=termination)
+    info["timing"] = timing
+    if route is not None:
+        info["route_plan"] = list(route)
+    extra = {"v": rows[:, 4], "omega": rows[:, 5], "pwm_left": rows[:, 6], "pwm_right": rows[:, 7]}
+    chosen = plant.route_lanes(i, frames) if policy.privileged[i] else None
+    if chosen is not None:
+        graph, pins, nexts, substeps, choices = chosen
+        extra["route_segment"] = given_route_samples(graph, pose, pins, nexts, substeps)
+        info["route_choices"] = choices
+    return Trajectory.from_poses(plant.map, rows[:, 0], pose, extra=extra, meta=info, events=events,
+                                 termination=termination, wheel_distance=plant.wheel_distance(i))
+
+
+def failure_event(t: float, exc: BaseException) -> dict[str, Any]:
+    """The ``agent_failure`` event of an exception: its words, reason and, for a node, exit status and stderr."""
+    detail = getattr(exc, "detail", None) or "".join(traceback.format_exception_only(exc)).strip()
+    event = {"t": t, "kind": "agent_failure", "message": f"{type(exc).__name__}: {detail}",
+             "reason": getattr(exc, "reason", type(exc).__name__)}
+    if getattr(exc, "exit_code", None) is not None:  # a node's exit status and last words (e.g. its traceback)
+        event["exit_code"] = exc.exit_code
+    if getattr(exc, "stderr_tail", None):
+        event["stderr_tail"] = list(exc.stderr_tail)[-20:]
+    return event
