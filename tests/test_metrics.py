@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from proxybench.domain.maps import load_map
-from proxybench.tasks.metrics import LANE_HALF_WIDTH, METRICS, deviation_curves, repeatability
+from proxybench.tasks.metrics import LANE_HALF_WIDTH, METRICS, UNIT_DECIMALS, deviation_curves, repeatability
 from proxybench.tasks.trajectory import Trajectory, TrajectoryError
 
 TS = 0.585
@@ -181,3 +181,15 @@ def test_runs_of_different_length_are_compared_where_two_reached(road):
         repeatability(runs[:1])
     with pytest.raises(ValueError, match="share no driven distance"):
         repeatability([runs[0], _drive(road, 0.3, 0.0, 2.0, EAST_LANE_Y, 0.0)])  # the second never moves
+
+
+def test_every_metric_says_how_people_read_it():
+    """Tables and the web console show each metric by its label, unit and direction, with its unit's precision."""
+    labels = [m.display_name for m in METRICS.values()]
+    for m in METRICS.values():
+        assert m.label and m.label[0].isupper() and "_" not in m.label, m.name
+        assert m.unit in UNIT_DECIMALS, (m.name, m.unit)
+        assert m.title == f"{m.label} [{m.unit}]" and m.direction in "↑↓"
+    assert len(set(labels)) == len(labels)  # no two read alike
+    assert METRICS["survival_time"].decimals == 1 and METRICS["deviation_center_line"].decimals == 3
+    assert METRICS["stopped_at_line"].missing  # its NaN means something: said where it is shown

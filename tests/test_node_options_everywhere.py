@@ -203,3 +203,62 @@ def test_a_node_entry_without_cwd_runs_in_the_files_folder(tmp_path: Path) -> No
     assert spec.node_options().cwd == str(tmp_path)
     over = load_config(exp, {"agents": ["lf=python3 solution.py"]})  # the command line's agents replace the file's
     assert parse_agents(over.agents)[0].node_options().cwd is None
+
+
+def test_serve_passes_robot_options_to_its_local_evaluators(tmp_path: Path, bridge: Path, monkeypatch) -> None:
+    """`proxybench serve --evaluators 2 --robot-cmd CMD --robot-*`: each evaluator it starts gets the robot node
+    and every option, and parses them back to the same RobotNodeOptions (nothing is started here)."""
+    import subprocess
+
+    import uvicorn
+
+    started: list[list[str]] = []
+
+    class FakeProcess:
+        def __init__(self, cmd: list[str], **_kw) -> None:
+            started.append(cmd)
+
+        def terminate(self) -> None: ...
+
+        def wait(self, _timeout: float | None = None) -> int:
+            return 0
+
+    monkeypatch.setattr(subprocess, "Popen", FakeProcess)
+    monkeypatch.setattr(uvicorn, "run", lambda *a, **kw: None)
+    data = tmp_path / "server"
+    options = ["--robot-cwd", str(bridge), "--robot-transport", "fifo", "--robot-start-timeout", "200",
+               "--robot-step-timeout", "12.5", "--robot-no-reflection"]
+    res = runner.invoke(app, ["serve", "--data-dir", str(data), "--workers", "1", "--evaluators", "2",
+                              "--robot-cmd", ROBOT, *options])
+    assert res.exit_code == 0, res.output
+    assert len(started) == 2 and "target jobs on the robot node" in res.output
+    want = RobotNodeOptions(cwd=str(bridge.resolve()), transport="fifo", start_timeout=200, step_timeout=12.5,
+                            reflection=False)
+    import proxybench.evaluator as evaluator_pkg
+
+    seen = []
+
+    class FakeEvaluator:
+        stop_reason = None
+
+        def __init__(self, server, secret, config, reporter) -> None:
+            seen.append(config)
+
+        def install_signal_handlers(self) -> None: ...
+
+        def run(self, once: bool = False) -> int:
+            return 0
+
+    monkeypatch.setattr(evaluator_pkg, "Evaluator", FakeEvaluator)
+    for k, cmd in enumerate(started):
+        assert cmd[1:4] == ["-m", "proxybench.cli", "evaluator"] and cmd[cmd.index("--robot-cmd") + 1] == ROBOT
+        res = runner.invoke(app, cmd[3:], env={"PROXYBENCH_TOKEN": None, "PROXYBENCH_TOKEN_FILE": None})
+        assert res.exit_code == 0, res.output
+        assert seen[k].name == f"local-{k + 1}" and seen[k].robot_cmd == ROBOT
+        assert RobotNodeOptions(**seen[k].robot_options) == want  # every option arrived, the same
+    # options need the command, and the command needs local evaluators to use it
+    res = runner.invoke(app, ["serve", "--data-dir", str(data), "--workers", "1", "--evaluators", "1", *options[:2]])
+    assert res.exit_code == 2 and "--robot-cwd" in res.output and "only with --robot-cmd" in res.output
+    res = runner.invoke(app, ["serve", "--data-dir", str(data), "--workers", "1", "--robot-cmd", ROBOT])
+    assert res.exit_code == 2 and "--robot-cmd" in res.output and "only with --evaluators" in res.output
+    assert len(started) == 2  # nothing more was started

@@ -123,6 +123,11 @@ def test_pool_workers_use_one_thread_each():
         assert pool._pool.submit(threads_available).result(timeout=120) == 1
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS"):
             assert pool._pool.submit(os.getenv, var).result(timeout=60) == os.environ.get(var, "1")
+        # a kernel compiled in a worker (on a fresh install: every kernel, the first time) compiles and runs
+        # (it used to fail: "Cannot set NUMBA_NUM_THREADS to a different value once the threads have been launched")
+        code = "import numba\nassert numba.njit(lambda x: x + 1)(1) == 2"
+        for f in [pool._pool.submit(exec, code) for _ in range(2)]:
+            assert f.result(timeout=120) is None
     finally:
         pool.close()
 

@@ -58,3 +58,48 @@ def test_a_failing_robot_node_is_reported_and_nothing_recorded_is_lost(tmp_path)
     with pytest.raises(TargetError, match="the robot node failed on 1 episode"):
         record_target(tmp_path / "rec", open_target(f"robot:{broken}"), [AgentSpec("pid")], episodes=1, seconds=1.0)
     assert (tmp_path / "rec" / "target.yaml").exists()
+
+
+def test_a_recording_keeps_how_its_robot_node_was_started(tmp_path):
+    """Provenance: `target record --robot-cmd` stores the node's start-up options in target.yaml, `target
+    check` shows them, a resume from another working directory is refused, and a typo in them is named."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from proxybench.cli import app
+    from proxybench.targets.manifest import load_manifest
+
+    runner = CliRunner()
+    node_dir = tmp_path / "bridge"
+    node_dir.mkdir()
+    rec = tmp_path / "rec"
+    args = ["target", "record", "--out", str(rec), "--robot-cmd", ROBOT, "--agent", "straight", "--episodes", "1",
+            "--seconds", "1", "--image-size", "80x60", "--backend", "inline", "--robot-transport", "fifo",
+            "--robot-step-timeout", "15", "--robot-no-reflection"]
+    res = runner.invoke(app, [*args, "--robot-cwd", str(node_dir)])
+    assert res.exit_code == 0, res.output
+    robot = load_manifest(rec).robot
+    assert robot.command == ROBOT and robot.kind == "simulation"
+    assert robot.options.cwd == str(node_dir.resolve()) and robot.options.transport == "fifo"
+    assert robot.options.step_timeout == 15.0 and robot.options.start_timeout == 120.0  # defaults kept too
+    assert robot.options.reflection is False
+    stored = yaml.safe_load((rec / "target.yaml").read_text())["robot"]["options"]
+    assert stored == {"cwd": str(node_dir.resolve()), "transport": "fifo", "start_timeout": 120.0,
+                      "step_timeout": 15.0, "reflection": False}
+    check = runner.invoke(app, ["target", "check", str(rec)])
+    assert check.exit_code == 0, check.output
+    line = next(x for x in check.output.splitlines() if x.startswith("robot node:"))
+    assert f"cwd {node_dir.resolve()}" in line and "transport fifo" in line and "step timeout 15 s" in line
+    assert "start timeout 120 s" in line and "no describe_protocol" in line and "a simulation" in line
+    # resuming the recording from another working directory: another robot, perhaps; refused, nothing run
+    other = tmp_path / "other"
+    other.mkdir()
+    res = runner.invoke(app, [*args, "--robot-cwd", str(other), "--episodes", "2"])
+    assert res.exit_code == 2 and "robot.options.cwd" in res.output
+    assert not (rec / "episodes" / "straight" / "1.parquet").exists()
+    # a misspelt option in a hand-edited manifest names the field
+    data = yaml.safe_load((rec / "target.yaml").read_text())
+    data["robot"]["options"]["transprt"] = "pipe"
+    (rec / "target.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(TargetError, match=r"robot\.options\.transprt: unknown key \(did you mean 'transport'\?\)"):
+        load_manifest(rec)

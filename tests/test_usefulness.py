@@ -167,3 +167,22 @@ def test_best_decile_is_the_mean_of_the_best_trials():
     assert best_decile(trials, ["x"]) == {"x": 1.0}
     trials = [{"value": float(v), "x": float(v)} for v in range(100)]
     assert best_decile(trials, ["x"]) == {"x": 4.5}  # the best 10
+
+
+def test_the_best_prpv_names_every_proxy_that_reaches_it():
+    """A best PRPV shared by two proxies is not claimed for one of them alone."""
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from proxybench.usefulness.report import noise_statement
+
+    rows = [{"parameter": "command_delay", "value": 0.05, "prpv": 12.0, "prpv_low": 0.0, "prpv_high": 60.0},
+            {"parameter": "blur_time", "value": 0.0, "prpv": 12.0, "prpv_low": 4.0, "prpv_high": 64.0},
+            {"parameter": "trim", "value": 0.1, "prpv": 13.0, "prpv_low": 2.0, "prpv_high": 80.0}]
+    res = SimpleNamespace(best_row=lambda: rows[0], frame=lambda: pd.DataFrame(rows),
+                          noise=SimpleNamespace(value=18.0, low=4.0, high=32.0),
+                          experiment=SimpleNamespace(episodes=3))
+    text = noise_statement(res)
+    assert text.startswith("Best PRPV 12.0 [0.0, 60.0] at command_delay = 0.05 (equally at blur_time = 0);")
+    assert "trim" not in text and "within the noise floor" in text

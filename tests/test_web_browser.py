@@ -94,14 +94,20 @@ def test_submission_page_shows_metrics_and_plot(server, page):
     with TestClient(app) as client:
         sub = client.get(f"/api/v1/submissions/{sid}", headers={"Authorization": f"Bearer {demo.tokens['bob']}"})
     episodes = sub.json()["results"][0]["public_report"]["episodes"]
-    header = [h.replace("\u200b", "") for h in page.locator("[data-testid=episodes] thead th").all_inner_texts()]
-    assert header[:3] == ["episode", "seed", "ended by"] and "survival_time" in header
+    heads = page.locator("[data-testid=episodes] thead th")
+    header = [" ".join(h.split()) for h in heads.all_inner_texts()]
+    assert header[:3] == ["episode", "seed", "ended by"] and "Survival time [s] ↑" in header
+    metrics = [heads.nth(k).get_attribute("data-metric") for k in range(heads.count())]
     rows = page.locator("[data-testid=episodes] tbody tr")
     assert rows.count() == len(episodes) == 5
     for k, ep in enumerate(episodes):
         cells = rows.nth(k).locator("td").all_inner_texts()
         assert cells[:3] == [str(ep["episode"]), str(ep["seed"]), ep["termination"]]
-        assert cells[header.index("survival_time")] == f"{ep['scores']['survival_time']:,.3f}"
+        assert cells[metrics.index("survival_time")] == f"{ep['scores']['survival_time']:,.1f}"  # [s]: 0.1 s
+        assert cells[metrics.index("deviation_center_line")] == f"{ep['scores']['deviation_center_line']:,.3f}"
+    scores = page.locator("[data-testid=scores] tbody tr.criterion")
+    assert scores.count() == 4 and scores.nth(0).locator("th").inner_text().startswith("Distance along the lane")
+    assert scores.nth(0).locator("td.ci").inner_text().startswith("[")  # the statistic's interval, beside it
     plot = page.locator("svg.bars")
     assert plot.is_visible() and plot.bounding_box()["width"] > 300
     assert page.locator("svg.bars rect.bars-bar").count() == 25

@@ -166,7 +166,8 @@ def test_submission_page_shows_episodes_plot_artifacts_and_history(site):
     html = get(site, "bob", f"/submissions/{demo.submissions['vision v2']}").text
     table = html.split('data-testid="episodes"')[1].split("</table>")[0]
     assert len(re.findall(r"<tr>", table)) == 1 + 5  # header + one row per episode of aido_lf
-    assert "survival_<wbr>time" in table
+    assert re.search(r'data-metric="survival_time"><span title="[^"]*">Survival time</span> <span class="unit">'
+                     r'\[s\]</span> <span class="dir" title="higher is better">↑</span>', table)
     assert '<svg class="bars"' in html and html.count('class="bars-bar"') == 5 * 5  # 5 metrics × 5 episodes
     assert re.search(r'<video controls preload="metadata" src="/api/v1/artifacts/[0-9a-f]{64}"', html)
     assert "evaluator.log" in html and "outcome: success" in html  # the log, shown inline
@@ -174,6 +175,107 @@ def test_submission_page_shows_episodes_plot_artifacts_and_history(site):
     failed = get(site, "bob", f"/submissions/{demo.submissions['random walk']}").text
     assert "observation has no &#39;camera&#39;" in failed and "Agent failure in episode 0: exited" in failed
     assert '<span class="end end-bad" title="agent process exited' in failed
+
+
+def _cells(html: str, testid: str) -> list[list[str]]:
+    """The rows of a table as lists of cell texts (tags stripped)."""
+    body = html.split(f'data-testid="{testid}"')[1].split("</table>")[0].split("<tbody>")[1]
+    rows = re.findall(r"<tr[^>]*>(.*?)</tr>", body, flags=re.S)
+    return [[re.sub(r"<[^>]+>", "", c).strip() for c in re.findall(r"<t[hd][^>]*>(.*?)</t[hd]>", r, flags=re.S)]
+            for r in rows]
+
+
+def test_scores_show_labels_units_criteria_first_and_intervals(site):
+    """The scores table: the benchmark's criteria first, in order, with tolerance; then the other metrics;
+    each with label, unit, direction, the statistic with its interval, the spread and the episode count."""
+    client, demo = site
+    sid = demo.submissions["vision v2"]
+    html = get(site, "bob", f"/submissions/{sid}").text
+    stored = client.get(f"/api/v1/submissions/{sid}", headers={"Authorization": f"Bearer {demo.tokens['bob']}"}
+                        ).json()["results"][0]["public_scores"]
+    order = re.findall(r'<tr class="(?:criterion|other)" data-metric="([a-z_]+)"',
+                       html.split('data-testid="scores"')[1].split("</table>")[0])
+    assert order == ["driven_lanedir_consec", "survival_time", "deviation_center_line", "in_drivable_lane",
+                     "deviation_heading"]  # aido_lf's criteria in their order, then the one it does not rank by
+    rows = [r for r in _cells(html, "scores") if len(r) == 8]
+    first, d = rows[0], {k.removeprefix("driven_lanedir_consec_"): v for k, v in stored.items()}
+    assert first[:4] == ["1", "Distance along the lane [m] ↑", "median", f"{d['median']:.2f}"]
+    assert first[4:6] == [f"[{d['median_lo']:.2f}, {d['median_hi']:.2f}]", f"{d['min']:.2f} … {d['max']:.2f}"]
+    assert first[6:] == ["5", "± 0.62"]
+    assert rows[1][:4] == ["2", "Survival time [s] ↑", "median", f"{stored['survival_time_median']:.1f}"]
+    assert rows[2][1:4:2] == ["Centre-line deviation [m·s] ↓", f"{stored['deviation_center_line_median']:.3f}"]
+    assert rows[2][7] == "± 0.01" and rows[3][1] == "Time out of the lane [s] ↓"
+    assert rows[4][0] == "" and rows[4][1] == "Heading deviation [rad·s] ↓" and rows[4][7] == ""  # not a criterion
+    assert "not ranked by" in html and "95 % interval" in html
+    episodes = _cells(html, "episodes")
+    ep0 = client.get(f"/api/v1/submissions/{sid}", headers={"Authorization": f"Bearer {demo.tokens['bob']}"}
+                     ).json()["results"][0]["public_report"]["episodes"][0]["scores"]
+    assert episodes[0][3:] == [f"{ep0['survival_time']:.1f}", f"{ep0['driven_lanedir_consec']:.2f}",
+                               f"{ep0['deviation_center_line']:.3f}", f"{ep0['in_drivable_lane']:.1f}",
+                               f"{ep0['deviation_heading']:.2f}"]  # each unit's precision
+    assert ">Survival time [s]</text>" in html  # the plot's panels carry the same labels
+
+
+def test_leaderboard_and_overview_show_labels_tolerances_and_intervals_while_the_api_stays_raw(site):
+    client, demo = site
+    html = get(site, "alice", "/leaderboards/aido_lf").text
+    heads = re.findall(r'<th class="num crit" data-metric="([a-z_]+)"', html)
+    assert heads == ["driven_lanedir_consec_median", "survival_time_median", "deviation_center_line_median",
+                     "in_drivable_lane_median"]
+    assert re.search(r'<span class="order">1\.</span> Distance along the lane <span class="unit">\[m\]</span> '
+                     r'<span class="dir" title="higher is better">↑</span><br><span class="tol">median · ± 0.62</span>',
+                     html)
+    api = client.get("/api/v1/leaderboards/aido_lf", headers={"Authorization": f"Bearer {demo.tokens['alice']}"}).json()
+    top = api["rows"][0]
+    assert set(top["scores"]) == set(heads)  # the JSON API: the ranked values only, as stored
+    assert set(api["criteria"][0]) == {"metric", "higher_is_better", "tolerance"}
+    stored = client.get(f"/api/v1/submissions/{top['submission_id']}",
+                        headers={"Authorization": f"Bearer {demo.tokens[top['user']]}"}).json()["results"][0]
+    rows = _cells(html, "leaderboard")
+    lo, hi = stored["public_scores"]["driven_lanedir_consec_median_lo"], stored["public_scores"][
+        "driven_lanedir_consec_median_hi"]
+    assert rows[0][4] == f"{top['scores']['driven_lanedir_consec_median']:.2f}[{lo:.2f}, {hi:.2f}]"
+    assert rows[0][8] == "5"  # episodes
+    overview = get(site, "alice", "/").text.split('data-testid="board-aido_lf"')[1].split("</article>")[0]
+    assert "Distance along the lane" in overview and "median · criterion 1 of 4" in overview
+    assert f"[{lo:.2f}, {hi:.2f}]" in overview
+    bench = get(site, "alice", "/benchmarks/aido_lf").text
+    assert "± 0.01 m·s" in bench and "Centre-line deviation" in bench
+
+
+def test_missing_values_are_a_dash_that_says_why(tmp_path):
+    """A criterion the evaluator could not compute (null), a column it did not report and an episode's NaN
+    are each shown as "—" with a title giving the reason; the page still ranks and renders."""
+    app = create_app(Settings(data_dir=tmp_path / "data"))
+    client = TestClient(app)
+    admin = {"Authorization": f"Bearer {app.state.admin_token}"}
+    tokens = {n: client.post("/api/v1/users", headers=admin, json={"name": n, "role": r}).json()["token"]
+              for n, r in (("gina", "developer"), ("lab", "evaluator"))}
+    sub = client.post("/api/v1/submissions", headers={"Authorization": f"Bearer {tokens['gina']}"},
+                      json={"label": "nan case", "agent": "vision", "benchmark": "thesis_loop"}).json()
+    ev = {"Authorization": f"Bearer {tokens['lab']}"}
+    job = client.post("/api/v1/jobs/lease", headers=ev, json={"evaluator": "lab", "features": ["sim"]}).json()
+    scores = {"episodes": 2, "distance_mean": None, "distance_n": 0, "survival_time_mean": 20.0,
+              "survival_time_mean_lo": 10.0, "survival_time_mean_hi": 30.0, "survival_time_n": 2}
+    report = {"episodes": [{"episode": 0, "seed": 1, "termination": "off_road",
+                            "scores": {"distance": None, "survival_time": 10.0}},
+                           {"episode": 1, "seed": 2, "termination": "off_road", "scores": {"survival_time": 30.0}}]}
+    r = client.post(f"/api/v1/jobs/{job['job_id']}/result", headers=ev,
+                    json={"lease_id": job["lease_id"], "evaluator": "lab", "status": "success",
+                          "public_scores": scores, "public_report": report, "hidden_scores": scores,
+                          "hidden_report": report})
+    assert r.status_code in (200, 201), r.text
+    site2 = (client, DemoData(tokens={"gina": tokens["gina"]}))
+    html = get(site2, "gina", f"/submissions/{sub['id']}").text
+    rows = _cells(html, "scores")
+    assert rows[0][:4] == ["1", "Distance along the lane (thesis) [m] ↑", "mean", "—"]
+    assert 'title="not computed: no episode gave a finite value (NaN); it ranks worst">—' in html
+    assert 'title="no interval in this result (the evaluator reported the statistic only)">—' in html
+    assert rows[1][3:5] == ["20.0", "[10.0, 30.0]"]
+    assert 'title="no value in this episode (NaN): left out of the statistics over episodes">—' in html
+    assert 'title="not in this result (the evaluator did not report it)">—' in html  # episode 1 has no distance
+    board = get(site2, "gina", "/leaderboards/thesis_loop").text
+    assert 'title="not computed: no episode gave a finite value (NaN); it ranks worst">—' in board
 
 
 def test_labels_and_names_are_escaped(site):

@@ -20,6 +20,14 @@ from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console, require_extra
+from proxybench.cli.node_options import (
+    RobotCwd,
+    RobotNoReflection,
+    RobotStartTimeout,
+    RobotStepTimeout,
+    RobotTransport,
+    robot_node_options,
+)
 from proxybench.cli.options import positive
 from proxybench.cli.progress import status
 
@@ -103,9 +111,25 @@ def serve(
     features: str = typer.Option("sim,target", help="features the local evaluators offer"),
     lease_seconds: float = typer.Option(120.0, callback=positive,
                                         help="a job lease lapses this long after the last heartbeat"),
+    robot_cmd: str | None = typer.Option(None, help="robot node (robot protocol) the local evaluators run target "
+                                                    "jobs on [the reality model]"),
+    robot_cwd: RobotCwd = None,
+    robot_transport: RobotTransport = None,
+    robot_start_timeout: RobotStartTimeout = None,
+    robot_step_timeout: RobotStepTimeout = None,
+    robot_no_reflection: RobotNoReflection = False,
 ) -> None:
-    """Run the challenges server (SQLite in --data-dir unless --database-url), optionally with evaluators."""
+    """Run the challenges server (SQLite in --data-dir unless --database-url), optionally with evaluators.
+
+    The local evaluators (--evaluators N) run target jobs on the reality model, or on the robot node of
+    --robot-cmd started as the --robot-* options say (each evaluator starts its own node).
+    """
     require_extra("server")
+    robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
+                                       robot_no_reflection, command=robot_cmd)
+    if robot_cmd is not None and not evaluators:
+        raise typer.BadParameter("only with --evaluators N (it says where the local evaluators run target jobs; "
+                                 "a remote evaluator takes its own --robot-cmd)", param_hint="--robot-cmd")
     import uvicorn
 
     from proxybench.server import clock
@@ -130,12 +154,13 @@ def serve(
     if evaluators:
         token_file = _evaluator_token(settings)
         for i in range(evaluators):
-            cmd = [sys.executable, "-m", "proxybench.cli", "evaluator", "--server", url,
-                   "--token-file", str(token_file), "--name", f"local-{i + 1}", "--features", features,
-                   "--work-dir", str(settings.data_dir / "evaluator-work" / f"local-{i + 1}")]
+            cmd = evaluator_command(url, token_file, f"local-{i + 1}", features,
+                                    settings.data_dir / "evaluator-work" / f"local-{i + 1}", robot_cmd, robot_options)
             env = {k: v for k, v in os.environ.items() if k not in ("PROXYBENCH_TOKEN", "PROXYBENCH_TOKEN_FILE")}
             procs.append(subprocess.Popen(cmd, env=env))
-        console.print(f"  {evaluators} local evaluator(s) started (features: {features})")
+        robot = f"; target jobs on the robot node `{robot_cmd}`" if robot_cmd else ""
+        console.print(f"  {evaluators} local evaluator(s) started (features: {features}{escape(robot)})",
+                      highlight=False)
     try:
         if settings.workers == 1:
             uvicorn.run(application, host=host, port=port, log_level="warning", timeout_keep_alive=15)
@@ -150,6 +175,27 @@ def serve(
                 p.wait(10)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def evaluator_command(url: str, token_file: Path, name: str, features: str, work_dir: Path, robot_cmd: str | None,
+                      robot_options=None) -> list[str]:
+    """The command line of one local evaluator: the server, its token file, and the robot node with every start-up
+    option that differs from the defaults (``robot_options``: a ``RobotNodeOptions``; its cwd is absolute)."""
+    from proxybench.cli.node_options import ROBOT_OPTION_NAMES
+
+    cmd = [sys.executable, "-m", "proxybench.cli", "evaluator", "--server", url, "--token-file", str(token_file),
+           "--name", name, "--features", features, "--work-dir", str(work_dir)]
+    if robot_cmd is None:
+        return cmd
+    cmd += ["--robot-cmd", robot_cmd]
+    for key, value in (robot_options.non_default() if robot_options is not None else {}).items():
+        if key == "reflection":
+            cmd += [] if value else [ROBOT_OPTION_NAMES[key]]
+        elif key == "fifo_dir":
+            raise typer.BadParameter("the evaluator takes no FIFO folder for its robot node", param_hint="fifo_dir")
+        else:
+            cmd += [ROBOT_OPTION_NAMES[key], str(value)]
+    return cmd
 
 
 def _export(settings, anchor: float) -> None:

@@ -123,6 +123,11 @@ def check(
     console.print(f"[green]✓[/green] {report.root}: {RecordedTarget(report.root).info().statement}", highlight=False)
     console.print(f"map {m.map}, {m.seconds:g} s episodes, {len(m.agents)} agents × {len(m.episodes)} episodes "
                   f"({m.kind}: {m.metrics_table or m.pattern})", highlight=False)
+    if m.robot is not None:
+        said = f", which described itself as a {m.robot.kind}" if m.robot.kind else ""
+        console.print(f"robot node: {m.robot.describe()}{said}", highlight=False, markup=False)
+    if m.recorded_with:
+        console.print(f"recorded with {m.recorded_with}", highlight=False, markup=False)
     metrics = list(report.episodes[0].scores) if report.episodes else []
     table = Table(title="mean over episodes [min … max]")
     for col in ("agent", "episodes", *metrics, "ended early"):

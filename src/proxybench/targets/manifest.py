@@ -30,6 +30,8 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from proxybench.protocol.options import RobotNodeOptions
+
 __all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "RobotInfo", "TargetError", "TargetManifest", "format_errors",
            "load_manifest", "write_manifest"]
 
@@ -46,12 +48,30 @@ class TargetError(ValueError):
 
 
 class RobotInfo(BaseModel):
-    """The robot node a recording was made on."""
+    """The robot node a recording was made on: its command, what it said it is, and how it was started
+    (``options``: working directory, transport, timeouts, reflection; None in recordings made before
+    proxybench kept them). Provenance only: nothing is started from a recording."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     command: str = Field(min_length=1, description="the command that started the robot node")
     kind: str = Field("", description="what the node said it is (its robot_interface_description)")
+    options: RobotNodeOptions | None = Field(None, description="how the node was started (--robot-cwd, ...)")
+
+    def describe(self) -> str:
+        """One line: the command and, when known, how it was started.
+
+        >>> RobotInfo(command="./bridge", options=RobotNodeOptions(cwd="/lab", transport="fifo")).describe()
+        '`./bridge` (cwd /lab, transport fifo, start timeout 120 s, step timeout 10 s, describe_protocol asked)'
+        """
+        if self.options is None:
+            return f"`{self.command}` (start-up options not recorded)"
+        o = self.options
+        parts = [f"cwd {o.cwd}" if o.cwd else "cwd: that of the recording command", f"transport {o.transport}"]
+        parts += [f"FIFOs in {o.fifo_dir}"] if o.fifo_dir else []
+        parts += [f"start timeout {o.start_timeout:g} s", f"step timeout {o.step_timeout:g} s",
+                  "describe_protocol asked" if o.reflection else "no describe_protocol"]
+        return f"`{self.command}` ({', '.join(parts)})"
 
 
 class TargetManifest(BaseModel):

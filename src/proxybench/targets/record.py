@@ -60,7 +60,7 @@ def _source(target: Target) -> tuple[str, RobotInfo | None]:
         return "reality-model", None
     command = getattr(target, "command", None)
     if command:
-        return "robot-node", RobotInfo(command=command)
+        return "robot-node", RobotInfo(command=command, options=getattr(target, "options", None))
     raise TargetError(f"cannot record a {target.kind} target (record the reality model or a robot node)")
 
 
@@ -69,10 +69,12 @@ def _plan(out: Path, new: TargetManifest, agents: list[AgentSpec]) -> TargetMani
     if not (out / MANIFEST_NAME).exists():
         return new
     old = load_manifest(out)
-    for name in ("source", "map", "seconds", "seed", "robot", "trajectories", "metrics_table"):
-        a, b = getattr(old, name), getattr(new, name)
+    for name in ("source", "map", "seconds", "seed", "robot", "robot.options.cwd", "trajectories", "metrics_table"):
+        a, b = _field(old, name), _field(new, name)
         if name == "robot" and a is not None and b is not None:
             a, b = a.command, b.command
+        if name == "robot.options.cwd" and (old.robot is None or old.robot.options is None):
+            continue  # recorded before the options were kept: nothing to compare
         if a != b:
             raise TargetError(f"{out / MANIFEST_NAME}: {name}: this recording has {a!r}, the command asks for {b!r}; "
                               "record into another directory (a recording holds one experiment)")
@@ -87,10 +89,20 @@ def _plan(out: Path, new: TargetManifest, agents: list[AgentSpec]) -> TargetMani
         if lacking:
             raise TargetError(f"the recording at {out} has agent(s) {', '.join(lacking)}, which need the new episodes "
                               "too: give them again with --agent")
-    return old.model_copy(update={"agents": agents_all, "episodes": episodes_all,
+    robot = old.robot if new.robot is None or old.robot is None else old.robot.model_copy(
+        update={"options": new.robot.options})  # timeouts, transport, reflection: as started this time
+    return old.model_copy(update={"agents": agents_all, "episodes": episodes_all, "robot": robot,
                                   "description": new.description or old.description,
                                   "who": new.who or old.who, "where": new.where or old.where,
                                   "when": new.when or old.when})
+
+
+def _field(manifest: TargetManifest, dotted: str) -> object:
+    """A manifest field by its dotted path (``robot.options.cwd``); None where a step is missing."""
+    value: object = manifest
+    for part in dotted.split("."):
+        value = getattr(value, part, None)
+    return value
 
 
 def _theta(params: dict) -> object:
@@ -192,7 +204,7 @@ def record_target(
     if source == "robot-node" and robot is not None and todo:
         kind = _robot_kind(dest[todo[0].key])
         if kind:
-            manifest = manifest.model_copy(update={"robot": RobotInfo(command=robot.command, kind=kind)})
+            manifest = manifest.model_copy(update={"robot": manifest.robot.model_copy(update={"kind": kind})})
             write_manifest(out, manifest)
     if all((out / manifest.pattern.format(agent=a, episode=e)).is_file()
            for a in manifest.agents for e in manifest.episodes):

@@ -24,21 +24,37 @@ import numpy as np
 from proxybench.domain.lane_pose import LP
 from proxybench.tasks.trajectory import Trajectory
 
-__all__ = ["METRICS", "DeviationCurves", "Metric", "deviation_curves", "lane_progress", "lane_steps",
+__all__ = ["METRICS", "UNIT_DECIMALS", "DeviationCurves", "Metric", "deviation_curves", "lane_progress", "lane_steps",
            "repeatability"]
 
 LANE_HALF_WIDTH = 0.5 * 0.376 * 0.585  # [m], Duckietown lane
 
 
+#: decimals a value of each unit is shown with (tables, the web console): about the resolution a
+#: Duckietown measurement has (1 cm, 0.1 s); a unit not listed gets 3
+UNIT_DECIMALS = {"m": 2, "cm": 1, "s": 1, "m·s": 3, "rad": 3, "rad·s": 2, "deg": 1, "count": 0, "fraction": 2}
+
+
 @dataclass(frozen=True)
 class Metric:
-    """A named function trajectory → float; ``higher_is_better`` gives its direction."""
+    """A named function trajectory → float; ``higher_is_better`` gives its direction.
+
+    ``unit`` is the unit of its value (``m``, ``s``, ``m·s``, …), ``label`` the name people read (tables,
+    plots, the web console; default: the name in words), ``missing`` what a NaN value of it means (when
+    it has a meaning of its own, e.g. "no stop line was crossed").
+
+    >>> m = METRICS["deviation_center_line"]
+    >>> m.title, m.direction, m.decimals
+    ('Centre-line deviation [m·s]', '↓', 3)
+    """
 
     name: str
     unit: str
     higher_is_better: bool
     description: str
     fn: Callable[[Trajectory], float]
+    label: str = ""
+    missing: str = ""
 
     def __call__(self, traj: Trajectory) -> float:
         return float(self.fn(traj))
@@ -46,6 +62,21 @@ class Metric:
     @property
     def direction(self) -> str:
         return "↑" if self.higher_is_better else "↓"
+
+    @property
+    def display_name(self) -> str:
+        """``label``, or the name in words when it has none."""
+        return self.label or self.name.replace("_", " ").capitalize()
+
+    @property
+    def title(self) -> str:
+        """The label with its unit: ``Survival time [s]``."""
+        return f"{self.display_name} [{self.unit}]" if self.unit else self.display_name
+
+    @property
+    def decimals(self) -> int:
+        """Decimals its values are shown with (:data:`UNIT_DECIMALS`)."""
+        return UNIT_DECIMALS.get(self.unit, 3)
 
 
 def _dt(traj: Trajectory) -> np.ndarray:
@@ -143,24 +174,29 @@ def _metric_list() -> list[Metric]:
     from proxybench.tasks import intersection_metrics as im
 
     return [
-        Metric("survival_time", "s", True, "time until the episode ended (capped at its length)", _survival_time),
+        Metric("survival_time", "s", True, "time until the episode ended (capped at its length)", _survival_time,
+               label="Survival time"),
         Metric("driven_lanedir_consec", "m", True, "progress along the lane direction, consecutive lanes only",
-               lambda tr: float(np.sum(lane_progress(tr)))),
-        Metric("driven_any", "m", True, "path length driven in any direction", _driven_any),
-        Metric("deviation_center_line", "m·s", False, "∫ |lateral offset| dt", _deviation_center_line),
-        Metric("deviation_heading", "rad·s", False, "∫ |heading error| dt", _deviation_heading),
+               lambda tr: float(np.sum(lane_progress(tr))), label="Distance along the lane"),
+        Metric("driven_any", "m", True, "path length driven in any direction", _driven_any,
+               label="Distance driven (any direction)"),
+        Metric("deviation_center_line", "m·s", False, "∫ |lateral offset| dt", _deviation_center_line,
+               label="Centre-line deviation"),
+        Metric("deviation_heading", "rad·s", False, "∫ |heading error| dt", _deviation_heading,
+               label="Heading deviation"),
         Metric("in_drivable_lane", "s", False, "time out of the right lane (wrong way and off-road count)",
-               _in_drivable_lane),
-        Metric("lane_score", "s", True, "thesis 3.7.2: time − 1/s one wheel out − 2/s both out", _lane_score),
+               _in_drivable_lane, label="Time out of the lane"),
+        Metric("lane_score", "s", True, "thesis 3.7.2: time − 1/s one wheel out − 2/s both out", _lane_score,
+               label="Lane score"),
         Metric("distance", "m", True, "thesis: distance along the lane (= driven_lanedir_consec)",
-               lambda tr: float(np.sum(lane_progress(tr)))),
+               lambda tr: float(np.sum(lane_progress(tr))), label="Distance along the lane (thesis)"),
         Metric("distance_along_route", "m", True, "progress along the chosen route (wrong exits earn nothing)",
-               im.distance_along_route),
+               im.distance_along_route, label="Distance along the route"),
         Metric("stop_line_violations", "count", False,
                f"stop lines crossed without a full stop (< {im.STOP_SPEED:g} m/s for {im.STOP_TIME:g} s "
-               f"within {im.STOP_BAND:g} m before the line)", im.stop_line_violations),
+               f"within {im.STOP_BAND:g} m before the line)", im.stop_line_violations, label="Stop-line violations"),
         Metric("stopped_at_line", "fraction", True, "share of stop lines crossed after a full stop (NaN: none)",
-               im.stopped_at_line),
+               im.stopped_at_line, label="Stopped at stop lines", missing="no stop line was crossed"),
     ]
 
 

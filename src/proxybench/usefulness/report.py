@@ -193,6 +193,11 @@ def noise_statement(res: PredictivityResult) -> str:
     """How much of the best proxy's PRPV is what two replicates of the target differ by."""
     best, nf = res.best_row(), res.noise
     where = f"{best['parameter']} = {_fmt(best['value'])}"
+    df = res.frame()
+    equal = [f"{r.parameter} = {_fmt(r.value)}" for r in df[df.prpv == best["prpv"]].itertuples()
+             if (r.parameter, r.value) != (best["parameter"], best["value"])]
+    if equal:  # the best value is not one proxy's alone: say so
+        where += f" (equally at {', '.join(equal)})"
     if best["prpv"] <= 0:
         return (f"The best proxy ({where}) orders the agents exactly as the target (PRPV 0); the target's noise "
                 f"floor is {nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}].")
@@ -224,11 +229,30 @@ def episodes_statement(res: PredictivityResult) -> str:
     cheapest = ", ".join(f"{p.a} – {p.b}" for p in open_[:3])
     return (f"{len(open_)} of {len(needs)} pairs of agents are near ties on the target with {res.experiment.episodes} "
             f"episodes per agent (their order is open, which widens every PRPV range)"
-            + (f"; the cheapest to settle ({cheapest}) need about {finite[0]}"
-               + (f"–{finite[min(2, len(finite) - 1)]}" if len(finite) > 1 else "") + " episodes per agent"
-               if finite else "")
+            + (f"; the cheapest to settle ({cheapest}) need about {_span(finite[0], finite[min(2, len(finite) - 1)])}"
+               " episodes per agent" if finite else "")
             + (f"; {ties} look like ties within the noise" if ties else "")
             + ". `proxybench plan` works out the episodes and spends them where they settle most.")
+
+
+def _code(escaped: str) -> str:
+    """`commands` in (escaped) findings as <code>, as the terminal shows them in backticks.
+
+    >>> _code("run `proxybench plan` first")
+    'run <code>proxybench plan</code> first'
+    """
+    import re
+
+    return re.sub(r"`([^`]+)`", r"<code>\1</code>", escaped)
+
+
+def _span(lo: float, hi: float) -> str:
+    """``7`` or ``7–9``: a range only when its ends differ (the report used to say "about 7–7 episodes").
+
+    >>> _span(7, 7), _span(7, 9)
+    ('7', '7–9')
+    """
+    return f"{lo:g}" if lo == hi else f"{lo:g}–{hi:g}"
 
 
 def findings(res: PredictivityResult) -> list[str]:
@@ -388,7 +412,7 @@ method: {html.escape(THESIS)}.</p>
 {metrics}; each proxy replays every target episode from the same start pose and seed; {exp.n_boot} bootstrap
 resamples (95% intervals){f"; wall time {wall_s:.0f} s" if wall_s else ""}.</p>
 <h2>Findings</h2><p><small>PRPV, PPV, SRCC, POD, noise floor: <a href="#definitions">definitions and
-ranges below</a>.</small></p><ul>{"".join(f"<li>{html.escape(f)}</li>" for f in findings(res))}</ul>
+ranges below</a>.</small></p><ul>{"".join(f"<li>{_code(html.escape(f))}</li>" for f in findings(res))}</ul>
 <h2>Results</h2>{_compact_table(res)}
 <details><summary>every figure with its interval (per-metric correlations and MMRV, PPV sum, normalised PRPV,
 notes, …)</summary>

@@ -26,6 +26,7 @@ from proxybench.server.api.deps import session_secret, web_user
 from proxybench.server.db import session_scope
 from proxybench.server.models import User
 from proxybench.server.security import csrf_token
+from proxybench.server.web.scores import CI_LEVEL
 
 __all__ = ["STATIC_DIR", "episode_table", "error_page", "fmt_ago", "fmt_num", "fmt_time", "login_redirect", "me",
            "render", "safe_next", "templates", "user_names", "wbr"]
@@ -100,7 +101,7 @@ def _environment() -> jinja2.Environment:
                              undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
     env.filters.update(num=fmt_num, when=fmt_time, ago=fmt_ago, badge=_badge, wbr=wbr,
                        urlquote=lambda s: quote(str(s), safe=""))
-    env.globals.update(version=__version__)
+    env.globals.update(version=__version__, ci_level=CI_LEVEL)
     return env
 
 

@@ -9,6 +9,7 @@ simulation runs), which is all a page needs; every row is stored by the server's
 from __future__ import annotations
 
 import hashlib
+import math
 import threading
 import time
 import zlib
@@ -21,8 +22,8 @@ import httpx
 import numpy as np
 
 from proxybench.server.benchmarks import parse_benchmark
-from proxybench.tasks.aggregate import STATS
-from proxybench.tasks.benchmark import derive_seed, parse_scoring_metric
+from proxybench.tasks.aggregate import aggregate, scores_by_agent
+from proxybench.tasks.benchmark import derive_seed
 
 __all__ = ["DemoData", "demo_scores", "seed_demo", "serve_in_thread"]
 
@@ -76,7 +77,8 @@ def _episode(rng: np.random.Generator, skill: float, duration: float) -> dict[st
 
 
 def demo_scores(spec_yaml: str, label: str, skill: float, seeds: list[int]) -> tuple[dict, dict]:
-    """(scores, report) for one split, shaped as ``proxybench.evaluator.report.summarize`` makes them."""
+    """(scores, report) for one split, shaped as ``proxybench.evaluator.report.summarize`` makes them: every
+    aggregated column (``<metric>_<stat>``, its bootstrap interval, ``<metric>_n``, ``episodes``)."""
     bench = parse_benchmark(spec_yaml)
     episodes = []
     for i, seed in enumerate(seeds):
@@ -85,10 +87,12 @@ def demo_scores(spec_yaml: str, label: str, skill: float, seeds: list[int]) -> t
         ended = "timeout" if values["survival_time"] >= bench.duration else "off_road"
         episodes.append({"episode": i, "seed": seed, "termination": ended, "duration": values["survival_time"],
                          "scores": {m: round(values[m], 4) for m in bench.metrics}, "events": [], "message": ""})
-    scores = {}
+    table = [{"agent": label, "domain": "demo", "episode": e["episode"], "metric": m, "value": v}
+             for e in episodes for m, v in e["scores"].items()]
+    raw = next(iter(scores_by_agent(aggregate(table, n_resamples=1000)).values()))
+    scores = {k: round(v, 4) if math.isfinite(v) else None for k, v in raw.items()}  # as the evaluator's clean()
     for c in bench.criteria():
-        base, stat = parse_scoring_metric(c.metric)
-        scores[c.metric] = round(float(STATS[stat]([e["scores"][base] for e in episodes])), 4)
+        scores.setdefault(c.metric, None)
     terminations: dict[str, int] = {}
     for e in episodes:
         terminations[e["termination"]] = terminations.get(e["termination"], 0) + 1

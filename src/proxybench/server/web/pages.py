@@ -18,9 +18,10 @@ from proxybench.server.api.jobs import list_evaluators
 from proxybench.server.benchmarks import parse_benchmark
 from proxybench.server.errors import ServiceError
 from proxybench.server.leaderboards import leaderboard_rows
-from proxybench.server.models import JOB_STATUSES, BenchmarkVersion, Job
+from proxybench.server.models import JOB_STATUSES, BenchmarkVersion, Job, Result
 from proxybench.server.security import close_web_session, csrf_token, open_web_session, token_row
 from proxybench.server.web.common import render, safe_next
+from proxybench.server.web.scores import board_cells, board_columns, metric_column
 from proxybench.server.web.svg import path_dag
 
 router = APIRouter(include_in_schema=False)
@@ -35,14 +36,39 @@ def status_counts(session: Session) -> dict[str, int]:
     return {s: int(counts.get(s, 0)) for s in JOB_STATUSES}
 
 
+def result_scores(session: Session, rows: list[dict[str, Any]], split: str) -> dict[int, dict[str, Any]]:
+    """The stored scores (intervals, episode counts) of the results a board's ``rows`` were ranked by, by
+    result id: the board keeps only the ranked values. Read in chunks of ids (one query each)."""
+    column = Result.public_scores if split == "public" else Result.hidden_scores
+    ids = [r["result_id"] for r in rows]
+    out: dict[int, dict[str, Any]] = {}
+    for start in range(0, len(ids), 500):
+        out.update({rid: scores or {} for rid, scores in session.execute(
+            select(Result.id, column).where(Result.id.in_(ids[start:start + 500])))})
+    return out
+
+
+def ranked_rows(session: Session, board: dict[str, Any], rows: list[dict[str, Any]]) -> tuple[list, list]:
+    """(criterion columns, rows with their cells: value, interval, episode count) for a leaderboard table."""
+    columns = board_columns(board["criteria"])
+    details = result_scores(session, rows, board["split"])
+    out = []
+    for r in rows:
+        full = details.get(r["result_id"], {})
+        episodes = full.get("episodes")
+        out.append({**r, "cells": board_cells(r["scores"], columns, full),
+                    "episodes": int(episodes) if isinstance(episodes, int | float) and episodes == episodes else None})
+    return columns, out
+
+
 @router.get("/", response_class=HTMLResponse)
 def overview(request: Request, session: DB, settings: Conf, user: WebCaller) -> Response:
     """Benchmarks with their leaderboard's top 3, the queue in numbers, evaluators in health."""
     boards = []
     for bench in list_benchmarks(session, user):
         board = leaderboard_rows(session, bench["name"], "public", boards=request.app.state.boards)
-        boards.append({**bench, "criteria": board["criteria"], "top": board["rows"][:3],
-                       "entries": len(board["rows"])})
+        columns, top = ranked_rows(session, board, board["rows"][:3])
+        boards.append({**bench, "columns": columns, "top": top, "entries": len(board["rows"])})
     evaluators = list_evaluators(session, settings, user)
     return render(request, "overview.html", user, boards=boards, counts=status_counts(session),
                   evaluators=evaluators, healthy=sum(e["healthy"] for e in evaluators))
@@ -116,8 +142,9 @@ def benchmark(request: Request, name: str, session: DB, user: WebCaller, version
     spec = parse_benchmark(view["spec_yaml"], origin=f"{name} v{view['version']}")
     paths = [{**p, "svg": path_dag(p["spec"], highlight=name)} for p in list_paths(session, user)
              if any(s["benchmark"] == name for s in p["spec"]["steps"])]
-    return render(request, "benchmark.html", user, b=view, spec=spec, criteria=spec.criteria(),
-                  episodes=spec.episode_specs(), versions=_versions(session, name), paths=paths)
+    return render(request, "benchmark.html", user, b=view, spec=spec, criteria=board_columns(spec.criteria()),
+                  metric_columns=[metric_column(n) for n in spec.metrics], episodes=spec.episode_specs(),
+                  versions=_versions(session, name), paths=paths)
 
 
 @router.get("/leaderboards/{name}", response_class=HTMLResponse)
@@ -130,5 +157,6 @@ def leaderboard(request: Request, name: str, session: DB, user: WebCaller, split
         raise ServiceError(403, "hidden (test) scores are visible to super-users only")
     board = leaderboard_rows(session, name, split, version, boards=request.app.state.boards)
     view = get_benchmark(name, session, user, board["version"])
-    return render(request, "leaderboard.html", user, board=board, b=view, versions=_versions(session, name),
-                  generated=time.time())
+    columns, rows = ranked_rows(session, board, board["rows"])
+    return render(request, "leaderboard.html", user, board=board, columns=columns, rows=rows, b=view,
+                  versions=_versions(session, name), generated=time.time())

@@ -7,6 +7,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, Form, Query, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from pydantic import ValidationError
+from sqlalchemy import select
 
 from proxybench.server.api.deps import DB, Conf, WebCaller, WebFormCaller
 from proxybench.server.api.jobs import JobId, list_evaluators, list_jobs, retry_job
@@ -14,11 +15,20 @@ from proxybench.server.api.schemas import UserCreate
 from proxybench.server.api.submissions import SubmissionId, get_submission, list_submissions, retire
 from proxybench.server.api.users import add_user, list_users
 from proxybench.server.artifacts import ArtifactStore
+from proxybench.server.benchmarks import benchmark_of
 from proxybench.server.errors import ServiceError
-from proxybench.server.models import JOB_STATUSES, ROLES, Artifact, User
+from proxybench.server.models import JOB_STATUSES, ROLES, Artifact, BenchmarkVersion, User
 from proxybench.server.views import job_events
 from proxybench.server.web.common import episode_table, render, user_names
 from proxybench.server.web.pages import status_counts
+from proxybench.server.web.scores import (
+    EPISODE_NAN,
+    NOT_REPORTED,
+    episode_counts,
+    metric_column,
+    score_rows,
+    value_cell,
+)
 from proxybench.server.web.svg import episode_bars
 
 router = APIRouter(include_in_schema=False)
@@ -66,13 +76,34 @@ def _artifacts(session: DB, store: ArtifactStore, refs: list[dict[str, Any]]) ->
     return out
 
 
-def _report(scores: dict[str, Any], report: dict[str, Any]) -> dict[str, Any]:
-    """One split of a result for the page: scores, per-episode table and plot, failures and data problems."""
+def _report(scores: dict[str, Any], report: dict[str, Any], criteria: list[Any]) -> dict[str, Any]:
+    """One split of a result for the page: scores (criteria first), per-episode table and plot, failures and
+    data problems."""
     metrics, rows = episode_table(report)
+    columns = [metric_column(m) for m in metrics]
+    for row in rows:
+        row["cells"] = [value_cell(row["values"].get(c.name), c, EPISODE_NAN if c.name in row["values"] else
+                                   NOT_REPORTED) for c in columns]
     failures = [f for f in report.get("agent_failures") or [] if isinstance(f, dict)]
     problems = [str(p) for p in report.get("data_problems") or []]
-    return {"scores": scores, "metrics": metrics, "rows": rows, "plot": episode_bars(metrics, rows),
+    return {"scores": score_rows(scores, criteria, episode_counts(metrics, rows)), "columns": columns,
+            "rows": rows, "plot": episode_bars(metrics, rows, titles=[c.title for c in columns]),
             "ended": any(r["termination"] for r in rows), "failures": failures, "problems": problems}
+
+
+def _criteria(session: DB, job: dict[str, Any] | None, cache: dict[tuple[str, int], list]) -> list:
+    """The ranking criteria of the benchmark version a job ran (none when unknown)."""
+    if job is None:
+        return []
+    key = (job["benchmark"], job["benchmark_version"])
+    if key not in cache:
+        row = session.scalar(select(BenchmarkVersion).where(BenchmarkVersion.name == key[0],
+                                                            BenchmarkVersion.version == key[1]))
+        try:
+            cache[key] = benchmark_of(row).criteria() if row is not None else []
+        except (ServiceError, ValueError):  # a benchmark that no longer parses: show the scores unranked
+            cache[key] = []
+    return cache[key]
 
 
 @router.get("/submissions/{sid}", response_class=HTMLResponse)
@@ -82,11 +113,14 @@ def submission(request: Request, sid: SubmissionId, session: DB, user: WebCaller
     store = request.app.state.store
     jobs = {j["id"]: {**j, "events": job_events(session, j["id"])} for j in sub["jobs"]}
     results = []
+    criteria_of: dict[tuple[str, int], list] = {}
     for r in sub["results"]:
-        item = {**r, "job": jobs.get(r["job_id"]), "public": _report(r["public_scores"], r["public_report"]),
+        job = jobs.get(r["job_id"])
+        criteria = _criteria(session, job, criteria_of)
+        item = {**r, "job": job, "public": _report(r["public_scores"], r["public_report"], criteria),
                 "files": _artifacts(session, store, r["artifacts"])}
         if "hidden_scores" in r:  # super-users only (server.views.result_view)
-            item["hidden"] = _report(r["hidden_scores"], r["hidden_report"])
+            item["hidden"] = _report(r["hidden_scores"], r["hidden_report"], criteria)
         results.append(item)
     return render(request, "submission.html", user, sub=sub, jobs=list(jobs.values()), results=results,
                   can_retire=sub["status"] == "active")

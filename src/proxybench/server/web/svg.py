@@ -95,9 +95,10 @@ def _finite(v: Any) -> float | None:
     return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) else None
 
 
-def episode_bars(metrics: Sequence[str], rows: Sequence[Mapping[str, Any]], *, panel_w: int = 250,
-                 panel_h: int = 150, columns: int = 3) -> Markup:
-    """Small multiples, one panel per metric: a bar per episode and a dashed line at the median."""
+def episode_bars(metrics: Sequence[str], rows: Sequence[Mapping[str, Any]], *, titles: Sequence[str] | None = None,
+                 panel_w: int = 250, panel_h: int = 150, columns: int = 3) -> Markup:
+    """Small multiples, one panel per metric: a bar per episode and a dashed line at the median; ``titles``:
+    the panels' titles (default: the metric names)."""
     if not metrics or not rows:
         return Markup("")
     left, right, top, bottom = 46, 8, 22, 22
@@ -117,7 +118,9 @@ def episode_bars(metrics: Sequence[str], rows: Sequence[Mapping[str, Any]], *, p
         def y_of(v: float, oy: int = oy, lo: float = lo, hi: float = hi, plot_h: int = plot_h) -> float:
             return oy + top + plot_h * (1 - (v - lo) / (hi - lo))
 
-        out.append(f'<text class="bars-title" x="{ox + left}" y="{oy + 14}">{escape(_clip(metric, 34))}</text>')
+        title = titles[k] if titles is not None else metric
+        out.append(f'<text class="bars-title" x="{ox + 6}" y="{oy + 14}"><title>{escape(metric)}</title>'
+                   f'{escape(_clip(title, 38))}</text>')
         out.append(f'<line class="bars-axis" x1="{ox + left}" x2="{ox + left + plot_w}" y1="{y_of(0.0):.1f}" '
                    f'y2="{y_of(0.0):.1f}"/>')
         for v in (hi, lo):
