@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_domain.py              # full (a few minutes)
     .venv/bin/python benchmarks/bench_domain.py --quick      # fewer steps
     .venv/bin/python benchmarks/bench_domain.py --busy no    # skip the busy-neighbour table
+    .venv/bin/python benchmarks/bench_domain.py --only fisheye   # the rows whose name has "fisheye"
 
 Each figure is the median of 3 runs, driven by the privileged PID controller (as the gym-duckietown
 reference figures were), after a warm-up that compiles the kernels. Targets (2 cores, no GPU, issue 16):
@@ -10,7 +11,10 @@ single env 640×480 without blur ≥ 1,000 steps/s, 160×120 ≥ 5,000 steps/s; 
 env-steps/s; physics + lane pose without rendering ≥ 1,000,000 env-steps/s. With 10 map objects and 3 NPC
 robots per episode the simulator may cost at most 2× the empty road (issue 8): the ``simulator, ...`` rows
 measure both and the lines under the table print the ratio. ``gym.make_vec`` rows: Gymnasium's own sync
-and async vector envs of 8 (async: one worker process per env, each on one thread).
+and async vector envs of 8 (async: one worker process per env, each on one thread). The ``fisheye`` rows
+(no target, no reference figure) render through the renderer's general path, pixel by pixel, as a lens's
+image rows are curves on the ground; at 160×120 they run on one thread, so a slowdown of the serial kernel
+shows there (one took a blurred 160×120 fisheye frame from ~0.35 to ~1.7 ms).
 
 The second table runs every figure beside a busy neighbour process (a pure-Python loop that keeps one core
 busy) and, without it, with a PyTorch training step after every env step in the same process; each is
@@ -116,8 +120,12 @@ class Alternating(Clock):
 
 
 def bench_single(steps: int, width: int, height: int, blur: float, map_: Map | str = "loop_3x3",
-                 clock: Clock | None = None) -> float:
-    env = LaneFollowingEnv(map_, params=DomainParams(image_width=width, image_height=height, blur_time=blur))
+                 lens: str | None = None, clock: Clock | None = None) -> float:
+    """Steps/s of one env; ``lens``: a fisheye lens model (its image rows are curves on the ground, which the
+    renderer shades pixel by pixel), else the pinhole camera (rows are lines, shaded span by span)."""
+    fisheye = {} if lens is None else {"fisheye": True, "lens_model": lens}
+    env = LaneFollowingEnv(map_, params=DomainParams(image_width=width, image_height=height, blur_time=blur,
+                                                     **fisheye))
     env.reset(seed=0)
     for _ in range(20):
         env.step(np.array([0.3, 0.3]))
@@ -270,6 +278,14 @@ def rows(k: float) -> list[Row]:
             None, 50),
         Row("single env, 640×480, blur 0.05 s ×3", "steps/s", bench_single, (s(900), 640, 480, 0.05), None, 50),
         Row("single env, 160×120, no blur", "steps/s", bench_single, (s(1800), 160, 120, 0.0), 5_000, 250),
+        Row("single env, 160×120, fisheye, no blur", "steps/s", bench_single,
+            (s(1800), 160, 120, 0.0, "loop_3x3", "plumb_bob")),
+        Row("single env, 160×120, fisheye, blur 0.05 s ×3", "steps/s", bench_single,
+            (s(900), 160, 120, 0.05, "loop_3x3", "plumb_bob")),
+        Row("single env, 160×120, equidistant fisheye, no blur", "steps/s", bench_single,
+            (s(1800), 160, 120, 0.0, "loop_3x3", "equidistant")),
+        Row("single env, 640×480, fisheye, no blur", "steps/s", bench_single,
+            (s(900), 640, 480, 0.0, "loop_3x3", "plumb_bob")),
         Row("batched N=64, 80×60, no blur", "env-steps/s", bench_vector, (s(300), 64, 80, 60, 0.0), 50_000, 250),
         Row("batched N=64, 80×60, blur 0.05 s ×3", "env-steps/s", bench_vector, (s(200), 64, 80, 60, 0.05), None,
             250),
@@ -311,16 +327,24 @@ def side_by_side(fn: Callable[..., float], args: tuple, name: str = "") -> tuple
     return auto, one
 
 
+def threading_layer() -> str:
+    """Numba's threading layer, or "no" where no parallel kernel has run (rows that all ran on one thread)."""
+    try:
+        return numba.threading_layer()
+    except ValueError:
+        return "no"
+
+
 def print_table(all_rows: list[Row], values: dict[str, float]) -> None:
     table = Table(title=f"proxybench domain speed — {os.cpu_count()} cores, numba {numba.__version__} "
-                        f"({numba.config.NUMBA_NUM_THREADS} threads, {numba.threading_layer()} layer)")
+                        f"({numba.config.NUMBA_NUM_THREADS} threads, {threading_layer()} layer)")
     for col in ("case", "unit", "proxybench", "target", "gym-duckietown ref", "× ref"):
         table.add_column(col, justify="left" if col == "case" else "right")
     for r in all_rows:
         value = values[r.name]
         ok = "" if r.target is None else (" ✓" if value >= r.target else " ✗")
-        table.add_row(r.name, r.unit, f"{value:,.0f}", f"{r.target:,}{ok}" if r.target else "–", f"{r.ref:,}",
-                      f"{value / r.ref:,.0f}×")
+        table.add_row(r.name, r.unit, f"{value:,.0f}", f"{r.target:,}{ok}" if r.target else "–",
+                      f"{r.ref:,}" if r.ref else "–", f"{value / r.ref:,.0f}×" if r.ref else "–")
     Console(width=140).print(table)
 
 
@@ -336,15 +360,24 @@ def print_busy(results: list[tuple[str, str, str, float, float]]) -> None:
     Console(width=140).print(table)
 
 
+def torch_row_name(width: int, height: int) -> str:
+    return f"single env, {width}×{height}, a PyTorch training step after each (env time)"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="fewer steps (for smoke tests)")
     ap.add_argument("--scale", type=float, default=None, help="multiply every step count (default 1, --quick 0.1)")
     ap.add_argument("--busy", choices=("both", "no", "only"), default="both",
                     help="also measure beside a busy neighbour process (default), skip that, or only that")
+    ap.add_argument("--only", metavar="TEXT", default="",
+                    help="only the rows whose name contains TEXT (e.g. fisheye, 160×120, PyTorch)")
     args = ap.parse_args()
     k = args.scale or (0.1 if args.quick else 1.0)
-    all_rows = rows(k)
+    all_rows = [r for r in rows(k) if args.only in r.name]
+    torch_sizes = [(w, h) for w, h in ((640, 480), (160, 120)) if args.only in torch_row_name(w, h)]
+    if not all_rows and not torch_sizes:
+        ap.error(f"--only {args.only!r}: no row's name contains it")
     if args.busy != "only":
         values = {r.name: median3(r.fn, *r.args) for r in all_rows}
         print_table(all_rows, values)
@@ -353,6 +386,8 @@ def main() -> None:
                             "simulator, 640×480, 10 objects + 3 NPC robots"),
                            ("N=64 80×60", "simulator N=64, 80×60, empty road",
                             "simulator N=64, 80×60, 10 objects + 3 NPC robots each")):
+            if a not in by or b not in by:
+                continue
             print(f"cost of 10 objects + 3 NPC robots, {size}: {by[a] / by[b]:.2f}× the empty road (target ≤ 2×)")
     if args.busy != "no":
         results = []
@@ -362,9 +397,8 @@ def main() -> None:
                     results.append((r.name, "1 busy process", r.unit, *side_by_side(r.fn, r.args, name=r.name)))
         if importlib.util.find_spec("torch") is not None:
             steps = max(10, int(300 * k))
-            for w, h in ((640, 480), (160, 120)):
-                results.append((f"single env, {w}×{h}, a PyTorch training step after each (env time)",
-                                "PyTorch, same process", "steps/s",
+            for w, h in torch_sizes:
+                results.append((torch_row_name(w, h), "PyTorch, same process", "steps/s",
                                 *side_by_side(bench_single_with_training, (steps, w, h), name=f"PyTorch {w}×{h}")))
         print_busy(results)
 

@@ -304,3 +304,62 @@ def test_render_without_renderer_raises():
     sim = Simulator(STRAIGHT, BASE, render=False)
     with pytest.raises(RuntimeError, match="render=False"):
         sim.render()
+
+
+def _ground_reference(r, n: int, x: float, y: float, level: int) -> np.ndarray:
+    """Robot n's ground colour at map point (x, y), mip level ``level``, shaded in plain Python."""
+    la, tex, pal = r.lanes, r.tex, r.palette[n]
+    n_pal = pal.shape[0] - 5
+    fi, fj = x * (1.0 / la.tile_size), y * (1.0 / la.tile_size)
+    if not (0.0 <= fi < la.tile_kind.shape[0] and 0.0 <= fj < la.tile_kind.shape[1]):
+        return pal[n_pal + 4]  # the world outside the map
+    ti, tj = int(fi), int(fj)
+    lx, ly = fi - ti, fj - tj
+    kind = int(la.tile_kind[ti, tj])
+    a = r._affine[ti, tj]
+    tu, tv = (lx, ly) if kind < 0 else (a[0] + a[1] * lx + a[2] * ly, a[3] + a[4] * lx + a[5] * ly)
+    sz = tex.size >> level
+    tx, ty = min(max(int(tu * sz), 0), sz - 1), min(max(int(tv * sz), 0), sz - 1)
+    idx = n_pal + int(r._base[ti, tj]) if kind < 0 else int(tex.texels[tex.offsets[kind, level] + ty * sz + tx])
+    g = r._grain[r.grain_index[n]]
+    gsize = int(math.isqrt(g.size))
+    grain = float(g[((ty + int(a[7])) % gsize) * gsize + (tx + int(a[6])) % gsize])
+    return pal[idx] * (1.0 + r.post[n, 0] / (1 << level) * grain)
+
+
+def test_curved_row_shading_equals_plain_python_reference():
+    """A fisheye camera's rows go through ``curve_row`` (the serial kernel's general path): it stores, then
+    adds, every ground pixel's colour as the plain per-point shading gives it, on and off the map, and
+    leaves sky pixels alone."""
+    from proxybench.domain.render_ground import curve_row
+
+    p = DomainParams(image_width=24, image_height=18, fisheye=True, texture_noise=0.3, blur_time=0.0)
+    sim = Simulator("intersections", p)
+    r = sim.renderer
+    _, gx, gy, levels, *_ = r._prepare()
+    la, tex = r.lanes, r.tex
+    amp = np.array([r.post[0, 0] / (1 << lv) for lv in range(16)])
+    w, h = sim.map.size_m
+    # the last two look off the map
+    poses = [(0.5 * w, 0.5 * h, 0.3), (0.05, 0.4 * h, math.pi), (0.7 * w, 0.2, -math.pi / 2)]
+    n_ground = n_outside = 0
+    for v in range(p.image_height):
+        acc = np.full((p.image_width, 3), -7.0)
+        expected = acc.copy()
+        for k, (px, py, th) in enumerate(poses):
+            cs, sn = math.cos(th), math.sin(th)
+            curve_row(acc, k == 0, px, py, cs, sn, gx[0, v], gy[0, v], levels[0, v], amp, r.palette[0],
+                      r._grain[0], 1.0 / la.tile_size, la.tile_kind, r._affine, r._base, tex.texels, tex.offsets,
+                      tex.size, r.palette.shape[1] - 5)
+            for u in range(p.image_width):
+                if levels[0, v, u] < 0:
+                    continue
+                x = px + cs * gx[0, v, u] - sn * gy[0, v, u]
+                y = py + sn * gx[0, v, u] + cs * gy[0, v, u]
+                colour = _ground_reference(r, 0, x, y, int(levels[0, v, u]))
+                expected[u] = colour if k == 0 else expected[u] + colour
+                n_ground += 1
+                n_outside += not (0.0 <= x < w and 0.0 <= y < h)
+        np.testing.assert_allclose(acc, expected, rtol=1e-9, atol=1e-9)
+    assert n_ground > 300 and n_outside > 10  # both the map and the world beyond it were shaded
+    assert (levels[0] < 0).any()  # and some pixels were sky, left at -7

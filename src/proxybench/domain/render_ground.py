@@ -1,11 +1,13 @@
-"""Ground shading of the camera renderer: the texel, grain and noise helpers its kernel inlines.
+"""Ground shading of the camera renderer: the texel, grain and noise helpers of its kernel.
 
 ``span_row`` shades a run of pixels whose ground points lie on one line (a pinhole camera's row), tile
-by tile, at two multiply-adds per pixel; ``pixel_ground`` shades one ground point (the general path, for
+by tile, at two multiply-adds per pixel; ``curve_row`` shades a row pixel by pixel (the general path, for
 lenses whose rows are curves). Surface grain is a small tileable table read at a per-tile offset, and
 sensor noise a counter-based hash, so every pixel is reproducible on its own, whatever the batch.
-These are inlined into ``renderer.render_rows`` (after editing one, delete the Numba cache:
-``find src -name '*.nbi' -delete``).
+All but ``curve_row`` are inlined into ``renderer.render_rows``, which calls ``curve_row`` (after editing
+one, delete the Numba cache: ``find src -name '*.nbi' -delete``). Helpers that take arrays are called once
+per row, never per pixel (see ``curve_row``: per pixel, their arguments' reference counting costs more
+than the shading).
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ import math
 import numba as nb
 import numpy as np
 
-__all__ = ["GRAIN", "gauss_from_hash", "grain_table", "mix64", "pixel_ground", "span_row"]
+__all__ = ["GRAIN", "curve_row", "gauss_from_hash", "grain_table", "mix64", "span_row"]
+
 
 @nb.njit(cache=True, inline="always")
 def mix64(z):
@@ -129,31 +132,68 @@ def span_row(
         u = end
 
 
-@nb.njit(cache=True, inline="always")
-def pixel_ground(X, Y, level, grain_amp, pal, grain_n, inv_ts, tile_kind, tile_affine, tile_base, tex, tex_off,
-                  tex_size, n_pal):
-    """Ground colour of one map point: the general path, for cameras whose rows are not lines."""
-    fi = X * inv_ts
-    fj = Y * inv_ts
-    if fi < 0.0 or fj < 0.0 or fi >= tile_kind.shape[0] or fj >= tile_kind.shape[1]:
-        row = n_pal + 4
-        return pal[row, 0], pal[row, 1], pal[row, 2]
-    ti = int(fi)
-    tj = int(fj)
-    lx = fi - ti
-    ly = fj - tj
-    sz = tex_size >> level
-    kind = tile_kind[ti, tj]
-    if kind < 0:
-        tu = lx
-        tv = ly
-    else:
-        tu = tile_affine[ti, tj, 0] + tile_affine[ti, tj, 1] * lx + tile_affine[ti, tj, 2] * ly
-        tv = tile_affine[ti, tj, 3] + tile_affine[ti, tj, 4] * lx + tile_affine[ti, tj, 5] * ly
-    tx = min(max(int(tu * sz), 0), sz - 1)
-    ty = min(max(int(tv * sz), 0), sz - 1)
-    idx = n_pal + tile_base[ti, tj] if kind < 0 else int(tex[tex_off[kind, level] + ty * sz + tx])
-    gox = int(tile_affine[ti, tj, 6])
-    goy = int(tile_affine[ti, tj, 7])
-    f = 1.0 + grain_amp[level] * grain_n[(((ty + goy) & (GRAIN - 1)) << 6) | ((tx + gox) & (GRAIN - 1))]
-    return pal[idx, 0] * f, pal[idx, 1] * f, pal[idx, 2] * f
+@nb.njit(cache=True, fastmath=True, error_model="numpy", boundscheck=False)
+def curve_row(
+    acc, first, px, py, cs, sn, gx_r, gy_r, lv_r, grain_amp, pal, grain_n,
+    inv_ts, tile_kind, tile_affine, tile_base, tex, tex_off, tex_size, n_pal,
+):
+    """Add (or, if ``first``, store) the ground colour of the ground pixels (``lv_r >= 0``) of one row into
+    ``acc``; sky pixels are left as they are. The general path, for lenses whose rows are curves: pixel u's
+    ground point is (``gx_r[u]``, ``gy_r[u]``) in the robot frame, placed on the map by the pose
+    (``px``, ``py``, cos ``cs``, sin ``sn``).
+
+    The per-pixel shading is written out in this loop on purpose. Numba inlines an ``inline="always"``
+    helper at its own IR level, where each array argument becomes a new reference: the former per-pixel
+    helper (``pixel_ground``) paid atomic reference-count pairs for its eight arrays at every pixel, 3.9×
+    the time of a whole 160×120 fisheye frame (4.8× with 3 blur sub-frames) in the serial kernel. Per
+    row, as here and in ``span_row``, that cost is lost in the noise.
+
+    Called, not inlined: inlined, this loop made the kernel's pinhole rows ~1 % slower (code layout);
+    called, it is itself ~1 % slower. Its flags are the kernel's (``fastmath`` included): the frames are
+    bit-identical to those of the per-pixel helper.
+    """
+    n_i = tile_kind.shape[0]
+    n_j = tile_kind.shape[1]
+    outside = n_pal + 4
+    for u in range(gx_r.shape[0]):
+        level = lv_r[u]
+        if level < 0:
+            continue
+        X = px + cs * gx_r[u] - sn * gy_r[u]
+        Y = py + sn * gx_r[u] + cs * gy_r[u]
+        fi = X * inv_ts
+        fj = Y * inv_ts
+        if fi < 0.0 or fj < 0.0 or fi >= n_i or fj >= n_j:
+            r = pal[outside, 0]
+            g = pal[outside, 1]
+            b = pal[outside, 2]
+        else:
+            ti = int(fi)
+            tj = int(fj)
+            lx = fi - ti
+            ly = fj - tj
+            sz = tex_size >> level
+            kind = tile_kind[ti, tj]
+            if kind < 0:
+                tu = lx
+                tv = ly
+            else:
+                tu = tile_affine[ti, tj, 0] + tile_affine[ti, tj, 1] * lx + tile_affine[ti, tj, 2] * ly
+                tv = tile_affine[ti, tj, 3] + tile_affine[ti, tj, 4] * lx + tile_affine[ti, tj, 5] * ly
+            tx = min(max(int(tu * sz), 0), sz - 1)
+            ty = min(max(int(tv * sz), 0), sz - 1)
+            idx = n_pal + tile_base[ti, tj] if kind < 0 else int(tex[tex_off[kind, level] + ty * sz + tx])
+            gox = int(tile_affine[ti, tj, 6])
+            goy = int(tile_affine[ti, tj, 7])
+            f = 1.0 + grain_amp[level] * grain_n[(((ty + goy) & (GRAIN - 1)) << 6) | ((tx + gox) & (GRAIN - 1))]
+            r = pal[idx, 0] * f
+            g = pal[idx, 1] * f
+            b = pal[idx, 2] * f
+        if first:
+            acc[u, 0] = r
+            acc[u, 1] = g
+            acc[u, 2] = b
+        else:
+            acc[u, 0] += r
+            acc[u, 1] += g
+            acc[u, 2] += b

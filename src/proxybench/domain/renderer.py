@@ -38,7 +38,7 @@ from proxybench.domain.parallelism import (
     threads_available,
 )
 from proxybench.domain.params import DomainParams
-from proxybench.domain.render_ground import GRAIN, gauss_from_hash, grain_table, mix64, pixel_ground, span_row
+from proxybench.domain.render_ground import GRAIN, curve_row, gauss_from_hash, grain_table, mix64, span_row
 from proxybench.domain.render_objects import OBJECT_RANGE, camera_row, cull_objects, draw_object_row, pixel_rays
 from proxybench.domain.textures import marking_textures
 
@@ -132,21 +132,14 @@ def render_rows(
                     span_row(buf, True, X0, Y0, dX, dY, lv_r, 0, w, amp, pal, grain_n, inv_ts, tile_kind,
                               tile_affine, tile_base, tex, tex_off, tex_size, n_pal)
                 else:
+                    curve_row(buf, True, pose_n[k, 0], pose_n[k, 1], cs, sn, gx_r, gy_r, lv_r, amp, pal, grain_n,
+                              inv_ts, tile_kind, tile_affine, tile_base, tex, tex_off, tex_size, n_pal)
                     for u in range(w):
-                        level = lv_r[u]
-                        if level < 0:
+                        if lv_r[u] < 0:
                             m = mix_o[u]
                             buf[u, 0] = sky[n, _HORIZON, 0] * (1.0 - m) + sky[n, _SKY, 0] * m
                             buf[u, 1] = sky[n, _HORIZON, 1] * (1.0 - m) + sky[n, _SKY, 1] * m
                             buf[u, 2] = sky[n, _HORIZON, 2] * (1.0 - m) + sky[n, _SKY, 2] * m
-                            continue
-                        X = pose_n[k, 0] + cs * gx_r[u] - sn * gy_r[u]
-                        Y = pose_n[k, 1] + sn * gx_r[u] + cs * gy_r[u]
-                        r, g, b = pixel_ground(X, Y, level, amp, pal, grain_n, inv_ts, tile_kind, tile_affine,
-                                                tile_base, tex, tex_off, tex_size, n_pal)
-                        buf[u, 0] = r
-                        buf[u, 1] = g
-                        buf[u, 2] = b
                 draw_object_row(buf, hit, tbest, v, pose_n[k, 0] + cs * fwd, pose_n[k, 1] + sn * fwd, hgt, cs, sn,
                                 rays_r, lv_r, prims, vis[n, k], obj_box[n, k], nvis[n, k], gain[n], mat_rgb[n])
                 if k > 0:
@@ -173,22 +166,8 @@ def render_rows(
             for k in range(k_sub):
                 cs = math.cos(pose_n[k, 2])
                 sn = math.sin(pose_n[k, 2])
-                for u in range(w):
-                    level = lv_r[u]
-                    if level < 0:
-                        continue
-                    X = pose_n[k, 0] + cs * gx_r[u] - sn * gy_r[u]
-                    Y = pose_n[k, 1] + sn * gx_r[u] + cs * gy_r[u]
-                    r, g, b = pixel_ground(X, Y, level, amp, pal, grain_n, inv_ts, tile_kind, tile_affine,
-                                            tile_base, tex, tex_off, tex_size, n_pal)
-                    if k == 0:
-                        acc[u, 0] = r
-                        acc[u, 1] = g
-                        acc[u, 2] = b
-                    else:
-                        acc[u, 0] += r
-                        acc[u, 1] += g
-                        acc[u, 2] += b
+                curve_row(acc, k == 0, pose_n[k, 0], pose_n[k, 1], cs, sn, gx_r, gy_r, lv_r, amp, pal, grain_n,
+                          inv_ts, tile_kind, tile_affine, tile_base, tex, tex_off, tex_size, n_pal)
         mix_r = sky_mix[c, v]
         vig_r = vignette[c, v]
         out_r = out[n, v]
