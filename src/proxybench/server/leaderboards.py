@@ -28,7 +28,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import Connection, bindparam, func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from proxybench.server.benchmarks import benchmark_of
@@ -45,13 +45,20 @@ INTERVAL_FACTOR = 8  # ... and at least this many times its build time: rebuildi
 SPLITS = ("public", "hidden")
 
 
-def resolve_version(session: Session, name: str, version: int | None) -> tuple[int, int, int]:
-    """(benchmark id, version, board_version) of a benchmark's newest or given version, in one query."""
-    q = select(BenchmarkVersion.id, BenchmarkVersion.version, BenchmarkVersion.board_version) \
-        .where(BenchmarkVersion.name == name)
-    q = q.order_by(BenchmarkVersion.version.desc()).limit(1) if version is None else \
-        q.where(BenchmarkVersion.version == version)
-    row = session.execute(q).first()
+_BV = BenchmarkVersion.__table__  # plain columns: no ORM annotations to adapt per execution
+_NEWEST = (select(_BV.c.id, _BV.c.version, _BV.c.board_version).where(_BV.c.name == bindparam("name"))
+           .order_by(_BV.c.version.desc()).limit(1))
+_GIVEN = select(_BV.c.id, _BV.c.version, _BV.c.board_version).where(_BV.c.name == bindparam("name"),
+                                                                     _BV.c.version == bindparam("version"))
+
+
+def resolve_version(db: Session | Connection, name: str, version: int | None) -> tuple[int, int, int]:
+    """(benchmark id, version, board_version) of a benchmark's newest or given version, in one query.
+
+    The statements are built once (the leaderboard read runs this on every request): a statement object
+    seen before skips SQLAlchemy's per-execution column matching; ``db`` may be a plain connection."""
+    q, params = (_NEWEST, {"name": name}) if version is None else (_GIVEN, {"name": name, "version": version})
+    row = db.execute(q, params).first()
     if row is None:
         raise ServiceError(404, f"no benchmark named {name!r}" if version is None else
                            f"benchmark {name!r} has no version {version}")
