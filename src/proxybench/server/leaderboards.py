@@ -109,10 +109,9 @@ def build_board(session: Session, bench_id: int, split: str,
     The version is read first: everything it counts was committed before, so the results read after it
     include at least those (a board is never newer than it claims).
     """
-    row = session.get(BenchmarkVersion, bench_id)
+    row = session.get(BenchmarkVersion, bench_id, populate_existing=True)  # read now, even if the session had it
     if row is None:
         raise ServiceError(404, f"no benchmark version {bench_id}")
-    session.refresh(row)
     board_version = row.board_version
     criteria = benchmark_of(row).criteria()
     entries = _read_entries(session, bench_id, split, since)
@@ -252,10 +251,21 @@ class BoardCache:
 
     # -- reading -------------------------------------------------------------------------------------
 
-    def fresh(self, bench_id: int, split: str, board_version: int) -> Board | None:
-        """The board if this process has it built from ``board_version`` (or later), else None."""
-        board = self._boards.get((bench_id, split))
-        return board if board is not None and board.board_version >= board_version else None
+    def cached(self, bench_id: int, split: str, board_version: int) -> tuple[Board, bool] | None:
+        """(board, stale) as :meth:`get` would answer without building anything, or None when it must build.
+
+        Cheap (no query, no build: for the event loop): a fresh board; or a large one that is out of date,
+        whose rebuild is then asked for (served meanwhile, marked stale, as :meth:`get` does)."""
+        key = (bench_id, split)
+        board = self._boards.get(key)
+        if board is None:
+            return None
+        if board.board_version >= board_version:
+            return board, False
+        if len(board.data["rows"]) <= SYNC_BUILD_ROWS:
+            return None
+        self.request(key)
+        return board, True
 
     def get(self, bench_id: int, split: str, board_version: int) -> tuple[Board, bool]:
         """(the board to serve, whether it is older than ``board_version``)."""

@@ -85,10 +85,9 @@ async def get_leaderboard(name: str, request: Request, user: Caller,
     with request.app.state.read_engine.connect() as conn:
         bench_id, _, board_version = resolve_version(conn, name, version)
     boards = request.app.state.boards
-    board = boards.fresh(bench_id, split, board_version)
-    stale = False
-    if board is None:
-        board, stale = await run_in_threadpool(boards.get, bench_id, split, board_version)
+    served = boards.cached(bench_id, split, board_version)  # a large board being rebuilt: no thread hop either
+    board, stale = served if served is not None else await run_in_threadpool(boards.get, bench_id, split,
+                                                                              board_version)
     etag = board.etag[:-1] + '-stale"' if stale else board.etag
     headers = {"ETag": etag, "Cache-Control": "private, max-age=1",
                "Last-Modified": time.strftime("%a, %d %b %Y %H:%M:%S GMT", time.gmtime(board.built_at))}
