@@ -125,10 +125,21 @@ async def _reap(app: FastAPI) -> None:
             print(f"lease reaper: {exc}", file=sys.stderr)
 
 
+def _warm_up() -> None:
+    """Load the compiled leaderboard kernel now: its first call imports Numba and loads the machine code
+    (~0.5 s holding the interpreter), which under load stalled every request of the process."""
+    import numpy as np
+
+    from proxybench.tasks.scoring import Criterion, copeland_counts
+
+    copeland_counts(np.zeros((2, 1)), [Criterion("warm-up", True, 0.0)])
+
+
 @asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     # worker threads for every admitted request (see RequestGate), the board builder and the reaper
     anyio.to_thread.current_default_thread_limiter().total_tokens = app.state.settings.max_concurrent_requests + 2
+    await run_in_threadpool(_warm_up)  # before the process takes requests
     reaper = asyncio.create_task(_reap(app))
     try:
         yield
