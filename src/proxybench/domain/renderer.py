@@ -182,16 +182,20 @@ def render_rows(
             # the common rows, all sky or all ground (pinhole), without per-pixel effects: branch-free loops
             # with the same arithmetic as the general one below
             if is_ground:
+                # flat views and an int32 conversion (exact: the value is in [0.5, 255.5)) let the compiler
+                # vectorise this loop
+                acc_f = acc.reshape(3 * w)
+                dst = out_r.reshape(3 * w)
                 for u in range(w):
-                    r = acc[u, 0] * inv_k
-                    g = acc[u, 1] * inv_k
-                    b = acc[u, 2] * inv_k
+                    r = acc_f[3 * u] * inv_k
+                    g = acc_f[3 * u + 1] * inv_k
+                    b = acc_f[3 * u + 2] * inv_k
                     r += o0
                     g += o1
                     b += o2
-                    out_r[u, 0] = np.uint8(min(max(r, 0.0), 255.0) + 0.5)
-                    out_r[u, 1] = np.uint8(min(max(g, 0.0), 255.0) + 0.5)
-                    out_r[u, 2] = np.uint8(min(max(b, 0.0), 255.0) + 0.5)
+                    dst[3 * u] = np.int32(min(max(r, 0.0), 255.0) + 0.5)
+                    dst[3 * u + 1] = np.int32(min(max(g, 0.0), 255.0) + 0.5)
+                    dst[3 * u + 2] = np.int32(min(max(b, 0.0), 255.0) + 0.5)
             elif sky_slot[c, v] >= 0:
                 src = sky_cache[n, sky_slot[c, v]].reshape(3 * w)
                 dst = out_r.reshape(3 * w)
