@@ -355,6 +355,7 @@ class Renderer:
         self._sky: tuple[np.ndarray, np.ndarray] = (np.full((0, self.height), -1, dtype=np.int64),
                                                     np.zeros((self.n, 0, self.width, 3), dtype=np.uint8))
         self._sky_stale = np.ones(self.n, dtype=np.bool_)
+        self._any_stale = True  # ``_sky_stale.any()``, as a bool (read at every frame)
         self._empty_cull: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         for i, p in enumerate(params):
             self.set_params(i, p)
@@ -369,7 +370,7 @@ class Renderer:
         if p.texture_size != self.tex.size and 1 << round(math.log2(p.texture_size)) != self.tex.size:
             raise ValueError(f"all robots of a batch must share texture_size ({self.tex.size})")
         self.palette[i], self.sky[i], self.offset[i], self.post[i] = _appearance(p, self.tex.palette)
-        self._sky_stale[i] = True
+        self._sky_stale[i] = self._any_stale = True
         self.gain[i] = np.asarray(p.light_rgb) * p.contrast
         self.mat_rgb[i, 1:] = [getattr(p, name) for name in MATERIAL_PARAMS[1:]]
         if p.texture_seed not in self._grain_seeds:
@@ -414,7 +415,7 @@ class Renderer:
                 np.array([camera_row(t.model) for t in self._tables]),
             )
             self._sky = self._sky_slots(self._stack[4])
-            self._sky_stale[:] = True
+            self._sky_stale[:] = self._any_stale = True
         return self._stack
 
     def _sky_slots(self, ground_from: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -433,7 +434,7 @@ class Renderer:
         kernel itself with the cache off, so that the copies are the bytes the kernel would compute."""
         slots, cache = self._sky
         stale = np.flatnonzero(self._sky_stale)
-        self._sky_stale[:] = False
+        self._sky_stale[:] = self._any_stale = False
         if cache.shape[1] == 0:
             return
         off = np.full_like(slots, -1)
@@ -504,7 +505,7 @@ class Renderer:
             k_count, self._grain, self.grain_index, rays, cams, prims, vis, nvis, box, self.gain, self.mat_rgb,
             *self._sky,
         )
-        if self._sky_stale.any():
+        if self._any_stale:
             self._fill_sky(args)
         rows = out.shape[0] * self.height
         work = int(k_count[: out.shape[0]].sum()) * self.height * self.width
