@@ -214,6 +214,40 @@ _values = st.recursive(
 )
 
 
+def test_stream_rejects_an_ill_formed_simple_value_but_not_its_bytes_inside_a_string():
+    """cbor2 decodes ``f8 10`` (a two-byte simple value under 32, ill-formed) without complaint: the stream
+    must still call it garbage, while the same two bytes inside a JPEG byte string are fine."""
+    stream = wire.CborStream()
+    stream.feed(b"\xa1\x61a\xf8\x10")
+    with pytest.raises(wire.GarbageError, match="simple value"):
+        stream.next()
+    stream = wire.CborStream()
+    stream.feed(b"\xa1\x61a\x43\xf8\x10\x00" + bytes.fromhex(OVER))
+    assert stream.next() == {"a": b"\xf8\x10\x00"}
+    assert stream.next() == {"control": "over", "data": None}
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.dictionaries(st.text(max_size=8), _values, max_size=4), min_size=1, max_size=4),
+       st.integers(1, 64), st.booleans())
+def test_stream_returns_each_map_once_whatever_the_chunks(maps, chunk, half_floats):
+    """Maps back to back, fed in arbitrary chunks, come out whole and in order; also for encodings cbor2
+    would not write itself (half-width floats from a foreign encoder)."""
+    parts = [cbor2.dumps(m) for m in maps]
+    if half_floats:
+        parts.append(b"\xa1\x61x\xf9\x3c\x00")  # {"x": 1.0} as a half float
+        maps = [*maps, {"x": 1.0}]
+    data = b"".join(parts)
+    stream = wire.CborStream()
+    got = []
+    for i in range(0, len(data), chunk):
+        stream.feed(data[i:i + chunk])
+        while (m := stream.next()) is not None:
+            got.append(m)
+    assert len(got) == len(maps) and stream.pending == 0
+    assert cbor2.dumps(got) == cbor2.dumps(maps)  # NaN-safe equality
+
+
 @settings(max_examples=300, deadline=None)
 @given(_values)
 def test_item_end_finds_the_end_of_any_item(value):

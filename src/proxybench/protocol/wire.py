@@ -11,8 +11,10 @@ real node rejects an int where a float is declared.
 from __future__ import annotations
 
 import functools
+import io
 import math
 import os
+import re
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -43,6 +45,8 @@ CAPABILITIES = {"z2": {"protocol-reflection": True}}
 DEFAULT_LEDS = {k: {"b": 1.0, "g": 0.0, "r": 0.0} for k in ("center", "back_left", "back_right", "front_left",
                                                              "front_right")}
 _MAX_DEPTH = 256
+#: bytes that may be a two-byte simple value under 32 (ill-formed, RFC 8949 §3.3), which cbor2 accepts
+_SIMPLE_8BIT = re.compile(rb"\xf8[\x00-\x1f]")
 
 
 # ---------------------------------------------------------------------------------------------- errors
@@ -403,19 +407,21 @@ class CborStream:
         return obj
 
     def _fast_map(self, start: int, end: int) -> dict | None:
-        """Decode first, find the end after: if re-encoding the decoded map gives the very bytes that start
-        the buffer, those bytes are the whole item (CBOR items are self-delimiting). True for everything
-        cbor2 and the zuper nodes write, and ~10× faster than scanning headers in Python; anything else
-        (incomplete, other float widths, tags, errors) falls back to :func:`item_end`."""
+        """Decode the item at ``start`` with cbor2, which reads exactly one item from its file, so the file's
+        position afterwards is where the item ends: no Python header scan and no re-encoding (3-10x faster
+        than either). cbor2 accepts one ill-formed encoding the header scan rejects, a two-byte simple value
+        under 32, so an item holding the bytes that may start one is checked by :func:`item_end` too.
+        Anything cbor2 cannot decode here (incomplete, invalid) falls back to :func:`item_end`."""
         with memoryview(self._buf) as mv, mv[start:end] as rest:
-            try:
-                obj = cbor2.loads(rest)
-                enc = cbor2.dumps(obj)
-            except Exception:
-                return None
-            if rest[:len(enc)] != enc:
-                return None
-        self._consume(start + len(enc))
+            fp = io.BytesIO(rest)
+        try:
+            obj = cbor2.CBORDecoder(fp, read_size=1, max_depth=_MAX_DEPTH).decode()  # 1: read no further
+        except Exception:
+            return None
+        stop = start + fp.tell()
+        if _SIMPLE_8BIT.search(self._buf, start, stop) is not None and item_end(self._buf, start, stop) != stop:
+            return None
+        self._consume(stop)
         return obj
 
     def _decode(self, start: int, stop: int) -> Any:
