@@ -15,6 +15,7 @@ import io
 import math
 import os
 import re
+import struct
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -26,9 +27,9 @@ __all__ = [
     "COMPAT", "CTRL_ABORTED", "CTRL_CAPABILITIES", "CTRL_NOT_UNDERSTOOD", "CTRL_OVER", "CTRL_UNDERSTOOD",
     "ENV_DATA_IN", "ENV_DATA_OUT", "BadMessageError", "CborStream", "Control", "GarbageError", "MessageTypeError",
     "NotAMapError", "Topic", "TruncatedError", "WireError", "canonical", "decode_message", "encode_commands",
-    "encode_control", "encode_episode_start", "encode_get_commands", "encode_observations", "encode_seed",
-    "encode_topic", "item_end", "node_timing", "observations_data", "parse_commands", "parse_episode_start",
-    "parse_get_commands", "parse_observations", "parse_seed", "timespec_seconds",
+    "encode_control", "encode_episode_start", "encode_get_commands", "encode_node_timing", "encode_observations",
+    "encode_seed", "encode_topic", "item_end", "node_timing", "observations_data", "parse_commands",
+    "parse_episode_start", "parse_get_commands", "parse_observations", "parse_seed", "timespec_seconds",
 ]
 
 ENV_DATA_IN = "AIDONODE_DATA_IN"
@@ -103,6 +104,39 @@ def encode_topic(topic: str, data: Any, timing: Any = None) -> bytes:
     return cbor2.dumps({"compat": COMPAT, "topic": topic, "data": data, "timing": timing})
 
 
+# The per-step messages are assembled from cached byte pieces instead of building dicts for cbor2 (which
+# costs ~3 µs per call however small the message): the same bytes, 3-5x faster. The tests compare every
+# piece-built message with cbor2's encoding of the dict it stands for.
+_dumps = cbor2.dumps
+_DOUBLE = struct.Struct(">d").pack
+_NO_TIMING = _dumps("timing") + _dumps(None)
+_TIMING = _dumps("timing")
+
+
+def _float(x: float) -> bytes:
+    """cbor2's encoding of a float: an 8-byte float, except NaN and ±inf, which cbor2 writes as half floats."""
+    return b"\xfb" + _DOUBLE(x) if math.isfinite(x) else _dumps(x)
+
+
+def _head(major: int, n: int) -> bytes:
+    """The CBOR header of major type ``major`` with argument ``n`` (0 ≤ n < 2⁶⁴), shortest form."""
+    m = major << 5
+    if n < 24:
+        return bytes((m | n,))
+    if n < 0x100:
+        return bytes((m | 24, n))
+    if n < 0x10000:
+        return bytes((m | 25,)) + n.to_bytes(2, "big")
+    if n < 0x100000000:
+        return bytes((m | 26,)) + n.to_bytes(4, "big")
+    return bytes((m | 27,)) + n.to_bytes(8, "big")
+
+
+def _topic_head(topic: str) -> bytes:
+    """The envelope up to its data: ``{"compat": ["z2"], "topic": topic, "data": ``."""
+    return b"\xa4" + _dumps("compat") + _dumps(COMPAT) + _dumps("topic") + _dumps(topic) + _dumps("data")
+
+
 def decode_message(obj: dict) -> Control | Topic:
     """The envelope of a decoded map; raises :class:`BadMessageError` when it is neither kind."""
     if "control" in obj:
@@ -143,6 +177,29 @@ def node_timing(node: str, start_ns: int, end_ns: int | None = None) -> dict:
     end_ns = time.time_ns() if end_ns is None else end_ns
     spec = {"time": _timespec(start_ns), "clock": "vm", "frame": "epoch", "time2": _timespec(end_ns)}
     return {"processed": {node: spec}}
+
+
+@functools.lru_cache(maxsize=64)
+def _timing_pieces(node: str) -> tuple[bytes, bytes, bytes]:
+    head = b"\xa1" + _dumps("processed") + b"\xa1" + _dumps(node) + b"\xa4" + _dumps("time")
+    return head, _dumps("clock") + _dumps("vm") + _dumps("frame") + _dumps("epoch") + _dumps("time2"), \
+        b"\xa2" + _dumps("s")
+
+
+def _encode_timespec(ns: int, s_key: bytes) -> bytes:
+    if not 0 <= ns < 1 << 64:
+        return _dumps(_timespec(ns))
+    return s_key + _head(0, ns // 1_000_000_000) + _US_KEY + _head(0, ns % 1_000_000_000)
+
+
+_US_KEY = _dumps("us")
+
+
+def encode_node_timing(node: str, start_ns: int, end_ns: int | None = None) -> bytes:
+    """``cbor2.dumps(node_timing(node, start_ns, end_ns))``, built from cached pieces."""
+    end_ns = time.time_ns() if end_ns is None else end_ns
+    head, middle, s_key = _timing_pieces(node)
+    return b"".join((head, _encode_timespec(start_ns, s_key), middle, _encode_timespec(end_ns, s_key)))
 
 
 def timespec_seconds(spec: dict) -> float:
@@ -206,10 +263,25 @@ def observations_data(jpg: bytes, timestamp: float, odometry: tuple[float, float
     return data
 
 
+_OBS_HEAD = (_topic_head("observations"), _dumps("camera") + b"\xa2" + _dumps("jpg_data"))
+_OBS_KEYS = tuple(_dumps(k) for k in ("timestamp", "odometry", "resolution_rad", "axis_left_rad", "axis_right_rad",
+                                      "proxybench"))
+
+
 def encode_observations(jpg: bytes, timestamp: float, odometry: tuple[float, float] | None,
                         resolution: float | None, extras: dict | None = None) -> bytes:
-    """An ``observations`` message (see :func:`observations_data`)."""
-    return encode_topic("observations", observations_data(jpg, timestamp, odometry, resolution, extras))
+    """An ``observations`` message (see :func:`observations_data`), the same bytes as
+    ``encode_topic("observations", observations_data(...))``."""
+    t = _float(float(timestamp))
+    left, right = (math.nan, math.nan) if odometry is None else (float(odometry[0]), float(odometry[1]))
+    k_stamp, k_odo, k_res, k_left, k_right, k_extras = _OBS_KEYS
+    parts = [_OBS_HEAD[0], b"\xa2" if extras is None else b"\xa3", _OBS_HEAD[1], _head(2, len(jpg)), jpg,
+             k_stamp, t, k_odo, b"\xa4", k_res, _float(math.nan if resolution is None else float(resolution)),
+             k_left, _float(left), k_right, _float(right), k_stamp, t]
+    if extras is not None:
+        parts += [k_extras, _dumps(extras)]
+    parts.append(_NO_TIMING)
+    return b"".join(parts)
 
 
 @dataclass(slots=True)
@@ -239,18 +311,29 @@ def parse_observations(data: Any) -> ObservationsData:
     return ObservationsData(jpg, stamp, odometry, resolution, extras)
 
 
+_GET_COMMANDS_HEAD = _topic_head("get_commands") + b"\xa1" + _dumps("at_time")
+
+
 def encode_get_commands(at_time: float) -> bytes:
-    return encode_topic("get_commands", {"at_time": float(at_time)})
+    """``encode_topic("get_commands", {"at_time": float(at_time)})``, from cached pieces."""
+    return _GET_COMMANDS_HEAD + _float(float(at_time)) + _NO_TIMING
 
 
 def parse_get_commands(data: Any) -> float:
     return _need(data, "at_time", _is_float, "a float", "get_commands")
 
 
-def encode_commands(left: float, right: float, timing: dict | None = None) -> bytes:
-    """A ``commands`` message as the recorded node writes it (canonical key order, blue LEDs)."""
-    data = {"LEDS": DEFAULT_LEDS, "wheels": {"motor_left": float(left), "motor_right": float(right)}}
-    return encode_topic("commands", data, timing)
+_COMMANDS_HEAD = _topic_head("commands") + b"\xa2" + _dumps("LEDS") + _dumps(DEFAULT_LEDS) + _dumps("wheels") + \
+    b"\xa2" + _dumps("motor_left")
+_MOTOR_RIGHT = _dumps("motor_right")
+
+
+def encode_commands(left: float, right: float, timing: dict | bytes | None = None) -> bytes:
+    """A ``commands`` message as the recorded node writes it (canonical key order, blue LEDs); the same bytes
+    as ``encode_topic("commands", {"LEDS": DEFAULT_LEDS, "wheels": {...}}, timing)``. ``timing`` may come
+    already encoded (:func:`encode_node_timing`)."""
+    tail = _NO_TIMING if timing is None else _TIMING + (timing if isinstance(timing, bytes) else _dumps(timing))
+    return b"".join((_COMMANDS_HEAD, _float(float(left)), _MOTOR_RIGHT, _float(float(right)), tail))
 
 
 def parse_commands(data: Any) -> np.ndarray:
