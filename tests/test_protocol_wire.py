@@ -323,3 +323,16 @@ def test_language_orders_inputs():
     lang = AgentLanguage()
     lang.push("seed")
     assert lang.check("seed") is not None and lang.check("observations") is not None
+
+
+def test_stream_decodes_ahead_but_consumes_in_order():
+    """Maps after the first in one buffer are decoded in the same pass; ``pending`` still counts them until
+    they are handed out, and a garbage item after good ones is raised only when its turn comes."""
+    good = [bytes.fromhex(UNDERSTOOD), bytes.fromhex(COMMANDS), bytes.fromhex(OVER)] * 5
+    stream = wire.CborStream()
+    stream.feed(b"".join(good) + b"\xa1\x61a\xf8\x10")
+    for k, raw in enumerate(good):
+        assert stream.pending == sum(map(len, good[k:])) + 5
+        assert cbor2.dumps(stream.next()) == raw
+    with pytest.raises(wire.GarbageError, match="simple value"):
+        stream.next()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 import os
 import re
+from collections import deque
 from typing import Any
 
 import cbor2
@@ -20,6 +21,8 @@ __all__ = ["CborStream", "GarbageError", "NotAMapError", "TruncatedError", "Wire
 _MAX_DEPTH = 256
 #: bytes that may be a two-byte simple value under 32 (ill-formed, RFC 8949 §3.3), which cbor2 accepts
 _SIMPLE_8BIT = re.compile(rb"\xf8[\x00-\x1f]")
+#: most maps decoded ahead of the one asked for (an answer to a pipelined step holds 5)
+_AHEAD = 8
 
 
 # ---------------------------------------------------------------------------------------------- errors
@@ -130,10 +133,14 @@ class CborStream:
         self._view = memoryview(self._scratch)
         self.eof = False
         self.bytes_read = 0
+        # one decoder for the stream (building one costs more than decoding a small map); reading one byte at
+        # a time, it stops exactly at the end of the item it decodes
+        self._decoder = cbor2.CBORDecoder(io.BytesIO(b""), read_size=1, max_depth=_MAX_DEPTH)
+        self._ready: deque[tuple[dict, int]] = deque()  # maps decoded ahead, with their sizes in bytes
 
     @property
     def pending(self) -> int:
-        """Buffered bytes not yet returned as messages."""
+        """Buffered bytes not yet returned as messages (those decoded ahead included)."""
         return len(self._buf) - self._start
 
     def feed(self, data: bytes | bytearray | memoryview) -> None:
@@ -156,6 +163,10 @@ class CborStream:
         return n
 
     def next(self) -> dict | None:
+        if self._ready:
+            obj, size = self._ready.popleft()
+            self._consume(self._start + size)
+            return obj
         start, buf = self._start, self._buf
         end = len(buf)
         if start >= end:
@@ -184,16 +195,32 @@ class CborStream:
         position afterwards is where the item ends: no Python header scan and no re-encoding (3-10x faster
         than either). cbor2 accepts one ill-formed encoding the header scan rejects, a two-byte simple value
         under 32, so an item holding the bytes that may start one is checked by :func:`item_end` too.
-        Anything cbor2 cannot decode here (incomplete, invalid) falls back to :func:`item_end`."""
-        with memoryview(self._buf) as mv, mv[start:end] as rest:
-            fp = io.BytesIO(rest)
+        Anything cbor2 cannot decode here (incomplete, invalid) falls back to :func:`item_end`.
+
+        The complete maps that follow in the buffer (the rest of an answer) are decoded in the same pass and
+        handed out by the next calls, at most :data:`_AHEAD` (a flood stays bounded by the caller's message
+        limit); an item that would need a check is left for its own call."""
+        buf, decoder = self._buf, self._decoder
+        with memoryview(buf) as mv, mv[start:end] as rest:
+            decoder.fp = fp = io.BytesIO(rest)
         try:
-            obj = cbor2.CBORDecoder(fp, read_size=1, max_depth=_MAX_DEPTH).decode()  # 1: read no further
+            obj = decoder.decode()
         except Exception:
             return None
         stop = start + fp.tell()
-        if _SIMPLE_8BIT.search(self._buf, start, stop) is not None and item_end(self._buf, start, stop) != stop:
+        if _SIMPLE_8BIT.search(buf, start, stop) is not None and item_end(buf, start, stop) != stop:
             return None
+        pos = stop
+        while pos < end and 0xA0 <= buf[pos] <= 0xBF and len(self._ready) < _AHEAD:
+            try:
+                ahead = decoder.decode()
+            except Exception:
+                break
+            after = start + fp.tell()
+            if _SIMPLE_8BIT.search(buf, pos, after) is not None:
+                break
+            self._ready.append((ahead, after - pos))
+            pos = after
         self._consume(stop)
         return obj
 
