@@ -253,6 +253,19 @@ def test_stream_rejects_an_ill_formed_simple_value_but_not_its_bytes_inside_a_st
     stream.feed(b"\xa1\x61a\x43\xf8\x10\x00" + bytes.fromhex(OVER))
     assert stream.next() == {"a": b"\xf8\x10\x00"}
     assert stream.next() == {"control": "over", "data": None}
+    hidden = [b"\xa1\x81\xf8\x10\x03",  # in an array used as a map key
+              b"\xa1\x61a\xc6\xf8\x10",  # under a tag
+              b"\xa1\x61a\xa1\x61b\x82\x01\xf8\x1f",  # deep in maps and arrays
+              bytes.fromhex(OVER) + b"\xa1\x61a\xf8\x00"]  # decoded ahead after a good map
+    for data in hidden:
+        stream = wire.CborStream()
+        stream.feed(data)
+        with pytest.raises(wire.GarbageError, match="simple value"):
+            while stream.next() is not None:
+                pass
+    stream = wire.CborStream()
+    stream.feed(b"\xa1\x61a\x82\xf0\x43\xf8\x10\x00")  # a well-formed simple value beside the bytes
+    assert stream.next() == {"a": [cbor2.CBORSimpleValue(16), b"\xf8\x10\x00"]}
 
 
 @settings(max_examples=100, deadline=None)
