@@ -86,6 +86,34 @@ def test_commands_match_capture_byte_for_byte():
     data = wire.encode_commands(0.2751303779796318, 0.3248696220203682, timing)
     assert data.hex() == COMMANDS
     assert timing["processed"]["agent"]["time"]["us"] == 555968046  # nanoseconds, as the real node sends
+    # the node's fast path: timing encoded from cached pieces, the same bytes
+    assert wire.encode_node_timing("agent", *COMMANDS_TIMING) == cbor2.dumps(timing)
+    assert wire.encode_commands(0.2751303779796318, 0.3248696220203682,
+                                wire.encode_node_timing("agent", *COMMANDS_TIMING)).hex() == COMMANDS
+
+
+_floats = st.floats() | st.sampled_from([0.0, -0.0, math.nan, math.inf, -math.inf, 5e-324, 1e308])
+_times = st.integers(0, 2**64 - 1) | st.integers(1_700_000_000 * 10**9, 1_900_000_000 * 10**9)
+
+
+@settings(max_examples=300, deadline=None)
+@given(_floats, _floats, _floats, st.none() | st.tuples(_floats, _floats), st.none() | _floats,
+       st.binary(max_size=300) | st.sampled_from([b"\xff" * n for n in (23, 24, 255, 256, 65535, 65536)]),
+       st.none() | st.dictionaries(st.text(max_size=5), st.floats(), max_size=3), _times, _times,
+       st.text(max_size=30))
+def test_piece_built_messages_equal_cbor2_encoding_of_their_dicts(left, right, stamp, odometry, resolution, jpg,
+                                                                  extras, t0, t1, node):
+    """The per-step encoders build bytes from cached pieces; they must be exactly what cbor2 writes for the
+    message's dict (every float width cbor2 picks, every length header size, NaN, ±inf, -0.0)."""
+    assert wire.encode_get_commands(stamp) == wire.encode_topic("get_commands", {"at_time": stamp})
+    assert wire.encode_observations(jpg, stamp, odometry, resolution, extras) == wire.encode_topic(
+        "observations", wire.observations_data(jpg, stamp, odometry, resolution, extras))
+    timing = wire.node_timing(node, t0, t1)
+    assert wire.encode_node_timing(node, t0, t1) == cbor2.dumps(timing)
+    expected = wire.encode_topic("commands", {"LEDS": wire.DEFAULT_LEDS, "wheels": {"motor_left": left,
+                                                                                    "motor_right": right}}, timing)
+    assert wire.encode_commands(left, right, wire.encode_node_timing(node, t0, t1)) == expected
+    assert wire.encode_commands(left, right, timing) == expected
 
 
 def test_describe_protocol_reply_matches_capture():
@@ -214,6 +242,53 @@ _values = st.recursive(
 )
 
 
+def test_stream_rejects_an_ill_formed_simple_value_but_not_its_bytes_inside_a_string():
+    """cbor2 decodes ``f8 10`` (a two-byte simple value under 32, ill-formed) without complaint: the stream
+    must still call it garbage, while the same two bytes inside a JPEG byte string are fine."""
+    stream = wire.CborStream()
+    stream.feed(b"\xa1\x61a\xf8\x10")
+    with pytest.raises(wire.GarbageError, match="simple value"):
+        stream.next()
+    stream = wire.CborStream()
+    stream.feed(b"\xa1\x61a\x43\xf8\x10\x00" + bytes.fromhex(OVER))
+    assert stream.next() == {"a": b"\xf8\x10\x00"}
+    assert stream.next() == {"control": "over", "data": None}
+    hidden = [b"\xa1\x81\xf8\x10\x03",  # in an array used as a map key
+              b"\xa1\x61a\xc6\xf8\x10",  # under a tag
+              b"\xa1\x61a\xa1\x61b\x82\x01\xf8\x1f",  # deep in maps and arrays
+              bytes.fromhex(OVER) + b"\xa1\x61a\xf8\x00"]  # decoded ahead after a good map
+    for data in hidden:
+        stream = wire.CborStream()
+        stream.feed(data)
+        with pytest.raises(wire.GarbageError, match="simple value"):
+            while stream.next() is not None:
+                pass
+    stream = wire.CborStream()
+    stream.feed(b"\xa1\x61a\x82\xf0\x43\xf8\x10\x00")  # a well-formed simple value beside the bytes
+    assert stream.next() == {"a": [cbor2.CBORSimpleValue(16), b"\xf8\x10\x00"]}
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.dictionaries(st.text(max_size=8), _values, max_size=3), min_size=1, max_size=3),
+       st.integers(16, 256), st.booleans())
+def test_stream_returns_each_map_once_whatever_the_chunks(maps, chunk, half_floats):
+    """Maps back to back, fed in arbitrary chunks, come out whole and in order; also for encodings cbor2
+    would not write itself (half-width floats from a foreign encoder)."""
+    parts = [cbor2.dumps(m) for m in maps]
+    if half_floats:
+        parts.append(b"\xa1\x61x\xf9\x3c\x00")  # {"x": 1.0} as a half float
+        maps = [*maps, {"x": 1.0}]
+    data = b"".join(parts)
+    stream = wire.CborStream()
+    got = []
+    for i in range(0, len(data), chunk):
+        stream.feed(data[i:i + chunk])
+        while (m := stream.next()) is not None:
+            got.append(m)
+    assert len(got) == len(maps) and stream.pending == 0
+    assert cbor2.dumps(got) == cbor2.dumps(maps)  # NaN-safe equality
+
+
 @settings(max_examples=300, deadline=None)
 @given(_values)
 def test_item_end_finds_the_end_of_any_item(value):
@@ -261,3 +336,16 @@ def test_language_orders_inputs():
     lang = AgentLanguage()
     lang.push("seed")
     assert lang.check("seed") is not None and lang.check("observations") is not None
+
+
+def test_stream_decodes_ahead_but_consumes_in_order():
+    """Maps after the first in one buffer are decoded in the same pass; ``pending`` still counts them until
+    they are handed out, and a garbage item after good ones is raised only when its turn comes."""
+    good = [bytes.fromhex(UNDERSTOOD), bytes.fromhex(COMMANDS), bytes.fromhex(OVER)] * 5
+    stream = wire.CborStream()
+    stream.feed(b"".join(good) + b"\xa1\x61a\xf8\x10")
+    for k, raw in enumerate(good):
+        assert stream.pending == sum(map(len, good[k:])) + 5
+        assert cbor2.dumps(stream.next()) == raw
+    with pytest.raises(wire.GarbageError, match="simple value"):
+        stream.next()

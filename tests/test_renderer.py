@@ -363,3 +363,31 @@ def test_curved_row_shading_equals_plain_python_reference():
         np.testing.assert_allclose(acc, expected, rtol=1e-9, atol=1e-9)
     assert n_ground > 300 and n_outside > 10  # both the map and the world beyond it were shaded
     assert (levels[0] < 0).any()  # and some pixels were sky, left at -7
+
+
+def test_sky_rows_copied_from_the_cache_equal_shaded_ones(monkeypatch):
+    """All-sky rows come from a per-robot cache of the kernel's own bytes; a change of sky colour, light,
+    camera pitch or lens (``set_params``) must refresh it, and frames equal those shaded at every frame."""
+    import proxybench.domain.renderer as renderer_mod
+
+    variants = [BASE, BASE.replace(sky_rgb=(90.0, 120.0, 250.0), brightness=12.0), BASE.replace(contrast=1.3),
+                BASE.replace(camera_pitch=5.0), BASE.replace(vignetting=0.5), BASE.replace(fisheye=True),
+                BASE.replace(camera_pitch=-10.0, horizon_rgb=(250.0, 200.0, 150.0))]
+
+    def frames() -> list[np.ndarray]:
+        sim = Simulator(STRAIGHT, [BASE, BASE])
+        out = []
+        for k, p in enumerate(variants):
+            sim.set_params(k % 2, p)
+            sim.reset(k % 2, k, pose=POSE)
+            out.append(sim.render().copy())
+        return out
+
+    cached = frames()
+    sim = Simulator(STRAIGHT, BASE)
+    sim.render()
+    assert (sim.renderer._sky[0] >= 0).any() and sim.renderer._sky[1].shape[1] > 0  # the cache is in use
+    monkeypatch.setattr(renderer_mod, "SKY_CACHE_BYTES", 0)
+    shaded = frames()
+    for a, b in zip(cached, shaded, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -105,22 +105,22 @@ class _Core:
         self.sim.step(actions)
         out = ended(self.sim)
         reward, self.terms = lane_following_reward(self.sim.state, self.sim.lane, out & ~was_out, self.weights)
-        terminated = out.copy()
-        truncated = (self.sim.frame_index >= self.max_steps) & ~terminated
-        return reward, terminated, truncated
+        truncated = (self.sim.frame_index >= self.max_steps) & ~out
+        return reward, out, truncated  # ``out`` is a new array: the caller may keep it
 
 
 def _info_one(core: _Core, i: int) -> dict[str, Any]:
-    s = core.sim.state[i]
-    lp = LanePose.from_row(core.sim.lane[i])
+    sim = core.sim
+    s = sim.state[i]
+    lp = LanePose.from_row(sim.lane[i])
     info: dict[str, Any] = {
         "pose": s[:3].copy(),
         "velocity": s[3:5].copy(),
         "lane_pose": lp,
         "wheels_in_lane": np.array([lp.left_in_lane, lp.right_in_lane]),
-        "on_road": bool(lp.on_road),
-        "collision": bool(core.sim.collided[i]),
-        "time": float(core.sim.time[i]),
+        "on_road": lp.on_road,
+        "collision": bool(sim.collided[i]),
+        "time": float(sim.frame_index[i] * sim.frame_dt),  # ``sim.time[i]`` without the (N,) array
     }
     if hasattr(core, "terms"):
         info["reward_terms"] = {k: float(v[i]) for k, v in core.terms.items()}

@@ -256,19 +256,20 @@ class LanePose:
 
     @staticmethod
     def from_row(row: np.ndarray) -> LanePose:
+        r = row.tolist()  # Python floats: converting those is several times cheaper than NumPy scalars
         return LanePose(
-            valid=bool(row[LP.VALID]),
-            segment=int(row[LP.SEGMENT]),
-            along=float(row[LP.ALONG]),
-            lateral=float(row[LP.LATERAL]),
-            heading_error=float(row[LP.HEADING_ERROR]),
-            left_in_lane=bool(row[LP.LEFT_IN_LANE]),
-            right_in_lane=bool(row[LP.RIGHT_IN_LANE]),
-            left_on_road=bool(row[LP.LEFT_ON_ROAD]),
-            right_on_road=bool(row[LP.RIGHT_ON_ROAD]),
-            on_road=bool(row[LP.ON_ROAD]),
-            tile=(int(row[LP.TILE_I]), int(row[LP.TILE_J])),
-            curvature=float(row[LP.CURVATURE]),
+            valid=bool(r[LP.VALID]),
+            segment=int(r[LP.SEGMENT]),
+            along=r[LP.ALONG],
+            lateral=r[LP.LATERAL],
+            heading_error=r[LP.HEADING_ERROR],
+            left_in_lane=bool(r[LP.LEFT_IN_LANE]),
+            right_in_lane=bool(r[LP.RIGHT_IN_LANE]),
+            left_on_road=bool(r[LP.LEFT_ON_ROAD]),
+            right_on_road=bool(r[LP.RIGHT_ON_ROAD]),
+            on_road=bool(r[LP.ON_ROAD]),
+            tile=(int(r[LP.TILE_I]), int(r[LP.TILE_J])),
+            curvature=r[LP.CURVATURE],
         )
 
 

@@ -54,7 +54,7 @@ def render_rows(
     lo, hi, out, poses, cam_index, linear, gx, gy, level_map, ground_from, sky_mix, vignette,
     tile_kind, tile_affine, tile_base, inv_ts, tex, tex_off, tex_size,
     palette, sky, offset, post, seeds, frames, k_count, grain, grain_index,
-    rays, cams, prims, vis, nvis, obj_box, gain, mat_rgb,
+    rays, cams, prims, vis, nvis, obj_box, gain, mat_rgb, sky_slot, sky_cache,
 ):
     """Render image rows ``lo .. hi - 1`` of the batch (row r is row r % H of robot r // H) into ``out``.
 
@@ -72,6 +72,10 @@ def render_rows(
     sub-frame culling (``cull_objects``); ``gain[n]`` is robot n's light × contrast and ``mat_rgb[n]`` its
     colours of the object materials (``objects.MATERIAL_PARAMS``). Rows no visible
     primitive's box touches take exactly the object-free path.
+
+    Sky: row v of camera c is all sky and ``sky_slot[c, v] >= 0``: where this kernel would shade it
+    without per-pixel effects, it copies ``sky_cache[n, sky_slot[c, v]]`` instead, the bytes this kernel
+    wrote for that row before (``Renderer._fill_sky``: they depend on the robot's appearance only).
     """
     h, w = out.shape[1], out.shape[2]
     n_pal = palette.shape[1] - 5
@@ -178,16 +182,25 @@ def render_rows(
             # the common rows, all sky or all ground (pinhole), without per-pixel effects: branch-free loops
             # with the same arithmetic as the general one below
             if is_ground:
+                # flat views and an int32 conversion (exact: the value is in [0.5, 255.5)) let the compiler
+                # vectorise this loop
+                acc_f = acc.reshape(3 * w)
+                dst = out_r.reshape(3 * w)
                 for u in range(w):
-                    r = acc[u, 0] * inv_k
-                    g = acc[u, 1] * inv_k
-                    b = acc[u, 2] * inv_k
+                    r = acc_f[3 * u] * inv_k
+                    g = acc_f[3 * u + 1] * inv_k
+                    b = acc_f[3 * u + 2] * inv_k
                     r += o0
                     g += o1
                     b += o2
-                    out_r[u, 0] = np.uint8(min(max(r, 0.0), 255.0) + 0.5)
-                    out_r[u, 1] = np.uint8(min(max(g, 0.0), 255.0) + 0.5)
-                    out_r[u, 2] = np.uint8(min(max(b, 0.0), 255.0) + 0.5)
+                    dst[3 * u] = np.int32(min(max(r, 0.0), 255.0) + 0.5)
+                    dst[3 * u + 1] = np.int32(min(max(g, 0.0), 255.0) + 0.5)
+                    dst[3 * u + 2] = np.int32(min(max(b, 0.0), 255.0) + 0.5)
+            elif sky_slot[c, v] >= 0:
+                src = sky_cache[n, sky_slot[c, v]].reshape(3 * w)
+                dst = out_r.reshape(3 * w)
+                for i in range(3 * w):
+                    dst[i] = src[i]
             else:
                 h0, h1, h2 = sky[n, _HORIZON, 0], sky[n, _HORIZON, 1], sky[n, _HORIZON, 2]
                 s0, s1, s2 = sky[n, _SKY, 0], sky[n, _SKY, 1], sky[n, _SKY, 2]
@@ -236,7 +249,7 @@ def render_parallel(
     workers, counter, chunk, out, poses, cam_index, linear, gx, gy, level_map, ground_from, sky_mix, vignette,
     tile_kind, tile_affine, tile_base, inv_ts, tex, tex_off, tex_size,
     palette, sky, offset, post, seeds, frames, k_count, grain, grain_index,
-    rays, cams, prims, vis, nvis, obj_box, gain, mat_rgb,
+    rays, cams, prims, vis, nvis, obj_box, gain, mat_rgb, sky_slot, sky_cache,
 ):
     """:func:`render_rows` of the whole batch on ``workers`` threads, each taking ``chunk`` rows at a time
     from ``counter[0]`` (0 on entry) until none are left (see ``proxybench.domain.parallelism``)."""
@@ -250,7 +263,7 @@ def render_parallel(
                 lo, min(lo + chunk, total), out, poses, cam_index, linear, gx, gy, level_map, ground_from, sky_mix,
                 vignette, tile_kind, tile_affine, tile_base, inv_ts, tex, tex_off, tex_size, palette, sky, offset,
                 post, seeds, frames, k_count, grain, grain_index, rays, cams, prims, vis, nvis, obj_box, gain,
-                mat_rgb,
+                mat_rgb, sky_slot, sky_cache,
             )
 
 
@@ -283,6 +296,17 @@ def _tile_affine(lanes: LaneArrays) -> np.ndarray:
     w, h = unturn.shape
     offsets = np.random.default_rng(0x7E57).integers(0, GRAIN, (w, h, 2)).astype(np.float64)
     return np.ascontiguousarray(np.concatenate([_QUARTER_TURNS[unturn], offsets], axis=-1))
+
+
+def _as(a, dtype) -> np.ndarray:
+    """``np.asarray(a).astype(dtype)``, without the copy when ``a`` already is such an array."""
+    return a if isinstance(a, np.ndarray) and a.dtype == dtype else np.asarray(a).astype(dtype)
+
+
+#: largest sky-row cache a renderer keeps [bytes] (beyond it, all sky rows are shaded at every frame)
+SKY_CACHE_BYTES = 64 << 20
+#: positions in the kernel's argument list (after ``lo``, ``hi``) of the arrays indexed by robot
+_ROBOT_ARGS = (1, 2, 17, 18, 19, 20, 21, 22, 25, 32, 33)
 
 
 class Renderer:
@@ -328,6 +352,11 @@ class Renderer:
         self._grain = np.zeros((0, GRAIN * GRAIN), dtype=np.float32)
         self._tables: list[CameraTable] = []
         self._stack: tuple[np.ndarray, ...] | None = None
+        self._sky: tuple[np.ndarray, np.ndarray] = (np.full((0, self.height), -1, dtype=np.int64),
+                                                    np.zeros((self.n, 0, self.width, 3), dtype=np.uint8))
+        self._sky_stale = np.ones(self.n, dtype=np.bool_)
+        self._any_stale = True  # ``_sky_stale.any()``, as a bool (read at every frame)
+        self._empty_cull: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         for i, p in enumerate(params):
             self.set_params(i, p)
 
@@ -341,6 +370,7 @@ class Renderer:
         if p.texture_size != self.tex.size and 1 << round(math.log2(p.texture_size)) != self.tex.size:
             raise ValueError(f"all robots of a batch must share texture_size ({self.tex.size})")
         self.palette[i], self.sky[i], self.offset[i], self.post[i] = _appearance(p, self.tex.palette)
+        self._sky_stale[i] = self._any_stale = True
         self.gain[i] = np.asarray(p.light_rgb) * p.contrast
         self.mat_rgb[i, 1:] = [getattr(p, name) for name in MATERIAL_PARAMS[1:]]
         if p.texture_seed not in self._grain_seeds:
@@ -352,6 +382,15 @@ class Renderer:
             self._tables.append(table)
             self._stack = None
         self.cam_index[i] = next(k for k, t in enumerate(self._tables) if t is table)
+
+    def _no_objects(self, n_k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Empty culling arrays (vis, nvis, box) for ``n_k`` sub-frames, kept between frames."""
+        cached = self._empty_cull
+        if cached is None or cached[1].shape != (self.n, n_k):
+            cached = self._empty_cull = (np.empty((self.n, n_k, 0), dtype=np.int64),
+                                         np.zeros((self.n, n_k), dtype=np.int64),
+                                         np.empty((self.n, n_k, 0, 4), dtype=np.int64))
+        return cached
 
     def _prepare(self) -> tuple[np.ndarray, ...]:
         if self._stack is None:
@@ -375,7 +414,48 @@ class Renderer:
                 np.stack([pixel_rays(t.model) for t in self._tables]),
                 np.array([camera_row(t.model) for t in self._tables]),
             )
+            self._sky = self._sky_slots(self._stack[4])
+            self._sky_stale[:] = self._any_stale = True
         return self._stack
+
+    def _sky_slots(self, ground_from: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(sky_slot (C, H), an empty sky cache (N, S, W, 3)) for cameras whose all-sky rows are
+        ``ground_from >= W``; no slots (all -1) when the cache would pass ``SKY_CACHE_BYTES``."""
+        all_sky = ground_from >= self.width
+        slots = np.where(all_sky, np.cumsum(all_sky, axis=1) - 1, -1).astype(np.int64)
+        depth = int(all_sky.sum(axis=1).max(initial=0))
+        if self.n * depth * self.width * 3 > SKY_CACHE_BYTES:
+            slots[:] = -1
+            depth = 0
+        return slots, np.zeros((self.n, depth, self.width, 3), dtype=np.uint8)
+
+    def _fill_sky(self, args: tuple) -> None:
+        """Store the all-sky rows of the robots whose appearance changed in the sky cache, rendered by the
+        kernel itself with the cache off, so that the copies are the bytes the kernel would compute."""
+        slots, cache = self._sky
+        stale = np.flatnonzero(self._sky_stale)
+        self._sky_stale[:] = self._any_stale = False
+        if cache.shape[1] == 0:
+            return
+        off = np.full_like(slots, -1)
+        for n in stale.tolist():
+            rows = np.flatnonzero(slots[self.cam_index[n]] >= 0)
+            if not rows.size or self.post[n, 1] > 0.0 or self.post[n, 2] > 0.0:
+                continue  # noise or vignetting: the kernel computes every pixel, never copies
+            one = slice(n, n + 1)
+            n_k = args[1].shape[1]
+            a = list(args)
+            a[0] = scratch = np.empty((1, self.height, self.width, 3), dtype=np.uint8)
+            for j in _ROBOT_ARGS:
+                a[j] = args[j][one]
+            a[23] = np.ones(1, dtype=np.int64)  # k_count
+            a[29:32] = (np.empty((1, n_k, 0), dtype=np.int64), np.zeros((1, n_k), dtype=np.int64),
+                        np.empty((1, n_k, 0, 4), dtype=np.int64))  # no objects
+            a[34] = off
+            breaks = np.flatnonzero(np.diff(rows) != 1) + 1
+            for run in np.split(rows, breaks):
+                render_rows(int(run[0]), int(run[-1]) + 1, *a)
+            cache[n, slots[self.cam_index[n], rows]] = scratch[0, rows]
 
     def render(
         self, poses: np.ndarray, seeds: np.ndarray, frames: np.ndarray, out: np.ndarray | None = None,
@@ -407,21 +487,26 @@ class Renderer:
         else:
             ranges = np.zeros((self.n, 4), dtype=np.int64)
         k_count = np.asarray(k_count, dtype=np.int64)
-        n_k = poses.shape[1]
-        vis = np.empty((self.n, n_k, prims.shape[0]), dtype=np.int64)
-        nvis = np.zeros((self.n, n_k), dtype=np.int64)
-        box = np.empty((self.n, n_k, prims.shape[0], 4), dtype=np.int64)
         poses = np.ascontiguousarray(poses, dtype=np.float64)
         if prims.shape[0]:
+            n_k = poses.shape[1]
+            vis = np.empty((self.n, n_k, prims.shape[0]), dtype=np.int64)
+            nvis = np.zeros((self.n, n_k), dtype=np.int64)
+            box = np.empty((self.n, n_k, prims.shape[0], 4), dtype=np.int64)
             cull_objects(poses, k_count, self.cam_index, cams, prims, n_static, ranges, self.object_range, self.width,
                          self.height, vis, nvis, box)
+        else:  # nothing to draw: the kernel reads only ``nvis`` (all zero), so these are reused, never written
+            vis, nvis, box = self._no_objects(poses.shape[1])
         args = (
             out, poses, self.cam_index, linear, gx, gy, level_map,
             ground_from, sky_mix, vignette, la.tile_kind, self._affine, self._base, 1.0 / la.tile_size,
             tx.texels, tx.offsets, tx.size, self.palette, self.sky, self.offset, self.post,
-            np.asarray(seeds).astype(np.uint64), np.asarray(frames).astype(np.int64),
+            _as(seeds, np.uint64), _as(frames, np.int64),
             k_count, self._grain, self.grain_index, rays, cams, prims, vis, nvis, box, self.gain, self.mat_rgb,
+            *self._sky,
         )
+        if self._any_stale:
+            self._fill_sky(args)
         rows = out.shape[0] * self.height
         work = int(k_count[: out.shape[0]].sum()) * self.height * self.width
         # one thread or all, by timing both on batches of this size (domain.parallelism)

@@ -337,7 +337,7 @@ class Simulator:
         own = trace
         if w.k or (trace is None and check):
             trace = self._trace  # every row; collisions are checked at every physics tick, from the trace
-        tick0 = self.tick.copy()
+        tick0 = self.tick.copy() if dynamic else None
         physics_ticks(
             self._state, self.dyn, self._commands, self.cmd_hist, self.applied_tick, self.tick, self._seeds,
             self.substeps, self.pose_hist, a.tile_kind, a.curve_corner, a.tile_size,
@@ -358,7 +358,7 @@ class Simulator:
     def _update_lane(self, idx: np.ndarray | None) -> None:
         a = self.arrays
         poses = np.ascontiguousarray(self._state[:, :3] if idx is None else self._state[idx, :3])
-        out = np.empty((poses.shape[0], LP.N))
+        out = self._lane if idx is None else np.empty((poses.shape[0], LP.N))  # all rows: in place
         half = 0.5 * (self.dyn[:, _WHEEL_DISTANCE] if idx is None else self.dyn[idx, _WHEEL_DISTANCE])
         _lane_poses(
             poses, half, a.seg_kind, a.seg_f, a.tile_segs, a.tile_kind, a.curve_corner, a.tile_size,
@@ -367,9 +367,7 @@ class Simulator:
         if self.routes.active:  # maps with intersections: pin the lane pose to each robot's chosen exit
             which = np.arange(self.worlds.rows) if idx is None else idx
             self.routes.update(which, poses, half, out, self._frame_index[which] * self.frame_dt)
-        if idx is None:
-            self._lane[:] = out
-        else:
+        if idx is not None:
             self._lane[idx] = out
 
     def enable_rendering(self) -> None:

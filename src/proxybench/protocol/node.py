@@ -227,7 +227,7 @@ class AgentNode(NodeLogic):
         action = np.asarray(self.agent.act(obs), dtype=np.float64).reshape(-1)
         if action.shape != (2,):
             raise ValueError(f"act() must return 2 wheel commands, got shape {action.shape}")
-        return [wire.encode_commands(action[0], action[1], wire.node_timing(self.name, start))]
+        return [wire.encode_commands(action[0], action[1], wire.encode_node_timing(self.name, start))]
 
     def _node_description(self) -> str:
         doc = (type(self.agent).__doc__ or type(self.agent).__name__).strip()
