@@ -125,10 +125,21 @@ async def _reap(app: FastAPI) -> None:
             print(f"lease reaper: {exc}", file=sys.stderr)
 
 
+def _warm_up() -> None:
+    """Load the compiled leaderboard kernel now: its first call imports Numba and loads the machine code
+    (~0.5 s holding the interpreter), which under load stalled every request of the process."""
+    import numpy as np
+
+    from proxybench.tasks.scoring import Criterion, copeland_counts
+
+    copeland_counts(np.zeros((2, 1)), [Criterion("warm-up", True, 0.0)])
+
+
 @asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     # worker threads for every admitted request (see RequestGate), the board builder and the reaper
     anyio.to_thread.current_default_thread_limiter().total_tokens = app.state.settings.max_concurrent_requests + 2
+    await run_in_threadpool(_warm_up)  # before the process takes requests
     reaper = asyncio.create_task(_reap(app))
     try:
         yield
@@ -138,6 +149,7 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
         if app.state.write_turn is not None:
             app.state.write_turn.close()
         app.state.engine.dispose()
+        app.state.read_engine.dispose()
 
 
 def create_app(settings: Settings | None = None, *, prepared: bool = False) -> FastAPI:
@@ -146,6 +158,9 @@ def create_app(settings: Settings | None = None, *, prepared: bool = False) -> F
     settings = settings or Settings.from_env()
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     engine = make_engine(settings.url, pool_size=settings.max_concurrent_requests + 4)
+    # reads (GET) on autocommit connections of their own: one round trip per query, nothing to reset
+    read_engine = make_engine(settings.url, pool_size=settings.max_concurrent_requests + 2, autocommit=True,
+                              max_overflow=4)
     if not prepared:
         migrate(engine)
     factory = sessionmaker(engine, expire_on_commit=False)
@@ -155,8 +170,8 @@ def create_app(settings: Settings | None = None, *, prepared: bool = False) -> F
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessions = factory
-    app.state.read_sessions = sessionmaker(engine.execution_options(isolation_level="AUTOCOMMIT"),
-                                           expire_on_commit=False)
+    app.state.read_engine = read_engine
+    app.state.read_sessions = sessionmaker(read_engine, expire_on_commit=False)
     app.state.store = ArtifactStore(settings.artifact_dir)
     sqlite = settings.url.startswith("sqlite")
     app.state.write_turn = WriteTurn(settings.data_dir / "write.lock" if settings.workers > 1 else None) \

@@ -18,15 +18,18 @@ __all__ = ["make_engine", "migrate", "session_scope"]
 _MIGRATIONS = Path(__file__).with_name("migrations")
 
 
-def make_engine(url: str, pool_size: int = 12) -> Engine:
+def make_engine(url: str, pool_size: int = 12, *, autocommit: bool = False, max_overflow: int = 8) -> Engine:
     """An engine tuned for a server with many short transactions from many threads.
 
     ``pool_size`` connections are always enough when at most ``pool_size`` sessions are open at once
     (the app admits fewer requests than that); a few more may be opened briefly by other callers.
+    ``autocommit``: every statement commits on its own (no BEGIN / ROLLBACK round trips): for the
+    server's reads, on connections of their own, so none is switched back and forth per request.
     """
+    options = {"isolation_level": "AUTOCOMMIT"} if autocommit else {}
     if url.startswith("sqlite"):
         engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30},
-                               pool_size=pool_size, max_overflow=8)
+                               pool_size=pool_size, max_overflow=max_overflow, **options)
 
         @event.listens_for(engine, "connect")
         def _pragmas(conn, _record) -> None:  # WAL: readers never block the writer
@@ -40,7 +43,7 @@ def make_engine(url: str, pool_size: int = 12) -> Engine:
         return engine
     # no pre-ping (a round trip per request); a connection that died with a database restart fails one
     # request (a 500, retried by clients) and SQLAlchemy then replaces the whole pool
-    return create_engine(url, pool_size=pool_size, max_overflow=8, pool_recycle=3600)
+    return create_engine(url, pool_size=pool_size, max_overflow=max_overflow, pool_recycle=3600, **options)
 
 
 def migrate(engine: Engine) -> None:

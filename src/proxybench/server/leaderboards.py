@@ -28,7 +28,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import Connection, bindparam, func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from proxybench.server.benchmarks import benchmark_of
@@ -45,13 +45,20 @@ INTERVAL_FACTOR = 8  # ... and at least this many times its build time: rebuildi
 SPLITS = ("public", "hidden")
 
 
-def resolve_version(session: Session, name: str, version: int | None) -> tuple[int, int, int]:
-    """(benchmark id, version, board_version) of a benchmark's newest or given version, in one query."""
-    q = select(BenchmarkVersion.id, BenchmarkVersion.version, BenchmarkVersion.board_version) \
-        .where(BenchmarkVersion.name == name)
-    q = q.order_by(BenchmarkVersion.version.desc()).limit(1) if version is None else \
-        q.where(BenchmarkVersion.version == version)
-    row = session.execute(q).first()
+_BV = BenchmarkVersion.__table__  # plain columns: no ORM annotations to adapt per execution
+_NEWEST = (select(_BV.c.id, _BV.c.version, _BV.c.board_version).where(_BV.c.name == bindparam("name"))
+           .order_by(_BV.c.version.desc()).limit(1))
+_GIVEN = select(_BV.c.id, _BV.c.version, _BV.c.board_version).where(_BV.c.name == bindparam("name"),
+                                                                     _BV.c.version == bindparam("version"))
+
+
+def resolve_version(db: Session | Connection, name: str, version: int | None) -> tuple[int, int, int]:
+    """(benchmark id, version, board_version) of a benchmark's newest or given version, in one query.
+
+    The statements are built once (the leaderboard read runs this on every request): a statement object
+    seen before skips SQLAlchemy's per-execution column matching; ``db`` may be a plain connection."""
+    q, params = (_NEWEST, {"name": name}) if version is None else (_GIVEN, {"name": name, "version": version})
+    row = db.execute(q, params).first()
     if row is None:
         raise ServiceError(404, f"no benchmark named {name!r}" if version is None else
                            f"benchmark {name!r} has no version {version}")
@@ -102,10 +109,9 @@ def build_board(session: Session, bench_id: int, split: str,
     The version is read first: everything it counts was committed before, so the results read after it
     include at least those (a board is never newer than it claims).
     """
-    row = session.get(BenchmarkVersion, bench_id)
+    row = session.get(BenchmarkVersion, bench_id, populate_existing=True)  # read now, even if the session had it
     if row is None:
         raise ServiceError(404, f"no benchmark version {bench_id}")
-    session.refresh(row)
     board_version = row.board_version
     criteria = benchmark_of(row).criteria()
     entries = _read_entries(session, bench_id, split, since)
@@ -245,10 +251,21 @@ class BoardCache:
 
     # -- reading -------------------------------------------------------------------------------------
 
-    def fresh(self, bench_id: int, split: str, board_version: int) -> Board | None:
-        """The board if this process has it built from ``board_version`` (or later), else None."""
-        board = self._boards.get((bench_id, split))
-        return board if board is not None and board.board_version >= board_version else None
+    def cached(self, bench_id: int, split: str, board_version: int) -> tuple[Board, bool] | None:
+        """(board, stale) as :meth:`get` would answer without building anything, or None when it must build.
+
+        Cheap (no query, no build: for the event loop): a fresh board; or a large one that is out of date,
+        whose rebuild is then asked for (served meanwhile, marked stale, as :meth:`get` does)."""
+        key = (bench_id, split)
+        board = self._boards.get(key)
+        if board is None:
+            return None
+        if board.board_version >= board_version:
+            return board, False
+        if len(board.data["rows"]) <= SYNC_BUILD_ROWS:
+            return None
+        self.request(key)
+        return board, True
 
     def get(self, bench_id: int, split: str, board_version: int) -> tuple[Board, bool]:
         """(the board to serve, whether it is older than ``board_version``)."""

@@ -180,6 +180,8 @@ def finish(session: Session, job_id: int, upload: ResultUpload, evaluator: Evalu
                     public_report=upload.public_report, hidden_report=upload.hidden_report,
                     message=upload.message, created_at=time.time())
     session.add(result)
+    _release(job, status, result.message)  # before the flush: one UPDATE per row (a failed flush rolls back)
+    evaluator.jobs_done += 1
     try:
         session.flush()
     except IntegrityError:  # a concurrent retry of the same upload won the race
@@ -188,8 +190,6 @@ def finish(session: Session, job_id: int, upload: ResultUpload, evaluator: Evalu
         if again is not None and again.lease_id == lease_id:
             return again, False
         raise ServiceError(409, f"job {job_id} already has a result") from None
-    _release(job, status, result.message)
-    evaluator.jobs_done += 1
     log_event(session, job, status, evaluator.id, result.message[:500])
     if status == "success":
         bump_boards(session, [job.benchmark_id])

@@ -16,7 +16,7 @@ from sqlalchemy.orm import Session
 from proxybench.agents.package import AgentManifest
 from proxybench.server.benchmarks import benchmark_of, latest
 from proxybench.server.errors import ServiceError
-from proxybench.server.models import BenchmarkPath, Job, Result, Submission, User
+from proxybench.server.models import BenchmarkPath, BenchmarkVersion, Job, Result, Submission, User
 from proxybench.server.paths import PathSpec, Step
 from proxybench.server.queue import abort_jobs, log_event
 
@@ -43,9 +43,14 @@ def _check_limit(session: Session, user: User, default_limit: int) -> None:
         raise ServiceError(429, f"daily submission limit reached: {n} of {limit} in the last 24 h for {user.name!r}")
 
 
-def _queue(session: Session, sub: Submission, step: Step, max_attempts: int) -> Job:
-    bench = latest(session, step.benchmark)
-    job = Job(submission_id=sub.id, benchmark_id=bench.id, step=step.id,
+def _queue(session: Session, sub: Submission, step: Step, max_attempts: int,
+           bench: BenchmarkVersion | None = None) -> Job:
+    """Queue a step's job (on ``bench``, the step's newest benchmark version, when the caller has it).
+
+    The job is linked through its relationships, so the submission's job list and the job's benchmark
+    are known in memory (the reply shows them without loading them again)."""
+    bench = bench if bench is not None else latest(session, step.benchmark)
+    job = Job(submission=sub, benchmark=bench, step=step.id,
               features=sorted(set(step.features) | set(bench.features)), status="queued",
               max_attempts=max_attempts, created_at=time.time())
     session.add(job)
@@ -71,8 +76,9 @@ def create_submission(session: Session, user: User, *, label: str, description: 
         if agent_name not in ZOO:
             raise ServiceError(422, f"field 'agent': no built-in agent {agent_name!r} (known: {', '.join(ZOO)})")
     spec = path_spec(session, path) if path is not None else PathSpec(steps=[Step(id="main", benchmark=benchmark)])
+    rows = {name: latest(session, name) for name in {step.benchmark for step in spec.steps}}  # 404 now, not later
     for step in spec.steps:
-        bench = benchmark_of(latest(session, step.benchmark))  # 404 now, not when the step opens
+        bench = benchmark_of(rows[step.benchmark])
         if agent_name is not None and bench.camera_only and ZOO[agent_name].privileged:
             raise ServiceError(422, f"field 'agent': {agent_name!r} is privileged (reads the true lane pose); "
                                     f"benchmark {bench.name!r} admits camera-only agents")
@@ -83,11 +89,12 @@ def create_submission(session: Session, user: User, *, label: str, description: 
         abort_jobs(session, old, f"retired by a newer submission with label {label!r}")
     sub = Submission(user_id=user.id, label=label, description=description, agent_name=agent_name,
                      archive_sha256=archive_sha256, manifest=manifest.model_dump() if manifest else None,
-                     path_name=path, benchmark_name=benchmark, status="active", created_at=time.time())
+                     path_name=path, benchmark_name=benchmark, status="active", created_at=time.time(),
+                     jobs=[])  # known empty: its jobs are listed from memory, not loaded
     session.add(sub)
     session.flush()
     for step in spec.roots():
-        _queue(session, sub, step, max_attempts)
+        _queue(session, sub, step, max_attempts, rows[step.benchmark])
     return sub
 
 

@@ -43,14 +43,20 @@ def job_view(j: Job) -> dict[str, Any]:
             "finished_at": j.finished_at}
 
 
-def submission_view(session: Session, s: Submission, superuser: bool, *, details: bool = True) -> dict[str, Any]:
+def submission_view(session: Session, s: Submission, superuser: bool, *, details: bool = True,
+                    owner: User | None = None, new: bool = False) -> dict[str, Any]:
+    """A submission as the API shows it. ``owner``: its user when the caller has it (no query for the name);
+    ``new``: created in this transaction, so it has no results yet (no query for them)."""
     out: dict[str, Any] = {
-        "id": s.id, "label": s.label, "description": s.description, "user": s.user.name, "status": s.status,
+        "id": s.id, "label": s.label, "description": s.description,
+        "user": owner.name if owner is not None and owner.id == s.user_id else s.user.name, "status": s.status,
         "agent": s.agent_name, "archive_sha256": s.archive_sha256, "manifest": s.manifest,
         "benchmark": s.benchmark_name, "path": s.path_name, "created_at": s.created_at,
         "jobs": [job_view(j) for j in s.jobs],
     }
-    if details:
+    if details and new:
+        out["results"] = []
+    elif details:
         results = session.scalars(select(Result).where(Result.submission_id == s.id).order_by(Result.id)).all()
         out["results"] = [result_view(session, r, superuser) for r in results]
     return out

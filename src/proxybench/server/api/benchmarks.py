@@ -69,7 +69,7 @@ def list_paths(session: DB, _: Caller) -> list[dict]:
 
 @router.get("/leaderboards/{name}", response_model=LeaderboardOut,
             responses={304: {"description": "not modified since the ETag sent in If-None-Match"}})
-async def get_leaderboard(name: str, request: Request, session: DB, user: Caller,
+async def get_leaderboard(name: str, request: Request, user: Caller,
                           split: Literal["public", "hidden"] = "public", version: Version = None,
                           limit: Annotated[int, Query(ge=1, le=10_000, description="rows per page")] = 100,
                           offset: Annotated[int, Query(ge=0, le=MAX_ID)] = 0) -> Response:
@@ -78,15 +78,16 @@ async def get_leaderboard(name: str, request: Request, session: DB, user: Caller
     when it last changed, with an ETag (send it back in If-None-Match: 304 when unchanged).
 
     The hot path of the server: on the event loop (one indexed query and a dictionary lookup; a thread
-    hop would cost more), unless the board must be built first."""
+    hop would cost more), unless the board must be built first. The query runs on a pooled autocommit
+    connection (no ORM session: a third of the cost of the same query through one)."""
     if split == "hidden" and user.role != "superuser":
         raise ServiceError(403, "hidden (test) scores are visible to super-users only")
-    bench_id, _, board_version = resolve_version(session, name, version)
+    with request.app.state.read_engine.connect() as conn:
+        bench_id, _, board_version = resolve_version(conn, name, version)
     boards = request.app.state.boards
-    board = boards.fresh(bench_id, split, board_version)
-    stale = False
-    if board is None:
-        board, stale = await run_in_threadpool(boards.get, bench_id, split, board_version)
+    served = boards.cached(bench_id, split, board_version)  # a large board being rebuilt: no thread hop either
+    board, stale = served if served is not None else await run_in_threadpool(boards.get, bench_id, split,
+                                                                              board_version)
     etag = board.etag[:-1] + '-stale"' if stale else board.etag
     headers = {"ETag": etag, "Cache-Control": "private, max-age=1",
                "Last-Modified": time.strftime("%a, %d %b %Y %H:%M:%S GMT", time.gmtime(board.built_at))}

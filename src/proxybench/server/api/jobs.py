@@ -103,6 +103,12 @@ async def job_result(job_id: JobId, body: ResultUpload, request: Request, settin
 
 def _job_result(job_id: int, body: ResultUpload, request: Request, session: Session, settings: Settings,
                 response: Response, user: User) -> Any:
+    with session.no_autoflush:  # the evaluator's row is written once, with the result (not before each query)
+        return _record_result(job_id, body, request, session, settings, response, user)
+
+
+def _record_result(job_id: int, body: ResultUpload, request: Request, session: Session, settings: Settings,
+                   response: Response, user: User) -> Any:
     ev = _evaluator(session, user, body.evaluator)
     job = session.get(Job, job_id, options=[joinedload(Job.benchmark), joinedload(Job.submission)])
     if job is None:

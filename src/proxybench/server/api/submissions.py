@@ -35,7 +35,7 @@ async def submit_builtin(body: SubmissionCreate, request: Request, settings: Con
         sub = create_submission(session, user, label=body.label, description=body.description,
                                 agent_name=body.agent, benchmark=body.benchmark, path=body.path,
                                 daily_limit=settings.daily_submission_limit, max_attempts=settings.max_attempts)
-        return submission_view(session, sub, user.role == "superuser")
+        return submission_view(session, sub, user.role == "superuser", owner=user, new=True)
 
     return await run_write(request, work)
 
@@ -85,7 +85,7 @@ async def submit_archive(request: Request, settings: Conf, user: Uploader,
                                 daily_limit=settings.daily_submission_limit, max_attempts=settings.max_attempts)
         session.add(ArtifactLink(sha256=sha, submission_id=sub.id, name=name))
         session.flush()
-        return submission_view(session, sub, me.role == "superuser")
+        return submission_view(session, sub, me.role == "superuser", owner=me, new=True)
 
     return await run_write(request, _record)
 
