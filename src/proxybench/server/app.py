@@ -158,9 +158,12 @@ def create_app(settings: Settings | None = None, *, prepared: bool = False) -> F
     settings = settings or Settings.from_env()
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     engine = make_engine(settings.url, pool_size=settings.max_concurrent_requests + 4)
-    # reads (GET) on autocommit connections of their own: one round trip per query, nothing to reset
-    read_engine = make_engine(settings.url, pool_size=settings.max_concurrent_requests + 2, autocommit=True,
-                              max_overflow=4)
+    # reads (GET) on autocommit connections of their own: one round trip per query, nothing to reset. At most
+    # max_concurrent_requests GETs run at once (admission), so that many connections suffice; only half are kept
+    # open, so that 4 workers keep (12 + 4) × 4 = 64 connections, well under PostgreSQL's default 100
+    half = max(1, settings.max_concurrent_requests // 2)
+    read_engine = make_engine(settings.url, pool_size=half, autocommit=True,
+                              max_overflow=settings.max_concurrent_requests - half)
     if not prepared:
         migrate(engine)
     factory = sessionmaker(engine, expire_on_commit=False)
