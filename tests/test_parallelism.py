@@ -79,14 +79,43 @@ def test_choice_keeps_the_faster_mode_and_follows_the_load(monkeypatch):
     assert choice.current
 
 
-def test_choice_backs_off_while_parallel_loses(monkeypatch):
+def test_choice_backs_off_while_parallel_loses(monkeypatch):  # the doubling alone (no lost-time budget)
     monkeypatch.setattr(parallelism, "threads_available", lambda: 2)
-    choice = ThreadChoice(probe_every=2.0, max_interval=1000.0, clock=Ticks())
+    choice = ThreadChoice(probe_every=2.0, max_interval=1000.0, try_budget=float("inf"), clock=Ticks())
     modes = fed(choice, serial=1.0, parallel=3.0, calls=300)
     assert not choice.current
     assert 3 <= modes.count(True) <= 30  # the first try, then tries ever further apart
     assert "PP" not in "".join("P" if m else "s" for m in modes)  # a try that loses at once stops at once
     assert choice._interval >= 64.0
+
+
+class WallClock:
+    """A clock that the calls themselves advance by their (simulated) wall time."""
+
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_lost_tries_cost_at_most_their_budget(monkeypatch):
+    """Beside a busy neighbour a parallel call cost 4–7 serial ones (measured): the tries that show it may
+    take only ``try_budget`` of the time, however short the interval would otherwise be."""
+    monkeypatch.setattr(parallelism, "threads_available", lambda: 2)
+    clock = WallClock()
+    choice = ThreadChoice(probe_every=0.5, max_interval=30.0, try_budget=0.01, clock=clock)
+    serial, parallel, lost = 0.011, 0.060, 0.0
+    while clock.t < 20.0:  # 20 s of steps at 11 ms
+        mode = choice.parallel(10**6)
+        took = parallel if mode else serial
+        choice.record(mode, took, 10**6)
+        clock.t += took
+        lost += (took - serial) if mode else 0.0
+    assert not choice.current
+    first_try = parallel - serial  # the one try every process pays before it knows
+    assert lost <= first_try + 0.01 * clock.t + parallel  # within the budget (and one call's rounding)
+    assert choice._interval >= (parallel - serial) / 0.01
 
 
 def test_small_work_and_one_thread_stay_serial(monkeypatch, forced):

@@ -114,15 +114,17 @@ class ThreadChoice:
     lower median of its recent timings is kept (parallel must take at most ``margin`` of one thread's time:
     it takes a second core from whatever else runs, and a close call on a loaded machine is often a loss).
     The other mode is tried again after ``probe_every`` seconds, an interval
-    that doubles (up to ``max_interval``) each time the try loses, so a loaded machine pays for few slow
-    tries and a machine that becomes quiet is noticed within that interval. Get one with :meth:`shared`:
+    that doubles (up to ``max_interval``) each time the try loses, and is at least the try's lost time
+    divided by ``try_budget``: a parallel call beside a busy neighbour can cost several serial ones (44–80
+    ms against 11 ms measured), so lost tries take at most that share of the time, and a machine that
+    becomes quiet is still noticed within ``max_interval``. Get one with :meth:`shared`:
     the load is the machine's, so every simulator with the same work size shares what was measured.
     """
 
     _registry: ClassVar[dict[tuple, ThreadChoice]] = {}
 
     def __init__(self, min_work: int = MIN_PARALLEL_WORK, probe_every: float = 0.5, probe_calls: int = 3,
-                 max_interval: float = 30.0, margin: float = 0.8, window: int = 5,
+                 max_interval: float = 30.0, margin: float = 0.8, window: int = 5, try_budget: float = 0.01,
                  clock: Callable[[], float] = time.perf_counter):
         self.clock = clock
         self.min_work = min_work
@@ -130,6 +132,8 @@ class ThreadChoice:
         self.probe_calls = probe_calls
         self.max_interval = max_interval
         self.margin = margin
+        self.try_budget = try_budget
+        self._try_lost = 0.0  # seconds the current try took beyond what the kept mode would have
         self.samples: dict[bool, deque[float]] = {False: deque(maxlen=window), True: deque(maxlen=window)}
         self.current = False
         self._interval = probe_every
@@ -174,6 +178,7 @@ class ThreadChoice:
                 return False
             if self.clock() >= self._next_probe:  # a try: judged on fresh timings only
                 self.samples[not self.current].clear()
+                self._try_lost = 0.0
                 self._probe_left = self.probe_calls - 1
                 return not self.current
             return self.current
@@ -186,12 +191,16 @@ class ThreadChoice:
         with self._lock:
             self.samples[parallel].append(sample)
             if parallel != self.current:  # a call of a try
+                kept = self.samples[self.current]
+                if kept:
+                    self._try_lost += seconds - statistics.median(kept) * work
                 if self._probe_left > 0 and self._losing(parallel, sample):
                     self._probe_left = 0
                 if self._probe_left == 0:  # the try is over
                     best = self._best() if len(self.samples[parallel]) >= 2 else self.current
+                    lost_share = max(0.0, self._try_lost) / self.try_budget
                     self._interval = (self.probe_every if best != self.current
-                                      else min(2 * self._interval, self.max_interval))
+                                      else min(max(2 * self._interval, lost_share), self.max_interval))
                     self._next_probe = self.clock() + self._interval
                     self.current = best
             else:
