@@ -100,6 +100,8 @@ def to_input(images: np.ndarray | torch.Tensor, cfg: ModelConfig, device: torch.
     Frames of another size are resampled (area averaging when shrinking), so a network trained at
     80×60 also drives a robot whose camera delivers 640×480.
     """
+    if isinstance(images, np.ndarray) and not images.flags.writeable:  # e.g. a frame read from a node's message:
+        images = images.copy()  # torch cannot share read-only memory (it warns); frames are small
     x = torch.as_tensor(images).to(device)
     if x.ndim == 3:
         x = x[None]
