@@ -19,26 +19,9 @@ import numpy as np
 
 from proxybench import __version__
 from proxybench.usefulness.heldout_analysis import HeldOutResult
-from proxybench.usefulness.report import THESIS, source_commit
+from proxybench.usefulness.report import THESIS, pyplot, save_figure, source_commit
 
 __all__ = ["findings", "write_heldout_report"]
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig, path: Path) -> Path:
-    plt = _pyplot()
-    fig.savefig(path, dpi=110)
-    fig.savefig(path.with_suffix(".svg"))
-    plt.close(fig)
-    return path
 
 
 def _pct(x: float) -> str:
@@ -108,7 +91,7 @@ def findings(res: HeldOutResult) -> list[str]:
 
 def fig_hit_rates(res: HeldOutResult, path: Path) -> Path:
     """Hit rate per metric with Wilson intervals and the random-pick rate, per reference and tolerance."""
-    plt = _pyplot()
+    plt = pyplot()
     task = res.primary()[0]
     combos = [(ref, tol) for ref in ("order", "truth") for tol in res.settings["criteria"]["tolerances"]]
     fig, axes = plt.subplots(1, len(combos), figsize=(3.6 * len(combos), 3.4), squeeze=False, layout="constrained")
@@ -125,12 +108,12 @@ def fig_hit_rates(res: HeldOutResult, path: Path) -> Path:
         ax.legend(fontsize=7)
     axes[0][0].set_ylabel("hit rate over held-out targets")
     fig.suptitle(f"How often each metric picks the right proxy θ (task: {task}; simulated targets)", fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def fig_prpv_maps(res: HeldOutResult, path: Path) -> Path:
     """PRPV over the grid for every case: truth (×), best available θ (□), each metric's pick (markers)."""
-    plt = _pyplot()
+    plt = pyplot()
     task = res.primary()[0]
     grid = res.run.grid
     scs = [sc for sc in res.scores if sc.task == task]
@@ -165,7 +148,7 @@ def fig_prpv_maps(res: HeldOutResult, path: Path) -> Path:
         ax.axis("off")
     axes.flat[0].legend(fontsize=6, loc="upper left")
     fig.suptitle("PRPV over the grid (dark = low); × hidden truth, □ best available θ, markers: picks", fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def tables(res: HeldOutResult) -> dict[str, Any]:

@@ -21,7 +21,7 @@ from proxybench.usefulness.predictivity import PredictivityResult
 from proxybench.usefulness.proxies import param_label
 
 __all__ = ["DEFINITIONS", "THESIS", "agent_set_findings", "episodes_statement", "findings", "noise_statement",
-           "plot_plan", "ppv_agent_frame", "source_commit", "write_report"]
+           "plot_plan", "ppv_agent_frame", "pyplot", "save_figure", "source_commit", "write_report"]
 
 THESIS = ("A. Courchesne, “On quantifying the value of simulation for training and evaluating robotic agents”, "
           "M.Sc. thesis, Université de Montréal (chapter 3: A. Courchesne, A. Censi, L. Paull, “On Assessing the "
@@ -90,7 +90,7 @@ def source_commit() -> str:
         return "unknown (git not available)"
 
 
-def _pyplot():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -127,7 +127,7 @@ def _marks(ax, res: PredictivityResult, d, floor: bool) -> None:
 
 def figure_3_3(res: PredictivityResult, path: Path) -> Path:
     """PRPV, PPV, SRCC (and POD where known) against the main swept parameter, side by side."""
-    plt = _pyplot()
+    plt = pyplot()
     name = _main_parameter(res)
     df = res.frame()
     d = df[df.parameter == name].sort_values("value")
@@ -143,12 +143,12 @@ def figure_3_3(res: PredictivityResult, path: Path) -> Path:
         ax.legend(fontsize=7)
     fig.suptitle(_short(f"Usefulness of proxies with different {name} for predicting the ranking of {k} agents "
                         f"(target: {res.target.info.label})", 40 * len(panels)), fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def figure_3_4(res: PredictivityResult, path: Path) -> Path:
     """PRPV against every swept parameter, with the target's noise floor."""
-    plt = _pyplot()
+    plt = pyplot()
     df = res.frame()
     params = list(res.experiment.sweep)
     k = len(res.experiment.agents)
@@ -167,7 +167,7 @@ def figure_3_4(res: PredictivityResult, path: Path) -> Path:
         ax.legend(fontsize=7)
     fig.suptitle(_short(f"PRPV for each swept parameter (target: {res.target.info.label})", 40 * len(params)),
                  fontsize=10)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _short(text: str, width: int) -> str:
@@ -177,8 +177,9 @@ def _short(text: str, width: int) -> str:
     return textwrap.shorten(text, max(width, 60), placeholder=" …")
 
 
-def _save(fig, path: Path) -> Path:
-    plt = _pyplot()
+def save_figure(fig, path: Path) -> Path:
+    """PNG at 110 dpi and SVG beside it (the reports embed the PNG; the SVG is for papers)."""
+    plt = pyplot()
     fig.savefig(path, dpi=110)
     fig.savefig(path.with_suffix(".svg"))
     plt.close(fig)
@@ -434,7 +435,7 @@ notes, …)</summary>
 
 def plot_plan(plan, path: Path, target_label: str) -> Path:
     """The planner's curves against n episodes per agent: order-range width, and P(right θ) or open pairs."""
-    plt = _pyplot()
+    plt = pyplot()
     n = [r.n for r in plan.rows]
     fig, axes = plt.subplots(1, 2, figsize=(9.5, 3.6), layout="constrained")
     axes[0].plot(n, [r.width_mean for r in plan.rows], "o-", label="mean")
@@ -456,4 +457,4 @@ def plot_plan(plan, path: Path, target_label: str) -> Path:
         ax.set_xlabel("target episodes per agent")
     axes[0].legend(fontsize=7)
     fig.suptitle(_short(f"Sample-size plan from a pilot (target: {target_label})", 110), fontsize=10)
-    return _save(fig, Path(path))
+    return save_figure(fig, Path(path))
