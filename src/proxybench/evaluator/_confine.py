@@ -1,8 +1,8 @@
 """Exec shim that starts an agent node in its sandbox: ``python -I -S _confine.py [options] -- ARGV...``.
 
 Run as a script (standard library only, no proxybench import, so it starts in milliseconds) by the job's
-worker; it ends by ``exec``-ing bubblewrap (or, in the developer's unsafe mode without bubblewrap, the
-agent itself), so the process the caller kills is the sandbox. In this order it:
+worker; it ends as the guard of bubblewrap (or, in the developer's unsafe mode without bubblewrap, by
+``exec``-ing the agent itself); the caller kills its process group. In this order it:
 
 1. opens every folder the agent may see (the runtime and the package) while it can still reach them;
 2. as root: stages them in a private mount namespace, on a fresh ``/tmp`` of its own, where the agent
@@ -12,10 +12,11 @@ agent itself), so the process the caller kills is the sandbox. In this order it:
    namespace bubblewrap creates), drops to the agent user (no supplementary groups), makes it the first
    choice of the kernel's out-of-memory killer, forbids gaining privileges again, and asks the kernel to
    kill it when the worker dies;
-4. ``exec``-s ``bwrap``: new user, PID, network, IPC, UTS and cgroup namespaces, no capabilities, no
-   further user namespaces, a new session, a read-only view of only ``/usr``, the runtime and the package
-   (at ``/agent``), bounded tmpfs for ``/scratch`` (``$HOME``), ``/tmp`` and ``/dev/shm``, its own
-   ``/proc`` and ``/dev``, a read-only root, and a clean environment.
+4. starts ``bwrap`` and stays beside it as its guard (see ``_guard``). bwrap makes new user, PID, network,
+   IPC, UTS and cgroup namespaces, drops every capability, forbids further user namespaces, starts a new
+   session, and shows a read-only view of only ``/usr``, the runtime and the package (at ``/agent``),
+   bounded tmpfs for ``/scratch`` (``$HOME``), ``/tmp`` and ``/dev/shm``, its own ``/proc`` and ``/dev``,
+   a read-only root, and a clean environment.
 
 With ``--fifo-root ROOT`` (the node's FIFO transport) the caller has made a folder directly in ROOT
 holding the two FIFOs and named them in ``AIDONODE_DATA_IN`` / ``AIDONODE_DATA_OUT``; that one folder,
@@ -26,6 +27,7 @@ the two variables, pointing there, are the only ones passed through.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ctypes
 import os
 import resource
@@ -216,12 +218,57 @@ def main(argv: list[str]) -> int:
     except (OSError, Refused) as exc:
         print(f"_confine: cannot confine the agent: {exc}", file=sys.stderr)
         return 126
+    if args.bwrap:
+        return _guard(command, env, args.parent)
     try:
         os.execvpe(command[0], command, env)
     except OSError as exc:
         print(f"_confine: cannot start {command[0]!r}: {exc}", file=sys.stderr)
         return 127
     return 0  # unreachable: exec replaced this process
+
+
+def _guard(command: list[str], env: dict[str, str], parent: int | None) -> int:
+    """Run bubblewrap as a child and stay beside it as its guard; bwrap's exit status is returned.
+
+    bwrap's ``--die-with-parent`` can leave the sandbox's PID 1 behind: a killed evaluator once left one
+    sleeping for good, re-parented to init (the worker died while bwrap was between its steps). The guard
+    runs as the agent user, in a process group of its own with bwrap and the sandbox's PID 1 (bwrap does
+    not change it), dies with the worker by a signal it can catch, and then kills the whole group: killing
+    the sandbox's PID 1 ends every process in the sandbox's PID namespace.
+    """
+    with contextlib.suppress(PermissionError):  # a session leader (as the worker starts us) has its own group
+        os.setpgid(0, 0)  # otherwise: never share the caller's group
+    me = os.getpid()
+    child = os.fork()
+    if child == 0:
+        try:
+            _prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+            if os.getppid() != me:
+                os._exit(3)
+            os.execvpe(command[0], command, env)
+        except OSError as exc:
+            print(f"_confine: cannot start {command[0]!r}: {exc}", file=sys.stderr)
+        os._exit(127)
+
+    devnull = os.open(os.devnull, os.O_RDWR)  # the node's pipes are bwrap's: the worker sees EOF when it ends
+    os.dup2(devnull, 0)
+    os.dup2(devnull, 1)
+
+    def end(_signum: int = 0, _frame: object = None) -> None:
+        os.killpg(os.getpgrp(), signal.SIGKILL)  # bwrap, the sandbox's PID 1 and this guard
+
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+        signal.signal(sig, end)
+    _prctl(PR_SET_PDEATHSIG, signal.SIGTERM)  # the worker gone: end(), which a SIGKILL could not run
+    if parent is not None and os.getppid() != parent:
+        end()
+    _, status = os.waitpid(child, 0)  # retried after a handler that returns (PEP 475)
+    code = os.waitstatus_to_exitcode(status)
+    if code < 0:  # bwrap was killed: so is this process, by the same signal
+        signal.signal(-code, signal.SIG_DFL)
+        os.kill(me, -code)
+    return code
 
 
 if __name__ == "__main__":
