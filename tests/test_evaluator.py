@@ -98,7 +98,9 @@ class Served:
 
 @pytest.fixture
 def served(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[Served]:
-    """A server with a short lease (2 s), an evaluator user, a developer and the tiny benchmark, with a
+    """A server with a short lease (5 s: it answers heartbeats from a thread of this process, which the
+    rest of the test process can stall; with 2 s a rescuer's lease once lapsed in a clean-clone CI run), an
+    evaluator user, a developer and the tiny benchmark, with a
     hidden split (``tiny_eval``) and without (``tiny_open``, for speed). SQLite unless a test asks for
     ``postgresql`` (indirect parametrisation)."""
     from proxybench.server.app import create_app
@@ -106,7 +108,7 @@ def served(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[Served]:
 
     url = request.getfixturevalue("postgres").new_database() if getattr(request, "param", None) == "postgresql" \
         else None
-    app = create_app(Settings(data_dir=tmp_path / "server", lease_seconds=2.0, database_url=url))
+    app = create_app(Settings(data_dir=tmp_path / "server", lease_seconds=5.0, database_url=url))
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning"))
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
