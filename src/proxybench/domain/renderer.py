@@ -19,6 +19,7 @@ object-free code, and frames without objects in view are bit-identical to frames
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 from collections.abc import Sequence
@@ -305,8 +306,11 @@ def _as(a, dtype) -> np.ndarray:
 
 #: largest sky-row cache a renderer keeps [bytes] (beyond it, all sky rows are shaded at every frame)
 SKY_CACHE_BYTES = 64 << 20
-#: positions in the kernel's argument list (after ``lo``, ``hi``) of the arrays indexed by robot
-_ROBOT_ARGS = (1, 2, 17, 18, 19, 20, 21, 22, 25, 32, 33)
+#: positions of the kernel's arguments after ``lo``, ``hi``, by name (derived: the list may change)
+_ARG = {name: i for i, name in enumerate(list(inspect.signature(render_rows.py_func).parameters)[2:])}
+#: the arrays indexed by robot
+_ROBOT_ARGS = tuple(_ARG[name] for name in ("poses", "cam_index", "palette", "sky", "offset", "post", "seeds",
+                                             "frames", "grain_index", "gain", "mat_rgb"))
 
 
 class Renderer:
@@ -443,15 +447,16 @@ class Renderer:
             if not rows.size or self.post[n, 1] > 0.0 or self.post[n, 2] > 0.0:
                 continue  # noise or vignetting: the kernel computes every pixel, never copies
             one = slice(n, n + 1)
-            n_k = args[1].shape[1]
+            n_k = args[_ARG["poses"]].shape[1]
             a = list(args)
-            a[0] = scratch = np.empty((1, self.height, self.width, 3), dtype=np.uint8)
+            a[_ARG["out"]] = scratch = np.empty((1, self.height, self.width, 3), dtype=np.uint8)
             for j in _ROBOT_ARGS:
                 a[j] = args[j][one]
-            a[23] = np.ones(1, dtype=np.int64)  # k_count
-            a[29:32] = (np.empty((1, n_k, 0), dtype=np.int64), np.zeros((1, n_k), dtype=np.int64),
-                        np.empty((1, n_k, 0, 4), dtype=np.int64))  # no objects
-            a[34] = off
+            a[_ARG["k_count"]] = np.ones(1, dtype=np.int64)
+            a[_ARG["vis"]], a[_ARG["nvis"]], a[_ARG["obj_box"]] = (  # no objects
+                np.empty((1, n_k, 0), dtype=np.int64), np.zeros((1, n_k), dtype=np.int64),
+                np.empty((1, n_k, 0, 4), dtype=np.int64))
+            a[_ARG["sky_slot"]] = off
             breaks = np.flatnonzero(np.diff(rows) != 1) + 1
             for run in np.split(rows, breaks):
                 render_rows(int(run[0]), int(run[-1]) + 1, *a)
