@@ -2,7 +2,7 @@
 
 K agents are evaluated on the *target* (the reality model, a recorded directory or a robot node:
 :mod:`proxybench.targets`) and on proxy instances θ of the simulator swept around its nominal calibration
-(:mod:`proxybench.usefulness.proxies`). Each proxy replays every agent's target episodes from the same
+(:mod:`proxybench.experiments.proxies`). Each proxy replays every agent's target episodes from the same
 start poses and seeds, so proxy and target episodes are paired. For every θ: PRPV with its order range,
 PPV (per agent, mean, sum), Pearson's r (SRCC), Spearman's ρ, Kendall's τ and MMRV per metric with paired
 BCa intervals (:mod:`proxybench.usefulness.intervals`), and POD where the target's θ is known; beside them the target's
@@ -20,18 +20,18 @@ from typing import Any
 import numpy as np
 
 from proxybench.domain.params import DomainParams
+from proxybench.experiments.config import Experiment, ExperimentConfig, resolve
+from proxybench.experiments.proxies import proxy_params
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import DomainSpec, Job, JobResult
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.spec import Target, TargetRun
 from proxybench.tasks.metrics import METRICS
 from proxybench.usefulness.agent_sets import means_of, order_structure, sensitivity
-from proxybench.usefulness.experiment import Experiment, ExperimentConfig, resolve
 from proxybench.usefulness.intervals import Usefulness, usefulness
 from proxybench.usefulness.metrics import Estimate, PairedResults, agent_means
 from proxybench.usefulness.noise import compare_paired, lowest_claim, noise_floor, paired_prpv_samples, ppv_noise_floor
 from proxybench.usefulness.pod import pod
-from proxybench.usefulness.proxies import proxy_params
 
 __all__ = ["PredictivityResult", "SweepClaim", "proxy_jobs", "run_predictivity"]
 
