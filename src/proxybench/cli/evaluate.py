@@ -303,7 +303,7 @@ def _videos(ev, specs, run_dir: Path) -> None:
     from proxybench.domain.params import DomainParams
     from proxybench.domain.simulator import Simulator
     from proxybench.runner.evaluate import benchmark_domain
-    from proxybench.runner.jobs import make_agent_for
+    from proxybench.runner.outcomes import make_agent_for
     from proxybench.runner.record import record_episode
 
     bench = ev.benchmark

@@ -74,9 +74,10 @@ def plan(
     it (docs/usefulness.md). Episodes are cached in OUT/runs: `predictivity --out OUT` re-uses them.
     """
     from proxybench.experiments.config import resolve
-    from proxybench.experiments.predictivity import _by_agent, _domains, proxy_jobs
+    from proxybench.experiments.predictivity import proxy_domains, proxy_jobs
     from proxybench.runner.backends import make_backend
     from proxybench.runner.sweep import run_jobs
+    from proxybench.targets.base import by_agent
     from proxybench.targets.manifest import TargetError
     from proxybench.tasks.metrics import METRICS
     from proxybench.usefulness.plan import DEFAULT_GRID
@@ -106,9 +107,9 @@ def plan(
                 tgt = tgt_obj.run(exp.agents, episodes=exp.episodes, **run_kw)
             proxies = {}
             if candidates:
-                for _, _, dom in _domains(exp):
+                for _, _, dom in proxy_domains(exp):
                     jobs = proxy_jobs(exp, tgt, dom)
-                    proxies[dom.name] = _by_agent(jobs, run_jobs(jobs, out / "runs", be).results, exp.metrics)
+                    proxies[dom.name] = by_agent(jobs, run_jobs(jobs, out / "runs", be).results, exp.metrics)
         except (TargetError, ValueError) as exc:
             _fail(exc)
         finally:

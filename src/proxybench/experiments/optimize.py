@@ -26,12 +26,12 @@ import numpy as np
 
 from proxybench.domain.params import DomainParams
 from proxybench.experiments.config import OBJECTIVES, Experiment, ExperimentConfig, resolve
-from proxybench.experiments.predictivity import _by_agent, proxy_jobs
+from proxybench.experiments.predictivity import proxy_jobs
 from proxybench.experiments.proxies import param_label, proxy_params
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import DomainSpec
 from proxybench.runner.sweep import run_jobs
-from proxybench.targets.spec import Target, TargetInfo
+from proxybench.targets.base import Target, TargetInfo, by_agent
 from proxybench.tasks.metrics import METRICS
 from proxybench.usefulness.metrics import Estimate, PairedResults, dominance, ppv_value, prpv_value
 from proxybench.usefulness.noise import noise_floor
@@ -137,7 +137,7 @@ def optimize_proxy(
         params = proxy_params(exp.image_size, exp.proxy, **theta)
         dom = DomainSpec("proxy " + " ".join(f"{k}={v:.4g}" for k, v in theta.items()), params.model_dump())
         jobs = proxy_jobs(exp, tgt, dom)
-        proxy = _by_agent(jobs, run_jobs(jobs, run_dir, backend).results, exp.metrics)
+        proxy = by_agent(jobs, run_jobs(jobs, run_dir, backend).results, exp.metrics)
         value, parts = _objective_value(exp.search.objective, proxy, tgt.results, higher)
         for k, v in parts.items():
             trial.set_user_attr(k, v)

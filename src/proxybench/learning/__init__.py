@@ -20,6 +20,7 @@ threads, training on a machine whose cores are shared with other work ran ~20× 
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import os
 from pathlib import Path
@@ -28,9 +29,9 @@ from typing import Any
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 __all__ = [
-    "BCAgent", "Dataset", "Domain", "ModelConfig", "PilotNet", "TrainConfig", "build_model", "expert_actions",
-    "is_checkpoint", "load_checkpoint", "make_bc_agent", "parse_domain", "proxy_domain", "randomized_domain",
-    "reality_domain", "save_checkpoint", "train",
+    "CHECKPOINTS", "BCAgent", "CheckpointKind", "Dataset", "Domain", "ModelConfig", "PilotNet", "TrainConfig",
+    "build_model", "expert_actions", "is_checkpoint", "load_checkpoint", "make_bc_agent", "parse_domain",
+    "proxy_domain", "randomized_domain", "reality_domain", "save_checkpoint", "train",
 ]
 
 _WHERE = {
@@ -55,6 +56,31 @@ def is_checkpoint(name: str | Path) -> bool:
         return False
     p = p.with_suffix(".pt")
     return p.is_file() and p.with_suffix(".json").is_file()
+
+
+def _file_digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+class CheckpointKind:
+    """Behaviour-cloning checkpoints as an agent kind (:mod:`proxybench.agents.kinds`, entry point
+    ``checkpoint``): a path ``X.pt`` with ``X.json`` beside it names a :class:`BCAgent`."""
+
+    def claims(self, name: str) -> bool:
+        return is_checkpoint(name)
+
+    def make(self, name: str):
+        from proxybench.learning.agent import make_bc_agent
+
+        return make_bc_agent(name)
+
+    def identity(self, name: str) -> str:
+        """The content of both files, so that retraining into the same path invalidates cached episodes."""
+        pt = Path(name).with_suffix(".pt")
+        return _file_digest(pt) + _file_digest(pt.with_suffix(".json"))
+
+
+CHECKPOINTS = CheckpointKind()
 
 
 def __getattr__(name: str) -> Any:
