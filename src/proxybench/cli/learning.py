@@ -1,32 +1,33 @@
 """`proxybench plv` and `proxybench learn ...`: behaviour cloning and the proxy learning value (PLV).
 
 Everything here needs PyTorch (the ``learning`` extra); it is imported inside the commands, so the
-rest of the command line works without it.
+rest of the command line works without it (``plv``'s options come from :class:`PLVConfig`, which needs neither
+PyTorch nor the simulator).
 """
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict
 from pathlib import Path
 
 import typer
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import Progress
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.config_options import mode_defaults, study_options
 from proxybench.cli.options import non_negative, positive
-from proxybench.cli.progress import progress_bar
+from proxybench.cli.progress import stage_bars, stage_progress
+from proxybench.experiments.plv_config import PLVConfig
 
 learn_app = typer.Typer(no_args_is_help=True, help="Behaviour cloning: datasets, training, fine-tuning, evaluation.")
 app.add_typer(learn_app, name="learn")
 
 
 def _bars() -> Progress:
-    return progress_bar(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                        TimeRemainingColumn(), console=console, transient=True)
+    return stage_bars(elapsed=True)
 
 
 def _fail(msg: str, code: int = 2) -> typer.Exit:
@@ -34,14 +35,19 @@ def _fail(msg: str, code: int = 2) -> typer.Exit:
     return typer.Exit(code)
 
 
+def _load_plv(path: Path | None, overrides: dict, own: dict) -> PLVConfig:
+    """The file and the options over ``PLVConfig()``, or with ``--quick`` over ``PLVConfig.quick()``."""
+    base = PLVConfig.quick() if own["quick"] else PLVConfig()
+    return PLVConfig.load(path, overrides, base=base.to_dict())
+
+
 @app.command()
+@study_options(PLVConfig, load=_load_plv, defaults=mode_defaults(PLVConfig().to_dict(), PLVConfig.quick().to_dict()),
+               config_help="YAML or JSON file of PLVConfig fields (sections: train: {max_steps: 100}, eval, ...)")
 def plv(
+    cfg: PLVConfig,
     quick: bool = typer.Option(False, "--quick", help="40×30 frames, short ladder, 3 seeds (minutes)"),
     out: Path = typer.Option(Path("out/plv"), help="report folder (figure, tables, report.html) and cache"),
-    config: Path | None = typer.Option(None, help="JSON file overriding PLVConfig fields (nested: train, eval, ...)"),
-    dagger: bool = typer.Option(False, "--dagger", help="spend half of every rung on on-policy (DAgger) samples"),
-    eta_on: float = typer.Option(1.0, callback=positive, help="cost of one on-policy target sample (generalised PLV)"),
-    eta_off: float = typer.Option(1.0, callback=positive, help="cost of one off-policy target sample"),
 ) -> None:
     """How many target samples does pre-training on a proxy save a behaviour-cloning agent? (Table 3.1, Fig. 3.6)
 
@@ -49,26 +55,12 @@ def plv(
     simulator with camera pitch 3°, 19°, 35° and a domain-randomised family. Work is cached in OUT/cache,
     so an interrupted run resumes.
     """
-    from proxybench.experiments.plv import PLVConfig, run_plv
+    from proxybench.experiments.plv import run_plv
     from proxybench.experiments.reports.plv import findings, summarize, table_rows, write_report
 
-    cfg = PLVConfig.quick() if quick else PLVConfig()
-    try:
-        extra = json.loads(config.read_text()) if config else {}
-        extra |= {"eta_on": eta_on, "eta_off": eta_off} | ({"use_dagger": True} if dagger else {})
-        cfg = PLVConfig.from_dict(extra, cfg)
-    except (OSError, ValueError, TypeError) as exc:
-        raise _fail(f"{config}: {exc}") from exc
     t0 = time.perf_counter()
     with _bars() as bar:
-        tasks: dict[str, int] = {}
-
-        def progress(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = bar.add_task(stage, total=total)
-            bar.update(tasks[stage], completed=done, total=total)
-
-        res = run_plv(cfg, out, progress)
+        res = run_plv(cfg, out, stage_progress(bar))
     files = write_report(res, out)
     s = summarize(res)
     wall = time.perf_counter() - t0

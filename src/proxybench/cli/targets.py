@@ -61,7 +61,8 @@ def record(
     Every finished episode is written at once; run the same command again after an interruption and only
     the missing episodes are recorded. Robot episodes run one after another.
     """
-    from proxybench.cli.usefulness import _image_size, _kv
+    from proxybench.cli.config_options import image_size as parse_size
+    from proxybench.cli.config_options import key_values
     from proxybench.experiments.agent_args import AgentArgError, parse_agents
     from proxybench.runner.backends import make_backend
     from proxybench.targets.manifest import TargetError
@@ -74,12 +75,12 @@ def record(
                                        robot_no_reflection, command=robot_cmd)
     try:
         target = open_target(f"robot:{robot_cmd}" if robot_cmd else "reality",
-                             params=_kv(target_param, "--target-param") or None, robot_nodes=robot_nodes,
+                             params=key_values(target_param, "--target-param") or None, robot_nodes=robot_nodes,
                              robot_options=robot_options)
         specs = parse_agents(agent, out / ".agents")
     except (TargetError, AgentArgError) as exc:
         _fail(str(exc))
-    size = _image_size(image_size)
+    size = parse_size(image_size)
     assert size is not None
     be = make_backend(backend, min(workers or robot_nodes, robot_nodes) if robot_cmd else workers)
     t0 = time.perf_counter()

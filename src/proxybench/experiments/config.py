@@ -1,44 +1,13 @@
 """One experiment file for ``proxybench predictivity``, ``optimize`` and ``plan`` (``--config FILE``).
 
-Every field is optional and has a command-line option; what neither gives takes the command's default
-(shown by ``--help``). Unknown keys and bad values are errors naming the field. Relative working
-directories in the file are taken from its folder; ``NAME=COMMAND`` strings run where proxybench runs::
-
-    target: reality              # reality | DIR (a recorded target) | robot:COMMAND
-    target_params: {}            # the reality model's θ, overridden (reality only)
-    robot_nodes: 1               # processes of a robot node at once (robot:CMD only; 1 for a physical robot)
-    robot_options:               # how to start and talk to the robot node (robot:CMD only; all optional)
-      cwd: ../my-bridge          # working directory of the command
-      transport: fifo            # pipe | fifo (AIDO's default)
-      start_timeout: 120         # s: start + handshake, and each episode's setup
-      step_timeout: 10           # s: each per-frame exchange
-      reflection: false          # skip describe_protocol
-    agents: [pid, vision, my-agent=python3 agent.py, models/bc.pt, my-agent.zip]
-    # or, as in benchmark files, an agent node with how to start it (tasks/agent_entries.py):
-    #   - name: my-lf                # its label
-    #     command: cd solution && exec python3 solution.py
-    #     cwd: ../submissions/my-lf  # relative to this file (default: this file's folder)
-    #     transport: fifo            # pipe | fifo; also start_timeout, step_timeout, reflection
-    map: loop_3x3                # default: the recorded target's map, else loop_3x3
-    episodes: 10                 # per agent; a recorded target: how many of its episodes (default all)
-    seconds: 60                  # episode length; a recorded target fixes it
-    metrics: [driven_lanedir_consec, survival_time]
-    image_size: [160, 120]
-    proxy: {}                    # θ every proxy has, on top of the nominal calibration
-    sweep:                       # predictivity: values per parameter
-      trim: [-0.3, -0.2, -0.1, 0.0, 0.1, 0.2, 0.3]
-      camera_pitch: [15, 19.15, 23]
-    search:                      # optimize
-      space: {trim: [-0.3, 0.3], camera_pitch: [12, 26]}
-      objective: prpv            # prpv (θ* = argmin PRPV, the thesis) | ppv | mix | plv (argmax PLV, eq. 3.6.2)
-      trials: 60
-      sampler: tpe               # tpe | gp | random (plv: tpe | random)
-      family: false              # plv only: search families p(θ) (a uniform range per parameter), not instances
-    plv: {}                      # objective plv: PLV settings (PLVConfig fields, e.g. ladder, seeds, train: {...})
-    n_boot: 300
-    pod_seconds: 10
-    seed: 0
-    truth: {}                    # the target's known θ, to mark on plots only (never used by a sweep or search)
+:class:`ExperimentConfig` is that file; every field is optional and is also a command-line option, generated
+from the field (its docstring is its ``--help``), with sections flattened: ``search`` (optimize: ``--param``,
+``--trials``, …), ``plan`` (``--width``, ``--budget``, …), ``robot_options`` (``--robot-cwd``, …). What neither
+the command line nor the file gives takes the command's default (:data:`COMMAND_DEFAULTS`, worded for
+``--help`` by :func:`default_help`); a recorded target's map, length, agents and episodes come before it.
+Unknown keys and bad values are errors naming the field and file. Relative working directories in the file
+are taken from its folder; ``NAME=COMMAND`` strings run where proxybench runs. docs/targets.md shows the
+file with every field (tests/test_config_options.py holds it to this model).
 """
 
 from __future__ import annotations
@@ -46,18 +15,17 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP
+from proxybench.experiments.study import Cli, ConfigError, StudyConfig
 from proxybench.protocol.options import RobotNodeOptions
-from proxybench.targets.manifest import TargetError, format_errors
 from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
 
-__all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "SearchConfig", "load_config",
-           "resolve"]
+__all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "PlanConfig", "SearchConfig",
+           "default_help", "load_config", "param_name", "resolve"]
 
 FULL_AGENTS = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
                "pure-pursuit-fast", "vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",
@@ -77,19 +45,39 @@ COMMAND_DEFAULTS: dict[tuple[str, bool], dict[str, Any]] = {
                           "pod_seconds": 0.0, "trials": 60},
     ("optimize", True): {"agents": QUICK_AGENTS[:8], "episodes": 2, "seconds": 12.0, "n_boot": 100,
                          "pod_seconds": 0.0, "trials": 20},
-    # plan: ``episodes`` is the pilot's size per agent
+    # plan: ``episodes`` is the pilot's size per agent; ``reps`` and ``budget`` are plan's own
     ("plan", False): {"agents": QUICK_AGENTS, "episodes": 3, "seconds": 20.0, "n_boot": 300,
-                      "pod_seconds": 0.0, "trials": 0},
+                      "pod_seconds": 0.0, "trials": 0, "reps": 400, "budget": 20},
     ("plan", True): {"agents": QUICK_AGENTS[:6], "episodes": 3, "seconds": 8.0, "n_boot": 100,
-                     "pod_seconds": 0.0, "trials": 0},
+                     "pod_seconds": 0.0, "trials": 0, "reps": 150, "budget": 4},
 }
 
 
-class ConfigError(TargetError):
-    """An experiment that cannot run as given; the message names the field (and file) at fault."""
+def default_help(command: str) -> dict[str, str]:
+    """How ``--help`` words the defaults that are settled only when the command runs (by ``--quick`` and by
+    the target: a recorded target fixes the map and episode length and offers its agents and episodes)."""
+    full, quick = COMMAND_DEFAULTS[(command, False)], COMMAND_DEFAULTS[(command, True)]
+
+    def both(key: str, fmt=lambda v: f"{v:g}") -> str:
+        return f"{fmt(full[key])}; --quick {fmt(quick[key])}"
+
+    def agents(v: tuple[str, ...]) -> str:
+        return f"{len(v)} zoo agents"
+
+    recorded = "a recorded target's (it fixes it), else "
+    out = {"agents": f"the target's, else {both('agents', agents)}",
+           "map": recorded + "loop_3x3", "episodes": f"a recorded target's (all of them), else {both('episodes')}",
+           "seconds": recorded + both("seconds"), "n_boot": both("n_boot"), "pod_seconds": both("pod_seconds"),
+           "search.trials": f"{both('trials')}; objective plv: 12, --quick 4",
+           "search.study_name": "proxybench-proxy; objective plv: proxybench-plv"}
+    if command == "plan":
+        out |= {"plan.reps": both("reps"), "plan.budget": both("budget"), "sweep": "none (no candidates)",
+                "episodes": f"a recorded target's (all of them), else {both('episodes')}; at least 2"}
+    return out
 
 
-def _param_name(name: str) -> str:
+def param_name(name: str) -> str:
+    """``name`` if it is a domain parameter, else a ValueError with the likely meant one."""
     from proxybench.domain.params import DomainParams
 
     if name not in DomainParams.model_fields:
@@ -98,20 +86,25 @@ def _param_name(name: str) -> str:
     return name
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class SearchConfig(_Strict):
+class SearchConfig(StudyConfig):
     """What ``optimize`` searches and how."""
 
-    space: dict[str, tuple[float, float]] = Field(default_factory=lambda: dict(DEFAULT_SEARCH))
+    space: Annotated[dict[str, tuple[float, float]], Cli("--param", metavar="NAME=LOW:HIGH", sep=":")] = Field(
+        default_factory=lambda: dict(DEFAULT_SEARCH))
+    """a parameter to search and its range"""
     objective: Literal["prpv", "ppv", "mix", "plv"] = "prpv"
+    """prpv (the thesis' θ* = argmin PRPV) | ppv | mix (PRPV/K(K−1) + PPV/m) | plv (argmax PLV, eq. 3.6.2: trains a
+    behaviour-cloning agent per trial; needs the learning extra)"""
     trials: int | None = Field(None, ge=1, le=100_000)
+    """trials of the search"""
     sampler: Literal["tpe", "gp", "random"] = "tpe"
+    """Optuna's sampler (objective plv: tpe or random)"""
     storage: str | None = None
-    study_name: str = "proxybench-proxy"  # objective plv: "proxybench-plv" unless given
-    family: bool = False  # objective plv: each trial proposes a family p(θ), a uniform range per parameter
+    """SQLite file or SQLAlchemy URL of the study (PostgreSQL to share it); resumes a stored study"""
+    study_name: str = "proxybench-proxy"
+    """name of the study in the storage (objective plv: proxybench-plv unless given)"""
+    family: bool = False
+    """objective plv: search families p(θ) (a uniform range per parameter) instead of instances θ"""
 
     @model_validator(mode="after")
     def _family_is_plv(self) -> SearchConfig:
@@ -125,33 +118,82 @@ class SearchConfig(_Strict):
         if not v:
             raise ValueError("give at least one parameter to search")
         for name, (lo, hi) in v.items():
-            _param_name(name)
+            param_name(name)
             if not lo < hi:
                 raise ValueError(f"{name} needs low < high, got [{lo}, {hi}]")
         return v
 
 
-class ExperimentConfig(_Strict):
+class PlanConfig(StudyConfig):
+    """What ``plan`` aims for, and the budget of ``plan --sequential``."""
+
+    width: float | None = Field(None, ge=0.0, allow_inf_nan=False)
+    """PRPV order-range width to reach"""
+    p_correct: float | None = Field(None, gt=0.0, lt=1.0)
+    """probability of picking the pilot's best candidate θ to reach (with candidates: --sweep)"""
+    confidence: float = Field(0.8, gt=0.0, lt=1.0)
+    """probability of reaching the width"""
+    power: float = Field(0.8, gt=0.0, lt=1.0)
+    """probability of settling a pair (per-pair needs)"""
+    max_episodes: int = Field(320, ge=2, le=100_000)
+    """largest n per agent considered"""
+    reps: int | None = Field(None, ge=20, le=100_000)
+    """simulated experiments per n"""
+    sequential: bool = False
+    """then run more target episodes where they settle most (live targets)"""
+    budget: int | None = Field(None, ge=1, le=100_000)
+    """target episodes the sequential allocation may run"""
+    batch: int = Field(2, ge=1, le=1000)
+    """episodes per round of the sequential allocation (e.g. the workers)"""
+
+
+class ExperimentConfig(StudyConfig):
     """The experiment file (see the module docstring); ``None`` means the command's default."""
 
     target: str = "reality"
-    target_params: dict[str, Any] = Field(default_factory=dict)
+    """reality (the simulated reality model) | DIR (a recorded target) | robot:CMD (a robot node)"""
+    target_params: Annotated[dict[str, Any], Cli("--target-param")] = Field(default_factory=dict)
+    """the reality model's θ, overridden (reality only)"""
     robot_nodes: int = Field(1, ge=1, le=64)
-    robot_options: RobotNodeOptions | None = None
-    agents: list[str | AgentEntry] | None = Field(None, min_length=1)
+    """processes of a robot node at once (robot:CMD only; 1 for a physical robot)"""
+    robot_options: Annotated[RobotNodeOptions | None, Cli(prefix="robot-")] = None
+    """how to start and talk to the robot node (robot:CMD only)"""
+    agents: Annotated[list[str | AgentEntry] | None, Cli("--agent", metavar="AGENT")] = Field(None, min_length=1)
+    """zoo name, NAME=COMMAND (node), checkpoint X.pt, or agent package .zip/.tar.gz"""
     map: str | None = None
+    """map name or file"""
     episodes: int | None = Field(None, ge=1, le=10_000)
+    """episodes per agent (a recorded target: how many of its episodes)"""
     seconds: float | None = Field(None, gt=0.0, le=3600.0)
-    metrics: tuple[str, ...] = ("driven_lanedir_consec", "survival_time")
-    image_size: tuple[int, int] = (160, 120)
-    proxy: dict[str, Any] = Field(default_factory=dict)
+    """episode length [s]"""
+    metrics: Annotated[tuple[str, ...], Cli("--metric")] = ("driven_lanedir_consec", "survival_time")
+    """task metric"""
+    image_size: Annotated[tuple[int, int], Cli(metavar="WIDTHxHEIGHT", sep="x")] = (160, 120)
+    """camera image [px]"""
+    proxy: Annotated[dict[str, Any], Cli("--proxy-param")] = Field(default_factory=dict)
+    """θ every proxy has, on top of the nominal calibration"""
     sweep: dict[str, tuple[float, ...]] = Field(default_factory=lambda: dict(DEFAULT_SWEEP))
-    search: SearchConfig = Field(default_factory=SearchConfig)
+    """predictivity: values of a parameter to sweep (plan: candidate θ to pick among)"""
+    search: Annotated[SearchConfig, Cli(prefix="")] = Field(default_factory=SearchConfig)
+    """optimize: what to search and how"""
+    plan: Annotated[PlanConfig, Cli(prefix="")] = Field(default_factory=PlanConfig)
+    """plan: what to aim for, and the sequential budget"""
     n_boot: int | None = Field(None, ge=10, le=100_000)
+    """bootstrap resamples (intervals, noise floor)"""
     pod_seconds: float | None = Field(None, ge=0.0, le=600.0)
+    """POD rollout [s], 0: none"""
     seed: int = Field(0, ge=0, le=100_000)
+    """experiment seed (episodes, resampling, sampler)"""
     truth: dict[str, float] = Field(default_factory=dict)
-    plv: dict[str, Any] = Field(default_factory=dict)  # PLVConfig fields for objective plv, checked when used
+    """the target's known θ, marked on plots and printed beside results only (never used by a sweep or search)"""
+    plv: dict[str, Any] = Field(default_factory=dict)
+    """objective plv: PLV settings (PLVConfig fields, e.g. ladder, seeds, train: {...}), checked when used"""
+
+    @classmethod
+    def prepare(cls, data: dict[str, Any], folder: Path) -> dict[str, Any]:
+        """A relative ``robot_options.cwd`` is taken from ``folder`` (the file's; the command line's: where the
+        command runs)."""
+        return robot_cwd_from(data, folder)
 
     @model_validator(mode="before")
     @classmethod
@@ -198,7 +240,7 @@ class ExperimentConfig(_Strict):
         if not v:
             raise ValueError("give at least one parameter to sweep")
         for name, values in v.items():
-            _param_name(name)
+            param_name(name)
             if not values:
                 raise ValueError(f"{name}: give at least one value")
             if len(set(values)) != len(values):
@@ -209,7 +251,7 @@ class ExperimentConfig(_Strict):
     @classmethod
     def _truth(cls, v: dict[str, float]) -> dict[str, float]:
         for name in v:
-            _param_name(name)
+            param_name(name)
         return v
 
     @field_validator("image_size")
@@ -231,6 +273,18 @@ class ExperimentConfig(_Strict):
         return self
 
 
+def robot_cwd_from(data: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """``data`` with a relative ``robot_options.cwd`` taken from ``folder``; it must be a folder."""
+    options = data.get("robot_options")
+    cwd = options.get("cwd") if isinstance(options, dict) else None
+    if not isinstance(cwd, str) or not cwd:
+        return data
+    path = (folder / Path(cwd).expanduser()).resolve()
+    if not path.is_dir():
+        raise ConfigError(f"robot_options.cwd: {cwd!r} is not a directory")
+    return {**data, "robot_options": {**options, "cwd": str(path)}}
+
+
 def _entry_problem(err: Any) -> str:
     """``.field: message`` of one error of an agent entry (an unknown key with its likely meaning)."""
     loc = "".join(f".{p}" for p in err["loc"])
@@ -244,41 +298,11 @@ def _entry_problem(err: Any) -> str:
     return f"{loc}: {msg}"
 
 
-def _robot_cwd_from(data: dict[str, Any], base: Path) -> dict[str, Any]:
-    """The file's ``robot_options.cwd``, when relative, taken from the file's folder ``base``."""
-    options = data.get("robot_options")
-    cwd = options.get("cwd") if isinstance(options, dict) else None
-    if not isinstance(cwd, str) or not cwd or Path(cwd).expanduser().is_absolute():
-        return data
-    return {**data, "robot_options": {**options, "cwd": str((base / cwd).resolve())}}
-
-
 def load_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> ExperimentConfig:
     """The experiment file at ``path`` (or none), with ``overrides`` (the command line) on top."""
-    data: dict[str, Any] = {}
-    origin = "command line"
-    if path is not None:
-        path = Path(path)
-        origin = str(path)
-        try:
-            loaded = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({exc})") from None
-        if loaded is not None and not isinstance(loaded, dict):
-            raise ConfigError(f"{path}: expected a mapping of fields, got {type(loaded).__name__}")
-        data = _robot_cwd_from(loaded or {}, path.parent)
     over = dict(overrides or {})
-    for section in ("search", "robot_options"):  # an option on the command line changes one field of the file's
-        if section in over:
-            data[section] = {**(data.get(section) or {}), **over.pop(section)}
-    data.update(over)
     context = {"base_dir": Path(path).parent.resolve()} if path is not None and "agents" not in over else None
-    try:
-        return ExperimentConfig.model_validate(data, context=context)
-    except ValidationError as exc:
-        raise ConfigError(format_errors(exc, origin, ExperimentConfig)) from None
+    return ExperimentConfig.load(path, over, context=context)
 
 
 @dataclass

@@ -1,5 +1,11 @@
-"""Tasks: trajectories, metrics, scoring and benchmark files (knows nothing of how a run was made)."""
+"""Tasks: trajectories, metrics, scoring and benchmark files (knows nothing of how a run was made).
 
-from proxybench.tasks.trajectory import Trajectory, TrajectoryError
+The names below load on first use (:mod:`proxybench.lazy`).
+"""
+
+from proxybench.lazy import lazy_exports
+
+__getattr__ = lazy_exports(__name__, {"Trajectory": "proxybench.tasks.trajectory",
+                                      "TrajectoryError": "proxybench.tasks.trajectory"})
 
 __all__ = ["Trajectory", "TrajectoryError"]
