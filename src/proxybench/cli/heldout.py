@@ -13,9 +13,8 @@ import typer
 from rich.table import Table
 
 from proxybench.cli.app import app, console
-from proxybench.cli.config_options import fail, study_options
-from proxybench.cli.progress import stage_bars, stage_progress
-from proxybench.cli.usefulness import BACKEND_HELP, WORKERS_HELP
+from proxybench.cli.config_options import study_options
+from proxybench.cli.studies import BackendOption, WorkersOption, run_study
 from proxybench.experiments.heldout_config import HeldOutConfig, default_help
 
 
@@ -26,8 +25,8 @@ def heldout(
     quick: bool = typer.Option(False, "--quick", help="3 held-out targets + the negative case, 8 agents, 3×3 grid, "
                                "2 + 4 episodes × 12 s"),
     out: Path = typer.Option(Path("out/heldout"), help="report folder (report.html, figures, tables, runs/)"),
-    backend: str = typer.Option("local", help=BACKEND_HELP),
-    workers: int | None = typer.Option(None, min=1, help=WORKERS_HELP),
+    backend: BackendOption = "local",
+    workers: WorkersOption = None,
 ) -> None:
     """Score PRPV, PPV, SRCC (Pearson), Spearman, Kendall and MMRV on targets they were not tuned on.
 
@@ -39,18 +38,9 @@ def heldout(
     from proxybench.experiments.heldout import run_heldout
     from proxybench.experiments.heldout_analysis import score_heldout
     from proxybench.experiments.reports.heldout import findings, write_heldout_report
-    from proxybench.runner.backends import make_backend
-    from proxybench.targets.manifest import TargetError
 
-    be = make_backend(backend, workers)
     t0 = time.perf_counter()
-    with stage_bars() as bar:
-        try:
-            run = run_heldout(cfg, out, be, stage_progress(bar), quick=quick)
-        except (TargetError, ValueError) as exc:
-            fail(exc)
-        finally:
-            be.close()
+    run = run_study(backend, workers, lambda be, progress: run_heldout(cfg, out, be, progress, quick=quick))
     res = score_heldout(run)
     run.wall_s = time.perf_counter() - t0
     files = write_heldout_report(res, out)

@@ -16,9 +16,8 @@ import typer
 from rich.table import Table
 
 from proxybench.cli.app import app, console
-from proxybench.cli.config_options import fail
-from proxybench.cli.progress import stage_bars, stage_progress
-from proxybench.cli.usefulness import BACKEND_HELP, WORKERS_HELP, experiment_options
+from proxybench.cli.studies import BackendOption, WorkersOption, run_study
+from proxybench.cli.usefulness import experiment_options
 from proxybench.experiments.config import ExperimentConfig
 
 
@@ -28,8 +27,8 @@ def plan(
     cfg: ExperimentConfig,
     quick: bool = typer.Option(False, "--quick", help="6 agents × 3 pilot episodes × 8 s; --sequential: budget 4"),
     out: Path = typer.Option(Path("out/plan"), help="folder for plan.json, tables, plan.png and the episode cache"),
-    backend: str = typer.Option("local", help=BACKEND_HELP),
-    workers: int | None = typer.Option(None, min=1, help=WORKERS_HELP),
+    backend: BackendOption = "local",
+    workers: WorkersOption = None,
 ) -> None:
     """Plan target episodes: n per agent for a PRPV interval of a given width or a given chance of the right θ.
 
@@ -38,17 +37,8 @@ def plan(
     cached in OUT/runs: `predictivity --out OUT` re-uses them.
     """
     from proxybench.experiments.plan import run_plan, write_plan
-    from proxybench.runner.backends import make_backend
-    from proxybench.targets.manifest import TargetError
 
-    be = make_backend(backend, workers)
-    with stage_bars() as bar:
-        try:
-            res = run_plan(cfg, out, be, stage_progress(bar), quick=quick)
-        except (TargetError, ValueError) as exc:
-            fail(exc)
-        finally:
-            be.close()
+    res = run_study(backend, workers, lambda be, progress: run_plan(cfg, out, be, progress, quick=quick))
     _print_plan(res.plan, res.target, res.sequential, res.wall_s)
     files = write_plan(res, out)
     console.print(f"wrote {', '.join(map(str, files))} (+ .svg)", highlight=False)

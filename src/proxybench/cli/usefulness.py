@@ -19,11 +19,10 @@ from rich.table import Table
 from proxybench.cli.app import app, console, err_console
 from proxybench.cli.config_options import fail, study_options
 from proxybench.cli.progress import progress_bar, stage_bars, stage_progress
+from proxybench.cli.studies import BackendOption, WorkersOption, run_study
 from proxybench.experiments.config import ExperimentConfig, default_help, load_config
 
 OUT_HELP = "report folder (figures, tables, report.html) and episode cache (OUT/runs)"
-BACKEND_HELP = "inline | local (process pool) | ray"
-WORKERS_HELP = "parallel workers (default: one per core)"
 
 
 def experiment_options(command: str, exclude: tuple[str, ...]):
@@ -39,8 +38,8 @@ def predictivity(
     cfg: ExperimentConfig,
     quick: bool = typer.Option(False, "--quick", help="12 agents × 3 episodes × 20 s (a minute or two)"),
     out: Path = typer.Option(Path("out/predictivity"), help=OUT_HELP),
-    backend: str = typer.Option("local", help=BACKEND_HELP),
-    workers: int | None = typer.Option(None, min=1, help=WORKERS_HELP),
+    backend: BackendOption = "local",
+    workers: WorkersOption = None,
 ) -> None:
     """Rank agents on a target and on swept simulator instances; PRPV, PPV, SRCC, POD beside the target's noise floor.
 
@@ -49,18 +48,10 @@ def predictivity(
     """
     from proxybench.experiments.predictivity import run_predictivity
     from proxybench.experiments.reports.predictivity import findings, write_report
-    from proxybench.runner.backends import make_backend
-    from proxybench.targets.manifest import TargetError
 
-    be = make_backend(backend, workers)
     t0 = time.perf_counter()
-    with stage_bars() as bar:
-        try:
-            res = run_predictivity(cfg, out / "runs", be, stage_progress(bar), quick=quick)
-        except (TargetError, ValueError) as exc:
-            fail(exc)
-        finally:
-            be.close()
+    res = run_study(backend, workers, lambda be, progress: run_predictivity(cfg, out / "runs", be, progress,
+                                                                            quick=quick))
     wall = time.perf_counter() - t0
     files = write_report(res, out, wall)
     console.print(f"[bold]target:[/bold] {res.target.info.statement}", highlight=False)
@@ -107,8 +98,8 @@ def optimize(
     quick: bool = typer.Option(False, "--quick", help="8 agents × 2 episodes × 12 s, at most 20 trials (plv: "
                                "PLVConfig.quick(), 4 trials)"),
     out: Path = typer.Option(Path("out/optimize"), help="folder for plots, trials table and episode cache"),
-    backend: str = typer.Option("local", help=BACKEND_HELP),
-    workers: int | None = typer.Option(None, min=1, help=WORKERS_HELP),
+    backend: BackendOption = "local",
+    workers: WorkersOption = None,
 ) -> None:
     """Find the simulator parameters θ* whose agent ranking best matches the target's (Optuna).
 
