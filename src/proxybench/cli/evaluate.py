@@ -300,15 +300,13 @@ def _quick(bench, episodes: int = 2, seconds: float = 15.0):
 
 def _videos(ev, specs, run_dir: Path) -> None:
     """Episode 0 of each admitted agent, recorded in the benchmark's domain."""
-    from proxybench.domain.params import DomainParams
-    from proxybench.domain.simulator import Simulator
     from proxybench.runner.evaluate import benchmark_domain
     from proxybench.runner.outcomes import make_agent_for
-    from proxybench.runner.record import record_episode
+    from proxybench.runner.record import record_run
 
     bench = ev.benchmark
     ep = bench.episode_specs()[0]
-    params = DomainParams.model_validate(benchmark_domain(bench).params)
+    domain = benchmark_domain(bench)
     written = []
     for spec in specs:
         if spec.label in ev.refused:
@@ -316,12 +314,11 @@ def _videos(ev, specs, run_dir: Path) -> None:
         agent = make_agent_for(spec)
         try:
             with status(f"recording {spec.label}"):
-                _, files = record_episode(Simulator(bench.map, params, npcs=bench.traffic()), agent, ep.seed,
-                                          bench.duration,
-                                          run_dir / "videos", stem=spec.label, pose=ep.pose, route=ep.route)
+                rec = record_run(domain, agent, bench.map, ep.seed, bench.duration, run_dir / "videos",
+                                 stem=spec.label, pose=ep.pose, route=ep.route, npcs=bench.traffic())
         finally:
             getattr(agent, "close", lambda: None)()
-        written += files
+        written += rec.files
     console.print(f"wrote {', '.join(str(f) for f in written)}")
 
 

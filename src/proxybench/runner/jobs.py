@@ -63,6 +63,8 @@ class AgentSpec:
         return data
 
 
+#: [Hz] the camera rate of :class:`~proxybench.domain.params.DomainParams` when nobody sets one
+DEFAULT_FRAME_RATE = 15.0
 #: what a domain can be: a proxy instance S_θ, the built-in reality model, or a robot node (the robot protocol)
 DOMAIN_KINDS = ("simulation", "reality-model", "robot")
 
@@ -81,7 +83,9 @@ class DomainSpec:
     to one physical robot, raise it for a simulator node. ``options``: how to start and talk to the node,
     the non-default fields of :class:`~proxybench.protocol.options.RobotNodeOptions` (working directory,
     transport, timeouts, reflection) as sorted pairs; of them only ``cwd`` is part of the key (it changes
-    what the command runs; a timeout or the transport does not change an episode).
+    what the command runs; a timeout or the transport does not change an episode). ``frame_rate`` [Hz]: what a
+    robot node is asked to step at (the benchmark's or the proxies' rate; a node that says its own rate is
+    stepped at that); part of the key when it is not the default 15 Hz.
     """
 
     name: str
@@ -90,12 +94,15 @@ class DomainSpec:
     command: str | None = None
     nodes: int = 1
     options: tuple[tuple[str, Any], ...] = ()
+    frame_rate: float = DEFAULT_FRAME_RATE
 
     @classmethod
-    def robot(cls, command: str, *, name: str | None = None, nodes: int = 1, options: Any = None) -> DomainSpec:
-        """A robot domain; ``options``: a ``RobotNodeOptions`` (or None for the defaults)."""
+    def robot(cls, command: str, *, frame_rate: float, name: str | None = None, nodes: int = 1,
+              options: Any = None) -> DomainSpec:
+        """A robot domain stepped at ``frame_rate`` [Hz]; ``options``: a ``RobotNodeOptions`` (or None for the
+        defaults)."""
         return cls(name or f"robot:{command}", kind="robot", command=command, nodes=nodes,
-                   options=options.items() if options is not None else ())
+                   options=options.items() if options is not None else (), frame_rate=float(frame_rate))
 
     def node_options(self):
         """The ``RobotNodeOptions`` of a robot domain."""
@@ -125,6 +132,8 @@ class DomainSpec:
         cwd = dict(self.options).get("cwd")
         if cwd is not None:  # absent otherwise, so robot domains without one keep their keys
             doc["cwd"] = cwd
+        if self.kind == "robot" and self.frame_rate != DEFAULT_FRAME_RATE:  # likewise
+            doc["frame_rate"] = self.frame_rate
         return json.dumps(doc, sort_keys=True)
 
 
