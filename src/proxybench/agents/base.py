@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from proxybench.domain.lane_pose import LanePose
+from proxybench.domain.maps import Map
 from proxybench.domain.routes import RouteInfo
 
 __all__ = ["Agent", "Observation"]
@@ -26,7 +27,9 @@ class Observation:
     right) wheel axis angles [rad], quantised to the encoder's ``odometry_resolution`` [rad];
     ``lane_pose``: ground truth, given to privileged agents only (through an intersection, measured
     against the lane of the chosen exit); ``route``: the turn chosen at the intersection ahead and the
-    distance to its stop line, privileged agents only.
+    distance to its stop line, privileged agents only; ``pose``: the true (x [m], y [m], θ [rad]) in the
+    map frame, privileged agents only; ``front_range``: the front time-of-flight sensor's range [m] (None:
+    nothing in range, or a plant without one).
     """
 
     camera: np.ndarray | None
@@ -35,6 +38,8 @@ class Observation:
     odometry_resolution: float | None = None
     lane_pose: LanePose | None = None
     route: RouteInfo | None = None
+    pose: tuple[float, float, float] | None = None
+    front_range: float | None = None
 
 
 class Agent(ABC):
@@ -44,6 +49,9 @@ class Agent(ABC):
     privileged: bool = False
     #: short identifier used in result tables
     name: str = "agent"
+
+    def set_map(self, map_: Map) -> None:  # noqa: B027 - optional hook
+        """The map of the coming episode, before :meth:`reset` (an SDK agent serves it as the map layer)."""
 
     def reset(self, seed: int, episode: str | None = None) -> None:  # noqa: B027 - optional hook
         """Called at the start of every episode, before the first observation."""

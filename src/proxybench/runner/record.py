@@ -53,7 +53,8 @@ def record_episode(
             on_frame(k)
 
     try:
-        traj = run_episode(sim, agent, seed, seconds, pose=pose, camera=not agent.privileged, on_frame=frame,
+        traj = run_episode(sim, agent, seed, seconds, pose=pose, on_frame=frame,
+                           camera=not agent.privileged or getattr(agent, "wants_camera", False),
                            image_filter=camera_filter(), meta=meta, route=route)
     finally:
         if writer is not None:
