@@ -42,7 +42,7 @@ class RobotDriver(Agent):
     """Drives the rollout from the commands an SDK agent sends to ``robot`` (see the module docstring)."""
 
     def __init__(self, robot: VirtualDB21J | None, *, timing: str = "realtime", start_timeout: float = 60.0,
-                 step_timeout: float = 5.0, max_commands: int = 100):
+                 step_timeout: float = 5.0, max_commands: int = 30):
         if timing not in ("realtime", "lockstep"):
             raise ValueError(f"timing must be 'realtime' or 'lockstep', not {timing!r}")
         self.robot = robot
