@@ -22,7 +22,7 @@ from proxybench.dtps.maplayer import map_layers
 from proxybench.dtps.options import SdkOptions, parse_sdk
 from proxybench.runner.jobs import AgentSpec, is_privileged
 from proxybench.tasks.agent_entries import AgentEntry
-from proxybench.usefulness.agent_args import AgentArgError, parse_agent
+from proxybench.experiments.agent_args import AgentArgError, parse_agent
 
 AGENTS = Path(__file__).parent / "dtps_agents"
 

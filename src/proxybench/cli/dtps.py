@@ -76,7 +76,7 @@ def serve(
     from proxybench.domain.params import DomainParams
     from proxybench.dtps.env import DtpsEnvError
     from proxybench.dtps.link import BridgeError
-    from proxybench.dtps.serve import serve as run_serve
+    from proxybench.runner.dtps_serve import serve as run_serve
 
     def said(k: int, traj) -> None:
         console.print(f"episode {k}: {traj.duration:.1f} s, end={traj.termination}", highlight=False)
