@@ -20,9 +20,9 @@ from proxybench.dtps import pipe
 from proxybench.dtps.env import DtpsEnvError, sdk_python
 from proxybench.dtps.maplayer import map_layers
 from proxybench.dtps.options import SdkOptions, parse_sdk
+from proxybench.experiments.agent_args import AgentArgError, parse_agent
 from proxybench.runner.jobs import AgentSpec, is_privileged
 from proxybench.tasks.agent_entries import AgentEntry
-from proxybench.experiments.agent_args import AgentArgError, parse_agent
 
 AGENTS = Path(__file__).parent / "dtps_agents"
 
@@ -96,10 +96,10 @@ def test_the_pipe_format_splits_messages_and_refuses_garbage():
 # ---------------------------------------------------------------------------------- with the SDK
 def _episode(command: str, seconds: float, **options):
     from proxybench.domain.params import DomainParams
+    from proxybench.domain.simulator import Simulator
     from proxybench.dtps.agent import SdkAgent
     from proxybench.runner.episode import run_episode
     from proxybench.runner.jobs import camera_filter
-    from proxybench.domain.simulator import Simulator
 
     sim = Simulator("loop_3x3", DomainParams(image_width=160, image_height=120))
     options = {"start_timeout": 30.0, "cwd": str(AGENTS)} | options
@@ -160,18 +160,23 @@ def test_an_sdk_agent_is_ranked_by_predictivity(tmp_path):
 @sdk
 def test_dtps_serve_records_episodes_ended_by_the_agents_reset(tmp_path):
     out = tmp_path / "serve"
-    server = subprocess.Popen([sys.executable, "-m", "proxybench", "dtps", "serve", "--seconds", "8", "--width", "160",
+    server = subprocess.Popen([sys.executable, "-m", "proxybench", "dtps", "serve", "--seconds", "90", "--width", "160",
                                "--height", "120", "--out", str(out)], stdout=subprocess.PIPE, text=True)
+    agent = None
     try:
         assert "serving a SIMULATED DB21J" in server.stdout.readline()
         agent = subprocess.Popen([str(sdk_python()), str(AGENTS / "reset.py")], stderr=subprocess.DEVNULL)
-        try:
-            server.wait(timeout=120)
-        finally:
+        lines = []
+        while not any("end=reset" in line for line in lines):  # until an episode ends by the agent's reset
+            line = server.stdout.readline()
+            assert line, f"the server ended: {lines}"
+            lines.append(line)
+    finally:
+        if agent is not None:
             agent.kill()
             agent.wait()
-    finally:
         server.kill()
+        server.wait()
     from proxybench.tasks.trajectory import Trajectory
 
     ends = [Trajectory.load(p).termination for p in sorted(out.glob("episode-*.parquet"))]

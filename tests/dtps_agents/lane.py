@@ -4,7 +4,6 @@ Finds the yellow centre line and the white edge in the lower half of the BGR cam
 between them. Runs unchanged on the Duckiematrix, a real DB21J (``DB21J("mybot")``) or proxybench.
 """
 import numpy as np
-
 from duckietown.sdk.robots.duckiebot import DB21J
 
 robot = DB21J("map_0/vehicle_0", simulated=True)

@@ -145,8 +145,8 @@ def _agent(agent_name: str, agent_cmd: str | None, options):
             err_console.print(f"[red]error:[/red] {escape(str(exc.args[0]))}", highlight=False)
             raise typer.Exit(2) from exc
     from proxybench.dtps.env import DtpsEnvError
-    from proxybench.runner.outcomes import make_agent_for
     from proxybench.experiments.agent_args import AgentArgError, parse_agent
+    from proxybench.runner.outcomes import make_agent_for
 
     try:
         spec = parse_agent(agent_name)

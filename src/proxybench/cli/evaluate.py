@@ -208,8 +208,8 @@ def _repeatability_report(res, agent: str, seconds: float, map_name: str, out: P
 def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:
     """--agent and --agent-cmd, else the benchmark file's ``agents:``, else every zoo agent."""
     from proxybench.agents import ZOO
-    from proxybench.runner.jobs import AgentSpec
     from proxybench.experiments.agent_args import AgentArgError, parse_agent
+    from proxybench.runner.jobs import AgentSpec
 
     if not names and not commands:
         if bench.agents:
