@@ -1,12 +1,12 @@
 """``proxybench dtps serve``: the simulator as a virtual DB21J that an SDK agent started by the user drives.
 
-The runner's part of :mod:`proxybench.dtps`: it builds the plant
-(:func:`~proxybench.runner.episode.sim_plant`) and plays :func:`~proxybench.runner.rollout.rollout` with a
-:class:`ServeDriver` on the virtual robot. The server runs in real time whether or not an agent is
-connected (the robot holds (0, 0) until a command comes), like the Duckiematrix. An episode ends when the agent publishes ``state/reset`` (termination
-``reset``), when the robot leaves the road or collides, or after ``episode_seconds``; the robot is then
-teleported to the next start pose (seed + 1) and a new episode begins. Every episode is saved as a
-trajectory (``episode-<k>.parquet``) in the output folder, with the serve's timing in its metadata.
+The runner's part of :mod:`proxybench.dtps`: it builds the plant (:func:`~proxybench.runner.episode.sim_plant`)
+and plays :func:`~proxybench.runner.rollout.rollout` with a :class:`ServeDriver` on the virtual robot. The
+server runs in real time whether or not an agent is connected (the robot holds (0, 0) until a command comes),
+like the Duckiematrix. An episode ends when the agent publishes ``state/reset`` (termination ``reset``), when
+the robot leaves the road or collides, or after ``episode_seconds``; the robot is then teleported to the next
+start pose (seed + 1) and a new episode begins. Every episode is saved as a trajectory (``episode-<k>.parquet``)
+in the output folder, with the serve's timing in its metadata.
 """
 
 from __future__ import annotations
