@@ -15,10 +15,11 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "proxybench"
 
 #: docs/DESIGN.md §2, bottom up: a module may import from its own package and from packages of a lower rank
 RANKS = {
-    "untrusted": 0, "media": 0, "__init__": 0,
+    "untrusted": 0, "media": 0, "lazy": 0, "__init__": 0,
     "domain": 1,
     "agents": 2,
     "learning": 3, "protocol": 3,
+    "dtps": 3.5,  # SDK agents over DTPS: above protocol (its process machinery), below tasks and runner
     "tasks": 4,
     "runner": 5, "usefulness": 5, "plots": 5,
     "targets": 6, "testing": 6, "contract": 6,

@@ -19,7 +19,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
-from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP
+from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP, proxy_params
 from proxybench.experiments.study import Cli, ConfigError, StudyConfig
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
@@ -159,7 +159,8 @@ class ExperimentConfig(StudyConfig):
     robot_options: Annotated[RobotNodeOptions | None, Cli(prefix="robot-")] = None
     """how to start and talk to the robot node (robot:CMD only)"""
     agents: Annotated[list[str | AgentEntry] | None, Cli("--agent", metavar="AGENT")] = Field(None, min_length=1)
-    """zoo name, NAME=COMMAND (node), checkpoint X.pt, or agent package .zip/.tar.gz"""
+    """zoo name, NAME=COMMAND (node), NAME=sdk:COMMAND (duckietown-sdk program), checkpoint X.pt, or agent package
+    .zip/.tar.gz"""
     map: str | None = None
     """map name or file"""
     episodes: int | None = Field(None, ge=1, le=10_000)
@@ -263,8 +264,6 @@ class ExperimentConfig(StudyConfig):
 
     @model_validator(mode="after")
     def _proxy_theta(self) -> ExperimentConfig:
-        from proxybench.experiments.proxies import proxy_params
-
         try:
             proxy_params(self.image_size, self.proxy)
         except ValidationError as exc:
@@ -351,7 +350,8 @@ def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize", 
     from proxybench.targets.spec import open_target
 
     target = target or open_target(cfg.target, params=cfg.target_params, robot_nodes=cfg.robot_nodes,
-                                   robot_options=cfg.robot_options)
+                                   robot_options=cfg.robot_options,
+                                   frame_rate=proxy_params(cfg.image_size, cfg.proxy).frame_rate)
     d = COMMAND_DEFAULTS[(command, quick)]
     if target.fixed_map is not None and cfg.map is not None and cfg.map != target.fixed_map:
         raise ConfigError(f"map: the target was recorded on {target.fixed_map!r}, the experiment asks for {cfg.map!r}")

@@ -46,7 +46,8 @@ class HeldOutConfig(StudyConfig):
     negative_case: bool = True
     """add the standing negative case (the shipped reality model against pinhole proxies)"""
     agents: Annotated[list[str] | None, Cli("--agent", metavar="AGENT")] = Field(None, min_length=2)
-    """zoo name, NAME=COMMAND (node), checkpoint X.pt, or agent package .zip/.tar.gz"""
+    """zoo name, NAME=COMMAND (node), NAME=sdk:COMMAND (duckietown-sdk program), checkpoint X.pt, or agent package
+    .zip/.tar.gz"""
     map: str = "loop_3x3"
     """map name or file"""
     episodes: int | None = Field(None, ge=1, le=1000)
