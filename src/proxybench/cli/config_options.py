@@ -225,6 +225,92 @@ def _param_name(path: tuple[str, ...]) -> str:
     return "cfg__" + "__".join(path)
 
 
+@dataclass
+class _Kind:
+    """How one kind of field is spelt: the type typer parses, extra ``typer.Option`` settings, the conversion."""
+
+    parsed: Any
+    convert: Callable[[Any], Any]
+    settings: dict[str, Any]
+
+
+def _same(value: Any) -> Any:
+    return value
+
+
+def _bad(item: str, shape: str, name: str) -> typer.BadParameter:
+    return typer.BadParameter(f"{item!r}: expected {shape}", param_hint=name)
+
+
+def _scalar_kind(tp: Any, field: Any, hint: Any) -> _Kind:
+    """A number (its bounds kept: an integer's as a range, a float's checked), a choice, a path or text."""
+    if tp is int:
+        b = _bounds(field)
+        return _Kind(int, _same, {"min": b.get("ge", b["gt"] + 1 if "gt" in b else None),
+                                  "max": b.get("le", b["lt"] - 1 if "lt" in b else None)})
+    if tp is float:
+        return _Kind(float, _same, {"callback": _float_check(_bounds(field))})
+    if typing.get_origin(tp) is Literal:
+        choices = typing.get_args(tp)
+        return _Kind(str, _same, {"callback": _choice_check(choices), "metavar": "|".join(map(str, choices))})
+    return _Kind(Path if tp is Path else str, str, {"metavar": hint.metavar})
+
+
+def _tuple_kind(tp: Any, elem: Any, sep: str, name: str, hint: Any) -> _Kind:
+    """A fixed-size tuple: one value, e.g. 160x120."""
+    metavar = hint.metavar or sep.join(["V"] * len(typing.get_args(tp)))
+
+    def convert(v: str) -> Any:
+        try:
+            return _split(v, elem, sep)
+        except ValueError:
+            raise _bad(v, metavar, name) from None
+
+    return _Kind(str, convert, {"metavar": metavar})
+
+
+def _list_kind(elem: Any, sep: str, name: str, hint: Any) -> _Kind:
+    """A repeated option; numbers may also come separated (``--ladder 50,100``)."""
+    numeric = elem in (int, float)
+
+    def convert(items: list[str]) -> list[Any]:
+        out: list[Any] = []
+        for item in items:
+            try:
+                out += _split(item, elem, sep) if numeric else [_scalar(elem)(item)]
+            except ValueError:
+                raise _bad(item, f"{elem.__name__} values", name) from None
+        return out
+
+    return _Kind(list[str], convert, {"metavar": hint.metavar or (f"V[{sep}V…]" if numeric else None)})
+
+
+def _mapping_kind(tp: Any, sep: str, name: str, hint: Any) -> _Kind:
+    """Repeated ``NAME=VALUE``: a mapping's items, or a nested group's keys (values of ``Any``: YAML)."""
+    value_tp = typing.get_args(tp)[1] if typing.get_origin(tp) else Any
+    inner = _elements(value_tp)
+    if inner is not None:
+        size = len(typing.get_args(value_tp)) if inner[1] else 0
+        metavar = hint.metavar or ("NAME=" + sep.join(f"V{i + 1}" for i in range(size)) if size
+                                   else f"NAME=V1{sep}V2{sep}…")
+    else:
+        metavar = hint.metavar or ("KEY=VALUE" if dataclasses.is_dataclass(tp) else "NAME=VALUE")
+
+    def convert(items: list[str]) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for item in items:
+            key, eq, raw = item.partition("=")
+            try:
+                if not eq or not key.strip():
+                    raise ValueError
+                out[key.strip()] = _split(raw, inner[0], sep) if inner else _scalar(value_tp)(raw.strip())
+            except ValueError:
+                raise _bad(item, metavar, name) from None
+        return out
+
+    return _Kind(list[str], convert, {"metavar": metavar})
+
+
 def _option(path: tuple[str, ...], field: Any, name: str, command_default: str | None,
             panel: str) -> StudyOption | None:
     """The option of one (non-section) field, or None for a type the command line cannot spell."""
@@ -235,83 +321,20 @@ def _option(path: tuple[str, ...], field: Any, name: str, command_default: str |
     common: dict[str, Any] = {"help": escape(help_text), "show_default": False, "rich_help_panel": panel}
     decls = [name] + ([hint.short] if hint.short else [])
     seq = _elements(tp)
-
-    def bad(item: str, shape: str) -> typer.BadParameter:
-        return typer.BadParameter(f"{item!r}: expected {shape}", param_hint=name)
-
     if tp is bool:
-        annotation: Any = Annotated[bool | None, typer.Option(f"{name}/{_negative(name, path[-1])}", **common)]
-        convert: Callable[[Any], Any] = lambda v: v  # noqa: E731
-    elif tp in (int, float) or tp is str or tp is Path or typing.get_origin(tp) is Literal:
-        kind = {int: int, float: float, Path: Path}.get(tp, str)
-        if kind is int:
-            b = _bounds(field)
-            lo = b.get("ge", b["gt"] + 1 if "gt" in b else None)
-            hi = b.get("le", b["lt"] - 1 if "lt" in b else None)
-            opt = typer.Option(*decls, min=lo, max=hi, **common)
-        elif kind is float:
-            opt = typer.Option(*decls, callback=_float_check(_bounds(field)), **common)
-        elif typing.get_origin(tp) is Literal:
-            choices = typing.get_args(tp)
-            opt = typer.Option(*decls, callback=_choice_check(choices), metavar="|".join(map(str, choices)), **common)
-        else:
-            opt = typer.Option(*decls, metavar=hint.metavar, **common)
-        annotation = Annotated[kind | None, opt]
-        convert = (lambda v: str(v)) if kind is Path else (lambda v: v)
-    elif seq is not None and seq[1]:  # a fixed-size tuple: one value, e.g. 160x120
-        elem, _ = seq
-        metavar = hint.metavar or sep.join(["V"] * len(typing.get_args(tp)))
-
-        def convert(v: str, elem=elem) -> Any:
-            try:
-                return _split(v, elem, sep)
-            except ValueError:
-                raise bad(v, metavar) from None
-
-        annotation = Annotated[str | None, typer.Option(*decls, metavar=metavar, **common)]
-    elif seq is not None:  # repeated; numbers may also come comma-separated
-        elem, _ = seq
-        numeric = elem in (int, float)
-
-        def convert(items: list[str], elem=elem, numeric=numeric) -> list[Any]:
-            out: list[Any] = []
-            for item in items:
-                try:
-                    out += _split(item, elem, sep) if numeric else [_scalar(elem)(item)]
-                except ValueError:
-                    raise bad(item, f"{elem.__name__} values") from None
-            return out
-
-        metavar = hint.metavar or (f"V[{sep}V…]" if numeric else None)
-        annotation = Annotated[list[str] | None, typer.Option(*decls, metavar=metavar, **common)]
+        kind, decls = _Kind(bool, _same, {}), [f"{name}/{_negative(name, path[-1])}"]
+    elif tp in (int, float, str, Path) or typing.get_origin(tp) is Literal:
+        kind = _scalar_kind(tp, field, hint)
+    elif seq is not None:
+        kind = _tuple_kind(tp, seq[0], sep, name, hint) if seq[1] else _list_kind(seq[0], sep, name, hint)
     elif typing.get_origin(tp) in (dict, Mapping) or dataclasses.is_dataclass(tp):
-        value_tp = typing.get_args(tp)[1] if typing.get_origin(tp) else Any
-        inner = _elements(value_tp)
-        if inner is not None:
-            size = len(typing.get_args(value_tp)) if inner[1] else 0
-            metavar = hint.metavar or ("NAME=" + sep.join(f"V{i + 1}" for i in range(size)) if size
-                                       else f"NAME=V1{sep}V2{sep}…")
-        else:
-            metavar = hint.metavar or ("KEY=VALUE" if dataclasses.is_dataclass(tp) else "NAME=VALUE")
-
-        def convert(items: list[str], inner=inner, value_tp=value_tp, metavar=metavar) -> dict[str, Any]:
-            out: dict[str, Any] = {}
-            for item in items:
-                key, eq, raw = item.partition("=")
-                try:
-                    if not eq or not key.strip():
-                        raise ValueError
-                    out[key.strip()] = _split(raw, inner[0], sep) if inner else _scalar(value_tp)(raw.strip())
-                except ValueError:
-                    raise bad(item, metavar) from None
-            return out
-
-        annotation = Annotated[list[str] | None, typer.Option(*decls, metavar=metavar, **common)]
+        kind = _mapping_kind(tp, sep, name, hint)
     else:
         return None
-    return StudyOption(path, name, _param_name(path),
-                       inspect.Parameter(_param_name(path), inspect.Parameter.KEYWORD_ONLY, default=None,
-                                         annotation=annotation), convert)
+    annotation = Annotated[kind.parsed | None, typer.Option(*decls, **common, **kind.settings)]
+    param = _param_name(path)
+    return StudyOption(path, name, param, inspect.Parameter(param, inspect.Parameter.KEYWORD_ONLY, default=None,
+                                                            annotation=annotation), kind.convert)
 
 
 def _negative(name: str, field_name: str) -> str:
