@@ -62,13 +62,13 @@ class RealityTarget(_LiveTarget):
         from pydantic import ValidationError
 
         from proxybench.domain.reality import reality_params
+        from proxybench.untrusted import problems
 
         self.overrides = dict(overrides or {})
         try:
             reality_params(**self.overrides)
         except ValidationError as exc:
-            bad = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
-            raise TargetError(f"target_params: {bad}") from None
+            raise TargetError(problems(exc, "target_params")) from None
 
     def domain(self, image_size: tuple[int, int]) -> DomainSpec:
         from proxybench.domain.reality import reality_params
