@@ -211,12 +211,32 @@ def _load_trajectory(root: Path, manifest: TargetManifest, m, agent: str, episod
     except TrajectoryError as exc:
         return None, [str(exc)], notes
     traj.meta["episode_seconds"] = manifest.seconds
+    if traj.termination == "timeout":
+        _mark_early_end(traj, manifest.seconds, m)
     if traj.duration > manifest.seconds + 0.5:
         notes.append(f"{path}: {traj.duration:.1f} s long, longer than the manifest's seconds ({manifest.seconds:g}); "
                      "survival_time is capped there")
     seed = int(meta.get("seed", manifest.seed * 10_000 + episode))
     scores = {name: METRICS[name](traj) for name in metrics}
     return RecordedEpisode(agent, episode, seed, pose0, str(path), scores, traj.termination, traj.duration), [], notes
+
+
+def _mark_early_end(traj, seconds: float, m) -> None:
+    """An imported run whose samples stop before the episode's length ended early: off the road when its last
+    pose is off the drivable tiles (the simulator's rule), else for a reason the file does not say."""
+    t = traj["t"]
+    step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    if seconds - traj.duration <= max(2 * step, 0.1):  # the recording runs to the end (within a sample or two)
+        return
+    x, y = float(traj["x"][-1]), float(traj["y"][-1])
+    tile = m.tile_at(x, y)
+    if tile is None or not tile.drivable:
+        kind, why = "off_road", f"its last pose ({x:.2f}, {y:.2f}) m is off the road"
+    else:
+        kind, why = "ended_early", "the file does not say why"
+    traj.termination = kind
+    traj.events.append({"t": traj.duration, "kind": kind,
+                        "message": f"the recording ends at {traj.duration:.2f} s of {seconds:g} s; {why}"})
 
 
 def _metric_problem(name: str) -> str | None:
