@@ -187,7 +187,7 @@ def test_open_target_tells_the_kinds_apart(tmp_path):
         open_target(str(tmp_path / "nowhere"))
     with pytest.raises(TargetError, match="robot: needs the command"):
         open_target("robot:")
-    with pytest.raises(TargetError, match="target_params: unknown domain parameter 'trimm' .did you mean 'trim'"):
+    with pytest.raises(TargetError, match=r"target_params: unknown domain parameter 'trimm' \(did you mean 'trim'"):
         open_target("reality", params={"trimm": 0.1})
     with pytest.raises(TargetError, match="only the reality model's parameters"):
         open_target(str(tmp_path / "lab"), params={"trim": 0.1})
