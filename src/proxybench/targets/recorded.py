@@ -18,6 +18,7 @@ off the map, a file recorded on another map, unknown metrics. :func:`check_recor
 from __future__ import annotations
 
 import difflib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -79,18 +80,40 @@ class Recording:
     def agents(self) -> list[str]:
         return list(self.manifest.agents)
 
-    def select(self, agents: list[str], n_episodes: int | None) -> list[RecordedEpisode]:
-        """Episodes of ``agents`` (each must be recorded), the first ``n_episodes`` ids of the manifest."""
+    def select(self, agents: list[str], episodes: int | Sequence[int] | None) -> list[RecordedEpisode]:
+        """Episodes of ``agents`` (each must be recorded): the first ``episodes`` ids of the manifest (a count),
+        those ids (a list: a fit / held-out split of one recording), or all (None)."""
         missing = [a for a in agents if a not in self.manifest.agents]
         if missing:
             raise TargetError(f"{self.root}: agent(s) {', '.join(map(repr, missing))} not in the recording "
                               f"(it has {', '.join(self.manifest.agents)})")
-        ids = self.manifest.episodes
-        if n_episodes is not None:
-            if n_episodes > len(ids):
-                raise TargetError(f"episodes: {n_episodes} asked, the recording at {self.root} has {len(ids)}")
-            ids = ids[:n_episodes]
+        ids = list(self.manifest.episodes)
+        if isinstance(episodes, int):
+            if episodes > len(ids):
+                raise TargetError(f"episodes: {episodes} asked, the recording at {self.root} has {len(ids)}")
+            ids = ids[:episodes]
+        elif episodes is not None:
+            absent = [e for e in episodes if e not in ids]
+            if absent:
+                raise TargetError(f"episodes: {', '.join(map(str, absent))} not in the recording at {self.root} (it "
+                                  f"has {_id_ranges(ids)})")
+            ids = list(episodes)
         return [self.episodes[(a, e)] for a in agents for e in ids]
+
+
+def _id_ranges(ids: Sequence[int]) -> str:
+    """Episode ids written as ranges: 0-4, 7."""
+    out, run = [], []
+    for e in sorted(ids):
+        if run and e == run[-1] + 1:
+            run.append(e)
+            continue
+        if run:
+            out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+        run = [e]
+    if run:
+        out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+    return ", ".join(out)
 
 
 def resolve_map(root: Path, name: str) -> str:
