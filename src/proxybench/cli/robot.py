@@ -32,8 +32,9 @@ def parse_params(items: list[str]) -> DomainParams:
     try:
         return DomainParams.model_validate(values)
     except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
-        raise typer.BadParameter(problems, param_hint="--param") from exc
+        from proxybench.untrusted import problems
+
+        raise typer.BadParameter(problems(exc), param_hint="--param") from exc
 
 
 @robot_app.command("serve")
