@@ -14,6 +14,8 @@ from proxybench.agents.base import Agent, Observation
 from proxybench.domain.dynamics import ST, TRACE_FIELDS, wheel_ticks
 from proxybench.domain.episode_end import end_event, ended
 from proxybench.domain.lane_pose import LanePose
+from proxybench.domain.maps import Map
+from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
 from proxybench.runner.npcs import NpcDrivers
 from proxybench.runner.rollout import AgentPolicy, PrivilegedAgentError, rollout
@@ -38,6 +40,13 @@ class SimPlant:
         self.map = sim.map
         self.image_filter = image_filter
         self.drivers: NpcDrivers | None = None
+
+    @classmethod
+    def create(cls, map_: Map | str, params: DomainParams | None = None, n: int = 1, *,
+               image_filter: Callable[[np.ndarray], np.ndarray] | None = None) -> SimPlant:
+        """A plant over a fresh simulator of ``n`` robots on ``map_`` with θ ``params`` (for callers above the
+        runner, which build no simulators of their own)."""
+        return cls(Simulator(map_, params, n=n), image_filter)
 
     def begin(self, seeds: Sequence[int], poses: Sequence[Any], routes: Sequence[Any], seconds: float,
               camera: bool, privileged: Sequence[bool]) -> int:
