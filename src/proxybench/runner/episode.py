@@ -48,6 +48,11 @@ class SimPlant:
         runner, which build no simulators of their own)."""
         return cls(Simulator(map_, params, n=n), image_filter)
 
+    @property
+    def frame_rate(self) -> float:
+        """[Hz] camera frames (decisions) per second."""
+        return 1.0 / self.sim.frame_dt
+
     def begin(self, seeds: Sequence[int], poses: Sequence[Any], routes: Sequence[Any], seconds: float,
               camera: bool, privileged: Sequence[bool]) -> int:
         sim, n = self.sim, self.n

@@ -158,7 +158,7 @@ class AgentContract(Contract):
     @classmethod
     def for_spec(cls, spec: Any, **kwargs: Any) -> AgentContract:
         """The agent a runner :class:`~proxybench.runner.jobs.AgentSpec` names (zoo, checkpoint or node)."""
-        from proxybench.runner.jobs import make_agent_for
+        from proxybench.runner.outcomes import make_agent_for
 
         what = f"agent node {spec.name!r}" if spec.command else f"agent {spec.name!r}"
         return cls(lambda: make_agent_for(spec), name=what, **kwargs)

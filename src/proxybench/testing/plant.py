@@ -6,8 +6,9 @@ A plant is where the robots of :func:`~proxybench.runner.rollout.rollout` live (
 - ``starts``: the factory makes a plant and it begins an episode (a plant that cannot start raises a clear,
   named error, e.g. :class:`~proxybench.protocol.RobotFailure` ``start-failed``: the reason says which);
 - ``start-pose``: an episode begun at a requested start pose starts there (t = 0, within a tolerance);
-- ``stepping``: ``begin`` counts the episode's frames, ``advance`` holds the commands and answers events as
-  (robot, event with ``t`` and ``kind``, ends it), the robots move, and ``samples`` are finite rows
+- ``stepping``: the plant runs at the frame rate asked for (``plant.frame_rate``), ``begin`` counts the
+  episode's frames, ``advance`` holds the commands and answers events as (robot, event with ``t`` and
+  ``kind``, ends it), the robots move, and ``samples`` are finite rows
   t, x, y, θ, v, ω, pwm_left, pwm_right from t = 0 to the last frame's time;
 - ``observations``: camera frames are (H, W, 3) uint8 of one size; observation times advance by 1/frame_rate;
   camera agents are given no ground truth, privileged agents the true lane pose (where the plant has one);
@@ -80,7 +81,8 @@ def _seen(k: int, i: int, image: Any, obs: Any, plant_time: float) -> dict[str, 
 class PlantContract(Contract):
     """The plant contract over the plants ``factory`` makes (each call: a fresh plant).
 
-    ``frame_rate`` [Hz]: the rate its frames must come at; ``seconds``: each test episode's length; ``seeds``:
+    ``frame_rate`` [Hz]: the rate its frames must come at (None: the rate the plant says, ``plant.frame_rate``);
+    ``seconds``: each test episode's length; ``seeds``:
     two different episode seeds; tolerances: start pose [m], [rad], times [s]; ``image_size``: (width, height)
     its frames must have (None: any one size); ``atol``: how far two runs' samples may differ and count as
     the same (0: bit for bit).
@@ -89,7 +91,7 @@ class PlantContract(Contract):
     CHECKS = ("starts", "start-pose", "stepping", "observations", "determinism", "failure")
     title = "plant contract"
 
-    def __init__(self, factory: Callable[[], Plant], *, name: str = "plant", frame_rate: float = 15.0,
+    def __init__(self, factory: Callable[[], Plant], *, name: str = "plant", frame_rate: float | None = None,
                  seconds: float = 1.0, seeds: tuple[int, int] = (1, 2), position_tolerance: float = 1e-3,
                  heading_tolerance: float = 1e-3, time_tolerance: float = 1e-6,
                  image_size: tuple[int, int] | None = None, atol: float = 0.0):
@@ -98,7 +100,7 @@ class PlantContract(Contract):
             raise ValueError(f"PlantContract: seeds must be two different seeds, got {seeds}")
         self.factory = factory
         self.subject = name
-        self.frame_rate = float(frame_rate)
+        self.expected_rate = None if frame_rate is None else float(frame_rate)
         self.seconds = float(seconds)
         self.seeds = tuple(int(s) for s in seeds)
         self.position_tolerance, self.heading_tolerance = position_tolerance, heading_tolerance
@@ -106,13 +108,20 @@ class PlantContract(Contract):
         self.image_size = image_size
         self.atol = float(atol)
 
+    @property
+    def frame_rate(self) -> float:
+        """[Hz] the rate frames must come at: the one asked for, else the one the plant says it runs at."""
+        if self.expected_rate is not None:
+            return self.expected_rate
+        return float(self._started().frame_rate)
+
     # -- constructors -------------------------------------------------------------------------------
     @classmethod
     def for_simulator(cls, map_name: str = "loop_3x3", params: DomainParams | None = None, n: int = 2,
                       **kwargs: Any) -> PlantContract:
         """The batched simulator (``SimPlant`` of ``n`` robots, with the JPEG round trip agents see)."""
         from proxybench.runner.episode import SimPlant
-        from proxybench.runner.jobs import camera_filter
+        from proxybench.runner.outcomes import camera_filter
 
         params = params or DomainParams(image_width=160, image_height=120)
         kwargs.setdefault("image_size", (params.image_width, params.image_height))
@@ -238,6 +247,9 @@ class PlantContract(Contract):
 
     def check_stepping(self) -> tuple[bool, str]:
         ep = self._episode("plain", self.seeds[0])
+        said = getattr(self._started(), "frame_rate", None)
+        if not (isinstance(said, int | float) and math.isclose(said, self.frame_rate, rel_tol=1e-9)):
+            return False, f"the plant says it runs at {said!r} frames/s; expected {self.frame_rate:g} Hz"
         expected = max(1, round(self.seconds * self.frame_rate))
         if ep.steps != expected:
             return False, f"begin() said {ep.steps} frames for {self.seconds:g} s at {self.frame_rate:g} Hz " \
@@ -255,9 +267,9 @@ class PlantContract(Contract):
             moved = float(np.hypot(*(rows[-1, 1:3] - rows[0, 1:3])))
             if ep.frames[i] >= 3 and moved < MIN_TRAVEL_M:
                 return False, f"robot {i} moved {moved:.4f} m in {ep.frames[i]} frames of forward commands"
-            said = ep.meta[i]
-            if not (isinstance(said, dict) and isinstance(said.get("source"), str) and "params" in said):
-                return False, f"robot {i}: meta() is {said!r}, not a dict with 'source' and 'params'"
+            meta = ep.meta[i]
+            if not (isinstance(meta, dict) and isinstance(meta.get("source"), str) and "params" in meta):
+                return False, f"robot {i}: meta() is {meta!r}, not a dict with 'source' and 'params'"
             if not (isinstance(ep.wheel_distance[i], int | float) and ep.wheel_distance[i] > 0):
                 return False, f"robot {i}: wheel_distance() is {ep.wheel_distance[i]!r}"
         ended = [f"robot {i}: {events[-1][1]['kind']} at frame {ep.frames[i]}" for i, events in enumerate(ep.events)

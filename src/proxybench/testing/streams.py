@@ -19,7 +19,7 @@ from proxybench.agents.zoo import make_agent
 from proxybench.domain.params import DomainParams
 from proxybench.protocol import jpeg
 from proxybench.runner.episode import SimPlant
-from proxybench.runner.jobs import camera_filter
+from proxybench.runner.outcomes import camera_filter
 from proxybench.runner.rollout import AgentPolicy, rollout
 
 __all__ = ["LANE_POSE_SHIFT", "Frame", "StreamSpec", "as_seen", "record_stream"]
