@@ -270,8 +270,8 @@ def start_cli_evaluator(served: Served, tmp_path: Path, name: str, *args: str) -
 
 
 def wait_for_episodes(proc: subprocess.Popen, work: Path) -> None:
-    """Until the evaluator's worker is running episodes."""
-    deadline = time.monotonic() + 40
+    """Until the evaluator's worker is running episodes (after the agent contract's node start and frames)."""
+    deadline = time.monotonic() + 90  # a guard against a hang, not a speed limit: the shared 2-core machine is slow
     while not list(work.glob("job-*/runs")):
         assert proc.poll() is None, f"the evaluator ended early:\n{proc.stdout.read() if proc.stdout else ''}"
         assert time.monotonic() < deadline, "the evaluator never started the job"

@@ -71,8 +71,7 @@ class Frame:
 def record_stream(map_name: str, params_json: str, seed: int, seconds: float, driver: str) -> tuple[Frame, ...]:
     """One episode's frames as the runner makes them (the JPEG round trip camera agents see), with the true lane
     pose and route of every frame; cached per process (streams are small and reused)."""
-    params = DomainParams.model_validate_json(params_json)
-    plant = SimPlant.create(map_name, params, image_filter=camera_filter())
+    plant = _plant(map_name, params_json)
     seen: list[Frame] = []
 
     def keep(k: int, images, alive, p: SimPlant) -> None:
@@ -81,6 +80,12 @@ def record_stream(map_name: str, params_json: str, seed: int, seconds: float, dr
 
     rollout(plant, AgentPolicy([make_agent(driver)]), [seed], seconds, camera=True, on_frame=keep)
     return tuple(seen)
+
+
+@functools.lru_cache(maxsize=4)
+def _plant(map_name: str, params_json: str) -> SimPlant:
+    """One simulator plant per map and θ, reused for every seed (building one costs more than its episodes)."""
+    return SimPlant.create(map_name, DomainParams.model_validate_json(params_json), image_filter=camera_filter())
 
 
 def as_seen(frame: Frame, privileged: bool, lane_pose: str = "as-run") -> Observation:
