@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from proxybench.cli import app
 from proxybench.domain.params import DomainParams
+from proxybench.domain.simulator import Simulator
 from proxybench.protocol import jpeg
 from proxybench.runner.episode import SimPlant
 from proxybench.testing import PlantContract
@@ -123,7 +124,7 @@ BROKEN = [
 
 @pytest.mark.parametrize(("cls", "failing", "words"), BROKEN, ids=[c.__name__ for c, _, _ in BROKEN])
 def test_a_broken_plant_fails_the_check_named_for_its_fault(cls: type[SimPlant], failing: set[str], words: str) -> None:
-    report = PlantContract(lambda: cls.create("loop_3x3", SMALL, 1, image_filter=jpeg.roundtrip),
+    report = PlantContract(lambda: cls(Simulator("loop_3x3", SMALL), jpeg.roundtrip),
                            name=cls.__name__, frame_rate=SMALL.frame_rate).run()
     assert {r.name for r in report.failures} == failing, report.summary()
     assert any(words in r.reason for r in report.failures), report.summary()

@@ -73,7 +73,7 @@ def _seen(k: int, i: int, image: Any, obs: Any, plant_time: float) -> dict[str, 
     else:
         out["image"] = None if image is None else type(image).__name__
     if isinstance(obs, Observation):
-        out.update(time=obs.time, odometry=obs.odometry, lane_pose=obs.lane_pose, route=obs.route,
+        out.update(time=obs.time, odometry=obs.odometry, lane_pose=obs.lane_pose, route=obs.route, pose=obs.pose,
                    same_image=obs.camera is image or (image is None and obs.camera is None))
     return out
 
@@ -120,12 +120,11 @@ class PlantContract(Contract):
     def for_simulator(cls, map_name: str = "loop_3x3", params: DomainParams | None = None, n: int = 2,
                       **kwargs: Any) -> PlantContract:
         """The batched simulator (``SimPlant`` of ``n`` robots, with the JPEG round trip agents see)."""
-        from proxybench.runner.episode import SimPlant
-        from proxybench.runner.outcomes import camera_filter
+        from proxybench.runner.episode import sim_plant
 
         params = params or DomainParams(image_width=160, image_height=120)
         kwargs.setdefault("image_size", (params.image_width, params.image_height))
-        return cls(lambda: SimPlant.create(map_name, params, n, image_filter=camera_filter()),
+        return cls(lambda: sim_plant(map_name, params, n),
                    name=f"simulator plant ({n} robots on {map_name})", frame_rate=params.frame_rate, **kwargs)
 
     @classmethod
@@ -325,8 +324,8 @@ class PlantContract(Contract):
         if odo is not None and not (len(odo) == 2 and all(isinstance(v, float | int) and math.isfinite(v)
                                                           for v in odo)):
             return f"odometry {odo!r} is not two finite angles"
-        if not privileged and (s["lane_pose"] is not None or s["route"] is not None):
-            return "a camera agent's observation carries ground truth (lane_pose / route)"
+        if not privileged and (s["lane_pose"] is not None or s["route"] is not None or s["pose"] is not None):
+            return "a camera agent's observation carries ground truth (lane_pose / route / pose)"
         if privileged and not isinstance(s["lane_pose"], LanePose):
             return f"a privileged agent's observation carries no true lane pose ({s['lane_pose']!r})"
         return None
