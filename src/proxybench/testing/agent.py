@@ -27,9 +27,8 @@ from typing import Any
 import numpy as np
 
 from proxybench.agents.base import Agent
-from proxybench.protocol.failures import NodeFailure
 from proxybench.protocol.process import AgentProcess, NodeProcess
-from proxybench.testing.results import CheckFailed, Contract, describe_error, kill_node
+from proxybench.testing.results import CheckFailed, Contract, describe_error, expect_node_failure, kill_node, release
 from proxybench.testing.streams import LANE_POSE_SHIFT, StreamSpec, as_seen
 
 __all__ = ["AgentContract", "Play"]
@@ -199,12 +198,12 @@ class AgentContract(Contract):
             keep = name == "first"
             if keep:
                 self._agents[name] = agent
-                self._on_close(lambda: _close(agent, quietly=True))
+                self._on_close(lambda: release(agent))
             try:
                 return [self._play(agent, episode, how) for episode, how in _SESSIONS[name]]
             finally:
                 if not keep:
-                    _close(agent, quietly=True)
+                    release(agent)
         return self._memoised(("session", name), run)
 
     def _first(self) -> Agent:
@@ -312,15 +311,7 @@ class AgentContract(Contract):
         for obs in frames[:2]:
             agent.act(as_seen(obs, privileged))
         kill_node(agent.process)
-        try:
-            agent.act(as_seen(frames[min(2, len(frames) - 1)], privileged))
-        except NodeFailure as exc:
-            died = f"killed mid-episode: {describe_error(exc)}"
-        except Exception as exc:
-            raise CheckFailed(f"a node killed mid-episode must be a named failure (a NodeFailure with a reason), "
-                              f"got {describe_error(exc)}", exc) from None
-        else:
-            raise CheckFailed("the node was killed mid-episode, yet the agent answered")
+        died = expect_node_failure("node", lambda: agent.act(as_seen(frames[min(2, len(frames) - 1)], privileged)))
         restarts = getattr(agent, "restarts", 0)
         play = self._play(agent, 0, "as-run")
         if play.error is not None or getattr(agent, "restarts", 0) != restarts + 1:
@@ -331,15 +322,3 @@ class AgentContract(Contract):
 def _camera_node(agent: Any) -> bool:
     """A camera-only agent behind the protocol (the caller sends it no ground truth whatever it is given)."""
     return isinstance(getattr(agent, "process", None), AgentProcess) and not agent.privileged
-
-
-def _close(agent: Any, quietly: bool = False) -> None:
-    """Release an agent (a node process); ``quietly``: whatever close() raises is the failure check's to report."""
-    close = getattr(agent, "close", None)
-    if close is None:
-        return
-    try:
-        close()
-    except Exception:
-        if not quietly:
-            raise

@@ -35,11 +35,10 @@ import numpy as np
 from proxybench.agents.base import Observation
 from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.params import DomainParams
-from proxybench.protocol.failures import NodeFailure
 from proxybench.protocol.process import NodeProcess
 from proxybench.runner.robot_episode import RobotPlant
 from proxybench.runner.rollout import Plant, PrivilegedAgentError
-from proxybench.testing.results import CheckFailed, Contract, describe_error, kill_node
+from proxybench.testing.results import CheckFailed, Contract, describe_error, expect_node_failure, kill_node, release
 
 __all__ = ["PlantContract"]
 
@@ -154,7 +153,7 @@ class PlantContract(Contract):
             plant = self.factory()
         except Exception as exc:  # e.g. RobotFailure start-failed: named, with the node's words
             raise CheckFailed(f"could not make the plant: {describe_error(exc)}", exc) from None
-        self._on_close(lambda: _close(plant))
+        self._on_close(lambda: release(plant))
         return plant
 
     def _plant(self) -> Plant:
@@ -351,7 +350,7 @@ class PlantContract(Contract):
         try:
             anew = self._drive(fresh, self.seeds[0], camera=True)
         finally:
-            _close(fresh)
+            release(fresh)
         for label, other in (("after another episode on the same plant", again), ("on a fresh plant", anew)):
             diff = self._difference(first, other)
             if diff is not None:
@@ -395,15 +394,8 @@ class PlantContract(Contract):
         return True, "; ".join(said)
 
     def _node_dies(self, plant: Plant) -> str:
-        try:
-            self._drive(plant, self.seeds[0], seconds=min(self.seconds, 0.4), kill_at=1)
-        except NodeFailure as exc:
-            died = f"killed mid-episode: {describe_error(exc)}"
-        except Exception as exc:
-            raise CheckFailed(f"a robot node killed mid-episode must be a named failure (a NodeFailure with a "
-                              f"reason), got {describe_error(exc)}", exc) from None
-        else:
-            raise CheckFailed("the robot node was killed mid-episode, yet the episode went on")
+        died = expect_node_failure("robot node",
+                                   lambda: self._drive(plant, self.seeds[0], seconds=min(self.seconds, 0.4), kill_at=1))
         try:
             plant.end()
             plant.end()
@@ -416,12 +408,6 @@ class PlantContract(Contract):
 def _node_process(plant: Any) -> NodeProcess | None:
     process = getattr(getattr(plant, "robot", None), "process", None)
     return process if isinstance(process, NodeProcess) else None
-
-
-def _close(plant: Any) -> None:
-    close = getattr(plant, "close", None)
-    if close is not None:
-        close()
 
 
 class _OwnedRobotPlant(RobotPlant):

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, Self
 
 __all__ = ["CheckFailed", "CheckResult", "Contract", "ContractReport", "ContractViolation", "describe_error",
-           "kill_node", "parametrize_checks"]
+           "expect_node_failure", "kill_node", "parametrize_checks", "release"]
 
 
 @dataclass(frozen=True)
@@ -190,6 +190,34 @@ def kill_node(process: Any) -> None:
             os.kill(pid, signal.SIGKILL)
     except ProcessLookupError:
         pass
+
+
+def expect_node_failure(what: str, call: Callable[[], Any]) -> str:
+    """``call()`` right after its node was killed must raise a named :class:`~proxybench.protocol.NodeFailure`;
+    what it said, in words (else :class:`CheckFailed`)."""
+    from proxybench.protocol.failures import NodeFailure
+
+    try:
+        call()
+    except NodeFailure as exc:
+        return f"killed mid-episode: {describe_error(exc)}"
+    except Exception as exc:
+        raise CheckFailed(f"a {what} killed mid-episode must be a named failure (a NodeFailure with a reason), got "
+                          f"{describe_error(exc)}", exc) from None
+    raise CheckFailed(f"the {what} was killed mid-episode, yet it went on as if alive")
+
+
+def release(thing: Any, quietly: bool = True) -> None:
+    """``thing.close()`` where it has one (a node agent, a plant owning its robot node); ``quietly``: whatever it
+    raises is the failure check's to report, not the caller's."""
+    close = getattr(thing, "close", None)
+    if close is None:
+        return
+    try:
+        close()
+    except Exception:
+        if not quietly:
+            raise
 
 
 def parametrize_checks(contract: type[Contract] | Contract, argname: str = "check"):
