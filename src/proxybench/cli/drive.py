@@ -57,6 +57,10 @@ def run(
     robot_start_timeout: RobotStartTimeout = None,
     robot_step_timeout: RobotStepTimeout = None,
     robot_no_reflection: RobotNoReflection = False,
+    watchtowers: str | None = typer.Option(
+        None, "--watchtowers", help="also record a lab's watchtowers into OUT/watchtowers (a log for `proxybench "
+                                    "localize`): auto (the layout file beside the map, else one generated to cover "
+                                    "the road) or a layout file (docs/autolab.md)"),
 ) -> None:
     """Drive an agent (default: the privileged PID controller) around a map in simulation and record it.
 
@@ -105,6 +109,11 @@ def run(
         run_on_robot(robot_cmd, agent, map_name, seconds, seed, out, robot_options)
         return
     params = DomainParams(image_width=width, image_height=height)
+    layout = streams = None
+    if watchtowers is not None:
+        from proxybench.autolab.cli_support import layout_streams
+
+        layout, streams, m = layout_streams(watchtowers, m)
     sim = Simulator(m, params)
     try:
         agent = make_agent(agent_name) if agent_cmd is None else remote_agent(agent_cmd, options)
@@ -119,11 +128,15 @@ def run(
         task = progress.add_task(f"{m.name}, {seconds:g} s", total=steps)
         try:
             traj, files = record_episode(sim, agent, seed, seconds, out, video=video, meta={"map": m.name},
-                                         on_frame=lambda k: progress.advance(task))
+                                         on_frame=lambda k: progress.advance(task), streams=streams)
         finally:
             getattr(agent, "close", lambda: None)()
     elapsed = time.perf_counter() - t0
     traj.save(out / "trajectory.parquet")
+    if layout is not None:
+        from proxybench.autolab.cli_support import finish_sim_log
+
+        files.append(finish_sim_log(out, layout, m.name, agent.name, seed, seconds, traj.termination))
     scores = {name: METRICS[name](traj) for name in _RUN_METRICS}
     record = {"map": m.name, "agent": agent.name, "privileged": agent.privileged, "seed": seed,
               "source": "simulation", "termination": traj.termination, **scores, "wall_s": round(elapsed, 2)}

@@ -20,12 +20,13 @@ from proxybench import __version__
 
 if TYPE_CHECKING:
     from proxybench.domain.npcs import Traffic
+    from proxybench.runner.streams import StreamSpec
 
 #: bump when what an episode produces changes without a change of its inputs (it is part of every job key)
-ENGINE_VERSION = 5  # 2: camera agents see JPEG-decoded frames, as over the AIDO protocol; 3: intersection routes;
+ENGINE_VERSION = 6  # 2: camera agents see JPEG-decoded frames, as over the AIDO protocol; 3: intersection routes;
 # 4: NPC robots and pedestrians simulated (benchmark ``npcs:``), object colours and extra duckies in θ;
 # 5: the vision agents' lane fit is compiled (closed-form least squares, equal to lstsq within 1e-9, so their
-# trajectories can differ in the last bits)
+# trajectories can differ in the last bits); 6: floor tags and NPC robots' roof tags drawn as AprilTag 36h11 patterns
 
 __all__ = [
     "DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "batch_group",
@@ -146,6 +147,7 @@ class Job:
     metrics: tuple[str, ...] = ()
     route: tuple[str, ...] | None = None  # turns at intersections (domain.routes); None: drawn from the seed
     npcs: Traffic | None = None  # NPC robots and pedestrians of the episode's world (domain.npcs)
+    streams: StreamSpec | None = None  # fixed cameras (watchtowers) recorded during the episode (runner.streams)
 
     def __post_init__(self) -> None:
         if self.domain.kind == "robot" and self.npcs is not None and not self.npcs.empty:
@@ -156,13 +158,13 @@ class Job:
     def key(self) -> str:
         """Content hash: equal keys ⇔ the same result (given deterministic agents). Computed once per job
         (it reads map and checkpoint files) and carried along when the job is pickled to a worker."""
-        blob = json.dumps(
-            {"agent": _agent_id(self.agent), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
-             "seed": self.seed, "pose": self.pose, "duration": self.duration, "camera_only": self.camera_only,
-             "route": self.route, "npcs": None if self.npcs is None else self.npcs.to_dict(),
-             "version": __version__, "engine": ENGINE_VERSION},
-            sort_keys=True,
-        )
+        doc = {"agent": _agent_id(self.agent), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
+               "seed": self.seed, "pose": self.pose, "duration": self.duration, "camera_only": self.camera_only,
+               "route": self.route, "npcs": None if self.npcs is None else self.npcs.to_dict(),
+               "version": __version__, "engine": ENGINE_VERSION}
+        if self.streams is not None:  # absent otherwise, so jobs without streams keep their keys
+            doc["streams"] = self.streams.key_data()
+        blob = json.dumps(doc, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 
@@ -180,6 +182,7 @@ class JobResult:
     trajectory: str | None
     message: str = ""
     timings: dict[str, float] = field(default_factory=dict)
+    streams: str | None = None  # folder of the episode's fixed-camera streams, if it recorded any
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)
@@ -227,11 +230,18 @@ def _simulator(job: Job, n: int = 1):
     from proxybench.domain.params import DomainParams
     from proxybench.domain.simulator import Simulator
 
-    k = (job.map, job.domain.canonical(), n, job.npcs)
+    fixtures = job.streams.fixtures if job.streams is not None else ()
+    k = (job.map, job.domain.canonical(), n, job.npcs, fixtures)
     if k not in _SIMS:
         if len(_SIMS) > 8:
             _SIMS.clear()
-        _SIMS[k] = Simulator(job.map, DomainParams.model_validate(job.domain.params), n=n, npcs=job.npcs)
+        m = job.map
+        if fixtures:
+            from proxybench.domain.maps import load_map
+            from proxybench.runner.streams import with_fixtures
+
+            m = with_fixtures(load_map(job.map), fixtures)
+        _SIMS[k] = Simulator(m, DomainParams.model_validate(job.domain.params), n=n, npcs=job.npcs)
     return _SIMS[k]
 
 
@@ -244,7 +254,7 @@ def batch_group(job: Job) -> tuple:
     if job.domain.kind == "robot":
         return ("robot", job.domain.canonical())
     who = job.agent if job.agent.command else ("in-process", is_privileged(job.agent))
-    return (who, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs)
+    return (who, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs, job.streams)
 
 
 def is_privileged(spec: AgentSpec) -> bool:
@@ -326,6 +336,7 @@ def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
                                        out_dir)]
     sim = _simulator(job0, len(jobs))
     t1 = time.perf_counter()
+    recorders = _recorders(jobs, sim, out_dir)
     try:
         if agents[0].privileged and job0.camera_only:
             return [_refused(j, a, (t1 - t0) / len(jobs)) for j, a in zip(jobs, agents, strict=True)]
@@ -335,17 +346,45 @@ def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
             image_filter=camera_filter(),
             metas=[{"map": j.map, "episode": j.episode, "domain": j.domain.name, "domain_kind": j.domain.kind,
                     "source": j.domain.kind, "job": j.key} for j in jobs],
+            frame_hook=_stream_hook(recorders),
         )
     finally:
         for a in agents:
             getattr(a, "close", lambda: None)()
+        for rec in recorders:
+            rec.close()
     t2 = time.perf_counter()
     results = [_result(j, tr, out_dir, (t1 - t0) / len(jobs), (t2 - t1) / len(jobs), METRICS)
                for j, tr in zip(jobs, trajs, strict=True)]
+    for r, rec in zip(results, recorders, strict=False):
+        r.streams = str(rec.out)
     cpu = (time.process_time() - c0) / len(jobs)
     for r in results:
         r.timings["cpu_s"] = cpu
     return results
+
+
+def _recorders(jobs: list[Job], sim, out_dir: str | None) -> list:
+    """One stream recorder per job of a batch that asks for streams (robot i of the batch is world i)."""
+    if jobs[0].streams is None:
+        return []
+    if out_dir is None:
+        raise ValueError("jobs with streams need an output folder (the streams are written beside the trajectory)")
+    from proxybench.runner.streams import StreamRecorder
+
+    return [StreamRecorder(sim, j.streams, Path(out_dir) / f"{j.key}.streams", world=i) for i, j in enumerate(jobs)]
+
+
+def _stream_hook(recorders: list):
+    """The frame hook that feeds the stream recorders: each world's cameras while its episode runs."""
+    if not recorders:
+        return None
+
+    def hook(k: int, images, alive, plant) -> None:
+        for i, rec in enumerate(recorders):
+            if alive[i]:
+                rec.frame(plant.time(i))
+    return hook
 
 
 def _result(job: Job, traj, out_dir: str | None, setup_s: float, episode_s: float, metrics) -> JobResult:

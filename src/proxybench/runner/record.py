@@ -12,8 +12,9 @@ from proxybench.agents.base import Agent
 from proxybench.domain.simulator import Simulator
 from proxybench.domain.topdown import top_down
 from proxybench.media import VideoWriter, side_by_side, write_strip
-from proxybench.runner.episode import run_episode
+from proxybench.runner.episode import run_episodes
 from proxybench.runner.jobs import camera_filter
+from proxybench.runner.streams import StreamRecorder, StreamSpec
 from proxybench.tasks.trajectory import Trajectory
 
 __all__ = ["record_episode"]
@@ -23,11 +24,13 @@ def record_episode(
     sim: Simulator, agent: Agent, seed: int, seconds: float, out: str | Path, *, stem: str = "drive",
     video: bool = True, pose: tuple[float, float, float] | None = None, strip_frames: int = 12,
     on_frame: Callable[[int], None] | None = None, meta: dict[str, Any] | None = None,
-    route: Sequence[str] | None = None,
+    route: Sequence[str] | None = None, streams: StreamSpec | None = None,
 ) -> tuple[Trajectory, list[Path]]:
     """Run one episode and write ``<stem>.mp4`` (if ``video``) and ``<stem>_strip.png`` into ``out``.
 
     The camera is always rendered (even for privileged agents, which do not see it) so that people can.
+    ``streams``: also record these fixed cameras (a lab's watchtowers) into ``out/watchtowers/<camera>/``
+    (``runner.streams``; ``sim`` must hold the spec's fixtures, see ``streams.with_fixtures``).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -52,13 +55,19 @@ def record_episode(
         if on_frame is not None:
             on_frame(k)
 
+    recorder = StreamRecorder(sim, streams, out / "watchtowers") if streams is not None else None
+    hook = None if recorder is None else (lambda k, images, alive, plant: recorder.frame(plant.time(0)))
     try:
-        traj = run_episode(sim, agent, seed, seconds, pose=pose, camera=not agent.privileged, on_frame=frame,
-                           image_filter=camera_filter(), meta=meta, route=route)
+        traj = run_episodes(sim, [agent], [seed], seconds, poses=[pose], camera=not agent.privileged,
+                            on_frame=lambda k, images, s: frame(k, images[0], s), image_filter=camera_filter(),
+                            metas=[meta], routes=[route], frame_hook=hook)[0]
     finally:
         if writer is not None:
             writer.close()
             files.append(writer.path)
+        if recorder is not None:
+            recorder.close()
+            files.append(recorder.out)
     if strip:
         files.append(write_strip(strip, out / f"{stem}_strip.png", labels))
     return traj, files
