@@ -48,6 +48,21 @@ class TagPose:
     pixels: float  # the tag's edge in the image [px], a measure of how well it is seen
 
 
+#: pupil-apriltags detectors by decimation, kept for the process's life: destroying one can crash the process
+#: (a segmentation fault in its ``__del__``, seen with pupil-apriltags 1.0.4.post11)
+_PUPIL: dict[float, object] = {}
+
+
+def _pupil(decimate: float):
+    if decimate not in _PUPIL:
+        try:
+            from pupil_apriltags import Detector as _Pupil
+        except ImportError as exc:
+            raise ImportError("the apriltag detector needs pupil-apriltags: pip install 'proxybench[autolab]'") from exc
+        _PUPIL[decimate] = _Pupil(families="tag36h11", nthreads=1, quad_decimate=decimate, refine_edges=1)
+    return _PUPIL[decimate]
+
+
 class Detector:
     """A tag36h11 detector: ``Detector('apriltag')`` (pupil-apriltags) or ``Detector('aruco')`` (OpenCV)."""
 
@@ -56,12 +71,7 @@ class Detector:
             raise ValueError(f"detector must be one of {', '.join(DETECTORS)}, got {kind!r}")
         self.kind = kind
         if kind == "apriltag":
-            try:
-                from pupil_apriltags import Detector as _Pupil
-            except ImportError as exc:
-                raise ImportError("the apriltag detector needs pupil-apriltags: pip install 'proxybench[autolab]'"
-                                  ) from exc
-            self._det = _Pupil(families="tag36h11", nthreads=1, quad_decimate=decimate, refine_edges=1)
+            self._det = _pupil(decimate)
         else:
             import cv2
 

@@ -68,7 +68,8 @@ def _write_csv(path: Path, cols: dict[str, np.ndarray]) -> None:
 def _run_info(log: Log, loc: Localization, verdict: Verdict) -> dict:
     from proxybench.autolab.geometry import planar
 
-    return {"log": str(log.root), "source": log.manifest.source, "agent": log.manifest.agent,
+    return {"log": str(log.root), "truth": str(log.truth) if log.truth is not None else None,
+            "source": log.manifest.source, "agent": log.manifest.agent,
             "valid": verdict.valid, "reasons": verdict.reasons, "frames": loc.frames, "detections": loc.detections,
             "notes": loc.notes, "timing_s": loc.timing,
             "robots": {r: {"samples": int(t.t.size),

@@ -133,21 +133,27 @@ class FixedCameraRig:
             rows.append(extras)
         return np.ascontiguousarray(np.concatenate(rows))
 
-    def render(self, world: int = 0, frame: int = 0) -> list[np.ndarray]:
-        """Every camera's (H, W, 3) uint8 view of world ``world`` at the simulator's current state."""
+    def render(self, world: int = 0, frame: int = 0, only: list[int] | None = None) -> list[np.ndarray | None]:
+        """Every camera's (H, W, 3) uint8 view of world ``world`` at the simulator's current state (with ``only``,
+        those cameras' views; None for the others)."""
         p = self.sim.params[world]
         moving = self.world_primitives(world)
         out: list[np.ndarray | None] = [None] * len(self.cameras)
+        wanted = set(range(len(self.cameras)) if only is None else only)
         for idx, r in self._groups:
+            if not wanted.intersection(idx):
+                continue
             if self._world_params[world] is not p:
                 for k, i in enumerate(idx):
                     r.set_params(k, self.cameras[i].params(p))
             n = len(idx)
             ranges = np.zeros((n, 4), dtype=np.int64)
             ranges[:, 1] = moving.shape[0]
+            counts = np.array([1 if i in wanted else 0 for i in idx], dtype=np.int64)  # 0: not rendered
             frames = r.render(self._poses[id(r)], self._seeds[idx], np.full(n, frame, dtype=np.int64),
-                              moving=moving, ranges=ranges)
+                              k_count=counts, moving=moving, ranges=ranges)
             for k, i in enumerate(idx):
-                out[i] = frames[k]
+                if i in wanted:
+                    out[i] = frames[k]
         self._world_params[world] = p
         return out  # type: ignore[return-value]

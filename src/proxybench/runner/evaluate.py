@@ -12,6 +12,7 @@ from pathlib import Path
 
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
+from proxybench.runner.streams import StreamSpec
 from proxybench.runner.sweep import SweepResult, results_frame, run_jobs
 from proxybench.tasks.benchmark import NAMED_DOMAINS, Benchmark, BenchmarkError
 from proxybench.tasks.scoring import Rank, leaderboard
@@ -46,12 +47,13 @@ def benchmark_domain(bench: Benchmark, named: str | None = None) -> DomainSpec:
 def evaluate_benchmark(
     bench: Benchmark, agents: Sequence[AgentSpec], run_dir: str | Path, backend: Backend | None = None, *,
     domain: str | None = None, privileged: Callable[[AgentSpec], bool] | None = None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[int, int], None] | None = None, streams: StreamSpec | None = None,
 ) -> Evaluation:
     """Run every admitted agent on every episode of ``bench``; rank them by the benchmark's criteria.
 
     Agents that the benchmark does not admit (privileged ones on a camera-only benchmark) are left out
-    and listed in ``refused`` with the reason.
+    and listed in ``refused`` with the reason. ``streams``: fixed cameras (a lab's watchtowers) recorded in every
+    episode, beside its trajectory in the run directory (``JobResult.streams``).
     """
     from proxybench.tasks.aggregate import aggregate, scores_by_agent
 
@@ -68,7 +70,7 @@ def evaluate_benchmark(
     metrics = tuple(bench.metrics)
     npcs = bench.traffic()
     jobs = [Job(a, dom, bench.map, ep.index, ep.seed, bench.duration, ep.pose, bench.camera_only, metrics,
-                route=ep.route, npcs=npcs)
+                route=ep.route, npcs=npcs, streams=streams)
             for a in admitted for ep in bench.episode_specs()]
     sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
                      progress=(lambda d, t, _r: progress(d, t)) if progress else None)

@@ -87,7 +87,7 @@ class StreamRecorder:
         due = [i for i, r in enumerate(self.spec.rates) if t + 1e-9 >= self.phase[i] + self.count[i] / r]
         if not due:
             return 0
-        images = self.rig.render(self.world, frame=int(round(t * 1000)))
+        images = self.rig.render(self.world, frame=int(round(t * 1000)), only=due)
         ext = self.spec.image_format
         flags = [cv2.IMWRITE_JPEG_QUALITY, self.spec.quality] if ext == "jpg" else []
         for i in due:

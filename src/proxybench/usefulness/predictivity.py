@@ -64,6 +64,7 @@ class PredictivityResult:
     ppv_noise: Estimate | None = None  # PPV of the target against a replicate of itself
     agent_sensitivity: dict[str, Any] = field(default_factory=dict)  # parameter → agent_sets.AgentSensitivity
     order: dict[str, float] = field(default_factory=dict)  # agent_sets.order_structure of the target
+    localisation: Any = None  # autolab.effect.LocalisationEffect: a localised target scored against its truth
 
     def notes(self) -> list[str]:
         """Every distinct note of the usefulness figures (constant metrics, missing values, PPV scales)."""
@@ -162,9 +163,12 @@ def run_predictivity(
     means = agent_means(tgt.results, list(tgt.results))
     target_scores = {a: dict(zip(exp.metrics, means[i].tolist(), strict=True)) for i, a in enumerate(tgt.results)}
     caps = [tgt.seconds if m in ("survival_time", "lane_score") else None for m in exp.metrics]
+    from proxybench.autolab.effect import effect_for_target  # a target localised from simulated watchtowers
+
     return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran, details, ppv_floor,
                               _agent_sensitivity(exp, domains, proxies, tgt, higher),
-                              order_structure(tgt.results, higher, caps))
+                              order_structure(tgt.results, higher, caps),
+                              effect_for_target(target, exp.metrics, exp.n_boot, exp.seed))
 
 
 def _agent_sensitivity(exp: Experiment, domains, proxies, tgt: TargetRun, higher) -> dict[str, Any]:
