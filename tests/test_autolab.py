@@ -183,7 +183,7 @@ def test_layout_errors_name_the_file_and_field(tmp_path):
 
 def test_a_run_writes_timestamped_streams_that_localise_to_a_checked_target(run_log, tmp_path):
     stamps = list(csv.DictReader((run_log / "watchtowers" / "wt01" / "timestamps.csv").read_text().splitlines()))
-    assert len(stamps) == 15 and (run_log / "watchtowers" / "wt01" / "000000.jpg").is_file()
+    assert 13 <= len(stamps) <= 15 and (run_log / "watchtowers" / "wt01" / "000000.jpg").is_file()
     summary = localize_logs(run_log, load_map("straight_road"), tmp_path / "T", workers=1, decimate=1.0)
     assert summary.runs[0][1].valid, summary.runs[0][1].reasons
     report = check_recording(tmp_path / "T")
@@ -231,11 +231,9 @@ def test_an_illumination_change_makes_a_run_invalid(run_log, tmp_path):
 
 def test_a_lost_robot_and_a_premature_end_make_a_run_invalid(run_log, tmp_path):
     log = _copy(run_log, tmp_path)
-    for tower in ("wt01", "wt02"):  # nobody sees the robot after 0.5 s: the frames show the empty road
-        frames = sorted((log / "watchtowers" / tower).glob("*.jpg"))
-        empty = cv2.imread(str(frames[0]))
-        for p in frames[5:]:
-            cv2.imwrite(str(p), empty)
+    for tower in ("wt01", "wt02"):  # no tag is read after 0.3 s (out of focus), the light stays as it was
+        for p in sorted((log / "watchtowers" / tower).glob("*.jpg"))[2:]:
+            cv2.imwrite(str(p), cv2.GaussianBlur(cv2.imread(str(p)), (21, 21), 0))
     text = (log / "log.yaml").read_text().replace("seconds: 1.5", "seconds: 10.0")
     (log / "log.yaml").write_text(text)
     verdict = _verdict(log)
@@ -268,7 +266,8 @@ def test_a_watchtower_without_calibration_is_named(run_log, tmp_path):
 
 @pytest.mark.parametrize(("edit", "message"), [
     (lambda rows: rows.__setitem__(4, ["4", "0.05"]), r"row 5 \(line 6\): the clock runs backwards"),
-    (lambda rows: rows.__setitem__(9, ["9", "500.0"]), r"row 10 \(line 11\): the clock jumps"),
+    (lambda rows: rows.__setitem__(slice(9, None), [[r[0], str(float(r[1]) + 500)] for r in rows[9:]]),
+     r"row 10 \(line 11\): the clock jumps"),
     (lambda rows: rows.clear(), "empty stream"),
 ])
 def test_clock_jumps_and_empty_streams_are_named(run_log, tmp_path, edit, message):
@@ -345,3 +344,45 @@ def test_a_ros_bag_with_camera_and_wheel_topics_becomes_a_target(run_log, tmp_pa
     table = (tmp_path / "T" / "episodes" / "lf" / "0.csv").read_text().splitlines()
     assert table[0].startswith("t,x,y,theta,pwm_left,pwm_right,sigma_x") and ",0.4,0.5," in table[1]
     assert summary.runs[0][2].robots["autobot01"].t.size >= 10
+
+
+# -- the command line -----------------------------------------------------------------------------------
+
+
+def test_run_and_localize_commands(run_log, tmp_path):
+    from typer.testing import CliRunner
+
+    from proxybench.cli import app
+
+    runner = CliRunner()
+    lay = write_layout(tmp_path / "lab.yaml", _layout())
+    res = runner.invoke(app, ["run", "--map", "straight_road", "--watchtowers", str(lay), "--seconds", "0.4",
+                              "--no-video", "--width", "32", "--height", "24", "--out", str(tmp_path / "D")])
+    assert res.exit_code == 0, res.output
+    log = read_log(tmp_path / "D")
+    assert log.manifest.source == "simulation" and [s.name for s in log.streams] == ["wt01", "wt02"]
+    res = runner.invoke(app, ["localize", str(run_log), "--map", "straight_road", "--out", str(tmp_path / "T"),
+                              "--workers", "1"])
+    assert res.exit_code == 0 and "wrote" in res.output, res.output
+    assert runner.invoke(app, ["target", "check", str(tmp_path / "T")]).exit_code == 0
+    broken = _copy(run_log, tmp_path)
+    (broken / "watchtowers" / "wt01" / "calibration.yaml").unlink()
+    res = runner.invoke(app, ["localize", str(broken), "--map", "straight_road", "--out", str(tmp_path / "T2")])
+    assert res.exit_code == 1 and "wt01/calibration.yaml: missing" in res.output
+
+
+def test_a_recorded_target_keeps_each_episodes_watchtower_log(tmp_path):
+    from proxybench.autolab.cli_support import result_log
+    from proxybench.runner.jobs import AgentSpec
+    from proxybench.targets.record import record_target
+    from proxybench.targets.spec import RealityTarget
+
+    layout, streams, _ = layout_streams_for(_layout())
+    record_target(tmp_path / "R", RealityTarget(), [AgentSpec("pid")], map_name="straight_road", seconds=0.3,
+                  episodes=1, image_size=(32, 24), streams=streams,
+                  on_streams=lambda res, folder: result_log(res, folder, layout, "straight_road", 0.3,
+                                                            "reality-model"))
+    log = read_log(tmp_path / "R" / "logs" / "pid" / "0")
+    assert log.manifest.source == "reality-model" and log.truth is not None
+    assert [s.name for s in log.streams] == ["wt01", "wt02"] and all(s.frames for s in log.streams)
+    assert check_recording(tmp_path / "R").ok
