@@ -13,9 +13,10 @@ from __future__ import annotations
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.backends import InlineBackend
 from proxybench.runner.jobs import DomainSpec, Job
+from proxybench.runner.starts import start_poses
 from proxybench.runner.sweep import run_jobs
+from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, by_agent, episode_seed
 from proxybench.targets.manifest import TargetError
-from proxybench.targets.spec import Target, TargetEpisode, TargetInfo, TargetRun, _by_agent, episode_seed, start_poses
 
 __all__ = ["RobotTarget"]
 
@@ -63,7 +64,7 @@ class RobotTarget(Target):
             raise TargetError(f"target: the robot node `{self.command}` failed on {len(failed)} of {len(jobs)} "
                               f"episode(s); finished episodes are cached, run again to retry the rest:\n  {shown}")
         self._said = _robot_kind(sweep.results)
-        return TargetRun(self.info(), map_name, seconds, metrics, eps, _by_agent(jobs, sweep.results, metrics),
+        return TargetRun(self.info(), map_name, seconds, metrics, eps, by_agent(jobs, sweep.results, metrics),
                          {}, None, sweep.ran)
 
 
