@@ -199,6 +199,12 @@ def test_a_run_writes_timestamped_streams_that_localise_to_a_checked_target(run_
                                   2 * math.pi) - math.pi)
     assert np.median(err[two]) < 0.02 and np.median(np.degrees(heading[two])) < 2.0
     assert np.all(np.isfinite(loc.sigma)) and np.all(loc.sigma[:, :2] < 0.05)  # per-sample uncertainty, in m
+    from proxybench.autolab.effect import localisation_effect
+
+    effect = localisation_effect(tmp_path / "T", ("survival_time", "driven_lanedir_consec"), n_boot=50)
+    assert effect is not None and effect.episodes == 1  # the localised run is first seen after its start:
+    assert -0.3 < effect.bias["survival_time"].value < 0.0  # it survives a little shorter than the truth
+    assert "metric bias (localised − true)" in effect.statement and np.isfinite(effect.prpv.value)
 
 
 def test_gtsam_and_scipy_solve_the_same_graph(run_log):

@@ -25,10 +25,10 @@ from typing import Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from proxybench.autolab.geometry import camera_pose
-from proxybench.autolab.watchtowers import Layout, LayoutError, Watchtower, ground_objects
+from proxybench.autolab.watchtowers import Layout, LayoutError, Watchtower, ground_objects, read_model
 
 __all__ = ["CALIBRATION_FORMAT", "Calibration", "Extrinsics", "draw_calibrations", "load_calibration",
            "stream_spec", "write_calibration"]
@@ -112,21 +112,10 @@ class Calibration(BaseModel):
 
 def load_calibration(path: str | Path) -> Calibration:
     """Read a calibration file; :class:`LayoutError` naming the file and field otherwise."""
-    from proxybench.targets.manifest import format_errors
-
     path = Path(path)
     if not path.is_file():
         raise LayoutError(f"{path}: missing: every watchtower needs its calibration (intrinsics and extrinsics)")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise LayoutError(f"{path}: cannot read as YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(data, dict):
-        raise LayoutError(f"{path}: expected a mapping of fields (format: {CALIBRATION_FORMAT})")
-    try:
-        return Calibration.model_validate(data)
-    except ValidationError as exc:
-        raise LayoutError(format_errors(exc, str(path), Calibration)) from None
+    return read_model(path, Calibration, CALIBRATION_FORMAT)
 
 
 def write_calibration(path: str | Path, cal: Calibration) -> Path:

@@ -41,7 +41,7 @@ def result_log(res, folder: Path, layout: Layout, map_name: str, seconds: float,
     finish_sim_log(folder, layout, map_name, res.agent, res.episode, seconds, res.termination, source)
 
 
-def logs_from_results(results, layout: Layout, map_name: str, root: Path) -> int:
+def logs_from_results(results, layout: Layout, map_name: str, root: Path, seconds: float) -> int:
     """Copy each job's streams to ``root/<agent>/<episode>/watchtowers`` and make it a log; how many."""
     import shutil
 
@@ -53,7 +53,6 @@ def logs_from_results(results, layout: Layout, map_name: str, root: Path) -> int
         if (folder / "watchtowers").exists():
             shutil.rmtree(folder / "watchtowers")
         shutil.copytree(res.streams, folder / "watchtowers")
-        seconds = float(res.timings.get("simulated_s", 0.0)) or None
-        result_log(res, folder, layout, map_name, seconds or 1.0, "simulation")
+        result_log(res, folder, layout, map_name, seconds, "simulation")
         n += 1
     return n

@@ -28,10 +28,10 @@ from typing import Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
 from proxybench.autolab.calibration import Calibration, draw_calibrations, load_calibration, write_calibration
-from proxybench.autolab.watchtowers import GroundTag, Layout, LayoutError, robot_names
+from proxybench.autolab.watchtowers import GroundTag, Layout, LayoutError, read_model, robot_names
 
 __all__ = ["LOG_FORMAT", "MAX_GAP", "Frame", "Log", "LogManifest", "Stream", "find_logs", "read_log",
            "write_log_manifest", "write_sim_log"]
@@ -97,21 +97,7 @@ class Log:
 
 
 def _manifest(path: Path, overrides: dict | None = None) -> LogManifest:
-    from proxybench.targets.manifest import format_errors
-
-    data: dict = {}
-    if path.is_file():
-        try:
-            data = yaml.safe_load(path.read_text()) or {}
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-            raise LayoutError(f"{path}: cannot read as YAML ({str(exc).splitlines()[0]})") from None
-        if not isinstance(data, dict):
-            raise LayoutError(f"{path}: expected a mapping of fields (format: {LOG_FORMAT})")
-    data.update({k: v for k, v in (overrides or {}).items() if v is not None})
-    try:
-        return LogManifest.model_validate(data)
-    except ValidationError as exc:
-        raise LayoutError(format_errors(exc, str(path), LogManifest)) from None
+    return read_model(path, LogManifest, LOG_FORMAT, overrides, missing_ok=True)
 
 
 def write_log_manifest(root: str | Path, manifest: LogManifest) -> Path:

@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
-from typing import Literal
+from typing import Literal, TypeVar
 
 import numpy as np
 import yaml
@@ -41,9 +41,10 @@ from proxybench.domain.map_objects import AprilTag
 from proxybench.domain.maps import Map, MapObject
 
 __all__ = ["FORMAT", "CalibrationError", "GroundTag", "Layout", "LayoutError", "Watchtower", "auto_layout",
-           "ground_objects", "load_layout", "resolve_layout", "robot_names", "write_layout"]
+           "ground_objects", "load_layout", "read_model", "resolve_layout", "robot_names", "write_layout"]
 
 FORMAT = "proxybench-watchtowers/1"
+M = TypeVar("M", bound=BaseModel)
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
 
@@ -144,23 +145,29 @@ class Layout(BaseModel):
         return self
 
 
-def load_layout(path: str | Path) -> Layout:
-    """Read a layout file; :class:`LayoutError` naming the file and field otherwise."""
+def read_model(path: Path, model: type[M], fmt: str, overrides: dict | None = None, missing_ok: bool = False) -> M:
+    """A strict YAML file as ``model`` (``overrides``: fields given otherwise, which win); :class:`LayoutError`
+    naming the file and the field otherwise. ``missing_ok``: a missing file is an empty one."""
     from proxybench.targets.manifest import format_errors
 
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError) as exc:
-        raise LayoutError(f"{path}: cannot read ({exc})") from None
-    except yaml.YAMLError as exc:
-        raise LayoutError(f"{path}: not valid YAML ({exc})") from None
+    data: object = {}
+    if path.is_file() or not missing_ok:
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+            raise LayoutError(f"{path}: cannot read as YAML ({str(exc).splitlines()[0]})") from None
     if not isinstance(data, dict):
-        raise LayoutError(f"{path}: expected a mapping of fields (format: {FORMAT}), got {type(data).__name__}")
+        raise LayoutError(f"{path}: expected a mapping of fields (format: {fmt}), got {type(data).__name__}")
+    data.update({k: v for k, v in (overrides or {}).items() if v is not None})
     try:
-        return Layout.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as exc:
-        raise LayoutError(format_errors(exc, str(path), Layout)) from None
+        raise LayoutError(format_errors(exc, str(path), model)) from None
+
+
+def load_layout(path: str | Path) -> Layout:
+    """Read a layout file; :class:`LayoutError` naming the file and field otherwise."""
+    return read_model(Path(path), Layout, FORMAT)
 
 
 def write_layout(path: str | Path, layout: Layout) -> Path:

@@ -46,12 +46,26 @@ def localize(
     if detector not in ("apriltag", "aruco") or solver not in ("gtsam", "scipy"):
         err_console.print("[red]error:[/red] --detector is apriltag or aruco, --solver gtsam or scipy", highlight=False)
         raise typer.Exit(2)
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
+
+    from proxybench.cli.progress import progress_bar
+
     try:
         m = load_map_printing_warnings(map_name)
         overrides = {"source": source, "agent": agent, "active": active, "seconds": seconds}
-        summary = localize_logs(logdir, m, out, layout=watchtowers, calibrations=calibrations, overrides=overrides,
-                                limits=Thresholds(lost_s=lost, light_change=light), detector=detector, solver=solver,
-                                workers=workers, decimate=decimate)
+        with progress_bar(TextColumn("[bold]detecting tags[/bold] {task.description}"), BarColumn(),
+                          MofNCompleteColumn(), TimeRemainingColumn(), console=console, transient=True) as bar:
+            tasks: dict[str, object] = {}
+
+            def tick(run: str, done: int, total: int) -> None:
+                if run not in tasks:
+                    tasks[run] = bar.add_task(Path(run).name, total=total)
+                bar.update(tasks[run], completed=done)
+
+            summary = localize_logs(logdir, m, out, layout=watchtowers, calibrations=calibrations,
+                                    overrides=overrides, limits=Thresholds(lost_s=lost, light_change=light),
+                                    detector=detector, solver=solver, workers=workers, decimate=decimate,
+                                    progress=tick)
     except (LayoutError, MapError, ImportError) as exc:
         for line in str(exc).splitlines():
             err_console.print(f"[red]✗[/red] {escape(line)}", highlight=False)

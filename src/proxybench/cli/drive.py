@@ -98,6 +98,10 @@ def run(
         err_console.print(f"[red]error:[/red] --out: cannot create the folder {escape(str(out))}: "
                           f"{escape(exc.strerror or str(exc))}", highlight=False)
         raise typer.Exit(1) from exc
+    if robot_cmd is not None and watchtowers is not None:
+        err_console.print("[red]error:[/red] --watchtowers are simulated: they need the built-in simulator, not "
+                          "--robot-cmd", highlight=False)
+        raise typer.Exit(2)
     if robot_cmd is not None:
         from proxybench.cli.robot import run_on_robot
 
@@ -112,8 +116,13 @@ def run(
     layout = streams = None
     if watchtowers is not None:
         from proxybench.autolab.cli_support import layout_streams
+        from proxybench.autolab.watchtowers import LayoutError
 
-        layout, streams, m = layout_streams(watchtowers, m)
+        try:
+            layout, streams, m = layout_streams(watchtowers, m)
+        except LayoutError as exc:
+            err_console.print(f"[red]error:[/red] --watchtowers: {escape(str(exc))}", highlight=False)
+            raise typer.Exit(1) from exc
     sim = Simulator(m, params)
     try:
         agent = make_agent(agent_name) if agent_cmd is None else remote_agent(agent_cmd, options)

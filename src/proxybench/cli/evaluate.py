@@ -301,7 +301,7 @@ def evaluate(
     if layout is not None:
         from proxybench.autolab.cli_support import logs_from_results
 
-        logs = logs_from_results(ev.sweep.results, layout, bench.map, run_dir / "logs")
+        logs = logs_from_results(ev.sweep.results, layout, bench.map, run_dir / "logs", bench.duration)
         console.print(f"watchtower logs of {logs} episode(s) in {run_dir / 'logs'} (proxybench localize "
                       f"{run_dir / 'logs'} --map {bench.map} --out TARGET)", highlight=False)
     if video:
