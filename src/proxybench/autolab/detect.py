@@ -128,7 +128,8 @@ def tag_pose(det: Detection, size: float, cal: Calibration, up_in_camera: np.nda
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, t
     J = _jacobian(obj, R, t, K, D)
-    sigma = CORNER_SIGMA if K is cal.K else CORNER_SIGMA / cal.K[0, 0]  # normalised coordinates: σ / f
+    normalised = cal.distortion_model == "equidistant"  # the corners were undone to normalised coordinates
+    sigma = CORNER_SIGMA / cal.K[0, 0] if normalised else CORNER_SIGMA
     info = J.T @ J / sigma ** 2
     try:
         cov = np.linalg.inv(info + 1e-12 * np.eye(6))
