@@ -109,7 +109,7 @@ def main() -> None:
         for name in maps:
             log = args.log if args.log is not None else record(name, seconds, Path(tmp) / name)
             rows.append(measure(log, name))
-    console = Console()
+    console = Console(width=200)
     acc = Table(title=f"Localisation vs the simulator's truth (PID, {seconds:g} s; pupil-apriltags, GTSAM; 2 cores)")
     for col in ("map", "towers", "samples (≥2 views)", "pos. err. median / p95 [cm], ≥2 views",
                 "heading err. median / p95 [deg], ≥2 views", "pos. err. median / p95 [cm], all", "share localised",
