@@ -51,10 +51,11 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
-from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP
+from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP, proxy_params
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.targets.manifest import TargetError, format_errors
 from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
+from proxybench.untrusted import problems
 
 __all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "SearchConfig", "load_config",
            "resolve"]
@@ -90,11 +91,10 @@ class ConfigError(TargetError):
 
 
 def _param_name(name: str) -> str:
-    from proxybench.domain.params import DomainParams
+    from proxybench.domain.params import DomainParams, unknown_parameter
 
     if name not in DomainParams.model_fields:
-        close = difflib.get_close_matches(name, list(DomainParams.model_fields), n=1)
-        raise ValueError(f"unknown domain parameter {name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+        raise ValueError(unknown_parameter(name))
     return name
 
 
@@ -221,13 +221,10 @@ class ExperimentConfig(_Strict):
 
     @model_validator(mode="after")
     def _proxy_theta(self) -> ExperimentConfig:
-        from proxybench.experiments.proxies import proxy_params
-
         try:
             proxy_params(self.image_size, self.proxy)
         except ValidationError as exc:
-            bad = "; ".join(f"proxy.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
-            raise ValueError(bad) from None
+            raise ValueError(problems(exc, "proxy")) from None
         return self
 
 
@@ -327,7 +324,8 @@ def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize", 
     from proxybench.targets.spec import open_target
 
     target = target or open_target(cfg.target, params=cfg.target_params, robot_nodes=cfg.robot_nodes,
-                                   robot_options=cfg.robot_options)
+                                   robot_options=cfg.robot_options,
+                                   frame_rate=proxy_params(cfg.image_size, cfg.proxy).frame_rate)
     d = COMMAND_DEFAULTS[(command, quick)]
     if target.fixed_map is not None and cfg.map is not None and cfg.map != target.fixed_map:
         raise ConfigError(f"map: the target was recorded on {target.fixed_map!r}, the experiment asks for {cfg.map!r}")
