@@ -5,6 +5,7 @@ from proxybench.cli import (  # noqa: F401 - importing registers the commands
     drive,
     evaluate,
     evaluator,
+    gym,
     heldout,
     learning,
     maps,
