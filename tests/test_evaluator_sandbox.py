@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proxybench.agents.package import PackageError, check_archive, extract_archive
 from proxybench.evaluator.compliance import check_calibration, check_frame, check_reality_model
 from proxybench.evaluator.report import clean
 from proxybench.evaluator.sandbox import (
@@ -31,6 +30,7 @@ from proxybench.evaluator.sandbox import (
     detect_isolation,
     prepare_agent,
 )
+from proxybench.protocol.package import PackageError, check_archive, extract_archive
 from support.sandbox import require_safe_sandbox
 
 MANIFEST = b"name: t\nprotocol: aido-z2\ncommand: [python3, agent.py]\n"
@@ -247,7 +247,7 @@ def test_a_fifo_package_printing_to_stdout_runs_in_the_sandbox(tmp_path: Path, i
     from proxybench.agents.base import Observation
     from proxybench.evaluator.report import summarize
     from proxybench.evaluator.run import _Job
-    from proxybench.runner.jobs import make_agent_for
+    from proxybench.runner.outcomes import make_agent_for
     from proxybench.tasks.benchmark import Benchmark
 
     manifest = (b"name: printer\nprotocol: aido-z2\ntransport: fifo\nreflection: false\ncommand: python3 facts.py "

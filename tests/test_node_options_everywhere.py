@@ -13,12 +13,12 @@ import pytest
 from typer.testing import CliRunner
 
 from proxybench.cli import app
+from proxybench.experiments.agent_args import parse_agents
+from proxybench.experiments.config import ConfigError, load_config, resolve
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets import TargetError, open_target
-from proxybench.usefulness.agent_args import parse_agents
-from proxybench.usefulness.experiment import ConfigError, load_config, resolve
 
 runner = CliRunner()
 HERE = Path(__file__).resolve().parent

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from proxybench.cli import app
 from proxybench.domain.reality import reality_params
-from proxybench.runner.repeatability import (
+from proxybench.experiments.repeatability import (
     DESIGNS,
     Design,
     recorded_study,

@@ -128,7 +128,7 @@ def repeatability(
     mean heading error [deg]; STD is the run-to-run standard deviation along the route. The target is the
     reality model (simulated stand-ins for Duckiebots) unless --recorded or --robot-cmd is given.
     """
-    from proxybench.runner.repeatability import Design, recorded_study, repeatability_study, robot_study
+    from proxybench.experiments.repeatability import Design, recorded_study, repeatability_study, robot_study
 
     if recorded and robot_cmd:
         raise typer.BadParameter("give --recorded or --robot-cmd, not both", param_hint="--recorded")
@@ -150,7 +150,7 @@ def repeatability(
         else:
             designs = dict(Design.parse(d) for d in design) if design else None
             if runs is not None:
-                from proxybench.runner.repeatability import DESIGNS
+                from proxybench.experiments.repeatability import DESIGNS
 
                 designs = {k: Design(d.labs, d.robots, runs) for k, d in (designs or DESIGNS).items()}
             with status("running") as spinner:
@@ -168,8 +168,8 @@ def _repeatability_report(res, agent: str, seconds: float, map_name: str, out: P
     import pandas as pd
 
     from proxybench.domain.maps import load_map
+    from proxybench.experiments.repeatability import THESIS_FIGURES
     from proxybench.plots import plot_deviation_curves, plot_trajectories
-    from proxybench.runner.repeatability import THESIS_FIGURES
     from proxybench.tasks.metrics import deviation_curves
 
     out.mkdir(parents=True, exist_ok=True)
@@ -303,7 +303,7 @@ def _videos(ev, specs, run_dir: Path) -> None:
     from proxybench.domain.params import DomainParams
     from proxybench.domain.simulator import Simulator
     from proxybench.runner.evaluate import benchmark_domain
-    from proxybench.runner.jobs import make_agent_for
+    from proxybench.runner.outcomes import make_agent_for
     from proxybench.runner.record import record_episode
 
     bench = ev.benchmark

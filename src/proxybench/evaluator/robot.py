@@ -105,7 +105,8 @@ def evaluate_on_robot(bench: Benchmark, spec: AgentSpec, cmd: str, run_dir: Path
     """
     from proxybench.domain.maps import load_map
     from proxybench.protocol import RemoteRobot
-    from proxybench.runner.jobs import JobResult, make_agent_for
+    from proxybench.runner.jobs import JobResult
+    from proxybench.runner.outcomes import make_agent_for
     from proxybench.runner.robot_episode import run_episode_on_robot
     from proxybench.runner.sweep import SweepResult, results_frame
     from proxybench.tasks.aggregate import aggregate, scores_by_agent

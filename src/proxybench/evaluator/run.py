@@ -91,9 +91,9 @@ class _Job:
                             f"benchmark: {exc}") from None
 
     def agent(self, bench):
-        from proxybench.agents.package import PackageError
         from proxybench.agents.zoo import ZOO
         from proxybench.evaluator import sandbox as sb
+        from proxybench.protocol.package import PackageError
         from proxybench.runner.jobs import AgentSpec
 
         sub = self.lease["submission"]

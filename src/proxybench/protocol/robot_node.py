@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from importlib.metadata import EntryPoint
 from typing import Any, BinaryIO
 
 import numpy as np
@@ -40,6 +41,9 @@ from proxybench.protocol.robot_description import robot_protocol_description
 __all__ = ["RobotBackend", "RobotNode", "serve_robot"]
 
 _TURNS = ("left", "straight", "right")
+#: the backend of a node given θ instead of a backend: proxybench's simulator, built in the runner (the one place
+#: simulators are built), named by entry point as agents/kinds.py names checkpoints, not imported from above
+SIMULATOR_BACKEND = EntryPoint("simulation", "proxybench.runner.sim_robot:SimRobot", "proxybench.robot_backends")
 _UI_PX_PER_TILE = 48  # top-down image of get_ui_image
 
 
@@ -108,9 +112,7 @@ class RobotNode(NodeLogic):
     def __init__(self, backend: RobotBackend | DomainParams | None = None, map_: Map | str | None = None,
                  seed: int = 0, node_name: str = "robot", quality: int = jpeg.DEFAULT_QUALITY):
         if backend is None or isinstance(backend, DomainParams):
-            from proxybench.runner.sim_robot import SimRobot  # the one place a simulator is built (issue 22)
-
-            backend = SimRobot(backend, map_)
+            backend = SIMULATOR_BACKEND.load()(backend, map_)
         elif map_ is not None:
             raise TypeError("RobotNode: give the map to the backend, not to the node")
         self.backend = backend

@@ -13,7 +13,7 @@ from proxybench.domain.simulator import Simulator
 from proxybench.domain.topdown import top_down
 from proxybench.media import VideoWriter, side_by_side, write_strip
 from proxybench.runner.episode import run_episode
-from proxybench.runner.jobs import camera_filter
+from proxybench.runner.outcomes import camera_filter
 from proxybench.tasks.trajectory import Trajectory
 
 __all__ = ["record_episode"]

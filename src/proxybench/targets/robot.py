@@ -15,9 +15,10 @@ from pathlib import Path
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.backends import InlineBackend
 from proxybench.runner.jobs import DomainSpec, Job
+from proxybench.runner.starts import start_poses
 from proxybench.runner.sweep import run_jobs
+from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, by_agent, episode_seed
 from proxybench.targets.manifest import SimulatorInfo, TargetError
-from proxybench.targets.spec import Target, TargetEpisode, TargetInfo, TargetRun, _by_agent, episode_seed, start_poses
 
 __all__ = ["RobotTarget", "robot_said"]
 
@@ -73,7 +74,7 @@ class RobotTarget(Target):
                               f"episode(s); finished episodes are cached, run again to retry the rest:\n  {shown}")
         made = next((r.trajectory for r in sweep.results if r.trajectory), None)
         self._said, self._simulator = robot_said(made) if made else ("", None)
-        return TargetRun(self.info(), map_name, seconds, metrics, eps, _by_agent(jobs, sweep.results, metrics),
+        return TargetRun(self.info(), map_name, seconds, metrics, eps, by_agent(jobs, sweep.results, metrics),
                          {}, None, sweep.ran)
 
 

@@ -51,10 +51,10 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
+from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.targets.manifest import TargetError, format_errors
 from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
-from proxybench.usefulness.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP
 
 __all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "SearchConfig", "load_config",
            "resolve"]
@@ -221,7 +221,7 @@ class ExperimentConfig(_Strict):
 
     @model_validator(mode="after")
     def _proxy_theta(self) -> ExperimentConfig:
-        from proxybench.usefulness.proxies import proxy_params
+        from proxybench.experiments.proxies import proxy_params
 
         try:
             proxy_params(self.image_size, self.proxy)
@@ -323,8 +323,8 @@ def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize", 
     A recorded target fixes the map and episode length (asking for others is an error naming the field)
     and offers its agents and episodes as defaults.
     """
+    from proxybench.experiments.agent_args import AgentArgError, parse_agents
     from proxybench.targets.spec import open_target
-    from proxybench.usefulness.agent_args import AgentArgError, parse_agents
 
     target = target or open_target(cfg.target, params=cfg.target_params, robot_nodes=cfg.robot_nodes,
                                    robot_options=cfg.robot_options)
