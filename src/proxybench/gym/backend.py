@@ -116,6 +116,10 @@ class GymRobot:
             raise OSError("the pipe closed")
         return buf
 
+    def probe(self) -> dict[str, Any]:
+        """gym's own view of the robot (its frame's ``cur_pos``, ``cur_angle``, the tile there): for checks."""
+        return self._call({"op": "probe"})
+
     def close(self) -> None:
         """End the gym process (it ends on EOF too)."""
         if self.proc.poll() is None:
@@ -154,7 +158,7 @@ class GymRobot:
         m, net = self._maps[self._text]
         if pose is None:
             pose = start_pose(m, seed, net=net)
-        extra = [{"name": o.name or f"object{i}", "kind": o.kind, "x": o.x, "y": o.y, "theta": o.theta}
+        extra = [{"name": o.name or f"object{i}", "kind": o.kind, "x": o.x, "y": o.y, "theta": o.heading}
                  for i, o in enumerate(objects)]
         self._state = self._call({"op": "reset", "seed": int(seed), "pose": [float(v) for v in pose],
                                   "objects": extra})

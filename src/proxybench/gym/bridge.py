@@ -14,7 +14,7 @@ round-trip exactly. Requests (``op``):
   its DB18 dynamics built as gym's reset builds them, with the given trim, delay and coefficients;
 - ``step``: ``pwm`` → ``frame_skip`` physics updates of gym (``update_physics``), a trace row after each,
   and gym's own episode end (``_compute_done_reward``);
-- ``camera`` → gym's rendered observation (``render_obs``) for now;
+- ``camera`` → gym's rendered observation (``render_obs``) for now; ``probe`` → gym's own pose and tile;
 - ``quit``.
 
 Every answer is ``{"ok": true, ...}`` or ``{"ok": false, "error": text}``. Poses go back in the map frame by
@@ -58,10 +58,12 @@ class Bridge:
         pyglet.options["headless"] = True  # EGL through Mesa: no X server
         import logging
 
-        logging.getLogger("gym-duckietown").setLevel(logging.WARNING)
         import yaml
         from duckietown_world.world_duckietown import pwm_dynamics
         from gym_duckietown import simulator as gs
+
+        for name in ("gym-duckietown", "duckietown_world", "zuper"):  # their INFO/DEBUG lines, per reset
+            logging.getLogger(name).setLevel(logging.WARNING)
 
         self.gs, self.dyn, self.yaml = gs, pwm_dynamics, yaml
         self.p = dict(params)
@@ -159,6 +161,15 @@ class Bridge:
             return {"kind": "off_road", "message": "gym-duckietown: invalid pose (not on a drivable tile)"}
         return {"kind": "timeout", "message": f"gym-duckietown: {code} (max_steps = {env.max_steps})"}
 
+    def probe(self):
+        """Gym's own view of where the robot is: its frame's position and angle, and the tile there."""
+        env = self.env
+        i, j = env.get_grid_coords(env.cur_pos)
+        tile = env._get_tile(i, j)
+        return {"cur_pos": [float(v) for v in env.cur_pos], "cur_angle": float(env.cur_angle), "tile": [int(i), int(j)],
+                "kind": None if tile is None else tile["kind"], "grid": [env.grid_width, env.grid_height],
+                "tile_size": float(env.road_tile_size)}
+
     def camera(self):
         img = self.env.render_obs()
         return self.gs.np.ascontiguousarray(img, dtype=self.gs.np.uint8).tobytes()
@@ -200,6 +211,8 @@ def main():
                 _write({"ok": True, **bridge.reset(req["seed"], req["pose"], req.get("objects") or [])})
             elif op == "step":
                 _write({"ok": True, **bridge.step(req["pwm"])})
+            elif op == "probe":
+                _write({"ok": True, **bridge.probe()})
             elif op == "camera":
                 _write({"ok": True}, bridge.camera())
             else:
