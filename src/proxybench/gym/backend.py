@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import struct
 import subprocess
 from pathlib import Path
@@ -30,7 +31,7 @@ from proxybench.gym.environment import default_path
 from proxybench.gym.params import GymParams
 from proxybench.protocol.robot_backend import BackendState, FrameStep
 
-__all__ = ["BRIDGE", "GymBridgeError", "GymRobot", "resolve_map"]
+__all__ = ["BRIDGE", "GymBridgeError", "GymRobot", "bridge_environment", "resolve_map"]
 
 BRIDGE = Path(__file__).with_name("bridge.py")
 #: DB18 wheel encoder: 135 ticks per turn (duckietown-world's DynamicModelParameters)
@@ -56,6 +57,16 @@ def resolve_map(name: str, venv: Path | None = None) -> Map:
         return load_map(found[0])
 
 
+def bridge_environment() -> dict[str, str]:
+    """The environment gym's process runs in: ours, with one BLAS thread unless the caller chose otherwise.
+    gym's DB18 model inverts a 2×2 matrix at every physics step; OpenBLAS's thread pool made that ~4 ms of
+    spinning CPU per step on a busy 2-core machine (same result either way: a 2×2 solve is not split)."""
+    env = dict(os.environ)
+    for key in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(key, "1")
+    return env
+
+
 def _map_text(m: Map) -> str:
     path = Path(m.path)
     if not path.is_file():
@@ -79,7 +90,7 @@ class GymRobot:
         text = _map_text(m)
         self._maps[text] = (m, LaneNetwork(m))
         self.proc = subprocess.Popen([str(python), "-u", str(BRIDGE)], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=stderr)
+                                     stdout=subprocess.PIPE, stderr=stderr, env=bridge_environment())
         hello = self._call({"op": "init", "params": _plain(params), "map": text})
         self.version = hello["version"]
         self.physics_rate = float(hello["frame_rate"])
@@ -154,7 +165,7 @@ class GymRobot:
         self._text = text
 
     def reset(self, seed: int, pose: tuple[float, float, float] | None, route: list[str] | None,
-              objects: tuple[MapObject, ...]) -> None:
+              objects: tuple[MapObject, ...], camera: bool = True) -> None:
         m, net = self._maps[self._text]
         if pose is None:
             pose = start_pose(m, seed, net=net)
@@ -163,10 +174,15 @@ class GymRobot:
         self._state = self._call({"op": "reset", "seed": int(seed), "pose": [float(v) for v in pose],
                                   "objects": extra})
         self._end = None
+        self._render = camera  # then each step brings its frame back in the same exchange
+        self._frame: tuple[float, np.ndarray] | None = None
 
     def step_frame(self, pwm: np.ndarray) -> FrameStep:
-        reply = self._call({"op": "step", "pwm": [float(pwm[0]), float(pwm[1])]})
+        reply, blob = self._call({"op": "step", "pwm": [float(pwm[0]), float(pwm[1])], "render": self._render},
+                                 blob=True)
         self._state = reply
+        if blob:
+            self._frame = (reply["t"], self._image(blob))
         if self._end is None and "end" in reply:
             self._end = {"t": float(reply["t"]), **reply["end"]}
         return FrameStep(np.asarray(reply["trace"], dtype=np.float64).reshape(-1, 8))
@@ -175,7 +191,12 @@ class GymRobot:
         return float(self._state["t"])
 
     def camera(self) -> np.ndarray:
+        if self._frame is not None and self._frame[0] == self._state["t"]:
+            return self._frame[1]
         _reply, blob = self._call({"op": "camera"}, blob=True)
+        return self._image(blob)
+
+    def _image(self, blob: bytes) -> np.ndarray:
         return np.frombuffer(blob, dtype=np.uint8).reshape(self.height, self.width, 3)
 
     def state(self) -> BackendState:

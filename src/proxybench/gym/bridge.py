@@ -13,7 +13,8 @@ round-trip exactly. Requests (``op``):
   frame) → gym's reset (domain randomisation drawn from ``seed``), then the robot placed at ``pose`` and
   its DB18 dynamics built as gym's reset builds them, with the given trim, delay and coefficients;
 - ``step``: ``pwm`` → ``frame_skip`` physics updates of gym (``update_physics``), a trace row after each,
-  and gym's own episode end (``_compute_done_reward``);
+  and gym's own episode end (``_compute_done_reward``); with ``render``, the new camera frame too (the order
+  of gym's own ``step``: physics, then ``render_obs``);
 - ``camera`` → gym's rendered observation (``render_obs``) for now; ``probe`` → gym's own pose and tile;
 - ``quit``.
 
@@ -210,7 +211,7 @@ def main():
             elif op == "reset":
                 _write({"ok": True, **bridge.reset(req["seed"], req["pose"], req.get("objects") or [])})
             elif op == "step":
-                _write({"ok": True, **bridge.step(req["pwm"])})
+                _write({"ok": True, **bridge.step(req["pwm"])}, bridge.camera() if req.get("render") else b"")
             elif op == "probe":
                 _write({"ok": True, **bridge.probe()})
             elif op == "camera":

@@ -7,7 +7,7 @@ backend for very little, so that each of those is a small class:
 
 - ``set_map(text)``: the map the caller sends (Duckietown YAML text); a map it cannot load is a
   ``ValueError`` naming the problem;
-- ``reset(seed, pose, route, objects)``: a new episode of its one robot at ``pose`` (map frame) with
+- ``reset(seed, pose, route, objects, camera)``: a new episode of its one robot at ``pose`` (map frame) with
   ``seed``; ``objects``: parked robots and duckies to place as obstacles;
 - ``step_frame(pwm)``: one camera period with the wheel PWM held (the caller's ``step`` is whole frames),
   returning what happened in it (:class:`FrameStep`);
@@ -65,8 +65,10 @@ class RobotBackend(Protocol):
 
     def set_map(self, text: str) -> None: ...
 
-    def reset(self, seed: int, pose: Pose | None, route: list[str] | None, objects: tuple[MapObject, ...]) -> None:
-        """A new episode; ``pose`` None: the backend draws one from ``seed``."""
+    def reset(self, seed: int, pose: Pose | None, route: list[str] | None, objects: tuple[MapObject, ...],
+              camera: bool = True) -> None:
+        """A new episode; ``pose`` None: the backend draws one from ``seed``; ``camera``: frames will be asked
+        for (a backend may render each frame as it steps, in the same exchange, when they will)."""
 
     def step_frame(self, pwm: np.ndarray) -> FrameStep: ...
 

@@ -220,7 +220,7 @@ class RobotNode(NodeLogic):
         self._advance("episode_start")
         seed = options.get("seed", self.default_seed)
         self.backend.reset(int(seed), options.get("pose", self.robot.pose), options.get("route"),
-                           self._extra_objects())
+                           self._extra_objects(), camera=self.robot.simulate_camera)
         self.episode_name = name
         self.extensions = options["proxybench"]
         secs = options.get("episode_seconds")

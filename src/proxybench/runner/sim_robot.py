@@ -87,7 +87,7 @@ class SimRobot:
         self._text = text
 
     def reset(self, seed: int, pose: tuple[float, float, float] | None, route: list[str] | None,
-              objects: tuple[MapObject, ...]) -> None:
+              objects: tuple[MapObject, ...], camera: bool = True) -> None:
         if objects:
             self.sim = self._simulator(self._text, objects)
         self.sim.reset(0, seed, pose, route)
