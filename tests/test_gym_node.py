@@ -247,3 +247,35 @@ def test_a_recording_says_gym_and_keeps_only_the_hash_of_hidden_parameters(venv:
     assert check.exit_code == 0 and "gym-duckietown 6.1.34, parameters hidden" in check.output
     reveal = CliRunner().invoke(app, ["gym", "params", "--param-file", str(theta)])
     assert json.loads(reveal.output)["sha256"] == sim["sha256"] and json.loads(reveal.output)["changed"]["trim"] == 0.1
+
+
+_DEFAULTS = """
+import inspect, json, logging
+logging.disable(logging.CRITICAL)
+from gym_duckietown import simulator as gs
+from duckietown_world.world_duckietown import pwm_dynamics as pd
+ctor = {k: p.default for k, p in inspect.signature(gs.Simulator.__init__).parameters.items() if k != "self"}
+ctor["color_sky"] = list(ctor["color_sky"])
+db18 = pd.get_DB18_uncalibrated(delay=0.15).factory
+coef = {k: getattr(db18, a) for k, a in (("u1", "u1"), ("u2", "u2"), ("u3", "u3"), ("w1", "w1"), ("w2", "w2"),
+        ("w3", "w3"), ("uar", "u_alpha_r"), ("ual", "u_alpha_l"), ("war", "w_alpha_r"), ("wal", "w_alpha_l"))}
+cam = {"cam_height": gs.CAMERA_FLOOR_DIST, "cam_angle": gs.CAMERA_ANGLE, "cam_fov_y": gs.CAMERA_FOV_Y}
+print(json.dumps({"ctor": ctor, "coef": coef, "cam": cam}, default=str))
+"""
+
+
+def test_every_parameter_is_gyms_own_name_with_gyms_default(venv: Path) -> None:
+    """Checked against gym-duckietown itself: its Simulator's signature, its DB18 model, its camera constants."""
+    from proxybench.gym.params import DEFAULTS, NOT_TAKEN
+
+    out = subprocess.run([str(venv / "bin" / "python"), "-c", _DEFAULTS], capture_output=True, text=True, check=True)
+    gym = json.loads(out.stdout.strip().splitlines()[-1])
+    mine = {k: list(v) if isinstance(v, tuple) else v for k, v in DEFAULTS.items()}
+    differ = {"camera_width": 640, "camera_height": 480, "max_steps": 1500, "seed": None}  # ours, documented
+    for name, value in gym["ctor"].items():
+        assert name in mine or name in NOT_TAKEN, f"gym's {name} is neither a parameter nor explained"
+        if name in mine and name not in differ:
+            assert mine[name] == value, name
+    assert {k: gym["ctor"][k] for k in differ} == differ
+    assert {k: mine[k] for k in gym["coef"]} == gym["coef"] and {k: mine[k] for k in gym["cam"]} == gym["cam"]
+    assert mine["delay"] == 0.15 and mine["trim"] == 0.0
