@@ -16,6 +16,9 @@ round-trip exactly. Requests (``op``):
   and gym's own episode end (``_compute_done_reward``); with ``render``, the new camera frame too (the order
   of gym's own ``step``: physics, then ``render_obs``);
 - ``camera`` → gym's rendered observation (``render_obs``) for now; ``probe`` → gym's own pose and tile;
+
+After answering a step, the bridge computes the next period ahead (:meth:`Bridge.ahead`), so that gym works while
+the caller's agent decides; any request but the next step first puts that back.
 - ``quit``.
 
 Every answer is ``{"ok": true, ...}`` or ``{"ok": false, "error": text}``. Poses go back in the map frame by
@@ -72,6 +75,7 @@ class Bridge:
         ctor.setdefault("max_steps", 10**9)  # none given: the caller's episode length is the only limit
         self.env = gs.Simulator(map_name="small_loop", **ctor)
         self._map_key = None
+        self._ahead = None  # (state before, answer, frame) of the next period, computed before its command came
         self.set_map(map_text, ())
 
     # ------------------------------------------------------------------------------------------ map
@@ -136,9 +140,25 @@ class Bridge:
     def state(self):
         return {"motion": self._motion(), "t": self.ticks * self.dt}
 
-    def step(self, pwm):
+    def step(self, pwm, render=False):
+        """One camera period with ``pwm``: (answer, frame bytes or b""), from the step computed ahead when
+        that one is valid (see :meth:`ahead`)."""
+        np = self.gs.np
+        action = np.clip(np.array(pwm, dtype=float), -1, 1)
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None:
+            saved, out, frame = ahead
+            if np.isfinite(out["motion"]).all() and np.isfinite(self.env.cur_pos).all():
+                self._command(action)  # the command was not used yet: write it where the stand-in stands
+                for row in out["trace"]:
+                    row[6:8] = [float(action[0]), float(action[1])]
+                return out, frame if render else b""
+            self._restore(saved)  # the stand-in was used (a delay too short): step again for real
+        out = self._physics(action)
+        return out, self.camera() if render else b""
+
+    def _physics(self, action):
         env = self.env
-        action = self.gs.np.clip(self.gs.np.array(pwm, dtype=float), -1, 1)
         rows = []
         for _ in range(env.frame_skip):
             env.update_physics(action)
@@ -151,6 +171,53 @@ class Bridge:
         if done.done:
             out["end"] = self._why(done.done_code)
         return out
+
+    # ----------------------------------------------------------------------------- stepping ahead
+    def ahead(self, render):
+        """Compute the next camera period now, while the caller decides its command. Exact when gym's command
+        delay is longer than the period: the command being decided acts only later, so the motion, the frame
+        and the episode's end of the next period do not depend on it. It goes in as NaN, and is written in
+        when it comes (a NaN that reached the motion shows in the pose: that step is undone and done again)."""
+        env = self.env
+        if not (self.p["delay"] >= (env.frame_skip + 0.5) * env.delta_time + 1e-9
+                and all(getattr(o, "static", True) for o in env.objects)):
+            return
+        saved = self._save()
+        nan = self.gs.np.full(2, float("nan"))
+        out = self._physics(nan)
+        self._ahead = (saved, out, self.camera() if render else b"")
+
+    def _save(self):
+        env = self.env
+        st = env.state
+        return (st, st.t, len(st.commands), len(st.timestamps), env.cur_pos, env.cur_angle, env.step_count,
+                env.timestamp, env.speed, env.last_action, env.wheelVels, self.ticks)
+
+    def _restore(self, saved):
+        env = self.env
+        st, t, n_cmd, n_ts, *rest = saved
+        del st.commands[n_cmd:], st.timestamps[n_ts:]  # what the step appended to the state it started from
+        st.t = t
+        env.state = st
+        (env.cur_pos, env.cur_angle, env.step_count, env.timestamp, env.speed, env.last_action, env.wheelVels,
+         self.ticks) = rest
+
+    def undo_ahead(self):
+        """Back to the state the caller knows (before anything but the next step)."""
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None:
+            self._restore(ahead[0])
+
+    def _command(self, action):
+        """Put ``action`` where the NaN stand-in went: gym's command history (the delay reads it later) and
+        what gym reports of the last action."""
+        env, np = self.env, self.gs.np
+        cmds = env.state.commands
+        for k, c in enumerate(cmds):
+            if not np.isfinite(c.motor_left):
+                cmds[k] = type(c)(motor_left=action[0], motor_right=action[1])
+        env.last_action = action
+        env.wheelVels = action * env.robot_speed
 
     def _why(self, code):
         env, gs = self.env, self.gs
@@ -199,6 +266,8 @@ def main():
             return 0
         try:
             op = req["op"]
+            if bridge is not None and op != "step":
+                bridge.undo_ahead()
             if op == "init":
                 bridge = Bridge(req["params"], req["map"])
                 env = bridge.env
@@ -211,7 +280,9 @@ def main():
             elif op == "reset":
                 _write({"ok": True, **bridge.reset(req["seed"], req["pose"], req.get("objects") or [])})
             elif op == "step":
-                _write({"ok": True, **bridge.step(req["pwm"])}, bridge.camera() if req.get("render") else b"")
+                out, frame = bridge.step(req["pwm"], req.get("render", False))
+                _write({"ok": True, **out}, frame)
+                bridge.ahead(req.get("render", False))
             elif op == "probe":
                 _write({"ok": True, **bridge.probe()})
             elif op == "camera":
