@@ -208,17 +208,24 @@ def _repeatability_report(res, agent: str, seconds: float, map_name: str, out: P
 def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:
     """--agent and --agent-cmd, else the benchmark file's ``agents:``, else every zoo agent."""
     from proxybench.agents import ZOO
+    from proxybench.experiments.agent_args import AgentArgError, parse_agent
     from proxybench.runner.jobs import AgentSpec
 
     if not names and not commands:
         if bench.agents:
-            return [AgentSpec.node(e.name, e.command_line, e.node_options()) if e.is_node else AgentSpec(e.name)
-                    for e in bench.agents]
+            return [parse_agent(e) for e in bench.agents]
         names = list(ZOO)
     specs = []
     for n in names:
+        if "=sdk" in n:  # NAME=sdk:COMMAND, a duckietown-sdk program
+            try:
+                specs.append(parse_agent(n))
+            except AgentArgError as exc:
+                raise typer.BadParameter(str(exc), param_hint="--agent") from None
+            continue
         if n not in ZOO:
-            raise typer.BadParameter(f"unknown agent {n!r}; known: {', '.join(ZOO)}", param_hint="--agent")
+            raise typer.BadParameter(f"unknown agent {n!r}; known: {', '.join(ZOO)} (or NAME=sdk:COMMAND)",
+                                     param_hint="--agent")
         specs.append(AgentSpec(n))
     for item in commands:
         name, sep, cmd = item.partition("=")
@@ -231,7 +238,8 @@ def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:
 @app.command()
 def evaluate(
     benchmark: str = typer.Argument(..., help="benchmark YAML file or built-in name (aido_lf, aido_lfi, thesis_loop)"),
-    agent: list[str] = typer.Option([], "--agent", help="zoo agent (repeat); default: every admitted one"),
+    agent: list[str] = typer.Option([], "--agent", help="zoo agent or NAME=sdk:COMMAND (repeat); default: every "
+                                    "admitted one"),
     agent_cmd: list[str] = typer.Option([], "--agent-cmd", help="NAME=COMMAND of an external agent node (repeat)"),
     domain: str | None = typer.Option(None, help="run in this named domain instead (default, reality)"),
     backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
@@ -300,15 +308,13 @@ def _quick(bench, episodes: int = 2, seconds: float = 15.0):
 
 def _videos(ev, specs, run_dir: Path) -> None:
     """Episode 0 of each admitted agent, recorded in the benchmark's domain."""
-    from proxybench.domain.params import DomainParams
-    from proxybench.domain.simulator import Simulator
     from proxybench.runner.evaluate import benchmark_domain
     from proxybench.runner.outcomes import make_agent_for
-    from proxybench.runner.record import record_episode
+    from proxybench.runner.record import record_run
 
     bench = ev.benchmark
     ep = bench.episode_specs()[0]
-    params = DomainParams.model_validate(benchmark_domain(bench).params)
+    domain = benchmark_domain(bench)
     written = []
     for spec in specs:
         if spec.label in ev.refused:
@@ -316,12 +322,11 @@ def _videos(ev, specs, run_dir: Path) -> None:
         agent = make_agent_for(spec)
         try:
             with status(f"recording {spec.label}"):
-                _, files = record_episode(Simulator(bench.map, params, npcs=bench.traffic()), agent, ep.seed,
-                                          bench.duration,
-                                          run_dir / "videos", stem=spec.label, pose=ep.pose, route=ep.route)
+                rec = record_run(domain, agent, bench.map, ep.seed, bench.duration, run_dir / "videos",
+                                 stem=spec.label, pose=ep.pose, route=ep.route, npcs=bench.traffic())
         finally:
             getattr(agent, "close", lambda: None)()
-        written += files
+        written += rec.files
     console.print(f"wrote {', '.join(str(f) for f in written)}")
 
 

@@ -14,12 +14,17 @@ from proxybench.agents.base import Agent, Observation
 from proxybench.domain.dynamics import ST, TRACE_FIELDS, wheel_ticks
 from proxybench.domain.episode_end import end_event, ended
 from proxybench.domain.lane_pose import LanePose
+from proxybench.domain.maps import Map
+from proxybench.domain.params import DomainParams
+from proxybench.domain.range_sensor import front_range
 from proxybench.domain.simulator import Simulator
 from proxybench.runner.npcs import NpcDrivers
 from proxybench.runner.rollout import AgentPolicy, PrivilegedAgentError, rollout
 from proxybench.tasks.trajectory import Trajectory
 
-__all__ = ["PrivilegedAgentError", "SimPlant", "run_episode", "run_episodes"]
+__all__ = ["PrivilegedAgentError", "SimPlant", "run_episode", "run_episodes", "sim_plant"]
+
+_NO_ROBOTS = np.zeros((0, 3))
 
 
 class SimPlant:
@@ -38,6 +43,11 @@ class SimPlant:
         self.map = sim.map
         self.image_filter = image_filter
         self.drivers: NpcDrivers | None = None
+
+    @property
+    def frame_rate(self) -> float:
+        """[Hz] camera frames (decisions) per second."""
+        return 1.0 / self.sim.frame_dt
 
     def begin(self, seeds: Sequence[int], poses: Sequence[Any], routes: Sequence[Any], seconds: float,
               camera: bool, privileged: Sequence[bool]) -> int:
@@ -72,7 +82,16 @@ class SimPlant:
         ticks = wheel_ticks(s[[ST.WHEEL_L, ST.WHEEL_R]], res)
         lp = LanePose.from_row(sim.lane[i]) if privileged else None
         route = sim.routes.info(i, sim.lane[i]) if privileged else None
-        return Observation(image, float(sim.time[i]), (float(ticks[0] * res), float(ticks[1] * res)), res, lp, route)
+        pose = (float(s[ST.X]), float(s[ST.Y]), float(s[ST.THETA])) if privileged else None
+        return Observation(image, float(sim.time[i]), (float(ticks[0] * res), float(ticks[1] * res)), res, lp, route,
+                           pose, lambda: self.front_range(i))
+
+    def front_range(self, i: int) -> float | None:
+        """Robot ``i``'s front time-of-flight range [m] now (None: nothing within range)."""
+        sim = self.sim
+        s = sim.state[i]
+        robots = sim.npc_state[sim.npc_world == i, :3] if sim.worlds.k else _NO_ROBOTS
+        return front_range(sim.objects.colliders, robots, s[ST.X], s[ST.Y], s[ST.THETA])
 
     def time(self, i: int) -> float:
         return float(self.sim.time[i])
@@ -116,6 +135,14 @@ class SimPlant:
         if self.drivers is not None:
             self.drivers.close()
             self.drivers = None
+
+
+def sim_plant(map_: Map | str, params: DomainParams | None = None) -> SimPlant:
+    """A plant of one simulated robot on ``map_`` whose camera frames are what camera agents see (the JPEG round
+    trip): for servers of the simulator that drive it from outside the runner (``proxybench dtps serve``)."""
+    from proxybench.runner.outcomes import camera_filter
+
+    return SimPlant(Simulator(map_, params or DomainParams()), camera_filter())
 
 
 def run_episode(

@@ -34,35 +34,52 @@ __all__ = ["DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "
 class AgentSpec:
     """A zoo agent by ``name``, or an external node started with ``command`` (any language; a string may use
     shell syntax) and ``options``: the non-default fields of :class:`~proxybench.protocol.options.NodeOptions`
-    (working directory, transport, timeouts, reflection) as sorted pairs, so the spec stays hashable."""
+    (working directory, transport, timeouts, reflection) as sorted pairs, so the spec stays hashable.
+    ``protocol``: ``"aido"`` (an AIDO agent node) or ``"sdk"`` (a duckietown-sdk program driving a virtual
+    DB21J over DTPS, :mod:`proxybench.dtps`; its options are :class:`~proxybench.dtps.options.SdkOptions`)."""
 
     name: str
     command: str | None = None
     options: tuple[tuple[str, Any], ...] = ()
+    protocol: str = "aido"
 
     @classmethod
     def node(cls, name: str, command: str, options: Any = None) -> AgentSpec:
         """A node agent; ``options``: a ``NodeOptions`` (or None for the defaults)."""
         return cls(name, command, options.items() if options is not None else ())
 
+    @classmethod
+    def sdk(cls, name: str, command: str, options: Any = None) -> AgentSpec:
+        """A duckietown-sdk agent program; ``options``: an ``SdkOptions`` (or None for the defaults)."""
+        return cls(name, command, options.items() if options is not None else (), "sdk")
+
     @property
     def label(self) -> str:
         return self.name
 
     def node_options(self):
-        """The ``NodeOptions`` of a node agent."""
+        """The ``NodeOptions`` of a node agent (``SdkOptions`` of an SDK agent)."""
+        if self.protocol == "sdk":
+            from proxybench.dtps.options import SdkOptions
+
+            return SdkOptions(**dict(self.options))
         from proxybench.protocol.options import NodeOptions
 
         return NodeOptions(**dict(self.options))
 
     def key_data(self) -> dict[str, Any]:
-        """What identifies the agent in a job's hash (options only when set, so older keys stay valid)."""
+        """What identifies the agent in a job's hash (options and protocol only when set, so older keys stay
+        valid)."""
         data: dict[str, Any] = {"name": self.name, "command": self.command}
         if self.options:
             data["options"] = dict(self.options)
+        if self.protocol != "aido":
+            data["protocol"] = self.protocol
         return data
 
 
+#: [Hz] the camera rate of :class:`~proxybench.domain.params.DomainParams` when nobody sets one
+DEFAULT_FRAME_RATE = 15.0
 #: what a domain can be: a proxy instance S_θ, the built-in reality model, or a robot node (the robot protocol)
 DOMAIN_KINDS = ("simulation", "reality-model", "robot")
 
@@ -81,7 +98,9 @@ class DomainSpec:
     to one physical robot, raise it for a simulator node. ``options``: how to start and talk to the node,
     the non-default fields of :class:`~proxybench.protocol.options.RobotNodeOptions` (working directory,
     transport, timeouts, reflection) as sorted pairs; of them only ``cwd`` is part of the key (it changes
-    what the command runs; a timeout or the transport does not change an episode).
+    what the command runs; a timeout or the transport does not change an episode). ``frame_rate`` [Hz]: what a
+    robot node is asked to step at (the benchmark's or the proxies' rate; a node that says its own rate is
+    stepped at that); part of the key when it is not the default 15 Hz.
     """
 
     name: str
@@ -90,12 +109,15 @@ class DomainSpec:
     command: str | None = None
     nodes: int = 1
     options: tuple[tuple[str, Any], ...] = ()
+    frame_rate: float = DEFAULT_FRAME_RATE
 
     @classmethod
-    def robot(cls, command: str, *, name: str | None = None, nodes: int = 1, options: Any = None) -> DomainSpec:
-        """A robot domain; ``options``: a ``RobotNodeOptions`` (or None for the defaults)."""
+    def robot(cls, command: str, *, frame_rate: float, name: str | None = None, nodes: int = 1,
+              options: Any = None) -> DomainSpec:
+        """A robot domain stepped at ``frame_rate`` [Hz]; ``options``: a ``RobotNodeOptions`` (or None for the
+        defaults)."""
         return cls(name or f"robot:{command}", kind="robot", command=command, nodes=nodes,
-                   options=options.items() if options is not None else ())
+                   options=options.items() if options is not None else (), frame_rate=float(frame_rate))
 
     def node_options(self):
         """The ``RobotNodeOptions`` of a robot domain."""
@@ -125,6 +147,8 @@ class DomainSpec:
         cwd = dict(self.options).get("cwd")
         if cwd is not None:  # absent otherwise, so robot domains without one keep their keys
             doc["cwd"] = cwd
+        if self.kind == "robot" and self.frame_rate != DEFAULT_FRAME_RATE:  # likewise
+            doc["frame_rate"] = self.frame_rate
         return json.dumps(doc, sort_keys=True)
 
 
@@ -223,8 +247,10 @@ def batch_group(job: Job) -> tuple:
 
 
 def is_privileged(spec: AgentSpec) -> bool:
-    """Whether the agent a spec names reads the true lane pose, without starting it: a zoo agent's flag;
-    False for node agents and checkpoints (camera only)."""
+    """Whether the agent a spec names reads the true lane pose, without starting it: a zoo agent's flag, an SDK
+    agent's ``privileged`` option; False for node agents and checkpoints (camera only)."""
     from proxybench.agents.zoo import ZOO
 
+    if spec.protocol == "sdk":
+        return bool(dict(spec.options).get("privileged", False))
     return bool(spec.command is None and spec.name in ZOO and ZOO[spec.name].privileged)

@@ -69,6 +69,15 @@ class RobotPlant:
             raise RobotLacksGroundTruth(f"robot {robot.command!r} ({self.info.kind}) reports no true lane pose")
         return self.steps
 
+    @property
+    def frame_rate(self) -> float:
+        """[Hz] camera frames per second, as the robot said when the episode began."""
+        return self.info.frame_rate
+
+    def encoded_frame(self, i: int) -> bytes | None:
+        """The current camera frame as the robot sent it (JPEG bytes), before decoding."""
+        return self.obs.observations.jpg or None
+
     def frames(self, alive: np.ndarray) -> list[np.ndarray | None]:
         o = self.obs.observations
         return [jpeg.decode_received(o.jpg) if o.jpg else None]
@@ -77,7 +86,8 @@ class RobotPlant:
         o = self.obs.observations
         if not privileged:
             return Observation(image, o.timestamp, o.odometry, o.resolution)
-        return Observation(image, o.timestamp, o.odometry, o.resolution, self.obs.lane_pose, self.obs.route)
+        return Observation(image, o.timestamp, o.odometry, o.resolution, self.obs.lane_pose, self.obs.route,
+                           tuple(self.states[-1].pose))
 
     def time(self, i: int) -> float:
         return self.obs.observations.timestamp

@@ -97,7 +97,7 @@ def execute_robot_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]
                         results.append(refused(job, agent, time.perf_counter() - t0))
                         continue
                     if robot is None:  # a robot not saying its rate is stepped at the domain's
-                        robot = RemoteRobot(domain.command, frame_rate=float(domain.params.get("frame_rate", 15.0)),
+                        robot = RemoteRobot(domain.command, frame_rate=domain.frame_rate,
                                             **domain.node_options().process_kwargs())
                     if job.map not in maps:
                         maps[job.map] = load_map(job.map)

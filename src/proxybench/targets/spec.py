@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from proxybench.runner.backends import InlineBackend
-from proxybench.runner.jobs import DomainSpec, Job
+from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec, Job
 from proxybench.runner.starts import start_poses
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, by_agent, episode_seed
@@ -152,12 +152,13 @@ class RecordedTarget(Target):
 
 
 def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes: int = 1,
-                robot_options: Any = None) -> Target:
+                robot_options: Any = None, frame_rate: float = DEFAULT_FRAME_RATE) -> Target:
     """The target ``text`` names: ``reality``, ``robot:CMD``, or a directory (or manifest file) of recordings.
 
     ``params``: θ overrides of the reality model (only with ``reality``); ``robot_nodes``: how many processes
     of a robot node may run at once, ``robot_options``: how to start and talk to it (a
-    :class:`~proxybench.protocol.options.RobotNodeOptions`; both only with ``robot:``).
+    :class:`~proxybench.protocol.options.RobotNodeOptions`; both only with ``robot:``); ``frame_rate`` [Hz]:
+    the proxies' camera rate, at which a robot node is asked to step.
     """
     text = text.strip()
     if params and text != "reality":
@@ -175,7 +176,7 @@ def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes:
         if not command:
             raise TargetError("target: robot: needs the command that starts the robot node, e.g. "
                               "'robot:proxybench robot serve --param trim=0.1'")
-        return RobotTarget(command, robot_nodes, robot_options)
+        return RobotTarget(command, robot_nodes, robot_options, frame_rate)
     if Path(text).exists():
         return RecordedTarget(text)
     raise TargetError(f"target: {text!r} is not 'reality', 'robot:COMMAND' or an existing directory of recordings")

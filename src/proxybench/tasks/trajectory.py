@@ -32,7 +32,8 @@ from proxybench.domain.routes import RouteGraph, pin_route, route_columns
 __all__ = ["TERMINATIONS", "Trajectory", "TrajectoryError"]
 
 #: why an episode ended
-TERMINATIONS = ("timeout", "off_road", "left_map", "collision", "agent_failure")
+TERMINATIONS = ("timeout", "off_road", "left_map", "collision", "agent_failure", "reset")  # reset: asked for by
+# the agent (state/reset of a served DTPS robot, docs/dtps.md)
 _CORE = ("t", "x", "y", "theta")
 _OPTIONAL = ("v", "omega", "pwm_left", "pwm_right")
 _LANE = ("valid", "segment", "along", "lateral", "heading_error", "left_in_lane", "right_in_lane",
