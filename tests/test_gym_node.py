@@ -145,6 +145,26 @@ def test_a_spawned_duckie_is_gyms_obstacle_and_parked_robots_stand_still(backend
     assert jpeg.decode(answers[12][0]["data"]["jpg_data"]).ndim == 3
 
 
+def test_the_same_seed_gives_the_same_frames_whatever_came_before(backend: GymRobot) -> None:
+    """gym sets an episode's light under the matrices the previous frame left; the node resets them, so a seed's
+    frames (domain randomisation on) do not depend on the episodes before."""
+    backend.set_map(map_yaml(LOOP))
+    first, other = start_poses("loop_3x3", [4, 5])
+
+    def episode(seed: int, pose) -> list[np.ndarray]:
+        backend.reset(seed, pose, None, ())
+        frames = [backend.camera().copy()]
+        for _ in range(3):
+            backend.step_frame(np.array([0.4, 0.3]))
+            frames.append(backend.camera().copy())
+        return frames
+
+    a = episode(4, first)
+    episode(5, other)
+    b = episode(4, first)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+
+
 # ------------------------------------------------------------------------------------- frame conversion
 @pytest.mark.parametrize("name", ["loop_3x3", "zigzag", "udem1", "ETHZ_autolab_technical_track", "4way"])
 def test_the_start_pose_lands_where_gym_sees_it_on_several_maps(backend: GymRobot, venv: Path, name: str) -> None:

@@ -77,6 +77,8 @@ class Bridge:
         self._map_key = None
         self._ahead = None  # (state before, answer, frame) of the next period, computed before its command came
         self.set_map(map_text, ())
+        self.reset(0, [0.0, 0.0, 0.0], [])  # a first episode: the first one after gym's constructor renders apart
+        self.camera()
 
     # ------------------------------------------------------------------------------------------ map
     def set_map(self, text, objects):
@@ -103,6 +105,10 @@ class Bridge:
         if objects or self._map_key[1]:
             self.set_map(self._map_key[0], objects)
         env.seed(p["seed"] if p.get("seed") is not None else seed)
+        gl = self.gs.gl  # gym's reset places the light under the matrices its last frame left: an episode's
+        for mode in (gl.GL_MODELVIEW, gl.GL_PROJECTION):  # light would depend on where the one before ended
+            gl.glMatrixMode(mode)
+            gl.glLoadIdentity()
         env.reset()
         for k in ("cam_height", "cam_fov_y"):  # gym's reset sets them (and randomises them): ours on top
             if k in p:
