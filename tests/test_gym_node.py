@@ -299,3 +299,12 @@ def test_every_parameter_is_gyms_own_name_with_gyms_default(venv: Path) -> None:
     assert {k: gym["ctor"][k] for k in differ} == differ
     assert {k: mine[k] for k in gym["coef"]} == gym["coef"] and {k: mine[k] for k in gym["cam"]} == gym["cam"]
     assert mine["delay"] == 0.15 and mine["trim"] == 0.0
+
+
+def test_the_gym_node_keeps_the_plant_contract(venv: Path) -> None:
+    """proxybench.testing's PlantContract, as on every plant: starts, start pose, stepping at its 30 Hz,
+    observations, determinism (a seed again after another one and on a fresh node), clean failure."""
+    from proxybench.testing import PlantContract
+
+    report = PlantContract.for_robot_command(SERVE, frame_rate=30.0, image_size=(80, 60)).check_all()  # raises
+    assert "80×60 RGB uint8 frames every 1/30 s" in next(r for r in report.results if r.name == "observations").reason
