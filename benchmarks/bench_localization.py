@@ -34,13 +34,13 @@ def record(map_name: str, seconds: float, out: Path) -> Path:
     from proxybench.autolab.cli_support import finish_sim_log, layout_streams
     from proxybench.domain.maps import load_map
     from proxybench.domain.params import DomainParams
-    from proxybench.domain.simulator import Simulator
-    from proxybench.runner.record import record_episode
+    from proxybench.runner.jobs import DomainSpec
+    from proxybench.runner.record import record_run
 
-    layout, streams, m = layout_streams("auto", load_map(map_name))
-    sim = Simulator(m, DomainParams(image_width=32, image_height=24))
-    traj, _ = record_episode(sim, make_agent("pid"), 0, seconds, out, video=False, meta={"map": map_name},
-                             streams=streams)
+    layout, streams, _ = layout_streams("auto", load_map(map_name))
+    domain = DomainSpec("simulation", DomainParams(image_width=32, image_height=24).model_dump(mode="json"))
+    traj = record_run(domain, make_agent("pid"), map_name, 0, seconds, out, video=False, meta={"map": map_name},
+                      streams=streams).trajectory
     traj.save(out / "trajectory.parquet")
     finish_sim_log(out, layout, map_name, "pid", 0, seconds, traj.termination)
     return out

@@ -44,7 +44,8 @@ from proxybench.domain.map_objects import AprilTag  # noqa: E402
 from proxybench.domain.maps import MapObject, load_map  # noqa: E402
 from proxybench.domain.params import DomainParams  # noqa: E402
 from proxybench.domain.simulator import Simulator  # noqa: E402
-from proxybench.runner.record import record_episode  # noqa: E402
+from proxybench.runner.jobs import DomainSpec  # noqa: E402
+from proxybench.runner.record import record_run  # noqa: E402
 from proxybench.targets.recorded import check_recording  # noqa: E402
 from proxybench.tasks.trajectory import Trajectory  # noqa: E402
 
@@ -61,10 +62,10 @@ def _layout(**kw) -> Layout:
 
 def _record(out: Path, seconds: float = 1.5, layout: Layout | None = None) -> Path:
     layout = layout or _layout()
-    _, streams, m = layout_streams_for(layout)
-    sim = Simulator(m, SMALL)
-    traj, _ = record_episode(sim, make_agent("pid"), 0, seconds, out, video=False, pose=(0.6, LANE_Y, 0.0),
-                             meta={"map": "straight_road"}, streams=streams)
+    _, streams, _ = layout_streams_for(layout)
+    traj = record_run(DomainSpec("simulation", SMALL.model_dump(mode="json")), make_agent("pid"), "straight_road", 0,
+                      seconds, out, video=False, pose=(0.6, LANE_Y, 0.0), meta={"map": "straight_road"},
+                      streams=streams).trajectory
     traj.save(out / "trajectory.parquet")
     finish_sim_log(out, layout, "straight_road", "pid", 0, seconds, traj.termination)
     return out

@@ -1,6 +1,6 @@
 """Timestamped image streams of fixed cameras (a lab's watchtowers), recorded while an episode runs.
 
-A ``StreamSpec`` rides along with an episode (``Job.streams``, ``record_episode(streams=...)``): the cameras
+A ``StreamSpec`` rides along with an episode (``Job.streams``, ``record_run(streams=...)``): the cameras
 (``domain.fixed_cameras.FixedCamera``, where they truly are), each one's frame rate and clock offset, and the
 objects the lab adds to the map (its calibration tags, ``fixtures``: they are part of the simulated world,
 so the robots' cameras see them too). ``StreamRecorder`` is called from the episode's frame hook: at every
