@@ -6,6 +6,7 @@ from proxybench.cli import (  # noqa: F401 - importing registers the commands
     dtps,
     evaluate,
     evaluator,
+    gym,
     heldout,
     learning,
     maps,
