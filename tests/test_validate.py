@@ -86,3 +86,30 @@ def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path):
     assert again.exit_code == 0, again.output
     assert json.loads((out / "criteria.json").read_text())["written"] == written  # resumed, criteria kept
     assert "0 episodes run now" in again.output
+
+
+@pytest.mark.slow
+def test_validate_gym_family_quick_end_to_end(tmp_path):
+    """The gym family: gym-duckietown nodes with hidden θ (files of mode 600, only a hash in any report)."""
+    import os
+    import stat
+
+    from proxybench.gym.environment import check_environment
+
+    env = check_environment(render=False)
+    if not env.ok:
+        why = "gym-duckietown's environment is not ready (run `proxybench gym setup`): " + "; ".join(env.problems)
+        if os.environ.get("PROXYBENCH_REQUIRE_GYM") == "1":
+            pytest.fail(why)
+        pytest.skip(why)
+    out = tmp_path / "g"
+    res = CliRunner().invoke(app, ["validate", "--family", "gym", "--quick", "--targets", "2", "--backend", "inline",
+                                   "--out", str(out)], env={"COLUMNS": "200"})
+    assert res.exit_code == 0, res.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["family"] == "gym" and summary["targets"] == 2 and "prpv" in summary["methods"]
+    secret = next((out / "secret" / "gym").glob("gym-*.yaml"))
+    assert stat.S_IMODE(secret.stat().st_mode) == 0o600
+    drawn = summary["truths"][0]["trim"]
+    report = (out / "targets.csv").read_text() + (out / "criteria.json").read_text()
+    assert f"{drawn}" not in report  # the hidden θ is only in the secret file and the revealed summary

@@ -75,6 +75,16 @@ FAMILIES: dict[str, dict[bool, dict[str, Any]]] = {
                "draw": {"trim": (-0.15, 0.35), "camera_pitch": (13.15, 27.15)}, "maps": ("loop_3x3",)},
     },
 }
+FAMILIES["gym"] = {
+    False: {**FAMILIES["heldout"][False], "grid": {"trim": (-0.2, -0.1, 0.0, 0.1, 0.2),
+                                                   "command_delay": (0.05, 0.1, 0.15, 0.2, 0.25)},
+            "draw": {"trim": (-0.15, 0.35), "delay": (0.02, 0.3), "cam_angle": (13.15, 27.15),
+                     "cam_height": (0.1, 0.116)}, "maps": ("loop_3x3", "zigzag"), "robot_nodes": 2},
+    True: {**FAMILIES["heldout"][True], "grid": {"trim": (-0.2, 0.0, 0.2), "command_delay": (0.05, 0.15, 0.25)},
+           "draw": {"trim": (-0.15, 0.35), "delay": (0.02, 0.3)}, "maps": ("loop_3x3",), "robot_nodes": 2},
+}
+#: the family's parameter names for the target draw, when they are not proxybench's (gym's own names)
+_GYM_TO_PROXY = {"delay": "command_delay", "cam_angle": "camera_pitch", "cam_height": "camera_height"}
 SCORING_FILES = (validation.__file__,)
 
 
@@ -122,7 +132,7 @@ class ValidateConfig(BaseModel):
                              "the baseline every method is compared with, is required)")
         return v
 
-    @field_validator("grid", "draw")
+    @field_validator("grid")
     @classmethod
     def _names(cls, v: dict | None) -> dict | None:
         for name in v or {}:
@@ -130,11 +140,19 @@ class ValidateConfig(BaseModel):
         return v
 
 
+def _draw_name(family: str, name: str) -> None:
+    """A target parameter the family knows: proxybench's θ for held-out targets, gym's names for gym's."""
+    if family != "gym":
+        _param_name(name)
+        return
+    from proxybench.gym.params import PARAMS
+
+    if name not in PARAMS:
+        raise ConfigError(f"draw: {name!r} is not a gym-duckietown parameter; `proxybench gym params` lists them")
+
+
 def settings_for(cfg: ValidateConfig, quick: bool) -> dict[str, Any]:
     """Every choice made (the config, then the family's defaults); the draw seed is not among them."""
-    if cfg.family not in FAMILIES:
-        raise ConfigError(f"family: {cfg.family!r} needs gym-duckietown's environment and bridge "
-                          "(`proxybench gym setup`), which this build does not have yet; use --family heldout")
     d = FAMILIES[cfg.family][quick]
     seconds = cfg.seconds or d["seconds"]
     scale = seconds / 60.0  # AIDO's lane-following tolerances are for 60 s episodes
@@ -150,9 +168,13 @@ def settings_for(cfg: ValidateConfig, quick: bool) -> dict[str, Any]:
          "tolerances": {m: tolerances.get(m, 0.0) for m in cfg.metrics}, "methods": list(cfg.methods),
          "top_k": cfg.top_k, "alpha": cfg.alpha, "power": cfg.power, "image_size": list(cfg.image_size),
          "n_boot": cfg.n_boot, "seed": cfg.seed,
-         "bc_agents": d.get("bc_agents", 0) if cfg.bc_agents is None else cfg.bc_agents}
-    outside = [k for k in s["grid"] if k in s["draw"] and not (min(s["draw"][k]) < min(s["grid"][k])
-                                                             or max(s["draw"][k]) > max(s["grid"][k]))]
+         "bc_agents": d.get("bc_agents", 0) if cfg.bc_agents is None else cfg.bc_agents,
+         "robot_nodes": d.get("robot_nodes", 1)}
+    draw = {_GYM_TO_PROXY.get(k, k) if cfg.family == "gym" else k: v for k, v in s["draw"].items()}
+    for name in s["draw"]:
+        _draw_name(cfg.family, name)
+    outside = [k for k in s["grid"] if k in draw and not (min(draw[k]) < min(s["grid"][k])
+                                                       or max(draw[k]) > max(s["grid"][k]))]
     if outside:
         raise ConfigError(f"draw: {', '.join(outside)} must be drawn wider than the grid searches it, so that the "
                           "nominal calibration can lose")
@@ -267,10 +289,19 @@ def train_bc_agents(s: dict[str, Any], folder: Path, progress: Progress | None =
     return paths
 
 
-def _family_targets(s: dict[str, Any], draw_seed: int) -> list[Any]:
+def _family_targets(s: dict[str, Any], draw_seed: int, out: Path) -> list[Any]:
+    """The family's targets, black boxes until reveal (their θ drawn from ``draw_seed``)."""
+    ranges = {k: tuple(v) for k, v in s["draw"].items()}
+    if s["family"] == "gym":
+        from proxybench.gym.environment import check_environment
+        from proxybench.targets.gym import gym_targets
+
+        env = check_environment(render=False)
+        if env.problems:
+            raise ConfigError("family gym: gym-duckietown's environment is not ready: " + "; ".join(env.problems))
+        return gym_targets(s["targets"], draw_seed, ranges, out / "secret" / "gym", nodes=s["robot_nodes"])
     from proxybench.targets.heldout import heldout_targets
 
-    ranges = {k: tuple(v) for k, v in s["draw"].items()}
     return heldout_targets(s["targets"], draw_seed, ranges)
 
 
@@ -400,7 +431,7 @@ def run_validate(cfg: ValidateConfig, out: str | Path, backend: Backend | None =
     except AgentArgError as exc:
         raise ConfigError(f"agents: {exc}") from None
     backend = backend or InlineBackend()
-    targets = _family_targets(s, draw_seed)
+    targets = _family_targets(s, draw_seed, out)
     folder = out / "targets"
     folder.mkdir(exist_ok=True)
     key = hashlib.sha256(json.dumps(s, sort_keys=True).encode()).hexdigest()[:16]
