@@ -2,6 +2,7 @@
 
 from proxybench.cli import (  # noqa: F401 - importing registers the commands
     agents,
+    autolab,
     drive,
     dtps,
     evaluate,
