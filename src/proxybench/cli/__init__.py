@@ -2,10 +2,12 @@
 
 from proxybench.cli import (  # noqa: F401 - importing registers the commands
     agents,
+    autolab,
     drive,
     dtps,
     evaluate,
     evaluator,
+    gym,
     heldout,
     learning,
     maps,
@@ -16,6 +18,7 @@ from proxybench.cli import (  # noqa: F401 - importing registers the commands
     server,
     targets,
     usefulness,
+    validate,
 )
 from proxybench.cli.app import app
 

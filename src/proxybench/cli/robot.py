@@ -61,10 +61,11 @@ def robot_serve(
     """
     from proxybench.domain.maps import MapError
     from proxybench.protocol.robot_node import RobotNode, serve_robot
+    from proxybench.runner.sim_robot import SimRobot
 
     params = parse_params(param)
     try:
-        node = RobotNode(params, map_name, seed=seed, node_name=name)
+        node = RobotNode(SimRobot(params, map_name), seed=seed, node_name=name)
     except (MapError, ValueError) as exc:
         err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(1) from exc

@@ -32,8 +32,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from proxybench.protocol.options import RobotNodeOptions
 
-__all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "RobotInfo", "TargetError", "TargetManifest", "format_errors",
-           "load_manifest", "write_manifest"]
+__all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "ExcludedRun", "RobotInfo", "SimulatorInfo", "TargetError",
+           "TargetManifest",
+           "format_errors", "load_manifest", "write_manifest"]
 
 FORMAT = "proxybench-target/1"
 MANIFEST_NAME = "target.yaml"
@@ -47,6 +48,34 @@ class TargetError(ValueError):
     """A target that cannot be used; the message names the file, row, column or field at fault."""
 
 
+class SimulatorInfo(BaseModel):
+    """Which simulator a simulated robot node is (e.g. gym-duckietown), its version and θ; a hidden θ is kept
+    only as its hash (``params`` then holds ``{hidden: true, sha256: ...}``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = Field(min_length=1)
+    package: str = ""
+    version: str = ""
+    hidden: bool = False
+    sha256: str = ""
+    changed: dict[str, Any] | None = Field(None, description="θ that differs from the simulator's defaults")
+
+    def describe(self) -> str:
+        """``gym-duckietown 6.1.34, trim=0.1``, ``..., its default parameters`` or ``..., parameters hidden``.
+
+        >>> SimulatorInfo(name="gym-duckietown", version="6.1.34", changed={"trim": 0.1}).describe()
+        'gym-duckietown 6.1.34, trim=0.1'
+        """
+        what = f"{self.name} {self.version}".strip()
+        if self.hidden:
+            return f"{what}, parameters hidden (sha256 {self.sha256[:16]}…)"
+        if self.changed is None:
+            return what
+        return what + (", " + ", ".join(f"{k}={v}" for k, v in self.changed.items()) if self.changed
+                       else ", its default parameters")
+
+
 class RobotInfo(BaseModel):
     """The robot node a recording was made on: its command, what it said it is, and how it was started
     (``options``: working directory, transport, timeouts, reflection; None in recordings made before
@@ -57,6 +86,7 @@ class RobotInfo(BaseModel):
     command: str = Field(min_length=1, description="the command that started the robot node")
     kind: str = Field("", description="what the node said it is (its robot_interface_description)")
     options: RobotNodeOptions | None = Field(None, description="how the node was started (--robot-cwd, ...)")
+    simulator: SimulatorInfo | None = Field(None, description="which simulator a simulated node said it is")
 
     def describe(self) -> str:
         """One line: the command and, when known, how it was started.
@@ -72,6 +102,16 @@ class RobotInfo(BaseModel):
         parts += [f"start timeout {o.start_timeout:g} s", f"step timeout {o.step_timeout:g} s",
                   "describe_protocol asked" if o.reflection else "no describe_protocol"]
         return f"`{self.command}` ({', '.join(parts)})"
+
+
+class ExcludedRun(BaseModel):
+    """A run the lab recorded but that may not be scored (the DTA's validation phase), and why."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    agent: str
+    run: str = Field(description="where the run's log is")
+    reason: str = Field(min_length=1)
 
 
 class TargetManifest(BaseModel):
@@ -98,6 +138,7 @@ class TargetManifest(BaseModel):
     params: dict[str, Any] | None = Field(None, description="θ of a simulated target, for the record")
     truth: dict[str, float] | None = Field(None, description="known calibrated θ, to annotate results only")
     recorded_with: str = ""
+    excluded: list[ExcludedRun] = Field(default_factory=list, description="runs left out of the episodes, and why")
 
     @field_validator("when", mode="before")
     @classmethod

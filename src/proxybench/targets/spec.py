@@ -110,6 +110,8 @@ class RecordedTarget(Target):
             "reality-model": "SIMULATED runs of proxybench's reality model (a stand-in for a Duckiebot)",
             "robot-node": (f"runs on a robot node ({m.robot.command if m.robot else '?'}"
                            + (f", which described itself as a {m.robot.kind}" if m.robot and m.robot.kind else "")
+                           + (f": {m.robot.simulator.describe()}, another simulator than proxybench's"
+                              if m.robot and m.robot.simulator and m.robot.kind == "simulation" else "")
                            + "); proxybench cannot tell whether a robot node is a real robot or a simulator"),
             "simulation": "SIMULATED runs of another simulator",
         }[m.source]
