@@ -340,7 +340,15 @@ def _wait_for_job() -> Path | None:
     if not line:
         return None  # the evaluator closed without a job for us
     job_dir = Path(line)
-    fd = os.open(job_dir / "worker.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC, 0o600)
+    folder = os.open(job_dir, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    try:  # the evaluator made it (mode 700, ours) in its private work folder: anything else is not our job
+        st = os.fstat(folder)
+        if st.st_uid != os.geteuid() or st.st_mode & 0o077:
+            raise SystemExit(f"job folder {job_dir} is not this user's private folder: refusing it")
+        fd = os.open("worker.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600,
+                     dir_fd=folder)
+    finally:
+        os.close(folder)
     sys.stdout.flush()
     sys.stderr.flush()
     os.dup2(fd, 1)
