@@ -85,8 +85,8 @@ async def job_heartbeat(job_id: JobId, body: Heartbeat, request: Request, settin
 
     def work(session: Session) -> HeartbeatReply:
         ev = _evaluator(session, user, body.evaluator)
-        job = heartbeat(session, job_id, body.lease_id, ev, settings.lease_seconds, body.progress)
-        return HeartbeatReply(job_id=job.id, lease_expires_at=job.lease_expires_at or 0.0)
+        expires = heartbeat(session, job_id, body.lease_id, ev, settings.lease_seconds, body.progress)
+        return HeartbeatReply(job_id=job_id, lease_expires_at=expires)
 
     return await run_write(request, work)
 
