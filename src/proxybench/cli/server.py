@@ -135,6 +135,9 @@ def serve(
     from proxybench.server import clock
     from proxybench.server.app import create_app, prepare
     from proxybench.server.config import Settings
+    from proxybench.server.connections import PROTOCOL, raise_open_files
+
+    raise_open_files()  # before the workers start: they inherit it (each client is a socket)
 
     if workers is None:
         workers = max(1, min(4, len(os.sched_getaffinity(0))))
@@ -161,12 +164,14 @@ def serve(
         robot = f"; target jobs on the robot node `{robot_cmd}`" if robot_cmd else ""
         console.print(f"  {evaluators} local evaluator(s) started (features: {features}{escape(robot)})",
                       highlight=False)
+    # connections: a deadline for request headers and a cap per address (server/connections.py), idle ones closed
+    front = {"host": host, "port": port, "log_level": "warning", "timeout_keep_alive": settings.idle_timeout,
+             "http": PROTOCOL}
     try:
         if settings.workers == 1:
-            uvicorn.run(application, host=host, port=port, log_level="warning", timeout_keep_alive=15)
+            uvicorn.run(application, **front)
         else:
-            uvicorn.run("proxybench.server.app:app_from_env", factory=True, workers=settings.workers, host=host,
-                        port=port, log_level="warning", timeout_keep_alive=15)
+            uvicorn.run("proxybench.server.app:app_from_env", factory=True, workers=settings.workers, **front)
     finally:
         for p in procs:
             p.terminate()
