@@ -388,8 +388,8 @@ def test_an_agent_cannot_pass_its_failure_off_as_the_hosts(tmp_path: Path, isola
 def test_the_evaluator_uploads_only_files_of_the_job_folder(tmp_path: Path) -> None:
     """Even an outcome naming /etc/shadow or a link to it (say, from a buggy worker) uploads nothing of it."""
     from proxybench.evaluator.outcome import Artifact, Outcome
-    from proxybench.evaluator.worker import job_artifacts_only
     from proxybench.evaluator.workdir import StateDir
+    from proxybench.evaluator.worker import job_artifacts_only
 
     state = StateDir(tmp_path / "work")
     folder = state.new_job("job")

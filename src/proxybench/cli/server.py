@@ -339,8 +339,13 @@ def benchmark_add(
     """Upload a benchmark file (a changed file under a known name becomes a new version)."""
     require_extra("server", ("httpx",))
     from proxybench.client import ServerError
+    from proxybench.untrusted import UntrustedInputError, read_text_file
 
-    body = {"yaml": file.read_text(encoding="utf-8"), "features": [f for f in features.split(",") if f]}
+    try:
+        text = read_text_file(file)
+    except UntrustedInputError as exc:
+        raise _fail(exc) from None
+    body = {"yaml": text, "features": [f for f in features.split(",") if f]}
     try:
         out = _client(server, token, token_file).post("/benchmarks", body)
     except ServerError as exc:
@@ -354,15 +359,14 @@ def path_add(
     server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
 ) -> None:
     """Define a benchmark path: steps (benchmarks) and edges with conditions to progress."""
-    import yaml
-
     require_extra("server", ("httpx",))
     from proxybench.client import ServerError
+    from proxybench.untrusted import UntrustedInputError, load_yaml_file
 
     try:
-        data = yaml.safe_load(file.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        raise _fail(ValueError(f"{file}: not valid YAML ({exc})")) from None
+        data = load_yaml_file(file, max_depth=32)
+    except UntrustedInputError as exc:
+        raise _fail(exc) from None
     if not isinstance(data, dict):
         raise _fail(ValueError(f"{file}: expected a mapping with name, steps, edges"))
     body = {"name": data.get("name"), "description": data.get("description", ""),
