@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proxybench.agents.package import PackageError, check_archive, extract_archive
+from proxybench.agents.package import PackageError, check_archive
+from proxybench.agents.unpack import extract_archive
 from proxybench.evaluator.compliance import check_calibration, check_frame, check_reality_model
 from proxybench.evaluator.report import clean
 from proxybench.evaluator.sandbox import (

@@ -28,7 +28,7 @@ from typing import Any
 import yaml
 
 __all__ = ["UntrustedInputError", "clean_text", "clean_tree", "find_non_finite", "inside", "load_yaml",
-           "load_yaml_file", "read_text_file"]
+           "load_yaml_file", "nesting_depth", "read_text_file"]
 
 # NUL (PostgreSQL text cannot hold it) and lone surrogates (not encodable as UTF-8)
 _UNSTORABLE = re.compile("[\x00\ud800-\udfff]")
@@ -70,6 +70,23 @@ def find_non_finite(value: Any, path: str = "") -> str | None:
         if found is not None:
             return found
     return None
+
+
+def nesting_depth(value: Any) -> int:
+    """How deeply a JSON-like tree nests (a scalar: 0, ``[1]``: 1), walked without recursion.
+
+    >>> nesting_depth({"a": [1, {"b": []}]})
+    3
+    """
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        node, depth = stack.pop()
+        deepest = max(deepest, depth)
+        if isinstance(node, Mapping):
+            stack.extend((v, depth + 1) for v in node.values())
+        elif isinstance(node, list | tuple):
+            stack.extend((v, depth + 1) for v in node)
+    return deepest
 
 
 class _BoundedLoader(yaml.SafeLoader):

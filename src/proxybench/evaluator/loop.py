@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 import os
 import signal
 import threading
@@ -36,7 +37,7 @@ from pydantic import ValidationError
 
 from proxybench import __version__
 from proxybench.client import ServerClient, ServerError
-from proxybench.contract import ResultUpload
+from proxybench.contract import LeasedBenchmark, ResultUpload
 from proxybench.evaluator.outcome import Artifact, Outcome
 from proxybench.evaluator.sandbox import AGENT_USER, Isolation, Limits, detect_isolation
 from proxybench.evaluator.workdir import JobDir, StateDir
@@ -53,7 +54,9 @@ class EvaluatorConfig:
     the reality model), ``robot_options``: how to start it (the non-default fields of ``RobotNodeOptions``);
     ``post_retry_s`` [s]: how long a result upload is retried; ``agent_user``: the
     unprivileged user agent packages run as; ``dev_unsafe``: the developer's flag that lets them run as the
-    evaluator's own user where that is impossible (every report says so)."""
+    evaluator's own user where that is impossible (every report says so); ``start_allowance_s`` [s]: what a
+    job may take beyond its benchmark's wall-clock budget (starting the worker, agent and target, the
+    video): past both, the job ends ``failed``."""
 
     name: str
     work_dir: Path
@@ -67,6 +70,7 @@ class EvaluatorConfig:
     robot_cmd: str | None = None
     robot_options: dict[str, Any] = field(default_factory=dict)
     post_retry_s: float = 600.0
+    start_allowance_s: float = 300.0
 
 
 class Reporter:
@@ -268,9 +272,13 @@ class Evaluator:
                                          "job not started")
         worker = self._spare if self._spare is not None and self._spare.ready else self._new_worker()
         self._spare = None
+        budget = LeasedBenchmark.model_validate(lease["benchmark"]).wall_budget
+        deadline = math.inf if budget is None else time.monotonic() + budget + self.config.start_allowance_s
         worker.give(job.path)
         try:
             while worker.proc.poll() is None and not heart.lost.is_set() and not self._stopping.is_set():
+                if time.monotonic() > deadline:
+                    break
                 self._wake.wait(0.25)
                 self._wake.clear()  # the events themselves say what happened
                 if heart.progress is not None:
@@ -285,7 +293,9 @@ class Evaluator:
                 return job_artifacts_only(Outcome.parse(sent), job.path)
             except ValueError as exc:
                 log.error("job %s: the worker's outcome is unusable: %s", lease["job_id"], exc)
-        if self._stopping.is_set():
+        if time.monotonic() > deadline:  # the submission's fault: its agent answered too slowly
+            outcome = Outcome("failed", self._over_budget(lease["benchmark"], budget or 0.0))
+        elif self._stopping.is_set():
             outcome = Outcome("aborted", f"evaluator {self.config.name!r} was stopped ({self.stop_reason}) while "
                                          "evaluating this job")
         else:
@@ -297,6 +307,12 @@ class Evaluator:
             if job.exists(name):
                 outcome.artifacts.append(Artifact(name, str(job.path / name), hidden, "text/plain"))
         return outcome
+
+    def _over_budget(self, bench: dict[str, Any], budget: float) -> str:
+        return (f"the job ran past its wall-clock budget of {budget + self.config.start_allowance_s:.0f} s: "
+                f"{bench.get('wall_time_factor'):g}× the simulated time of its episodes ({budget:.0f} s for "
+                f"{bench.get('simulated_seconds'):g} s per split) plus {self.config.start_allowance_s:g} s to start; "
+                "the agent answered too slowly (each step may take up to its step timeout, but not every step)")
 
     def _new_worker(self) -> Worker:
         return Worker(self.work.fresh_file("spare-worker.log"), self._worker_env)
