@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from proxybench.agents.package import AgentManifest, PackageError, check_archive
 from proxybench.protocol import RemoteAgent
+from proxybench.protocol.package import AgentManifest, PackageError, check_archive
 
 NODE = Path(__file__).resolve().parent / "protocol_agents" / "zuper311_like.py"
 

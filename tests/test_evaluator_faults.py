@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from proxybench.agents.package import PackageError, check_archive
 from proxybench.protocol import wire
+from proxybench.protocol.package import PackageError, check_archive
 from support.sandbox import require_safe_sandbox
 from test_evaluator import Served, evaluator, the_job
 from test_evaluator import served as served_fixture  # noqa: F401 - the fixture, under this name
@@ -99,7 +99,7 @@ def test_tar_packages_unpack_without_extractall_filter(tmp_path: Path, monkeypat
     def extractall_of_3_11_2(self, path=".", members=None, *, numeric_owner=False):
         raise AssertionError("extractall of an unchecked archive")
 
-    from proxybench.agents.unpack import extract_archive
+    from proxybench.protocol.unpack import extract_archive
 
     monkeypatch.setattr(tarfile.TarFile, "extractall", extractall_of_3_11_2)
     data = _tar([("proxybench-agent.yaml", MANIFEST), ("pkg", None), ("pkg/agent.py", b"print('hi')\n")])
@@ -115,7 +115,7 @@ def test_tar_packages_unpack_without_extractall_filter(tmp_path: Path, monkeypat
 ])
 @pytest.mark.parametrize("kind", ["zip", "tar"])
 def test_archives_that_cannot_be_unpacked_are_refused_naming_the_member(tmp_path: Path, members, says, kind) -> None:
-    from proxybench.agents.unpack import extract_archive
+    from proxybench.protocol.unpack import extract_archive
 
     everything = [("proxybench-agent.yaml", MANIFEST), *members]
     data = _zip(everything) if kind == "zip" else _tar(everything)

@@ -19,8 +19,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from proxybench.agents.package import PackageError, check_archive
-from proxybench.agents.unpack import extract_archive
 from proxybench.evaluator.compliance import check_calibration, check_frame, check_reality_model
 from proxybench.evaluator.report import clean
 from proxybench.evaluator.sandbox import (
@@ -32,6 +30,8 @@ from proxybench.evaluator.sandbox import (
     detect_isolation,
     prepare_agent,
 )
+from proxybench.protocol.package import PackageError, check_archive
+from proxybench.protocol.unpack import extract_archive
 from support.sandbox import require_safe_sandbox
 
 MANIFEST = b"name: t\nprotocol: aido-z2\ncommand: [python3, agent.py]\n"
@@ -248,7 +248,7 @@ def test_a_fifo_package_printing_to_stdout_runs_in_the_sandbox(tmp_path: Path, i
     from proxybench.agents.base import Observation
     from proxybench.evaluator.report import summarize
     from proxybench.evaluator.run import _Job
-    from proxybench.runner.jobs import make_agent_for
+    from proxybench.runner.outcomes import make_agent_for
     from proxybench.tasks.benchmark import Benchmark
 
     manifest = (b"name: printer\nprotocol: aido-z2\ntransport: fifo\nreflection: false\ncommand: python3 facts.py "
@@ -354,24 +354,32 @@ def test_scores_are_json_clean() -> None:
 
 @pytest.mark.slow
 def test_target_on_a_robot_node(tmp_path: Path) -> None:
-    """A simulator served as a robot node: compliant, and it runs the episodes; reports never call it a robot."""
+    """A simulator served as a robot node: compliant, and it runs the episodes through the runner (cached,
+    resumable, with the benchmark's routes); reports never call it a robot."""
+    from proxybench.evaluator.compliance import check_robot
     from proxybench.evaluator.report import summarize
-    from proxybench.evaluator.robot import check_robot, evaluate_on_robot
-    from proxybench.runner.jobs import AgentSpec
+    from proxybench.runner.evaluate import evaluate_benchmark
+    from proxybench.runner.jobs import AgentSpec, DomainSpec
     from proxybench.tasks.benchmark import Benchmark
+    from proxybench.tasks.trajectory import Trajectory
 
     bench = Benchmark.from_dict({
-        "name": "tiny_robot", "map": "small_loop", "episodes": {"count": 1, "seed": 1}, "duration": 1.0,
-        "physics_rate": 30.0, "frame_rate": 5.0, "metrics": ["survival_time"],
+        "name": "tiny_robot", "map": "small_loop", "episodes": {"count": 1, "seed": 1, "routes": [["left"]]},
+        "duration": 1.0, "physics_rate": 30.0, "frame_rate": 5.0, "metrics": ["survival_time"],
         "scoring": [{"metric": "survival_time_median"}]})
     cmd = f"{sys.executable} -m proxybench robot serve --map small_loop --param frame_rate=5 --param physics_rate=30"
     report = check_robot(bench, cmd)
     assert report.ok, report.failures()
     assert report.domain_kind == "robot-node/simulation" and "says it is: simulation" in report.target
-    ev = evaluate_on_robot(bench, AgentSpec("pid"), cmd, tmp_path / "run")
+    robot = DomainSpec.robot(cmd, frame_rate=bench.frame_rate)
+    ev = evaluate_benchmark(bench, [AgentSpec("pid")], tmp_path / "run", domain=robot)
     summary = summarize(ev, "validation", domain_kind=report.domain_kind)
     assert summary.problems == [] and summary.failures == []
     assert summary.scores["survival_time_median"] == pytest.approx(1.0)
+    (result,) = ev.sweep.results
+    assert Trajectory.load(result.trajectory).meta["route_plan"] == ["left"]  # the benchmark's route reached it
+    again = evaluate_benchmark(bench, [AgentSpec("pid")], tmp_path / "run", domain=robot)
+    assert again.sweep.cached == 1 and again.sweep.ran == 0  # resumed from the cache: the robot was not driven
 
 
 def test_an_agent_cannot_pass_its_failure_off_as_the_hosts(tmp_path: Path, isolation: Isolation) -> None:

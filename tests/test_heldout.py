@@ -12,11 +12,11 @@ import pytest
 from typer.testing import CliRunner
 
 from proxybench.cli import app
+from proxybench.experiments.config import ConfigError
+from proxybench.experiments.heldout import load_heldout_config
 from proxybench.runner.jobs import AgentSpec
 from proxybench.targets.heldout import FAMILY_PARAMS, HeldOutTarget, draw_heldout, heldout_targets
 from proxybench.usefulness.agent_sets import leave_one_out, order_structure, sensitivity
-from proxybench.usefulness.experiment import ConfigError
-from proxybench.usefulness.heldout import load_heldout_config
 from proxybench.usefulness.heldout_scoring import Grid, best_available, mcnemar_p, order_disagreement, wilson
 
 runner = CliRunner()
@@ -193,9 +193,9 @@ def test_heldout_cli_rejects_bad_options(tmp_path):
 
 
 def test_predictivity_with_a_mixed_agent_set_reports_agent_set_sensitivity(tmp_path, checkpoint):
-    from proxybench.usefulness.experiment import ExperimentConfig
-    from proxybench.usefulness.predictivity import run_predictivity
-    from proxybench.usefulness.report import findings, write_report
+    from proxybench.experiments.config import ExperimentConfig
+    from proxybench.experiments.predictivity import run_predictivity
+    from proxybench.experiments.reports.predictivity import findings, write_report
 
     cfg = ExperimentConfig(agents=["straight", "pid", "vision", str(checkpoint)], episodes=2, seconds=2.0,
                            metrics=("driven_lanedir_consec", "survival_time"), sweep={"trim": (-0.3, 0.0)}, n_boot=10,

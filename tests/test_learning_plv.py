@@ -7,9 +7,9 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from proxybench.learning.experiment import PLVConfig, PLVResult
-from proxybench.learning.report import figure_3_6, figure_plv, findings, score_range, summarize, table_rows
-from proxybench.learning.value import DataCost, first_reaching, mean_ci, plv, reference_score
+from proxybench.experiments.plv import PLVConfig, PLVResult
+from proxybench.experiments.reports.plv import figure_3_6, figure_plv, findings, score_range, summarize, table_rows
+from proxybench.usefulness.plv import DataCost, first_reaching, mean_ci, plv, reference_score
 
 
 def test_plv_and_reduction():
@@ -105,7 +105,7 @@ def test_score_bands_never_leave_the_seeds_range_or_the_possible_scores(tmp_path
             assert min(c["scores"]) <= c["low"] <= c["mean"] <= c["high"] <= max(c["scores"])
     lo, hi = score_range(res)
     assert (lo, hi) == (-10.0, 10.0)
-    from proxybench.learning.value import mean_ci
+    from proxybench.usefulness.plv import mean_ci
 
     assert mean_ci([-9.5, 9.9, 0.0])[1] < lo  # the old Student-t band left the possible range
     assert figure_3_6(res, s, tmp_path / "f.png").stat().st_size > 0

@@ -219,7 +219,7 @@ def test_a_hostile_benchmark_file_is_a_clear_error(tmp_path, content, says) -> N
     (None, "is a folder"),
 ])
 def test_a_hostile_experiment_file_is_a_clear_error(tmp_path, content, says) -> None:
-    from proxybench.usefulness.experiment import ConfigError, load_config
+    from proxybench.experiments.config import ConfigError, load_config
 
     path = tmp_path / "exp" / "exp.yaml"
     path.parent.mkdir()

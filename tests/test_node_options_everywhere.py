@@ -13,12 +13,12 @@ import pytest
 from typer.testing import CliRunner
 
 from proxybench.cli import app
+from proxybench.experiments.agent_args import parse_agents
+from proxybench.experiments.config import ConfigError, load_config, resolve
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets import TargetError, open_target
-from proxybench.usefulness.agent_args import parse_agents
-from proxybench.usefulness.experiment import ConfigError, load_config, resolve
 
 runner = CliRunner()
 HERE = Path(__file__).resolve().parent
@@ -67,22 +67,24 @@ def test_bad_robot_options_are_usage_errors_naming_the_option(tmp_path: Path, ar
 
 
 def test_robot_domain_carries_its_options_and_only_cwd_is_in_the_key() -> None:
-    plain = DomainSpec.robot("bridge")
-    slow = DomainSpec.robot("bridge", options=RobotNodeOptions(step_timeout=30, transport="fifo"))
-    moved = DomainSpec.robot("bridge", options=RobotNodeOptions(cwd="/opt/bridge"))
+    plain = DomainSpec.robot("bridge", frame_rate=15)
+    slow = DomainSpec.robot("bridge", frame_rate=15, options=RobotNodeOptions(step_timeout=30, transport="fifo"))
+    moved = DomainSpec.robot("bridge", frame_rate=15, options=RobotNodeOptions(cwd="/opt/bridge"))
+    faster = DomainSpec.robot("bridge", frame_rate=30)
     assert slow.node_options().step_timeout == 30.0 and plain.node_options().start_timeout == 120.0
     assert plain.canonical() == slow.canonical() != moved.canonical()  # cached episodes survive a new timeout
     assert plain.canonical() == DomainSpec("robot:bridge", kind="robot", command="bridge").canonical()
+    assert faster.canonical() != plain.canonical() and faster.frame_rate == 30.0  # asked to step at another rate
     with pytest.raises(ValueError, match="only for kind='robot'"):
         DomainSpec("s", options=(("transport", "fifo"),))
 
 
 def test_robot_domain_jobs_start_the_node_with_its_options(tmp_path: Path, bridge: Path) -> None:
     job = lambda dom: Job(AgentSpec("straight"), dom, "loop_3x3", 0, 1, 0.5)  # noqa: E731
-    good = DomainSpec.robot(ROBOT, options=RobotNodeOptions(cwd=str(bridge), transport="fifo"))
+    good = DomainSpec.robot(ROBOT, frame_rate=15, options=RobotNodeOptions(cwd=str(bridge), transport="fifo"))
     (res,) = run_jobs([job(good)], tmp_path / "good").results
     assert res.termination == "timeout", res.message
-    (bad,) = run_jobs([job(DomainSpec.robot(ROBOT, options=RobotNodeOptions(transport="fifo")))],
+    (bad,) = run_jobs([job(DomainSpec.robot(ROBOT, frame_rate=15, options=RobotNodeOptions(transport="fifo")))],
                       tmp_path / "bad").results  # no local.yaml where it starts
     assert bad.termination == "robot_failure" and "local.yaml" in bad.message
 
@@ -120,9 +122,10 @@ def test_predictivity_cli_passes_robot_options_to_the_target(tmp_path: Path, bri
 def test_evaluator_target_jobs_start_the_robot_node_with_its_options(tmp_path: Path, bridge: Path) -> None:
     """`proxybench evaluator --robot-cmd CMD --robot-cwd DIR --robot-transport fifo`: the compliance check and
     the episodes start the node that way (the job's config carries the options to the worker)."""
+    from proxybench.evaluator.compliance import check_robot
     from proxybench.evaluator.report import summarize
-    from proxybench.evaluator.robot import check_robot, evaluate_on_robot
     from proxybench.evaluator.run import _Job
+    from proxybench.runner.evaluate import evaluate_benchmark
     from proxybench.tasks.benchmark import Benchmark
 
     bench = Benchmark.from_dict({
@@ -135,7 +138,8 @@ def test_evaluator_target_jobs_start_the_robot_node_with_its_options(tmp_path: P
     assert report.ok, report.failures()
     plain = check_robot(bench, ROBOT)  # over a pipe, from here: no local.yaml, and its boot message
     assert not plain.ok and "the robot node failed" in plain.failures()
-    ev = evaluate_on_robot(bench, AgentSpec("pid"), ROBOT, tmp_path / "run", options=options)
+    ev = evaluate_benchmark(bench, [AgentSpec("pid")], tmp_path / "run",
+                            domain=DomainSpec.robot(ROBOT, frame_rate=bench.frame_rate, options=options))
     summary = summarize(ev, "validation", domain_kind=report.domain_kind)
     assert summary.problems == [] and summary.failures == []
     res = runner.invoke(app, ["repeatability", "--agent", "pid", "--robot-cmd", f"r1={ROBOT}", "--robot-cwd",

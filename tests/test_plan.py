@@ -87,9 +87,9 @@ def test_next_agents_spend_episodes_on_the_near_tie():
 
 
 def test_sequential_loop_runs_the_chosen_agents_on_a_live_target(tmp_path):
+    from proxybench.experiments.sequential import run_sequential
     from proxybench.runner.jobs import AgentSpec
     from proxybench.targets import RealityTarget
-    from proxybench.usefulness.sequential import run_sequential
 
     agents = [AgentSpec("straight"), AgentSpec("pid"), AgentSpec("pid-fast")]
     kw = dict(map_name="loop_3x3", seconds=2.0, seed=0, metrics=("driven_lanedir_consec",), image_size=(32, 24),

@@ -21,7 +21,8 @@ from proxybench.agents.base import Observation
 from proxybench.protocol import AgentFailure, RemoteAgent
 from proxybench.protocol.options import NodeOptions
 from proxybench.protocol.transport import SHELL, needs_shell, node_argv
-from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, make_agent_for
+from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
+from proxybench.runner.outcomes import make_agent_for
 
 NODE = Path(__file__).resolve().parent / "protocol_agents" / "zuper311_like.py"
 PY = shlex.quote(sys.executable)

@@ -18,7 +18,7 @@ from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
 from proxybench.protocol import RemoteRobot
 from proxybench.runner.episode import run_episode
-from proxybench.runner.jobs import camera_filter
+from proxybench.runner.outcomes import camera_filter
 from proxybench.runner.robot_episode import run_episode_on_robot
 from proxybench.tasks.trajectory import Trajectory
 

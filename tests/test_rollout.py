@@ -9,9 +9,9 @@ from proxybench.agents.simple import StraightAgent
 from proxybench.domain.episode_end import end_event, ended
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
+from proxybench.experiments.pod import pod
 from proxybench.runner.episode import SimPlant, run_episodes
 from proxybench.runner.rollout import AgentPolicy, BatchPolicy, OpenLoopPolicy, rollout
-from proxybench.usefulness.pod import pod
 
 SMALL = DomainParams(image_width=80, image_height=60)
 

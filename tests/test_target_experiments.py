@@ -74,8 +74,8 @@ def test_round_trip_recorded_reality_model_gives_the_live_figures(tmp_path):
 
 
 def test_predictivity_against_a_lab_csv_recording_replays_its_starts(tmp_path):
-    from proxybench.usefulness.experiment import ExperimentConfig
-    from proxybench.usefulness.predictivity import run_predictivity
+    from proxybench.experiments.config import ExperimentConfig
+    from proxybench.experiments.predictivity import run_predictivity
 
     root = tmp_path / "lab"
     y = 0.585 * 0.5 - 0.22 * 0.585
@@ -108,7 +108,7 @@ def test_predictivity_against_a_lab_csv_recording_replays_its_starts(tmp_path):
 
 
 def test_a_recorded_target_with_agents_proxybench_cannot_run_says_how_to_name_them(tmp_path):
-    from proxybench.usefulness.experiment import ExperimentConfig, resolve
+    from proxybench.experiments.config import ExperimentConfig, resolve
 
     root = tmp_path / "lab"
     root.mkdir()
@@ -122,8 +122,8 @@ def test_a_recorded_target_with_agents_proxybench_cannot_run_says_how_to_name_th
 
 
 def test_optimize_against_a_recorded_target_reads_it_once(tmp_path):
-    from proxybench.usefulness.experiment import ExperimentConfig, SearchConfig
-    from proxybench.usefulness.optimize import optimize_proxy
+    from proxybench.experiments.config import ExperimentConfig, SearchConfig
+    from proxybench.experiments.optimize import optimize_proxy
 
     rec = tmp_path / "rec"
     record_target(rec, RealityTarget(), [AgentSpec("straight"), AgentSpec("pid")], episodes=1, seconds=2.0)
@@ -193,8 +193,8 @@ def test_an_agent_package_runs_sandboxed_in_predictivity(tmp_path):
     import io
     import zipfile
 
-    from proxybench.usefulness.experiment import ExperimentConfig
-    from proxybench.usefulness.predictivity import run_predictivity
+    from proxybench.experiments.config import ExperimentConfig
+    from proxybench.experiments.predictivity import run_predictivity
     from support.sandbox import require_safe_sandbox
 
     require_safe_sandbox()

@@ -7,12 +7,12 @@ import sys
 
 import pytest
 
+from proxybench.experiments.config import ExperimentConfig, SearchConfig
+from proxybench.experiments.optimize import optimize_proxy
+from proxybench.experiments.predictivity import run_predictivity
 from proxybench.runner.jobs import AgentSpec
 from proxybench.targets import TargetError, open_target
 from proxybench.targets.record import record_target
-from proxybench.usefulness.experiment import ExperimentConfig, SearchConfig
-from proxybench.usefulness.optimize import optimize_proxy
-from proxybench.usefulness.predictivity import run_predictivity
 
 #: a simulated robot whose trim is hidden from the optimiser and off-centre in its search range; the rest
 #: at the proxies' nominal calibration

@@ -1,7 +1,7 @@
 """Helpers for input from strangers: YAML with bounded depth, text that any database can store, finite numbers,
 files read within limits, and paths written in a file that stay in that file's folder.
 
-Used by the agent-package checks (:mod:`proxybench.agents.package`), the server and the evaluator's upload
+Used by the agent-package checks (:mod:`proxybench.protocol.package`), the server and the evaluator's upload
 contract (:mod:`proxybench.contract`), so both sides refuse and clean the same things.
 
 >>> clean_text("stderr\\x00tail\\ud800")

@@ -83,12 +83,14 @@ def agent_names() -> list[str]:
 
 
 def make_agent(name: str) -> Agent:
-    """A fresh instance of the zoo agent ``name``, or of the behaviour-cloning checkpoint at that path."""
+    """A fresh instance of the zoo agent ``name``, or of an agent of a registered kind (a behaviour-cloning
+    checkpoint path: :mod:`proxybench.agents.kinds`)."""
     if name not in ZOO:
-        from proxybench.learning import is_checkpoint, make_bc_agent
+        from proxybench.agents.kinds import find_kind
 
-        if is_checkpoint(name):
-            return make_bc_agent(name)
+        kind = find_kind(name)
+        if kind is not None:
+            return kind.make(name)
     try:
         return ZOO[name].factory()
     except KeyError:

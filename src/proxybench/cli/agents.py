@@ -80,7 +80,7 @@ def agent_check(
     from proxybench.domain.simulator import Simulator
     from proxybench.protocol import AgentFailure
     from proxybench.runner.episode import run_episode
-    from proxybench.runner.jobs import camera_filter
+    from proxybench.runner.outcomes import camera_filter
 
     options = node_options(agent_cwd, transport, start_timeout, step_timeout, no_reflection)
     t0 = time.perf_counter()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import typer
@@ -62,8 +61,9 @@ def run(
 
     Writes a video (camera view beside a top-down view), a PNG strip of camera frames and one metrics
     line. This is a *simulated* run: nothing here comes from a real robot. With --robot-cmd the robot is
-    a node process (docs/robot-protocol.md) that decides camera size and rates; no video is written and
-    the metrics say what the robot reported it is (``source``). --agent-cmd takes a command as you would
+    a node process (docs/robot-protocol.md) that decides camera size and rates (the video then shows what
+    a camera agent saw beside the pose the robot reported) and the metrics say what the robot reported it
+    is (``source``). --agent-cmd takes a command as you would
     type it (shell syntax such as `cd dir && exec node` works); --agent-cwd, --transport, the timeouts and
     --no-reflection say how to start and talk to it (docs/protocol.md §7); the --robot-* options do the
     same for the robot node of --robot-cmd.
@@ -72,8 +72,9 @@ def run(
     from proxybench.cli.maps import load_map_printing_warnings
     from proxybench.domain.maps import MapError
     from proxybench.domain.params import DomainParams
-    from proxybench.domain.simulator import Simulator
-    from proxybench.runner.record import record_episode
+    from proxybench.protocol import RobotFailure
+    from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec
+    from proxybench.runner.record import record_run
     from proxybench.tasks.metrics import METRICS
 
     options = node_options(agent_cwd, transport, start_timeout, step_timeout, no_reflection)
@@ -94,47 +95,52 @@ def run(
         err_console.print(f"[red]error:[/red] --out: cannot create the folder {escape(str(out))}: "
                           f"{escape(exc.strerror or str(exc))}", highlight=False)
         raise typer.Exit(1) from exc
-    if robot_cmd is not None:
-        from proxybench.cli.robot import run_on_robot
-
-        try:
-            agent = make_agent(agent_name) if agent_cmd is None else remote_agent(agent_cmd, options)
-        except KeyError as exc:
-            err_console.print(f"[red]error:[/red] {escape(str(exc.args[0]))}", highlight=False)
-            raise typer.Exit(2) from exc
-        run_on_robot(robot_cmd, agent, map_name, seconds, seed, out, robot_options)
-        return
-    params = DomainParams(image_width=width, image_height=height)
-    sim = Simulator(m, params)
+    if robot_cmd is not None:  # the robot decides its camera; it is asked to step at the default rate
+        domain = DomainSpec.robot(robot_cmd, frame_rate=DEFAULT_FRAME_RATE, options=robot_options)
+        seconds_label = f"{seconds:g} s on robot node"
+    else:
+        domain = DomainSpec("simulation", DomainParams(image_width=width, image_height=height).model_dump(mode="json"))
+        seconds_label = f"{seconds:g} s"
     try:
         agent = make_agent(agent_name) if agent_cmd is None else remote_agent(agent_cmd, options)
     except KeyError as exc:
         err_console.print(f"[red]error:[/red] {escape(str(exc.args[0]))}", highlight=False)
         raise typer.Exit(2) from exc
-    steps = round(seconds * params.frame_rate)
-    t0 = time.perf_counter()
     with progress_bar(TextColumn("[bold]driving[/bold] {task.description}"), BarColumn(),
-                      TextColumn("{task.completed}/{task.total} frames"), TimeRemainingColumn(),
+                      TextColumn("{task.completed} frames"), TimeRemainingColumn(),
                       console=console, transient=True) as progress:
-        task = progress.add_task(f"{m.name}, {seconds:g} s", total=steps)
+        task = progress.add_task(f"{m.name}, {seconds_label}", total=None)
         try:
-            traj, files = record_episode(sim, agent, seed, seconds, out, video=video, meta={"map": m.name},
-                                         on_frame=lambda k: progress.advance(task))
+            rec = record_run(domain, agent, m, seed, seconds, out, video=video,
+                             meta={"map": m.name}, on_frame=lambda k: progress.advance(task))
+        except RobotFailure as exc:
+            err_console.print(f"[red]robot failure:[/red] {escape(exc.reason)}: {escape(exc.detail)}", highlight=False)
+            for line in exc.stderr_tail[-10:]:
+                err_console.print(f"    {line}", highlight=False, markup=False)
+            raise typer.Exit(1) from exc
+        except ValueError as exc:  # e.g. a privileged agent on a robot without ground truth
+            err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
+            raise typer.Exit(1) from exc
         finally:
             getattr(agent, "close", lambda: None)()
-    elapsed = time.perf_counter() - t0
+    traj = rec.trajectory
     traj.save(out / "trajectory.parquet")
     scores = {name: METRICS[name](traj) for name in _RUN_METRICS}
-    record = {"map": m.name, "agent": agent.name, "privileged": agent.privileged, "seed": seed,
-              "source": "simulation", "termination": traj.termination, **scores, "wall_s": round(elapsed, 2)}
+    source = traj.meta["source"]
+    record = {"map": m.name, "agent": agent.name, "privileged": agent.privileged, "seed": seed, "source": source,
+              **({"robot": robot_cmd} if robot_cmd is not None else {}),
+              **({"robot_options": robot_options.non_default()} if robot_cmd and robot_options.non_default()
+                 else {}),
+              "termination": traj.termination, **scores, "wall_s": round(rec.wall_s, 2)}
     (out / "metrics.json").write_text(json.dumps(record, indent=2))
-    names = [*files, out / "trajectory.parquet", out / "metrics.json"]
+    names = [*rec.files, out / "trajectory.parquet", out / "metrics.json"]
     console.print(f"wrote {', '.join(str(f) for f in names)}", markup=False, highlight=False)
     failure = [e["message"] for e in traj.events if e["kind"] == "agent_failure"]
     if failure:
         err_console.print(f"[red]agent failure:[/red] {escape(failure[0])}", highlight=False)
+    where = "simulated" if robot_cmd is None else f"robot={source}"
     console.print(
-        f"metrics: map={m.name} agent={agent.name}{' (privileged)' if agent.privileged else ''} simulated "
-        + " ".join(f"{k}={v:.2f}" for k, v in scores.items()) + f" end={traj.termination} wall={elapsed:.1f}s",
+        f"metrics: map={m.name} agent={agent.name}{' (privileged)' if agent.privileged else ''} {where} "
+        + " ".join(f"{k}={v:.2f}" for k, v in scores.items()) + f" end={traj.termination} wall={rec.wall_s:.1f}s",
         highlight=False, markup=False,
     )

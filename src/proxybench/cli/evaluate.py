@@ -128,7 +128,7 @@ def repeatability(
     mean heading error [deg]; STD is the run-to-run standard deviation along the route. The target is the
     reality model (simulated stand-ins for Duckiebots) unless --recorded or --robot-cmd is given.
     """
-    from proxybench.runner.repeatability import Design, recorded_study, repeatability_study, robot_study
+    from proxybench.experiments.repeatability import Design, recorded_study, repeatability_study, robot_study
 
     if recorded and robot_cmd:
         raise typer.BadParameter("give --recorded or --robot-cmd, not both", param_hint="--recorded")
@@ -150,7 +150,7 @@ def repeatability(
         else:
             designs = dict(Design.parse(d) for d in design) if design else None
             if runs is not None:
-                from proxybench.runner.repeatability import DESIGNS
+                from proxybench.experiments.repeatability import DESIGNS
 
                 designs = {k: Design(d.labs, d.robots, runs) for k, d in (designs or DESIGNS).items()}
             with status("running") as spinner:
@@ -168,8 +168,8 @@ def _repeatability_report(res, agent: str, seconds: float, map_name: str, out: P
     import pandas as pd
 
     from proxybench.domain.maps import load_map
+    from proxybench.experiments.repeatability import THESIS_FIGURES
     from proxybench.plots import plot_deviation_curves, plot_trajectories
-    from proxybench.runner.repeatability import THESIS_FIGURES
     from proxybench.tasks.metrics import deviation_curves
 
     out.mkdir(parents=True, exist_ok=True)
@@ -300,15 +300,13 @@ def _quick(bench, episodes: int = 2, seconds: float = 15.0):
 
 def _videos(ev, specs, run_dir: Path) -> None:
     """Episode 0 of each admitted agent, recorded in the benchmark's domain."""
-    from proxybench.domain.params import DomainParams
-    from proxybench.domain.simulator import Simulator
     from proxybench.runner.evaluate import benchmark_domain
-    from proxybench.runner.jobs import make_agent_for
-    from proxybench.runner.record import record_episode
+    from proxybench.runner.outcomes import make_agent_for
+    from proxybench.runner.record import record_run
 
     bench = ev.benchmark
     ep = bench.episode_specs()[0]
-    params = DomainParams.model_validate(benchmark_domain(bench).params)
+    domain = benchmark_domain(bench)
     written = []
     for spec in specs:
         if spec.label in ev.refused:
@@ -316,12 +314,11 @@ def _videos(ev, specs, run_dir: Path) -> None:
         agent = make_agent_for(spec)
         try:
             with status(f"recording {spec.label}"):
-                _, files = record_episode(Simulator(bench.map, params, npcs=bench.traffic()), agent, ep.seed,
-                                          bench.duration,
-                                          run_dir / "videos", stem=spec.label, pose=ep.pose, route=ep.route)
+                rec = record_run(domain, agent, bench.map, ep.seed, bench.duration, run_dir / "videos",
+                                 stem=spec.label, pose=ep.pose, route=ep.route, npcs=bench.traffic())
         finally:
             getattr(agent, "close", lambda: None)()
-        written += files
+        written += rec.files
     console.print(f"wrote {', '.join(str(f) for f in written)}")
 
 

@@ -59,12 +59,12 @@ def heldout(
     in OUT/runs, so an interrupted run resumes.
     """
     from proxybench.cli.usefulness import _overrides
+    from proxybench.experiments.config import ConfigError
+    from proxybench.experiments.heldout import load_heldout_config, run_heldout
+    from proxybench.experiments.heldout_analysis import score_heldout
+    from proxybench.experiments.reports.heldout import findings, write_heldout_report
     from proxybench.runner.backends import make_backend
     from proxybench.targets.manifest import TargetError
-    from proxybench.usefulness.experiment import ConfigError
-    from proxybench.usefulness.heldout import load_heldout_config, run_heldout
-    from proxybench.usefulness.heldout_analysis import score_heldout
-    from proxybench.usefulness.heldout_report import findings, write_heldout_report
 
     over = _overrides(targets=targets, negative_case=negative_case, agents=agent, map=map_name, episodes=episodes,
                       reference_episodes=reference_episodes, seconds=seconds, grid=_grid(grid) or None,

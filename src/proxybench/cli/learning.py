@@ -49,8 +49,8 @@ def plv(
     simulator with camera pitch 3°, 19°, 35° and a domain-randomised family. Work is cached in OUT/cache,
     so an interrupted run resumes.
     """
-    from proxybench.learning.experiment import PLVConfig, run_plv
-    from proxybench.learning.report import findings, summarize, table_rows, write_report
+    from proxybench.experiments.plv import PLVConfig, run_plv
+    from proxybench.experiments.reports.plv import findings, summarize, table_rows, write_report
 
     cfg = PLVConfig.quick() if quick else PLVConfig()
     try:
@@ -101,8 +101,8 @@ def learn_dataset(
     seed: int = typer.Option(0, min=0),
 ) -> None:
     """Let the privileged expert drive DOMAIN (with recovery noise) and record camera frames + its commands."""
-    from proxybench.learning.collection import CollectConfig, collect
     from proxybench.learning.domains import parse_domain
+    from proxybench.runner.collect import CollectConfig, collect
 
     try:
         dom = parse_domain(domain, width, height)
@@ -171,7 +171,7 @@ def learn_evaluate(
     """Lane score of a checkpoint over evaluation episodes (all episodes in one batched simulator)."""
     from proxybench.learning.agent import BCAgent
     from proxybench.learning.domains import parse_domain
-    from proxybench.learning.evaluate import EvalConfig, evaluate_expert, evaluate_policy
+    from proxybench.runner.policy_eval import EvalConfig, evaluate_expert, evaluate_policy
 
     try:
         agent = BCAgent(checkpoint)

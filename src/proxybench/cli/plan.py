@@ -73,14 +73,15 @@ def plan(
     The pilot is taken as the truth and experiments with n episodes per agent are simulated by resampling
     it (docs/usefulness.md). Episodes are cached in OUT/runs: `predictivity --out OUT` re-uses them.
     """
+    from proxybench.experiments.config import resolve
+    from proxybench.experiments.predictivity import proxy_domains, proxy_jobs
     from proxybench.runner.backends import make_backend
     from proxybench.runner.sweep import run_jobs
+    from proxybench.targets.base import by_agent
     from proxybench.targets.manifest import TargetError
     from proxybench.tasks.metrics import METRICS
-    from proxybench.usefulness.experiment import resolve
     from proxybench.usefulness.plan import DEFAULT_GRID
     from proxybench.usefulness.plan import plan as make_plan
-    from proxybench.usefulness.predictivity import _by_agent, _domains, proxy_jobs
 
     over = _overrides(target=target, target_params=_kv(target_param, "--target-param"), robot_nodes=robot_nodes,
                       agents=agent, map=map_name, episodes=episodes, seconds=seconds, metrics=metric,
@@ -97,7 +98,7 @@ def plan(
             run_kw = dict(map_name=exp.map, seconds=exp.seconds, seed=exp.seed, metrics=exp.metrics,
                           image_size=exp.image_size, run_dir=out / "runs", backend=be, progress=_stage_progress(bar))
             if sequential:
-                from proxybench.usefulness.sequential import run_sequential
+                from proxybench.experiments.sequential import run_sequential
 
                 seq = run_sequential(tgt_obj, exp.agents, pilot=exp.episodes, budget=budget or (4 if quick else 20),
                                      batch=batch, **run_kw)
@@ -106,9 +107,9 @@ def plan(
                 tgt = tgt_obj.run(exp.agents, episodes=exp.episodes, **run_kw)
             proxies = {}
             if candidates:
-                for _, _, dom in _domains(exp):
+                for _, _, dom in proxy_domains(exp):
                     jobs = proxy_jobs(exp, tgt, dom)
-                    proxies[dom.name] = _by_agent(jobs, run_jobs(jobs, out / "runs", be).results, exp.metrics)
+                    proxies[dom.name] = by_agent(jobs, run_jobs(jobs, out / "runs", be).results, exp.metrics)
         except (TargetError, ValueError) as exc:
             _fail(exc)
         finally:
@@ -190,7 +191,7 @@ def _answer(n: int | None, what: str, largest: int) -> str:
 def _write(p, tgt, seq, out: Path, wall: float) -> None:
     import pandas as pd
 
-    from proxybench.usefulness.report import plot_plan
+    from proxybench.experiments.reports.predictivity import plot_plan
 
     out.mkdir(parents=True, exist_ok=True)
     data = {"target": tgt.info.statement, "wall_s": round(wall, 1), **p.to_dict()}

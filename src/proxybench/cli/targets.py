@@ -62,11 +62,11 @@ def record(
     the missing episodes are recorded. Robot episodes run one after another.
     """
     from proxybench.cli.usefulness import _image_size, _kv
+    from proxybench.experiments.agent_args import AgentArgError, parse_agents
     from proxybench.runner.backends import make_backend
     from proxybench.targets.manifest import TargetError
     from proxybench.targets.record import record_target
     from proxybench.targets.spec import open_target
-    from proxybench.usefulness.agent_args import AgentArgError, parse_agents
 
     if reality and robot_cmd:
         _fail("give --reality or --robot-cmd, not both")

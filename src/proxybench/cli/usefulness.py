@@ -88,7 +88,7 @@ def _overrides(**given: Any) -> dict[str, Any]:
 
 
 def _load(config: Path | None, overrides: dict[str, Any]):
-    from proxybench.usefulness.experiment import ConfigError, load_config
+    from proxybench.experiments.config import ConfigError, load_config
 
     try:
         return load_config(config, overrides)
@@ -156,10 +156,10 @@ def predictivity(
     Proxies replay each target episode from its start pose and seed. Episodes are cached in OUT/runs, so
     an interrupted run resumes where it stopped; a recorded target costs no simulation.
     """
+    from proxybench.experiments.predictivity import run_predictivity
+    from proxybench.experiments.reports.predictivity import findings, write_report
     from proxybench.runner.backends import make_backend
     from proxybench.targets.manifest import TargetError
-    from proxybench.usefulness.predictivity import run_predictivity
-    from proxybench.usefulness.report import findings, write_report
 
     over = _overrides(target=target, target_params=_kv(target_param, "--target-param"), robot_nodes=robot_nodes,
                       robot_options=robot_option_values(robot_cwd, robot_transport, robot_start_timeout,
@@ -266,9 +266,9 @@ def optimize(
     """
     import json
 
+    from proxybench.experiments.optimize import optimize_proxy, plot_optimization
     from proxybench.runner.backends import make_backend
     from proxybench.targets.manifest import TargetError
-    from proxybench.usefulness.optimize import optimize_proxy, plot_optimization
 
     search = _overrides(space=_space(param) or None, objective=objective, trials=trials, sampler=sampler,
                         storage=storage, study_name=study_name, family=family or None)
@@ -344,8 +344,13 @@ def _optimize_plv(cfg, out: Path, quick: bool) -> None:
     """`optimize --objective plv`: argmax PLV over the search space, its table, plot, trials and summary."""
     import json
 
-    from proxybench.usefulness.experiment import ConfigError
-    from proxybench.usefulness.optimize_plv import plot_plv_search, plv_search_settings, run_plv_search, torch_available
+    from proxybench.experiments.config import ConfigError
+    from proxybench.experiments.optimize_plv import (
+        plot_plv_search,
+        plv_search_settings,
+        run_plv_search,
+        torch_available,
+    )
 
     if not torch_available():
         err_console.print("[red]✗[/red] --objective plv trains a behaviour-cloning network and needs PyTorch, the "

@@ -1,8 +1,11 @@
 """The compliance check a target must pass before a target job runs on it (else: ``host-error``).
 
-A target is what the proxies stand in for. Here it is the *reality model* (``proxybench.domain.reality``,
-a simulated stand-in with effects outside the proxy family); it is never a real robot unless one is
-attached through the robot protocol. Three checks, each with a measured value and its bound:
+A target is what the proxies stand in for: the *reality model* (``proxybench.domain.reality``, a simulated
+stand-in with effects outside the proxy family), or a robot node started with ``--robot-cmd`` (a physical
+robot's bridge, or a simulator served as a robot: what it is, it says itself, and reports carry it as
+``domain_kind`` = ``robot-node/<kind>``, so a simulator behind the protocol is never called a robot). The
+runner probes it (:func:`proxybench.runner.probe.probe`: one second of equal forward commands, one frame);
+this module judges the probe. Three checks, each with a measured value and its bound:
 
 - **responds**: commanded forward (PWM 0.5 on both wheels for one second), the robot moves at least
   ``MIN_RESPONSE_M`` within ``RESPONSE_TIMEOUT_S`` of wall time;
@@ -16,17 +19,17 @@ attached through the robot protocol. Three checks, each with a measured value an
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-import numpy as np
-
 from proxybench.domain.params import DomainParams
+from proxybench.runner.jobs import DomainSpec
+from proxybench.runner.probe import Probe, probe
 from proxybench.tasks.benchmark import Benchmark
 
 __all__ = [
     "CALIBRATION_TOLERANCES", "Check", "ComplianceReport", "check_calibration", "check_frame", "check_reality_model",
+    "check_robot", "check_target", "judge", "robot_domain_kind",
 ]
 
 #: |declared − benchmark| allowed per calibrated quantity [units of the DomainParams field]
@@ -68,10 +71,6 @@ class ComplianceReport:
                 "checks": [asdict(c) for c in self.checks]}
 
 
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2 * math.pi) - math.pi
-
-
 def check_frame(jpg: bytes, width: int, height: int) -> Check:
     """A camera frame as sent over the protocol: complete JPEG of ``width`` × ``height``, not blank."""
     from proxybench.protocol import jpeg
@@ -105,36 +104,61 @@ def check_calibration(declared: dict[str, Any], spec: DomainParams) -> Check:
     return Check("calibration", True, f"{named} within tolerance of the benchmark's robot")
 
 
+def judge(bench: Benchmark, p: Probe, declared: dict[str, Any], *, robot: bool) -> list[Check]:
+    """The three checks of what the probe ``p`` measured against ``bench``; ``declared``: the calibration
+    the target says it has (a robot node's own words; the reality model's nominal calibration)."""
+    spec = bench.domain_params()
+    ok = p.moved >= MIN_RESPONSE_M and p.wall_s <= RESPONSE_TIMEOUT_S and all(map(math.isfinite, p.end))
+    ended = f"; the episode ended early ({p.ended})" if p.ended else ""
+    responds = Check("responds", ok, f"moved {p.moved:.3f} m in {p.seconds:.2f} s at PWM {_PWM} (need ≥ "
+                                     f"{MIN_RESPONSE_M} m){ended}; setup and driving took {p.wall_s:.2f} s (limit "
+                                     f"{RESPONSE_TIMEOUT_S:g} s)")
+    camera = check_frame(p.frame or b"", spec.image_width, spec.image_height)
+    if robot and camera.ok and not math.isclose(p.frame_rate, bench.frame_rate, rel_tol=1e-6):
+        camera = Check("camera", False, f"the robot sends {p.frame_rate:g} frames/s; the benchmark runs at "
+                                        f"{bench.frame_rate:g} Hz")
+    calib = check_calibration(declared, spec) if declared else \
+        Check("calibration", True, "the robot declares no calibration values; only its driving is checked")
+    if p.heading_drift > MAX_STRAIGHT_DRIFT_RAD:
+        calib = Check("calibration", False, f"heading drifted {p.heading_drift:.3f} rad in one second of equal "
+                                            f"wheel commands (limit {MAX_STRAIGHT_DRIFT_RAD}); {calib.detail}")
+    else:
+        calib.detail += f"; straight-line drift {p.heading_drift:.3f} rad (limit {MAX_STRAIGHT_DRIFT_RAD})"
+    return [responds, camera, calib]
+
+
+def check_target(bench: Benchmark, domain: DomainSpec, *, seed: int = 0) -> tuple[ComplianceReport, Probe | None]:
+    """Probe the target ``domain`` (the reality model, or a robot node) and judge it against ``bench``."""
+    from proxybench.domain.reality import TRUTH
+    from proxybench.protocol import RobotFailure
+
+    robot = domain.kind == "robot"
+    if robot:
+        report = ComplianceReport(f"robot node {domain.command!r}", robot_domain_kind("unknown"))
+    else:
+        report = ComplianceReport("reality model (simulated stand-in, not a real robot)", domain.kind)
+    try:
+        p = probe(domain, bench.map, frame_rate=bench.frame_rate, seed=seed, pwm=_PWM, seconds=1.0)
+    except RobotFailure as exc:
+        report.checks.append(Check("responds", False, f"the robot node failed: {exc}"))
+        return report, None
+    if robot:
+        report.domain_kind = robot_domain_kind(p.kind)
+        report.target = f"robot node {domain.command!r} (says it is: {p.kind})"
+    report.checks += judge(bench, p, p.declared if robot else TRUTH, robot=robot)
+    return report, p
+
+
+def robot_domain_kind(kind: str) -> str:
+    """How reports name a robot node's kind: ``robot-node/<what it says it is>``."""
+    return f"robot-node/{kind}"
+
+
 def check_reality_model(bench: Benchmark, params: DomainParams, *, seed: int = 0) -> ComplianceReport:
     """Check the reality model instance ``params`` (as the target run will use it) against ``bench``."""
-    from proxybench.domain.reality import TRUTH
-    from proxybench.domain.simulator import Simulator
-    from proxybench.protocol import jpeg
+    return check_target(bench, DomainSpec("reality", params.model_dump(mode="json"), "reality-model"), seed=seed)[0]
 
-    report = ComplianceReport("reality model (simulated stand-in, not a real robot)", "reality-model")
-    spec = bench.domain_params()
-    sim = Simulator(bench.map, params, n=1)
-    t0 = time.monotonic()
-    sim.reset(0, seed)
-    start = sim.state[0, :3].copy()
-    frames = max(1, round(bench.frame_rate))
-    for _ in range(frames):
-        sim.step(np.array([[_PWM, _PWM]]))
-    end = sim.state[0, :3]
-    wall = time.monotonic() - t0
-    moved = float(np.hypot(*(end[:2] - start[:2])))
-    ok = moved >= MIN_RESPONSE_M and wall <= RESPONSE_TIMEOUT_S and bool(np.all(np.isfinite(end)))
-    report.checks.append(Check("responds", ok, f"moved {moved:.3f} m in {frames / bench.frame_rate:.2f} s at PWM "
-                                               f"{_PWM} (need ≥ {MIN_RESPONSE_M} m), answered in {wall:.2f} s "
-                                               f"(limit {RESPONSE_TIMEOUT_S:g} s)"))
-    frame = sim.render()[0]
-    report.checks.append(check_frame(jpeg.encode(frame), spec.image_width, spec.image_height))
-    calib = check_calibration(TRUTH, spec)
-    drift = abs(_wrap(float(end[2] - start[2])))
-    if drift > MAX_STRAIGHT_DRIFT_RAD:
-        calib = Check("calibration", False, f"heading drifted {drift:.3f} rad in one second of equal wheel "
-                                            f"commands (limit {MAX_STRAIGHT_DRIFT_RAD}); " + calib.detail)
-    else:
-        calib.detail += f"; straight-line drift {drift:.3f} rad (limit {MAX_STRAIGHT_DRIFT_RAD})"
-    report.checks.append(calib)
-    return report
+
+def check_robot(bench: Benchmark, cmd: str, *, seed: int = 0, options: Any = None) -> ComplianceReport:
+    """Check the robot node ``cmd`` (started with ``options``, a ``RobotNodeOptions``) against ``bench``."""
+    return check_target(bench, DomainSpec.robot(cmd, frame_rate=bench.frame_rate, options=options), seed=seed)[0]

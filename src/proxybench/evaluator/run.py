@@ -68,6 +68,7 @@ class _Job:
         self.outcome = Outcome("success")
         self.phase = "setup"
         self.unsafe = False  # an agent package ran outside the safe sandbox (developer's flag)
+        self.ground_truth = True  # the target reports the true lane pose (its compliance probe says)
 
     def progress(self, done: int, total: int) -> None:
         _write_json(self.dir / "progress.json", {"phase": self.phase, "done": done, "total": total})
@@ -90,9 +91,9 @@ class _Job:
                             f"benchmark: {exc}") from None
 
     def agent(self, bench):
-        from proxybench.agents.package import PackageError
         from proxybench.agents.zoo import ZOO
         from proxybench.evaluator import sandbox as sb
+        from proxybench.protocol.package import PackageError
         from proxybench.runner.jobs import AgentSpec
 
         sub = self.lease["submission"]
@@ -129,13 +130,18 @@ class _Job:
     # -- running -----------------------------------------------------------------------------------
 
     def evaluate(self, bench, spec, split: str, target: bool):
-        """Run the split's episodes: in the benchmark's domain, or on the target (robot node or reality model)."""
+        """Run the split's episodes: in the benchmark's domain, or on the target (robot node or reality model).
+
+        Every kind goes through the runner (:func:`~proxybench.runner.evaluate.evaluate_benchmark`): the same
+        jobs, starts, routes and trajectory files; a robot node is a :class:`~proxybench.runner.jobs.DomainSpec`.
+        """
         from proxybench.agents.zoo import ZOO
-        from proxybench.protocol.failures import AgentFailure, RobotFailure
+        from proxybench.protocol.failures import AgentFailure
         from proxybench.runner.backends import InlineBackend
         from proxybench.runner.episode import PrivilegedAgentError
         from proxybench.runner.evaluate import evaluate_benchmark
-        from proxybench.runner.robot_episode import RobotLacksGroundTruth
+        from proxybench.runner.jobs import DomainSpec
+        from proxybench.tasks.benchmark import BenchmarkError
 
         self.phase = split
         robot = self.cfg.get("robot_cmd") if target else None
@@ -143,22 +149,29 @@ class _Job:
             f"domain {bench.domain.named or 'of the benchmark'}"
         log.info("%s: %d episodes of %g s on %s, in %s", split, len(bench.episode_specs()), bench.duration,
                  bench.map, where)
-        run_dir = self.dir / "runs" / split
+        privileged = lambda s: s.command is None and ZOO[s.name].privileged  # noqa: E731
+        domain: str | DomainSpec | None = "reality" if target else None
+        if robot:
+            if privileged(spec) and not self.ground_truth:
+                raise HostFault(f"the target robot cannot run this job: robot node {robot!r} reports no true lane "
+                                f"pose, which the privileged agent {spec.name!r} needs")
+            domain = DomainSpec.robot(robot, frame_rate=bench.frame_rate, options=self.robot_options())
         try:
-            if robot:
-                from proxybench.evaluator.robot import evaluate_on_robot
-
-                return evaluate_on_robot(bench, spec, robot, run_dir, self.progress, options=self.robot_options())
-            return evaluate_benchmark(bench, [spec], run_dir, InlineBackend(), domain="reality" if target else None,
-                                      privileged=lambda s: s.command is None and ZOO[s.name].privileged,
-                                      progress=self.progress)
+            ev = evaluate_benchmark(bench, [spec], self.dir / "runs" / split, InlineBackend(), domain=domain,
+                                    privileged=privileged, progress=self.progress)
         except AgentFailure as exc:  # the node could not even be started or handshaken
             self.check_sandbox([exc.stderr_tail])
             raise SubmissionFault(f"agent node failed in the {split} episodes: {exc}") from None
-        except (RobotFailure, RobotLacksGroundTruth) as exc:
-            raise HostFault(f"the target robot cannot run this job: {exc}") from None
+        except BenchmarkError as exc:
+            if robot:
+                raise HostFault(f"the target robot cannot run this job: {exc}") from None
+            raise
         except PrivilegedAgentError as exc:
             raise SubmissionFault(str(exc)) from None
+        lost = [r for r in ev.sweep.results if r.termination == "robot_failure"]
+        if lost:
+            raise HostFault(f"the target robot cannot run this job: {lost[0].message}")
+        return ev
 
     def check_sandbox(self, stderr_tails: list[list[str]]) -> None:
         """An agent that failed with the sandbox's own words on its stderr: is the sandbox still working here?
@@ -229,20 +242,20 @@ class _Job:
 
     def compliance(self, bench) -> str:
         """Check the target before a target job; its ``domain_kind``. Not compliant: :class:`HostFault`."""
-        from proxybench.domain.params import DomainParams
-        from proxybench.evaluator.compliance import check_reality_model
+        from proxybench.evaluator.compliance import check_target
         from proxybench.runner.evaluate import benchmark_domain
+        from proxybench.runner.jobs import DomainSpec
 
         self.phase = "compliance"
         robot = self.cfg.get("robot_cmd")
         if robot:
-            from proxybench.evaluator.robot import check_robot
-
             log.info("target job: the target is the robot node %r", robot)
-            report = check_robot(bench, robot, options=self.robot_options())
+            domain = DomainSpec.robot(robot, frame_rate=bench.frame_rate, options=self.robot_options())
         else:
             log.info("target job: the target is the reality model, a simulated stand-in (no real robot here)")
-            report = check_reality_model(bench, DomainParams.model_validate(benchmark_domain(bench, "reality").params))
+            domain = benchmark_domain(bench, "reality")
+        report, probe = check_target(bench, domain)
+        self.ground_truth = probe is not None and probe.ground_truth
         self.outcome.public_report["compliance"] = report.to_dict()
         for c in report.checks:
             log.info("compliance %s: %s: %s", c.name, "ok" if c.ok else "FAILED", c.detail)

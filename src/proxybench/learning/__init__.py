@@ -1,13 +1,15 @@
-"""Learning agents and the proxy learning value (PLV): behaviour cloning from a privileged expert.
+"""Behaviour cloning: a learning agent trained from a privileged expert.
 
 - ``domains``: where data comes from (a proxy θ, a randomised family Θ, the reality model);
-- ``expert``, ``collection``, ``dataset``: batched expert driving with recovery data, NPZ shards + JSON;
-- ``model``, ``training``, ``agent``: a PilotNet-style CNN, training / fine-tuning / checkpoints, ``BCAgent``;
-- ``onpolicy``: DAgger, on-policy target samples labelled by the expert;
-- ``evaluate``, ``value``, ``intervals``, ``experiment``, ``report``: PLV arithmetic, its bootstrap intervals over
-  seeds and the PLV experiment (thesis Table 3.1, Figure 3.6); ``objective``: PLV of one proxy, for argmax-PLV.
+- ``expert``, ``dataset``: the vectorised privileged expert; NPZ shards + JSON of frames and commands;
+- ``model``, ``training``, ``agent``: a PilotNet-style CNN, training / fine-tuning / checkpoints, ``BCAgent``.
 
-Module names differ from the functions exported here (``collect``, ``train``, ``dagger``, ``plv``), so
+Collecting data and scoring a network drive robots, so they live with the runner
+(:mod:`proxybench.runner.collect`, :mod:`proxybench.runner.policy_eval`); the PLV arithmetic and its intervals
+are measures (:mod:`proxybench.usefulness.plv`, :mod:`proxybench.usefulness.plv_intervals`); the PLV experiment,
+DAgger and argmax-PLV are studies (:mod:`proxybench.experiments.plv`, ``dagger``, ``plv_objective``).
+
+Module names differ from the functions exported here (``train``), so
 ``from proxybench.learning import train`` is always the function, whatever was imported before.
 
 The modules that need PyTorch (the ``learning`` extra: ``pip install 'proxybench[learning]'``) are
@@ -18,6 +20,7 @@ threads, training on a machine whose cores are shared with other work ran ~20× 
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import os
 from pathlib import Path
@@ -26,29 +29,20 @@ from typing import Any
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 __all__ = [
-    "BCAgent", "CollectConfig", "DaggerConfig", "DataCost", "Dataset", "Domain", "EvalConfig", "ModelConfig",
-    "PLVConfig", "PLVObjective", "PLVResult", "PilotNet", "TrainConfig", "build_model", "collect", "dagger",
-    "evaluate_expert", "evaluate_policy", "expert_actions", "is_checkpoint", "load_checkpoint", "make_bc_agent",
-    "parse_domain", "plv", "proxy_domain", "randomized_domain", "reality_domain", "run_plv", "save_checkpoint",
-    "train", "write_report",
+    "CHECKPOINTS", "BCAgent", "CheckpointKind", "Dataset", "Domain", "ModelConfig", "PilotNet", "TrainConfig",
+    "build_model", "expert_actions", "is_checkpoint", "load_checkpoint", "make_bc_agent", "parse_domain",
+    "proxy_domain", "randomized_domain", "reality_domain", "save_checkpoint", "train",
 ]
 
 _WHERE = {
     "BCAgent": "agent", "make_bc_agent": "agent",
-    "CollectConfig": "collection", "collect": "collection",
-    "DaggerConfig": "onpolicy", "dagger": "onpolicy",
-    "DataCost": "value", "plv": "value",
     "Dataset": "dataset",
     "Domain": "domains", "parse_domain": "domains", "proxy_domain": "domains", "randomized_domain": "domains",
     "reality_domain": "domains",
-    "EvalConfig": "evaluate", "evaluate_expert": "evaluate", "evaluate_policy": "evaluate",
     "expert_actions": "expert",
     "ModelConfig": "model", "PilotNet": "model",
-    "PLVConfig": "experiment", "PLVResult": "experiment", "run_plv": "experiment",
-    "PLVObjective": "objective",
     "TrainConfig": "training", "build_model": "training", "load_checkpoint": "training",
     "save_checkpoint": "training", "train": "training",
-    "write_report": "report",
 }
 
 
@@ -62,6 +56,31 @@ def is_checkpoint(name: str | Path) -> bool:
         return False
     p = p.with_suffix(".pt")
     return p.is_file() and p.with_suffix(".json").is_file()
+
+
+def _file_digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+class CheckpointKind:
+    """Behaviour-cloning checkpoints as an agent kind (:mod:`proxybench.agents.kinds`, entry point
+    ``checkpoint``): a path ``X.pt`` with ``X.json`` beside it names a :class:`BCAgent`."""
+
+    def claims(self, name: str) -> bool:
+        return is_checkpoint(name)
+
+    def make(self, name: str):
+        from proxybench.learning.agent import make_bc_agent
+
+        return make_bc_agent(name)
+
+    def identity(self, name: str) -> str:
+        """The content of both files, so that retraining into the same path invalidates cached episodes."""
+        pt = Path(name).with_suffix(".pt")
+        return _file_digest(pt) + _file_digest(pt.with_suffix(".json"))
+
+
+CHECKPOINTS = CheckpointKind()
 
 
 def __getattr__(name: str) -> Any:

@@ -13,7 +13,8 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from multiprocessing import get_context
 from typing import Protocol
 
-from proxybench.runner.jobs import Job, JobResult, execute_batch
+from proxybench.runner.execute import execute_batch
+from proxybench.runner.jobs import Job, JobResult
 
 __all__ = ["Backend", "InlineBackend", "LocalBackend", "RayBackend", "make_backend"]
 

@@ -39,6 +39,11 @@ class SimPlant:
         self.image_filter = image_filter
         self.drivers: NpcDrivers | None = None
 
+    @property
+    def frame_rate(self) -> float:
+        """[Hz] camera frames (decisions) per second."""
+        return 1.0 / self.sim.frame_dt
+
     def begin(self, seeds: Sequence[int], poses: Sequence[Any], routes: Sequence[Any], seconds: float,
               camera: bool, privileged: Sequence[bool]) -> int:
         sim, n = self.sim, self.n

@@ -45,11 +45,14 @@ def benchmark_domain(bench: Benchmark, named: str | None = None) -> DomainSpec:
 
 def evaluate_benchmark(
     bench: Benchmark, agents: Sequence[AgentSpec], run_dir: str | Path, backend: Backend | None = None, *,
-    domain: str | None = None, privileged: Callable[[AgentSpec], bool] | None = None,
+    domain: str | DomainSpec | None = None, privileged: Callable[[AgentSpec], bool] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> Evaluation:
     """Run every admitted agent on every episode of ``bench``; rank them by the benchmark's criteria.
 
+    ``domain``: where the episodes run: the benchmark's own domain (None), a named domain that replaces it
+    (``reality``, ...), or any :class:`~.jobs.DomainSpec`, e.g. a robot node (``DomainSpec.robot``). Every
+    domain's episodes go through the same jobs, cache and resume, with the benchmark's starts and routes.
     Agents that the benchmark does not admit (privileged ones on a camera-only benchmark) are left out
     and listed in ``refused`` with the reason.
     """
@@ -64,9 +67,13 @@ def evaluate_benchmark(
             admitted.append(a)
     if not admitted:
         raise BenchmarkError(f"benchmark {bench.name!r}: no admitted agent ({'; '.join(refused.values())})")
-    dom = benchmark_domain(bench, domain)
+    dom = domain if isinstance(domain, DomainSpec) else benchmark_domain(bench, domain)
     metrics = tuple(bench.metrics)
     npcs = bench.traffic()
+    if dom.kind == "robot":
+        if npcs is not None and not npcs.empty:
+            raise BenchmarkError(f"benchmark {bench.name!r} has npcs:, but a robot node drives one robot and no NPCs")
+        npcs = None
     jobs = [Job(a, dom, bench.map, ep.index, ep.seed, bench.duration, ep.pose, bench.camera_only, metrics,
                 route=ep.route, npcs=npcs)
             for a in admitted for ep in bench.episode_specs()]

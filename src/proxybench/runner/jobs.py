@@ -1,4 +1,4 @@
-"""What a unit of evaluation work is: one agent, one domain, one episode. And how a worker does it.
+"""What a unit of evaluation work is: one agent, one domain, one episode (how a worker does it: :mod:`.execute`).
 
 A ``Job`` is plain data (picklable, JSON-able), so any backend (process pool, Ray cluster) can carry it;
 its ``key`` is a content hash of everything that determines the result (agent spec, θ, map, episode,
@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import time
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -27,10 +26,8 @@ ENGINE_VERSION = 5  # 2: camera agents see JPEG-decoded frames, as over the AIDO
 # 5: the vision agents' lane fit is compiled (closed-form least squares, equal to lstsq within 1e-9, so their
 # trajectories can differ in the last bits)
 
-__all__ = [
-    "DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "batch_group",
-    "camera_filter", "execute", "execute_batch", "is_privileged", "make_agent_for",
-]
+__all__ = ["DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "batch_group",
+           "is_privileged"]
 
 
 @dataclass(frozen=True)
@@ -66,6 +63,8 @@ class AgentSpec:
         return data
 
 
+#: [Hz] the camera rate of :class:`~proxybench.domain.params.DomainParams` when nobody sets one
+DEFAULT_FRAME_RATE = 15.0
 #: what a domain can be: a proxy instance S_θ, the built-in reality model, or a robot node (the robot protocol)
 DOMAIN_KINDS = ("simulation", "reality-model", "robot")
 
@@ -84,7 +83,9 @@ class DomainSpec:
     to one physical robot, raise it for a simulator node. ``options``: how to start and talk to the node,
     the non-default fields of :class:`~proxybench.protocol.options.RobotNodeOptions` (working directory,
     transport, timeouts, reflection) as sorted pairs; of them only ``cwd`` is part of the key (it changes
-    what the command runs; a timeout or the transport does not change an episode).
+    what the command runs; a timeout or the transport does not change an episode). ``frame_rate`` [Hz]: what a
+    robot node is asked to step at (the benchmark's or the proxies' rate; a node that says its own rate is
+    stepped at that); part of the key when it is not the default 15 Hz.
     """
 
     name: str
@@ -93,12 +94,15 @@ class DomainSpec:
     command: str | None = None
     nodes: int = 1
     options: tuple[tuple[str, Any], ...] = ()
+    frame_rate: float = DEFAULT_FRAME_RATE
 
     @classmethod
-    def robot(cls, command: str, *, name: str | None = None, nodes: int = 1, options: Any = None) -> DomainSpec:
-        """A robot domain; ``options``: a ``RobotNodeOptions`` (or None for the defaults)."""
+    def robot(cls, command: str, *, frame_rate: float, name: str | None = None, nodes: int = 1,
+              options: Any = None) -> DomainSpec:
+        """A robot domain stepped at ``frame_rate`` [Hz]; ``options``: a ``RobotNodeOptions`` (or None for the
+        defaults)."""
         return cls(name or f"robot:{command}", kind="robot", command=command, nodes=nodes,
-                   options=options.items() if options is not None else ())
+                   options=options.items() if options is not None else (), frame_rate=float(frame_rate))
 
     def node_options(self):
         """The ``RobotNodeOptions`` of a robot domain."""
@@ -128,6 +132,8 @@ class DomainSpec:
         cwd = dict(self.options).get("cwd")
         if cwd is not None:  # absent otherwise, so robot domains without one keep their keys
             doc["cwd"] = cwd
+        if self.kind == "robot" and self.frame_rate != DEFAULT_FRAME_RATE:  # likewise
+            doc["frame_rate"] = self.frame_rate
         return json.dumps(doc, sort_keys=True)
 
 
@@ -193,20 +199,16 @@ def _agent_id(spec: AgentSpec) -> dict[str, Any]:
     """What identifies an agent in a key: its spec, and for a behaviour-cloning checkpoint (a path given as
     the name) the content of its files, so that retraining into the same path invalidates cached episodes.
     A node command is identified by its string only (like a robot's: what was asked)."""
+    from proxybench.agents.kinds import kinds
     from proxybench.agents.zoo import ZOO
 
     out = spec.key_data()
     if spec.command is None and spec.name not in ZOO:
-        from proxybench.learning import is_checkpoint
-
-        if is_checkpoint(spec.name):
-            pt = Path(spec.name).with_suffix(".pt")
-            out["checkpoint"] = _file_digest(pt) + _file_digest(pt.with_suffix(".json"))
+        for kind_name, kind in kinds():
+            if kind.claims(spec.name):
+                out[kind_name] = kind.identity(spec.name)  # "checkpoint": as before, so cached keys stay valid
+                break
     return out
-
-
-def _file_digest(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
 
 
 def _map_id(name: str) -> str:
@@ -215,24 +217,6 @@ def _map_id(name: str) -> str:
     if p.suffix in (".yaml", ".yml") and p.exists():
         return hashlib.sha256(p.read_bytes()).hexdigest()[:16]
     return name
-
-
-# -- the worker side --------------------------------------------------------------------------------
-
-_SIMS: dict[tuple[Any, ...], Any] = {}
-
-
-def _simulator(job: Job, n: int = 1):
-    """One cached simulator per (map, θ, batch size) per worker: building one costs more than an episode."""
-    from proxybench.domain.params import DomainParams
-    from proxybench.domain.simulator import Simulator
-
-    k = (job.map, job.domain.canonical(), n, job.npcs)
-    if k not in _SIMS:
-        if len(_SIMS) > 8:
-            _SIMS.clear()
-        _SIMS[k] = Simulator(job.map, DomainParams.model_validate(job.domain.params), n=n, npcs=job.npcs)
-    return _SIMS[k]
 
 
 def batch_group(job: Job) -> tuple:
@@ -253,114 +237,3 @@ def is_privileged(spec: AgentSpec) -> bool:
     from proxybench.agents.zoo import ZOO
 
     return bool(spec.command is None and spec.name in ZOO and ZOO[spec.name].privileged)
-
-
-def _refused(job: Job, agent, setup_s: float, msg: str | None = None) -> JobResult:
-    """A privileged agent on a camera-only job (or on a robot without ground truth): no episode, a recorded
-    reason, NaN scores."""
-    msg = msg or f"agent {agent.name!r} is privileged (reads the true lane pose); this benchmark is camera-only"
-    return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed,
-                     dict.fromkeys(job.metrics or _all_metrics(), float("nan")), "agent_failure", None, msg,
-                     {"setup_s": setup_s})
-
-
-def _all_metrics() -> tuple[str, ...]:
-    from proxybench.tasks.metrics import METRICS
-
-    return tuple(METRICS)
-
-
-def camera_filter():
-    """What camera agents see: the JPEG round trip of every frame, exactly what a protocol node receives."""
-    from proxybench.protocol.jpeg import roundtrip
-
-    return roundtrip
-
-
-def make_agent_for(spec: AgentSpec):
-    """The agent a spec names: a zoo agent in-process, or a node process behind the protocol."""
-    if spec.command:
-        from proxybench.protocol import RemoteAgent
-
-        agent = RemoteAgent(spec.command, **spec.node_options().process_kwargs())
-        agent.name = spec.name
-        return agent
-    from proxybench.agents import make_agent
-
-    return make_agent(spec.name)
-
-
-def execute(job: Job, out_dir: str | None) -> JobResult:
-    """Run one job in this process; write its trajectory under ``out_dir`` (atomically) if given."""
-    return execute_batch([job], out_dir)[0]
-
-
-def execute_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
-    """Run jobs of one :func:`batch_group` together: one simulator of N robots, one agent per robot (agents
-    may differ from robot to robot; a batch gives the same trajectories as N single runs).
-
-    In-process agents are batched; node agents (one process each) run one by one. Robot domains go to
-    :func:`execute_robot_batch`.
-    """
-    import time
-
-    from proxybench.runner.episode import run_episodes
-    from proxybench.tasks.metrics import METRICS
-
-    if len({batch_group(j) for j in jobs}) != 1:
-        raise ValueError("execute_batch: the jobs do not share one batch group")
-    if jobs[0].domain.kind == "robot":
-        from proxybench.runner.robot_jobs import execute_robot_batch
-
-        return execute_robot_batch(jobs, out_dir)
-    if len(jobs) > 1 and jobs[0].agent.command:
-        return [r for j in jobs for r in execute_batch([j], out_dir)]
-    job0 = jobs[0]
-    t0, c0 = time.perf_counter(), time.process_time()
-    agents = [make_agent_for(j.agent) for j in jobs]
-    if len({a.privileged for a in agents}) > 1:  # an agent that is not what its name said: see alike, run alike
-        for a in agents:
-            getattr(a, "close", lambda: None)()
-        return [r for flag in (False, True)
-                for r in execute_batch([j for j, a in zip(jobs, agents, strict=True) if a.privileged == flag],
-                                       out_dir)]
-    sim = _simulator(job0, len(jobs))
-    t1 = time.perf_counter()
-    try:
-        if agents[0].privileged and job0.camera_only:
-            return [_refused(j, a, (t1 - t0) / len(jobs)) for j, a in zip(jobs, agents, strict=True)]
-        trajs = run_episodes(
-            sim, agents, [j.seed for j in jobs], job0.duration, poses=[j.pose for j in jobs],
-            routes=[j.route for j in jobs], camera=not agents[0].privileged, allow_privileged=not job0.camera_only,
-            image_filter=camera_filter(),
-            metas=[{"map": j.map, "episode": j.episode, "domain": j.domain.name, "domain_kind": j.domain.kind,
-                    "source": j.domain.kind, "job": j.key} for j in jobs],
-        )
-    finally:
-        for a in agents:
-            getattr(a, "close", lambda: None)()
-    t2 = time.perf_counter()
-    results = [_result(j, tr, out_dir, (t1 - t0) / len(jobs), (t2 - t1) / len(jobs), METRICS)
-               for j, tr in zip(jobs, trajs, strict=True)]
-    cpu = (time.process_time() - c0) / len(jobs)
-    for r in results:
-        r.timings["cpu_s"] = cpu
-    return results
-
-
-def _result(job: Job, traj, out_dir: str | None, setup_s: float, episode_s: float, metrics) -> JobResult:
-    t = time.perf_counter()
-    scores = {name: metrics[name](traj) for name in (job.metrics or tuple(metrics))}
-    path = None
-    if out_dir is not None:
-        path = str(Path(out_dir) / f"{job.key}.parquet")
-        traj.save(path)
-    message = next((e["message"] for e in traj.events if e["kind"] == "agent_failure"), "")
-    timing = traj.meta.get("timing", {})
-    sim_s, agent_s = timing.get("sim_s", 0.0), timing.get("agent_s", 0.0)
-    timings = {"setup_s": setup_s, "sim_s": sim_s, "agent_s": agent_s,
-               "bookkeeping_s": (episode_s - sim_s - agent_s) + (time.perf_counter() - t),
-               "simulated_s": traj.duration}
-    return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed, scores, traj.termination,
-                     path, message, timings)
-

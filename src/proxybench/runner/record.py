@@ -1,64 +1,126 @@
-"""One episode recorded for people: a video (camera beside top-down) and a PNG strip of frames."""
+"""One episode recorded for people: the trajectory, a video (camera beside top-down) and a PNG strip of frames.
+
+``proxybench run`` and ``evaluate --video`` record through :func:`record_run`, whatever the domain: a
+simulated one (the batched simulator, its NPCs) or a robot node (``DomainSpec.robot``). The episode is the
+engine's (:func:`~proxybench.runner.rollout.rollout`); this module only watches its frames.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from proxybench.agents.base import Agent
+from proxybench.domain.maps import Map, load_map
+from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
 from proxybench.domain.topdown import top_down
 from proxybench.media import VideoWriter, side_by_side, write_strip
-from proxybench.runner.episode import run_episode
-from proxybench.runner.jobs import camera_filter
+from proxybench.runner.episode import SimPlant
+from proxybench.runner.jobs import DomainSpec
+from proxybench.runner.outcomes import camera_filter
+from proxybench.runner.robot_episode import RobotLacksGroundTruth, RobotPlant
+from proxybench.runner.rollout import AgentPolicy, rollout
 from proxybench.tasks.trajectory import Trajectory
 
-__all__ = ["record_episode"]
+__all__ = ["Recording", "record_run"]
 
 
-def record_episode(
-    sim: Simulator, agent: Agent, seed: int, seconds: float, out: str | Path, *, stem: str = "drive",
-    video: bool = True, pose: tuple[float, float, float] | None = None, strip_frames: int = 12,
-    on_frame: Callable[[int], None] | None = None, meta: dict[str, Any] | None = None,
-    route: Sequence[str] | None = None,
-) -> tuple[Trajectory, list[Path]]:
-    """Run one episode and write ``<stem>.mp4`` (if ``video``) and ``<stem>_strip.png`` into ``out``.
+@dataclass
+class Recording:
+    """A recorded episode: its trajectory, the files written for people, and the wall time it took."""
 
-    The camera is always rendered (even for privileged agents, which do not see it) so that people can.
+    trajectory: Trajectory
+    files: list[Path] = field(default_factory=list)
+    wall_s: float = 0.0
+
+
+def record_run(
+    domain: DomainSpec, agent: Agent, map_: Map | str, seed: int, seconds: float, out: str | Path, *,
+    frame_rate: float | None = None, stem: str = "drive", video: bool = True,
+    pose: tuple[float, float, float] | None = None, route: Sequence[str] | None = None, npcs: Any = None,
+    strip_frames: int = 12, on_frame: Callable[[int], None] | None = None, meta: dict[str, Any] | None = None,
+) -> Recording:
+    """Drive ``agent`` in ``domain`` for ``seconds`` and write ``<stem>.mp4`` (if ``video``) and
+    ``<stem>_strip.png`` into ``out``.
+
+    In a simulated domain the camera is always rendered (also for privileged agents, which do not see it)
+    so that people can; a robot node sends frames only to camera agents. ``frame_rate`` [Hz]: what a robot
+    node is asked to step at (a simulated domain's comes from its θ). A robot node that fails raises
+    :class:`~proxybench.protocol.RobotFailure`; a privileged agent on a robot without the true lane pose,
+    :class:`~proxybench.runner.robot_episode.RobotLacksGroundTruth`.
     """
+    import time
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    fps = 1.0 / sim.frame_dt
-    steps = max(1, round(seconds * fps))
-    every = max(1, steps // max(1, strip_frames - 1))
+    m = load_map(map_) if isinstance(map_, str) else map_
+    t0 = time.perf_counter()
+    if domain.kind == "robot":
+        from proxybench.protocol import RemoteRobot
+
+        with RemoteRobot(domain.command, frame_rate=frame_rate or domain.frame_rate,
+                         **domain.node_options().process_kwargs()) as robot:
+            rec = _record(RobotPlant(robot, m), agent, seed, seconds, out, stem, video, pose, route, strip_frames,
+                          on_frame, meta)
+    else:
+        sim = Simulator(m, DomainParams.model_validate(domain.params), npcs=npcs)
+        rec = _record(SimPlant(sim, camera_filter()), agent, seed, seconds, out, stem, video, pose, route,
+                      strip_frames, on_frame, meta)
+    rec.wall_s = time.perf_counter() - t0
+    return rec
+
+
+def _view(plant) -> np.ndarray:
+    """Top-down view of the plant's map with its robot (and, in simulation, the episode's NPCs and extras)."""
+    m = plant.map
+    px = max(64, min(240, 720 // max(m.width, m.height)))
+    if isinstance(plant, SimPlant):
+        s = plant.sim
+        objects, npcs = s.world_view(0)
+        return top_down(m, s.state[:1, :3], px_per_tile=px, params=s.params[0], objects=objects, npc_poses=npcs)
+    return top_down(m, np.asarray([plant.states[-1].pose]), px_per_tile=px)
+
+
+def _record(plant, agent: Agent, seed: int, seconds: float, out: Path, stem: str, video: bool, pose, route,
+            strip_frames: int, on_frame, meta) -> Recording:
+    every = 1
     strip: list[np.ndarray] = []
     labels: list[str] = []
     files: list[Path] = []
-    writer = VideoWriter(out / f"{stem}.mp4", fps) if video else None
-    px = max(64, min(240, 720 // max(sim.map.width, sim.map.height)))
+    writer: VideoWriter | None = None
 
-    def frame(k: int, image: np.ndarray | None, s: Simulator) -> None:
-        img = image if image is not None else s.render()[0]
-        if writer is not None:
-            objects, npcs = s.world_view(0)  # the episode's own extras, pedestrians and NPC robots
-            writer.append(side_by_side(img, top_down(s.map, s.state[:1, :3], px_per_tile=px, params=s.params[0],
-                                                     objects=objects, npc_poses=npcs)))
-        if k % every == 0:
-            strip.append(img)
-            labels.append(f"t={k / fps:.1f}s")
+    def frame(k: int, images, alive: np.ndarray, p) -> None:
+        nonlocal writer, every
+        if k == 0:  # the plant knows its frame rate once the episode began
+            every = max(1, round(seconds * p.frame_rate) // max(1, strip_frames - 1))
+        img = images[0] if images is not None else None
+        if img is None and isinstance(p, SimPlant):
+            img = p.sim.render()[0]  # for people: a privileged agent does not see it
+        if img is not None:
+            if video and writer is None:
+                writer = VideoWriter(out / f"{stem}.mp4", p.frame_rate)
+            if writer is not None:
+                writer.append(side_by_side(img, _view(p)))
+            if k % every == 0 and len(strip) < strip_frames:
+                strip.append(img)
+                labels.append(f"t={k / p.frame_rate:.1f}s")
         if on_frame is not None:
             on_frame(k)
 
     try:
-        traj = run_episode(sim, agent, seed, seconds, pose=pose, camera=not agent.privileged, on_frame=frame,
-                           image_filter=camera_filter(), meta=meta, route=route)
+        traj = rollout(plant, AgentPolicy([agent]), [seed], seconds, poses=[pose], camera=not agent.privileged,
+                       routes=[route], on_frame=frame, metas=[meta])[0]
+    except RobotLacksGroundTruth as exc:
+        raise RobotLacksGroundTruth(f"{exc}, which the privileged agent {agent.name!r} needs") from None
     finally:
         if writer is not None:
             writer.close()
             files.append(writer.path)
     if strip:
         files.append(write_strip(strip, out / f"{stem}_strip.png", labels))
-    return traj, files
+    return Recording(traj, files)

@@ -69,6 +69,15 @@ class RobotPlant:
             raise RobotLacksGroundTruth(f"robot {robot.command!r} ({self.info.kind}) reports no true lane pose")
         return self.steps
 
+    @property
+    def frame_rate(self) -> float:
+        """[Hz] camera frames per second, as the robot said when the episode began."""
+        return self.info.frame_rate
+
+    def encoded_frame(self, i: int) -> bytes | None:
+        """The current camera frame as the robot sent it (JPEG bytes), before decoding."""
+        return self.obs.observations.jpg or None
+
     def frames(self, alive: np.ndarray) -> list[np.ndarray | None]:
         o = self.obs.observations
         return [jpeg.decode_received(o.jpg) if o.jpg else None]

@@ -22,7 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from proxybench.protocol import RemoteRobot, RobotFailure
-from proxybench.runner.jobs import Job, JobResult, _all_metrics, _refused, _result, make_agent_for
+from proxybench.runner.jobs import Job, JobResult
+from proxybench.runner.outcomes import all_metrics, make_agent_for, refused, result_of
 from proxybench.runner.robot_episode import RobotLacksGroundTruth, run_episode_on_robot
 
 __all__ = ["ROBOT_INIT_TIMEOUT_S", "ROBOT_STEP_TIMEOUT_S", "execute_robot_batch", "robot_slot"]
@@ -93,10 +94,10 @@ def execute_robot_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]
                 agent = make_agent_for(job.agent)
                 try:
                     if agent.privileged and job.camera_only:
-                        results.append(_refused(job, agent, time.perf_counter() - t0))
+                        results.append(refused(job, agent, time.perf_counter() - t0))
                         continue
                     if robot is None:  # a robot not saying its rate is stepped at the domain's
-                        robot = RemoteRobot(domain.command, frame_rate=float(domain.params.get("frame_rate", 15.0)),
+                        robot = RemoteRobot(domain.command, frame_rate=domain.frame_rate,
                                             **domain.node_options().process_kwargs())
                     if job.map not in maps:
                         maps[job.map] = load_map(job.map)
@@ -112,12 +113,12 @@ def execute_robot_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]
                     results.append(_robot_failed(job, exc))
                     continue
                 except RobotLacksGroundTruth as exc:
-                    results.append(_refused(job, agent, time.perf_counter() - t0, str(exc)))
+                    results.append(refused(job, agent, time.perf_counter() - t0, str(exc)))
                     continue
                 finally:
                     getattr(agent, "close", lambda: None)()
                 in_a_row = 0
-                results.append(_result(job, traj, out_dir, t1 - t0, time.perf_counter() - t1, METRICS))
+                results.append(result_of(job, traj, out_dir, t1 - t0, time.perf_counter() - t1, METRICS))
         finally:
             if robot is not None:
                 robot.close()
@@ -134,4 +135,4 @@ def _robot_failed(job: Job, exc: RobotFailure, skipped: bool = False) -> JobResu
     if skipped:
         text = f"not run: the robot node failed {FAILURES_IN_A_ROW} times in a row; last: {text}"
     return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed,
-                     dict.fromkeys(job.metrics or _all_metrics(), float("nan")), "robot_failure", None, text)
+                     dict.fromkeys(job.metrics or all_metrics(), float("nan")), "robot_failure", None, text)

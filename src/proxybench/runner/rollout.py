@@ -50,6 +50,7 @@ class Plant(Protocol):
 
     n: int
     map: Map
+    frame_rate: float  # [Hz] camera frames per second (known once :meth:`begin` returned)
 
     def begin(self, seeds: Sequence[int], poses: Sequence[Any], routes: Sequence[Any], seconds: float,
               camera: bool, privileged: Sequence[bool]) -> int:

@@ -13,7 +13,7 @@ from typing import Any
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from proxybench.agents.package import AgentManifest
+from proxybench.protocol.package import AgentManifest
 from proxybench.server.benchmarks import benchmark_of, latest
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import BenchmarkPath, BenchmarkVersion, Job, Result, Submission, User

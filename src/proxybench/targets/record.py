@@ -23,7 +23,9 @@ from pathlib import Path
 from proxybench import __version__
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, Job, JobResult
+from proxybench.runner.starts import start_poses
 from proxybench.runner.sweep import run_jobs
+from proxybench.targets.base import Target, episode_seed
 from proxybench.targets.manifest import (
     MANIFEST_NAME,
     RobotInfo,
@@ -32,7 +34,7 @@ from proxybench.targets.manifest import (
     load_manifest,
     write_manifest,
 )
-from proxybench.targets.spec import RealityTarget, Target, episode_seed, start_poses
+from proxybench.targets.spec import RealityTarget
 
 __all__ = ["RecordSummary", "record_target"]
 

@@ -12,10 +12,11 @@ from __future__ import annotations
 
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.backends import InlineBackend
-from proxybench.runner.jobs import DomainSpec, Job
+from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec, Job
+from proxybench.runner.starts import start_poses
 from proxybench.runner.sweep import run_jobs
+from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, by_agent, episode_seed
 from proxybench.targets.manifest import TargetError
-from proxybench.targets.spec import Target, TargetEpisode, TargetInfo, TargetRun, _by_agent, episode_seed, start_poses
 
 __all__ = ["RobotTarget"]
 
@@ -24,18 +25,22 @@ class RobotTarget(Target):
     """A robot node started with ``command``; ``nodes``: how many of its processes may run at once (keep 1 for
     a bridge to one physical robot; a simulator node can take one per worker); ``options``: how to start and
     talk to it (:class:`~proxybench.protocol.options.RobotNodeOptions`: working directory, transport,
-    timeouts, reflection; None: the defaults)."""
+    timeouts, reflection; None: the defaults); ``frame_rate`` [Hz]: what the node is asked to step at, the
+    proxies' rate, so that target and proxy episodes see and decide alike (a node that says its own rate is
+    stepped at that)."""
 
     kind = "robot"
 
-    def __init__(self, command: str, nodes: int = 1, options: RobotNodeOptions | None = None):
+    def __init__(self, command: str, nodes: int = 1, options: RobotNodeOptions | None = None,
+                 frame_rate: float = DEFAULT_FRAME_RATE):
         self.command = command
         self.nodes = nodes
         self.options = options or RobotNodeOptions()
+        self.frame_rate = frame_rate
         self._said: str = ""
 
     def domain(self, image_size: tuple[int, int] | None = None) -> DomainSpec:
-        return DomainSpec.robot(self.command, nodes=self.nodes, options=self.options)
+        return DomainSpec.robot(self.command, frame_rate=self.frame_rate, nodes=self.nodes, options=self.options)
 
     def info(self) -> TargetInfo:
         simulated = {"simulation": True, "robot": None}.get(self._said)
@@ -63,7 +68,7 @@ class RobotTarget(Target):
             raise TargetError(f"target: the robot node `{self.command}` failed on {len(failed)} of {len(jobs)} "
                               f"episode(s); finished episodes are cached, run again to retry the rest:\n  {shown}")
         self._said = _robot_kind(sweep.results)
-        return TargetRun(self.info(), map_name, seconds, metrics, eps, _by_agent(jobs, sweep.results, metrics),
+        return TargetRun(self.info(), map_name, seconds, metrics, eps, by_agent(jobs, sweep.results, metrics),
                          {}, None, sweep.ran)
 
 

@@ -15,102 +15,20 @@ what the target was, so that no report presents a simulated result as a real one
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from proxybench.runner.backends import Backend, InlineBackend
-from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
+from proxybench.runner.backends import InlineBackend
+from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec, Job
+from proxybench.runner.starts import start_poses
 from proxybench.runner.sweep import run_jobs
+from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, by_agent, episode_seed
 from proxybench.targets.manifest import TargetError
 
 __all__ = ["RealityTarget", "RecordedTarget", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "episode_seed",
-           "open_target", "start_poses"]
-
-Progress = Callable[[str, int, int], None]
-
-
-def episode_seed(seed: int, episode: int) -> int:
-    """The seed of episode ``episode`` of an experiment seeded ``seed`` (as every runner sweep uses)."""
-    return seed * 10_000 + episode
-
-
-@dataclass(frozen=True)
-class TargetEpisode:
-    """One target episode: whose, which, its seed and its start pose (None: drawn from the seed)."""
-
-    agent: str
-    episode: int
-    seed: int
-    pose: tuple[float, float, float] | None
-
-
-@dataclass(frozen=True)
-class TargetInfo:
-    """What a target is, in words a report can print: ``kind`` (reality-model | recorded | robot),
-    ``simulated`` (True, False, or None when proxybench cannot tell), a short ``label`` and a ``statement``."""
-
-    kind: str
-    simulated: bool | None
-    label: str
-    statement: str
-    details: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass
-class TargetRun:
-    """The target's side of an experiment: episodes (agent-major) and per-agent (episodes × metrics) scores."""
-
-    info: TargetInfo
-    map: str
-    seconds: float
-    metrics: tuple[str, ...]
-    episodes: list[TargetEpisode]
-    results: dict[str, np.ndarray]
-    truth: dict[str, float] = field(default_factory=dict)
-    params: dict[str, Any] | None = None  # θ of a simulated target when known (POD needs it)
-    ran: int = 0  # episodes simulated or driven now (not cached, not read from files)
-
-    def episodes_of(self, agent: str) -> list[TargetEpisode]:
-        return [e for e in self.episodes if e.agent == agent]
-
-
-class Target:
-    """Base of the three kinds. A recorded target fixes its map, length, agents and episodes; the others
-    take them from the experiment."""
-
-    kind = "target"
-    fixed_map: str | None = None
-    fixed_seconds: float | None = None
-    fixed_agents: list[str] | None = None
-    n_episodes: int | None = None
-
-    def info(self) -> TargetInfo:
-        raise NotImplementedError
-
-    def run(self, agents: list[AgentSpec], *, map_name: str, seconds: float, episodes: int, seed: int,
-            metrics: tuple[str, ...], image_size: tuple[int, int], run_dir: str | Path,
-            backend: Backend | None = None, progress: Progress | None = None) -> TargetRun:
-        raise NotImplementedError
-
-
-def start_poses(map_name: str, seeds: list[int]) -> list[tuple[float, float, float]]:
-    """The start pose each seed draws (the simulator's start distribution), made explicit for pairing."""
-    from proxybench.domain.simulator import Simulator
-
-    sim = Simulator(map_name, render=False)
-    return [tuple(float(v) for v in sim.sample_start(np.random.default_rng(s))) for s in seeds]
-
-
-def _by_agent(jobs: list[Job], results: list[JobResult], metrics: tuple[str, ...]) -> dict[str, np.ndarray]:
-    by: dict[str, list[list[float]]] = {}
-    for job, r in zip(jobs, results, strict=True):
-        by.setdefault(job.agent.label, []).append([r.scores[m] for m in metrics])
-    return {a: np.asarray(v, dtype=float) for a, v in by.items()}
-
+           "open_target"]
 
 class _LiveTarget(Target):
     """A target whose episodes the runner plays: the reality model, or a robot node."""
@@ -131,7 +49,7 @@ class _LiveTarget(Target):
                 for a in agents for e in range(episodes)]
         sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
                          progress=(lambda d, t, _r: progress("target episodes", d, t)) if progress else None)
-        return TargetRun(self.info(), map_name, seconds, metrics, eps, _by_agent(jobs, sweep.results, metrics),
+        return TargetRun(self.info(), map_name, seconds, metrics, eps, by_agent(jobs, sweep.results, metrics),
                          self.truth(), dom.params, sweep.ran)
 
 
@@ -232,12 +150,13 @@ class RecordedTarget(Target):
 
 
 def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes: int = 1,
-                robot_options: Any = None) -> Target:
+                robot_options: Any = None, frame_rate: float = DEFAULT_FRAME_RATE) -> Target:
     """The target ``text`` names: ``reality``, ``robot:CMD``, or a directory (or manifest file) of recordings.
 
     ``params``: θ overrides of the reality model (only with ``reality``); ``robot_nodes``: how many processes
     of a robot node may run at once, ``robot_options``: how to start and talk to it (a
-    :class:`~proxybench.protocol.options.RobotNodeOptions`; both only with ``robot:``).
+    :class:`~proxybench.protocol.options.RobotNodeOptions`; both only with ``robot:``); ``frame_rate`` [Hz]:
+    the proxies' camera rate, at which a robot node is asked to step.
     """
     text = text.strip()
     if params and text != "reality":
@@ -255,7 +174,7 @@ def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes:
         if not command:
             raise TargetError("target: robot: needs the command that starts the robot node, e.g. "
                               "'robot:proxybench robot serve --param trim=0.1'")
-        return RobotTarget(command, robot_nodes, robot_options)
+        return RobotTarget(command, robot_nodes, robot_options, frame_rate)
     if Path(text).exists():
         return RecordedTarget(text)
     raise TargetError(f"target: {text!r} is not 'reality', 'robot:COMMAND' or an existing directory of recordings")

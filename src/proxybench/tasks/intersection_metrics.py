@@ -27,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from proxybench.domain.lane_pose import LP
+from proxybench.tasks.progress import lane_steps
 from proxybench.tasks.trajectory import Trajectory
 
 __all__ = ["STOP_BAND", "STOP_SPEED", "STOP_TIME", "distance_along_route", "stop_line_entries",
@@ -99,8 +100,6 @@ def distance_along_route(traj: Trajectory) -> float:
     or turned around, nothing counts until the robot is back on the route. NaN for trajectories without
     the route columns.
     """
-    from proxybench.tasks.metrics import lane_steps
-
     on = traj.columns.get("on_route")
     if on is None:
         return float("nan")

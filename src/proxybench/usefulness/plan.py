@@ -9,7 +9,7 @@ replays in candidate proxies θ — the planner answers:
 - how many for a given probability of picking the right θ among the candidates;
 - which pairs of agents are near ties, and how many episodes each would need to be ordered (the pairs
   that deserve more episodes); :func:`next_agents` turns that into "run this agent next"
-  (:mod:`proxybench.usefulness.sequential` runs it in a loop on a live target).
+  (:mod:`proxybench.experiments.sequential` runs it in a loop on a live target).
 
 **Model** (plug-in): the pilot is taken as the truth. An experiment with n episodes per agent is
 simulated by drawing n of each agent's pilot episodes with replacement — the same draws on the target

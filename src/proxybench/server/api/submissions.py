@@ -10,7 +10,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
-from proxybench.agents.package import PackageError, check_archive
+from proxybench.protocol.package import PackageError, check_archive
 from proxybench.server.api.deps import DB, Caller, Conf, require, require_reader, run_write
 from proxybench.server.api.schemas import MAX_ID, Retired, SubmissionCreate, SubmissionOut
 from proxybench.server.artifacts import TooLarge

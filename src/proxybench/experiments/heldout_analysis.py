@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.experiments.heldout import CaseRun, HeldOutRun
 from proxybench.tasks.metrics import METRICS as TASK_METRICS
 from proxybench.usefulness.agent_sets import argmin_random_ties, order_structure
-from proxybench.usefulness.heldout import CaseRun, HeldOutRun
 from proxybench.usefulness.heldout_scoring import (
     METRICS,
     Grid,

@@ -1,10 +1,10 @@
 """``optimize --objective plv``: the proxy that saves a learning agent the most target samples (thesis eq. 3.6.2).
 
-The teaching counterpart of :func:`~proxybench.usefulness.optimize.optimize_proxy`. Where PRPV compares
+The teaching counterpart of :func:`~proxybench.experiments.optimize.optimize_proxy`. Where PRPV compares
 rankings of fixed agents, PLV trains one: a behaviour-cloning network is pre-trained on each proposed
 proxy (an instance θ, or with ``search.family`` a uniform family p(θ)) and fine-tuned on target samples
 until its score has settled above the reference P; PLV = |D_target| − |D_proxy→target| with a bootstrap
-interval over seeds (:mod:`proxybench.learning.objective`, docs/learning.md). The search space, trials,
+interval over seeds (:mod:`proxybench.experiments.plv_objective`, docs/learning.md). The search space, trials,
 sampler, storage, seed and truth come from the experiment (``--config`` / the command line); the PLV
 settings from its ``plv:`` section (``PLVConfig`` fields), on top of ``PLVConfig()`` or, with
 ``--quick``, ``PLVConfig.quick()``.
@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from proxybench.usefulness.experiment import ConfigError, ExperimentConfig
-from proxybench.usefulness.proxies import param_label
+from proxybench.experiments.config import ConfigError, ExperimentConfig
+from proxybench.experiments.proxies import param_label
 
 __all__ = ["PLV_TRIALS", "PLVOptimizeResult", "plot_plv_search", "plv_search_settings", "run_plv_search",
            "torch_available"]
@@ -99,8 +99,8 @@ class PLVOptimizeResult:
 
 def plv_search_settings(cfg: ExperimentConfig, *, quick: bool = False):
     """(PLVConfig, PLVSearch, ignored fields) of an experiment; what PLV cannot do is a ConfigError naming the field."""
-    from proxybench.learning.experiment import PLVConfig
-    from proxybench.learning.objective import PLVSearch
+    from proxybench.experiments.plv import PLVConfig
+    from proxybench.experiments.plv_objective import PLVSearch
 
     given = cfg.model_fields_set
     if cfg.target != "reality":
@@ -130,7 +130,7 @@ def plv_search_settings(cfg: ExperimentConfig, *, quick: bool = False):
 def run_plv_search(cfg: ExperimentConfig, out: str | Path, progress=None, *, quick: bool = False) -> PLVOptimizeResult:
     """Search the experiment's space for the proxy of highest PLV; work and (with a storage) the study resume."""
     from proxybench.domain.reality import TRUTH
-    from proxybench.learning.objective import optimize_plv
+    from proxybench.experiments.plv_objective import optimize_plv
 
     plv_cfg, search, ignored = plv_search_settings(cfg, quick=quick)
     res = optimize_plv(search, plv_cfg, out, progress)

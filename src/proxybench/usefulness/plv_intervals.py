@@ -8,7 +8,7 @@ The evaluation episodes are the same for every network (common random numbers), 
 
 One replicate resamples the seeds with replacement, averages each rung over the drawn seeds, and
 recomputes everything downstream: the converged score, the reference P, |D_target|, each proxy's
-|D_proxy→target| (the same "reach and stay above" rule, :func:`proxybench.learning.value.settled_rung`),
+|D_proxy→target| (the same "reach and stay above" rule, :func:`proxybench.usefulness.plv.settled_rung`),
 PLV and the reduction. Seeds shared by the target-only curve and a proxy (the same data subset for seed
 s) are resampled *together* (paired), as the PLV compares the two routes on the same data.
 The interval is the 2.5 … 97.5 % percentile of the replicates (Efron & Tibshirani 1993, ch. 13); a
@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from proxybench.learning.value import reference_score, settled_rung
+from proxybench.usefulness.plv import reference_score, settled_rung
 
 __all__ = ["Curve", "Interval", "PLVIntervals", "curves_from_runs", "mean_band", "plv_bootstrap"]
 

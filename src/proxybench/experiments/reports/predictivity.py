@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from proxybench import __version__
-from proxybench.usefulness.predictivity import PredictivityResult
-from proxybench.usefulness.proxies import param_label
+from proxybench.experiments.predictivity import PredictivityResult
+from proxybench.experiments.proxies import param_label
 
 __all__ = ["DEFINITIONS", "THESIS", "agent_set_findings", "episodes_statement", "findings", "noise_statement",
            "plot_plan", "ppv_agent_frame", "pyplot", "save_figure", "source_commit", "write_report"]

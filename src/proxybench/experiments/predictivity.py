@@ -2,7 +2,7 @@
 
 K agents are evaluated on the *target* (the reality model, a recorded directory or a robot node:
 :mod:`proxybench.targets`) and on proxy instances θ of the simulator swept around its nominal calibration
-(:mod:`proxybench.usefulness.proxies`). Each proxy replays every agent's target episodes from the same
+(:mod:`proxybench.experiments.proxies`). Each proxy replays every agent's target episodes from the same
 start poses and seeds, so proxy and target episodes are paired. For every θ: PRPV with its order range,
 PPV (per agent, mean, sum), Pearson's r (SRCC), Spearman's ρ, Kendall's τ and MMRV per metric with paired
 BCa intervals (:mod:`proxybench.usefulness.intervals`), and POD where the target's θ is known; beside them the target's
@@ -20,20 +20,20 @@ from typing import Any
 import numpy as np
 
 from proxybench.domain.params import DomainParams
+from proxybench.experiments.config import Experiment, ExperimentConfig, resolve
+from proxybench.experiments.pod import pod
+from proxybench.experiments.proxies import proxy_params
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import DomainSpec, Job, JobResult
 from proxybench.runner.sweep import run_jobs
-from proxybench.targets.spec import Target, TargetRun
+from proxybench.targets.base import Target, TargetRun, by_agent
 from proxybench.tasks.metrics import METRICS
 from proxybench.usefulness.agent_sets import means_of, order_structure, sensitivity
-from proxybench.usefulness.experiment import Experiment, ExperimentConfig, resolve
 from proxybench.usefulness.intervals import Usefulness, usefulness
 from proxybench.usefulness.metrics import Estimate, PairedResults, agent_means
 from proxybench.usefulness.noise import compare_paired, lowest_claim, noise_floor, paired_prpv_samples, ppv_noise_floor
-from proxybench.usefulness.pod import pod
-from proxybench.usefulness.proxies import proxy_params
 
-__all__ = ["PredictivityResult", "SweepClaim", "proxy_jobs", "run_predictivity"]
+__all__ = ["PredictivityResult", "SweepClaim", "proxy_domains", "proxy_jobs", "run_predictivity"]
 
 Progress = Callable[[str, int, int], None]
 
@@ -82,7 +82,7 @@ class PredictivityResult:
         return min(self.rows, key=lambda r: r["prpv"])
 
 
-def _domains(exp: Experiment) -> list[tuple[str, float, DomainSpec]]:
+def proxy_domains(exp: Experiment) -> list[tuple[str, float, DomainSpec]]:
     """(parameter, value, proxy domain) for every sweep point; equal θ share one cached result."""
     out = []
     for name, values in exp.sweep.items():
@@ -97,13 +97,6 @@ def proxy_jobs(exp: Experiment, tgt: TargetRun, dom: DomainSpec) -> list[Job]:
     specs = {a.label: a for a in exp.agents}
     return [Job(specs[e.agent], dom, tgt.map, e.episode, e.seed, tgt.seconds, pose=e.pose, metrics=exp.metrics)
             for e in tgt.episodes]
-
-
-def _by_agent(jobs: list[Job], results: list[JobResult], metrics: tuple[str, ...]) -> dict[str, np.ndarray]:
-    by: dict[str, list[list[float]]] = {}
-    for job, r in zip(jobs, results, strict=True):
-        by.setdefault(job.agent.label, []).append([r.scores[m] for m in metrics])
-    return {a: np.asarray(v, dtype=float) for a, v in by.items()}
 
 
 def run_predictivity(
@@ -128,7 +121,7 @@ def run_predictivity(
     tgt = target.run(exp.agents, map_name=exp.map, seconds=exp.seconds, episodes=exp.episodes, seed=exp.seed,
                      metrics=exp.metrics, image_size=exp.image_size, run_dir=run_dir, backend=backend,
                      progress=progress)
-    domains = _domains(exp)
+    domains = proxy_domains(exp)
     jobs = [j for _, _, d in domains for j in proxy_jobs(exp, tgt, d)]
     sweep = run_jobs(jobs, run_dir, backend,
                      progress=(lambda done, total, _r: progress("proxy episodes", done, total)) if progress else None)
@@ -137,7 +130,7 @@ def run_predictivity(
         js, rs = by_domain.setdefault(job.domain.name, ([], []))
         js.append(job)
         rs.append(r)
-    proxies = {name: _by_agent(js, rs, exp.metrics) for name, (js, rs) in by_domain.items()}
+    proxies = {name: by_agent(js, rs, exp.metrics) for name, (js, rs) in by_domain.items()}
     higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
     truth = {**tgt.truth, **exp.truth}
     commands = _pod_commands(exp, tgt) if _has_pod(exp, target, tgt) else None
@@ -210,10 +203,7 @@ def _has_pod(exp: Experiment, target: Target, tgt: TargetRun) -> bool:
 def _pod_commands(exp: Experiment, tgt: TargetRun) -> np.ndarray:
     """The commands the privileged PID agent issues on the target: a realistic open-loop sequence for POD."""
     from proxybench.agents import make_agent
-    from proxybench.domain.simulator import Simulator
-    from proxybench.runner.episode import run_episode
+    from proxybench.runner.replay import agent_commands
 
-    sim = Simulator(tgt.map, DomainParams.model_validate(tgt.params), render=False)
-    traj = run_episode(sim, make_agent("pid"), exp.seed, exp.pod_seconds, camera=False)
-    per_frame = sim.substeps
-    return np.stack([traj["pwm_left"][1::per_frame], traj["pwm_right"][1::per_frame]], axis=1)
+    return agent_commands(tgt.map, DomainParams.model_validate(tgt.params), make_agent("pid"), exp.seed,
+                          exp.pod_seconds)

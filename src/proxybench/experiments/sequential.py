@@ -20,9 +20,10 @@ import numpy as np
 
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, Job
+from proxybench.runner.starts import start_poses
 from proxybench.runner.sweep import run_jobs
+from proxybench.targets.base import Target, TargetEpisode, TargetRun, episode_seed
 from proxybench.targets.manifest import TargetError
-from proxybench.targets.spec import Target, TargetEpisode, TargetRun, episode_seed, start_poses
 from proxybench.tasks.metrics import METRICS
 from proxybench.usefulness.plan import PairNeed, next_agents, pair_needs
 

@@ -41,8 +41,8 @@ def _package(path: Path, work_dir: Path) -> AgentSpec:
     the start-up options of its manifest (transport, timeouts, reflection)."""
     import shutil
 
-    from proxybench.agents.package import PackageError
     from proxybench.evaluator.sandbox import Limits, SandboxError, detect_isolation, package_spec, prepare_agent
+    from proxybench.protocol.package import PackageError
 
     data = path.read_bytes()
     digest = hashlib.sha256(data).hexdigest()
@@ -64,8 +64,8 @@ def _package(path: Path, work_dir: Path) -> AgentSpec:
 
 def parse_agent(text: str | AgentEntry, work_dir: str | Path = "out/agents") -> AgentSpec:
     """The runner spec of one agent argument (see the module docstring); ``work_dir`` holds unpacked packages."""
+    from proxybench.agents.kinds import find_kind
     from proxybench.agents.zoo import ZOO
-    from proxybench.learning import is_checkpoint
 
     if isinstance(text, AgentEntry):
         if text.is_node:
@@ -78,7 +78,7 @@ def parse_agent(text: str | AgentEntry, work_dir: str | Path = "out/agents") -> 
         return AgentSpec(text)
     if _is_archive(text):
         return _package(Path(text), Path(work_dir))
-    if is_checkpoint(text):
+    if find_kind(text) is not None:
         return AgentSpec(text)
     name, sep, command = text.partition("=")
     if sep and name.strip() and command.strip() and " " not in name.strip():

@@ -4,12 +4,12 @@ Any kind of target works. Each Optuna trial proposes θ, the runner replays the 
 proxy (same agents, starts and seeds; cached, so repeated θ cost nothing, and Ray works), and the objective
 compares the proxy's results with the target's (:mod:`proxybench.targets`: the reality model, a recording,
 or a robot node, whose episodes are run once and re-used by every trial). The search space comes from the experiment
-(default: around the nominal calibration, :mod:`proxybench.usefulness.proxies`), never from a target's
+(default: around the nominal calibration, :mod:`proxybench.experiments.proxies`), never from a target's
 truth; a known truth is only printed beside what was recovered.
 The objective is PRPV by default, as the thesis defines θ*; ``ppv`` (the mean per-agent PPV) and ``mix``
 (PRPV/K(K−1) + PPV/m: both in [0, 1]-ish units, and PPV's slope gives the sampler something to follow where
 PRPV is flat) can be chosen. The teaching objective, argmax PLV (eq. 3.6.2), trains an agent instead:
-:mod:`proxybench.usefulness.optimize_plv`.
+:mod:`proxybench.experiments.optimize_plv`.
 Studies live in memory, in SQLite (default when a path is given) or in any SQLAlchemy database such as
 PostgreSQL, so many workers can share one study.
 """
@@ -25,16 +25,16 @@ from typing import Any
 import numpy as np
 
 from proxybench.domain.params import DomainParams
+from proxybench.experiments.config import OBJECTIVES, Experiment, ExperimentConfig, resolve
+from proxybench.experiments.predictivity import proxy_jobs
+from proxybench.experiments.proxies import param_label, proxy_params
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import DomainSpec
 from proxybench.runner.sweep import run_jobs
-from proxybench.targets.spec import Target, TargetInfo
+from proxybench.targets.base import Target, TargetInfo, by_agent
 from proxybench.tasks.metrics import METRICS
-from proxybench.usefulness.experiment import OBJECTIVES, Experiment, ExperimentConfig, resolve
 from proxybench.usefulness.metrics import Estimate, PairedResults, dominance, ppv_value, prpv_value
 from proxybench.usefulness.noise import noise_floor
-from proxybench.usefulness.predictivity import _by_agent, proxy_jobs
-from proxybench.usefulness.proxies import param_label, proxy_params
 
 __all__ = ["OBJECTIVES", "OptimizeResult", "optimize_proxy", "plot_optimization"]
 
@@ -106,7 +106,7 @@ def optimize_proxy(
 ) -> OptimizeResult:
     """Search ``search.space`` for the proxy θ whose verdicts best match the target's.
 
-    ``cfg`` as for :func:`~proxybench.usefulness.predictivity.run_predictivity`. The target's episodes are
+    ``cfg`` as for :func:`~proxybench.experiments.predictivity.run_predictivity`. The target's episodes are
     run (or read) once; every trial replays them in its proxy.
     """
     import optuna
@@ -115,8 +115,8 @@ def optimize_proxy(
     backend = backend or InlineBackend()
     run_dir = Path(run_dir)
     if cfg.search.objective == "plv":
-        raise ValueError("search.objective: plv trains a learning agent; run it with "
-                         "proxybench.usefulness.optimize_plv.run_plv_search (or `proxybench optimize --objective plv`)")
+        raise ValueError("search.objective: plv trains a learning agent; run it with proxybench.experiments."
+                         "optimize_plv.run_plv_search (or `proxybench optimize --objective plv`)")
     if isinstance(cfg, ExperimentConfig):
         exp, target = resolve(cfg, "optimize", quick=quick, work_dir=run_dir.parent / "agents", target=target)
     else:
@@ -137,7 +137,7 @@ def optimize_proxy(
         params = proxy_params(exp.image_size, exp.proxy, **theta)
         dom = DomainSpec("proxy " + " ".join(f"{k}={v:.4g}" for k, v in theta.items()), params.model_dump())
         jobs = proxy_jobs(exp, tgt, dom)
-        proxy = _by_agent(jobs, run_jobs(jobs, run_dir, backend).results, exp.metrics)
+        proxy = by_agent(jobs, run_jobs(jobs, run_dir, backend).results, exp.metrics)
         value, parts = _objective_value(exp.search.objective, proxy, tgt.results, higher)
         for k, v in parts.items():
             trial.set_user_attr(k, v)

@@ -23,7 +23,7 @@ of empty headers is refused after ``max_members`` of them. Then the manifest (at
 bytes, YAML without aliases, bounded nesting), then every member's data is read once, bounded by
 ``max_unpacked`` bytes and ``max_seconds``, so a bad CRC, a truncated stream or an encrypted member is a
 :class:`PackageError` here, not a crash later. The server runs it on upload, the evaluator again before
-it runs the agent, which unpacks it with :func:`proxybench.agents.unpack.extract_archive`.
+it runs the agent, which unpacks it with :func:`proxybench.protocol.unpack.extract_archive`.
 """
 
 from __future__ import annotations

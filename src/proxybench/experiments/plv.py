@@ -5,18 +5,18 @@
    those samples for every n of a ladder and every training seed, and scored by the lane score on
    evaluation episodes in the target. The score at the largest n is the converged score; the reference
    P is that score less a tolerance, and |D_target| is the smallest n from which the mean score over
-   seeds *stays* at or above P (:func:`proxybench.learning.value.settled_rung`).
+   seeds *stays* at or above P (:func:`proxybench.usefulness.plv.settled_rung`).
 2. **Each proxy.** The expert drives the proxy (an instance θ or a randomised family) for
    ``proxy_samples`` frames; one network per seed is pre-trained on them (zero-shot score: that network
    in the target, rung 0), then fine-tuned on n target samples up the same ladder until the mean over
    seeds has stayed at or above P for ``confirm`` rungs after the first that reached it.
 3. PLV = |D_target| − |D_proxy→target| (weighted by η_on / η_off with DAgger), or "not reached";
-   intervals come from a bootstrap over seeds (:mod:`proxybench.learning.intervals`).
+   intervals come from a bootstrap over seeds (:mod:`proxybench.usefulness.plv_intervals`).
 
 Every unit of work (a dataset, a pre-training, a training run and its evaluation) is cached in the
 output folder under a hash of the settings it depends on, so an interrupted run resumes and a longer
 ladder or more seeds reuse the work already done. :func:`target_arm` and :func:`proxy_arm` are the two
-halves, used apart by the PLV objective (:mod:`proxybench.learning.objective`).
+halves, used apart by the PLV objective (:mod:`proxybench.experiments.plv_objective`).
 """
 
 from __future__ import annotations
@@ -32,14 +32,14 @@ from typing import Any
 
 import numpy as np
 
-from proxybench.learning.collection import CollectConfig, collect
+from proxybench.experiments.dagger import DaggerConfig, dagger
 from proxybench.learning.dataset import Dataset
 from proxybench.learning.domains import Domain, parse_domain, reality_domain
-from proxybench.learning.evaluate import EvalConfig, evaluate_expert, evaluate_policy
 from proxybench.learning.model import ModelConfig, configure_threads, default_device
-from proxybench.learning.onpolicy import DaggerConfig, dagger
 from proxybench.learning.training import TrainConfig, build_model, save_checkpoint, train
-from proxybench.learning.value import DataCost
+from proxybench.runner.collect import CollectConfig, collect
+from proxybench.runner.policy_eval import EvalConfig, evaluate_expert, evaluate_policy
+from proxybench.usefulness.plv import DataCost
 
 __all__ = ["THESIS_PROXIES", "PLVConfig", "PLVResult", "Workspace", "proxy_arm", "run_plv", "target_arm"]
 
@@ -319,7 +319,7 @@ def _pretrain(work: Workspace, name: str, spec: str | Domain, data_seed: int,
 
 def target_arm(work: Workspace) -> tuple[list[dict[str, Any]], float, float]:
     """The target-only curve over the whole ladder: its runs, the expert's score and the reference P."""
-    from proxybench.learning.value import reference_score
+    from proxybench.usefulness.plv import reference_score
 
     cfg = work.cfg
     _ = work.pool

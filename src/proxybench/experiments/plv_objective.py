@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from proxybench.experiments.plv import PLVConfig, PLVResult, Progress, Workspace, proxy_arm, target_arm
 from proxybench.learning.domains import Domain, proxy_domain, randomized_domain
-from proxybench.learning.experiment import PLVConfig, PLVResult, Progress, Workspace, proxy_arm, target_arm
-from proxybench.learning.intervals import Interval
-from proxybench.learning.value import PLVValue
+from proxybench.usefulness.plv import PLVValue
+from proxybench.usefulness.plv_intervals import Interval
 
 __all__ = ["PLVObjective", "PLVSearch", "PLVSearchResult", "PLVTrial", "family_domain", "instance_domain",
            "objective_value", "optimize_plv"]
@@ -111,7 +111,7 @@ class PLVObjective:
         return d.name, d
 
     def __call__(self, proxy: str | Domain | Mapping[str, Any], family: bool = False) -> PLVTrial:
-        from proxybench.learning.report import summarize
+        from proxybench.experiments.reports.plv import summarize
 
         runs, expert, reference = self.target()
         name, spec = self.domain(proxy, family)

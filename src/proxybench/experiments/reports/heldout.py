@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from proxybench import __version__
-from proxybench.usefulness.heldout_analysis import HeldOutResult
-from proxybench.usefulness.report import THESIS, pyplot, save_figure, source_commit
+from proxybench.experiments.heldout_analysis import HeldOutResult
+from proxybench.experiments.reports.predictivity import THESIS, pyplot, save_figure, source_commit
 
 __all__ = ["findings", "write_heldout_report"]
 

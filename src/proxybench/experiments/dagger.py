@@ -12,11 +12,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from proxybench.learning.agent import torch_policy
-from proxybench.learning.collection import CollectConfig, collect
 from proxybench.learning.dataset import Dataset
 from proxybench.learning.domains import Domain
 from proxybench.learning.model import PilotNet
 from proxybench.learning.training import TrainConfig, TrainResult, train
+from proxybench.runner.collect import CollectConfig, collect
 
 __all__ = ["DaggerConfig", "dagger"]
 

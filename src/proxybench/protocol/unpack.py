@@ -1,10 +1,10 @@
-"""Unpacking an agent archive that :func:`~proxybench.agents.package.check_archive` admitted.
+"""Unpacking an agent archive that :func:`~proxybench.protocol.package.check_archive` admitted.
 
 The members are written here, not by ``tarfile.extractall`` / ``ZipFile.extractall``: only the files and
 folders the check admitted, each file created anew (``O_EXCL | O_NOFOLLOW``), so it works the same on
 every Python the project accepts (``extractall(filter=)`` is missing before 3.11.4, e.g. in Debian 12's
 system Python 3.11.2, where every ``.tar*`` package ended ``error``). An error while unpacking is the
-archive's fault (:class:`~proxybench.agents.package.PackageError`); a full disk or quota is the host's
+archive's fault (:class:`~proxybench.protocol.package.PackageError`); a full disk or quota is the host's
 (``OSError``).
 """
 
@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-from proxybench.agents.package import (
+from proxybench.protocol.package import (
     CHUNK,
     AgentManifest,
     BoundedTarInfo,

@@ -17,8 +17,8 @@ Targets, all three kinds (and every result says which):
 
 - :func:`repeatability_study`: the reality model, a *simulated* stand-in for real Duckiebots. A robot is
   ``hardware_variation`` drawn from (seed, lab, robot), so robot 0 of lab 0 is the same robot in every
-  design; a lab other than lab 0 is :func:`lab_variation` drawn from (seed, lab). All runs of a design
-  drive side by side in one batched simulator (robots of a batch are independent).
+  design; a lab other than lab 0 is :func:`lab_variation` drawn from (seed, lab). Every run is a runner job
+  (cached and resumable, like every episode).
 - :func:`recorded_study`: trajectories recorded in real labs, ``LAB/ROBOT/run.csv`` (or Parquet).
 - :func:`robot_study`: robot nodes on the robot protocol, one command per robot.
 """
@@ -26,18 +26,21 @@ Targets, all three kinds (and every result says which):
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Mapping, Sequence
+import tempfile
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from proxybench.agents import make_agent
 from proxybench.domain.params import DomainParams
 from proxybench.domain.reality import hardware_variation, reality_params
-from proxybench.domain.simulator import Simulator
-from proxybench.runner.episode import run_episodes
+from proxybench.runner.backends import Backend, InlineBackend
+from proxybench.runner.jobs import DEFAULT_FRAME_RATE, AgentSpec, DomainSpec, Job
+from proxybench.runner.starts import start_pose
+from proxybench.runner.sweep import run_jobs
 from proxybench.tasks.metrics import repeatability
 from proxybench.tasks.trajectory import Trajectory
 
@@ -160,33 +163,58 @@ def placed(start: tuple[float, float, float], rng: np.random.Generator,
 def repeatability_study(
     agent: str, designs: Mapping[str, Design] | None = None, seconds: float = 30.0, map_name: str = "loop_3x3",
     seed: int = 0, image_size: tuple[int, int] = (160, 120), placement: tuple[float, float] = (0.005, 1.0),
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: Callable[[str, int, int], None] | None = None, run_dir: str | Path | None = None,
+    backend: Backend | None = None,
 ) -> RepeatabilityResult:
-    """Run ``agent`` in each design on the reality model (simulated); every run from the same nominal start."""
+    """Run ``agent`` in each design on the reality model (simulated); every run from the same nominal start.
+
+    Each run is a runner job (a reality-model domain with that robot's θ), cached in ``run_dir`` (None: a
+    temporary folder), so an interrupted study resumes.
+    """
     designs = dict(DESIGNS if designs is None else designs)
     if seconds <= 0:
         raise ValueError(f"seconds must be > 0, got {seconds}")
     w, h = image_size
     base = reality_params(image_width=w, image_height=h)
-    start = tuple(Simulator(map_name, base, render=False).sample_start(np.random.default_rng(seed)))
+    start = start_pose(map_name, seed, base)
     out: dict[str, DesignResult] = {}
-    for k, (name, d) in enumerate(designs.items()):
-        cells = [(lab, r, i) for lab in range(d.labs) for r in range(d.robots) for i in range(d.runs)]
-        params = [robot_params(base, seed, lab, r) for lab, r, _ in cells]
-        seeds = [int(np.random.SeedSequence([seed, k, lab, r, i]).generate_state(1)[0] % 2**31)
-                 for lab, r, i in cells]
-        poses = [placed(start, _rng(seed, 0x9A5E, k, j), placement) for j in range(len(cells))]
-        agents = [make_agent(agent) for _ in cells]
-        labels = [f"lab {lab}/robot {r}" for lab, r, _ in cells]
-        metas = [{"design": name, "lab": lab, "robot": r, "run": i, "source": "reality-model"} for lab, r, i in cells]
-        if progress:
-            progress(name, 0, len(cells))
-        trajs = run_episodes(Simulator(map_name, params), agents, seeds, seconds, poses=poses,
-                             camera=not agents[0].privileged, metas=metas)
-        if progress:
-            progress(name, len(cells), len(cells))
-        out[name] = DesignResult(d, trajs, labels, _figures(trajs, labels, d))
+    with _folder(run_dir) as folder:
+        for k, (name, d) in enumerate(designs.items()):
+            cells = [(lab, r, i) for lab in range(d.labs) for r in range(d.robots) for i in range(d.runs)]
+            jobs = [Job(AgentSpec(agent), DomainSpec(f"lab {lab}/robot {r}",
+                                                     robot_params(base, seed, lab, r).model_dump(mode="json"),
+                                                     "reality-model"),
+                        map_name, j, int(np.random.SeedSequence([seed, k, lab, r, i]).generate_state(1)[0] % 2**31),
+                        seconds, pose=placed(start, _rng(seed, 0x9A5E, k, j), placement))
+                    for j, (lab, r, i) in enumerate(cells)]
+            labels = [f"lab {lab}/robot {r}" for lab, r, _ in cells]
+            trajs = _trajectories(jobs, folder, backend, name, progress)
+            for tr, (lab, r, i) in zip(trajs, cells, strict=True):
+                tr.meta.update({"design": name, "lab": lab, "robot": r, "run": i})
+            out[name] = DesignResult(d, trajs, labels, _figures(trajs, labels, d))
     return RepeatabilityResult(out, "reality-model (simulated stand-in for real Duckiebots)")
+
+
+@contextmanager
+def _folder(run_dir: str | Path | None) -> Iterator[Path]:
+    if run_dir is not None:
+        yield Path(run_dir)
+        return
+    with tempfile.TemporaryDirectory(prefix="proxybench-repeatability-") as tmp:
+        yield Path(tmp)
+
+
+def _trajectories(jobs: list[Job], run_dir: Path, backend: Backend | None, name: str,
+                  progress: Callable[[str, int, int], None] | None) -> list[Trajectory]:
+    """The jobs' trajectories through the runner (cached); a run that produced none is an error naming it."""
+    sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
+                     progress=(lambda done, total, _r: progress(name, done, total)) if progress else None)
+    missing = [r for r in sweep.results if not r.trajectory]
+    if missing:
+        r = missing[0]
+        raise RuntimeError(f"{name}: run {r.episode} of {r.agent} on {r.domain} produced no trajectory "
+                           f"({r.termination}: {r.message})")
+    return [Trajectory.load(r.trajectory) for r in sweep.results]
 
 
 def _figures(trajs: Sequence[Trajectory], labels: Sequence[str], d: Design) -> dict[str, float]:
@@ -254,37 +282,32 @@ def _load_run(path: Path, map_name: str, T) -> Trajectory:
 def robot_study(agent: str, commands: Mapping[str, str], runs: int = 3, seconds: float = 30.0,
                 map_name: str = "loop_3x3", seed: int = 0, start: tuple[float, float, float] | None = None,
                 progress: Callable[[str, int, int], None] | None = None,
-                options: RobotNodeOptions | None = None,
+                options: RobotNodeOptions | None = None, frame_rate: float = DEFAULT_FRAME_RATE,
+                run_dir: str | Path | None = None,
                 ) -> RepeatabilityResult:
     """``runs`` runs of ``agent`` on each robot node (name → command on the robot protocol): 1 × robots × runs.
 
     The robots are whatever the commands drive — physical robots' bridges or simulators; the result
     says ``source: robot node`` and names the commands. Every run asks for the same start pose. ``options``:
-    how each node is started (a ``RobotNodeOptions``; None: its defaults).
+    how each node is started (a ``RobotNodeOptions``; None: its defaults); ``frame_rate`` [Hz]: what each is
+    asked to step at. The runs are runner jobs on robot domains, cached in ``run_dir`` (None: a temporary
+    folder): a study that stopped resumes without driving the robots again.
     """
-    from proxybench.domain.maps import load_map
-    from proxybench.protocol import RemoteRobot
-    from proxybench.protocol.options import RobotNodeOptions
-    from proxybench.runner.robot_episode import run_episode_on_robot
-
     if not commands:
         raise ValueError("robot_study needs at least one robot command")
-    m = load_map(map_name)
     if start is None:
-        start = tuple(Simulator(map_name, reality_params(), render=False).sample_start(np.random.default_rng(seed)))
+        start = start_pose(map_name, seed, reality_params())
     d = Design(1, len(commands), runs)
     trajs, labels = [], []
-    for r, (name, cmd) in enumerate(commands.items()):
-        with RemoteRobot(cmd, **(options or RobotNodeOptions()).process_kwargs()) as robot:
-            for i in range(runs):
-                a = make_agent(agent)
-                tr = run_episode_on_robot(robot, a, seed * 1000 + 100 * r + i, seconds, map_=m, pose=start,
-                                          camera=not a.privileged,
-                                          meta={"robot": name, "run": i, "source": "robot node", "command": cmd})
+    with _folder(run_dir) as folder:
+        for r, (name, cmd) in enumerate(commands.items()):
+            dom = DomainSpec.robot(cmd, frame_rate=frame_rate, name=name, options=options)
+            jobs = [Job(AgentSpec(agent), dom, map_name, i, seed * 1000 + 100 * r + i, seconds, pose=start)
+                    for i in range(runs)]
+            for i, tr in enumerate(_trajectories(jobs, folder, None, name, progress)):
+                tr.meta.update({"robot": name, "run": i, "command": cmd})
                 trajs.append(tr)
                 labels.append(name)
-                if progress:
-                    progress(name, i + 1, runs)
     label = f"robot nodes {d.label}"
     notes = {label: "; ".join(f"{n}: {c}" for n, c in commands.items())}
     return RepeatabilityResult({label: DesignResult(d, trajs, labels, _figures(trajs, labels, d))}, "robot node",

@@ -34,14 +34,14 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from proxybench.experiments.config import ConfigError, _param_name
+from proxybench.experiments.proxies import proxy_params
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.spec import Target, TargetRun
 from proxybench.tasks.metrics import METRICS as TASK_METRICS
-from proxybench.usefulness.experiment import ConfigError, _param_name
 from proxybench.usefulness.heldout_scoring import Grid
-from proxybench.usefulness.proxies import proxy_params
 
 __all__ = ["Case", "CaseRun", "Criteria", "HeldOutConfig", "HeldOutRun", "cases_for", "load_heldout_config",
            "run_heldout", "write_criteria"]
@@ -265,7 +265,7 @@ def _proxy_jobs(agents: dict[str, AgentSpec], tgt: TargetRun, dom: DomainSpec, m
 def run_heldout(cfg: HeldOutConfig, out: str | Path, backend: Backend | None = None, progress: Progress | None = None,
                 *, quick: bool = False, cases: list[Case] | None = None) -> HeldOutRun:
     """Write the criteria, then run every case's target and proxies (cached in ``out/runs``; resumable)."""
-    from proxybench.usefulness.agent_args import AgentArgError, parse_agents
+    from proxybench.experiments.agent_args import AgentArgError, parse_agents
 
     t0 = time.perf_counter()
     out = Path(out)

@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from proxybench.learning.experiment import PLVResult
-from proxybench.learning.intervals import Interval, PLVIntervals, curves_from_runs, mean_band, plv_bootstrap
-from proxybench.learning.value import DataCost, PLVValue, first_reaching, plv, reference_score, settled_rung
+from proxybench.experiments.plv import PLVResult
+from proxybench.usefulness.plv import DataCost, PLVValue, first_reaching, plv, reference_score, settled_rung
+from proxybench.usefulness.plv_intervals import Interval, PLVIntervals, curves_from_runs, mean_band, plv_bootstrap
 
 __all__ = ["Summary", "findings", "needed_column", "summarize", "table_rows", "write_report", "zero_shot_by_seed"]
 

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from proxybench.domain.simulator import Simulator
-from proxybench.learning.collection import Policy
 from proxybench.learning.domains import Domain
 from proxybench.learning.expert import expert_actions
+from proxybench.runner.collect import Policy
 from proxybench.runner.episode import SimPlant
 from proxybench.runner.rollout import BatchPolicy, rollout
 from proxybench.tasks.metrics import METRICS

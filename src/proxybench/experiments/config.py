@@ -50,11 +50,11 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
+from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP, proxy_params
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.targets.manifest import TargetError, format_errors
 from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
 from proxybench.untrusted import UntrustedInputError, inside, load_yaml_file
-from proxybench.usefulness.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP
 
 __all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "SearchConfig", "load_config",
            "resolve"]
@@ -223,8 +223,6 @@ class ExperimentConfig(_Strict):
 
     @model_validator(mode="after")
     def _proxy_theta(self) -> ExperimentConfig:
-        from proxybench.usefulness.proxies import proxy_params
-
         try:
             proxy_params(self.image_size, self.proxy)
         except ValidationError as exc:
@@ -326,11 +324,12 @@ def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize", 
     A recorded target fixes the map and episode length (asking for others is an error naming the field)
     and offers its agents and episodes as defaults.
     """
+    from proxybench.experiments.agent_args import AgentArgError, parse_agents
     from proxybench.targets.spec import open_target
-    from proxybench.usefulness.agent_args import AgentArgError, parse_agents
 
     target = target or open_target(cfg.target, params=cfg.target_params, robot_nodes=cfg.robot_nodes,
-                                   robot_options=cfg.robot_options)
+                                   robot_options=cfg.robot_options,
+                                   frame_rate=proxy_params(cfg.image_size, cfg.proxy).frame_rate)
     d = COMMAND_DEFAULTS[(command, quick)]
     if target.fixed_map is not None and cfg.map is not None and cfg.map != target.fixed_map:
         raise ConfigError(f"map: the target was recorded on {target.fixed_map!r}, the experiment asks for {cfg.map!r}")
