@@ -196,6 +196,14 @@ def test_benchmark_paths_stay_in_its_folder_and_numbers_are_bounded(tmp_path, ou
     assert says in str(info.value) and SECRET not in str(info.value), str(info.value)
 
 
+def test_a_map_file_nested_20000_deep_is_a_clear_error(tmp_path) -> None:
+    (tmp_path / "deep.yaml").write_text("tiles: " + "[" * 20_000)
+    path = tmp_path / "b.yaml"
+    path.write_text(yaml.safe_dump({**BENCH, "map": "deep.yaml"}))
+    with pytest.raises(BenchmarkError, match="nested deeper than 64 levels"):
+        Benchmark.load(path)
+
+
 @pytest.mark.parametrize(("content", "says"), [
     (b"name: \xff\n", "not UTF-8"), (b"name: " + b"[" * 20_000, "nested deeper"), (None, "is a folder")])
 def test_a_hostile_benchmark_file_is_a_clear_error(tmp_path, content, says) -> None:

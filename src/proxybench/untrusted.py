@@ -27,7 +27,7 @@ from typing import Any
 
 import yaml
 
-__all__ = ["UntrustedInputError", "clean_text", "clean_tree", "find_non_finite", "inside", "load_yaml",
+__all__ = ["UntrustedInputError", "clean_text", "clean_tree", "compose_yaml", "find_non_finite", "inside", "load_yaml",
            "load_yaml_file", "nesting_depth", "read_text_file"]
 
 # NUL (PostgreSQL text cannot hold it) and lone surrogates (not encodable as UTF-8)
@@ -114,6 +114,19 @@ class _BoundedLoader(yaml.SafeLoader):
             return super().compose_node(parent, index)
         finally:
             self._depth -= 1
+
+
+def compose_yaml(text: str, *, max_depth: int = 64, allow_aliases: bool = True) -> Any:
+    """The YAML node tree of ``text`` (what ``yaml.compose`` gives: marks for every node), with the limits of
+    :func:`load_yaml`."""
+    loader_cls = type("Loader", (_BoundedLoader,), {"max_depth": max_depth, "allow_aliases": allow_aliases})
+    loader = loader_cls(text)
+    try:
+        return loader.get_single_node()
+    except RecursionError:
+        raise UntrustedInputError(f"nested too deeply (more than {max_depth} levels)") from None
+    finally:
+        loader.dispose()
 
 
 def load_yaml(text: str, *, max_depth: int = 64, allow_aliases: bool = True) -> Any:

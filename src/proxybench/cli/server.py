@@ -19,7 +19,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from proxybench.cli.app import app, console, err_console, require_extra
+from proxybench.cli.app import app, console, err_console, fail, require_extra
 from proxybench.cli.node_options import (
     RobotCwd,
     RobotNoReflection,
@@ -69,8 +69,7 @@ def _client(server: str | None, token: str | None, token_file: Path | None):
 
 
 def _fail(exc: Exception) -> typer.Exit:
-    err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
-    return typer.Exit(1)
+    return fail(exc, 1)
 
 
 def _evaluator_token(settings) -> Path:

@@ -41,6 +41,7 @@ from proxybench.protocol.description import _commands, _observations, encode_ext
 from proxybench.protocol.language import RobotLanguage
 from proxybench.protocol.node import NodeLogic, serve_node
 from proxybench.protocol.robot_description import robot_protocol_description
+from proxybench.untrusted import UntrustedInputError, load_yaml
 
 __all__ = ["RobotNode", "serve_robot"]
 
@@ -74,8 +75,8 @@ def _episode_payload(payload: str) -> dict[str, Any]:
         doc = json.loads(payload)
     except ValueError:
         try:
-            doc = yaml.safe_load(payload)
-        except yaml.YAMLError as exc:
+            doc = load_yaml(payload, max_depth=16)
+        except (yaml.YAMLError, UntrustedInputError) as exc:
             raise wire.MessageTypeError(f"episode_start: yaml_payload is neither JSON nor YAML: {exc}") from exc
     doc = doc if isinstance(doc, dict) else {}
     out: dict[str, Any] = {}
