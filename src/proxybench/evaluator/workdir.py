@@ -6,7 +6,8 @@ trajectories, so another local account must not be able to plant a link where th
 then read every job's files while the jobs still ended ``success``). Hence:
 
 - the folder is the evaluator user's own, mode 700, created so (:func:`open_state_dir`), and every
-  folder above it is owned by root or that user and writable by no one else unless sticky (``/tmp``):
+  folder above it is owned by root or that user and writable by no one else (its own group aside) unless
+  sticky (``/tmp``):
   an existing one owned by another user or with a looser mode is refused with the fix in the message;
 - it is held open as a directory descriptor; files in it are opened relative to it with ``O_NOFOLLOW``;
 - job folders are created exclusively (``mkdir`` fails if anything has that name) and used through
@@ -63,7 +64,8 @@ def _check_ancestor(path: str, st: os.stat_result) -> None:
     if st.st_uid not in (0, me):
         raise WorkDirError(f"{path} (above the work folder) belongs to {_owner_name(st.st_uid)}, who could "
                            "replace the work folder: choose a --work-dir under folders of root or of this user")
-    if st.st_mode & 0o022 and not st.st_mode & stat.S_ISVTX:
+    others = st.st_mode & 0o002 or (st.st_mode & 0o020 and st.st_gid != os.getegid())  # not: our own group
+    if others and not st.st_mode & stat.S_ISVTX:
         raise WorkDirError(f"{path} (above the work folder) is writable by other users (mode "
                            f"{stat.S_IMODE(st.st_mode):04o}), who could replace the work folder: choose another "
                            "--work-dir")
