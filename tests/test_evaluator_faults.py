@@ -125,7 +125,7 @@ def test_archives_that_cannot_be_unpacked_are_refused_naming_the_member(tmp_path
         extract_archive(data, tmp_path / "out")
 
 
-@pytest.mark.parametrize("value", [2**1024, -(2**64), 10**400])
+@pytest.mark.parametrize("value", [2**1024, -(2**1024), 10**400])
 def test_absurd_numbers_from_a_node_are_a_protocol_violation(value: int) -> None:
     with pytest.raises(wire.MessageTypeError, match="motor_left"):
         wire.parse_commands({"wheels": {"motor_left": value, "motor_right": 0.0}})
