@@ -43,10 +43,13 @@ def log_event(session: Session, job: Job | int, kind: str, evaluator_id: int | N
 
 def _released(status: str, message: str = "", *, final: Any = None) -> dict[str, Any]:
     """Column values of a job leaving its lease (``final``: whether it ends here; a SQL condition may say)."""
-    final = status in FINAL_STATUSES if final is None else final
-    finished = time.time() if final is True else case((final, time.time()), else_=None) if final is not False \
-        else None
-    return {"status": status, "lease_id": None, "lease_expires_at": None, "message": message, "finished_at": finished}
+    if final is None:
+        final = status in FINAL_STATUSES
+    if not isinstance(final, bool):  # a SQL condition: the row decides
+        return {"status": status, "lease_id": None, "lease_expires_at": None, "message": message,
+                "finished_at": case((final, time.time()), else_=None)}
+    return {"status": status, "lease_id": None, "lease_expires_at": None, "message": message,
+            "finished_at": time.time() if final else None}
 
 
 def _change(session: Session, where: tuple[Any, ...], values: dict[str, Any]) -> list[int]:
