@@ -180,7 +180,7 @@ def test_sixteen_concurrent_submissions_with_a_limit_of_three(tmp_path, postgres
 def test_kill_9_and_lease_expiry_during_load_lose_and_duplicate_nothing(tmp_path, postgres) -> None:
     figures = race(postgres.new_database(), tmp_path, seconds=15.0, evaluators=4, lease_seconds=1.0, kill_every=2.5)
     print("\n" + figures.line())
-    assert figures.acknowledged > 20 and figures.late > 0 and figures.evaluator_kills > 2 and figures.server_kills == 1
+    assert figures.acknowledged >= 10 and figures.late > 0 and figures.evaluator_kills > 2 and figures.server_kills == 1
     assert figures.lost == [], figures.lost[:5]
     assert figures.duplicated == [], figures.duplicated[:5]
     assert figures.disagreements == [], figures.disagreements[:5]
