@@ -28,7 +28,7 @@ from typing import Any
 import yaml
 
 __all__ = ["UntrustedInputError", "clean_text", "clean_tree", "compose_yaml", "find_non_finite", "inside", "load_yaml",
-           "load_yaml_file", "nesting_depth", "read_text_file"]
+           "load_yaml_file", "nesting_depth", "problems", "read_text_file"]
 
 # NUL (PostgreSQL text cannot hold it) and lone surrogates (not encodable as UTF-8)
 _UNSTORABLE = re.compile("[\x00\ud800-\udfff]")
@@ -214,3 +214,15 @@ def inside(root: str | os.PathLike[str], written: str, *, field: str) -> Path:
         if current.is_symlink():
             raise UntrustedInputError(f"{field}: {written!r}: {current} is a link (links are not followed)")
     return current
+
+
+def problems(exc: Any, prefix: str = "") -> str:
+    """A pydantic ``ValidationError`` as ``prefix.field: message`` parts joined by "; " (``prefix: message``
+    for a check of the whole model, whose message names its fields itself), without pydantic's
+    "Value error, " prefix: one way of naming the field at fault wherever input is validated."""
+    parts = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in (prefix, *err["loc"]) if p != "")
+        msg = err["msg"].removeprefix("Value error, ")
+        parts.append(f"{loc}: {msg}" if loc else msg)
+    return "; ".join(parts)

@@ -14,12 +14,17 @@ from proxybench.agents.base import Agent, Observation
 from proxybench.domain.dynamics import ST, TRACE_FIELDS, wheel_ticks
 from proxybench.domain.episode_end import end_event, ended
 from proxybench.domain.lane_pose import LanePose
+from proxybench.domain.maps import Map
+from proxybench.domain.params import DomainParams
+from proxybench.domain.range_sensor import front_range
 from proxybench.domain.simulator import Simulator
 from proxybench.runner.npcs import NpcDrivers
 from proxybench.runner.rollout import AgentPolicy, PrivilegedAgentError, rollout
 from proxybench.tasks.trajectory import Trajectory
 
-__all__ = ["PrivilegedAgentError", "SimPlant", "run_episode", "run_episodes"]
+__all__ = ["PrivilegedAgentError", "SimPlant", "play", "run_episode", "run_episodes", "sim_plant"]
+
+_NO_ROBOTS = np.zeros((0, 3))
 
 
 class SimPlant:
@@ -77,7 +82,16 @@ class SimPlant:
         ticks = wheel_ticks(s[[ST.WHEEL_L, ST.WHEEL_R]], res)
         lp = LanePose.from_row(sim.lane[i]) if privileged else None
         route = sim.routes.info(i, sim.lane[i]) if privileged else None
-        return Observation(image, float(sim.time[i]), (float(ticks[0] * res), float(ticks[1] * res)), res, lp, route)
+        pose = (float(s[ST.X]), float(s[ST.Y]), float(s[ST.THETA])) if privileged else None
+        return Observation(image, float(sim.time[i]), (float(ticks[0] * res), float(ticks[1] * res)), res, lp, route,
+                           pose, lambda: self.front_range(i))
+
+    def front_range(self, i: int) -> float | None:
+        """Robot ``i``'s front time-of-flight range [m] now (None: nothing within range)."""
+        sim = self.sim
+        s = sim.state[i]
+        robots = sim.npc_state[sim.npc_world == i, :3] if sim.worlds.k else _NO_ROBOTS
+        return front_range(sim.objects.colliders, robots, s[ST.X], s[ST.Y], s[ST.THETA])
 
     def time(self, i: int) -> float:
         return float(self.sim.time[i])
@@ -121,6 +135,24 @@ class SimPlant:
         if self.drivers is not None:
             self.drivers.close()
             self.drivers = None
+
+
+def sim_plant(map_: Map | str, params: DomainParams | None = None, n: int = 1) -> SimPlant:
+    """A plant of ``n`` simulated robots on ``map_`` whose camera frames are what camera agents see (the JPEG round
+    trip): for callers that drive the simulator from outside the runner, which build no simulator of their own
+    (``proxybench dtps serve``, the contract suites of ``proxybench.testing``)."""
+    from proxybench.runner.outcomes import camera_filter
+
+    return SimPlant(Simulator(map_, params or DomainParams(), n=n), camera_filter())
+
+
+def play(map_: Map | str, params: DomainParams, agent: Agent, seed: int, seconds: float) -> Trajectory:
+    """One episode of ``agent`` in a fresh simulator of θ ``params``, camera frames as a node receives them (JPEG),
+    e.g. to try an agent out (``proxybench agent check``)."""
+    from proxybench.runner.outcomes import camera_filter
+
+    return run_episode(Simulator(map_, params), agent, seed, seconds, camera=not agent.privileged,
+                       image_filter=camera_filter())
 
 
 def run_episode(

@@ -86,7 +86,8 @@ class RobotPlant:
         o = self.obs.observations
         if not privileged:
             return Observation(image, o.timestamp, o.odometry, o.resolution)
-        return Observation(image, o.timestamp, o.odometry, o.resolution, self.obs.lane_pose, self.obs.route)
+        return Observation(image, o.timestamp, o.odometry, o.resolution, self.obs.lane_pose, self.obs.route,
+                           tuple(self.states[-1].pose))
 
     def time(self, i: int) -> float:
         return self.obs.observations.timestamp
@@ -117,8 +118,10 @@ class RobotPlant:
 
     def meta(self, i: int) -> dict[str, Any]:
         robot, info = self.robot, self.info
-        return {"source": info.kind, "params": info.params,
-                "robot": {"command": robot.command, "kind": info.kind, "name": robot.robot_name}}
+        said = {"command": robot.command, "kind": info.kind, "name": robot.robot_name}
+        if isinstance(info.raw.get("simulator"), dict):  # which simulator a simulated node is (gym-duckietown, ...)
+            said["simulator"] = info.raw["simulator"]
+        return {"source": info.kind, "params": info.params, "robot": said}
 
     def wheel_distance(self, i: int) -> float:
         return self.info.wheel_distance
