@@ -39,7 +39,9 @@ def main() -> None:
         data.mkdir()
         server = LiveServer(data, workers=args.workers, open_files=1024,
                             env={"PROXYBENCH_SERVER_HEADER_TIMEOUT": str(args.header_timeout)}).start()
-        try:
+        try:  # the same reads without the flood first, on the same server: the machine's own figure
+            quiet = soak(server.url, server.port, server.admin_token, processes=0, traffic_seconds=args.seconds,
+                         readers=args.readers)
             figures = soak(server.url, server.port, server.admin_token, processes=args.processes,
                            per_process=args.per_process, traffic_seconds=args.seconds,
                            hold=args.header_timeout + 30, readers=args.readers)
@@ -47,8 +49,9 @@ def main() -> None:
             server.stop()
     print(figures.line())
     for name in figures.latencies:
-        print(f"  {name:12s} n={len(figures.latencies[name]):4d}  p50 {figures.p(name, 50):7.1f} ms  "
-              f"p99 {figures.p(name, 99):7.1f} ms  max {figures.p(name, 100):7.1f} ms")
+        for label, f in (("no flood", quiet), ("flood", figures)):
+            print(f"  {name:12s} {label:9s} n={len(f.latencies[name]):4d}  p50 {f.p(name, 50):7.1f} ms  "
+                  f"p99 {f.p(name, 99):7.1f} ms  max {f.p(name, 100):7.1f} ms")
     for f in figures.floods:
         print(f"  flood {f['source']}: {f['opened']} opened ({f['failed']} failed to connect), {f['refused']} refused "
               f"at the cap, {f['closed'] - f['refused']} closed at the deadline, {f['open_at_end']} still open, "
