@@ -34,7 +34,7 @@ def main() -> None:
     reason = pg.start()
     if reason is not None:
         sys.exit(f"PostgreSQL unavailable: {reason}")
-    totals = {"acknowledged": 0, "late": 0, "lost": 0, "duplicated": 0, "disagreements": 0}
+    totals = {"acknowledged": 0, "late": 0, "posted_late": 0, "lost": 0, "duplicated": 0, "disagreements": 0}
     try:
         for run in range(args.runs):
             with tempfile.TemporaryDirectory(prefix="bench-race-") as tmp:
@@ -46,14 +46,15 @@ def main() -> None:
                     print(f"    {what}: {line}")
             totals["acknowledged"] += f.acknowledged
             totals["late"] += f.late
+            totals["posted_late"] += f.posted_late
             totals["lost"] += len(f.lost)
             totals["duplicated"] += len(f.duplicated)
             totals["disagreements"] += len(f.disagreements)
     finally:
         pg.stop()
-    print(f"total over {args.runs} runs: {totals['acknowledged']} results acknowledged ({totals['late']} posted after "
-          f"their lease lapsed); lost {totals['lost']}, duplicated {totals['duplicated']}, disagreements "
-          f"{totals['disagreements']}")
+    print(f"total over {args.runs} runs: {totals['acknowledged']} results acknowledged; {totals['posted_late']} posted "
+          f"after their lease lapsed ({totals['late']} of them acknowledged); lost {totals['lost']}, duplicated "
+          f"{totals['duplicated']}, disagreements {totals['disagreements']}")
 
 
 if __name__ == "__main__":

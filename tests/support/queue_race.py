@@ -44,6 +44,7 @@ class RaceFigures:
     submissions: int = 0
     acknowledged: int = 0
     late: int = 0  # acknowledged results posted after their lease had lapsed
+    posted_late: int = 0  # results posted after their lease had lapsed: acknowledged, or refused (409)
     evaluator_kills: int = 0
     server_kills: int = 0
     lost: list[str] = field(default_factory=list)
@@ -53,8 +54,9 @@ class RaceFigures:
     jobs: Counter = field(default_factory=Counter)
 
     def line(self) -> str:
-        return (f"{self.seconds:.0f} s: {self.submissions} submissions, {self.acknowledged} results acknowledged "
-                f"({self.late} posted after their lease lapsed), {self.evaluator_kills} evaluator kills, "
+        return (f"{self.seconds:.0f} s: {self.submissions} submissions, {self.acknowledged} results acknowledged; "
+                f"{self.posted_late} posted after their lease lapsed ({self.late} acknowledged, the rest refused), "
+                f"{self.evaluator_kills} evaluator kills, "
                 f"{self.server_kills} server kills; lost {len(self.lost)}, duplicated {len(self.duplicated)}, "
                 f"status/leaderboard disagreements {len(self.disagreements)}; jobs {dict(self.jobs)}")
 
@@ -97,13 +99,14 @@ class _Evaluators:
             self.kill(i)
 
 
-def _acks(folder: Path) -> list[tuple[int, str, bool]]:
+def _posts(folder: Path) -> list[tuple[int, str, bool, bool]]:
+    """(job, lease, posted late, acknowledged) of every result the evaluators posted."""
     out = []
     for f in sorted(folder.glob("acks-*.txt")):
         for line in f.read_text().splitlines():
             parts = line.split()
-            if len(parts) == 3:  # a line cut by kill -9 is not an acknowledgement we know of
-                out.append((int(parts[0]), parts[1], parts[2] == "1"))
+            if len(parts) == 4:  # a line cut by kill -9 is not a post we know the answer of
+                out.append((int(parts[0]), parts[1], parts[2] == "1", parts[3] == "acknowledged"))
     return out
 
 
@@ -196,9 +199,11 @@ def race(database_url: str, folder: Path, *, seconds: float = 20.0, evaluators: 
         if evs is not None:
             evs.stop()
         server.stop()
-    acks = _acks(folder)
+    posts = _posts(folder)
+    acks = [(job, lease, late) for job, lease, late, ok in posts if ok]
     figures.submissions = len(accepted)
     figures.acknowledged = len(acks)
     figures.late = sum(late for _, _, late in acks)
+    figures.posted_late = sum(late for _, _, late, _ in posts)
     _check(database_url, acks, board["total"], figures)
     return figures

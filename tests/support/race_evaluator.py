@@ -4,9 +4,9 @@
 
 It leases a job, "works" for a random time around the lease's length without a heartbeat (so about half
 of its results arrive after the lease lapsed, racing the server's reaper), then posts a success. Every
-result the server acknowledges is appended to ACK_FILE as ``job_id lease_id late`` (``late``: 1 if it was
-posted after its lease had lapsed) before the next lease; a post refused with 409 is a lost race, not an
-error.
+result posted is appended to ACK_FILE as ``job_id lease_id late acknowledged|refused`` (``late``: 1 if it
+was posted after its lease had lapsed) before the next lease; a post refused with 409 is a lost race, not
+an error.
 """
 
 from __future__ import annotations
@@ -38,13 +38,16 @@ def main(url: str, name: str, ack_file: str, lease_seconds: float, seed: int) ->
             time.sleep(work)
             body = {"evaluator": name, "lease_id": job.lease_id, "status": "success", "public_scores": SCORES,
                     "hidden_scores": SCORES}
+            late = int(work > lease_seconds)
             try:
                 c.result(job.job_id, body)
             except ServerError as exc:
                 if exc.status != 409:
                     print(f"{name}: job {job.job_id}: {exc}", file=sys.stderr, flush=True)
+                acks.write(f"{job.job_id} {job.lease_id} {late} refused\n")  # the lease was lost: refused
+                acks.flush()
                 continue
-            acks.write(f"{job.job_id} {job.lease_id} {int(work > lease_seconds)}\n")
+            acks.write(f"{job.job_id} {job.lease_id} {late} acknowledged\n")
             acks.flush()
 
 
