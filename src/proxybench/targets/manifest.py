@@ -38,8 +38,8 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError,
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.untrusted import UntrustedInputError, load_yaml_file
 
-__all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "RobotInfo", "SimulatorInfo", "TargetError", "TargetManifest",
-           "check_pattern",
+__all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "ExcludedRun", "RobotInfo", "SimulatorInfo", "TargetError",
+           "TargetManifest", "check_pattern",
            "format_errors", "load_manifest", "write_manifest"]
 
 FORMAT = "proxybench-target/1"
@@ -141,6 +141,16 @@ class RobotInfo(BaseModel):
         return f"`{self.command}` ({', '.join(parts)})"
 
 
+class ExcludedRun(BaseModel):
+    """A run the lab recorded but that may not be scored (the DTA's validation phase), and why."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    agent: str
+    run: str = Field(description="where the run's log is")
+    reason: str = Field(min_length=1)
+
+
 class TargetManifest(BaseModel):
     """What a recorded target holds and where it came from."""
 
@@ -169,6 +179,7 @@ class TargetManifest(BaseModel):
     truth: dict[str, Annotated[float, Field(allow_inf_nan=False)]] | None = Field(
         None, description="known calibrated θ, to annotate results only")
     recorded_with: str = ""
+    excluded: list[ExcludedRun] = Field(default_factory=list, description="runs left out of the episodes, and why")
     _written: dict[int, str] = PrivateAttr(default_factory=dict)  # episode ids as the file wrote them
 
     @model_validator(mode="wrap")
