@@ -30,7 +30,8 @@ from proxybench.evaluator.sandbox import (
     detect_isolation,
     prepare_agent,
 )
-from proxybench.protocol.package import PackageError, check_archive, extract_archive
+from proxybench.protocol.package import PackageError, check_archive
+from proxybench.protocol.unpack import extract_archive
 from support.sandbox import require_safe_sandbox
 
 MANIFEST = b"name: t\nprotocol: aido-z2\ncommand: [python3, agent.py]\n"
@@ -396,10 +397,12 @@ def test_an_agent_cannot_pass_its_failure_off_as_the_hosts(tmp_path: Path, isola
 def test_the_evaluator_uploads_only_files_of_the_job_folder(tmp_path: Path) -> None:
     """Even an outcome naming /etc/shadow or a link to it (say, from a buggy worker) uploads nothing of it."""
     from proxybench.evaluator.outcome import Artifact, Outcome
-    from proxybench.evaluator.worker import job_artifacts_only, read_plain_file
+    from proxybench.evaluator.workdir import StateDir
+    from proxybench.evaluator.worker import job_artifacts_only
 
-    job = tmp_path / "job"
-    job.mkdir()
+    state = StateDir(tmp_path / "work")
+    folder = state.new_job("job")
+    job = folder.path
     (job / "evaluator.log").write_text("fine")
     (job / "trajectories-validation.zip").symlink_to("/etc/passwd")
     zipped = "trajectories-validation.zip"
@@ -410,8 +413,9 @@ def test_the_evaluator_uploads_only_files_of_the_job_folder(tmp_path: Path) -> N
     kept = job_artifacts_only(Outcome.parse(json.dumps(dataclasses.asdict(sent))), job)
     assert [a.name for a in kept.artifacts] == ["evaluator.log", "trajectories-validation.zip"]
     assert "'shadow' refused" in kept.message and "'../evaluator.log' refused" in kept.message
-    assert read_plain_file(job / "evaluator.log") == b"fine"
+    assert folder.read("evaluator.log") == b"fine"
     with pytest.raises(OSError):  # a link is never followed when uploading
-        read_plain_file(job / "trajectories-validation.zip")
+        folder.read("trajectories-validation.zip")
+    state.close()
     with pytest.raises(ValueError, match="unknown status"):
         Outcome.parse('{"status": "rank-1"}')

@@ -159,8 +159,7 @@ def _solution(tmp_path: Path) -> Path:
 
 def test_experiment_agents_take_benchmark_entries_with_node_options(tmp_path: Path) -> None:
     sub = _solution(tmp_path)
-    exp = tmp_path / "exp" / "exp.yaml"
-    exp.parent.mkdir()
+    exp = tmp_path / "exp.yaml"  # the submission lies inside the file's folder (a cwd may not leave it)
     exp.write_text(f"""
 agents:
   - pid
@@ -168,7 +167,7 @@ agents:
   - quick=python3 agent.py
   - name: lf
     command: {PY} solution.py --print --need model.bin
-    cwd: ../submissions/lf
+    cwd: submissions/lf
     transport: fifo
     step_timeout: 2
     reflection: false

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 import socket
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -81,7 +80,9 @@ def evaluator(
     once: bool = typer.Option(False, "--once", help="try to take one job, evaluate it, and exit"),
     poll: float = typer.Option(2.0, min=0.1, callback=positive,
                                help="seconds between lease attempts while the queue is empty"),
-    work_dir: Path | None = typer.Option(None, help="folder for job files [<tmp>/proxybench-evaluator/<name>]"),
+    work_dir: Path | None = typer.Option(None, help="folder for job files, this user's only (mode 700) "
+                                                    "[root: /var/lib/proxybench-evaluator/<name>, else "
+                                                    "~/.local/state/proxybench-evaluator/<name>]"),
     agent_user: str = typer.Option("proxybench-agent", help="unprivileged user that agent packages run as "
                                                             "(`proxybench sandbox setup` makes it)"),
     dev_unsafe_same_user: bool = typer.Option(False, "--dev-unsafe-same-user",
@@ -137,9 +138,15 @@ def evaluator(
     name = name or socket.gethostname()
     logging.basicConfig(level=logging.WARNING, handlers=[RichHandler(console=err_console, show_path=False)],
                         format="%(message)s")
+    from proxybench.evaluator.workdir import WorkDirError, default_work_dir
+
+    try:
+        work_dir = work_dir or default_work_dir(name)
+    except WorkDirError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--name") from None
     config = EvaluatorConfig(
         name=name, features=feats, poll=poll, agent_user=agent_user, dev_unsafe=dev_unsafe_same_user,
-        work_dir=work_dir or Path(tempfile.gettempdir()) / "proxybench-evaluator" / name,
+        work_dir=work_dir,
         limits=Limits(cpu_seconds=cpu_seconds, memory_bytes=memory_mb << 20, file_bytes=file_mb << 20,
                       scratch_bytes=scratch_mb << 20, tmp_bytes=max(1, scratch_mb // 4) << 20),
         video=video, keep_work=keep_work, robot_cmd=robot_cmd, robot_options=robot_options.non_default())

@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from proxybench.cli.app import app, console, err_console
+from proxybench.cli.app import app, console, fail, problem
 from proxybench.cli.node_options import (
     RobotCwd,
     RobotNoReflection,
@@ -26,9 +26,7 @@ app.add_typer(target_app, name="target")
 
 
 def _fail(message: str, code: int = 2) -> None:
-    for line in message.splitlines():
-        err_console.print(f"[red]✗[/red] {line}", highlight=False, markup=False)
-    raise typer.Exit(code)
+    raise fail(message, code)
 
 
 @target_app.command("record")
@@ -115,7 +113,7 @@ def record(
                   f"{time.perf_counter() - t0:.0f} s: {len(m.agents)} agents × {len(m.episodes)} episodes × "
                   f"{m.seconds:g} s on {m.map} (source: {m.source}) → {out}", highlight=False)
     for line in summary.failed:
-        err_console.print(f"[yellow]agent failure recorded:[/yellow] {line}", highlight=False, markup=False)
+        problem(line, mark="agent failure recorded:", style="yellow")
     console.print(f"check it with: proxybench target check {out}", highlight=False)
 
 
@@ -133,7 +131,7 @@ def check(
 
     report = check_recording(root, tuple(metric) or None)
     if not report.ok:
-        err_console.print(f"[red]✗[/red] {root}: {len(report.problems)} problem(s)", highlight=False)
+        problem(f"{root}: {len(report.problems)} problem(s)")
         _fail("\n".join(report.problems), code=1)
     m = report.manifest
     assert m is not None

@@ -16,7 +16,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from proxybench.cli.app import app, console, err_console
+from proxybench.cli.app import app, console, err_console, fail
 from proxybench.cli.node_options import (
     RobotCwd,
     RobotNoReflection,
@@ -37,12 +37,17 @@ def _kv(items: list[str], option: str) -> dict[str, Any]:
     """``k=v`` items, values read as YAML (numbers, booleans, lists)."""
     import yaml
 
+    from proxybench.untrusted import UntrustedInputError, load_yaml
+
     out = {}
     for item in items:
         key, sep, raw = item.partition("=")
         if not sep or not key.strip():
             raise typer.BadParameter(f"{item!r} is not NAME=VALUE", param_hint=option)
-        out[key.strip()] = yaml.safe_load(raw)
+        try:
+            out[key.strip()] = load_yaml(raw, max_depth=8)
+        except (yaml.YAMLError, UntrustedInputError) as exc:
+            raise typer.BadParameter(f"{item!r}: the value is not YAML ({exc})", param_hint=option) from None
     return out
 
 
@@ -98,11 +103,7 @@ def _load(config: Path | None, overrides: dict[str, Any]):
 
 
 def _fail(exc: Exception) -> None:
-    from rich.markup import escape
-
-    for line in str(exc).splitlines():
-        err_console.print(f"[red]✗[/red] {escape(line)}", highlight=False)
-    raise typer.Exit(2)
+    raise fail(exc)
 
 
 def _bars():

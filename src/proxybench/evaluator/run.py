@@ -77,12 +77,11 @@ class _Job:
     # -- setup -------------------------------------------------------------------------------------
 
     def benchmark(self, test_seed: int | None = None):
-        import yaml
-
         from proxybench.tasks.benchmark import Benchmark, BenchmarkError
+        from proxybench.untrusted import load_yaml
 
         b = self.lease["benchmark"]
-        data = yaml.safe_load(b["spec_yaml"])
+        data = load_yaml(b["spec_yaml"], max_depth=32)  # the server checked it; bounded all the same
         if test_seed is not None:
             data["episodes"] = {**data["episodes"], "seed": int(test_seed)}
             data["episodes"].pop("seeds", None)  # explicit seeds would make the hidden split the public one
@@ -392,7 +391,15 @@ def _wait_for_job() -> Path | None:
     if not line:
         return None  # the evaluator closed without a job for us
     job_dir = Path(line)
-    fd = os.open(job_dir / "worker.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC, 0o600)
+    folder = os.open(job_dir, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    try:  # the evaluator made it (mode 700, ours) in its private work folder: anything else is not our job
+        st = os.fstat(folder)
+        if st.st_uid != os.geteuid() or st.st_mode & 0o077:
+            raise SystemExit(f"job folder {job_dir} is not this user's private folder: refusing it")
+        fd = os.open("worker.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600,
+                     dir_fd=folder)
+    finally:
+        os.close(folder)
     sys.stdout.flush()
     sys.stderr.flush()
     os.dup2(fd, 1)

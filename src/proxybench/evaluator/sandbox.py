@@ -40,7 +40,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from proxybench.protocol.package import AgentManifest, PackageError, extract_archive
+from proxybench.protocol.package import AgentManifest, PackageError
+from proxybench.protocol.unpack import extract_archive
 
 __all__ = [
     "AGENT_USER", "ArchiveMismatch", "Isolation", "Limits", "SandboxError", "agent_command", "confine",

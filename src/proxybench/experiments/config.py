@@ -8,7 +8,7 @@ directories in the file are taken from its folder; ``NAME=COMMAND`` strings run 
     target_params: {}            # the reality model's θ, overridden (reality only)
     robot_nodes: 1               # processes of a robot node at once (robot:CMD only; 1 for a physical robot)
     robot_options:               # how to start and talk to the robot node (robot:CMD only; all optional)
-      cwd: ../my-bridge          # working directory of the command
+      cwd: my-bridge             # working directory of the command, inside this file's folder
       transport: fifo            # pipe | fifo (AIDO's default)
       start_timeout: 120         # s: start + handshake, and each episode's setup
       step_timeout: 10           # s: each per-frame exchange
@@ -17,7 +17,7 @@ directories in the file are taken from its folder; ``NAME=COMMAND`` strings run 
     # or, as in benchmark files, an agent node with how to start it (tasks/agent_entries.py):
     #   - name: my-lf                # its label
     #     command: cd solution && exec python3 solution.py
-    #     cwd: ../submissions/my-lf  # relative to this file (default: this file's folder)
+    #     cwd: submissions/my-lf     # inside this file's folder (default: the folder itself)
     #     transport: fifo            # pipe | fifo; also start_timeout, step_timeout, reflection
     map: loop_3x3                # default: the recorded target's map, else loop_3x3
     episodes: 10                 # per agent; a recorded target: how many of its episodes (default all)
@@ -46,16 +46,15 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP, proxy_params
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.targets.manifest import TargetError, format_errors
 from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
-from proxybench.untrusted import problems
+from proxybench.untrusted import UntrustedInputError, inside, load_yaml_file, problems
 
 __all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "SearchConfig", "load_config",
            "resolve"]
@@ -150,7 +149,7 @@ class ExperimentConfig(_Strict):
     n_boot: int | None = Field(None, ge=10, le=100_000)
     pod_seconds: float | None = Field(None, ge=0.0, le=600.0)
     seed: int = Field(0, ge=0, le=100_000)
-    truth: dict[str, float] = Field(default_factory=dict)
+    truth: dict[str, Annotated[float, Field(allow_inf_nan=False)]] = Field(default_factory=dict)
     plv: dict[str, Any] = Field(default_factory=dict)  # PLVConfig fields for objective plv, checked when used
 
     @model_validator(mode="before")
@@ -172,6 +171,8 @@ class ExperimentConfig(_Strict):
                 out.append(resolve_agent_cwd(AgentEntry.model_validate(item), base))
             except ValidationError as exc:
                 problems += [f"agents.{i}{_entry_problem(e)}" for e in exc.errors()]
+            except ValueError as exc:  # a cwd that leaves the file's folder
+                problems.append(f"agents.{i}.{exc}")
         if problems:
             raise ValueError("\n".join(problems))
         return {**data, "agents": out}
@@ -242,12 +243,12 @@ def _entry_problem(err: Any) -> str:
 
 
 def _robot_cwd_from(data: dict[str, Any], base: Path) -> dict[str, Any]:
-    """The file's ``robot_options.cwd``, when relative, taken from the file's folder ``base``."""
+    """The file's ``robot_options.cwd``: a folder inside the file's folder ``base``, named relative to it."""
     options = data.get("robot_options")
     cwd = options.get("cwd") if isinstance(options, dict) else None
-    if not isinstance(cwd, str) or not cwd or Path(cwd).expanduser().is_absolute():
+    if not isinstance(cwd, str) or not cwd:
         return data
-    return {**data, "robot_options": {**options, "cwd": str((base / cwd).resolve())}}
+    return {**data, "robot_options": {**options, "cwd": str(inside(base, cwd, field="robot_options.cwd"))}}
 
 
 def load_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> ExperimentConfig:
@@ -257,15 +258,16 @@ def load_config(path: str | Path | None, overrides: dict[str, Any] | None = None
     if path is not None:
         path = Path(path)
         origin = str(path)
-        try:
-            loaded = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+        try:  # bounded: size, nesting, UTF-8 (a folder or a binary file is an error, not a traceback)
+            loaded = load_yaml_file(path, max_bytes=1 << 20, max_depth=32)
+        except UntrustedInputError as exc:
+            raise ConfigError(str(exc)) from None
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{path}: expected a mapping of fields, got {type(loaded).__name__}")
-        data = _robot_cwd_from(loaded or {}, path.parent)
+        try:
+            data = _robot_cwd_from(loaded or {}, path.parent)
+        except UntrustedInputError as exc:
+            raise ConfigError(f"{path}: {exc}") from None
     over = dict(overrides or {})
     for section in ("search", "robot_options"):  # an option on the command line changes one field of the file's
         if section in over:

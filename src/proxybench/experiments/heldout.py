@@ -41,6 +41,7 @@ from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.spec import Target, TargetRun
 from proxybench.tasks.metrics import METRICS as TASK_METRICS
+from proxybench.untrusted import UntrustedInputError, load_yaml_file
 from proxybench.usefulness.heldout_scoring import Grid
 
 __all__ = ["Case", "CaseRun", "Criteria", "HeldOutConfig", "HeldOutRun", "cases_for", "load_heldout_config",
@@ -130,7 +131,6 @@ DEFAULTS: dict[bool, dict[str, Any]] = {
 
 def load_heldout_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> HeldOutConfig:
     """The experiment file at ``path`` (or none) with ``overrides`` on top; errors name the field."""
-    import yaml
 
     from proxybench.targets.manifest import format_errors
 
@@ -138,12 +138,10 @@ def load_heldout_config(path: str | Path | None, overrides: dict[str, Any] | Non
     origin = "command line"
     if path is not None:
         origin = str(path)
-        try:
-            loaded = yaml.safe_load(Path(path).read_text())
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+        try:  # bounded: size, nesting, UTF-8 (a folder or a binary file is an error, not a traceback)
+            loaded = load_yaml_file(path, max_bytes=1 << 20, max_depth=32)
+        except UntrustedInputError as exc:
+            raise ConfigError(str(exc)) from None
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{path}: expected a mapping of fields, got {type(loaded).__name__}")
         data = loaded or {}

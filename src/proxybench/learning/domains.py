@@ -136,8 +136,8 @@ def parse_domain(spec: str, width: int, height: int) -> Domain:
         return proxy_domain(width, height, name=spec, **changes)
     path = Path(spec)
     if path.suffix in (".json", ".yaml", ".yml") and path.exists():
-        import yaml
+        from proxybench.untrusted import load_yaml_file, read_text_file
 
-        dists = yaml.safe_load(path.read_text()) if path.suffix != ".json" else json.loads(path.read_text())
+        dists = load_yaml_file(path, max_depth=16) if path.suffix != ".json" else json.loads(read_text_file(path))
         return randomized_domain(width, height, dists, name=path.stem)
     raise ValueError(f"unknown domain {spec!r}: use reality, proxy[:NAME=VALUE,...], randomized or a family file")

@@ -179,7 +179,7 @@ def record_target(
     kept = 0
     for label in manifest.agents:
         for e in manifest.episodes:
-            path = out / manifest.pattern.format(agent=label, episode=e)
+            path = out / manifest.trajectory_file(label, e)
             if path.is_file():
                 kept += 1
                 continue
@@ -225,7 +225,7 @@ def record_target(
             update = {"kind": kind} | ({"simulator": simulator} if simulator is not None else {})
             manifest = manifest.model_copy(update={"robot": manifest.robot.model_copy(update=update)})
             write_manifest(out, manifest)
-    if all((out / manifest.pattern.format(agent=a, episode=e)).is_file()
+    if all((out / manifest.trajectory_file(a, e)).is_file()
            for a in manifest.agents for e in manifest.episodes):
         shutil.rmtree(cache, ignore_errors=True)
     return RecordSummary(out, manifest, sweep.ran, kept, failed)

@@ -28,6 +28,7 @@ from proxybench.domain.lane_pose import LANE_POSE_FIELDS, lane_poses
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
 from proxybench.domain.routes import RouteGraph, pin_route, route_columns
+from proxybench.messages import shown
 
 __all__ = ["TERMINATIONS", "Trajectory", "TrajectoryError"]
 
@@ -202,7 +203,7 @@ def _check_samples(t: np.ndarray, pose: np.ndarray, origin: str) -> None:
         raise TrajectoryError(f"{origin}: sample {bad} is not a finite number")
     if t.size > 1 and np.any(np.diff(t) <= 0):
         k = int(np.argmax(np.diff(t) <= 0)) + 1
-        raise TrajectoryError(f"{origin}: time is not increasing at sample {k} ({t[k - 1]!r} → {t[k]!r})")
+        raise TrajectoryError(f"{origin}: time is not increasing at sample {k} ({shown(t[k - 1])} → {shown(t[k])})")
 
 
 def _read_table(path: Path) -> dict[str, np.ndarray]:

@@ -100,9 +100,11 @@ def demo_scores(spec_yaml: str, label: str, skill: float, seeds: list[int]) -> t
                     "criteria": [c.metric for c in bench.criteria()]}
 
 
-def _upload(client: httpx.Client, token: str, data: bytes, media: str) -> str:
+def _upload(client: httpx.Client, token: str, data: bytes, media: str, job: dict[str, Any]) -> str:
+    """Upload under the job's lease (a result names only artifacts its lease uploaded)."""
     sha = hashlib.sha256(data).hexdigest()
-    _call(client, "PUT", f"/artifacts/{sha}", token, content=data, headers={"content-type": media})
+    _call(client, "PUT", f"/artifacts/{sha}", token, content=data, headers={"content-type": media},
+          params={"job_id": job["job_id"], "lease_id": job["lease_id"]})
     return sha
 
 
@@ -169,13 +171,13 @@ def _finish(client: httpx.Client, token: str, job: dict[str, Any], outcome: str,
     log = (f"evaluator lab-1 (proxybench 0.1.0), job {job['job_id']} attempt {job['attempt']}\n"
            f"benchmark {bench['name']} v{bench['version']}, submission {label!r}\n"
            f"outcome: {outcome}\n{body['message']}\n").encode()
-    arts = [{"name": "evaluator.log", "sha256": _upload(client, token, log, "text/plain")}]
+    arts = [{"name": "evaluator.log", "sha256": _upload(client, token, log, "text/plain", job)}]
     if outcome == "success":
         hidden_log = b"hidden test episodes: per-episode details for operators only\n"
-        arts.append({"name": "test/episodes.log", "sha256": _upload(client, token, hidden_log, "text/plain"),
+        arts.append({"name": "test/episodes.log", "sha256": _upload(client, token, hidden_log, "text/plain", job),
                      "hidden": True})
         if video is not None and label == "vision v2":
-            arts.append({"name": "episode-0.mp4", "sha256": _upload(client, token, video, "video/mp4")})
+            arts.append({"name": "episode-0.mp4", "sha256": _upload(client, token, video, "video/mp4", job)})
     body["artifacts"] = arts
     _call(client, "POST", f"/jobs/{job['job_id']}/result", token, json=body)
 
