@@ -26,6 +26,8 @@ import inspect
 import itertools
 import json
 import secrets
+import shlex
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -56,7 +58,7 @@ _POOL = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "
          "pure-pursuit-fast", "vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",
          "vision-wide", "vision-twitchy")
 #: a camera agent behind the AIDO protocol (its own process per episode), to keep node agents in every pool
-NODE_AGENT = "vision-node=python -m proxybench.protocol vision"
+NODE_AGENT = f"vision-node={shlex.quote(sys.executable)} -m proxybench.protocol vision"
 _QUICK_POOL = ("straight", "pid", "pid-twitchy", "pure-pursuit", "vision", "vision-fast", "vision-pitch25",
                "vision-slow")
 
