@@ -15,6 +15,7 @@ import numpy as np
 
 from proxybench.runner.backends import Backend
 from proxybench.runner.jobs import AgentSpec, Job, JobResult
+from proxybench.runner.starts import start_poses
 
 __all__ = ["Progress", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "by_agent", "episode_seed"]
 
@@ -78,6 +79,11 @@ class Target:
 
     def info(self) -> TargetInfo:
         raise NotImplementedError
+
+    def planned_poses(self, map_name: str, episodes: list[int], seeds: list[int]) -> list[Any]:
+        """The start pose each episode is asked to begin at (None: wherever the target puts its robot): the pose
+        each seed draws, unless the target knows its starts otherwise (a DTPS robot's pose file)."""
+        return start_poses(map_name, seeds)
 
     def run(self, agents: list[AgentSpec], *, map_name: str, seconds: float, episodes: int, seed: int,
             metrics: tuple[str, ...], image_size: tuple[int, int], run_dir: str | Path,

@@ -13,7 +13,6 @@ from __future__ import annotations
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.backends import InlineBackend
 from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec, Job
-from proxybench.runner.starts import start_poses
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, by_agent, episode_seed
 from proxybench.targets.manifest import TargetError
@@ -30,6 +29,7 @@ class RobotTarget(Target):
     stepped at that)."""
 
     kind = "robot"
+    what = "robot node"
 
     def __init__(self, command: str, nodes: int = 1, options: RobotNodeOptions | None = None,
                  frame_rate: float = DEFAULT_FRAME_RATE):
@@ -55,9 +55,8 @@ class RobotTarget(Target):
     def run(self, agents, *, map_name, seconds, episodes, seed, metrics, image_size, run_dir, backend=None,
             progress=None) -> TargetRun:
         seeds = [episode_seed(seed, e) for e in range(episodes)]
-        poses = start_poses(map_name, seeds)
+        poses = self.planned_poses(map_name, list(range(episodes)), seeds)
         dom = self.domain()
-        eps = [TargetEpisode(a.label, e, seeds[e], poses[e]) for a in agents for e in range(episodes)]
         jobs = [Job(a, dom, map_name, e, seeds[e], seconds, pose=poses[e], metrics=metrics)
                 for a in agents for e in range(episodes)]
         sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
@@ -65,11 +64,18 @@ class RobotTarget(Target):
         failed = [r for r in sweep.results if r.termination == "robot_failure"]
         if failed:
             shown = "\n  ".join(f"{r.agent} episode {r.episode}: {r.message}" for r in failed[:5])
-            raise TargetError(f"target: the robot node `{self.command}` failed on {len(failed)} of {len(jobs)} "
+            raise TargetError(f"target: the {self.what} `{self.command}` failed on {len(failed)} of {len(jobs)} "
                               f"episode(s); finished episodes are cached, run again to retry the rest:\n  {shown}")
         self._said = _robot_kind(sweep.results)
+        eps = [TargetEpisode(j.agent.label, j.episode, j.seed, self.started_at(j, r))
+               for j, r in zip(jobs, sweep.results, strict=True)]
         return TargetRun(self.info(), map_name, seconds, metrics, eps, by_agent(jobs, sweep.results, metrics),
                          {}, None, sweep.ran)
+
+    def started_at(self, job: Job, result) -> tuple[float, float, float] | None:
+        """Where the episode began, for the proxies to replay it from: the pose it was asked to start at (a robot
+        node puts its robot there)."""
+        return job.pose
 
 
 def _robot_kind(results) -> str:
