@@ -1,14 +1,12 @@
 """duckietown-sdk agents in proxybench (docs/dtps.md): parsing without the SDK, episodes with it.
 
-Tests marked ``sdk`` need the SDK environment (``proxybench dtps setup``) and skip with the reason when it is
-missing, except under ``PROXYBENCH_REQUIRE_DTPS=1`` (CI sets it after running setup), where they fail.
+Tests marked ``sdk`` need the SDK environment (``proxybench dtps setup``; see tests/support/dtps.py).
 The SDK agents here (tests/dtps_agents) use only the SDK's public API, except the misbehaving ones.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,28 +15,15 @@ import numpy as np
 import pytest
 
 from proxybench.dtps import pipe
-from proxybench.dtps.env import DtpsEnvError, sdk_python
+from proxybench.dtps.env import sdk_python
 from proxybench.dtps.maplayer import map_layers
 from proxybench.dtps.options import SdkOptions, parse_sdk
 from proxybench.experiments.agent_args import AgentArgError, parse_agent
 from proxybench.runner.jobs import AgentSpec, is_privileged
 from proxybench.tasks.agent_entries import AgentEntry
+from support.dtps import sdk
 
 AGENTS = Path(__file__).parent / "dtps_agents"
-
-
-def _sdk_missing() -> str | None:
-    try:
-        sdk_python()
-    except DtpsEnvError as exc:
-        return str(exc)
-    return None
-
-
-_MISSING = _sdk_missing()
-if _MISSING and os.environ.get("PROXYBENCH_REQUIRE_DTPS") == "1":
-    raise RuntimeError(f"PROXYBENCH_REQUIRE_DTPS=1 but {_MISSING}")
-sdk = pytest.mark.skipif(_MISSING is not None, reason=f"{_MISSING}")
 
 
 # -------------------------------------------------------------------------------- without the SDK

@@ -55,13 +55,15 @@ class Operator(Protocol):
 
 class TerminalOperator:
     """Prompts on ``output`` (default stderr) and reads one answer line per prompt from ``source``: a file (one
-    line per answer), else the terminal (``/dev/tty``), else stdin."""
+    line per answer) or an open file descriptor, else the terminal (``/dev/tty``), else stdin."""
 
-    def __init__(self, source: str | None = None, output: IO[str] | None = None):
+    def __init__(self, source: str | int | None = None, output: IO[str] | None = None):
         self.output = output or sys.stderr
         self.source = source
         self._own = False
-        if source is not None:
+        if isinstance(source, int):
+            self._fd, self._from = source, f"file descriptor {source}"
+        elif source is not None:
             self._fd = os.open(source, os.O_RDONLY)
             self._own = True
             self._from = source

@@ -143,6 +143,6 @@ def _robot_failed(job: Job, exc: RobotFailure, skipped: bool = False) -> JobResu
     if exc.stderr_tail:
         text += "; last stderr lines: " + " | ".join(exc.stderr_tail[-5:])
     if skipped:
-        text = f"not run: the robot node failed {FAILURES_IN_A_ROW} times in a row; last: {text}"
+        text = f"not run: the robot failed {FAILURES_IN_A_ROW} times in a row; last: {text}"
     return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed,
                      dict.fromkeys(job.metrics or all_metrics(), float("nan")), "robot_failure", None, text)
