@@ -15,6 +15,9 @@ agent_app = typer.Typer(no_args_is_help=True, help="The built-in agent zoo.")
 app.add_typer(agent_app, name="agent")
 robot_app = typer.Typer(no_args_is_help=True, help="Robots behind AIDO's simulator protocol (simulated or real).")
 app.add_typer(robot_app, name="robot")
+gym_app = typer.Typer(no_args_is_help=True, help="gym-duckietown (another simulator) as a robot node: setup, check, "
+                      "serve.")
+app.add_typer(gym_app, name="gym")
 # wide enough for result tables when the output is a file or a pipe (rich assumes 80 columns there);
 # no emoji codes: user text such as ``file.yaml:100:5`` must print as it is, not as ``file.yaml💯5``
 console = Console(soft_wrap=True, width=None if sys.stdout.isatty() else 160, emoji=False)

@@ -140,6 +140,8 @@ def check(
     elif m.robot is not None:
         said = f", which described itself as a {m.robot.kind}" if m.robot.kind else ""
         console.print(f"robot node: {m.robot.describe()}{said}", highlight=False, markup=False)
+        if m.robot.simulator is not None:
+            console.print(f"simulator: {m.robot.simulator.describe()}", highlight=False, markup=False)
     if m.recorded_with:
         console.print(f"recorded with {m.recorded_with}", highlight=False, markup=False)
     metrics = list(report.episodes[0].scores) if report.episodes else []

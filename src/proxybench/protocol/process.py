@@ -93,7 +93,7 @@ class NodeProcess:
                  transport: str = "pipes", env: dict[str, str] | None = None, cwd: str | None = None,
                  reflection: bool = True, shell: bool | None = None, fifo_dir: str | None = None,
                  max_reply_bytes: int = 8 << 20, max_reply_messages: int = 1000,
-                 max_stderr_bytes: int = 4 << 20, stderr_lines: int = 50, close_timeout: float = 2.0,
+                 max_stderr_bytes: int = 4 << 20, stderr_lines: int = 50, close_timeout: float = 5.0,
                  on_stderr: Callable[[str], None] | None = None):
         transport = _TRANSPORTS.get(transport, transport)
         if transport not in ("pipes", "fifos"):

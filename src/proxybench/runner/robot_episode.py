@@ -118,8 +118,10 @@ class RobotPlant:
 
     def meta(self, i: int) -> dict[str, Any]:
         robot, info = self.robot, self.info
-        return {"source": info.kind, "params": info.params,
-                "robot": {"command": robot.command, "kind": info.kind, "name": robot.robot_name}}
+        said = {"command": robot.command, "kind": info.kind, "name": robot.robot_name}
+        if isinstance(info.raw.get("simulator"), dict):  # which simulator a simulated node is (gym-duckietown, ...)
+            said["simulator"] = info.raw["simulator"]
+        return {"source": info.kind, "params": info.params, "robot": said}
 
     def wheel_distance(self, i: int) -> float:
         return self.info.wheel_distance

@@ -107,16 +107,19 @@ class AgentPolicy:
         self.agents = list(agents)
         self.names = [a.name for a in self.agents]
         self.privileged = [bool(a.privileged) for a in self.agents]
+        self.map: Map | None = None
 
     def set_map(self, map_: Map) -> None:
-        """Tell every agent the episode's map (before :meth:`reset`)."""
-        for a in self.agents:
-            a.set_map(map_)
+        """The episode's map, handed to each agent that takes it (``Agent.set_map``) at :meth:`reset`."""
+        self.map = map_
 
     def reset(self, seeds: Sequence[int]) -> dict[int, BaseException]:
         failures = {}
         for i, a in enumerate(self.agents):
             try:
+                hook = getattr(a, "set_map", None)  # an agent need not subclass Agent: act() is the contract
+                if hook is not None and self.map is not None:
+                    hook(self.map)
                 a.reset(int(seeds[i]))
             except Exception as exc:  # a failing agent ends its episode, never the run
                 failures[i] = exc

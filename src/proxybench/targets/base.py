@@ -6,7 +6,7 @@ these types; :func:`~.spec.open_target` picks the kind a user's text names.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 
 from proxybench.runner.backends import Backend
-from proxybench.runner.jobs import AgentSpec, Job, JobResult
-from proxybench.runner.starts import start_poses
+from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
 
-__all__ = ["Progress", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "by_agent", "episode_seed"]
+__all__ = ["Episodes", "Progress", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "by_agent", "episode_ids",
+           "episode_seed", "live_run"]
 
 Progress = Callable[[str, int, int], None]
 
@@ -62,6 +62,7 @@ class TargetRun:
     truth: dict[str, float] = field(default_factory=dict)
     params: dict[str, Any] | None = None  # θ of a simulated target when known (POD needs it)
     ran: int = 0  # episodes simulated or driven now (not cached, not read from files)
+    files: dict[tuple[str, int], str] = field(default_factory=dict)  # (agent, episode) → its trajectory file
 
     def episodes_of(self, agent: str) -> list[TargetEpisode]:
         return [e for e in self.episodes if e.agent == agent]
@@ -83,12 +84,56 @@ class Target:
     def planned_poses(self, map_name: str, episodes: list[int], seeds: list[int]) -> list[Any]:
         """The start pose each episode is asked to begin at (None: wherever the target puts its robot): the pose
         each seed draws, unless the target knows its starts otherwise (a DTPS robot's pose file)."""
+        from proxybench.runner.starts import start_poses
+
         return start_poses(map_name, seeds)
 
-    def run(self, agents: list[AgentSpec], *, map_name: str, seconds: float, episodes: int, seed: int,
+    def started_at(self, job: Job, result: JobResult) -> tuple[float, float, float] | None:
+        """Where an episode the runner played began, for the proxies to replay it from: the pose it was asked to
+        start at (a simulator or a robot node puts its robot there; a DTPS robot says where it stood)."""
+        return job.pose
+
+    def run(self, agents: list[AgentSpec], *, map_name: str, seconds: float, episodes: Episodes, seed: int,
             metrics: tuple[str, ...], image_size: tuple[int, int], run_dir: str | Path,
             backend: Backend | None = None, progress: Progress | None = None) -> TargetRun:
+        """The target's episodes of ``agents``: ``episodes`` is a count (ids 0 … n−1) or the ids themselves
+        (e.g. a held-out split ``5-9``); episode id e of a live target starts from ``episode_seed(seed, e)``."""
         raise NotImplementedError
+
+
+#: which episodes: the first n ids, or these ids
+Episodes = int | Sequence[int]
+
+
+def episode_ids(episodes: Episodes) -> list[int]:
+    """The ids ``episodes`` names: 0 … n−1 for a count, else the ids as given."""
+    return list(range(episodes)) if isinstance(episodes, int) else [int(e) for e in episodes]
+
+
+def live_run(target: Target, dom: DomainSpec, agents: list[AgentSpec], *, map_name: str, seconds: float,
+             episodes: Episodes, seed: int, metrics: tuple[str, ...], run_dir: str | Path,
+             backend: Backend | None, progress: Progress | None, stage: str = "target episodes"
+             ) -> tuple[TargetRun, Any]:
+    """The episodes of a target the runner plays (reality model, held-out model, robot node), through its jobs and
+    cache: (the run, the sweep behind it). Every agent plays every id, from the start pose the target plans for
+    it (:meth:`Target.planned_poses`: the one its seed draws); the proxies replay it from where it began
+    (:meth:`Target.started_at`)."""
+    from proxybench.runner.backends import InlineBackend
+    from proxybench.runner.sweep import run_jobs
+
+    ids = episode_ids(episodes)
+    seeds = {e: episode_seed(seed, e) for e in ids}
+    poses = dict(zip(ids, target.planned_poses(map_name, ids, [seeds[e] for e in ids]), strict=True))
+    jobs = [Job(a, dom, map_name, e, seeds[e], seconds, pose=poses[e], metrics=metrics) for a in agents for e in ids]
+    sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
+                     progress=(lambda d, t, _r: progress(stage, d, t)) if progress else None)
+    eps = [TargetEpisode(j.agent.label, j.episode, j.seed, target.started_at(j, r))
+           for j, r in zip(jobs, sweep.results, strict=True)]
+    files = {(j.agent.label, j.episode): r.trajectory for j, r in zip(jobs, sweep.results, strict=True)
+             if r.trajectory}
+    run = TargetRun(target.info(), map_name, seconds, metrics, eps, by_agent(jobs, sweep.results, metrics),
+                    params=dom.params if dom.kind != "robot" else None, ran=sweep.ran, files=files)
+    return run, sweep
 
 
 def by_agent(jobs: list[Job], results: list[JobResult], metrics: tuple[str, ...]) -> dict[str, np.ndarray]:

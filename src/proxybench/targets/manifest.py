@@ -33,8 +33,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from proxybench.dtps.robot_options import DtpsRobotOptions
 from proxybench.protocol.options import RobotNodeOptions
 
-__all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "RobotInfo", "TargetError", "TargetManifest", "format_errors",
-           "load_manifest", "write_manifest"]
+__all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "RobotInfo", "SimulatorInfo", "TargetError", "TargetManifest",
+           "format_errors", "load_manifest", "write_manifest"]
 
 FORMAT = "proxybench-target/1"
 MANIFEST_NAME = "target.yaml"
@@ -49,6 +49,34 @@ class TargetError(ValueError):
     """A target that cannot be used; the message names the file, row, column or field at fault."""
 
 
+class SimulatorInfo(BaseModel):
+    """Which simulator a simulated robot node is (e.g. gym-duckietown), its version and θ; a hidden θ is kept
+    only as its hash (``params`` then holds ``{hidden: true, sha256: ...}``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = Field(min_length=1)
+    package: str = ""
+    version: str = ""
+    hidden: bool = False
+    sha256: str = ""
+    changed: dict[str, Any] | None = Field(None, description="θ that differs from the simulator's defaults")
+
+    def describe(self) -> str:
+        """``gym-duckietown 6.1.34, trim=0.1``, ``..., its default parameters`` or ``..., parameters hidden``.
+
+        >>> SimulatorInfo(name="gym-duckietown", version="6.1.34", changed={"trim": 0.1}).describe()
+        'gym-duckietown 6.1.34, trim=0.1'
+        """
+        what = f"{self.name} {self.version}".strip()
+        if self.hidden:
+            return f"{what}, parameters hidden (sha256 {self.sha256[:16]}…)"
+        if self.changed is None:
+            return what
+        return what + (", " + ", ".join(f"{k}={v}" for k, v in self.changed.items()) if self.changed
+                       else ", its default parameters")
+
+
 class RobotInfo(BaseModel):
     """The robot node a recording was made on: its command, what it said it is, and how it was started
     (``options``: working directory, transport, timeouts, reflection; None in recordings made before
@@ -59,6 +87,7 @@ class RobotInfo(BaseModel):
     command: str = Field(min_length=1, description="the command that started the robot node")
     kind: str = Field("", description="what the node said it is (its robot_interface_description)")
     options: RobotNodeOptions | None = Field(None, description="how the node was started (--robot-cwd, ...)")
+    simulator: SimulatorInfo | None = Field(None, description="which simulator a simulated node said it is")
     dtps: DtpsRobotOptions | None = Field(None, description="a DTPS robot (command dtps:ADDRESS): how it was driven")
 
     def describe(self) -> str:

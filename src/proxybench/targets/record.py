@@ -34,6 +34,7 @@ from proxybench.targets.manifest import (
     load_manifest,
     write_manifest,
 )
+from proxybench.targets.robot import robot_said
 from proxybench.targets.spec import RealityTarget
 
 __all__ = ["RecordSummary", "record_target"]
@@ -208,21 +209,12 @@ def record_target(
         raise TargetError(f"the {what} failed on {len(robot_failed)} episode(s); the others are recorded in {out}; "
                           f"run the same command again to retry:\n  {shown}")
     if source == "robot-node" and robot is not None and todo:
-        kind = _robot_kind(dest[todo[0].key])
+        kind, simulator = robot_said(dest[todo[0].key])
         if kind:
-            manifest = manifest.model_copy(update={"robot": manifest.robot.model_copy(update={"kind": kind})})
+            update = {"kind": kind} | ({"simulator": simulator} if simulator is not None else {})
+            manifest = manifest.model_copy(update={"robot": manifest.robot.model_copy(update=update)})
             write_manifest(out, manifest)
     if all((out / manifest.pattern.format(agent=a, episode=e)).is_file()
            for a in manifest.agents for e in manifest.episodes):
         shutil.rmtree(cache, ignore_errors=True)
     return RecordSummary(out, manifest, sweep.ran, kept, failed)
-
-
-def _robot_kind(path: Path) -> str:
-    """What the robot node said it is, from a trajectory it produced."""
-    from proxybench.tasks.trajectory import Trajectory
-
-    try:
-        return str(Trajectory.load(path).meta.get("robot", {}).get("kind", ""))
-    except (ValueError, OSError):
-        return ""

@@ -10,14 +10,14 @@ real robot from a simulator except by what the node says of itself, and reports 
 
 from __future__ import annotations
 
-from proxybench.protocol.options import RobotNodeOptions
-from proxybench.runner.backends import InlineBackend
-from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec, Job
-from proxybench.runner.sweep import run_jobs
-from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, by_agent, episode_seed
-from proxybench.targets.manifest import TargetError
+from pathlib import Path
 
-__all__ = ["RobotTarget"]
+from proxybench.protocol.options import RobotNodeOptions
+from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec
+from proxybench.targets.base import Target, TargetInfo, TargetRun, live_run
+from proxybench.targets.manifest import SimulatorInfo, TargetError
+
+__all__ = ["RobotTarget", "robot_said"]
 
 
 class RobotTarget(Target):
@@ -38,6 +38,7 @@ class RobotTarget(Target):
         self.options = options or RobotNodeOptions()
         self.frame_rate = frame_rate
         self._said: str = ""
+        self._simulator: SimulatorInfo | None = None
 
     def domain(self, image_size: tuple[int, int] | None = None) -> DomainSpec:
         return DomainSpec.robot(self.command, frame_rate=self.frame_rate, nodes=self.nodes, options=self.options)
@@ -45,47 +46,50 @@ class RobotTarget(Target):
     def info(self) -> TargetInfo:
         simulated = {"simulation": True, "robot": None}.get(self._said)
         said = f"; it described itself as a {self._said}" if self._said else ""
+        sim = self._simulator
+        if sim is not None and self._said == "simulation":
+            said += f": {sim.describe()} (SIMULATED, another simulator than proxybench's)"
+        label = (f"robot node: {self.command}" if sim is None
+                 else f"{sim.name} {sim.version} (simulated): {self.command}")
         return TargetInfo(
-            "robot", simulated, f"robot node: {self.command}",
+            "robot", simulated, label,
             f"The target is a robot node started with `{self.command}`{said}. proxybench cannot tell a real robot "
             "from a simulator behind the robot protocol: treat results as real only if you know the node drives "
             "a physical robot.", {"command": self.command, "kind": self._said, "nodes": self.nodes,
-                                  **({"options": self.options.non_default()} if self.options.non_default() else {})})
+                                  **({"options": self.options.non_default()} if self.options.non_default() else {}),
+                                  **({"simulator": sim.model_dump()} if sim is not None else {})})
 
     def run(self, agents, *, map_name, seconds, episodes, seed, metrics, image_size, run_dir, backend=None,
             progress=None) -> TargetRun:
-        seeds = [episode_seed(seed, e) for e in range(episodes)]
-        poses = self.planned_poses(map_name, list(range(episodes)), seeds)
-        dom = self.domain()
-        jobs = [Job(a, dom, map_name, e, seeds[e], seconds, pose=poses[e], metrics=metrics)
-                for a in agents for e in range(episodes)]
-        sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
-                         progress=(lambda d, t, _r: progress("target episodes (robot)", d, t)) if progress else None)
+        run, sweep = live_run(self, self.domain(), agents, map_name=map_name, seconds=seconds, episodes=episodes,
+                              seed=seed, metrics=metrics, run_dir=run_dir, backend=backend, progress=progress,
+                              stage="target episodes (robot)")
         failed = [r for r in sweep.results if r.termination == "robot_failure"]
         if failed:
             shown = "\n  ".join(f"{r.agent} episode {r.episode}: {r.message}" for r in failed[:5])
-            raise TargetError(f"target: the {self.what} `{self.command}` failed on {len(failed)} of {len(jobs)} "
-                              f"episode(s); finished episodes are cached, run again to retry the rest:\n  {shown}")
-        self._said = _robot_kind(sweep.results)
-        eps = [TargetEpisode(j.agent.label, j.episode, j.seed, self.started_at(j, r))
-               for j, r in zip(jobs, sweep.results, strict=True)]
-        return TargetRun(self.info(), map_name, seconds, metrics, eps, by_agent(jobs, sweep.results, metrics),
-                         {}, None, sweep.ran)
-
-    def started_at(self, job: Job, result) -> tuple[float, float, float] | None:
-        """Where the episode began, for the proxies to replay it from: the pose it was asked to start at (a robot
-        node puts its robot there)."""
-        return job.pose
+            raise TargetError(f"target: the {self.what} `{self.command}` failed on {len(failed)} of "
+                              f"{len(sweep.results)} episode(s); finished episodes are cached, run again to retry the "
+                              f"rest:\n  {shown}")
+        made = next((r.trajectory for r in sweep.results if r.trajectory), None)
+        self._said, self._simulator = robot_said(made) if made else ("", None)
+        run.info = self.info()
+        return run
 
 
-def _robot_kind(results) -> str:
-    """What the node said it is (``simulation`` or ``robot``), read from a trajectory it produced."""
+def robot_said(path: str | Path) -> tuple[str, SimulatorInfo | None]:
+    """What the robot node said it is (``simulation`` | ``robot``) and, for a simulator that names itself,
+    which (a hidden θ only as its hash), from a trajectory it produced."""
+    from pydantic import ValidationError
+
     from proxybench.tasks.trajectory import Trajectory
 
-    for r in results:
-        if r.trajectory:
-            try:
-                return str(Trajectory.load(r.trajectory).meta.get("robot", {}).get("kind", ""))
-            except (ValueError, OSError):
-                return ""
-    return ""
+    try:
+        said = Trajectory.load(path).meta.get("robot", {})
+    except (ValueError, OSError):
+        return "", None
+    sim = said.get("simulator")
+    try:
+        simulator = SimulatorInfo.model_validate(sim) if isinstance(sim, dict) else None
+    except ValidationError:
+        simulator = None  # a node's free-form self-description: kept out of the strict manifest
+    return str(said.get("kind", "")), simulator

@@ -32,8 +32,9 @@ from proxybench.domain.routes import RouteGraph, pin_route, route_columns
 __all__ = ["TERMINATIONS", "Trajectory", "TrajectoryError"]
 
 #: why an episode ended
-TERMINATIONS = ("timeout", "off_road", "left_map", "collision", "agent_failure", "reset")  # reset: asked for by
-# the agent (state/reset of a served DTPS robot, docs/dtps.md)
+#: reset: asked for by the agent (state/reset of a served DTPS robot, docs/dtps.md); ended_early: a recorded run
+#: whose samples stop before the episode's length, on the road, for a reason its file does not say
+TERMINATIONS = ("timeout", "off_road", "left_map", "collision", "agent_failure", "reset", "ended_early")
 _CORE = ("t", "x", "y", "theta")
 _OPTIONAL = ("v", "omega", "pwm_left", "pwm_right")
 _LANE = ("valid", "segment", "along", "lateral", "heading_error", "left_in_lane", "right_in_lane",

@@ -1,0 +1,121 @@
+"""Steps per second of gym-duckietown behind the robot protocol against gym-duckietown alone.
+
+Gym alone: ``Simulator.step`` (physics, render of the camera frame, gym's done check) in gym's own
+interpreter, nothing else, from the same start pose and seed with the same command as the node (gym's
+``_valid_pose`` formats its debug lines even when they are not logged: an off-road frame costs ~2 ms more, so
+both must drive alike), in the environment the node gives gym (one BLAS thread). The node: one robot-protocol
+frame driven by the caller (commands, step, sim state, robot state, observations: gym's physics and render in
+the bridge, the frame through the pipe, JPEG encoded and sent), camera on. Both at the same camera size,
+domain randomisation on (gym's default), blocks of frames interleaved so that both meet the same load on a
+shared machine; medians of the blocks. Wall steps/s, and CPU ms per step of every process involved (gym
+alone: its one process; the node: caller, node and gym child), which a loaded machine disturbs less.
+Needs ``proxybench gym setup``.
+
+    python benchmarks/bench_gym.py [--frames 300] [--blocks 5] [--size 160x120]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import time
+
+import numpy as np
+import psutil
+
+from proxybench.domain.maps import load_map
+from proxybench.gym.backend import bridge_environment
+from proxybench.gym.environment import check_environment
+from proxybench.protocol import RemoteRobot
+from proxybench.runner.starts import start_poses
+
+_ALONE = """
+import json, sys, time
+import numpy as np, pyglet
+pyglet.options["headless"] = True
+import logging; logging.disable(logging.CRITICAL)
+from gym_duckietown.simulator import Simulator, geometry
+from duckietown_world.world_duckietown.pwm_dynamics import get_DB18_nominal
+w, h, frames, blocks = map(int, sys.argv[1:5])
+x, y, th = map(float, sys.argv[5:8])
+env = Simulator(map_name="small_loop", camera_width=w, camera_height=h, max_steps=10**9)
+print("ready", flush=True)
+for _ in range(blocks):
+    sys.stdin.readline()
+    env.seed(3)
+    env.reset()
+    pos, env.cur_angle = env.weird_from_cartesian(geometry.SE2_from_translation_angle([x, y], th))
+    env.cur_pos = np.asarray(pos, dtype=float)
+    q = env.cartesian_from_weird(env.cur_pos, env.cur_angle)
+    env.state = get_DB18_nominal(delay=0.15).initialize(c0=(q, geometry.se2_from_linear_angular([0, 0], 0)), t0=0)
+    action, t0, c0 = np.array(COMMAND), time.perf_counter(), time.process_time()
+    for _ in range(frames):
+        done = env.step(action)[2]
+        action = np.zeros(2) if done else action  # as the node: a finished robot stops
+    print("rate", frames / (time.perf_counter() - t0), 1e3 * (time.process_time() - c0) / frames, flush=True)
+"""
+#: the wheel command both hold: a wide left arc that stays in the loop's lane for a while
+COMMAND = (0.3, 0.32)
+
+
+def _cpu(procs: list[psutil.Process]) -> float:
+    """CPU seconds (user + system) of this process (the caller) and ``procs`` so far."""
+    own = time.process_time()
+    return own + sum(sum(p.cpu_times()[:2]) for p in procs)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=300)
+    ap.add_argument("--blocks", type=int, default=5)
+    ap.add_argument("--size", default="160x120")
+    args = ap.parse_args()
+    w, h = (int(v) for v in args.size.split("x"))
+    env = check_environment(render=False)
+    if not env.ok:
+        sys.exit("gym-duckietown's environment is not ready: " + "; ".join(env.problems))
+    m = load_map("loop_3x3")
+    pose = start_poses("loop_3x3", [3])[0]
+    script = _ALONE.replace("COMMAND", repr(list(COMMAND)))
+    alone = subprocess.Popen([str(env.python), "-c", script, str(w), str(h), str(args.frames), str(args.blocks),
+                              *map(str, pose)], env=bridge_environment(),
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    while alone.stdout.readline().strip() != "ready":  # gym prints notices of its own first
+        pass
+    cmd = [sys.executable, "-m", "proxybench.cli", "gym", "serve", "--param", f"camera_width={w}",
+           "--param", f"camera_height={h}"]
+    gym_rates, node_rates, gym_cpu, node_cpu = [], [], [], []
+    with RemoteRobot(cmd, init_timeout=300, step_timeout=60) as robot:
+        for _ in range(args.blocks):
+            alone.stdin.write("go\n")
+            alone.stdin.flush()
+            line = alone.stdout.readline()
+            while not line.startswith("rate "):
+                line = alone.stdout.readline()
+            gym_rates.append(float(line.split()[1]))
+            gym_cpu.append(float(line.split()[2]))
+            info = robot.start_episode(m, 3, pose=pose, seconds=args.frames / 30 + 1, camera=True)
+            dt = 1 / info.frame_rate
+            procs = [psutil.Process(robot.process.pid)]
+            procs += procs[0].children(recursive=True)  # the node and its gym child
+            c0, t0 = _cpu(procs), time.perf_counter()
+            for k in range(args.frames):
+                robot.frame(k * dt, np.array(COMMAND), (k + 1) * dt, observe=True)
+            node_rates.append(args.frames / (time.perf_counter() - t0))
+            node_cpu.append(1e3 * (_cpu(procs) - c0) / args.frames)
+    alone.wait()
+    g, n = statistics.median(gym_rates), statistics.median(node_rates)
+    print(json.dumps({"size": args.size, "frames_per_block": args.frames, "blocks": args.blocks,
+                      "gym_alone_steps_per_s": round(g, 1), "node_steps_per_s": round(n, 1),
+                      "overhead_percent": round(100 * (g / n - 1), 1),
+                      "cpu_ms_per_step_gym_alone": round(statistics.median(gym_cpu), 2),
+                      "cpu_ms_per_step_node_all_processes": round(statistics.median(node_cpu), 2),
+                      "gym_blocks": [round(r, 1) for r in gym_rates],
+                      "node_blocks": [round(r, 1) for r in node_rates]}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,245 @@
+"""gym-duckietown as the backend of a robot node: ``proxybench gym serve``.
+
+:class:`GymRobot` is a :class:`~proxybench.protocol.robot_backend.RobotBackend` whose world is
+gym-duckietown, running in its own environment as a child process (:mod:`proxybench.gym.bridge`, a script
+run by gym's interpreter, over a private pipe). What the robot does is gym's: its OpenGL renderer, its DB18
+dynamics with delay and trim, its collision and drivable-tile checks (its "invalid pose" ends the episode:
+``collision`` when an object's box is hit, else ``off_road``). proxybench adds only the *true lane pose* a
+privileged agent reads, computed by proxybench's lane geometry from gym's pose on the same map (gym's own
+lane curves are Bézier curves; its ``get_lane_pos2`` raises outside a lane, so it cannot describe a robot
+leaving the road), and the top-down picture of ``get_ui_image``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from proxybench.domain.lane_pose import LanePose, lane_pose
+from proxybench.domain.lanes import LaneNetwork
+from proxybench.domain.maps import Map, MapError, MapObject, load_map, parse_map
+from proxybench.domain.simulator import start_pose
+from proxybench.domain.topdown import top_down
+from proxybench.gym.environment import default_path
+from proxybench.gym.params import GymParams
+from proxybench.protocol.robot_backend import BackendState, FrameStep
+
+__all__ = ["BRIDGE", "GymBridgeError", "GymRobot", "bridge_environment", "resolve_map"]
+
+BRIDGE = Path(__file__).with_name("bridge.py")
+#: DB18 wheel encoder: 135 ticks per turn (duckietown-world's DynamicModelParameters)
+ENCODER_RESOLUTION = 2 * math.pi / 135
+WHEEL_DISTANCE = 0.102  # gym's WHEEL_DIST [m]
+
+
+class GymBridgeError(RuntimeError):
+    """The gym-duckietown child failed (did not start, exited, or answered an error)."""
+
+
+def resolve_map(name: str, venv: Path | None = None) -> Map:
+    """A map by file path, proxybench built-in name, or the name of a duckietown-world map gym ships
+    (``udem1``, ``ETHZ_loop``, ...: read from gym's environment). proxybench's names come first:
+    gym's ``small_loop`` (3×3) is proxybench's ``loop_3x3``; proxybench's ``small_loop`` is a 2×2 loop."""
+    try:
+        return load_map(name)
+    except (MapError, FileNotFoundError) as first:
+        found = sorted((venv or default_path()).glob(f"lib/python3*/site-packages/duckietown_world/data/gd1/maps/"
+                                                       f"{name}.yaml")) if "/" not in name else []
+        if not found:
+            raise MapError(f"{first}\n(nor is {name!r} a duckietown-world map of gym's environment)") from None
+        return load_map(found[0])
+
+
+def bridge_environment() -> dict[str, str]:
+    """The environment gym's process runs in: ours, with one BLAS thread unless the caller chose otherwise.
+    gym's DB18 model inverts a 2×2 matrix at every physics step; OpenBLAS's thread pool made that ~4 ms of
+    spinning CPU per step on a busy 2-core machine (same result either way: a 2×2 solve is not split)."""
+    env = dict(os.environ)
+    for key in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(key, "1")
+    return env
+
+
+def _map_text(m: Map) -> str:
+    path = Path(m.path)
+    if not path.is_file():
+        raise ValueError(f"map {m.name!r} has no source file to give gym-duckietown")
+    return path.read_text(encoding="utf-8")
+
+
+class GymRobot:
+    """One gym-duckietown robot with θ ``params``, started in the environment at ``venv`` (default
+    :func:`~proxybench.gym.environment.default_path`) on ``map_`` (see :func:`resolve_map`)."""
+
+    def __init__(self, params: GymParams, map_: str = "loop_3x3", venv: Path | None = None,
+                 stderr: Any = None):
+        self.params = params
+        venv = Path(venv or default_path())
+        python = venv / "bin" / "python"
+        if not python.exists():
+            raise GymBridgeError(f"no gym-duckietown environment at {venv}: run `proxybench gym setup`")
+        m = resolve_map(map_, venv)
+        self._maps: dict[str, tuple[Map, LaneNetwork]] = {}
+        text = _map_text(m)
+        self._maps[text] = (m, LaneNetwork(m))
+        self.proc = subprocess.Popen([str(python), "-u", str(BRIDGE)], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, stderr=stderr, env=bridge_environment())
+        hello = self._call({"op": "init", "params": _plain(params), "map": text})
+        self.version = hello["version"]
+        self.physics_rate = float(hello["frame_rate"])
+        self.frame_skip = int(hello["frame_skip"])
+        self.width, self.height = hello["camera"]
+        self.frame_dt = self.frame_skip / self.physics_rate
+        self.encoder_resolution = ENCODER_RESOLUTION
+        self._text = text
+        self._sent = text
+        self._state: dict[str, Any] = {}
+        self._end: dict[str, Any] | None = None
+
+    # ------------------------------------------------------------------------------------- the pipe
+    def _call(self, msg: dict[str, Any], blob: bool = False) -> Any:
+        data = json.dumps(msg).encode()
+        try:
+            self.proc.stdin.write(struct.pack(">I", len(data)) + data)
+            self.proc.stdin.flush()
+            head = self._read(4)
+            (n,) = struct.unpack(">I", head)
+            reply = json.loads(self._read(n))
+            payload = self._read(reply["blob"]) if "blob" in reply else b""
+        except (OSError, struct.error, ValueError) as exc:
+            code = self.proc.poll()
+            raise GymBridgeError(f"the gym-duckietown process failed ({type(exc).__name__}: {exc}; exit status "
+                                 f"{code}); its messages are above on stderr") from None
+        if not reply.get("ok"):
+            raise GymBridgeError(f"gym-duckietown: {reply.get('error')}\n{reply.get('trace', '')}".rstrip())
+        return (reply, payload) if blob else reply
+
+    def _read(self, n: int) -> bytes:
+        buf = self.proc.stdout.read(n)
+        if buf is None or len(buf) < n:
+            raise OSError("the pipe closed")
+        return buf
+
+    def probe(self) -> dict[str, Any]:
+        """gym's own view of the robot (its frame's ``cur_pos``, ``cur_angle``, the tile there): for checks."""
+        return self._call({"op": "probe"})
+
+    def close(self) -> None:
+        """End the gym process (it ends on EOF too)."""
+        if self.proc.poll() is None:
+            try:
+                self._call_quit()
+            finally:
+                try:
+                    self.proc.wait(5)
+                except subprocess.TimeoutExpired:
+                    self.proc.kill()
+                    self.proc.wait()
+
+    def _call_quit(self) -> None:
+        data = json.dumps({"op": "quit"}).encode()
+        try:
+            self.proc.stdin.write(struct.pack(">I", len(data)) + data)
+            self.proc.stdin.close()
+        except OSError:
+            pass
+
+    # ------------------------------------------------------------------------------- RobotBackend
+    def set_map(self, text: str) -> None:
+        if text not in self._maps:
+            try:
+                m = parse_map(text, path="<set_map.map_data>", name="set_map")
+            except MapError as exc:
+                raise ValueError(f"set_map: map_data is not a valid map:\n{exc}") from exc
+            self._maps[text] = (m, LaneNetwork(m))
+        if text != self._sent:
+            self._call({"op": "set_map", "map": text})
+            self._sent = text
+        self._text = text
+
+    def reset(self, seed: int, pose: tuple[float, float, float] | None, route: list[str] | None,
+              objects: tuple[MapObject, ...], camera: bool = True) -> None:
+        m, net = self._maps[self._text]
+        if pose is None:
+            pose = start_pose(m, seed, net=net)
+        extra = [{"name": o.name or f"object{i}", "kind": o.kind, "x": o.x, "y": o.y, "theta": o.heading}
+                 for i, o in enumerate(objects)]
+        self._state = self._call({"op": "reset", "seed": int(seed), "pose": [float(v) for v in pose],
+                                  "objects": extra})
+        self._end = None
+        self._render = camera  # then each step brings its frame back in the same exchange
+        self._frame: tuple[float, np.ndarray] | None = None
+
+    def step_frame(self, pwm: np.ndarray) -> FrameStep:
+        reply, blob = self._call({"op": "step", "pwm": [float(pwm[0]), float(pwm[1])], "render": self._render},
+                                 blob=True)
+        self._state = reply
+        if blob:
+            self._frame = (reply["t"], self._image(blob))
+        if self._end is None and "end" in reply:
+            self._end = {"t": float(reply["t"]), **reply["end"]}
+        return FrameStep(np.asarray(reply["trace"], dtype=np.float64).reshape(-1, 8))
+
+    def time(self) -> float:
+        return float(self._state["t"])
+
+    def camera(self) -> np.ndarray:
+        if self._frame is not None and self._frame[0] == self._state["t"]:
+            return self._frame[1]
+        _reply, blob = self._call({"op": "camera"}, blob=True)
+        return self._image(blob)
+
+    def _image(self, blob: bytes) -> np.ndarray:
+        return np.frombuffer(blob, dtype=np.uint8).reshape(self.height, self.width, 3)
+
+    def state(self) -> BackendState:
+        x, y, th, v, w, left, right = self._state["motion"]
+        kind = (self._end or {}).get("kind")
+        return BackendState((x, y, th), v, w, (left, right), kind == "off_road", kind == "collision")
+
+    def lane(self) -> tuple[LanePose, None]:
+        _m, net = self._maps[self._text]
+        x, y, th = self._state["motion"][:3]
+        return lane_pose(net, x, y, th, WHEEL_DISTANCE), None
+
+    def route_choices(self) -> None:
+        return None
+
+    def ending(self) -> dict[str, Any] | None:
+        return self._end
+
+    def info(self) -> dict[str, Any]:
+        p = self.params
+        return {"kind": "simulation", "frame_rate": 1.0 / self.frame_dt, "physics_rate": self.physics_rate,
+                "wheel_distance": WHEEL_DISTANCE, "encoder_resolution": ENCODER_RESOLUTION,
+                "image_width": self.width, "image_height": self.height, "params": p.public(),
+                "simulator": {"name": "gym-duckietown", "package": "duckietown-gym-daffy", "version": self.version,
+                              "hidden": p.hidden, "sha256": p.sha256,
+                              "changed": None if p.hidden else _plain_values(p.changed)}}
+
+    def description(self) -> str:
+        theta = ("parameters HIDDEN (sha256 " + self.params.sha256[:16] + "…)" if self.params.hidden else
+                 "parameters " + (", ".join(f"{k}={v}" for k, v in self.params.changed.items()) or "gym's defaults"))
+        return (f"gym-duckietown {self.version} node: ONE SIMULATED Duckiebot (another simulator, not proxybench's "
+                f"and not a real robot) behind AIDO's simulator protocol. Camera {self.width}x{self.height} at "
+                f"{1.0 / self.frame_dt:g} Hz, DB18 dynamics at {self.physics_rate:g} Hz; {theta}.")
+
+    def top_view(self, px_per_tile: int) -> np.ndarray:
+        m, _net = self._maps[self._text]
+        return top_down(m, np.array([self._state["motion"][:3]]), px_per_tile)
+
+
+def _plain(params: GymParams) -> dict[str, Any]:
+    """θ for the child (hidden or not: the child is ours)."""
+    return _plain_values(params.values)
+
+
+def _plain_values(values: dict[str, Any]) -> dict[str, Any]:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in values.items()}

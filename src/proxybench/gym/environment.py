@@ -1,0 +1,141 @@
+"""gym-duckietown's own environment: ``proxybench gym setup`` / ``proxybench gym check``.
+
+gym-duckietown (PyPI ``duckietown-gym-daffy`` 6.1.34, its last release) needs numpy 1.23 and pyglet 1.5,
+which proxybench's environment cannot have, so it gets a virtual environment of its own in a user-cache
+folder (``$PROXYBENCH_GYM_VENV``, else ``$XDG_CACHE_HOME/proxybench/gym-duckietown-6.1.34``, else
+``~/.cache/...``), installed from the freeze beside this module (``requirements.txt``). It renders with
+Mesa's software OpenGL through pyglet's headless EGL mode, which needs four Debian packages (no X server).
+Setup is idempotent: a complete environment is left as it is.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ["APT_PACKAGES", "GYM_VERSION", "GymEnvironment", "check_environment", "default_path", "setup_environment"]
+
+GYM_VERSION = "6.1.34"
+APT_PACKAGES = ("libegl1", "libegl-mesa0", "libgl1-mesa-dri", "libglu1-mesa")
+REQUIREMENTS = Path(__file__).with_name("requirements.txt")
+_STAMP = "proxybench-requirements.txt"  # a copy of the freeze it was installed from: changed pins reinstall
+#: what check imports and renders in the environment: versions, then one 32×24 frame headless
+_PROBE = """
+import importlib.metadata as m, json, pyglet
+pyglet.options["headless"] = True
+import logging; logging.disable(logging.CRITICAL)
+out = {p: m.version(p) for p in ("duckietown-gym-daffy", "numpy", "pyglet")}
+from gym_duckietown.simulator import Simulator
+env = Simulator(map_name="small_loop", camera_width=32, camera_height=24, domain_rand=False)
+out["frame"] = list(env.render_obs().shape)
+print(json.dumps(out))
+"""
+
+
+def default_path() -> Path:
+    """Where gym's environment lives unless ``--path`` says otherwise."""
+    if os.environ.get("PROXYBENCH_GYM_VENV"):
+        return Path(os.environ["PROXYBENCH_GYM_VENV"])
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return cache / "proxybench" / f"gym-duckietown-{GYM_VERSION}"
+
+
+@dataclass
+class GymEnvironment:
+    """What ``check`` found: the folder, its interpreter, the versions it runs, and every problem."""
+
+    path: Path
+    python: Path
+    versions: dict[str, str] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
+    missing_apt: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def missing_apt_packages() -> list[str]:
+    """The Debian packages of :data:`APT_PACKAGES` not installed (all of them where dpkg is absent)."""
+    if shutil.which("dpkg-query") is None:
+        return list(APT_PACKAGES)
+    out = subprocess.run(["dpkg-query", "-W", "-f", "${Package} ${db:Status-Status}\n", *APT_PACKAGES],
+                         capture_output=True, text=True, check=False).stdout
+    installed = {line.split()[0].split(":")[0] for line in out.splitlines() if line.endswith(" installed")}
+    return [p for p in APT_PACKAGES if p not in installed]
+
+
+def apt_command(packages: list[str]) -> str:
+    return f"sudo apt-get install -y {' '.join(packages)}"
+
+
+def check_environment(path: Path | None = None, *, render: bool = True) -> GymEnvironment:
+    """Check the environment at ``path`` (default :func:`default_path`): Debian packages, interpreter, pins,
+    and (``render``) that gym renders one frame headless."""
+    path = Path(path or default_path())
+    env = GymEnvironment(path, path / "bin" / "python")
+    env.missing_apt = missing_apt_packages()
+    if env.missing_apt:
+        env.problems.append(f"Debian packages missing: {' '.join(env.missing_apt)} (install: "
+                            f"{apt_command(env.missing_apt)})")
+    if not env.python.exists():
+        env.problems.append(f"no gym-duckietown environment at {path} (run: proxybench gym setup"
+                            + (f" --path {path}" if path != default_path() else "") + ")")
+        return env
+    stamp = path / _STAMP
+    if not stamp.is_file() or stamp.read_text() != REQUIREMENTS.read_text():
+        env.problems.append(f"{path} was not installed from this proxybench's pins (run: proxybench gym setup)")
+    if render and not env.missing_apt:
+        _probe(env)
+    return env
+
+
+def _probe(env: GymEnvironment) -> None:
+    import json
+
+    try:
+        res = subprocess.run([str(env.python), "-c", _PROBE], capture_output=True, text=True, timeout=300,
+                             check=False)
+    except subprocess.TimeoutExpired:
+        env.problems.append("gym-duckietown did not render a frame within 300 s")
+        return
+    if res.returncode != 0:
+        tail = "\n    ".join(res.stderr.strip().splitlines()[-6:])
+        env.problems.append(f"gym-duckietown does not start in {env.path}:\n    {tail}")
+        return
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    env.versions = {k: v for k, v in out.items() if k != "frame"}
+    if out["frame"] != [24, 32, 3]:
+        env.problems.append(f"gym-duckietown rendered a frame of shape {out['frame']}, expected [24, 32, 3]")
+
+
+def setup_environment(path: Path | None = None, *, say: Callable[[str], None] = print) -> GymEnvironment:
+    """Create (or complete) gym's environment at ``path``; install the Debian packages when root, else say
+    the command. Idempotent: what is in place is kept."""
+    path = Path(path or default_path())
+    missing = missing_apt_packages()
+    if missing and os.geteuid() == 0 and shutil.which("apt-get"):
+        say(f"installing Debian packages: {' '.join(missing)}")
+        for cmd in (["apt-get", "update", "-qq"], ["apt-get", "install", "-y", "-qq", *missing]):
+            subprocess.run(cmd, check=True, env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"})
+    elif missing:
+        say(f"Debian packages missing; as root run: {apt_command(missing)}")
+    python = path / "bin" / "python"
+    stamp = path / _STAMP
+    if python.exists() and stamp.is_file() and stamp.read_text() == REQUIREMENTS.read_text():
+        say(f"gym-duckietown environment in place: {path}")
+    else:
+        if not python.exists():
+            say(f"creating a virtual environment at {path}")
+            path.parent.mkdir(parents=True, exist_ok=True)
+            subprocess.run([sys.executable, "-m", "venv", str(path)], check=True)
+        say(f"installing gym-duckietown {GYM_VERSION} and its pins into {path} (a few minutes)")
+        subprocess.run([str(python), "-m", "pip", "install", "-q", "--disable-pip-version-check", "-r",
+                        str(REQUIREMENTS)], check=True)
+        stamp.write_text(REQUIREMENTS.read_text())
+    return check_environment(path)

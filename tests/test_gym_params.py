@@ -1,0 +1,67 @@
+"""gym-duckietown's parameters and environment as proxybench checks them: no gym environment needed."""
+
+from __future__ import annotations
+
+import pytest
+from typer.testing import CliRunner
+
+from proxybench.cli import app
+from proxybench.gym.params import DEFAULTS, GymParamError, gym_params, parse_param_items
+from proxybench.targets.manifest import SimulatorInfo
+
+
+@pytest.mark.parametrize(("item", "words"), [
+    ("trimm=0.1", "unknown parameter 'trimm'; did you mean 'trim'"),
+    ("camera_widht=80", "did you mean 'camera_width'"),
+    ("gain=1.2", "DuckietownEnv's velocity → PWM conversion"),
+    ("map_name=udem1", "--map"),
+    ("frame_skip=0", "frame_skip=0: out of range [1, 100]"),
+    ("frame_skip=1.5", "frame_skip=1.5: must be an integer"),
+    ("domain_rand=maybe", "domain_rand='maybe': must be true or false"),
+    ("style=cartoon", "must be one of photos, synthetic"),
+    ("color_sky=[2, 0, 0]", "three numbers in [0, 1]"),
+    ("trim=.nan", "must be a number"),
+    ("trim", "is not NAME=VALUE"),
+])
+def test_a_bad_parameter_is_named_with_what_would_be_valid(item: str, words: str) -> None:
+    with pytest.raises(GymParamError, match=None) as info:
+        parse_param_items([item])
+    assert words in str(info.value)
+
+
+def test_values_are_read_as_yaml_and_defaults_are_gyms() -> None:
+    p = gym_params(["trim=0.1", "domain_rand=false", "color_ground=[0.1, 0.2, 0.3]", "max_steps=300"])
+    assert p.changed == {"trim": 0.1, "domain_rand": False, "color_ground": (0.1, 0.2, 0.3), "max_steps": 300}
+    assert (DEFAULTS["delay"], DEFAULTS["frame_rate"], DEFAULTS["cam_angle"], DEFAULTS["domain_rand"]) == (
+        0.15, 30.0, 19.15, True)
+
+
+def test_hidden_parameters_show_only_a_hash_that_the_nonce_salts(tmp_path) -> None:
+    f = tmp_path / "theta.yaml"
+    f.write_text("trim: 0.1\nnonce: s3cret\n")
+    hidden = gym_params([], f, secret=True)
+    assert hidden.public() == {"hidden": True, "sha256": hidden.sha256} and hidden.values["trim"] == 0.1
+    f.write_text("trim: 0.1\nnonce: other\n")
+    assert gym_params([], f, secret=True).sha256 != hidden.sha256  # not guessable from trim alone
+    assert gym_params(["trim=0.1"]).sha256 != hidden.sha256
+    with pytest.raises(GymParamError, match="--param is visible in the command"):
+        gym_params(["trim=0.1"], f, secret=True)
+    with pytest.raises(GymParamError, match="--secret needs --param-file"):
+        gym_params([], None, secret=True)
+    f.write_text("trim: 2\n")
+    with pytest.raises(GymParamError, match=rf"--param-file {f}: parameter trim=2: out of range"):
+        gym_params([], f)
+    assert SimulatorInfo(name="gym-duckietown", version="6.1.34", hidden=True, sha256=hidden.sha256
+                         ).describe().startswith("gym-duckietown 6.1.34, parameters hidden (sha256 ")
+
+
+def test_the_cli_refuses_bad_parameters_before_starting_gym() -> None:
+    res = CliRunner().invoke(app, ["gym", "serve", "--param", "trimm=0.1", "--path", "/nonexistent"])
+    assert res.exit_code == 2 and "did you mean 'trim'" in res.output
+    res = CliRunner().invoke(app, ["gym", "params"])
+    assert res.exit_code == 0 and "cam_fov_y" in res.output and "not taken:" in res.output
+
+
+def test_check_says_what_is_missing(tmp_path) -> None:
+    res = CliRunner().invoke(app, ["gym", "check", "--path", str(tmp_path / "none")])
+    assert res.exit_code == 1 and "run: proxybench gym setup --path" in res.output
