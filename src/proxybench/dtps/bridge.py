@@ -20,6 +20,10 @@ its stdin/stdout in the format of ``pipe.py`` (loaded by path). Two roles:
             and sends (0, 0) when no command came for ``--watchdog`` seconds, on ``op: stop``, and at its
             end (``op: quit``, end of input, SIGTERM), trying for ``--stop-grace`` s to deliver it.
 
+With ``--own-netns`` (root; the evaluator's agent packages) the server moves into a network namespace of its
+own before it listens, and with ``--drop-to USER`` runs on as that user: the package's sandbox joins that
+namespace, so the agent reaches the robot on 127.0.0.1:7501 and nothing else, and cannot reach this process.
+
 Run: ``<sdk python> -I bridge.py server --port 7501 --name map_0/vehicle_0`` (docs/dtps.md, "The bridge").
 """
 
@@ -205,6 +209,8 @@ class Server:
             await self.queues[topic].subscribe(self._on_command(topic))
         await self.queues["state/reset"].subscribe(self._on_reset)
         await self.queues["actuator/lights/base/pattern"].subscribe(self._on_lights)
+        if getattr(self.args, "drop_to", ""):
+            _drop_to(self.args.drop_to)
         self.out.send(ev="ready", url=url, prefix=f"{self.args.prefix}/{self.args.name}".strip("/"),
                       topics=list(ROBOT_TOPICS) + list(MAP_TOPICS))
 
@@ -452,6 +458,43 @@ def _pose_of(msg: dict) -> list[float]:
     return [float(msg["x"]), float(msg["y"]), float(msg.get("theta", msg.get("yaw", 0.0)))]
 
 
+def _own_network() -> None:
+    """Move this process into a network namespace of its own, its loopback up (needs root): the virtual robot
+    of an agent package serves there, and only that package's sandbox joins it."""
+    import ctypes
+    import fcntl
+    import socket
+    import struct
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.unshare(0x40000000) != 0:  # CLONE_NEWNET
+        err = ctypes.get_errno()
+        raise OSError(err, f"unshare(CLONE_NEWNET): {os.strerror(err)} (a namespace of its own needs root)")
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        flags = struct.unpack("16sH14x", fcntl.ioctl(s, 0x8913, struct.pack("16sH14x", b"lo", 0)))[1]  # SIOCGIFFLAGS
+        fcntl.ioctl(s, 0x8914, struct.pack("16sH14x", b"lo", flags | 1))  # SIOCSIFFLAGS: IFF_UP
+
+
+def _drop_to(user: str) -> None:
+    """Run on as ``user`` (no groups): the server parses what a stranger's agent sends, so it gets no rights to
+    lose. Called once the server listens; every module it may still import is imported first, while the SDK
+    environment (in root's home, say) is still readable."""
+    import importlib
+    import pkgutil
+    import pwd
+
+    for name in ("dtps", "dtps_http", "aiohttp", "cbor2", "multidict", "yarl"):
+        package = importlib.import_module(name)
+        for info in pkgutil.walk_packages(getattr(package, "__path__", []), name + "."):
+            with contextlib.suppress(Exception):  # an optional part without its dependency
+                importlib.import_module(info.name)
+    importlib.import_module("encodings.idna")
+    pw = pwd.getpwnam(user)
+    os.setgroups([])
+    os.setgid(pw.pw_gid)
+    os.setuid(pw.pw_uid)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="role", required=True)
@@ -460,6 +503,8 @@ def main() -> None:
     srv.add_argument("--port", type=int, default=7501)
     srv.add_argument("--name", default="map_0/vehicle_0")
     srv.add_argument("--prefix", default="robot")
+    srv.add_argument("--own-netns", action="store_true", help="serve in a network namespace of its own (root)")
+    srv.add_argument("--drop-to", default="", help="once listening, run on as this user")
     cli = sub.add_parser("client")
     cli.add_argument("--url", required=True)
     cli.add_argument("--name", required=True, help="the robot's path on the server (a real DB21: its name; the "
@@ -474,6 +519,12 @@ def main() -> None:
     for handler in logging.getLogger().handlers:  # dtps sets its loggers to DEBUG when imported: filter here
         handler.setLevel(logging.WARNING)
     out = Out()
+    if getattr(args, "own_netns", False):
+        try:
+            _own_network()
+        except OSError as exc:
+            out.send(ev="error", detail=f"cannot serve in a network namespace of its own: {exc}")
+            raise SystemExit(2) from None
 
     async def run() -> None:
         loop = asyncio.get_running_loop()

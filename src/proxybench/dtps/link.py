@@ -135,6 +135,10 @@ class BridgeLink:
 
     # -------------------------------------------------------------------------------------- life
     @property
+    def pid(self) -> int:
+        return self._os.pid
+
+    @property
     def alive(self) -> bool:
         return self._os.returncode is None and not self._os.exited()
 
