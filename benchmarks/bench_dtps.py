@@ -3,7 +3,8 @@
 For each frame size (160×120, 640×480) and each agent style (a camera callback that answers at once, and a
 blocking ``capture(block=True); set_pwm()`` loop), one episode in lock-step (frames as fast as the agent
 answers: the achievable camera rate) and one in real time (15 Hz, what SDK agents expect), first quiet,
-then beside a busy neighbour (one ``while True: pass`` process at nice 0, killed at the end). Prints, per
+then beside a busy neighbour (one busy-looping Python process at the benchmark's own niceness, which ends by
+itself after ``--hog-seconds`` and is killed at the end). Prints, per
 run: median and 90th percentile of frame → command latency [ms] (publish of the frame in proxybench to the
 command's arrival back in proxybench), frames per wall second, and simulated seconds per wall second of
 the whole episode including the program's start.
@@ -16,6 +17,7 @@ Needs the SDK environment (``proxybench dtps setup``).
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
 import tempfile
@@ -67,10 +69,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="160×120 only, callback agent only, 4 s episodes")
     ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--hog-seconds", type=float, default=900.0, help="the busy neighbour's longest life")
     args = ap.parse_args()
     seconds = 4.0 if args.quick else args.seconds
     sizes = [(160, 120)] if args.quick else [(160, 120), (640, 480)]
     styles = ["callback"] if args.quick else ["callback", "blocking"]
+    print(f"load average before: {' '.join(f'{v:.1f}' for v in os.getloadavg())}; {os.cpu_count()} CPUs", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         for style, code in AGENTS.items():
@@ -79,7 +83,8 @@ def main() -> None:
         for load in ("quiet", "busy neighbour"):
             hog = None
             if load != "quiet":
-                hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+                hog = subprocess.Popen([sys.executable, "-c", f"import time\nt = time.time() + {args.hog_seconds}\n"
+                                        "while time.time() < t: pass"])
             try:
                 for size in sizes:
                     for style in styles:
