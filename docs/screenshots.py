@@ -32,14 +32,14 @@ MAX_HEIGHT = 2200  # px: a longer page is cut (the top is what the docs show)
 def demo_video(workdir: Path) -> bytes:
     """A real 6 s episode of the ``vision`` agent (camera beside top-down), as the evaluator records it."""
     from proxybench.agents import make_agent
-    from proxybench.domain.maps import load_map
     from proxybench.domain.params import DomainParams
-    from proxybench.domain.simulator import Simulator
-    from proxybench.runner.record import record_episode
+    from proxybench.runner.jobs import DomainSpec
+    from proxybench.runner.record import record_run
 
-    sim = Simulator(load_map("loop_3x3"), DomainParams(image_width=160, image_height=120))
-    _, files = record_episode(sim, make_agent("vision"), 3, 6.0, workdir / "episode", strip_frames=2)
-    return next(f for f in files if f.suffix == ".mp4").read_bytes()
+    params = DomainParams(image_width=160, image_height=120).model_dump(mode="json")
+    rec = record_run(DomainSpec("simulation", params), make_agent("vision"), "loop_3x3", 3, 6.0, workdir / "episode",
+                     strip_frames=2)
+    return next(f for f in rec.files if f.suffix == ".mp4").read_bytes()
 
 
 def shrink(path: Path) -> int:

@@ -23,7 +23,7 @@ RANKS = {
     "tasks": 4,
     "runner": 5, "usefulness": 5, "plots": 5, "gym": 5,
     "targets": 6, "testing": 6, "contract": 6,
-    "client": 7,
+    "client": 7, "autolab": 7,
     "server": 8, "evaluator": 8,
     "experiments": 9,
     "cli": 10, "__main__": 11,

@@ -67,7 +67,9 @@ def test_npc_robot_looks_like_a_duckiebot_and_hides_the_lane_line_behind_it():
     empty = frame(pose=ego)
     img = frame(npcs=Traffic(robots=(NpcRobot(pose=npc, speed_scale=0.0),)), pose=ego)
     static = frame(dataclasses.replace(STRAIGHT, objects=(MapObject("duckiebot", *npc[:2]),)), pose=ego)
-    assert np.array_equal(img, static)  # drawn exactly like the static duckiebot object at its pose
+    # drawn like the static duckiebot object at its pose, plus its roof tag (a few pixels of its top face)
+    differ = np.any(img != static, axis=-1)
+    assert 0 < differ.sum() < 60 and np.all(np.abs(img[differ].astype(int) - static[differ]) > 0)
     table = camera_table(BASE)
     im, em = img.astype(int), empty.astype(int)
     yellow = (em[..., 0] > 150) & (em[..., 1] > 120) & (em[..., 2] < 100)

@@ -2,6 +2,7 @@
 
 from proxybench.cli import (  # noqa: F401 - importing registers the commands
     agents,
+    autolab,
     drive,
     dtps,
     evaluate,
@@ -17,6 +18,7 @@ from proxybench.cli import (  # noqa: F401 - importing registers the commands
     server,
     targets,
     usefulness,
+    validate,
 )
 from proxybench.cli.app import app
 

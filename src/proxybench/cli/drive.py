@@ -57,6 +57,10 @@ def run(
     robot_start_timeout: RobotStartTimeout = None,
     robot_step_timeout: RobotStepTimeout = None,
     robot_no_reflection: RobotNoReflection = False,
+    watchtowers: str | None = typer.Option(
+        None, "--watchtowers", help="also record a lab's watchtowers into OUT/watchtowers (a log for `proxybench "
+                                    "localize`): auto (the layout file beside the map, else one generated to cover "
+                                    "the road) or a layout file (docs/autolab.md)"),
 ) -> None:
     """Drive an agent (default: the privileged PID controller) around a map in simulation and record it.
 
@@ -95,6 +99,20 @@ def run(
         err_console.print(f"[red]error:[/red] --out: cannot create the folder {escape(str(out))}: "
                           f"{escape(exc.strerror or str(exc))}", highlight=False)
         raise typer.Exit(1) from exc
+    layout = streams = None
+    if watchtowers is not None:
+        from proxybench.autolab.cli_support import layout_streams
+        from proxybench.autolab.watchtowers import LayoutError
+
+        if robot_cmd is not None:
+            err_console.print("[red]error:[/red] --watchtowers are simulated: they need the built-in simulator, not "
+                              "--robot-cmd", highlight=False)
+            raise typer.Exit(2)
+        try:
+            layout, streams, _ = layout_streams(watchtowers, m)
+        except LayoutError as exc:
+            err_console.print(f"[red]error:[/red] --watchtowers: {escape(str(exc))}", highlight=False)
+            raise typer.Exit(1) from exc
     if robot_cmd is not None:  # the robot decides its camera; it is asked to step at the default rate
         domain = DomainSpec.robot(robot_cmd, frame_rate=DEFAULT_FRAME_RATE, options=robot_options)
         seconds_label, frames = f"{seconds:g} s on robot node", None  # the robot says its rate when it starts
@@ -109,7 +127,7 @@ def run(
         task = progress.add_task(f"{m.name}, {seconds_label}", total=frames)
         try:
             rec = record_run(domain, agent, m, seed, seconds, out, video=video,
-                             meta={"map": m.name}, on_frame=lambda k: progress.advance(task))
+                             meta={"map": m.name}, on_frame=lambda k: progress.advance(task), streams=streams)
         except RobotFailure as exc:
             err_console.print(f"[red]robot failure:[/red] {escape(exc.reason)}: {escape(exc.detail)}", highlight=False)
             for line in exc.stderr_tail[-10:]:
@@ -122,6 +140,10 @@ def run(
             getattr(agent, "close", lambda: None)()
     traj = rec.trajectory
     traj.save(out / "trajectory.parquet")
+    if layout is not None:
+        from proxybench.autolab.cli_support import finish_sim_log
+
+        rec.files.append(finish_sim_log(out, layout, m.name, agent.name, seed, seconds, traj.termination))
     scores = {name: METRICS[name](traj) for name in _RUN_METRICS}
     source = traj.meta["source"]
     record = {"map": m.name, "agent": agent.name, "privileged": agent.privileged, "seed": seed, "source": source,

@@ -252,6 +252,9 @@ def evaluate(
     start_timeout: float = typer.Option(30.0, "--start-timeout", help=START_TIMEOUT_HELP),
     step_timeout: float = typer.Option(5.0, "--step-timeout", help=STEP_TIMEOUT_HELP),
     no_reflection: bool = typer.Option(False, "--no-reflection", help=NO_REFLECTION_HELP),
+    watchtowers: str | None = typer.Option(None, "--watchtowers", help="also record a lab's watchtowers in every "
+                                           "episode into RUN_DIR/logs/<agent>/<episode> (for `proxybench localize`): "
+                                           "auto or a layout file (docs/autolab.md)"),
 ) -> None:
     """Run agents on a benchmark and print the leaderboard in the benchmark's lexicographic semiorder.
 
@@ -278,6 +281,17 @@ def evaluate(
     options = node_options(agent_cwd, transport, start_timeout, step_timeout, no_reflection)
     specs = _agent_specs(agent, agent_cmd, options, bench)
     run_dir = run_dir or Path("out/evaluate") / bench.name
+    layout = streams = None
+    if watchtowers is not None:
+        from proxybench.autolab.cli_support import layout_streams
+        from proxybench.autolab.watchtowers import LayoutError
+        from proxybench.domain.maps import MapError, load_map
+
+        try:
+            layout, streams, _ = layout_streams(watchtowers, load_map(bench.map))
+        except (LayoutError, MapError) as exc:
+            err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
+            raise typer.Exit(2) from exc
     be = make_backend(backend, workers)
     with progress_bar(TextColumn(f"[bold]{bench.name}[/bold] episodes"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), console=console, transient=True) as bar:
@@ -285,13 +299,19 @@ def evaluate(
         try:
             ev = evaluate_benchmark(bench, specs, run_dir, be, domain=domain,
                                     privileged=lambda s: s.command is None and ZOO[s.name].privileged,
-                                    progress=lambda d, t: bar.update(task, completed=d, total=t))
+                                    progress=lambda d, t: bar.update(task, completed=d, total=t), streams=streams)
         except BenchmarkError as exc:
             err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
             raise typer.Exit(2) from exc
         finally:
             be.close()
     _print_leaderboard(ev, run_dir)
+    if layout is not None:
+        from proxybench.autolab.cli_support import logs_from_results
+
+        logs = logs_from_results(ev.sweep.results, layout, bench.map, run_dir / "logs", bench.duration)
+        console.print(f"watchtower logs of {logs} episode(s) in {run_dir / 'logs'} (proxybench localize "
+                      f"{run_dir / 'logs'} --map {bench.map} --out TARGET)", highlight=False)
     if video:
         _videos(ev, specs, run_dir)
 

@@ -61,6 +61,9 @@ def record(
     when: str = typer.Option("", help="when (default: today)"),
     backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
     workers: int | None = typer.Option(None, min=1),
+    watchtowers: str | None = typer.Option(None, "--watchtowers", help="also record a lab's watchtowers (reality "
+                                           "model only) into DIR/logs/<agent>/<episode>, for `proxybench localize`: "
+                                           "auto or a layout file (docs/autolab.md)"),
 ) -> None:
     """Record agents on a live target into DIR: one trajectory per (agent, episode) plus target.yaml.
 
@@ -93,6 +96,19 @@ def record(
         _fail(str(exc))
     size = _image_size(image_size)
     assert size is not None
+    streams = on_streams = None
+    if watchtowers is not None:
+        from proxybench.autolab.cli_support import layout_streams, result_log
+        from proxybench.autolab.watchtowers import LayoutError
+        from proxybench.domain.maps import MapError, load_map
+
+        try:
+            layout, streams, _ = layout_streams(watchtowers, load_map(map_name))
+        except (LayoutError, MapError) as exc:
+            _fail(str(exc))
+
+        def on_streams(res, folder):
+            result_log(res, folder, layout, map_name, seconds, "reality-model")
     be = make_backend(backend, min(workers or robot_nodes, robot_nodes) if robot_cmd else 1 if dtps else workers)
     t0 = time.perf_counter()
     with status("recording") as spinner:
@@ -100,7 +116,8 @@ def record(
             summary = record_target(out, target, specs, map_name=map_name, seconds=seconds, episodes=episodes,
                                     seed=seed, image_size=(size[0], size[1]), description=description, who=who,
                                     where=where, when=when or time.strftime("%Y-%m-%d"), backend=be,
-                                    progress=lambda d, t: spinner.update(f"recording: episode {d}/{t}"))
+                                    progress=lambda d, t: spinner.update(f"recording: episode {d}/{t}"),
+                                    streams=streams, on_streams=on_streams)
         except TargetError as exc:
             _fail(str(exc))
         finally:

@@ -245,7 +245,29 @@ def builtin_map_names() -> list[str]:
 def _builtin_map_path(name: str) -> Path | None:
     root = resources.files("proxybench") / "maps"
     candidate = root / f"{name}.yaml"
-    return Path(str(candidate)) if candidate.is_file() else None
+    if candidate.is_file():
+        return Path(str(candidate))
+    return duckietown_world_map(name)
+
+
+#: the package whose 44 maps (the Autolabs' among them) load by name when it is installed
+DUCKIETOWN_WORLD = "duckietown-world-daffy"
+
+
+def duckietown_world_map(name: str) -> Path | None:
+    """The file of duckietown-world's map ``name`` (e.g. ``ETHZ_autolab_technical_track``) if that package is
+    installed (``pip install 'proxybench[autolab]'``): found through its file list, never imported."""
+    from importlib import metadata
+
+    try:
+        files = metadata.files(DUCKIETOWN_WORLD) or []
+    except metadata.PackageNotFoundError:
+        return None
+    for f in files:
+        if str(f).endswith(f"/gd1/maps/{name}.yaml"):
+            path = Path(str(f.locate()))
+            return path if path.is_file() else None
+    return None
 
 
 def load_map(name_or_path: str | Path) -> Map:
@@ -259,7 +281,8 @@ def load_map(name_or_path: str | Path) -> Map:
         builtin = _builtin_map_path(str(name_or_path)) if "/" not in str(name_or_path) else None
         if builtin is None:
             names = ", ".join(builtin_map_names())
-            raise MapError([MapIssue(str(name_or_path), f"no such map file or built-in map (built-in: {names})")])
+            raise MapError([MapIssue(str(name_or_path), f"no such map file or built-in map (built-in: {names}; "
+                                     f"with {DUCKIETOWN_WORLD} installed, its maps too)")])
         path = builtin
     try:
         text = path.read_text(encoding="utf-8")

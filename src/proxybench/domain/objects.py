@@ -18,8 +18,10 @@ kind                          shape                                             
 ``bus``, ``truck``            box 0.40 × 0.16 m, h 0.16 m                        robot-like
 ``trafficlight``              dark box 0.08 × 0.08 m from 0.30 to 0.40 m (the    none
                               head; its stand is beside the road in a lab)
-``floor_tag``                 AprilTag on the floor: black square of the tag's   none
-                              ``size`` (0.08 m) in a white border, 1 mm high
+``floor_tag``                 AprilTag on the floor: a tag36h11 with a known id   none
+                              is drawn with its bit pattern (``TAG``), its black
+                              square the tag's ``size``, in a white ring of one
+                              cell, 1 mm high; other tags as a plain black square
 ``checkerboard``              grey board 0.01 × 0.30 m, h 0.25 m                 duckie-like
 anything else                 grey box 0.10 × 0.10 m, h 0.10 m                   duckie-like
                               (``map check`` warns once per unknown kind)
@@ -31,6 +33,9 @@ and with a *robot-like* object when its centre comes within ``ROBOT_MARGIN`` = 0
 centre. Map objects are static; moving ones (NPC robots, pedestrians) and per-world extras are
 ``proxybench.domain.npcs``, drawn from the same primitives. Duckies and duckiebots take their colours from
 the domain parameters ``duckie_rgb`` and ``duckiebot_rgb`` (their *material*), everything else keeps its own.
+
+Robots (the ego and NPC robots, drawn for the watchtowers and for each other) carry a roof tag: a
+tag36h11 of ``ROOF_TAG_SIZE`` on top of their body (``robot_primitives``).
 
 ``pack_objects`` returns the arrays the compiled code reads: ``prims`` (P, PF) for rendering and
 ``colliders`` (M, CF) for collisions, with the column indices in ``PF_*`` / ``CF_*``.
@@ -45,7 +50,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from proxybench.domain.map_objects import object_family
+from proxybench.domain import apriltags
+from proxybench.domain.map_objects import AprilTag, object_family
 from proxybench.domain.maps import MapObject
 from proxybench.domain.params import DUCKIE_RGB, DUCKIEBOT_RGB
 
@@ -55,20 +61,25 @@ __all__ = [
     "DUCKIE_RGB",
     "MATERIAL_PARAMS",
     "ROBOT_MARGIN",
+    "ROOF_TAG_Z",
+    "TAG",
     "ObjectArrays",
     "Primitive",
     "collision_check",
     "object_collides",
     "object_primitives",
     "pack_objects",
+    "robot_primitives",
 ]
 
 DUCKIE_MARGIN = 0.10
 ROBOT_MARGIN = 0.15
 
-CYLINDER, BOX = 0, 1
+CYLINDER, BOX, TAG = 0, 1, 2
 # primitive columns: shape, centre x, y [m], cos/sin heading, half-size a (radius or half-length along
-# the heading), half-size b (half-width across), z bottom, z top [m], colour r, g, b [0..255], material
+# the heading), half-size b (half-width across), z bottom, z top [m], colour r, g, b [0..255], material.
+# A TAG is a box whose top face shows an AprilTag 36h11 (``apriltags``: 10 × 10 cells over 2a × 2b); its
+# colour columns hold (36-bit code, -, -)
 PF_SHAPE, PF_X, PF_Y, PF_COS, PF_SIN, PF_A, PF_B, PF_Z0, PF_Z1, PF_RED, PF_GREEN, PF_BLUE, PF_MATERIAL = range(13)
 PF = 13
 #: materials: a primitive of material 0 keeps its own colour; the others take the colour the robot's
@@ -95,10 +106,16 @@ class Primitive:
     material: int = MAT_OWN
 
 
+def _tag(tag_id: int, size: float, z: float) -> Primitive:
+    """A tag36h11 marker lying flat with its top at ``z`` [m]; ``size`` [m]: its black square."""
+    half = 0.5 * size * apriltags.GRID / (apriltags.GRID - 2)
+    return Primitive(TAG, half, half, z - 0.0005, z, (float(apriltags.CODES[tag_id]), 0.0, 0.0))
+
+
 _GREY = (150.0, 150.0, 150.0)
 
 
-def _shapes(kind: str, tag_size: float | None = None) -> tuple[list[Primitive], bool]:
+def _shapes(kind: str, tag: AprilTag | None = None) -> tuple[list[Primitive], bool]:
     """(primitives at scale 1, robot-like?) for an object kind."""
     family = object_family(kind)
     k = kind.lower()
@@ -126,8 +143,10 @@ def _shapes(kind: str, tag_size: float | None = None) -> tuple[list[Primitive], 
         # the head only: in a lab it hangs over the intersection from a stand beside the road
         return [Primitive(BOX, 0.04, 0.04, 0.30, 0.40, (40.0, 40.0, 40.0))], False
     if family == "floor_tag":
-        # an AprilTag printed on the floor: its black square inside a white border (tag size / 0.8)
-        half = 0.5 * (tag_size or 0.08)
+        if tag is not None and apriltags.known(tag.family, tag.tag_id):
+            return [_tag(tag.tag_id, tag.size, 0.001)], False
+        # an AprilTag of unknown pattern: its black square inside a white border (tag size / 0.8)
+        half = 0.5 * (tag.size if tag is not None else 0.08)
         return [
             Primitive(BOX, half / 0.8, half / 0.8, 0.0, 0.0005, (235.0, 235.0, 235.0)),
             Primitive(BOX, half, half, 0.0, 0.001, (25.0, 25.0, 25.0)),
@@ -149,7 +168,7 @@ def object_collides(kind: str) -> bool:
 
 def object_primitives(obj: MapObject) -> tuple[list[Primitive], bool]:
     """The object's primitives, scaled by ``obj.scale`` and to ``obj.height``, and whether it is robot-like."""
-    prims, robot = _shapes(obj.kind, obj.tag.size if obj.tag is not None else None)
+    prims, robot = _shapes(obj.kind, obj.tag)
     s = obj.scale or 1.0
     top = max(p.z1 for p in prims) * s
     hz = (obj.height / top) if obj.height else 1.0
@@ -158,6 +177,18 @@ def object_primitives(obj: MapObject) -> tuple[list[Primitive], bool]:
         for p in prims
     ]
     return out, robot
+
+
+#: height of a robot's roof tag above the ground [m] (the top of its body)
+ROOF_TAG_Z = 0.1005
+
+
+def robot_primitives(tag_id: int) -> np.ndarray:
+    """(P, PF) a Duckiebot's body and its roof tag ``tag_id`` (centred over the wheel axle) at the origin,
+    heading +x: the rows of ``pack_objects``, to be moved to where the robot is."""
+    parts = [*_shapes("duckiebot")[0], _tag(tag_id, apriltags.ROOF_TAG_SIZE, ROOF_TAG_Z)]
+    return np.array([[q.shape, q.dx, q.dy, 1.0, 0.0, q.a, q.b, q.z0, q.z1, *q.rgb, q.material] for q in parts],
+                    dtype=np.float64).reshape(-1, PF)
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 __all__ = [
-    "DUCKIEBOT_DISTORTION", "DUCKIEBOT_INTRINSICS", "DUCKIEBOT_RGB", "DUCKIE_RGB", "DomainParams", "ParamSpace",
+    "DUCKIEBOT_DISTORTION", "DUCKIEBOT_INTRINSICS", "DUCKIEBOT_RGB", "DUCKIE_RGB", "NOMINAL_CALIBRATION",
+    "DomainParams", "ParamSpace",
     "ParamSpaceError", "bounds_of", "closest_parameter", "describe_params", "unit_of", "unknown_parameter",
 ]
 
@@ -37,6 +38,21 @@ DUCKIEBOT_DISTORTION = (-0.2, 0.0305, 0.0005859930422629722, -0.0006697840226199
 #: default colours of duckies and duckiebots (objects, pedestrians, NPC robots), sRGB 0..255
 DUCKIE_RGB = (240.0, 200.0, 20.0)
 DUCKIEBOT_RGB = (30.0, 40.0, 90.0)
+#: the DB18's nominal calibration: factory camera intrinsics and lens, 19.15° pitch, no trim, 0.10 s latency.
+#: Every proxy starts from it (``experiments.proxies.NOMINAL``); the built-in reality model's calibrated
+#: values were set to it (``domain.reality.TRUTH``)
+NOMINAL_CALIBRATION: dict[str, Any] = {
+    "trim": 0.0,
+    "gain": 1.0,
+    "command_delay": 0.10,
+    "blur_time": 0.05,
+    "camera_pitch": 19.15,
+    "camera_height": 0.108,
+    "camera_fov_y": 75.0,
+    "fisheye": True,
+    "intrinsics": DUCKIEBOT_INTRINSICS,
+    "distortion": DUCKIEBOT_DISTORTION,
+}
 
 
 class DomainParams(BaseModel):

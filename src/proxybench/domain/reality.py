@@ -23,24 +23,13 @@ from typing import Any
 
 import numpy as np
 
-from proxybench.domain.params import DUCKIEBOT_DISTORTION, DUCKIEBOT_INTRINSICS, DomainParams
+from proxybench.domain.params import NOMINAL_CALIBRATION, DomainParams
 
 __all__ = ["GAP_EFFECTS", "TRUTH", "hardware_variation", "reality_params"]
 
 #: the calibrated values of the parameters the proxy family shares with the reality model; a calibrated
 #: proxy models the Duckiebot's fisheye lens with its factory calibration
-TRUTH: dict[str, Any] = {
-    "trim": 0.0,
-    "gain": 1.0,
-    "command_delay": 0.10,
-    "blur_time": 0.05,
-    "camera_pitch": 19.15,
-    "camera_height": 0.108,
-    "camera_fov_y": 75.0,
-    "fisheye": True,
-    "intrinsics": DUCKIEBOT_INTRINSICS,
-    "distortion": DUCKIEBOT_DISTORTION,
-}
+TRUTH: dict[str, Any] = dict(NOMINAL_CALIBRATION)
 
 #: effects outside the proxy family (the irreducible gap). The visual gap is kept modest: a stronger one
 #: (a lens far from its calibration, darker corners, other paint) shifts the proxy that best predicts the

@@ -5,7 +5,10 @@ sub-frame, ``cull_objects`` keeps those within ``OBJECT_RANGE`` of the camera wh
 into the image, with its image box (pinhole; a fisheye camera tests them over the whole image). The
 renderer's kernel (``proxybench.domain.renderer``) sends only image rows some box touches through
 ``draw_object_row``: each pixel in a box casts its ray (``pixel_rays``, robot frame, turned into the map
-frame) against the primitive and takes its colour where the hit is nearer than the ground.
+frame) against the primitive and takes its colour where the hit is nearer than the ground. A tag
+(``objects.TAG``: an AprilTag lying flat) is sampled 4 × 4 times per pixel (``_tag_pixel``), so its cell
+edges are anti-aliased as a camera's pixels average them: a detector finds their corners to a fraction of a
+pixel, as it does in real images.
 
 Kept apart from the ground renderer so that each stays readable; the kernels here are inlined into
 ``render_rows`` (after editing one, delete the Numba cache: ``find src -name '*.nbi' -delete``).
@@ -18,8 +21,9 @@ import math
 import numba as nb
 import numpy as np
 
+from proxybench.domain.apriltags import GRID
 from proxybench.domain.camera import CameraModel
-from proxybench.domain.objects import BOX
+from proxybench.domain.objects import BOX, TAG
 
 __all__ = ["OBJECT_RANGE", "camera_row", "cull_objects", "draw_object_row", "pixel_rays"]
 
@@ -64,7 +68,7 @@ def _hit_primitive(ox, oy, oz, dx, dy, dz, prim):
         tz_lo = min(ta, tb)
         tz_hi = max(ta, tb)
     nzc = 1.0 if dz < 0.0 else -1.0  # normal of the cap the ray enters through
-    if prim[0] == BOX:
+    if prim[0] >= BOX:  # a box, or a tag (a thin box)
         c = prim[3]
         s = prim[4]
         lx = c * rx + s * ry
@@ -235,12 +239,71 @@ def cull_objects(poses, k_count, cam_index, cams, prims, n_static, ranges, max_r
             nvis[n, k] = cnt
 
 
+#: grey levels of a tag's white and black cells (printed paper, matte ink)
+_TAG_WHITE, _TAG_BLACK = 235.0, 25.0
+_TAG_SUB = 4  # samples per pixel edge
+
+
+@nb.njit(cache=True)
+def _tag_cell_white(code, cx, cy):
+    """Whether cell (cx, cy) (column, row from the top, 0..GRID-1) of the tag with ``code`` is white."""
+    if cx == 0 or cy == 0 or cx == GRID - 1 or cy == GRID - 1:
+        return True
+    if cx == 1 or cy == 1 or cx == GRID - 2 or cy == GRID - 2:
+        return False
+    k = (cy - 2) * (GRID - 4) + (cx - 2)
+    return ((code >> (35 - k)) & 1) == 1
+
+
+@nb.njit(cache=True)
+def _tag_pixel(prim, ox, oy, oz, cs, sn, rays_c, u, v, prev):
+    """Grey level of pixel (u, v) over the tag ``prim``: the mean of 4 × 4 sub-pixel rays (robot-frame rays
+    interpolated between pixel centres, exact for a pinhole); a sample off the tag counts as ``prev``."""
+    h, w = rays_c.shape[0], rays_c.shape[1]
+    u1 = u + 1 if u + 1 < w else u - 1
+    v1 = v + 1 if v + 1 < h else v - 1
+    su = 1.0 if u + 1 < w else -1.0
+    sv = 1.0 if v + 1 < h else -1.0
+    code = np.int64(prim[9])
+    half_a = prim[5]
+    half_b = prim[6]
+    z = prim[8]
+    c = prim[3]
+    s = prim[4]
+    total = 0.0
+    for i in range(_TAG_SUB):
+        du = ((i + 0.5) / _TAG_SUB - 0.5) * su
+        for j in range(_TAG_SUB):
+            dv = ((j + 0.5) / _TAG_SUB - 0.5) * sv
+            rx = rays_c[v, u, 0] + du * (rays_c[v, u1, 0] - rays_c[v, u, 0]) + dv * (rays_c[v1, u, 0] - rays_c[v, u, 0])
+            ry = rays_c[v, u, 1] + du * (rays_c[v, u1, 1] - rays_c[v, u, 1]) + dv * (rays_c[v1, u, 1] - rays_c[v, u, 1])
+            rz = rays_c[v, u, 2] + du * (rays_c[v, u1, 2] - rays_c[v, u, 2]) + dv * (rays_c[v1, u, 2] - rays_c[v, u, 2])
+            if rz > -1e-12:
+                total += prev
+                continue
+            t = (z - oz) / rz
+            hx = ox + t * (cs * rx - sn * ry) - prim[1]
+            hy = oy + t * (sn * rx + cs * ry) - prim[2]
+            lx = c * hx + s * hy
+            ly = -s * hx + c * hy
+            fx = (lx + half_a) / (2.0 * half_a) * GRID
+            fy = (half_b - ly) / (2.0 * half_b) * GRID
+            if fx < 0.0 or fy < 0.0 or fx >= GRID or fy >= GRID:
+                total += prev
+            elif _tag_cell_white(code, int(fx), int(fy)):
+                total += _TAG_WHITE
+            else:
+                total += _TAG_BLACK
+    return total / (_TAG_SUB * _TAG_SUB)
+
+
 @nb.njit(cache=True, inline="always")
 def draw_object_row(tmp, hit, tbest, v, ox, oy, oz, cs, sn, rays_r, lv_r, prims, vis_nk, box_nk, n_vis, gain_n,
-                    mat_n):
+                    mat_n, rays_c):
     """Overwrite the pixels of row ``v`` (sub-frame colours ``tmp``) whose ray meets an object before the ground.
 
-    A primitive of material m > 0 takes the robot's colour ``mat_n[m]`` instead of its own.
+    A primitive of material m > 0 takes the robot's colour ``mat_n[m]`` instead of its own; a tag is drawn
+    with its bit pattern, sampled by the rays ``rays_c`` (H, W, 3) of the whole camera.
     """
     w = tmp.shape[0]
     for u in range(w):
@@ -266,6 +329,9 @@ def draw_object_row(tmp, hit, tbest, v, ox, oy, oz, cs, sn, rays_r, lv_r, prims,
             if t < t_lim:
                 tbest[u] = t
                 shade = _AMBIENT + (1.0 - _AMBIENT) * max(nx * _LX + ny * _LY + nz * _LZ, 0.0)
+                if prim[0] == TAG:  # the grey of its cells (off its edge: white paper)
+                    red = green = blue = _tag_pixel(prim, ox, oy, oz, cs, sn, rays_c, u, v,
+                                                    _TAG_WHITE) if nz > 0.5 else _TAG_WHITE
                 tmp[u, 0] = red * shade * gain_n[0]
                 tmp[u, 1] = green * shade * gain_n[1]
                 tmp[u, 2] = blue * shade * gain_n[2]

@@ -146,7 +146,8 @@ def render_rows(
                             buf[u, 1] = sky[n, _HORIZON, 1] * (1.0 - m) + sky[n, _SKY, 1] * m
                             buf[u, 2] = sky[n, _HORIZON, 2] * (1.0 - m) + sky[n, _SKY, 2] * m
                 draw_object_row(buf, hit, tbest, v, pose_n[k, 0] + cs * fwd, pose_n[k, 1] + sn * fwd, hgt, cs, sn,
-                                rays_r, lv_r, prims, vis[n, k], obj_box[n, k], nvis[n, k], gain[n], mat_rgb[n])
+                                rays_r, lv_r, prims, vis[n, k], obj_box[n, k], nvis[n, k], gain[n], mat_rgb[n],
+                                rays[c])
                 if k > 0:
                     for u in range(w):
                         acc[u, 0] += tmp[u, 0]

@@ -16,7 +16,7 @@ from PIL import Image, ImageDraw
 
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import DRIVABLE_KINDS, GROUND_KINDS, Map
-from proxybench.domain.objects import BOX, MATERIAL_PARAMS, PF_MATERIAL, pack_objects
+from proxybench.domain.objects import CYLINDER, MATERIAL_PARAMS, PF_MATERIAL, TAG, pack_objects
 from proxybench.domain.params import DomainParams
 from proxybench.domain.textures import marking_textures
 
@@ -91,9 +91,9 @@ def draw_objects(img: np.ndarray, m: Map, px_per_tile: int, light: Sequence[floa
     materials = [None, *(getattr(p_, name) for name in MATERIAL_PARAMS[1:])]
     for p in sorted(prims.tolist(), key=lambda q: q[7]):
         shape, x, y, c, s, a, b = p[:7]
-        rgb = materials[int(p[PF_MATERIAL])] or p[9:12]
+        rgb = (25.0, 25.0, 25.0) if shape == TAG else materials[int(p[PF_MATERIAL])] or p[9:12]
         colour = tuple(int(min(max(v * g, 0.0), 255.0)) for v, g in zip(rgb, light, strict=True))
-        if shape == BOX:
+        if shape != CYLINDER:  # a box, or a tag (drawn as its black square)
             pts = [(x + c * sx * a - s * sy * b, y + s * sx * a + c * sy * b) for sx, sy in
                    ((1, 1), (-1, 1), (-1, -1), (1, -1))]
             draw.polygon([(u * scale, h_px - v * scale) for u, v in pts], fill=colour)

@@ -23,6 +23,7 @@ from collections.abc import Sequence
 import numba as nb
 import numpy as np
 
+from proxybench.domain.apriltags import ROOF_TAG_BASE
 from proxybench.domain.lane_pose import point_on_road
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import MapObject
@@ -39,6 +40,7 @@ from proxybench.domain.objects import (
     footprint_distance,
     object_primitives,
     pack_objects,
+    robot_primitives,
 )
 from proxybench.domain.params import DomainParams
 
@@ -151,7 +153,7 @@ class Worlds:
         self.peds = PedestrianArrays.pack(peds)
         duck = pack_objects([MapObject("duckie", 0.0, 0.0)])
         self._duck_prims, self.ped_radius = duck.prims, float(duck.colliders[0, 4])
-        self._bot_prims = pack_objects([MapObject("duckiebot", 0.0, 0.0)]).prims
+        self._bot_prims = robot_primitives(ROOF_TAG_BASE + 1)  # body and roof tag (each NPC robot's own id)
         assert object_primitives(MapObject("duckiebot", 0.0, 0.0))[1], "NPC robots collide as robot-like objects"
         self.speed_scale = np.ones(n)
         self._extras = [pack_objects(())] * n
@@ -188,9 +190,9 @@ class Worlds:
                 ped_row.append(n_rows)
                 rows.append(self._duck_prims)
                 n_rows += self._duck_prims.shape[0]
-            for _ in range(self.robot_lo[w], self.robot_hi[w]):
+            for j in range(self.robot_hi[w] - self.robot_lo[w]):
                 bot_row.append(n_rows)
-                rows.append(self._bot_prims)
+                rows.append(robot_primitives(ROOF_TAG_BASE + 1 + j))
                 n_rows += self._bot_prims.shape[0]
         self.world_lo = np.array(lo, dtype=np.int64)
         self.world_hi = np.append(self.world_lo[1:], n_rows).astype(np.int64)

@@ -69,6 +69,7 @@ class PredictivityResult:
     order: dict[str, float] = field(default_factory=dict)  # agent_sets.order_structure of the target
     baselines: dict[str, Usefulness] = field(default_factory=dict)  # experiments.baselines: no tuning, no simulator
     diagnosis: dict[str, list[PairDisagreement]] = field(default_factory=dict)  # predictor → pairs it orders wrong
+    localisation: Any = None  # autolab.effect.LocalisationEffect: a localised target scored against its truth
 
     def notes(self) -> list[str]:
         """Every distinct note of the usefulness figures (constant metrics, missing values, PPV scales)."""
@@ -166,9 +167,12 @@ def run_predictivity(
     size = load_map(tgt.map).size_m
     diagnosis = diagnose({f"best proxy ({best})": proxies[best], **baseline_tables(tgt, proxies[NOMINAL], higher)},
                          tgt, higher, exp.metrics, size)
+    from proxybench.autolab.effect import effect_for_target  # a target localised from simulated watchtowers
+
     return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran, details, ppv_floor,
                               _agent_sensitivity(exp, domains, proxies, tgt, higher),
-                              order_structure(tgt.results, higher, caps), base, diagnosis)
+                              order_structure(tgt.results, higher, caps), base, diagnosis,
+                              effect_for_target(target, exp.metrics, exp.n_boot, exp.seed))
 
 
 def _agent_sensitivity(exp: Experiment, domains, proxies, tgt: TargetRun, higher) -> dict[str, Any]:

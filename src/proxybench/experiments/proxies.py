@@ -16,23 +16,12 @@ from typing import Any
 
 import numpy as np
 
-from proxybench.domain.params import DUCKIEBOT_DISTORTION, DUCKIEBOT_INTRINSICS, DomainParams
+from proxybench.domain.params import NOMINAL_CALIBRATION, DomainParams, unit_of
 
 __all__ = ["DEFAULT_SEARCH", "DEFAULT_SWEEP", "NOMINAL", "param_label", "proxy_params"]
 
 #: the nominal calibration every proxy starts from (see the module docstring)
-NOMINAL: dict[str, Any] = {
-    "trim": 0.0,
-    "gain": 1.0,
-    "command_delay": 0.10,
-    "blur_time": 0.05,
-    "camera_pitch": 19.15,
-    "camera_height": 0.108,
-    "camera_fov_y": 75.0,
-    "fisheye": True,
-    "intrinsics": DUCKIEBOT_INTRINSICS,
-    "distortion": DUCKIEBOT_DISTORTION,
-}
+NOMINAL: dict[str, Any] = NOMINAL_CALIBRATION
 
 #: predictivity sweep: trim over its physical range in 7 steps (figure 3.3) and three values around the
 #: nominal value of each other parameter (figure 3.4)
@@ -54,9 +43,6 @@ def proxy_params(image_size: tuple[int, int], fixed: dict[str, Any] | None = Non
 
 
 def param_label(name: str) -> str:
-    """``name [unit]`` for axis labels, the unit read from the parameter's description."""
-    import re
-
-    field = DomainParams.model_fields.get(name)
-    m = re.search(r"\[([^\]]+)\]\s*(\(|$)", field.description or "") if field is not None else None
-    return f"{name} [{m.group(1)}]" if m else name
+    """``name [unit]`` for axis labels."""
+    unit = unit_of(name) if name in DomainParams.model_fields else ""
+    return f"{name} [{unit}]" if unit else name

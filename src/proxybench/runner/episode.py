@@ -19,7 +19,7 @@ from proxybench.domain.params import DomainParams
 from proxybench.domain.range_sensor import front_range
 from proxybench.domain.simulator import Simulator
 from proxybench.runner.npcs import NpcDrivers
-from proxybench.runner.rollout import AgentPolicy, PrivilegedAgentError, rollout
+from proxybench.runner.rollout import AgentPolicy, FrameHook, PrivilegedAgentError, rollout
 from proxybench.tasks.trajectory import Trajectory
 
 __all__ = ["PrivilegedAgentError", "SimPlant", "play", "run_episode", "run_episodes", "sim_plant"]
@@ -200,6 +200,7 @@ def run_episodes(
     on_frame: Callable[[int, list[np.ndarray | None], Simulator], None] | None = None,
     metas: Sequence[dict[str, Any] | None] | None = None,
     routes: Sequence[Sequence[str] | None] | None = None,
+    frame_hook: FrameHook | None = None,
 ) -> list[Trajectory]:
     """Episodes of N agents at once, robot i of ``sim`` driven by ``agents[i]`` from ``seeds[i]``.
 
@@ -209,14 +210,17 @@ def run_episodes(
 
     ``routes[i]``: robot i's turns at intersections. Privileged agents are measured against the exits
     the simulator chose for them (recorded as ``route_segment``); camera agents are free, and their
-    route is the exits they took (``proxybench.domain.routes``).
+    route is the exits they took (``proxybench.domain.routes``). ``frame_hook(k, images, alive, plant)``: the
+    engine's own frame hook (e.g. recording a lab's watchtowers while the episodes run), after ``on_frame``.
     """
     n = sim.n
     if not (len(agents) == len(seeds) == n):
         raise ValueError(f"{len(agents)} agents and {len(seeds)} seeds for a simulator of {n} robots")
-    hook = None
+    hook = frame_hook
     if on_frame is not None:
         def hook(k: int, images: Any, alive: np.ndarray, plant: SimPlant) -> None:
             on_frame(k, [None] * n if images is None else list(images), sim)
+            if frame_hook is not None:
+                frame_hook(k, images, alive, plant)
     return rollout(SimPlant(sim, image_filter), AgentPolicy(agents), seeds, seconds, poses=poses, routes=routes,
                    camera=camera, allow_privileged=allow_privileged, on_frame=hook, metas=metas)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
+from proxybench.runner.streams import StreamSpec
 from proxybench.runner.sweep import SweepResult, results_frame, run_jobs
 from proxybench.tasks.benchmark import NAMED_DOMAINS, Benchmark, BenchmarkError
 from proxybench.tasks.scoring import Rank, leaderboard
@@ -46,7 +47,7 @@ def benchmark_domain(bench: Benchmark, named: str | None = None) -> DomainSpec:
 def evaluate_benchmark(
     bench: Benchmark, agents: Sequence[AgentSpec], run_dir: str | Path, backend: Backend | None = None, *,
     domain: str | DomainSpec | None = None, privileged: Callable[[AgentSpec], bool] | None = None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[int, int], None] | None = None, streams: StreamSpec | None = None,
 ) -> Evaluation:
     """Run every admitted agent on every episode of ``bench``; rank them by the benchmark's criteria.
 
@@ -54,7 +55,8 @@ def evaluate_benchmark(
     (``reality``, ...), or any :class:`~.jobs.DomainSpec`, e.g. a robot node (``DomainSpec.robot``). Every
     domain's episodes go through the same jobs, cache and resume, with the benchmark's starts and routes.
     Agents that the benchmark does not admit (privileged ones on a camera-only benchmark) are left out
-    and listed in ``refused`` with the reason.
+    and listed in ``refused`` with the reason. ``streams``: fixed cameras (a lab's watchtowers) recorded in every
+    episode, beside its trajectory in the run directory (``JobResult.streams``).
     """
     from proxybench.tasks.aggregate import aggregate, scores_by_agent
 
@@ -71,11 +73,13 @@ def evaluate_benchmark(
     metrics = tuple(bench.metrics)
     npcs = bench.traffic()
     if dom.kind == "robot":
+        if streams is not None:
+            raise BenchmarkError("watchtower streams are simulated: they need a simulated domain, not a robot node")
         if npcs is not None and not npcs.empty:
             raise BenchmarkError(f"benchmark {bench.name!r} has npcs:, but a robot node drives one robot and no NPCs")
         npcs = None
     jobs = [Job(a, dom, bench.map, ep.index, ep.seed, bench.duration, ep.pose, bench.camera_only, metrics,
-                route=ep.route, npcs=npcs)
+                route=ep.route, npcs=npcs, streams=streams)
             for a in admitted for ep in bench.episode_specs()]
     sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
                      progress=(lambda d, t, _r: progress(d, t)) if progress else None)

@@ -19,12 +19,13 @@ from proxybench import __version__
 
 if TYPE_CHECKING:
     from proxybench.domain.npcs import Traffic
+    from proxybench.runner.streams import StreamSpec
 
 #: bump when what an episode produces changes without a change of its inputs (it is part of every job key)
-ENGINE_VERSION = 5  # 2: camera agents see JPEG-decoded frames, as over the AIDO protocol; 3: intersection routes;
+ENGINE_VERSION = 6  # 2: camera agents see JPEG-decoded frames, as over the AIDO protocol; 3: intersection routes;
 # 4: NPC robots and pedestrians simulated (benchmark ``npcs:``), object colours and extra duckies in θ;
 # 5: the vision agents' lane fit is compiled (closed-form least squares, equal to lstsq within 1e-9, so their
-# trajectories can differ in the last bits)
+# trajectories can differ in the last bits); 6: floor tags and NPC robots' roof tags drawn as AprilTag 36h11 patterns
 
 __all__ = ["DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "batch_group",
            "is_privileged"]
@@ -187,6 +188,7 @@ class Job:
     metrics: tuple[str, ...] = ()
     route: tuple[str, ...] | None = None  # turns at intersections (domain.routes); None: drawn from the seed
     npcs: Traffic | None = None  # NPC robots and pedestrians of the episode's world (domain.npcs)
+    streams: StreamSpec | None = None  # fixed cameras (watchtowers) recorded during the episode (runner.streams)
 
     def __post_init__(self) -> None:
         if self.domain.kind == "robot" and self.npcs is not None and not self.npcs.empty:
@@ -197,13 +199,13 @@ class Job:
     def key(self) -> str:
         """Content hash: equal keys ⇔ the same result (given deterministic agents). Computed once per job
         (it reads map and checkpoint files) and carried along when the job is pickled to a worker."""
-        blob = json.dumps(
-            {"agent": _agent_id(self.agent), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
-             "seed": self.seed, "pose": self.pose, "duration": self.duration, "camera_only": self.camera_only,
-             "route": self.route, "npcs": None if self.npcs is None else self.npcs.to_dict(),
-             "version": __version__, "engine": ENGINE_VERSION},
-            sort_keys=True,
-        )
+        doc = {"agent": _agent_id(self.agent), "domain": json.loads(self.domain.canonical()), "map": _map_id(self.map),
+               "seed": self.seed, "pose": self.pose, "duration": self.duration, "camera_only": self.camera_only,
+               "route": self.route, "npcs": None if self.npcs is None else self.npcs.to_dict(),
+               "version": __version__, "engine": ENGINE_VERSION}
+        if self.streams is not None:  # absent otherwise, so jobs without streams keep their keys
+            doc["streams"] = self.streams.key_data()
+        blob = json.dumps(doc, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 
@@ -221,6 +223,7 @@ class JobResult:
     trajectory: str | None
     message: str = ""
     timings: dict[str, float] = field(default_factory=dict)
+    streams: str | None = None  # folder of the episode's fixed-camera streams, if it recorded any
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)
@@ -263,7 +266,7 @@ def batch_group(job: Job) -> tuple:
     if job.domain.kind == "robot":
         return ("robot", job.domain.canonical())
     who = job.agent if job.agent.command else ("in-process", is_privileged(job.agent))
-    return (who, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs)
+    return (who, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs, job.streams)
 
 
 def is_privileged(spec: AgentSpec) -> bool:

@@ -26,6 +26,7 @@ from proxybench.runner.outcomes import camera_filter
 from proxybench.runner.robot_episode import RobotLacksGroundTruth
 from proxybench.runner.robots import open_robot
 from proxybench.runner.rollout import AgentPolicy, rollout
+from proxybench.runner.streams import StreamRecorder, StreamSpec, with_fixtures
 from proxybench.tasks.trajectory import Trajectory
 
 __all__ = ["Recording", "record_run"]
@@ -45,6 +46,7 @@ def record_run(
     frame_rate: float | None = None, stem: str = "drive", video: bool = True,
     pose: tuple[float, float, float] | None = None, route: Sequence[str] | None = None, npcs: Any = None,
     strip_frames: int = 12, on_frame: Callable[[int], None] | None = None, meta: dict[str, Any] | None = None,
+    streams: StreamSpec | None = None,
 ) -> Recording:
     """Drive ``agent`` in ``domain`` for ``seconds`` and write ``<stem>.mp4`` (if ``video``) and
     ``<stem>_strip.png`` into ``out``.
@@ -53,7 +55,9 @@ def record_run(
     so that people can; a robot node sends frames only to camera agents. ``frame_rate`` [Hz]: what a robot
     node is asked to step at (a simulated domain's comes from its θ). A robot node that fails raises
     :class:`~proxybench.protocol.RobotFailure`; a privileged agent on a robot without the true lane pose,
-    :class:`~proxybench.runner.robot_episode.RobotLacksGroundTruth`.
+    :class:`~proxybench.runner.robot_episode.RobotLacksGroundTruth`. ``streams``: also record these fixed cameras
+    (a lab's watchtowers, simulated domains only; their fixtures join the map) into ``out/watchtowers/<camera>/``
+    (``runner.streams``).
     """
     import time
 
@@ -61,6 +65,8 @@ def record_run(
     out.mkdir(parents=True, exist_ok=True)
     m = load_map(map_) if isinstance(map_, str) else map_
     t0 = time.perf_counter()
+    if domain.kind == "robot" and streams is not None:
+        raise ValueError("watchtower streams are simulated: they need a simulated domain, not a robot node")
     if domain.kind == "robot":
         robot = open_robot(domain, frame_rate)
         try:
@@ -69,9 +75,17 @@ def record_run(
         finally:
             robot.close()
     else:
-        sim = Simulator(m, DomainParams.model_validate(domain.params), npcs=npcs)
-        rec = _record(SimPlant(sim, camera_filter()), agent, seed, seconds, out, stem, video, pose, route,
-                      strip_frames, on_frame, meta)
+        world = with_fixtures(m, streams.fixtures) if streams is not None else m  # the lab's calibration tags
+        sim = Simulator(world, DomainParams.model_validate(domain.params), npcs=npcs)
+        recorder = StreamRecorder(sim, streams, out / "watchtowers") if streams is not None else None
+        try:
+            rec = _record(SimPlant(sim, camera_filter()), agent, seed, seconds, out, stem, video, pose, route,
+                          strip_frames, on_frame, meta, recorder)
+        finally:
+            if recorder is not None:
+                recorder.close()
+        if recorder is not None:
+            rec.files.insert(0, recorder.out)
     rec.wall_s = time.perf_counter() - t0
     return rec
 
@@ -88,7 +102,7 @@ def _view(plant) -> np.ndarray:
 
 
 def _record(plant, agent: Agent, seed: int, seconds: float, out: Path, stem: str, video: bool, pose, route,
-            strip_frames: int, on_frame, meta) -> Recording:
+            strip_frames: int, on_frame, meta, recorder: StreamRecorder | None = None) -> Recording:
     every = 1
     strip: list[np.ndarray] = []
     labels: list[str] = []
@@ -110,6 +124,8 @@ def _record(plant, agent: Agent, seed: int, seconds: float, out: Path, stem: str
             if k % every == 0 and len(strip) < strip_frames:
                 strip.append(img)
                 labels.append(f"t={k / p.frame_rate:.1f}s")
+        if recorder is not None and alive[0]:
+            recorder.frame(p.time(0))
         if on_frame is not None:
             on_frame(k)
 

@@ -1,4 +1,8 @@
-"""Open-loop replays: the same wheel commands played in several domains side by side, frame by frame.
+"""Open-loop replays: recorded wheel commands played again in other domains, frame by frame.
+
+Trajectory matching (the system-identification route: which θ reproduces a target's recorded runs under the
+same commands?, :mod:`proxybench.experiments.validate`) replays each recorded run's commands from its start
+(:func:`replay_runs`).
 
 POD (:mod:`proxybench.experiments.pod`) compares what two domains' cameras show under one command sequence;
 the commands themselves come from an agent driving one of them (:func:`agent_commands`). Both are episodes
@@ -18,7 +22,7 @@ from proxybench.domain.simulator import Simulator
 from proxybench.runner.episode import SimPlant, run_episode
 from proxybench.runner.rollout import OpenLoopPolicy, rollout
 
-__all__ = ["agent_commands", "open_loop_frames"]
+__all__ = ["Playback", "agent_commands", "frame_commands", "open_loop_frames", "replay_runs"]
 
 
 def open_loop_frames(
@@ -49,3 +53,43 @@ def agent_commands(m: Map | str, params: DomainParams, agent, seed: int, seconds
     traj = run_episode(sim, agent, seed, seconds, camera=False)
     per_frame = sim.substeps
     return np.stack([traj["pwm_left"][1::per_frame], traj["pwm_right"][1::per_frame]], axis=1)
+
+
+class Playback:
+    """A batch policy that plays each robot's own command sequence, one row per frame (then zeros)."""
+
+    def __init__(self, commands: Sequence[np.ndarray], name: str = "playback"):
+        self.commands = [np.asarray(c, float).reshape(-1, 2) for c in commands]
+        self.names = [name] * len(self.commands)
+        self.privileged = [False] * len(self.commands)
+        self._k = 0
+
+    def reset(self, seeds: Sequence[int]) -> dict[int, BaseException]:
+        self._k = 0
+        return {}
+
+    def act(self, plant, images, alive: np.ndarray) -> tuple[np.ndarray, dict[int, BaseException]]:
+        out = np.array([c[self._k] if self._k < len(c) else (0.0, 0.0) for c in self.commands], float)
+        self._k += 1
+        return out, {}
+
+
+def frame_commands(t: np.ndarray, pwm: np.ndarray, frame_rate: float) -> np.ndarray:
+    """(frames, 2) wheel commands per frame of a recorded run: the command of the first sample after each frame
+    starts (a command recorded at sample j was applied during the step that ends there)."""
+    frames = max(1, int(np.floor(t[-1] * frame_rate + 1e-9)))
+    idx = np.searchsorted(t, np.arange(frames) / frame_rate, side="right").clip(0, len(t) - 1)
+    return np.asarray(pwm, float)[idx]
+
+
+def replay_runs(m: Map | str, params: DomainParams, runs: Sequence[tuple[np.ndarray, np.ndarray, tuple, int]],
+                seconds: float) -> list[np.ndarray]:
+    """Replay recorded runs open loop in θ ``params``: each run is (t, pwm (n, 2), start pose, seed); all of them
+    one batch of the simulator (no camera). Returns each replay's (samples, 3) array of t, x, y."""
+    if not runs:
+        return []
+    sim = Simulator(m, [params] * len(runs), render=False)
+    commands = [frame_commands(t, pwm, 1.0 / sim.frame_dt) for t, pwm, _, _ in runs]
+    trajs = rollout(SimPlant(sim), Playback(commands), [seed for *_, seed in runs], seconds,
+                    poses=[pose for _, _, pose, _ in runs], camera=False)
+    return [np.column_stack([tr["t"], tr["x"], tr["y"]]) for tr in trajs]

@@ -33,7 +33,7 @@ from proxybench.domain.maps import Map
 from proxybench.domain.routes import given_route_samples
 from proxybench.tasks.trajectory import Trajectory
 
-__all__ = ["AgentPolicy", "BatchPolicy", "OpenLoopPolicy", "Plant", "Policy", "PrivilegedAgentError",
+__all__ = ["AgentPolicy", "BatchPolicy", "FrameHook", "OpenLoopPolicy", "Plant", "Policy", "PrivilegedAgentError",
            "failure_event", "rollout"]
 
 #: a frame hook: ``(k, images, alive, plant)``; ``images`` is what the robots saw (None without cameras),

@@ -67,13 +67,16 @@ def _lens(rng: np.random.Generator) -> dict[str, Any]:
             "distortion": (k1 + _u(rng, -0.04, 0.04), k2 + _u(rng, -0.01, 0.01), p1, p2, k3)}
 
 
-def draw_heldout(seed: int, index: int) -> dict[str, Any]:
+def draw_heldout(seed: int, index: int, ranges: dict[str, tuple[float, float]] | None = None) -> dict[str, Any]:
     """θ of held-out target ``index`` of the family seeded ``seed`` (every DomainParams field it changes).
 
-    The draw is a pure function of (seed, index), so a family is reproducible by whoever holds the seed.
+    ``ranges``: where the θ it shares with the proxies is drawn (default :data:`FAMILY_PARAMS`; the validation
+    study draws wider and off-centre). The draw is a pure function of (seed, index, ranges), so a family is
+    reproducible by whoever holds the seed.
     """
     rng = np.random.default_rng([seed, index, 0x4E1D])
-    theta = {name: _u(rng, lo, hi) for name, (lo, hi) in FAMILY_PARAMS.items()}
+    theta = {name: _u(rng, lo, hi) for name, (lo, hi) in (ranges or FAMILY_PARAMS).items()}
+    theta = {**{n: (lo + hi) / 2 for n, (lo, hi) in FAMILY_PARAMS.items()}, **theta}
     jitter, shape = _u(rng, 0.0, 0.06), _u(rng, 1.0, 4.0)
     mean_extra = jitter / (shape + 1.0)  # E[jitter · U^shape]: keep the *mean* latency at the drawn value
     effects: dict[str, Any] = {
@@ -112,9 +115,9 @@ class HeldOutTarget(_LiveTarget):
 
     kind = "reality-model"
 
-    def __init__(self, seed: int, index: int):
+    def __init__(self, seed: int, index: int, ranges: dict[str, tuple[float, float]] | None = None):
         self.name = f"heldout-{index}"
-        self._drawn = draw_heldout(seed, index)
+        self._drawn = draw_heldout(seed, index, ranges)
 
     def domain(self, image_size: tuple[int, int]) -> DomainSpec:
         w, h = image_size
@@ -147,8 +150,8 @@ class HeldOutTarget(_LiveTarget):
         return run
 
 
-def heldout_targets(n: int, seed: int) -> list[HeldOutTarget]:
-    """The first ``n`` targets of the held-out family seeded ``seed``."""
+def heldout_targets(n: int, seed: int, ranges: dict[str, tuple[float, float]] | None = None) -> list[HeldOutTarget]:
+    """The first ``n`` targets of the held-out family seeded ``seed`` (θ drawn in ``ranges``)."""
     if n < 1:
         raise ValueError(f"targets: need at least 1 held-out target, got {n}")
-    return [HeldOutTarget(seed, i) for i in range(n)]
+    return [HeldOutTarget(seed, i, ranges) for i in range(n)]

@@ -33,7 +33,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from proxybench.dtps.robot_options import DtpsRobotOptions
 from proxybench.protocol.options import RobotNodeOptions
 
-__all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "RobotInfo", "SimulatorInfo", "TargetError", "TargetManifest",
+__all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "ExcludedRun", "RobotInfo", "SimulatorInfo", "TargetError",
+           "TargetManifest",
            "format_errors", "load_manifest", "write_manifest"]
 
 FORMAT = "proxybench-target/1"
@@ -110,6 +111,16 @@ class RobotInfo(BaseModel):
         return f"`{self.command}` ({', '.join(parts)})"
 
 
+class ExcludedRun(BaseModel):
+    """A run the lab recorded but that may not be scored (the DTA's validation phase), and why."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    agent: str
+    run: str = Field(description="where the run's log is")
+    reason: str = Field(min_length=1)
+
+
 class TargetManifest(BaseModel):
     """What a recorded target holds and where it came from."""
 
@@ -135,6 +146,7 @@ class TargetManifest(BaseModel):
     params: dict[str, Any] | None = Field(None, description="θ of a simulated target, for the record")
     truth: dict[str, float] | None = Field(None, description="known calibrated θ, to annotate results only")
     recorded_with: str = ""
+    excluded: list[ExcludedRun] = Field(default_factory=list, description="runs left out of the episodes, and why")
 
     @field_validator("when", mode="before")
     @classmethod

@@ -6,6 +6,7 @@ runner and writes a recorded target directory::
     DIR/target.yaml                         the manifest (written first: an interrupted recording says what it is)
     DIR/episodes/<agent>/<episode>.parquet  one proxybench trajectory file per finished episode
     DIR/.record/                            the runner's episode cache while recording (removed when complete)
+    DIR/logs/<agent>/<episode>/watchtowers/ with ``streams``: each episode's fixed-camera (watchtower) streams
 
 Every finished episode is on disk at once (atomically), so an interrupted recording loses nothing: run the
 same command again and it records only what is missing. Asking for more agents or episodes extends the
@@ -23,6 +24,7 @@ from pathlib import Path
 from proxybench import __version__
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, Job, JobResult
+from proxybench.runner.streams import StreamSpec
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, episode_seed
 from proxybench.targets.dtps import DtpsTarget
@@ -136,9 +138,15 @@ def record_target(
     out: str | Path, target: Target, agents: list[AgentSpec], *, map_name: str = "loop_3x3", seconds: float = 60.0,
     episodes: int = 10, seed: int = 0, image_size: tuple[int, int] = (160, 120), description: str = "",
     who: str = "", where: str = "", when: str = "", backend: Backend | None = None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[int, int], None] | None = None, streams: StreamSpec | None = None,
+    on_streams: Callable[[JobResult, Path], None] | None = None,
 ) -> RecordSummary:
-    """Record ``agents`` × ``episodes`` on a live ``target`` into ``out`` (resuming and extending; see module)."""
+    """Record ``agents`` × ``episodes`` on a live ``target`` into ``out`` (resuming and extending; see module).
+
+    ``streams``: also record these fixed cameras (a lab's watchtowers, simulated targets only) into
+    ``out/logs/<agent>/<episode>/watchtowers``; ``on_streams(result, folder)`` is called for each (e.g. to add
+    the watchtowers' calibrations and the run's log manifest).
+    """
     from proxybench.domain.maps import MapError, load_map
     from proxybench.domain.reality import TRUTH
 
@@ -152,6 +160,8 @@ def record_target(
     except (MapError, FileNotFoundError) as exc:
         raise TargetError(f"map: {exc}") from None
     source, robot = _source(target)
+    if streams is not None and source != "reality-model":
+        raise TargetError("watchtowers are simulated: record them on the reality model, not on a robot node")
     dom = target.domain(image_size)  # type: ignore[attr-defined]
     truth = {k: float(v) for k, v in TRUTH.items() if isinstance(v, int | float) and not isinstance(v, bool)}
     truth.update({k: float(v) for k, v in getattr(target, "overrides", {}).items() if k in truth})
@@ -178,7 +188,7 @@ def record_target(
                 continue
             if label not in specs:
                 raise TargetError(f"the recording lacks agent {label!r} episode {e}: give --agent {label} to record it")
-            job = Job(specs[label], dom, manifest.map, e, seeds[e], seconds, pose=poses[e])
+            job = Job(specs[label], dom, manifest.map, e, seeds[e], seconds, pose=poses[e], streams=streams)
             todo.append(job)
             dest[job.key] = path
     failed: list[str] = []
@@ -189,6 +199,11 @@ def record_target(
             robot_failed.append(f"{res.agent} episode {res.episode}: {res.message}")
             return
         _place(res, dest[res.key])
+        if res.streams is not None:
+            folder = out / "logs" / res.agent / str(res.episode)
+            _place_streams(Path(res.streams), folder / "watchtowers")
+            if on_streams is not None:
+                on_streams(res, folder)
         if res.termination == "agent_failure":
             failed.append(f"{res.agent} episode {res.episode}: {res.message}")
 
@@ -218,3 +233,12 @@ def record_target(
            for a in manifest.agents for e in manifest.episodes):
         shutil.rmtree(cache, ignore_errors=True)
     return RecordSummary(out, manifest, sweep.ran, kept, failed)
+
+
+def _place_streams(src: Path, dest: Path) -> None:
+    """Copy an episode's stream folder (from the runner's cache, kept until the recording is complete) to its
+    place in the recording."""
+    if dest.exists():
+        shutil.rmtree(dest)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copytree(src, dest)

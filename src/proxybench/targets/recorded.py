@@ -353,6 +353,7 @@ def check_recording(root: str | Path, metrics: tuple[str, ...] | None = None) ->
         report.problems.extend(str(exc).splitlines())
         return report
     report.manifest = manifest
+    report.notes += [f"excluded: {x.agent}, {x.run}: {x.reason}" for x in manifest.excluded]
     if root.is_file():
         root = root.parent
         report.root = root

@@ -44,7 +44,7 @@ from proxybench.usefulness.metrics import (
 )
 
 __all__ = ["METHODS", "Comparison", "Quality", "compare", "minimum_detectable_effect", "pick", "quality",
-           "selection_scores"]
+           "selection_scores", "trajectory_error"]
 
 Results = Mapping[str, np.ndarray]
 
@@ -198,8 +198,8 @@ def compare(a: str, b: str, regret_a: Sequence[float], regret_b: Sequence[float]
     lo, hi = min(lo, d.mean()), max(hi, d.mean())
     nonzero = d[d != 0]
     p_w = float(wilcoxon(nonzero, alternative="less").pvalue) if len(nonzero) >= 1 else 1.0
-    p_t = float(ttest_1samp(d, 0.0, alternative="less").pvalue) if n >= 2 and np.ptp(d) > 0 else \
-        (0.0 if n >= 2 and d.mean() < 0 else 1.0)
+    spread = np.ptp(d) > 1e-9 * max(1.0, float(np.abs(d).max()))  # equal differences: no t-test to do
+    p_t = float(ttest_1samp(d, 0.0, alternative="less").pvalue) if n >= 2 and spread else float("nan")
     return Comparison(a, b, n, float(d.mean()), float(lo), float(hi), int((d < 0).sum()), int((d > 0).sum()),
                       int((d == 0).sum()), p_w, p_t, float(d.std(ddof=1)) if n > 1 else float("nan"))
 
@@ -214,3 +214,14 @@ def minimum_detectable_effect(n: int, alpha: float = 0.05, power: float = 0.8) -
         return math.inf
     crit = t.ppf(1 - alpha, n - 1)
     return float(brentq(lambda dz: nct.sf(crit, n - 1, dz * math.sqrt(n)) - power, 1e-6, 50.0))
+
+
+def trajectory_error(replay: np.ndarray, recorded: np.ndarray) -> float:
+    """Mean distance [m] between a replayed and a recorded run ((n, 3) rows t, x, y each) over the recorded run's
+    time span, the replay held at its last pose once it ended (a replay that left the road early is far off)."""
+    t = recorded[:, 0]
+    if replay.shape[0] == 0 or t.size == 0:
+        return float("nan")
+    x = np.interp(t, replay[:, 0], replay[:, 1])
+    y = np.interp(t, replay[:, 0], replay[:, 2])
+    return float(np.mean(np.hypot(x - recorded[:, 1], y - recorded[:, 2])))

@@ -240,6 +240,8 @@ def _span(lo: float, hi: float) -> str:
 def findings(res: PredictivityResult) -> list[str]:
     """Plain statements: where PRPV is lowest per parameter, and only as strongly as the paired intervals allow."""
     out = [noise_statement(res), episodes_statement(res)]
+    if res.localisation is not None:  # a target measured through (simulated) watchtowers: what that adds
+        out.append(res.localisation.statement)
     df = res.frame()
     for name, claim in res.claims.items():
         d = df[df.parameter == name].sort_values("value")

@@ -1,0 +1,139 @@
+"""Localisation accuracy against the simulator's truth, and throughput, on the Autolab maps (issue 27).
+
+    .venv/bin/python benchmarks/bench_localization.py            # 3 Autolab maps × 30 s (long: rendering dominates)
+    .venv/bin/python benchmarks/bench_localization.py --quick    # one map, 8 s
+    .venv/bin/python benchmarks/bench_localization.py --log D    # an existing `run --watchtowers` log only
+
+Per map: the PID agent drives one episode while the map's generated watchtower layout (``--watchtowers auto``)
+records; the log is localised (pupil-apriltags, decimation 2, two detection processes) and each localised sample
+is compared with the true pose at its time. Columns: median and 95th percentile of the position error [cm] and
+heading error [deg], over the samples at which at least two watchtowers saw the robot ("≥2 views") and over all;
+the share of the episode localised (of 0.1 s slots, those with a sample within one watchtower frame); the
+median 1σ the pose graph gives for x and y [cm]; throughput, watchtower frames per second through detection
+on 2 processes (the machine's 2 cores). The second table solves the same detections with GTSAM and with SciPy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+MAPS = ("ETHZ_autolab_technical_track", "ETHZ_autolab_fast_track", "ETU_autolab_track")
+
+
+def record(map_name: str, seconds: float, out: Path) -> Path:
+    """One PID episode with the map's auto watchtowers, as ``proxybench run --watchtowers auto`` records it."""
+    from proxybench.agents import make_agent
+    from proxybench.autolab.cli_support import finish_sim_log, layout_streams
+    from proxybench.domain.maps import load_map
+    from proxybench.domain.params import DomainParams
+    from proxybench.runner.jobs import DomainSpec
+    from proxybench.runner.record import record_run
+
+    layout, streams, _ = layout_streams("auto", load_map(map_name))
+    domain = DomainSpec("simulation", DomainParams(image_width=32, image_height=24).model_dump(mode="json"))
+    traj = record_run(domain, make_agent("pid"), map_name, 0, seconds, out, video=False, meta={"map": map_name},
+                      streams=streams).trajectory
+    traj.save(out / "trajectory.parquet")
+    finish_sim_log(out, layout, map_name, "pid", 0, seconds, traj.termination)
+    return out
+
+
+def errors(track, truth: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Position [cm] and heading [deg] error of each localised sample against the truth at its time."""
+    x = np.interp(track.t, truth["t"], truth["x"])
+    y = np.interp(track.t, truth["t"], truth["y"])
+    th = np.interp(track.t, truth["t"], np.unwrap(truth["theta"]))
+    pos = 100 * np.hypot(track.pose[:, 0] - x, track.pose[:, 1] - y)
+    head = np.degrees(np.abs(np.remainder(track.pose[:, 2] - th + math.pi, 2 * math.pi) - math.pi))
+    return pos, head
+
+
+def share_localised(track, truth: dict[str, np.ndarray], window: float) -> float:
+    slots = np.arange(0.0, float(truth["t"][-1]), 0.1)
+    if not track.t.size:
+        return 0.0
+    k = np.clip(np.searchsorted(track.t, slots), 1, track.t.size - 1)
+    near = np.minimum(np.abs(track.t[k] - slots), np.abs(track.t[k - 1] - slots))
+    return float(np.mean(near <= window))
+
+
+def measure(log_dir: Path, map_name: str) -> dict:
+    from proxybench.autolab.localize import detect_log, localize_log
+    from proxybench.autolab.logs import read_log
+    from proxybench.domain.maps import load_map
+    from proxybench.tasks.trajectory import Trajectory
+
+    log = read_log(log_dir)
+    m = load_map(map_name)
+    t0 = time.perf_counter()
+    frames = detect_log(log, "apriltag", workers=2, decimate=2.0)
+    detect_s = time.perf_counter() - t0
+    truth = Trajectory.load(log.truth).columns
+    row = {"map": map_name, "towers": len(log.streams), "frames": len(frames), "fps": len(frames) / detect_s}
+    rate = min(len(s.frames) / max(s.frames[-1].t - s.frames[0].t, 1e-9) for s in log.streams)
+    for solver in ("gtsam", "scipy"):
+        t1 = time.perf_counter()
+        loc = localize_log(log, m, frames=frames, solver=solver)
+        track = loc.robots.get("ego")
+        pos, head = errors(track, truth)
+        two = track.views >= 2
+        row[solver] = {"solve_s": time.perf_counter() - t1, "pos": pos, "head": head, "two": two,
+                       "share": share_localised(track, truth, 1.0 / rate),
+                       "sigma": 100 * float(np.nanmedian(track.sigma[:, :2])) if solver == "gtsam" else float("nan")}
+    return row
+
+
+def _q(v: np.ndarray, q: float) -> str:
+    return f"{np.percentile(v, q):.2f}" if v.size else "–"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="one map, 8 s")
+    ap.add_argument("--seconds", type=float, default=None, help="episode length (default 30, --quick 8)")
+    ap.add_argument("--log", type=Path, default=None, help="measure this log (its map: --map) instead of recording")
+    ap.add_argument("--map", default=None, help="the map of --log, or the one map to record")
+    args = ap.parse_args()
+    seconds = args.seconds or (8.0 if args.quick else 30.0)
+    maps = [args.map] if args.map else (MAPS[:1] if args.quick else MAPS)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in maps:
+            log = args.log if args.log is not None else record(name, seconds, Path(tmp) / name)
+            rows.append(measure(log, name))
+    console = Console(width=200)
+    acc = Table(title=f"Localisation vs the simulator's truth (PID, {seconds:g} s; pupil-apriltags, GTSAM; 2 cores)")
+    for col in ("map", "towers", "samples (≥2 views)", "pos. err. median / p95 [cm], ≥2 views",
+                "heading err. median / p95 [deg], ≥2 views", "pos. err. median / p95 [cm], all", "share localised",
+                "σ_xy median [cm]", "frames/s"):
+        acc.add_column(col, justify="left" if col == "map" else "right")
+    for r in rows:
+        g = r["gtsam"]
+        two = g["two"]
+        acc.add_row(r["map"], str(r["towers"]), f"{g['pos'].size} ({two.sum()})",
+                    f"{_q(g['pos'][two], 50)} / {_q(g['pos'][two], 95)}",
+                    f"{_q(g['head'][two], 50)} / {_q(g['head'][two], 95)}",
+                    f"{_q(g['pos'], 50)} / {_q(g['pos'], 95)}", f"{100 * g['share']:.0f} %", f"{g['sigma']:.2f}",
+                    f"{r['fps']:.1f}")
+    console.print(acc)
+    solv = Table(title="The same detections through both solvers")
+    for col in ("map", "solver", "pos. err. median / p95 [cm]", "heading err. median [deg]", "solve [s]"):
+        solv.add_column(col, justify="left" if col in ("map", "solver") else "right")
+    for r in rows:
+        for s in ("gtsam", "scipy"):
+            g = r[s]
+            solv.add_row(r["map"], s, f"{_q(g['pos'], 50)} / {_q(g['pos'], 95)}", _q(g["head"], 50),
+                         f"{g['solve_s']:.2f}")
+    console.print(solv)
+
+
+if __name__ == "__main__":
+    main()

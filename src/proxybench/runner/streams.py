@@ -1,0 +1,111 @@
+"""Timestamped image streams of fixed cameras (a lab's watchtowers), recorded while an episode runs.
+
+A ``StreamSpec`` rides along with an episode (``Job.streams``, ``record_run(streams=...)``): the cameras
+(``domain.fixed_cameras.FixedCamera``, where they truly are), each one's frame rate and clock offset, and the
+objects the lab adds to the map (its calibration tags, ``fixtures``: they are part of the simulated world,
+so the robots' cameras see them too). ``StreamRecorder`` is called from the episode's frame hook: at every
+camera frame of the episode it renders the fixed cameras that are due and writes, per camera::
+
+    <out>/<camera>/000000.jpg ...         the frames (JPEG by default, as a lab's compressed image topics)
+    <out>/<camera>/timestamps.csv         frame,t: the file's index and the camera's clock [s] at exposure
+
+A camera is due when its own schedule (one frame every 1/rate s from a phase drawn from its name) has come
+since its last frame; its frame shows the world at the episode frame at or after that time (the simulator
+steps at ``frame_rate``), stamped with that time on the camera's clock (episode time + ``clock_offset``).
+Nothing here chooses where episodes run: the runner's frame hook calls it.
+"""
+
+from __future__ import annotations
+
+import csv
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from proxybench.domain.fixed_cameras import FixedCamera, FixedCameraRig
+from proxybench.domain.maps import Map, MapObject
+
+__all__ = ["StreamRecorder", "StreamSpec", "with_fixtures"]
+
+
+@dataclass(frozen=True)
+class StreamSpec:
+    """Fixed cameras to record during an episode: ``rates`` [Hz] and ``clock_offsets`` [s] per camera."""
+
+    cameras: tuple[FixedCamera, ...]
+    rates: tuple[float, ...]
+    clock_offsets: tuple[float, ...]
+    fixtures: tuple[MapObject, ...] = ()
+    image_format: str = "jpg"
+    quality: int = 95
+
+    def __post_init__(self) -> None:
+        if not (len(self.cameras) == len(self.rates) == len(self.clock_offsets)) or not self.cameras:
+            raise ValueError("a stream spec needs one rate and one clock offset per camera, and a camera")
+        if self.image_format not in ("jpg", "png"):
+            raise ValueError(f"image_format must be jpg or png, got {self.image_format!r}")
+        if any(r <= 0 for r in self.rates):
+            raise ValueError("frame rates must be positive")
+
+    def key_data(self) -> dict[str, Any]:
+        """What identifies the streams in a job's hash."""
+        from dataclasses import asdict
+
+        return {"cameras": [asdict(c) for c in self.cameras], "rates": list(self.rates),
+                "clock": list(self.clock_offsets), "fixtures": [asdict(o) for o in self.fixtures],
+                "format": [self.image_format, self.quality]}
+
+
+def with_fixtures(m: Map, fixtures: tuple[MapObject, ...]) -> Map:
+    """``m`` with a lab's fixtures added to its objects."""
+    import dataclasses
+
+    return dataclasses.replace(m, objects=(*m.objects, *fixtures)) if fixtures else m
+
+
+class StreamRecorder:
+    """Writes the streams of ``spec`` for world ``world`` of ``sim`` into ``out`` (see the module docstring)."""
+
+    def __init__(self, sim, spec: StreamSpec, out: str | Path, world: int = 0):
+        self.sim, self.spec, self.world = sim, spec, world
+        self.out = Path(out)
+        self.rig = FixedCameraRig(sim, spec.cameras)
+        self.phase = [(zlib.crc32(c.name.encode()) % 1000) / 1000.0 / r for c, r in zip(spec.cameras, spec.rates,
+                                                                                          strict=True)]
+        self.count = [0] * len(spec.cameras)
+        self.stamps: list[list[tuple[int, float]]] = [[] for _ in spec.cameras]
+        for c in spec.cameras:
+            (self.out / c.name).mkdir(parents=True, exist_ok=True)
+
+    def frame(self, t: float) -> int:
+        """Render and write the cameras due at episode time ``t`` [s]; how many frames were written."""
+        import cv2
+
+        due = [i for i, r in enumerate(self.spec.rates) if t + 1e-9 >= self.phase[i] + self.count[i] / r]
+        if not due:
+            return 0
+        images = self.rig.render(self.world, frame=int(round(t * 1000)), only=due)
+        ext = self.spec.image_format
+        flags = [cv2.IMWRITE_JPEG_QUALITY, self.spec.quality] if ext == "jpg" else []
+        for i in due:
+            cam = self.spec.cameras[i]
+            r = self.spec.rates[i]
+            k = len(self.stamps[i])
+            path = self.out / cam.name / f"{k:06d}.{ext}"
+            if not cv2.imwrite(str(path), np.ascontiguousarray(images[i][:, :, ::-1]), flags):
+                raise OSError(f"{path}: cannot write the frame")
+            self.stamps[i].append((k, t + self.spec.clock_offsets[i]))
+            while t + 1e-9 >= self.phase[i] + self.count[i] / r:  # skip slots the episode's frames stepped over
+                self.count[i] += 1
+        return len(due)
+
+    def close(self) -> None:
+        """Write every camera's ``timestamps.csv``."""
+        for cam, rows in zip(self.spec.cameras, self.stamps, strict=True):
+            with open(self.out / cam.name / "timestamps.csv", "w", newline="") as fh:
+                w = csv.writer(fh)
+                w.writerow(["frame", "t"])
+                w.writerows([(k, f"{t:.6f}") for k, t in rows])
