@@ -23,8 +23,7 @@ AGENTS = Path(__file__).parent / "dtps_agents"
 
 
 def test_an_sdk_manifest_takes_timing_and_refuses_aido_transports():
-    m = AgentManifest(name="m", protocol="duckietown-sdk", command="python3 a.py", timing="lockstep")
-    assert m.sdk_options().timing == "lockstep" and m.sdk_options(own_netns=True).own_netns
+    assert AgentManifest(name="m", protocol="duckietown-sdk", command="python3 a.py", timing="lockstep").timing
     with pytest.raises(ValueError, match="transport"):
         AgentManifest(name="m", protocol="duckietown-sdk", command="python3 a.py", transport="fifo")
     with pytest.raises(ValueError, match="timing: only for protocol duckietown-sdk"):

@@ -376,6 +376,7 @@ def sdk_package_spec(manifest: AgentManifest, folder: str | Path, limits: Limits
     agent shares the host's network with the bridge (reported as unsafe like the rest of those modes)."""
     from proxybench.dtps.agent import NETNS_ENV
     from proxybench.dtps.env import DtpsEnvError, env_path, sdk_python
+    from proxybench.dtps.options import SdkOptions
     from proxybench.runner.jobs import AgentSpec
 
     try:
@@ -388,4 +389,6 @@ def sdk_package_spec(manifest: AgentManifest, folder: str | Path, limits: Limits
     command = confine(list(manifest.command), folder, limits, isolation, parent=parent, python=python,
                       extra_runtime=(env_dir,), extra_env={"PATH": f"{env_dir}/bin{os.pathsep}{default_path}"},
                       join_netns_env=NETNS_ENV if own else None, host_net=not own)
-    return AgentSpec.sdk(manifest.name, shlex.join(command), manifest.sdk_options(own_netns=own))
+    options = SdkOptions(timing=manifest.timing or "realtime", start_timeout=manifest.start_timeout,
+                         step_timeout=manifest.step_timeout, own_netns=own)
+    return AgentSpec.sdk(manifest.name, shlex.join(command), options)

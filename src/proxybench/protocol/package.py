@@ -144,13 +144,6 @@ class AgentManifest(BaseModel):
             object.__setattr__(self, "command", [SHELL, "-c", _CD, "cd", self.cwd, *self.command])
         return self
 
-    def sdk_options(self, **overrides: Any):
-        """The :class:`~proxybench.dtps.options.SdkOptions` of a duckietown-sdk package."""
-        from proxybench.dtps.options import SdkOptions
-
-        return SdkOptions(timing=self.timing or "realtime", start_timeout=self.start_timeout,
-                          step_timeout=self.step_timeout, **overrides)
-
     def node_options(self, **overrides: Any):
         """The :class:`~proxybench.protocol.options.NodeOptions` to start the package's node with."""
         from proxybench.protocol.options import NodeOptions
