@@ -17,6 +17,7 @@ import typer
 from rich.table import Table
 
 from proxybench.cli.app import app, console
+from proxybench.cli.dtps_options import DtpsKind, DtpsOption, DtpsReset, dtps_option_values
 from proxybench.cli.options import non_negative, positive, probability
 from proxybench.cli.usefulness import (
     _AGENT_HELP,
@@ -39,6 +40,9 @@ def plan(
     target: str | None = typer.Option(None, help=f"{_TARGET_HELP} (default: reality)"),
     target_param: list[str] = typer.Option([], "--target-param", help="reality model θ, k=v (repeat)"),
     robot_nodes: int | None = typer.Option(None, min=1, help="robot node processes at once (default: 1)"),
+    dtps_reset: DtpsReset = None,
+    dtps_kind: DtpsKind = None,
+    dtps_option: DtpsOption = [],  # noqa: B006 (typer reads the default, never mutates it)
     agent: list[str] = typer.Option([], "--agent", help=f"{_AGENT_HELP} (default: the target's, else 12 zoo agents)"),
     map_name: str | None = typer.Option(None, "--map", help="map (default: the target's, else loop_3x3)"),
     episodes: int | None = typer.Option(None, min=2, help="pilot episodes per agent (default: 3; a recorded target: "
@@ -84,6 +88,7 @@ def plan(
     from proxybench.usefulness.plan import plan as make_plan
 
     over = _overrides(target=target, target_params=_kv(target_param, "--target-param"), robot_nodes=robot_nodes,
+                      dtps_options=dtps_option_values(dtps_reset, dtps_kind, dtps_option),
                       agents=agent, map=map_name, episodes=episodes, seconds=seconds, metrics=metric,
                       image_size=_image_size(image_size), proxy=_kv(proxy_param, "--proxy-param"),
                       sweep=_sweep(sweep), seed=seed)

@@ -2,7 +2,8 @@
 
 Both take the same experiment options (``--config FILE`` for all of them at once; a command-line option
 beats the file, the file beats the command's default) and any target: ``--target reality`` (default),
-``--target DIR`` (a recorded target) or ``--target "robot:CMD"`` (a robot node).
+``--target DIR`` (a recorded target), ``--target "robot:CMD"`` (a robot node) or ``--target dtps:HOST/PATH`` (a
+DTPS robot: a Duckiebot or a Duckiematrix robot).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemaini
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console, fail
+from proxybench.cli.dtps_options import DtpsKind, DtpsOption, DtpsReset, dtps_option_values
 from proxybench.cli.node_options import (
     RobotCwd,
     RobotNoReflection,
@@ -28,7 +30,8 @@ from proxybench.cli.node_options import (
 from proxybench.cli.options import non_negative, positive
 from proxybench.cli.progress import progress_bar
 
-_TARGET_HELP = "reality (the simulated reality model) | DIR (recorded target) | robot:CMD (a robot node)"
+_TARGET_HELP = ("reality (the simulated reality model) | DIR (recorded target) | robot:CMD (a robot node) | "
+                "dtps:HOST[:PORT]/PATH (a DTPS robot)")
 _AGENT_HELP = ("zoo name, NAME=COMMAND (node), NAME=sdk:COMMAND (duckietown-sdk program), checkpoint X.pt, or agent "
                "package .zip/.tar.gz (repeat)")
 
@@ -134,6 +137,9 @@ def predictivity(
     robot_start_timeout: RobotStartTimeout = None,
     robot_step_timeout: RobotStepTimeout = None,
     robot_no_reflection: RobotNoReflection = False,
+    dtps_reset: DtpsReset = None,
+    dtps_kind: DtpsKind = None,
+    dtps_option: DtpsOption = [],  # noqa: B006 (typer reads the default, never mutates it)
     agent: list[str] = typer.Option([], "--agent", help=f"{_AGENT_HELP} (default: the target's, else the zoo set)"),
     map_name: str | None = typer.Option(None, "--map", help="map (default: the target's, else loop_3x3)"),
     episodes: int | None = typer.Option(None, min=1, help="episodes per agent (default: 10; --quick 3)"),
@@ -166,6 +172,7 @@ def predictivity(
     over = _overrides(target=target, target_params=_kv(target_param, "--target-param"), robot_nodes=robot_nodes,
                       robot_options=robot_option_values(robot_cwd, robot_transport, robot_start_timeout,
                                                         robot_step_timeout, robot_no_reflection),
+                      dtps_options=dtps_option_values(dtps_reset, dtps_kind, dtps_option),
                       agents=agent, map=map_name,
                       episodes=episodes, seconds=seconds, metrics=metric, image_size=_image_size(image_size),
                       proxy=_kv(proxy_param, "--proxy-param"), sweep=_sweep(sweep), n_boot=n_boot,
@@ -232,6 +239,9 @@ def optimize(
     robot_start_timeout: RobotStartTimeout = None,
     robot_step_timeout: RobotStepTimeout = None,
     robot_no_reflection: RobotNoReflection = False,
+    dtps_reset: DtpsReset = None,
+    dtps_kind: DtpsKind = None,
+    dtps_option: DtpsOption = [],  # noqa: B006 (typer reads the default, never mutates it)
     agent: list[str] = typer.Option([], "--agent", help=f"{_AGENT_HELP} (default: the target's, else 12 zoo agents)"),
     map_name: str | None = typer.Option(None, "--map", help="map (default: the target's, else loop_3x3)"),
     episodes: int | None = typer.Option(None, min=1, help="episodes per agent (default: 4; --quick 2)"),
@@ -277,6 +287,7 @@ def optimize(
     over = _overrides(target=target, target_params=_kv(target_param, "--target-param"), robot_nodes=robot_nodes,
                       robot_options=robot_option_values(robot_cwd, robot_transport, robot_start_timeout,
                                                         robot_step_timeout, robot_no_reflection),
+                      dtps_options=dtps_option_values(dtps_reset, dtps_kind, dtps_option),
                       agents=agent, map=map_name,
                       episodes=episodes, seconds=seconds, metrics=metric, image_size=_image_size(image_size),
                       proxy=_kv(proxy_param, "--proxy-param"), search=search or None, n_boot=n_boot, seed=seed,

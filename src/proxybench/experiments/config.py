@@ -4,7 +4,7 @@ Every field is optional and has a command-line option; what neither gives takes 
 (shown by ``--help``). Unknown keys and bad values are errors naming the field. Relative working
 directories in the file are taken from its folder; ``NAME=COMMAND`` strings run where proxybench runs::
 
-    target: reality              # reality | DIR (a recorded target) | robot:COMMAND
+    target: reality              # reality | DIR (a recorded target) | robot:COMMAND | dtps:HOST[:PORT]/PATH
     target_params: {}            # the reality model's θ, overridden (reality only)
     robot_nodes: 1               # processes of a robot node at once (robot:CMD only; 1 for a physical robot)
     robot_options:               # how to start and talk to the robot node (robot:CMD only; all optional)
@@ -13,6 +13,10 @@ directories in the file are taken from its folder; ``NAME=COMMAND`` strings run 
       start_timeout: 120         # s: start + handshake, and each episode's setup
       step_timeout: 10           # s: each per-frame exchange
       reflection: false          # skip describe_protocol
+    dtps_options:                # how to drive a DTPS robot (dtps:HOST[:PORT]/PATH only; all optional; docs/dtps.md)
+      reset: prompt              # prompt | teleport | pose-file (then start_poses: FILE, relative to this file)
+      kind: real                 # what you say the robot is: real | simulated (proxybench cannot tell)
+      pose: state/pose           # or /PATH on pose_url (a localisation system)
     agents: [pid, vision, my-agent=python3 agent.py, models/bc.pt, my-agent.zip]
     # or, as in benchmark files, an agent node with how to start it (tasks/agent_entries.py):
     #   - name: my-lf                # its label
@@ -50,6 +54,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
+from proxybench.dtps.robot_options import DtpsRobotOptions
 from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP, proxy_params
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.targets.manifest import TargetError, format_errors
@@ -137,6 +142,7 @@ class ExperimentConfig(_Strict):
     target_params: dict[str, Any] = Field(default_factory=dict)
     robot_nodes: int = Field(1, ge=1, le=64)
     robot_options: RobotNodeOptions | None = None
+    dtps_options: DtpsRobotOptions | None = None
     agents: list[str | AgentEntry] | None = Field(None, min_length=1)
     map: str | None = None
     episodes: int | None = Field(None, ge=1, le=10_000)
@@ -243,12 +249,16 @@ def _entry_problem(err: Any) -> str:
 
 
 def _robot_cwd_from(data: dict[str, Any], base: Path) -> dict[str, Any]:
-    """The file's ``robot_options.cwd``: a folder inside the file's folder ``base``, named relative to it."""
-    options = data.get("robot_options")
-    cwd = options.get("cwd") if isinstance(options, dict) else None
-    if not isinstance(cwd, str) or not cwd:
-        return data
-    return {**data, "robot_options": {**options, "cwd": str(inside(base, cwd, field="robot_options.cwd"))}}
+    """The file's ``robot_options.cwd`` and ``dtps_options``' files: each inside the file's folder ``base``, named
+    relative to it."""
+    for section, keys in (("robot_options", ("cwd",)), ("dtps_options", ("start_poses", "reset_input"))):
+        options = data.get(section)
+        for key in keys:
+            value = options.get(key) if isinstance(options, dict) else None
+            if isinstance(value, str) and value:
+                options = {**options, key: str(inside(base, value, field=f"{section}.{key}"))}
+                data = {**data, section: options}
+    return data
 
 
 def load_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> ExperimentConfig:
@@ -269,7 +279,7 @@ def load_config(path: str | Path | None, overrides: dict[str, Any] | None = None
         except UntrustedInputError as exc:
             raise ConfigError(f"{path}: {exc}") from None
     over = dict(overrides or {})
-    for section in ("search", "robot_options"):  # an option on the command line changes one field of the file's
+    for section in ("search", "robot_options", "dtps_options"):  # a command-line option changes one field of the file's
         if section in over:
             data[section] = {**(data.get(section) or {}), **over.pop(section)}
     data.update(over)
@@ -326,7 +336,7 @@ def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize", 
     from proxybench.targets.spec import open_target
 
     target = target or open_target(cfg.target, params=cfg.target_params, robot_nodes=cfg.robot_nodes,
-                                   robot_options=cfg.robot_options,
+                                   robot_options=cfg.robot_options, dtps_options=cfg.dtps_options,
                                    frame_rate=proxy_params(cfg.image_size, cfg.proxy).frame_rate)
     d = COMMAND_DEFAULTS[(command, quick)]
     if target.fixed_map is not None and cfg.map is not None and cfg.map != target.fixed_map:

@@ -3,7 +3,8 @@
 The manifest, ``proxybench-agent.yaml`` at the archive root::
 
     name: my-agent
-    protocol: aido-z2            # the AIDO lane-following agent protocol (docs/protocol.md)
+    protocol: aido-z2            # the AIDO lane-following agent protocol (docs/protocol.md), or
+                                 # duckietown-sdk: a program using duckietown-sdk's DB21J (docs/dtps.md)
     command: [python3, agent.py] # started in the unpacked folder; speaks the protocol on stdin/stdout
     # or, as typed in a shell:  command: cd solution && exec python3 solution.py
     description: optional text
@@ -12,6 +13,7 @@ The manifest, ``proxybench-agent.yaml`` at the archive root::
     start_timeout: 60            # optional [s]: start + handshake, and each setup message (at most 600)
     step_timeout: 2              # optional [s]: each observations + get_commands exchange (at most 30)
     reflection: false            # optional: skip describe_protocol (e.g. zuper-nodes on Python >= 3.11)
+    timing: lockstep             # optional, duckietown-sdk only: realtime (default) | lockstep
 
 Archives come from strangers, so :func:`check_archive` refuses anything that could write outside the
 folder it is unpacked in (absolute paths, ``..``, links, devices) or fail to unpack (a member that is both
@@ -50,7 +52,8 @@ from proxybench.untrusted import UntrustedInputError, load_yaml
 __all__ = ["MANIFEST_NAME", "AgentManifest", "ArchiveLimits", "PackageError", "check_archive"]
 
 MANIFEST_NAME = "proxybench-agent.yaml"
-PROTOCOLS = ("aido-z2",)
+PROTOCOLS = ("aido-z2", "duckietown-sdk")
+SDK_PROTOCOL = "duckietown-sdk"
 SHELL = "/bin/sh"
 #: the shell snippet that runs "$@" in the folder "$1" (what ``cwd`` adds in front of the command)
 _CD = 'cd -- "$1" && shift && exec "$@"'
@@ -98,6 +101,7 @@ class AgentManifest(BaseModel):
     start_timeout: float = Field(30.0, gt=0.0, le=600.0, allow_inf_nan=False, description="[s], at most 600")
     step_timeout: float = Field(5.0, gt=0.0, le=30.0, allow_inf_nan=False, description="[s], at most 30")
     reflection: bool = Field(True, description="ask describe_protocol (a node failing it is restarted without)")
+    timing: Literal["realtime", "lockstep"] | None = Field(None, description="duckietown-sdk: realtime | lockstep")
 
     @field_validator("command", mode="before")
     @classmethod
@@ -125,6 +129,15 @@ class AgentManifest(BaseModel):
         if cwd.startswith(("/", "\\")) or norm == ".." or norm.startswith("../"):
             raise ValueError(f"{cwd!r} leaves the package folder (give a folder inside it)")
         return norm
+
+    @model_validator(mode="after")
+    def _options_of_its_protocol(self) -> AgentManifest:
+        if self.protocol == SDK_PROTOCOL and self.transport != "pipe":
+            raise ValueError("transport: a duckietown-sdk program talks DTPS over the network, not AIDO's pipes or "
+                             "FIFOs; leave transport out")
+        if self.protocol != SDK_PROTOCOL and self.timing is not None:
+            raise ValueError(f"timing: only for protocol {SDK_PROTOCOL} (this is {self.protocol})")
+        return self
 
     @model_validator(mode="after")
     def _in_cwd(self) -> AgentManifest:

@@ -72,14 +72,20 @@ class _ResetPlant:
 def serve(map_name: str, out: Path, *, name: str = DEFAULT_NAME, port: int = DEFAULT_PORT,
           seconds: float = float("inf"), episode_seconds: float = 60.0, seed: int = 0,
           params: DomainParams | None = None, on_episode: Callable[[int, Any], None] | None = None,
-          host: str = "127.0.0.1") -> list[Path]:
-    """Serve until ``seconds`` of wall time have passed (or Ctrl-C); the trajectory files written."""
+          on_ready: Callable[[str], None] | None = None, host: str = "127.0.0.1") -> list[Path]:
+    """Serve until ``seconds`` of wall time have passed (or Ctrl-C); the trajectory files written.
+
+    ``on_ready(url)`` runs once the robot's queues exist: an SDK agent started before then cannot connect
+    (the SDK gives up at once on a server that is not there), so say "start your agent" only then.
+    """
     out.mkdir(parents=True, exist_ok=True)
     plant = sim_plant(map_name, params)
     robot = VirtualDB21J(name=name, port=port, host=host)
     files: list[Path] = []
     try:
         robot.publish_map(plant.map)
+        if on_ready is not None:
+            on_ready(robot.url)
         driver = ServeDriver(robot)
         end = time.monotonic() + seconds
         k = 0

@@ -101,7 +101,9 @@ class DomainSpec:
     transport, timeouts, reflection) as sorted pairs; of them only ``cwd`` is part of the key (it changes
     what the command runs; a timeout or the transport does not change an episode). ``frame_rate`` [Hz]: what a
     robot node is asked to step at (the benchmark's or the proxies' rate; a node that says its own rate is
-    stepped at that); part of the key when it is not the default 15 Hz.
+    stepped at that); part of the key when it is not the default 15 Hz. ``link``: how the robot is reached:
+    ``protocol`` (a robot node process, above) or ``dtps`` (a DTPS robot, :meth:`dtps`: ``command`` is then its
+    address ``HOST:PORT/PATH`` and ``options`` a :class:`~proxybench.dtps.robot_options.DtpsRobotOptions`).
     """
 
     name: str
@@ -111,6 +113,7 @@ class DomainSpec:
     nodes: int = 1
     options: tuple[tuple[str, Any], ...] = ()
     frame_rate: float = DEFAULT_FRAME_RATE
+    link: str = "protocol"
 
     @classmethod
     def robot(cls, command: str, *, frame_rate: float, name: str | None = None, nodes: int = 1,
@@ -120,8 +123,19 @@ class DomainSpec:
         return cls(name or f"robot:{command}", kind="robot", command=command, nodes=nodes,
                    options=options.items() if options is not None else (), frame_rate=float(frame_rate))
 
+    @classmethod
+    def dtps(cls, address: Any, *, frame_rate: float, options: Any = None) -> DomainSpec:
+        """The DTPS robot at ``address`` (a ``DtpsAddress``) stepped at ``frame_rate`` [Hz]; ``options``: a
+        ``DtpsRobotOptions`` (or None for the defaults). One robot: one episode at a time."""
+        return cls(f"dtps:{address}", kind="robot", command=str(address), nodes=1,
+                   options=options.items() if options is not None else (), frame_rate=float(frame_rate), link="dtps")
+
     def node_options(self):
-        """The ``RobotNodeOptions`` of a robot domain."""
+        """The ``RobotNodeOptions`` of a robot domain (``DtpsRobotOptions`` of a DTPS robot)."""
+        if self.link == "dtps":
+            from proxybench.dtps.robot_options import DtpsRobotOptions
+
+            return DtpsRobotOptions(**dict(self.options))
         from proxybench.protocol.options import RobotNodeOptions
 
         return RobotNodeOptions(**dict(self.options))
@@ -129,6 +143,9 @@ class DomainSpec:
     def __post_init__(self) -> None:
         if self.kind not in DOMAIN_KINDS:
             raise ValueError(f"DomainSpec {self.name!r}: kind must be one of {DOMAIN_KINDS}, got {self.kind!r}")
+        if self.link not in ("protocol", "dtps") or (self.link == "dtps" and self.kind != "robot"):
+            raise ValueError(f"DomainSpec {self.name!r}: link must be 'protocol', or 'dtps' for a robot domain, got "
+                             f"{self.link!r} ({self.kind})")
         if self.kind == "robot":
             if not (isinstance(self.command, str) and self.command.strip()):
                 raise ValueError(f"DomainSpec {self.name!r}: a robot domain needs command= (the robot node to start)")
@@ -150,6 +167,9 @@ class DomainSpec:
             doc["cwd"] = cwd
         if self.kind == "robot" and self.frame_rate != DEFAULT_FRAME_RATE:  # likewise
             doc["frame_rate"] = self.frame_rate
+        if self.link != "protocol":  # likewise; what changes a DTPS robot's episodes is part of its key
+            doc["link"] = self.link
+            doc["dtps"] = self.node_options().key_data()
         return json.dumps(doc, sort_keys=True)
 
 

@@ -22,7 +22,7 @@ from proxybench.protocol import jpeg
 from proxybench.runner.episode import SimPlant
 from proxybench.runner.jobs import DomainSpec
 from proxybench.runner.outcomes import camera_filter
-from proxybench.runner.robot_episode import RobotPlant
+from proxybench.runner.robots import open_robot
 from proxybench.runner.rollout import OpenLoopPolicy, rollout
 
 __all__ = ["Probe", "probe"]
@@ -62,10 +62,11 @@ def probe(domain: DomainSpec, map_name: str, *, frame_rate: float, seed: int = 0
     A robot node that fails raises :class:`~proxybench.protocol.RobotFailure`.
     """
     if domain.kind == "robot":
-        from proxybench.protocol import RemoteRobot
-
-        with RemoteRobot(domain.command, frame_rate=frame_rate, **domain.node_options().process_kwargs()) as robot:
-            return _drive(RobotPlant(robot, load_map(map_name)), seed, pwm, seconds)
+        robot = open_robot(domain, frame_rate)
+        try:
+            return _drive(robot.plant(load_map(map_name)), seed, pwm, seconds)
+        finally:
+            robot.close()
     sim = Simulator(map_name, DomainParams.model_validate(domain.params), n=1)
     return _drive(SimPlant(sim, camera_filter()), seed, pwm, seconds, kind=domain.kind)
 

@@ -27,7 +27,7 @@ from proxybench.protocol.robot_process import RemoteRobot
 from proxybench.runner.rollout import AgentPolicy, PrivilegedAgentError, rollout
 from proxybench.tasks.trajectory import Trajectory
 
-__all__ = ["RobotLacksGroundTruth", "RobotPlant", "run_episode_on_robot"]
+__all__ = ["RobotLacksGroundTruth", "RobotPlant", "run_episode_on_plant", "run_episode_on_robot"]
 
 
 class RobotLacksGroundTruth(PrivilegedAgentError):
@@ -153,9 +153,19 @@ def run_episode_on_robot(
     termination ``agent_failure``; a failing robot raises :class:`~proxybench.protocol.RobotFailure`
     (there is no valid trajectory then). A privileged agent needs a robot that reports the true lane pose.
     """
+    return run_episode_on_plant(RobotPlant(robot, map_), agent, seed, seconds, pose=pose, route=route, camera=camera,
+                                allow_privileged=allow_privileged, on_frame=on_frame, meta=meta)
+
+
+def run_episode_on_plant(
+    plant: Any, agent: Agent, seed: int, seconds: float, *, pose: tuple[float, float, float] | None = None,
+    route: list[str] | None = None, camera: bool = True, allow_privileged: bool = True,
+    on_frame: Callable[[int, np.ndarray | None], None] | None = None, meta: dict[str, Any] | None = None,
+) -> Trajectory:
+    """:func:`run_episode_on_robot` on a plant of one robot already made (a robot node's or a DTPS robot's)."""
     hook = None if on_frame is None else (lambda k, images, alive, plant: on_frame(k, images[0]))
     try:
-        return rollout(RobotPlant(robot, map_), AgentPolicy([agent]), [seed], seconds, poses=[pose], routes=[route],
-                       camera=camera, allow_privileged=allow_privileged, on_frame=hook, metas=[meta])[0]
+        return rollout(plant, AgentPolicy([agent]), [seed], seconds, poses=[pose], routes=[route], camera=camera,
+                       allow_privileged=allow_privileged, on_frame=hook, metas=[meta])[0]
     except RobotLacksGroundTruth as exc:
         raise RobotLacksGroundTruth(f"{exc}, which the privileged agent {agent.name!r} needs") from None

@@ -3,7 +3,7 @@
 A lab writes it once beside its files (``proxybench target record`` writes it for recordings it makes)::
 
     format: proxybench-target/1
-    source: real                 # real | reality-model | robot-node | simulation
+    source: real                 # real | reality-model | robot-node | dtps-robot | simulation
     description: DB21 robots, lane following, Autolab Montréal
     who: Duckietown lab
     where: Autolab 2
@@ -35,6 +35,7 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
+from proxybench.dtps.robot_options import DtpsRobotOptions
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.untrusted import UntrustedInputError, load_yaml_file
 
@@ -45,8 +46,9 @@ __all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "ExcludedRun", "RobotInfo", "Si
 FORMAT = "proxybench-target/1"
 MANIFEST_NAME = "target.yaml"
 #: where a recording came from. Only ``real`` is a physical robot; the others are simulations (``robot-node``:
-#: a process on the robot protocol, whose own description says whether it simulates)
-SOURCES = ("real", "reality-model", "robot-node", "simulation")
+#: a process on the robot protocol, whose own description says whether it simulates; ``dtps-robot``: a DTPS
+#: robot, real or a Duckiematrix robot, which proxybench cannot tell apart: the recording says what the user said)
+SOURCES = ("real", "reality-model", "robot-node", "dtps-robot", "simulation")
 DEFAULT_TRAJECTORIES = "episodes/{agent}/{episode}.parquet"
 MANIFEST_MAX_BYTES = 1 << 20
 #: an agent's name: one path component (it is put into file names)
@@ -124,6 +126,7 @@ class RobotInfo(BaseModel):
     kind: str = Field("", description="what the node said it is (its robot_interface_description)")
     options: RobotNodeOptions | None = Field(None, description="how the node was started (--robot-cwd, ...)")
     simulator: SimulatorInfo | None = Field(None, description="which simulator a simulated node said it is")
+    dtps: DtpsRobotOptions | None = Field(None, description="a DTPS robot (command dtps:ADDRESS): how it was driven")
 
     def describe(self) -> str:
         """One line: the command and, when known, how it was started.
@@ -131,6 +134,10 @@ class RobotInfo(BaseModel):
         >>> RobotInfo(command="./bridge", options=RobotNodeOptions(cwd="/lab", transport="fifo")).describe()
         '`./bridge` (cwd /lab, transport fifo, start timeout 120 s, step timeout 10 s, describe_protocol asked)'
         """
+        if self.dtps is not None:
+            d = self.dtps
+            pose = d.pose if not d.pose_url else f"{d.pose} on {d.pose_url}"
+            return f"`{self.command}` (pose from {pose}, commands on {d.pwm}, reset by {d.reset})"
         if self.options is None:
             return f"`{self.command}` (start-up options not recorded)"
         o = self.options
@@ -157,8 +164,9 @@ class TargetManifest(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     format: Literal["proxybench-target/1"] = FORMAT
-    source: Literal["real", "reality-model", "robot-node", "simulation"] = Field(
-        description="real (physical robots), reality-model (proxybench's simulated stand-in), robot-node (a "
+    source: Literal["real", "reality-model", "robot-node", "dtps-robot", "simulation"] = Field(
+        description="real (physical robots), reality-model (proxybench's simulated stand-in), dtps-robot (a DTPS "
+                    "robot proxybench drove: real or a Duckiematrix robot, as the user said), robot-node (a "
                     "process on the robot protocol), simulation (another simulator)")
     description: str = ""
     who: str = ""
@@ -240,8 +248,8 @@ class TargetManifest(BaseModel):
                 check_pattern(self.trajectories)
             except ValueError as exc:
                 raise ValueError(f"trajectories: {exc}") from None
-        if self.source == "robot-node" and self.robot is None:
-            raise ValueError("source robot-node needs robot: {command: ...}")
+        if self.source in ("robot-node", "dtps-robot") and self.robot is None:
+            raise ValueError(f"source {self.source} needs robot: {{command: ...}}")
         return self
 
     @property

@@ -24,10 +24,10 @@ from pathlib import Path
 from proxybench import __version__
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, Job, JobResult
-from proxybench.runner.starts import start_poses
 from proxybench.runner.streams import StreamSpec
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, episode_seed
+from proxybench.targets.dtps import DtpsTarget
 from proxybench.targets.manifest import (
     MANIFEST_NAME,
     RobotInfo,
@@ -63,10 +63,13 @@ def _check_label(label: str) -> None:
 def _source(target: Target) -> tuple[str, RobotInfo | None]:
     if isinstance(target, RealityTarget):
         return "reality-model", None
+    if isinstance(target, DtpsTarget):
+        return "dtps-robot", RobotInfo(command=target.command, kind=target.options.kind or "", dtps=target.options)
     command = getattr(target, "command", None)
     if command:
         return "robot-node", RobotInfo(command=command, options=getattr(target, "options", None))
-    raise TargetError(f"cannot record a {target.kind} target (record the reality model or a robot node)")
+    raise TargetError(f"cannot record a {target.kind} target (record the reality model, a robot node or a DTPS "
+                      "robot)")
 
 
 def _plan(out: Path, new: TargetManifest, agents: list[AgentSpec]) -> TargetManifest:
@@ -95,7 +98,7 @@ def _plan(out: Path, new: TargetManifest, agents: list[AgentSpec]) -> TargetMani
             raise TargetError(f"the recording at {out} has agent(s) {', '.join(lacking)}, which need the new episodes "
                               "too: give them again with --agent")
     robot = old.robot if new.robot is None or old.robot is None else old.robot.model_copy(
-        update={"options": new.robot.options})  # timeouts, transport, reflection: as started this time
+        update={"options": new.robot.options, "dtps": new.robot.dtps})  # timeouts, transport, ...: as started now
     return old.model_copy(update={"agents": agents_all, "episodes": episodes_all, "robot": robot,
                                   "description": new.description or old.description,
                                   "who": new.who or old.who, "where": new.where or old.where,
@@ -173,7 +176,7 @@ def record_target(
     write_manifest(out, manifest)  # first: an interrupted recording still says what it is
     specs = {a.label: a for a in agents}
     seeds = {e: episode_seed(seed, e) for e in manifest.episodes}
-    poses = dict(zip(seeds, start_poses(manifest.map, list(seeds.values())), strict=True))
+    poses = dict(zip(seeds, target.planned_poses(manifest.map, list(seeds), list(seeds.values())), strict=True))
     todo: list[Job] = []
     dest: dict[str, Path] = {}
     kept = 0
@@ -217,8 +220,9 @@ def record_target(
             keep(res)
     if robot_failed:
         shown = "\n  ".join(robot_failed[:5])
-        raise TargetError(f"the robot node failed on {len(robot_failed)} episode(s); the others are recorded in "
-                          f"{out}; run the same command again to retry:\n  {shown}")
+        what = getattr(target, "what", "robot node")
+        raise TargetError(f"the {what} failed on {len(robot_failed)} episode(s); the others are recorded in {out}; "
+                          f"run the same command again to retry:\n  {shown}")
     if source == "robot-node" and robot is not None and todo:
         kind, simulator = robot_said(dest[todo[0].key])
         if kind:

@@ -29,6 +29,7 @@ class RobotTarget(Target):
     stepped at that)."""
 
     kind = "robot"
+    what = "robot node"
 
     def __init__(self, command: str, nodes: int = 1, options: RobotNodeOptions | None = None,
                  frame_rate: float = DEFAULT_FRAME_RATE):
@@ -66,7 +67,7 @@ class RobotTarget(Target):
         failed = [r for r in sweep.results if r.termination == "robot_failure"]
         if failed:
             shown = "\n  ".join(f"{r.agent} episode {r.episode}: {r.message}" for r in failed[:5])
-            raise TargetError(f"target: the robot node `{self.command}` failed on {len(failed)} of "
+            raise TargetError(f"target: the {self.what} `{self.command}` failed on {len(failed)} of "
                               f"{len(sweep.results)} episode(s); finished episodes are cached, run again to retry the "
                               f"rest:\n  {shown}")
         made = next((r.trajectory for r in sweep.results if r.trajectory), None)

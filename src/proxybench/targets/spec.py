@@ -5,7 +5,9 @@
 - a **recorded** directory (:mod:`proxybench.targets.recorded`): a lab's runs, or runs recorded earlier
   with ``proxybench target record``; it costs no simulation;
 - ``robot:CMD``: a robot node started with CMD (the robot protocol, docs/robot-protocol.md), its episodes
-  run one after another through the runner, cached like any other episode.
+  run one after another through the runner, cached like any other episode;
+- ``dtps:HOST[:PORT]/PATH``: a DTPS robot, a real Duckiebot or a Duckiematrix robot (:mod:`.dtps`,
+  docs/dtps.md), likewise.
 
 Every target gives the experiments the same thing, a :class:`TargetRun`: the episodes (agent, id, seed,
 start pose) and each agent's per-episode scores. Proxies replay each agent's target episodes from the
@@ -114,9 +116,12 @@ class RecordedTarget(Target):
                               if m.robot and m.robot.simulator and m.robot.kind == "simulation" else "")
                            + "); proxybench cannot tell whether a robot node is a real robot or a simulator"),
             "simulation": "SIMULATED runs of another simulator",
+            "dtps-robot": _dtps_words(m.robot),
         }[m.source]
+        told = m.robot.dtps.kind if m.robot and m.robot.dtps else None
         simulated = {"real": False, "reality-model": True, "simulation": True,
-                     "robot-node": True if m.robot and m.robot.kind == "simulation" else None}[m.source]
+                     "robot-node": True if m.robot and m.robot.kind == "simulation" else None,
+                     "dtps-robot": {"real": False, "simulated": True}.get(told or "")}[m.source]
         return TargetInfo(
             "recorded", simulated, f"recorded: {self.root} (source: {m.source})",
             f"The target is a recording at {self.root.resolve()} (source: {m.source}): {what}"
@@ -143,14 +148,25 @@ class RecordedTarget(Target):
                          {(e.agent, e.episode): e.file for e in chosen if e.file})
 
 
+def _dtps_words(robot: Any) -> str:
+    """What a DTPS robot's recording says it was (what the user said it is, else that proxybench cannot tell)."""
+    if robot is None or robot.dtps is None:
+        return "runs on a DTPS robot; proxybench cannot tell a Duckiematrix robot from a real one"
+    from proxybench.targets.dtps import describe_robot
+
+    return "runs on " + describe_robot(robot.command.removeprefix("dtps:"), robot.dtps)[1]
+
+
 def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes: int = 1,
-                robot_options: Any = None, frame_rate: float = DEFAULT_FRAME_RATE) -> Target:
-    """The target ``text`` names: ``reality``, ``robot:CMD``, or a directory (or manifest file) of recordings.
+                robot_options: Any = None, frame_rate: float = DEFAULT_FRAME_RATE, dtps_options: Any = None) -> Target:
+    """The target ``text`` names: ``reality``, ``robot:CMD``, ``dtps:HOST[:PORT]/PATH`` or a directory (or manifest
+    file) of recordings.
 
     ``params``: θ overrides of the reality model (only with ``reality``); ``robot_nodes``: how many processes
     of a robot node may run at once, ``robot_options``: how to start and talk to it (a
-    :class:`~proxybench.protocol.options.RobotNodeOptions`; both only with ``robot:``); ``frame_rate`` [Hz]:
-    the proxies' camera rate, at which a robot node is asked to step.
+    :class:`~proxybench.protocol.options.RobotNodeOptions`; both only with ``robot:``); ``dtps_options``: how to
+    drive a DTPS robot (a :class:`~proxybench.dtps.robot_options.DtpsRobotOptions`; only with ``dtps:``);
+    ``frame_rate`` [Hz]: the proxies' camera rate, at which a robot is driven.
     """
     text = text.strip()
     if params and text != "reality":
@@ -159,8 +175,15 @@ def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes:
     if robot_options is not None and robot_options.non_default() and not text.startswith("robot:"):
         raise TargetError(f"robot_options (--robot-cwd, --robot-transport, ...): only a robot node (robot:COMMAND) is "
                           f"started with them; the target is {text!r}")
+    if dtps_options is not None and dtps_options.non_default() and not text.startswith("dtps:"):
+        raise TargetError(f"dtps_options (--dtps-reset, --dtps-pose, ...): only a DTPS robot (dtps:HOST/PATH) is "
+                          f"driven with them; the target is {text!r}")
     if text == "reality":
         return RealityTarget(params)
+    if text.startswith("dtps:"):
+        from proxybench.targets.dtps import DtpsTarget
+
+        return DtpsTarget(text, dtps_options, frame_rate)
     if text.startswith("robot:"):
         from proxybench.targets.robot import RobotTarget
 
@@ -171,4 +194,5 @@ def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes:
         return RobotTarget(command, robot_nodes, robot_options, frame_rate)
     if Path(text).exists():
         return RecordedTarget(text)
-    raise TargetError(f"target: {text!r} is not 'reality', 'robot:COMMAND' or an existing directory of recordings")
+    raise TargetError(f"target: {text!r} is not 'reality', 'robot:COMMAND', 'dtps:HOST[:PORT]/PATH' or an existing "
+                      "directory of recordings")
