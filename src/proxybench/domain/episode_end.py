@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from proxybench.domain.events import Termination
 from proxybench.domain.worlds import HIT_KINDS
 
 if TYPE_CHECKING:
@@ -24,7 +25,7 @@ if TYPE_CHECKING:
 __all__ = ["END_KINDS", "end_event", "ended"]
 
 #: the ends a plant decides, in the order they win when several happen in one frame
-END_KINDS = ("collision", "off_road")
+END_KINDS = (Termination.COLLISION, Termination.OFF_ROAD)
 
 
 def ended(sim: Simulator) -> np.ndarray:
@@ -38,7 +39,7 @@ def end_event(sim: Simulator, i: int) -> dict[str, Any]:
     t = float(sim.time[i])
     if sim.collided[i]:
         what = HIT_KINDS[int(sim.hit_kind[i])] or "map object"
-        return {"t": t, "kind": "collision", "with": what, "message": f"the robot came too close to a {what}"}
+        return {"t": t, "kind": Termination.COLLISION, "with": what, "message": f"the robot came too close to a {what}"}
     if sim.off_road[i]:
-        return {"t": t, "kind": "off_road", "message": "the robot centre left the drivable area"}
+        return {"t": t, "kind": Termination.OFF_ROAD, "message": "the robot centre left the drivable area"}
     raise ValueError(f"robot {i}'s episode has not ended")

@@ -19,14 +19,14 @@ from typing import Any
 import numpy as np
 
 from proxybench.runner.evaluate import Evaluation
-from proxybench.tasks.trajectory import TERMINATIONS, Trajectory, TrajectoryError
+from proxybench.tasks.trajectory import TERMINATIONS, Termination, Trajectory, TrajectoryError
 
 __all__ = ["INVALIDATING_EVENTS", "SplitSummary", "check_data", "clean", "pack_trajectories", "summarize",
            "topdown_video"]
 
 #: event kinds after which an episode cannot be scored: a target that lost track of the robot, needed a
 #: human hand, or had a fault of its own
-INVALIDATING_EVENTS = frozenset({"invalid", "robot_failure", "tracking_lost", "manual_intervention"})
+INVALIDATING_EVENTS = frozenset({"invalid", Termination.ROBOT_FAILURE, "tracking_lost", "manual_intervention"})
 _MAX_EVENTS = 20
 
 
@@ -87,13 +87,13 @@ def check_data(ev: Evaluation) -> list[str]:
             problems.append(f"{where}: unknown termination {r.termination!r}")
         traj, error = _load(r.trajectory)
         if traj is None:
-            if r.termination != "agent_failure" or r.trajectory:  # a refused agent has no trajectory, rightly
+            if r.termination is not Termination.AGENT_FAILURE or r.trajectory:  # a refused agent has none, rightly
                 problems.append(f"{where}: {error}")
             continue
         pose = traj.pose()
         if pose.size == 0 or not np.all(np.isfinite(pose)) or not np.all(np.isfinite(traj["t"])):
             problems.append(f"{where}: the trajectory has missing or non-finite samples")
-        if r.termination == "timeout" and traj.duration < bench.duration - 1.5 * frame_dt:
+        if r.termination is Termination.TIMEOUT and traj.duration < bench.duration - 1.5 * frame_dt:
             problems.append(f"{where}: ended after {traj.duration:.2f} s of {bench.duration:g} s without a reason "
                             "(incomplete episode)")
         bad = [e for e in traj.events if e.get("kind") in INVALIDATING_EVENTS]
@@ -114,9 +114,9 @@ def _episode_row(r: Any) -> tuple[dict[str, Any], dict[str, Any] | None]:
         "message": r.message, "seed": r.seed,
     }
     failure = None
-    if r.termination == "agent_failure":
-        ev = next((e for e in events if e.get("kind") == "agent_failure"), {})
-        failure = {"episode": r.episode, "reason": ev.get("reason", "agent_failure"),
+    if r.termination is Termination.AGENT_FAILURE:
+        ev = next((e for e in events if e.get("kind") == Termination.AGENT_FAILURE), {})
+        failure = {"episode": r.episode, "reason": ev.get("reason", Termination.AGENT_FAILURE),
                    "message": ev.get("message", r.message), "exit_code": ev.get("exit_code"),
                    "stderr_tail": ev.get("stderr_tail", [])}
     return row, failure

@@ -137,6 +137,7 @@ class _Job:
         jobs, starts, routes and trajectory files; a robot node is a :class:`~proxybench.runner.jobs.DomainSpec`.
         """
         from proxybench.agents.zoo import ZOO
+        from proxybench.domain.events import Termination
         from proxybench.protocol.failures import AgentFailure
         from proxybench.runner.backends import InlineBackend
         from proxybench.runner.episode import PrivilegedAgentError
@@ -169,7 +170,7 @@ class _Job:
             raise
         except PrivilegedAgentError as exc:
             raise SubmissionFault(str(exc)) from None
-        lost = [r for r in ev.sweep.results if r.termination == "robot_failure"]
+        lost = [r for r in ev.sweep.results if r.termination is Termination.ROBOT_FAILURE]
         if lost:
             raise HostFault(f"the target robot cannot run this job: {lost[0].message}")
         return ev

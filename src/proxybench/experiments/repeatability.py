@@ -42,7 +42,7 @@ from proxybench.runner.jobs import DEFAULT_FRAME_RATE, AgentSpec, DomainSpec, Jo
 from proxybench.runner.starts import start_pose
 from proxybench.runner.sweep import run_jobs
 from proxybench.tasks.metrics import repeatability
-from proxybench.tasks.trajectory import Trajectory
+from proxybench.tasks.trajectory import Termination, Trajectory
 
 if TYPE_CHECKING:
     from proxybench.protocol.options import RobotNodeOptions
@@ -114,7 +114,7 @@ class DesignResult:
     @property
     def early(self) -> int:
         """Runs that ended before their time (left the road, collided, failed)."""
-        return sum(t.termination != "timeout" for t in self.runs)
+        return sum(t.termination is not Termination.TIMEOUT for t in self.runs)
 
 
 @dataclass

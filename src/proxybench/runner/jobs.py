@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from proxybench import __version__
+from proxybench.domain.events import Termination
 
 if TYPE_CHECKING:
     from proxybench.domain.npcs import Traffic
@@ -182,7 +183,7 @@ class JobResult:
     episode: int
     seed: int
     scores: dict[str, float]
-    termination: str
+    termination: Termination
     trajectory: str | None
     message: str = ""
     timings: dict[str, float] = field(default_factory=dict)
@@ -192,7 +193,8 @@ class JobResult:
 
     @staticmethod
     def from_json(text: str) -> JobResult:
-        return JobResult(**json.loads(text))
+        data = json.loads(text)
+        return JobResult(**{**data, "termination": Termination(data["termination"])})
 
 
 def _agent_id(spec: AgentSpec) -> dict[str, Any]:

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.events import Termination
 from proxybench.domain.maps import load_map
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
@@ -40,7 +41,7 @@ class Probe:
     seconds: float  # [s] of commands actually driven (less when the episode ended early)
     wall_s: float  # [s] of wall time: starting the episode and driving it
     declared: dict[str, Any] = field(default_factory=dict)  # the calibration the domain declares, if any
-    ended: str | None = None  # why the episode ended before the commands were spent, if it did
+    ended: Termination | None = None  # why the episode ended before the commands were spent, if it did
     ground_truth: bool = True  # whether it reports the true lane pose (privileged agents need it)
 
     @property
@@ -88,7 +89,7 @@ def _drive(plant, seed: int, pwm: float, seconds: float, kind: str | None = None
     said = traj.meta
     declared = said.get("params") or {}
     pose = np.column_stack([traj["x"], traj["y"], traj["theta"]])
+    ended = None if traj.termination is Termination.TIMEOUT else traj.termination
     return Probe(kind or said.get("source", "unknown"), float(plant.frame_rate), first[0] if first else None,
                  tuple(float(v) for v in pose[0]), tuple(float(v) for v in pose[-1]), float(traj.duration), wall,
-                 declared if kind is None else {}, None if traj.termination == "timeout" else traj.termination,
-                 bool(truth and truth[0]))
+                 declared if kind is None else {}, ended, bool(truth and truth[0]))

@@ -25,7 +25,7 @@ from proxybench.protocol import jpeg
 from proxybench.protocol import robot_wire as rw
 from proxybench.protocol.robot_process import RemoteRobot
 from proxybench.runner.rollout import AgentPolicy, PrivilegedAgentError, rollout
-from proxybench.tasks.trajectory import Trajectory
+from proxybench.tasks.trajectory import Termination, Trajectory
 
 __all__ = ["RobotLacksGroundTruth", "RobotPlant", "run_episode_on_robot"]
 
@@ -97,7 +97,7 @@ class RobotPlant:
                                                  (k + 1) * self.frame_dt, observe=k + 1 < self.steps)
         self.states.append(state)
         end = sim_state.terminations.get(robot.robot_name)
-        if end is None or end.termination == "timeout":  # the episode's length is the engine's to count
+        if end is None or end.termination is Termination.TIMEOUT:  # the episode's length is the engine's to count
             return []
         event = {"t": end.when, "kind": end.termination, "message": end.desc}
         return [(0, event if end.hit is None else event | {"with": end.hit}, True)]

@@ -21,6 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from proxybench.domain.events import Termination
 from proxybench.protocol import RemoteRobot, RobotFailure
 from proxybench.runner.jobs import Job, JobResult
 from proxybench.runner.outcomes import all_metrics, make_agent_for, refused, result_of
@@ -135,4 +136,4 @@ def _robot_failed(job: Job, exc: RobotFailure, skipped: bool = False) -> JobResu
     if skipped:
         text = f"not run: the robot node failed {FAILURES_IN_A_ROW} times in a row; last: {text}"
     return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed,
-                     dict.fromkeys(job.metrics or all_metrics(), float("nan")), "robot_failure", None, text)
+                     dict.fromkeys(job.metrics or all_metrics(), float("nan")), Termination.ROBOT_FAILURE, None, text)

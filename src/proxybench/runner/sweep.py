@@ -23,13 +23,14 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import Path
 
+from proxybench.domain.events import Termination
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import Job, JobResult, batch_group, is_privileged
 
 __all__ = ["UNSTORED", "SweepResult", "results_frame", "run_jobs"]
 
 #: terminations that say the episode did not happen (the plant failed): reported, never cached
-UNSTORED = frozenset({"robot_failure"})
+UNSTORED = frozenset({Termination.ROBOT_FAILURE})
 
 
 @dataclass

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from proxybench import __version__
+from proxybench.domain.events import Termination
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, Job, JobResult
 from proxybench.runner.starts import start_poses
@@ -181,11 +182,11 @@ def record_target(
     robot_failed: list[str] = []
 
     def keep(res: JobResult) -> None:
-        if res.termination == "robot_failure":  # no episode happened: nothing to keep, retried next time
+        if res.termination is Termination.ROBOT_FAILURE:  # no episode happened: nothing to keep, retried next time
             robot_failed.append(f"{res.agent} episode {res.episode}: {res.message}")
             return
         _place(res, dest[res.key])
-        if res.termination == "agent_failure":
+        if res.termination is Termination.AGENT_FAILURE:
             failed.append(f"{res.agent} episode {res.episode}: {res.message}")
 
     def place(done: int, total: int, res: JobResult | None) -> None:
@@ -197,7 +198,7 @@ def record_target(
     cache = out / ".record"
     sweep = run_jobs(todo, cache, backend or InlineBackend(), progress=place)
     for job, res in zip(todo, sweep.results, strict=True):  # episodes the cache held from an interrupted run
-        if not dest[job.key].is_file() and res.termination != "robot_failure":
+        if not dest[job.key].is_file() and res.termination is not Termination.ROBOT_FAILURE:
             keep(res)
     if robot_failed:
         shown = "\n  ".join(robot_failed[:5])

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.events import Termination
 from proxybench.targets.manifest import TargetError, TargetManifest, load_manifest
 
 __all__ = ["CheckReport", "RecordedEpisode", "Recording", "check_recording", "load_recording", "resolve_map"]
@@ -46,7 +47,7 @@ class RecordedEpisode:
     pose: tuple[float, float, float] | None
     file: str | None
     scores: dict[str, float]
-    termination: str = "timeout"
+    termination: Termination = Termination.TIMEOUT
     duration: float = float("nan")
 
 

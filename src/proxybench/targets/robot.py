@@ -10,6 +10,7 @@ real robot from a simulator except by what the node says of itself, and reports 
 
 from __future__ import annotations
 
+from proxybench.domain.events import Termination
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.backends import InlineBackend
 from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec, Job
@@ -62,7 +63,7 @@ class RobotTarget(Target):
                 for a in agents for e in range(episodes)]
         sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
                          progress=(lambda d, t, _r: progress("target episodes (robot)", d, t)) if progress else None)
-        failed = [r for r in sweep.results if r.termination == "robot_failure"]
+        failed = [r for r in sweep.results if r.termination is Termination.ROBOT_FAILURE]
         if failed:
             shown = "\n  ".join(f"{r.agent} episode {r.episode}: {r.message}" for r in failed[:5])
             raise TargetError(f"target: the robot node `{self.command}` failed on {len(failed)} of {len(jobs)} "

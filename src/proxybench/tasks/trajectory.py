@@ -24,15 +24,16 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.events import EPISODE_TERMINATIONS, Termination
 from proxybench.domain.lane_pose import LANE_POSE_FIELDS, lane_poses
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
 from proxybench.domain.routes import RouteGraph, pin_route, route_columns
 
-__all__ = ["TERMINATIONS", "Trajectory", "TrajectoryError"]
+__all__ = ["TERMINATIONS", "Termination", "Trajectory", "TrajectoryError"]
 
-#: why an episode ended
-TERMINATIONS = ("timeout", "off_road", "left_map", "collision", "agent_failure")
+#: why an episode ended: the endings a trajectory may record (``Termination`` less ``robot_failure``)
+TERMINATIONS = EPISODE_TERMINATIONS
 _CORE = ("t", "x", "y", "theta")
 _OPTIONAL = ("v", "omega", "pwm_left", "pwm_right")
 _LANE = ("valid", "segment", "along", "lateral", "heading_error", "left_in_lane", "right_in_lane",
@@ -57,7 +58,7 @@ class Trajectory:
     columns: dict[str, np.ndarray]
     meta: dict[str, Any] = field(default_factory=dict)
     events: list[dict[str, Any]] = field(default_factory=list)
-    termination: str = "timeout"
+    termination: Termination = Termination.TIMEOUT
 
     # -- construction ----------------------------------------------------------------------------
 
@@ -65,7 +66,7 @@ class Trajectory:
     def from_poses(
         cls, m: Map, t: np.ndarray, pose: np.ndarray, *, extra: dict[str, np.ndarray] | None = None,
         meta: dict[str, Any] | None = None, events: list[dict[str, Any]] | None = None,
-        termination: str = "timeout", wheel_distance: float = 0.102, origin: str = "trajectory",
+        termination: Termination = Termination.TIMEOUT, wheel_distance: float = 0.102, origin: str = "trajectory",
     ) -> Trajectory:
         """Build from times [s] and poses (T, 3) [m, m, rad]; the lane pose is computed from the map."""
         t = np.asarray(t, dtype=np.float64)
@@ -85,8 +86,7 @@ class Trajectory:
             cols[name] = lane[:, k]
         cols["route_segment"] = route.astype(np.float64)
         cols.update(route_columns(graph, lane))
-        if termination not in TERMINATIONS:
-            raise TrajectoryError(f"{origin}: unknown termination {termination!r} (one of {TERMINATIONS})")
+        termination = _termination(termination, origin)
         meta = {"map": m.name, **(meta or {})}
         if visits:
             meta["route"] = [{"t": float(t[v.pop("sample")]), **v} for v in visits]
@@ -151,7 +151,8 @@ class Trajectory:
         missing = [c for c in (*_CORE, *LANE_POSE_FIELDS) if c not in cols]
         if missing:
             raise TrajectoryError(f"{path}: missing column(s) {', '.join(missing)}")
-        return cls(cols, block.get("meta", {}), block.get("events", []), block.get("termination", "timeout"))
+        return cls(cols, block.get("meta", {}), block.get("events", []),
+                   _termination(block.get("termination", Termination.TIMEOUT), str(path)))
 
     @classmethod
     def from_file(cls, path: str | Path, m: Map | str, *, meta: dict[str, Any] | None = None) -> Trajectory:
@@ -176,18 +177,25 @@ class Trajectory:
         _check_samples(t, pose, str(path))
         w, h = m.size_m
         off = ~((pose[:, 0] >= 0) & (pose[:, 0] < w) & (pose[:, 1] >= 0) & (pose[:, 1] < h))
-        termination, events = "timeout", []
+        termination, events = Termination.TIMEOUT, []
         if off.any():
             k = int(np.argmax(off))
             if k == 0:
                 raise TrajectoryError(f"{path}: the first pose ({pose[0, 0]:.3f}, {pose[0, 1]:.3f}) m is off the "
                                       f"map {m.name!r} ({w:.2f} × {h:.2f} m): wrong map or frame?")
-            events.append({"t": float(t[k]), "kind": "left_map", "message": f"pose {k} is off the map"})
-            t, pose, termination = t[:k], pose[:k], "left_map"
+            events.append({"t": float(t[k]), "kind": Termination.LEFT_MAP, "message": f"pose {k} is off the map"})
+            t, pose, termination = t[:k], pose[:k], Termination.LEFT_MAP
         extra = {k: v[: t.size] for k, v in data.items() if k in _OPTIONAL}
         info = {"source": "recorded", "file": str(path), **(meta or {})}
         return cls.from_poses(m, t, pose, extra=extra, meta=info, events=events, termination=termination,
                               origin=str(path))
+
+
+def _termination(value: object, origin: str) -> Termination:
+    """``value`` as a trajectory's :class:`Termination`; an unknown one is an error naming ``origin``."""
+    if value not in TERMINATIONS:
+        raise TrajectoryError(f"{origin}: unknown termination {value!r} (one of {', '.join(TERMINATIONS)})")
+    return Termination(value)
 
 
 def _check_samples(t: np.ndarray, pose: np.ndarray, origin: str) -> None:

@@ -1,0 +1,61 @@
+"""The typed seams (issue 22): enums and records in code, the same strings and keys in files as before."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from proxybench.domain.maps import load_map
+from proxybench.runner.jobs import JobResult
+from proxybench.tasks.trajectory import TERMINATIONS, Termination, Trajectory, TrajectoryError
+
+
+@pytest.fixture(scope="module")
+def road():
+    return load_map("straight_road")
+
+
+def _traj(road, **kw) -> Trajectory:
+    t = np.arange(0.0, 1.0, 0.05)
+    pose = np.stack([0.3 + 0.2 * t, np.full_like(t, 0.68), np.zeros_like(t)], axis=1)
+    return Trajectory.from_poses(road, t, pose, **kw)
+
+
+# -- Termination ---------------------------------------------------------------------------------------------
+
+def test_terminations_keep_the_strings_files_hold():
+    assert [str(t) for t in Termination] == ["timeout", "off_road", "left_map", "collision", "agent_failure",
+                                             "robot_failure"]
+    assert Termination.TIMEOUT == "timeout" and json.dumps({"t": Termination.COLLISION}) == '{"t": "collision"}'
+    assert Termination.ROBOT_FAILURE not in TERMINATIONS  # a failed robot leaves no trajectory
+
+
+def test_trajectory_file_holds_the_string_and_loads_the_member(road, tmp_path):
+    path = _traj(road, termination="collision").save(tmp_path / "a.parquet")
+    block = json.loads(pq.read_schema(path).metadata[b"proxybench"])
+    assert block["termination"] == "collision"
+    assert Trajectory.load(path).termination is Termination.COLLISION
+
+
+def test_a_file_with_an_unknown_termination_is_refused_by_name(road, tmp_path):
+    path = _traj(road).save(tmp_path / "a.parquet")
+    table = pq.read_table(path)
+    block = json.loads(table.schema.metadata[b"proxybench"])
+    block["termination"] = "exploded"
+    pq.write_table(table.replace_schema_metadata({b"proxybench": json.dumps(block).encode()}), path)
+    with pytest.raises(TrajectoryError, match=r"a\.parquet: unknown termination 'exploded'"):
+        Trajectory.load(path)
+    with pytest.raises(TrajectoryError, match="unknown termination 'robot_failure'"):
+        _traj(road, termination="robot_failure")
+
+
+def test_job_results_round_trip_their_termination():
+    res = JobResult("k", "pid", "d", 0, 1, {"survival_time": 1.0}, Termination.OFF_ROAD, None)
+    text = res.to_json()
+    assert json.loads(text)["termination"] == "off_road"
+    assert JobResult.from_json(text).termination is Termination.OFF_ROAD
+    with pytest.raises(ValueError):  # a damaged record is redone by the sweep, never trusted
+        JobResult.from_json(text.replace("off_road", "melted"))
