@@ -151,7 +151,7 @@ def test_agent_failure_ends_the_episode_with_its_message():
     sim = Simulator("loop_3x3", DomainParams(**SMALL))
     traj = run_episode(sim, _Crashing(5), 0, 10.0)
     assert traj.termination == "agent_failure"
-    assert traj.events[-1]["kind"] == "agent_failure" and "boom" in traj.events[-1]["message"]
+    assert traj.events[-1].kind == "agent_failure" and "boom" in traj.events[-1].message
     assert traj.duration == pytest.approx(5 / 15)
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from proxybench.domain.maps import load_map
 from proxybench.runner.jobs import JobResult
-from proxybench.tasks.trajectory import TERMINATIONS, Termination, Trajectory, TrajectoryError
+from proxybench.tasks.trajectory import TERMINATIONS, Event, Termination, Trajectory, TrajectoryError
 
 
 @pytest.fixture(scope="module")
@@ -59,3 +59,35 @@ def test_job_results_round_trip_their_termination():
     assert JobResult.from_json(text).termination is Termination.OFF_ROAD
     with pytest.raises(ValueError):  # a damaged record is redone by the sweep, never trusted
         JobResult.from_json(text.replace("off_road", "melted"))
+
+
+# -- Event ---------------------------------------------------------------------------------------------------
+
+def test_events_keep_their_file_form(road, tmp_path):
+    """The objects in a file's ``events`` list are read into records and written back as they were."""
+    raw = [{"t": 0.5, "kind": "agent_failure", "message": "AgentFailure: died", "reason": "exited", "exit_code": 3,
+            "stderr_tail": ["Traceback", "boom"]},
+           {"t": 0.7, "kind": "collision", "message": "the robot came too close to a duckie", "with": "duckie"},
+           {"t": 0.9, "kind": "npc_stopped", "message": "NPC robot 0 (pid) stopped", "npc": 0},
+           {"t": 1.0, "kind": "tracking_lost", "message": "", "camera": 4}]  # another writer's field, kept
+    events = [Event.from_dict(d) for d in raw]
+    assert [e.to_dict() for e in events] == raw
+    assert events[0].stderr_tail == ("Traceback", "boom") and events[1].kind is Termination.COLLISION
+    path = _traj(road, events=events).save(tmp_path / "a.parquet")
+    assert json.loads(pq.read_schema(path).metadata[b"proxybench"])["events"] == raw
+    back = Trajectory.load(path)
+    assert back.events == events and back.failure == events[0] and back.event("collision").with_ == "duckie"
+    assert _traj(road).failure is None
+
+
+@pytest.mark.parametrize(("bad", "field"), [({"kind": "x"}, "'t'"), ({"t": 1.0}, "'kind'"),
+                                             ({"t": 1.0, "kind": "x", "exit_code": "3"}, "'exit_code'"),
+                                             ({"t": 1.0, "kind": "x", "stderr_tail": "boom"}, "'stderr_tail'")])
+def test_a_malformed_event_is_refused_naming_file_event_and_field(road, tmp_path, bad, field):
+    path = _traj(road).save(tmp_path / "a.parquet")
+    table = pq.read_table(path)
+    block = json.loads(table.schema.metadata[b"proxybench"])
+    block["events"] = [{"t": 0.0, "kind": "note", "message": "fine"}, bad]
+    pq.write_table(table.replace_schema_metadata({b"proxybench": json.dumps(block).encode()}), path)
+    with pytest.raises(TrajectoryError, match=rf"a\.parquet: event 1: event field {field}"):
+        Trajectory.load(path)

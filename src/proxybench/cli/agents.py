@@ -110,7 +110,7 @@ def agent_check(
         traj = run_episode(sim, agent, 0, seconds, camera=not agent.privileged, image_filter=camera_filter())
     finally:
         code = agent.close()
-    failure = next((e["message"] for e in traj.events if e["kind"] == "agent_failure"), None)
+    failure = traj.failure.message if traj.failure is not None else None
     if failure is not None or isinstance(proc.failure, AgentFailure):
         err_console.print(f"[red]✗[/red] the agent failed after {len(times)} frames: {escape(str(failure))}",
                           highlight=False)

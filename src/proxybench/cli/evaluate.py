@@ -332,10 +332,10 @@ def _collisions(results) -> dict[str, tuple[int, int, dict[str, int]]]:
         if r.termination is Termination.COLLISION:
             hit += 1
             try:
-                events = Trajectory.load(r.trajectory).events if r.trajectory else []
+                end = Trajectory.load(r.trajectory).event(Termination.COLLISION) if r.trajectory else None
             except (TrajectoryError, OSError):
-                events = []
-            kind = next((e.get("with", "object") for e in events if e["kind"] == "collision"), "object")
+                end = None
+            kind = (end.with_ if end is not None else None) or "object"
             what[kind] = what.get(kind, 0) + 1
         out[r.agent] = (hit, total + 1, what)
     return out

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -96,29 +96,29 @@ def check_data(ev: Evaluation) -> list[str]:
         if r.termination is Termination.TIMEOUT and traj.duration < bench.duration - 1.5 * frame_dt:
             problems.append(f"{where}: ended after {traj.duration:.2f} s of {bench.duration:g} s without a reason "
                             "(incomplete episode)")
-        bad = [e for e in traj.events if e.get("kind") in INVALIDATING_EVENTS]
-        if bad:
-            problems.append(f"{where}: invalidating event {bad[0]['kind']!r} at t={bad[0].get('t', '?')}: "
-                            f"{bad[0].get('message', '')}")
+        bad = next((e for e in traj.events if e.kind in INVALIDATING_EVENTS), None)
+        if bad is not None:
+            problems.append(f"{where}: invalidating event {str(bad.kind)!r} at t={bad.t}: {bad.message}")
     return problems
 
 
 def _episode_row(r: Any) -> tuple[dict[str, Any], dict[str, Any] | None]:
     traj, _ = _load(r.trajectory)
-    events = traj.events if traj is not None else []
     row: dict[str, Any] = {
         "episode": r.episode, "termination": r.termination,
         "duration": clean(traj.duration) if traj is not None else None,
         "scores": {k: clean(v) for k, v in r.scores.items()},
-        "events": [{k: v for k, v in e.items() if k != "stderr_tail"} for e in events[:_MAX_EVENTS]],
+        "events": [replace(e, stderr_tail=()).to_dict() for e in traj.events[:_MAX_EVENTS]] if traj else [],
         "message": r.message, "seed": r.seed,
     }
     failure = None
     if r.termination is Termination.AGENT_FAILURE:
-        ev = next((e for e in events if e.get("kind") == Termination.AGENT_FAILURE), {})
-        failure = {"episode": r.episode, "reason": ev.get("reason", Termination.AGENT_FAILURE),
-                   "message": ev.get("message", r.message), "exit_code": ev.get("exit_code"),
-                   "stderr_tail": ev.get("stderr_tail", [])}
+        ev = traj.failure if traj is not None else None
+        failure = {"episode": r.episode, "reason": str(Termination.AGENT_FAILURE), "message": r.message,
+                   "exit_code": None, "stderr_tail": []}
+        if ev is not None:
+            failure.update(reason=ev.reason or failure["reason"], message=ev.message, exit_code=ev.exit_code,
+                           stderr_tail=list(ev.stderr_tail))
     return row, failure
 
 

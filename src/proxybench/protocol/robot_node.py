@@ -321,9 +321,9 @@ class RobotNode(NodeLogic):
         sim, when = self.sim, self._time
         if ended(sim)[0]:  # the runner's rule, so that both give equal trajectories
             end = end_event(sim, 0)
-            self.termination = {"when": end["t"], "desc": end["message"], "code": end["kind"]}
-            if "with" in end:
-                self.termination["with"] = end["with"]
+            self.termination = {"when": end.t, "desc": end.message, "code": end.kind}
+            if end.with_ is not None:
+                self.termination["with"] = end.with_
         elif self.frame_limit is not None and sim.frame_index[0] >= self.frame_limit:
             self.termination = {"when": when, "desc": "the episode's time is up", "code": "timeout"}
 

@@ -17,7 +17,7 @@ from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.simulator import Simulator
 from proxybench.runner.npcs import NpcDrivers
 from proxybench.runner.rollout import AgentPolicy, PrivilegedAgentError, rollout
-from proxybench.tasks.trajectory import Trajectory
+from proxybench.tasks.trajectory import Event, Trajectory
 
 __all__ = ["PrivilegedAgentError", "SimPlant", "run_episode", "run_episodes"]
 
@@ -82,7 +82,7 @@ class SimPlant:
     def time(self, i: int) -> float:
         return float(self.sim.time[i])
 
-    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, dict[str, Any], bool]]:
+    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, Event, bool]]:
         sim, drivers = self.sim, self.drivers
         self.lanes[:, :, k] = sim.routes.pin[: self.n], sim.routes.next[: self.n]  # the egos' rows (NPCs follow)
         sim.step(commands, self.trace[:, k], None if drivers is None else drivers.act(alive))

@@ -57,7 +57,7 @@ def result_of(job: Job, traj, out_dir: str | None, setup_s: float, episode_s: fl
     if out_dir is not None:
         path = str(Path(out_dir) / f"{job.key}.parquet")
         traj.save(path)
-    message = next((e["message"] for e in traj.events if e["kind"] == Termination.AGENT_FAILURE), "")
+    message = traj.failure.message if traj.failure is not None else ""
     timing = traj.meta.get("timing", {})
     sim_s, agent_s = timing.get("sim_s", 0.0), timing.get("agent_s", 0.0)
     timings = {"setup_s": setup_s, "sim_s": sim_s, "agent_s": agent_s,
