@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import json
+import typing
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from proxybench.domain.kinds import ROBOT_NODE, DomainKind, robot_node_kind
 from proxybench.domain.maps import load_map
-from proxybench.runner.jobs import JobResult
+from proxybench.runner.jobs import DomainSpec, JobResult
+from proxybench.targets.manifest import SOURCE_KINDS, SOURCES, TargetManifest, source_of
+from proxybench.targets.robot import RobotTarget
+from proxybench.targets.spec import RealityTarget
 from proxybench.tasks.trajectory import TERMINATIONS, Event, Termination, Trajectory, TrajectoryError
 
 
@@ -91,3 +96,32 @@ def test_a_malformed_event_is_refused_naming_file_event_and_field(road, tmp_path
     pq.write_table(table.replace_schema_metadata({b"proxybench": json.dumps(block).encode()}), path)
     with pytest.raises(TrajectoryError, match=rf"a\.parquet: event 1: event field {field}"):
         Trajectory.load(path)
+
+
+# -- DomainKind ----------------------------------------------------------------------------------------------
+
+def test_one_domain_kind_vocabulary_with_the_strings_files_hold():
+    assert [str(k) for k in DomainKind] == ["simulation", "reality-model", "robot", "recorded"]
+    spec = DomainSpec("r", kind="reality-model")  # a string from a file or an old caller: held as the member
+    assert spec.kind is DomainKind.REALITY_MODEL and '"kind": "reality-model"' in spec.canonical()
+    assert DomainSpec.robot("bridge", frame_rate=15.0).kind is DomainKind.ROBOT
+    with pytest.raises(ValueError, match="kind must be one of simulation, reality-model, robot, got 'recorded'"):
+        DomainSpec("x", kind=DomainKind.RECORDED)  # a recording is read, never run
+    assert robot_node_kind("simulation") == "robot-node/simulation"
+
+
+def test_the_manifest_keeps_its_words_through_a_documented_mapping():
+    """A recording's source says real | reality-model | robot-node | simulation: each maps to a DomainKind but
+    ``real`` (physical robots recorded outside proxybench), and recordings proxybench makes write the words back."""
+    assert set(typing.get_args(TargetManifest.model_fields["source"].annotation)) == set(SOURCE_KINDS) == set(SOURCES)
+    assert SOURCE_KINDS["real"] is None and SOURCE_KINDS[ROBOT_NODE] is DomainKind.ROBOT
+    for kind in (DomainKind.SIMULATION, DomainKind.REALITY_MODEL, DomainKind.ROBOT):
+        assert SOURCE_KINDS[source_of(kind)] is kind
+    m = TargetManifest(source="robot-node", map="loop_3x3", seconds=5, agents=["pid"], episodes=[0],
+                       robot={"command": "bridge"})
+    assert m.domain_kind is DomainKind.ROBOT and m.simulated
+
+
+def test_targets_say_their_kind_as_a_member():
+    assert RealityTarget().info().kind is DomainKind.REALITY_MODEL
+    assert RobotTarget("bridge").info().kind is DomainKind.ROBOT

@@ -194,6 +194,7 @@ class _Job:
         log.info("the agent's failure mentions the sandbox, but the sandbox works here: the agent's fault")
 
     def split(self, bench, spec, split: str, target: bool, domain_kind: str, hidden: bool):
+        from proxybench.domain.kinds import ROBOT_NODE
         from proxybench.evaluator.report import pack_trajectories, summarize
 
         ev = self.evaluate(bench, spec, split, target)
@@ -210,7 +211,7 @@ class _Job:
                            for k, v in summary.scores.items() if k in summary.report["criteria"]))
         if summary.problems:
             text = f"invalid {split} data: " + "; ".join(summary.problems[:5])
-            if not domain_kind.startswith("robot-node"):
+            if not domain_kind.startswith(ROBOT_NODE):
                 raise RuntimeError(text + " (our own simulator should never produce this)")
             raise HostFault(text)
         if summary.failures:
@@ -272,9 +273,10 @@ class _Job:
             raise HostFault(f"job needs feature(s) {', '.join(sorted(unknown))} that this evaluator cannot provide")
         bench = self.benchmark()
         target = "target" in features
-        kind = "reality-model" if bench.domain.named == "reality" else "simulation"
         from proxybench.evaluator.sandbox import Isolation
+        from proxybench.runner.evaluate import benchmark_domain
 
+        kind = str(benchmark_domain(bench).kind)
         self.outcome.public_report.update(evaluator=self.cfg["evaluator"],
                                           sandbox=Isolation.from_dict(self.cfg["isolation"]).report())
         if target:

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.params import DomainParams
 from proxybench.experiments.config import Experiment, ExperimentConfig, resolve
 from proxybench.experiments.pod import pod
@@ -197,7 +198,7 @@ def _claims(exp: Experiment, tgt: TargetRun, domains, proxies, rows, higher) -> 
 
 def _has_pod(exp: Experiment, target: Target, tgt: TargetRun) -> bool:
     """POD needs the target's camera: known only for the live reality model."""
-    return exp.pod_seconds > 0 and target.kind == "reality-model" and tgt.params is not None
+    return exp.pod_seconds > 0 and target.kind == DomainKind.REALITY_MODEL and tgt.params is not None
 
 
 def _pod_commands(exp: Experiment, tgt: TargetRun) -> np.ndarray:

@@ -13,6 +13,7 @@ import numpy as np
 from proxybench.agents.base import Agent, Observation
 from proxybench.domain.dynamics import ST, TRACE_FIELDS, wheel_ticks
 from proxybench.domain.episode_end import end_event, ended
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.simulator import Simulator
 from proxybench.runner.npcs import NpcDrivers
@@ -108,7 +109,7 @@ class SimPlant:
             list(routes.choices[i])
 
     def meta(self, i: int) -> dict[str, Any]:
-        out = {"source": "simulation", "params": self.sim.params[i].model_dump(mode="json")}
+        out = {"source": DomainKind.SIMULATION, "params": self.sim.params[i].model_dump(mode="json")}
         traffic = self.sim.worlds.traffic[i]
         if not traffic.empty:
             out["npcs"] = traffic.to_dict()

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from proxybench import __version__
 from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
 
 if TYPE_CHECKING:
     from proxybench.domain.npcs import Traffic
@@ -66,8 +67,9 @@ class AgentSpec:
 
 #: [Hz] the camera rate of :class:`~proxybench.domain.params.DomainParams` when nobody sets one
 DEFAULT_FRAME_RATE = 15.0
-#: what a domain can be: a proxy instance S_θ, the built-in reality model, or a robot node (the robot protocol)
-DOMAIN_KINDS = ("simulation", "reality-model", "robot")
+#: what a job's domain can be: a proxy instance S_θ, the built-in reality model, or a robot node (the robot
+#: protocol); a recording (``DomainKind.RECORDED``) is read, never run
+DOMAIN_KINDS = (DomainKind.SIMULATION, DomainKind.REALITY_MODEL, DomainKind.ROBOT)
 
 
 @dataclass(frozen=True)
@@ -91,7 +93,7 @@ class DomainSpec:
 
     name: str
     params: dict[str, Any] = field(default_factory=dict)
-    kind: str = "simulation"
+    kind: DomainKind = DomainKind.SIMULATION
     command: str | None = None
     nodes: int = 1
     options: tuple[tuple[str, Any], ...] = ()
@@ -102,7 +104,7 @@ class DomainSpec:
               options: Any = None) -> DomainSpec:
         """A robot domain stepped at ``frame_rate`` [Hz]; ``options``: a ``RobotNodeOptions`` (or None for the
         defaults)."""
-        return cls(name or f"robot:{command}", kind="robot", command=command, nodes=nodes,
+        return cls(name or f"robot:{command}", kind=DomainKind.ROBOT, command=command, nodes=nodes,
                    options=options.items() if options is not None else (), frame_rate=float(frame_rate))
 
     def node_options(self):
@@ -113,8 +115,10 @@ class DomainSpec:
 
     def __post_init__(self) -> None:
         if self.kind not in DOMAIN_KINDS:
-            raise ValueError(f"DomainSpec {self.name!r}: kind must be one of {DOMAIN_KINDS}, got {self.kind!r}")
-        if self.kind == "robot":
+            raise ValueError(f"DomainSpec {self.name!r}: kind must be one of {', '.join(DOMAIN_KINDS)}, got "
+                             f"{self.kind!r}")
+        object.__setattr__(self, "kind", DomainKind(self.kind))  # a member, given its string or itself
+        if self.kind is DomainKind.ROBOT:
             if not (isinstance(self.command, str) and self.command.strip()):
                 raise ValueError(f"DomainSpec {self.name!r}: a robot domain needs command= (the robot node to start)")
             if self.params:
@@ -133,7 +137,7 @@ class DomainSpec:
         cwd = dict(self.options).get("cwd")
         if cwd is not None:  # absent otherwise, so robot domains without one keep their keys
             doc["cwd"] = cwd
-        if self.kind == "robot" and self.frame_rate != DEFAULT_FRAME_RATE:  # likewise
+        if self.kind is DomainKind.ROBOT and self.frame_rate != DEFAULT_FRAME_RATE:  # likewise
             doc["frame_rate"] = self.frame_rate
         return json.dumps(doc, sort_keys=True)
 
@@ -155,7 +159,7 @@ class Job:
     npcs: Traffic | None = None  # NPC robots and pedestrians of the episode's world (domain.npcs)
 
     def __post_init__(self) -> None:
-        if self.domain.kind == "robot" and self.npcs is not None and not self.npcs.empty:
+        if self.domain.kind is DomainKind.ROBOT and self.npcs is not None and not self.npcs.empty:
             raise ValueError(f"job {self.agent.label} / {self.domain.name}: a robot node drives one robot and no "
                              f"NPCs; this job has npcs (a benchmark with `npcs:` needs a simulated domain)")
 
@@ -227,8 +231,8 @@ def batch_group(job: Job) -> tuple:
     agent groups only with itself. Jobs on one robot domain share a node process whatever their agent, map
     or length (one after another).
     """
-    if job.domain.kind == "robot":
-        return ("robot", job.domain.canonical())
+    if job.domain.kind is DomainKind.ROBOT:
+        return (DomainKind.ROBOT, job.domain.canonical())
     who = job.agent if job.agent.command else ("in-process", is_privileged(job.agent))
     return (who, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs)
 

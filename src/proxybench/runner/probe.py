@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.maps import load_map
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
@@ -62,7 +63,7 @@ def probe(domain: DomainSpec, map_name: str, *, frame_rate: float, seed: int = 0
     ``frame_rate`` [Hz]: what a robot node is asked to step at (a simulated domain's comes from its θ).
     A robot node that fails raises :class:`~proxybench.protocol.RobotFailure`.
     """
-    if domain.kind == "robot":
+    if domain.kind is DomainKind.ROBOT:
         from proxybench.protocol import RemoteRobot
 
         with RemoteRobot(domain.command, frame_rate=frame_rate, **domain.node_options().process_kwargs()) as robot:

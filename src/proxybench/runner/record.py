@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from proxybench.agents.base import Agent
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.maps import Map, load_map
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
@@ -60,7 +61,7 @@ def record_run(
     out.mkdir(parents=True, exist_ok=True)
     m = load_map(map_) if isinstance(map_, str) else map_
     t0 = time.perf_counter()
-    if domain.kind == "robot":
+    if domain.kind is DomainKind.ROBOT:
         from proxybench.protocol import RemoteRobot
 
         with RemoteRobot(domain.command, frame_rate=frame_rate or domain.frame_rate,

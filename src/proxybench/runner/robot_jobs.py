@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.protocol import RemoteRobot, RobotFailure
 from proxybench.runner.jobs import Job, JobResult
 from proxybench.runner.outcomes import all_metrics, make_agent_for, refused, result_of
@@ -108,7 +109,7 @@ def execute_robot_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]
                         route=None if job.route is None else list(job.route), camera=not agent.privileged,
                         allow_privileged=not job.camera_only,
                         meta={"map": job.map, "episode": job.episode, "domain": job.domain.name,
-                              "domain_kind": "robot", "job": job.key})
+                              "domain_kind": DomainKind.ROBOT, "job": job.key})
                 except RobotFailure as exc:
                     failure, in_a_row = exc, in_a_row + 1
                     results.append(_robot_failed(job, exc))

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.kinds import DomainKind
 from proxybench.runner.backends import Backend
 from proxybench.runner.jobs import AgentSpec, Job, JobResult
 
@@ -41,7 +42,7 @@ class TargetInfo:
     """What a target is, in words a report can print: ``kind`` (reality-model | recorded | robot),
     ``simulated`` (True, False, or None when proxybench cannot tell), a short ``label`` and a ``statement``."""
 
-    kind: str
+    kind: DomainKind
     simulated: bool | None
     label: str
     statement: str
@@ -70,7 +71,7 @@ class Target:
     """Base of the three kinds. A recorded target fixes its map, length, agents and episodes; the others
     take them from the experiment."""
 
-    kind = "target"
+    kind: DomainKind  # each kind's own
     fixed_map: str | None = None
     fixed_seconds: float | None = None
     fixed_agents: list[str] | None = None

@@ -30,17 +30,31 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from proxybench.domain.kinds import ROBOT_NODE, DomainKind
 from proxybench.protocol.options import RobotNodeOptions
 
-__all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "RobotInfo", "TargetError", "TargetManifest", "format_errors",
-           "load_manifest", "write_manifest"]
+__all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "SOURCE_KINDS", "RobotInfo", "TargetError", "TargetManifest",
+           "format_errors", "load_manifest", "source_of", "write_manifest"]
 
 FORMAT = "proxybench-target/1"
 MANIFEST_NAME = "target.yaml"
-#: where a recording came from. Only ``real`` is a physical robot; the others are simulations (``robot-node``:
-#: a process on the robot protocol, whose own description says whether it simulates)
-SOURCES = ("real", "reality-model", "robot-node", "simulation")
+#: where a recording came from (its ``source``) → the :class:`DomainKind` its episodes ran in. The manifest keeps
+#: its own words on purpose: ``robot-node`` for a robot domain (a process on the robot protocol, whose own
+#: description says whether it simulates), and ``real`` for physical robots recorded outside proxybench, which no
+#: domain kind names (proxybench never ran them). Only ``real`` is a physical robot; the others are simulations
+SOURCE_KINDS: dict[str, DomainKind | None] = {"real": None, "reality-model": DomainKind.REALITY_MODEL,
+                                              ROBOT_NODE: DomainKind.ROBOT, "simulation": DomainKind.SIMULATION}
+SOURCES = tuple(SOURCE_KINDS)
 DEFAULT_TRAJECTORIES = "episodes/{agent}/{episode}.parquet"
+
+
+def source_of(kind: DomainKind) -> str:
+    """The manifest's word for recordings made on a domain of ``kind``.
+
+    >>> source_of(DomainKind.ROBOT), source_of(DomainKind.REALITY_MODEL)
+    ('robot-node', 'reality-model')
+    """
+    return next(s for s, k in SOURCE_KINDS.items() if k is kind)
 
 
 class TargetError(ValueError):
@@ -133,7 +147,7 @@ class TargetManifest(BaseModel):
             for key in ("{agent}", "{episode}"):
                 if key not in self.trajectories:
                     raise ValueError(f"trajectories: the pattern {self.trajectories!r} lacks {key}")
-        if self.source == "robot-node" and self.robot is None:
+        if self.domain_kind is DomainKind.ROBOT and self.robot is None:
             raise ValueError("source robot-node needs robot: {command: ...}")
         return self
 
@@ -149,6 +163,11 @@ class TargetManifest(BaseModel):
     @property
     def simulated(self) -> bool:
         return self.source != "real"
+
+    @property
+    def domain_kind(self) -> DomainKind | None:
+        """The kind of domain the episodes ran in (None: real robots, recorded outside proxybench)."""
+        return SOURCE_KINDS[self.source]
 
 
 def _allowed(model: type[BaseModel], loc: tuple) -> list[str]:

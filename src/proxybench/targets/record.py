@@ -22,6 +22,7 @@ from pathlib import Path
 
 from proxybench import __version__
 from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, Job, JobResult
 from proxybench.runner.starts import start_poses
@@ -29,10 +30,12 @@ from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, episode_seed
 from proxybench.targets.manifest import (
     MANIFEST_NAME,
+    SOURCE_KINDS,
     RobotInfo,
     TargetError,
     TargetManifest,
     load_manifest,
+    source_of,
     write_manifest,
 )
 from proxybench.targets.spec import RealityTarget
@@ -60,10 +63,10 @@ def _check_label(label: str) -> None:
 
 def _source(target: Target) -> tuple[str, RobotInfo | None]:
     if isinstance(target, RealityTarget):
-        return "reality-model", None
+        return source_of(DomainKind.REALITY_MODEL), None
     command = getattr(target, "command", None)
     if command:
-        return "robot-node", RobotInfo(command=command, options=getattr(target, "options", None))
+        return source_of(DomainKind.ROBOT), RobotInfo(command=command, options=getattr(target, "options", None))
     raise TargetError(f"cannot record a {target.kind} target (record the reality model or a robot node)")
 
 
@@ -149,6 +152,7 @@ def record_target(
     except (MapError, FileNotFoundError) as exc:
         raise TargetError(f"map: {exc}") from None
     source, robot = _source(target)
+    new_kind = SOURCE_KINDS[source]
     dom = target.domain(image_size)  # type: ignore[attr-defined]
     truth = {k: float(v) for k, v in TRUTH.items() if isinstance(v, int | float) and not isinstance(v, bool)}
     truth.update({k: float(v) for k, v in getattr(target, "overrides", {}).items() if k in truth})
@@ -156,8 +160,8 @@ def record_target(
         source=source, description=description, who=who, where=where, when=when,
         map=str(Path(map_name).resolve()) if Path(map_name).is_file() else map_name, seconds=seconds,
         agents=[a.label for a in agents], episodes=list(range(episodes)), seed=seed, robot=robot,
-        params=dom.params if source == "reality-model" else None,
-        truth=truth if source == "reality-model" else None, recorded_with=f"proxybench {__version__}")
+        params=dom.params if new_kind is DomainKind.REALITY_MODEL else None,
+        truth=truth if new_kind is DomainKind.REALITY_MODEL else None, recorded_with=f"proxybench {__version__}")
     out.mkdir(parents=True, exist_ok=True)
     manifest = _plan(out, new, agents)
     write_manifest(out, manifest)  # first: an interrupted recording still says what it is
@@ -204,7 +208,7 @@ def record_target(
         shown = "\n  ".join(robot_failed[:5])
         raise TargetError(f"the robot node failed on {len(robot_failed)} episode(s); the others are recorded in "
                           f"{out}; run the same command again to retry:\n  {shown}")
-    if source == "robot-node" and robot is not None and todo:
+    if new_kind is DomainKind.ROBOT and robot is not None and todo:
         kind = _robot_kind(dest[todo[0].key])
         if kind:
             manifest = manifest.model_copy(update={"robot": manifest.robot.model_copy(update={"kind": kind})})

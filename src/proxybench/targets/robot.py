@@ -11,6 +11,7 @@ real robot from a simulator except by what the node says of itself, and reports 
 from __future__ import annotations
 
 from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.backends import InlineBackend
 from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec, Job
@@ -30,7 +31,7 @@ class RobotTarget(Target):
     proxies' rate, so that target and proxy episodes see and decide alike (a node that says its own rate is
     stepped at that)."""
 
-    kind = "robot"
+    kind = DomainKind.ROBOT
 
     def __init__(self, command: str, nodes: int = 1, options: RobotNodeOptions | None = None,
                  frame_rate: float = DEFAULT_FRAME_RATE):
@@ -44,10 +45,10 @@ class RobotTarget(Target):
         return DomainSpec.robot(self.command, frame_rate=self.frame_rate, nodes=self.nodes, options=self.options)
 
     def info(self) -> TargetInfo:
-        simulated = {"simulation": True, "robot": None}.get(self._said)
+        simulated = True if self._said == DomainKind.SIMULATION else None  # a node's word; "robot" may be either
         said = f"; it described itself as a {self._said}" if self._said else ""
         return TargetInfo(
-            "robot", simulated, f"robot node: {self.command}",
+            DomainKind.ROBOT, simulated, f"robot node: {self.command}",
             f"The target is a robot node started with `{self.command}`{said}. proxybench cannot tell a real robot "
             "from a simulator behind the robot protocol: treat results as real only if you know the node drives "
             "a physical robot.", {"command": self.command, "kind": self._said, "nodes": self.nodes,

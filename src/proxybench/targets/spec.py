@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.kinds import DomainKind
 from proxybench.runner.backends import InlineBackend
 from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec, Job
 from proxybench.runner.starts import start_poses
@@ -56,7 +57,7 @@ class _LiveTarget(Target):
 class RealityTarget(_LiveTarget):
     """The built-in reality model, optionally with some of its parameters changed."""
 
-    kind = "reality-model"
+    kind = DomainKind.REALITY_MODEL
 
     def __init__(self, overrides: dict[str, Any] | None = None):
         from pydantic import ValidationError
@@ -75,7 +76,7 @@ class RealityTarget(_LiveTarget):
 
         w, h = image_size
         params = reality_params(**{**self.overrides, "image_width": w, "image_height": h})
-        return DomainSpec("reality", params.model_dump(), kind="reality-model")
+        return DomainSpec("reality", params.model_dump(), kind=DomainKind.REALITY_MODEL)
 
     def truth(self) -> dict[str, float]:
         from proxybench.domain.reality import TRUTH
@@ -87,7 +88,7 @@ class RealityTarget(_LiveTarget):
     def info(self) -> TargetInfo:
         changed = ", ".join(f"{k}={v}" for k, v in self.overrides.items())
         return TargetInfo(
-            "reality-model", True, "reality model (simulated)" + (f", {changed}" if changed else ""),
+            DomainKind.REALITY_MODEL, True, "reality model (simulated)" + (f", {changed}" if changed else ""),
             "SIMULATED: the target is proxybench's reality model, a simulated stand-in for a Duckiebot with effects "
             "the proxies cannot express (wheel slip, motor dead-band, latency jitter, a lens that differs from its "
             "calibration, other light, sensor noise)" + (f", with {changed}" if changed else "") + ". No real robot "
@@ -97,7 +98,7 @@ class RealityTarget(_LiveTarget):
 class RecordedTarget(Target):
     """A directory of recorded episodes (see :mod:`proxybench.targets.recorded`)."""
 
-    kind = "recorded"
+    kind = DomainKind.RECORDED
 
     def __init__(self, root: str | Path):
         from proxybench.targets.manifest import load_manifest
@@ -114,18 +115,19 @@ class RecordedTarget(Target):
     def info(self) -> TargetInfo:
         m = self.manifest
         who = " ".join(f"{w} {x}" for w, x in (("by", m.who), ("at", m.where), ("on", m.when)) if x)
+        kind = m.domain_kind  # None: real robots
         what = {
-            "real": "REAL robots (as its manifest declares)",
-            "reality-model": "SIMULATED runs of proxybench's reality model (a stand-in for a Duckiebot)",
-            "robot-node": (f"runs on a robot node ({m.robot.command if m.robot else '?'}"
-                           + (f", which described itself as a {m.robot.kind}" if m.robot and m.robot.kind else "")
-                           + "); proxybench cannot tell whether a robot node is a real robot or a simulator"),
-            "simulation": "SIMULATED runs of another simulator",
-        }[m.source]
-        simulated = {"real": False, "reality-model": True, "simulation": True,
-                     "robot-node": True if m.robot and m.robot.kind == "simulation" else None}[m.source]
+            None: "REAL robots (as its manifest declares)",
+            DomainKind.REALITY_MODEL: "SIMULATED runs of proxybench's reality model (a stand-in for a Duckiebot)",
+            DomainKind.ROBOT: (f"runs on a robot node ({m.robot.command if m.robot else '?'}"
+                               + (f", which described itself as a {m.robot.kind}" if m.robot and m.robot.kind else "")
+                               + "); proxybench cannot tell whether a robot node is a real robot or a simulator"),
+            DomainKind.SIMULATION: "SIMULATED runs of another simulator",
+        }[kind]
+        simulated = {None: False, DomainKind.REALITY_MODEL: True, DomainKind.SIMULATION: True,
+                     DomainKind.ROBOT: True if m.robot and m.robot.kind == DomainKind.SIMULATION else None}[kind]
         return TargetInfo(
-            "recorded", simulated, f"recorded: {self.root} (source: {m.source})",
+            DomainKind.RECORDED, simulated, f"recorded: {self.root} (source: {m.source})",
             f"The target is a recording at {self.root.resolve()} (source: {m.source}): {what}"
             + (f"; recorded {who}" if who else "") + (f". {m.description}" if m.description else "") + ".",
             {"root": str(self.root.resolve()), "source": m.source, "who": m.who, "where": m.where, "when": m.when,
@@ -144,7 +146,7 @@ class RecordedTarget(Target):
         for e in chosen:
             results.setdefault(e.agent, []).append([e.scores[m] for m in metrics])
         m = self.manifest
-        params = m.params if m.source == "reality-model" else None
+        params = m.params if m.domain_kind is DomainKind.REALITY_MODEL else None
         return TargetRun(self.info(), resolve_map(self.root, m.map), m.seconds, metrics, eps,
                          {a: np.asarray(v, dtype=float) for a, v in results.items()}, dict(m.truth or {}), params, 0)
 

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from proxybench.domain.events import EPISODE_TERMINATIONS, Event, Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.lane_pose import LANE_POSE_FIELDS, lane_poses
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
@@ -51,9 +52,10 @@ class TrajectoryError(ValueError):
 @dataclass
 class Trajectory:
     """One episode: ``columns`` maps names to equal-length 1-D arrays (see ``_CORE``, ``_OPTIONAL``, lane
-    pose fields); ``meta`` holds θ, agent, map, episode spec, seed, versions and ``source``
-    ("simulation", "reality-model" or "recorded"); ``events`` are :class:`Event` records (``{t, kind, message,
-    ...}`` objects in the file); ``termination`` says why the episode ended.
+    pose fields); ``meta`` holds θ, agent, map, episode spec, seed, versions and ``source`` (a ``DomainKind``:
+    "simulation", "reality-model" or "recorded"; on a robot node, the node's own word); ``events`` are
+    :class:`Event` records (``{t, kind, message, ...}`` objects in the file); ``termination`` says why the
+    episode ended.
     """
 
     columns: dict[str, np.ndarray]
@@ -198,7 +200,7 @@ class Trajectory:
             events.append(Event(float(t[k]), Termination.LEFT_MAP, f"pose {k} is off the map"))
             t, pose, termination = t[:k], pose[:k], Termination.LEFT_MAP
         extra = {k: v[: t.size] for k, v in data.items() if k in _OPTIONAL}
-        info = {"source": "recorded", "file": str(path), **(meta or {})}
+        info = {"source": DomainKind.RECORDED, "file": str(path), **(meta or {})}
         return cls.from_poses(m, t, pose, extra=extra, meta=info, events=events, termination=termination,
                               origin=str(path))
 
