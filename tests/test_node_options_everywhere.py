@@ -13,6 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from proxybench.cli import app
+from proxybench.domain.params import DomainParams
 from proxybench.experiments.agent_args import parse_agents
 from proxybench.experiments.config import ConfigError, load_config, resolve
 from proxybench.protocol.options import RobotNodeOptions
@@ -181,7 +182,7 @@ agents:
     assert (options.cwd, options.transport, options.step_timeout, options.reflection) == (str(sub), "fifo", 2.0,
                                                                                           False)
     # the node runs with them: it prints to stdout (fine over FIFOs) and needs a file of its folder
-    (res,) = run_jobs([Job(specs[3], DomainSpec("small", {"image_width": 80, "image_height": 60}), "loop_3x3", 0,
+    (res,) = run_jobs([Job(specs[3], DomainSpec("small", DomainParams(image_width=80, image_height=60)), "loop_3x3", 0,
                            1, 0.5)], tmp_path / "runs").results
     assert res.termination == "timeout", res.message
 

@@ -265,7 +265,7 @@ def test_lfv_and_lfp_load_and_run_a_short_episode(tmp_path, name):
     ev = evaluate_benchmark(short, [AgentSpec("pid")], tmp_path)
     (res,) = ev.sweep.results
     assert res.termination in ("timeout", "collision") and res.scores["survival_time"] > 0
-    plain = Job(AgentSpec("pid"), DomainSpec("default", DomainParams().model_dump(mode="json")), "loop_3x3", 0, 0, 2.0)
+    plain = Job(AgentSpec("pid"), DomainSpec("default", DomainParams()), "loop_3x3", 0, 0, 2.0)
     assert dataclasses.replace(plain, npcs=bench.traffic()).key != plain.key  # NPCs are part of the job key
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pickle
 import typing
 
 import numpy as np
@@ -11,7 +12,8 @@ import pytest
 
 from proxybench.domain.kinds import ROBOT_NODE, DomainKind, robot_node_kind
 from proxybench.domain.maps import load_map
-from proxybench.runner.jobs import DomainSpec, JobResult
+from proxybench.domain.params import DomainParams
+from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
 from proxybench.targets.manifest import SOURCE_KINDS, SOURCES, TargetManifest, source_of
 from proxybench.targets.robot import RobotTarget
 from proxybench.targets.spec import RealityTarget
@@ -125,3 +127,30 @@ def test_the_manifest_keeps_its_words_through_a_documented_mapping():
 def test_targets_say_their_kind_as_a_member():
     assert RealityTarget().info().kind is DomainKind.REALITY_MODEL
     assert RobotTarget("bridge").info().kind is DomainKind.ROBOT
+
+
+# -- DomainSpec.params ---------------------------------------------------------------------------------------
+
+def test_theta_crosses_the_job_seam_typed_and_keys_stay_as_they_were():
+    theta = DomainParams(trim=0.1, image_width=80, image_height=60, light_rgb=(0.9, 1.0, 1.1))
+    spec = DomainSpec("trim=0.1", theta)
+    assert spec.params is theta and DomainSpec("d").params == DomainParams()
+    # the key serialises θ exactly as the dict of its fields did before DomainSpec.params was typed
+    assert spec.canonical() == json.dumps({"params": theta.model_dump(mode="json"), "kind": "simulation"},
+                                          sort_keys=True)
+    assert json.loads(DomainSpec.robot("bridge", frame_rate=15.0).canonical())["params"] == {}
+    with pytest.raises(TypeError, match="params must be a DomainParams, got dict"):
+        DomainSpec("x", {"trim": 0.1})
+    with pytest.raises(ValueError, match="a robot domain takes no params"):
+        DomainSpec("r", theta, kind="robot", command="bridge")
+
+
+def test_domain_specs_hash_by_value_in_sets_and_job_keys():
+    a = DomainSpec("p", DomainParams(trim=0.1))
+    b = DomainSpec("p", DomainParams(trim=0.1))
+    c = DomainSpec("p", DomainParams(trim=0.2))
+    assert a == b and hash(a) == hash(b) and len({a, b, c}) == 2 and {a: 1}[b] == 1
+    job = Job(AgentSpec("pid"), a, "loop_3x3", 0, 1, 2.0)
+    assert job.key == Job(AgentSpec("pid"), b, "loop_3x3", 0, 1, 2.0).key != \
+        Job(AgentSpec("pid"), c, "loop_3x3", 0, 1, 2.0).key
+    assert pickle.loads(pickle.dumps(job)).domain == a  # what a process pool carries

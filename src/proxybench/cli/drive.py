@@ -99,7 +99,7 @@ def run(
         domain = DomainSpec.robot(robot_cmd, frame_rate=DEFAULT_FRAME_RATE, options=robot_options)
         seconds_label = f"{seconds:g} s on robot node"
     else:
-        domain = DomainSpec("simulation", DomainParams(image_width=width, image_height=height).model_dump(mode="json"))
+        domain = DomainSpec("simulation", DomainParams(image_width=width, image_height=height))
         seconds_label = f"{seconds:g} s"
     try:
         agent = make_agent(agent_name) if agent_cmd is None else remote_agent(agent_cmd, options)

@@ -152,8 +152,7 @@ def check_target(bench: Benchmark, domain: DomainSpec, *, seed: int = 0) -> tupl
 
 def check_reality_model(bench: Benchmark, params: DomainParams, *, seed: int = 0) -> ComplianceReport:
     """Check the reality model instance ``params`` (as the target run will use it) against ``bench``."""
-    return check_target(bench, DomainSpec("reality", params.model_dump(mode="json"), DomainKind.REALITY_MODEL),
-                        seed=seed)[0]
+    return check_target(bench, DomainSpec("reality", params, DomainKind.REALITY_MODEL), seed=seed)[0]
 
 
 def check_robot(bench: Benchmark, cmd: str, *, seed: int = 0, options: Any = None) -> ComplianceReport:

@@ -135,7 +135,7 @@ def optimize_proxy(
         theta = {name: trial.suggest_int(name, int(lo), int(hi)) if _is_count(name)
                  else trial.suggest_float(name, lo, hi) for name, (lo, hi) in space.items()}  # counts are ints
         params = proxy_params(exp.image_size, exp.proxy, **theta)
-        dom = DomainSpec("proxy " + " ".join(f"{k}={v:.4g}" for k, v in theta.items()), params.model_dump())
+        dom = DomainSpec("proxy " + " ".join(f"{k}={v:.4g}" for k, v in theta.items()), params)
         jobs = proxy_jobs(exp, tgt, dom)
         proxy = by_agent(jobs, run_jobs(jobs, run_dir, backend).results, exp.metrics)
         value, parts = _objective_value(exp.search.objective, proxy, tgt.results, higher)

@@ -20,7 +20,6 @@ from typing import Any
 import numpy as np
 
 from proxybench.domain.kinds import DomainKind
-from proxybench.domain.params import DomainParams
 from proxybench.experiments.config import Experiment, ExperimentConfig, resolve
 from proxybench.experiments.pod import pod
 from proxybench.experiments.proxies import proxy_params
@@ -89,7 +88,7 @@ def proxy_domains(exp: Experiment) -> list[tuple[str, float, DomainSpec]]:
     for name, values in exp.sweep.items():
         for v in values:
             params = proxy_params(exp.image_size, exp.proxy, **{name: v})
-            out.append((name, float(v), DomainSpec(f"{name}={v:g}", params.model_dump())))
+            out.append((name, float(v), DomainSpec(f"{name}={v:g}", params)))
     return out
 
 
@@ -145,7 +144,7 @@ def run_predictivity(
         for name, e in est.items():
             row[name], row[f"{name}_low"], row[f"{name}_high"] = e.value, e.low, e.high
         row["notes"] = "; ".join(est.notes)
-        row["pod"] = (pod(DomainParams.model_validate(dom.params), DomainParams.model_validate(tgt.params), tgt.map,
+        row["pod"] = (pod(dom.params, tgt.params, tgt.map,
                           commands, seed=exp.seed) if commands is not None else float("nan"))
         rows.append(row)
         if progress:
@@ -206,5 +205,5 @@ def _pod_commands(exp: Experiment, tgt: TargetRun) -> np.ndarray:
     from proxybench.agents import make_agent
     from proxybench.runner.replay import agent_commands
 
-    return agent_commands(tgt.map, DomainParams.model_validate(tgt.params), make_agent("pid"), exp.seed,
+    return agent_commands(tgt.map, tgt.params, make_agent("pid"), exp.seed,
                           exp.pod_seconds)

@@ -183,7 +183,7 @@ def repeatability_study(
         for k, (name, d) in enumerate(designs.items()):
             cells = [(lab, r, i) for lab in range(d.labs) for r in range(d.robots) for i in range(d.runs)]
             jobs = [Job(AgentSpec(agent), DomainSpec(f"lab {lab}/robot {r}",
-                                                     robot_params(base, seed, lab, r).model_dump(mode="json"),
+                                                     robot_params(base, seed, lab, r),
                                                      DomainKind.REALITY_MODEL),
                         map_name, j, int(np.random.SeedSequence([seed, k, lab, r, i]).generate_state(1)[0] % 2**31),
                         seconds, pose=placed(start, _rng(seed, 0x9A5E, k, j), placement))

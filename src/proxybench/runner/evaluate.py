@@ -37,9 +37,9 @@ def benchmark_domain(bench: Benchmark, named: str | None = None) -> DomainSpec:
         if named not in NAMED_DOMAINS:
             raise BenchmarkError(f"unknown domain {named!r}; known: {', '.join(NAMED_DOMAINS)}")
         params = NAMED_DOMAINS[named]().replace(physics_rate=bench.physics_rate, frame_rate=bench.frame_rate)
-        return DomainSpec(named, params.model_dump(mode="json"), _kind(named))
+        return DomainSpec(named, params, _kind(named))
     name = bench.domain.named or "benchmark"
-    return DomainSpec(name, bench.domain_params().model_dump(mode="json"), _kind(bench.domain.named))
+    return DomainSpec(name, bench.domain_params(), _kind(bench.domain.named))
 
 
 def _kind(named: str | None) -> DomainKind:

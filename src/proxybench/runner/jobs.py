@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 from proxybench import __version__
 from proxybench.domain.events import Termination
 from proxybench.domain.kinds import DomainKind
+from proxybench.domain.params import DomainParams
 
 if TYPE_CHECKING:
     from proxybench.domain.npcs import Traffic
@@ -74,25 +75,26 @@ DOMAIN_KINDS = (DomainKind.SIMULATION, DomainKind.REALITY_MODEL, DomainKind.ROBO
 
 @dataclass(frozen=True)
 class DomainSpec:
-    """A domain instance: a label, its parameters θ (DomainParams fields) and what kind of domain it is.
+    """A domain instance: a label, its parameters θ (a :class:`DomainParams`) and what kind of domain it is.
 
     ``kind`` is "simulation" for proxy instances, "reality-model" for the built-in stand-in target, and
     "robot" for a robot node started with ``command`` (docs/robot-protocol.md: a physical robot's bridge,
-    another simulator, or ``proxybench robot serve``). A robot is what it is: its θ is not ours to set, so
-    ``params`` stays empty, and its episodes are cached by *what was asked* (the command string, map,
-    episode, agent), not by what the robot is: after changing the robot (recalibration, new firmware), use
-    a fresh run directory or delete its cached episodes. ``nodes``: how many processes of ``command`` may
-    run at once on this machine (one per busy worker, up to this; not part of any key): keep 1 for a bridge
-    to one physical robot, raise it for a simulator node. ``options``: how to start and talk to the node,
-    the non-default fields of :class:`~proxybench.protocol.options.RobotNodeOptions` (working directory,
-    transport, timeouts, reflection) as sorted pairs; of them only ``cwd`` is part of the key (it changes
-    what the command runs; a timeout or the transport does not change an episode). ``frame_rate`` [Hz]: what a
-    robot node is asked to step at (the benchmark's or the proxies' rate; a node that says its own rate is
-    stepped at that); part of the key when it is not the default 15 Hz.
+    another simulator, or ``proxybench robot serve``). A simulated domain without ``params`` has the default
+    θ. A robot is what it is: its θ is not ours to set, so ``params`` stays None, and its episodes are cached
+    by *what was asked* (the command string, map, episode, agent), not by what the robot is: after changing
+    the robot (recalibration, new firmware), use a fresh run directory or delete its cached episodes.
+    ``nodes``: how many processes of ``command`` may run at once on this machine (one per busy worker, up to
+    this; not part of any key): keep 1 for a bridge to one physical robot, raise it for a simulator node.
+    ``options``: how to start and talk to the node, the non-default fields of
+    :class:`~proxybench.protocol.options.RobotNodeOptions` (working directory, transport, timeouts,
+    reflection) as sorted pairs; of them only ``cwd`` is part of the key (it changes what the command runs; a
+    timeout or the transport does not change an episode). ``frame_rate`` [Hz]: what a robot node is asked to
+    step at (the benchmark's or the proxies' rate; a node that says its own rate is stepped at that); part of
+    the key when it is not the default 15 Hz.
     """
 
     name: str
-    params: dict[str, Any] = field(default_factory=dict)
+    params: DomainParams | None = None
     kind: DomainKind = DomainKind.SIMULATION
     command: str | None = None
     nodes: int = 1
@@ -121,17 +123,26 @@ class DomainSpec:
         if self.kind is DomainKind.ROBOT:
             if not (isinstance(self.command, str) and self.command.strip()):
                 raise ValueError(f"DomainSpec {self.name!r}: a robot domain needs command= (the robot node to start)")
-            if self.params:
+            if self.params is not None:
                 raise ValueError(f"DomainSpec {self.name!r}: a robot domain takes no params (the robot's θ is its "
-                                 f"own; pass settings in its command), got {sorted(self.params)}")
+                                 f"own; pass settings in its command)")
             if not (isinstance(self.nodes, int) and self.nodes >= 1):
                 raise ValueError(f"DomainSpec {self.name!r}: nodes must be a positive integer, got {self.nodes!r}")
-        elif self.command is not None or self.options:
+            return
+        if self.command is not None or self.options:
             raise ValueError(f"DomainSpec {self.name!r}: command= and options= are only for kind='robot', not "
                              f"{self.kind!r}")
+        if self.params is None:
+            object.__setattr__(self, "params", DomainParams())
+        elif not isinstance(self.params, DomainParams):  # θ crosses the job seam validated, once
+            raise TypeError(f"DomainSpec {self.name!r}: params must be a DomainParams, got "
+                            f"{type(self.params).__name__} (build one with DomainParams.model_validate)")
 
     def canonical(self) -> str:
-        doc: dict[str, Any] = {"params": self.params, "kind": self.kind}
+        """What identifies the domain in a job's key: θ as JSON (``{}`` for a robot), the kind, and a robot's
+        command, working directory and rate where they are set (so older keys stay valid)."""
+        params = self.params.model_dump(mode="json") if self.params is not None else {}
+        doc: dict[str, Any] = {"params": params, "kind": self.kind}
         if self.command is not None:  # absent otherwise, so simulated domains keep their keys
             doc["command"] = self.command
         cwd = dict(self.options).get("cwd")

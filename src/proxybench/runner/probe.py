@@ -18,7 +18,6 @@ import numpy as np
 from proxybench.domain.events import Termination
 from proxybench.domain.kinds import DomainKind
 from proxybench.domain.maps import load_map
-from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
 from proxybench.protocol import jpeg
 from proxybench.runner.episode import SimPlant
@@ -68,7 +67,7 @@ def probe(domain: DomainSpec, map_name: str, *, frame_rate: float, seed: int = 0
 
         with RemoteRobot(domain.command, frame_rate=frame_rate, **domain.node_options().process_kwargs()) as robot:
             return _drive(RobotPlant(robot, load_map(map_name)), seed, pwm, seconds)
-    sim = Simulator(map_name, DomainParams.model_validate(domain.params), n=1)
+    sim = Simulator(map_name, domain.params, n=1)
     return _drive(SimPlant(sim, camera_filter()), seed, pwm, seconds, kind=domain.kind)
 
 

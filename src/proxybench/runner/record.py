@@ -17,7 +17,6 @@ import numpy as np
 from proxybench.agents.base import Agent
 from proxybench.domain.kinds import DomainKind
 from proxybench.domain.maps import Map, load_map
-from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
 from proxybench.domain.topdown import top_down
 from proxybench.media import VideoWriter, side_by_side, write_strip
@@ -69,7 +68,7 @@ def record_run(
             rec = _record(RobotPlant(robot, m), agent, seed, seconds, out, stem, video, pose, route, strip_frames,
                           on_frame, meta)
     else:
-        sim = Simulator(m, DomainParams.model_validate(domain.params), npcs=npcs)
+        sim = Simulator(m, domain.params, npcs=npcs)
         rec = _record(SimPlant(sim, camera_filter()), agent, seed, seconds, out, stem, video, pose, route,
                       strip_frames, on_frame, meta)
     rec.wall_s = time.perf_counter() - t0

@@ -17,14 +17,13 @@ _SIMS: dict[tuple[Any, ...], Any] = {}
 
 def _simulator(job: Job, n: int = 1):
     """One cached simulator per (map, θ, batch size) per worker: building one costs more than an episode."""
-    from proxybench.domain.params import DomainParams
     from proxybench.domain.simulator import Simulator
 
     k = (job.map, job.domain.canonical(), n, job.npcs)
     if k not in _SIMS:
         if len(_SIMS) > 8:
             _SIMS.clear()
-        _SIMS[k] = Simulator(job.map, DomainParams.model_validate(job.domain.params), n=n, npcs=job.npcs)
+        _SIMS[k] = Simulator(job.map, job.domain.params, n=n, npcs=job.npcs)
     return _SIMS[k]
 
 

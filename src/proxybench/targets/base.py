@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from proxybench.domain.kinds import DomainKind
+from proxybench.domain.params import DomainParams
 from proxybench.runner.backends import Backend
 from proxybench.runner.jobs import AgentSpec, Job, JobResult
 
@@ -60,7 +61,7 @@ class TargetRun:
     episodes: list[TargetEpisode]
     results: dict[str, np.ndarray]
     truth: dict[str, float] = field(default_factory=dict)
-    params: dict[str, Any] | None = None  # θ of a simulated target when known (POD needs it)
+    params: DomainParams | None = None  # θ of a simulated target when known (POD needs it)
     ran: int = 0  # episodes simulated or driven now (not cached, not read from files)
 
     def episodes_of(self, agent: str) -> list[TargetEpisode]:

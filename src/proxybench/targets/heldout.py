@@ -120,8 +120,8 @@ class HeldOutTarget(_LiveTarget):
     def domain(self, image_size: tuple[int, int]) -> DomainSpec:
         w, h = image_size
         params = {k: v for k, v in self._drawn.items() if k != "command_delay_mean"}
-        return DomainSpec(self.name, DomainParams.model_validate({**params, "image_width": w, "image_height": h})
-                          .model_dump(), kind=DomainKind.REALITY_MODEL)
+        return DomainSpec(self.name, DomainParams.model_validate({**params, "image_width": w, "image_height": h}),
+                          kind=DomainKind.REALITY_MODEL)
 
     def truth(self) -> dict[str, float]:
         return {}  # hidden: an experiment must not see it before scoring

@@ -160,7 +160,7 @@ def record_target(
         source=source, description=description, who=who, where=where, when=when,
         map=str(Path(map_name).resolve()) if Path(map_name).is_file() else map_name, seconds=seconds,
         agents=[a.label for a in agents], episodes=list(range(episodes)), seed=seed, robot=robot,
-        params=dom.params if new_kind is DomainKind.REALITY_MODEL else None,
+        params=dom.params.model_dump(mode="json") if new_kind is DomainKind.REALITY_MODEL else None,
         truth=truth if new_kind is DomainKind.REALITY_MODEL else None, recorded_with=f"proxybench {__version__}")
     out.mkdir(parents=True, exist_ok=True)
     manifest = _plan(out, new, agents)

@@ -21,12 +21,13 @@ from typing import Any
 import numpy as np
 
 from proxybench.domain.kinds import DomainKind
+from proxybench.domain.params import DomainParams
 from proxybench.runner.backends import InlineBackend
 from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec, Job
 from proxybench.runner.starts import start_poses
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, by_agent, episode_seed
-from proxybench.targets.manifest import TargetError
+from proxybench.targets.manifest import TargetError, TargetManifest
 
 __all__ = ["RealityTarget", "RecordedTarget", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "episode_seed",
            "open_target"]
@@ -76,7 +77,7 @@ class RealityTarget(_LiveTarget):
 
         w, h = image_size
         params = reality_params(**{**self.overrides, "image_width": w, "image_height": h})
-        return DomainSpec("reality", params.model_dump(), kind=DomainKind.REALITY_MODEL)
+        return DomainSpec("reality", params, kind=DomainKind.REALITY_MODEL)
 
     def truth(self) -> dict[str, float]:
         from proxybench.domain.reality import TRUTH
@@ -146,9 +147,20 @@ class RecordedTarget(Target):
         for e in chosen:
             results.setdefault(e.agent, []).append([e.scores[m] for m in metrics])
         m = self.manifest
-        params = m.params if m.domain_kind is DomainKind.REALITY_MODEL else None
+        params = _recorded_theta(m) if m.domain_kind is DomainKind.REALITY_MODEL else None
         return TargetRun(self.info(), resolve_map(self.root, m.map), m.seconds, metrics, eps,
                          {a: np.asarray(v, dtype=float) for a, v in results.items()}, dict(m.truth or {}), params, 0)
+
+
+def _recorded_theta(m: TargetManifest) -> DomainParams | None:
+    """θ a recording of the reality model says it ran with, where it is a θ of this version (a recording made
+    by a version whose θ had other fields keeps its θ in the manifest only, for the record; none is used)."""
+    from pydantic import ValidationError
+
+    try:
+        return None if m.params is None else DomainParams.model_validate(m.params)
+    except ValidationError:
+        return None
 
 
 def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes: int = 1,
