@@ -20,6 +20,7 @@ from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets import TargetError, open_target
+from support.jobs import worker_job
 
 runner = CliRunner()
 HERE = Path(__file__).resolve().parent
@@ -133,7 +134,7 @@ def test_evaluator_target_jobs_start_the_robot_node_with_its_options(tmp_path: P
         "name": "tiny_robot", "map": "loop_3x3", "episodes": {"count": 1, "seed": 1}, "duration": 1.0,
         "domain": {"params": {"image_width": 80, "image_height": 60}}, "metrics": ["survival_time"],
         "scoring": [{"metric": "survival_time_median"}]})
-    options = _Job(tmp_path, {"lease": {}, "robot_options": {"cwd": str(bridge), "transport": "fifo"}}).robot_options()
+    options = _Job(tmp_path, worker_job(robot_options={"cwd": str(bridge), "transport": "fifo"})).robot_options()
     assert options == RobotNodeOptions(cwd=str(bridge), transport="fifo")
     report = check_robot(bench, ROBOT, options=options)
     assert report.ok, report.failures()

@@ -9,15 +9,19 @@ import typing
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from pydantic import ValidationError
 
+from proxybench.contract import Lease
 from proxybench.domain.kinds import ROBOT_NODE, DomainKind, robot_node_kind
 from proxybench.domain.maps import load_map
 from proxybench.domain.params import DomainParams
+from proxybench.evaluator.job import WorkerJob
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
 from proxybench.targets.manifest import SOURCE_KINDS, SOURCES, TargetManifest, source_of
 from proxybench.targets.robot import RobotTarget
 from proxybench.targets.spec import RealityTarget
 from proxybench.tasks.trajectory import TERMINATIONS, Event, Termination, Trajectory, TrajectoryError
+from support.jobs import worker_job
 
 
 @pytest.fixture(scope="module")
@@ -154,3 +158,22 @@ def test_domain_specs_hash_by_value_in_sets_and_job_keys():
     assert job.key == Job(AgentSpec("pid"), b, "loop_3x3", 0, 1, 2.0).key != \
         Job(AgentSpec("pid"), c, "loop_3x3", 0, 1, 2.0).key
     assert pickle.loads(pickle.dumps(job)).domain == a  # what a process pool carries
+
+
+# -- the evaluator's lease -----------------------------------------------------------------------------------
+
+def test_the_lease_reaches_the_worker_typed(tmp_path):
+    """The server's lease reply → the loop's Lease → job.json (the model's own JSON) → the worker's Lease."""
+    reply = {"job_id": 7, "lease_id": "ab12", "lease_seconds": 30, "attempt": 2, "features": ["sim", "target"],
+             "submission": {"id": 3, "label": "mine", "archive_sha256": "0" * 64, "manifest": {"name": "pkg"}},
+             "benchmark": {"name": "aido_lf", "version": 4, "spec_yaml": "name: aido_lf\n", "test_seed": 99},
+             "a_field_of_a_newer_server": 1}
+    lease = Lease.model_validate(reply)
+    job = worker_job(robot_options={"cwd": "/lab"}).model_copy(update={"lease": lease, "job_features": ["target"]})
+    back = WorkerJob.read(job.write(tmp_path / "job.json"))
+    assert back == job and isinstance(back.lease, Lease) and back.lease.benchmark.test_seed == 99
+    assert back.lease.submission.manifest == {"name": "pkg"} and back.isolation == job.isolation
+    text = (tmp_path / "job.json").read_text().replace('"lease_seconds": 30.0', '"lease_seconds": "soon"')
+    (tmp_path / "job.json").write_text(text)
+    with pytest.raises(ValidationError, match=r"lease\.lease_seconds"):
+        WorkerJob.read(tmp_path / "job.json")
