@@ -118,7 +118,7 @@ class DomainSpec:
     def __post_init__(self) -> None:
         if self.kind not in DOMAIN_KINDS:
             raise ValueError(f"DomainSpec {self.name!r}: kind must be one of {', '.join(DOMAIN_KINDS)}, got "
-                             f"{self.kind!r}")
+                             f"{str(self.kind)!r}")
         object.__setattr__(self, "kind", DomainKind(self.kind))  # a member, given its string or itself
         if self.kind is DomainKind.ROBOT:
             if not (isinstance(self.command, str) and self.command.strip()):
