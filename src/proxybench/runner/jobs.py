@@ -203,13 +203,15 @@ class JobResult:
     message: str = ""
     timings: dict[str, float] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        self.termination = Termination(self.termination)  # a member, given its string (an unknown one raises)
+
     def to_json(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)
 
     @staticmethod
     def from_json(text: str) -> JobResult:
-        data = json.loads(text)
-        return JobResult(**{**data, "termination": Termination(data["termination"])})
+        return JobResult(**json.loads(text))
 
 
 def _agent_id(spec: AgentSpec) -> dict[str, Any]:

@@ -63,6 +63,9 @@ class Trajectory:
     events: list[Event] = field(default_factory=list)
     termination: Termination = Termination.TIMEOUT
 
+    def __post_init__(self) -> None:
+        self.termination = _termination(self.termination, "trajectory")
+
     # -- construction ----------------------------------------------------------------------------
 
     @classmethod
