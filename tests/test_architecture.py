@@ -19,6 +19,7 @@ RANKS = {
     "domain": 1,
     "agents": 2,
     "learning": 3, "protocol": 3,
+    "dtps": 3.5,  # SDK agents over DTPS: above protocol (its process machinery), below tasks and runner
     "tasks": 4,
     "runner": 5, "usefulness": 5, "plots": 5,
     "targets": 6, "testing": 6, "contract": 6,

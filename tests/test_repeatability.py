@@ -86,7 +86,9 @@ def test_robot_nodes_are_robots_of_a_design(tmp_path):
     res = robot_study("pure-pursuit", {"sim-a": serve}, runs=2, seconds=2.0)
     (name, got), = res.designs.items()
     assert res.source == "robot node" and got.design == Design(1, 1, 2) and "sim-a" in res.notes[name]
-    assert all(t.meta["source"] == "robot node" for t in got.runs) and np.isfinite(got.figures["MPD_cm"])
+    # each run says what the node said it is (a simulator here), never "robot" on our behalf
+    assert all(t.meta["source"] == "simulation" and t.meta["robot"] == "sim-a" for t in got.runs)
+    assert np.isfinite(got.figures["MPD_cm"])
 
 
 def test_repeatability_command_prints_each_design_beside_the_thesis(tmp_path):

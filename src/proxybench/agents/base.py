@@ -8,11 +8,13 @@ can provide; results of privileged agents say so.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from proxybench.domain.lane_pose import LanePose
+from proxybench.domain.maps import Map
 from proxybench.domain.routes import RouteInfo
 
 __all__ = ["Agent", "Observation"]
@@ -26,7 +28,9 @@ class Observation:
     right) wheel axis angles [rad], quantised to the encoder's ``odometry_resolution`` [rad];
     ``lane_pose``: ground truth, given to privileged agents only (through an intersection, measured
     against the lane of the chosen exit); ``route``: the turn chosen at the intersection ahead and the
-    distance to its stop line, privileged agents only.
+    distance to its stop line, privileged agents only; ``pose``: the true (x [m], y [m], θ [rad]) in the
+    map frame, privileged agents only; ``front_range``: the front time-of-flight sensor's range [m] (None:
+    nothing in range, or a plant without one).
     """
 
     camera: np.ndarray | None
@@ -35,6 +39,15 @@ class Observation:
     odometry_resolution: float | None = None
     lane_pose: LanePose | None = None
     route: RouteInfo | None = None
+    pose: tuple[float, float, float] | None = None
+    #: how to read the range sensor, when the plant has one: read on demand, since few agents use it and the
+    #: beam cast would cost every frame of every episode
+    range_reader: Callable[[], float | None] | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def front_range(self) -> float | None:
+        """The front time-of-flight range [m]; None when nothing is in range or the plant has no sensor."""
+        return self.range_reader() if self.range_reader is not None else None
 
 
 class Agent(ABC):
@@ -44,6 +57,9 @@ class Agent(ABC):
     privileged: bool = False
     #: short identifier used in result tables
     name: str = "agent"
+
+    def set_map(self, map_: Map) -> None:  # noqa: B027 - optional hook
+        """The map of the coming episode, before :meth:`reset` (an SDK agent serves it as the map layer)."""
 
     def reset(self, seed: int, episode: str | None = None) -> None:  # noqa: B027 - optional hook
         """Called at the start of every episode, before the first observation."""

@@ -3,6 +3,7 @@
 from proxybench.cli import (  # noqa: F401 - importing registers the commands
     agents,
     drive,
+    dtps,
     evaluate,
     evaluator,
     heldout,

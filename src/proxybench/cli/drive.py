@@ -40,7 +40,8 @@ def run(
     width: int = typer.Option(640, min=8, max=4096, help="camera width [px]"),
     height: int = typer.Option(480, min=8, max=4096, help="camera height [px]"),
     video: bool = typer.Option(True, help="write drive.mp4 (camera | top-down)"),
-    agent_name: str = typer.Option("pid", "--agent", help="zoo agent (see `proxybench agent list`)"),
+    agent_name: str = typer.Option("pid", "--agent", help="zoo agent (see `proxybench agent list`), or "
+                                   "NAME=sdk:COMMAND: a duckietown-sdk program (docs/dtps.md)"),
     agent_cmd: str | None = typer.Option(None, "--agent-cmd",
                                          help="drive an agent node instead: any command speaking the AIDO protocol"),
     robot_cmd: str | None = typer.Option(None, "--robot-cmd",
@@ -68,7 +69,6 @@ def run(
     --no-reflection say how to start and talk to it (docs/protocol.md §7); the --robot-* options do the
     same for the robot node of --robot-cmd.
     """
-    from proxybench.agents import make_agent
     from proxybench.cli.maps import load_map_printing_warnings
     from proxybench.domain.maps import MapError
     from proxybench.domain.params import DomainParams
@@ -101,11 +101,7 @@ def run(
     else:
         domain = DomainSpec("simulation", DomainParams(image_width=width, image_height=height))
         seconds_label = f"{seconds:g} s"
-    try:
-        agent = make_agent(agent_name) if agent_cmd is None else remote_agent(agent_cmd, options)
-    except KeyError as exc:
-        err_console.print(f"[red]error:[/red] {escape(str(exc.args[0]))}", highlight=False)
-        raise typer.Exit(2) from exc
+    agent = _agent(agent_name, agent_cmd, options)
     with progress_bar(TextColumn("[bold]driving[/bold] {task.description}"), BarColumn(),
                       TextColumn("{task.completed} frames"), TimeRemainingColumn(),
                       console=console, transient=True) as progress:
@@ -143,3 +139,30 @@ def run(
         + " ".join(f"{k}={v:.2f}" for k, v in scores.items()) + f" end={traj.termination} wall={rec.wall_s:.1f}s",
         highlight=False, markup=False,
     )
+
+
+def _agent(agent_name: str, agent_cmd: str | None, options):
+    """--agent (a zoo name, or NAME=sdk:COMMAND) or --agent-cmd (an AIDO node); a clear error otherwise."""
+    from proxybench.agents import make_agent
+
+    if agent_cmd is not None:
+        return remote_agent(agent_cmd, options)
+    if "=" not in agent_name:
+        try:
+            return make_agent(agent_name)
+        except KeyError as exc:
+            err_console.print(f"[red]error:[/red] {escape(str(exc.args[0]))}", highlight=False)
+            raise typer.Exit(2) from exc
+    from proxybench.dtps.env import DtpsEnvError
+    from proxybench.experiments.agent_args import AgentArgError, parse_agent
+    from proxybench.runner.outcomes import make_agent_for
+
+    try:
+        spec = parse_agent(agent_name)
+        if spec.protocol != "sdk":
+            raise AgentArgError(f"--agent {agent_name!r}: an AIDO agent node goes in --agent-cmd; --agent takes a zoo "
+                                f"name or NAME=sdk:COMMAND")
+        return make_agent_for(spec)
+    except (AgentArgError, DtpsEnvError) as exc:
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
+        raise typer.Exit(2) from exc

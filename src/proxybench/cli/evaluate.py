@@ -208,17 +208,24 @@ def _repeatability_report(res, agent: str, seconds: float, map_name: str, out: P
 def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:
     """--agent and --agent-cmd, else the benchmark file's ``agents:``, else every zoo agent."""
     from proxybench.agents import ZOO
+    from proxybench.experiments.agent_args import AgentArgError, parse_agent
     from proxybench.runner.jobs import AgentSpec
 
     if not names and not commands:
         if bench.agents:
-            return [AgentSpec.node(e.name, e.command_line, e.node_options()) if e.is_node else AgentSpec(e.name)
-                    for e in bench.agents]
+            return [parse_agent(e) for e in bench.agents]
         names = list(ZOO)
     specs = []
     for n in names:
+        if "=sdk" in n:  # NAME=sdk:COMMAND, a duckietown-sdk program
+            try:
+                specs.append(parse_agent(n))
+            except AgentArgError as exc:
+                raise typer.BadParameter(str(exc), param_hint="--agent") from None
+            continue
         if n not in ZOO:
-            raise typer.BadParameter(f"unknown agent {n!r}; known: {', '.join(ZOO)}", param_hint="--agent")
+            raise typer.BadParameter(f"unknown agent {n!r}; known: {', '.join(ZOO)} (or NAME=sdk:COMMAND)",
+                                     param_hint="--agent")
         specs.append(AgentSpec(n))
     for item in commands:
         name, sep, cmd = item.partition("=")
@@ -231,7 +238,8 @@ def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:
 @app.command()
 def evaluate(
     benchmark: str = typer.Argument(..., help="benchmark YAML file or built-in name (aido_lf, aido_lfi, thesis_loop)"),
-    agent: list[str] = typer.Option([], "--agent", help="zoo agent (repeat); default: every admitted one"),
+    agent: list[str] = typer.Option([], "--agent", help="zoo agent or NAME=sdk:COMMAND (repeat); default: every "
+                                    "admitted one"),
     agent_cmd: list[str] = typer.Option([], "--agent-cmd", help="NAME=COMMAND of an external agent node (repeat)"),
     domain: str | None = typer.Option(None, help="run in this named domain instead (default, reality)"),
     backend: str = typer.Option("local", help="inline | local (process pool) | ray"),

@@ -29,7 +29,8 @@ from proxybench.cli.options import non_negative, positive
 from proxybench.cli.progress import progress_bar
 
 _TARGET_HELP = "reality (the simulated reality model) | DIR (recorded target) | robot:CMD (a robot node)"
-_AGENT_HELP = "zoo name, NAME=COMMAND (node), checkpoint X.pt, or agent package .zip/.tar.gz (repeat)"
+_AGENT_HELP = ("zoo name, NAME=COMMAND (node), NAME=sdk:COMMAND (duckietown-sdk program), checkpoint X.pt, or agent "
+               "package .zip/.tar.gz (repeat)")
 
 
 def _kv(items: list[str], option: str) -> dict[str, Any]:

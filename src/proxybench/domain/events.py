@@ -40,6 +40,8 @@ class Termination(StrEnum):
     COLLISION = "collision"
     #: the agent raised, hung, died or answered anything but two finite wheel commands
     AGENT_FAILURE = "agent_failure"
+    #: the agent asked for a reset (``state/reset`` of a served DTPS robot, docs/dtps.md)
+    RESET = "reset"
     #: a job result only: the robot node failed, so no episode happened (never a trajectory's ending)
     ROBOT_FAILURE = "robot_failure"
 

@@ -6,7 +6,9 @@ One string per agent:
 - ``models/bc.pt``: a behaviour-cloning checkpoint (``X.pt`` with ``X.json`` beside it);
 - ``my-agent.zip`` (or ``.tar``, ``.tar.gz``, ``.tgz``): an agent package, checked and unpacked, its node
   run in the evaluator's sandbox (own folder, resource limits, no network where the host allows);
-- ``NAME=COMMAND``: an agent node started with COMMAND (the AIDO protocol on stdin/stdout), labelled NAME.
+- ``NAME=COMMAND``: an agent node started with COMMAND (the AIDO protocol on stdin/stdout), labelled NAME;
+- ``NAME=sdk:COMMAND`` (``sdk[lockstep]:``, ``sdk[privileged]:``): a duckietown-sdk program driving a virtual
+  DB21J over DTPS (docs/dtps.md).
 
 An experiment file may also give an agent as a benchmark file's mapping (:class:`~proxybench.tasks.agent_entries.
 AgentEntry`): ``{name, command, cwd, transport, start_timeout, step_timeout, reflection}`` for a node started
@@ -68,6 +70,8 @@ def parse_agent(text: str | AgentEntry, work_dir: str | Path = "out/agents") -> 
     from proxybench.agents.zoo import ZOO
 
     if isinstance(text, AgentEntry):
+        if text.is_sdk:
+            return AgentSpec.sdk(text.name, text.sdk_line, text.sdk_options())
         if text.is_node:
             return AgentSpec.node(text.name, text.command_line, text.node_options())
         text = text.name
@@ -82,7 +86,7 @@ def parse_agent(text: str | AgentEntry, work_dir: str | Path = "out/agents") -> 
         return AgentSpec(text)
     name, sep, command = text.partition("=")
     if sep and name.strip() and command.strip() and " " not in name.strip():
-        return AgentSpec(name.strip(), command.strip())
+        return _node_or_sdk(name.strip(), command.strip())
     hint = ""
     if text.endswith(".pt"):
         hint = " (a checkpoint needs X.pt with X.json beside it)"
@@ -90,6 +94,19 @@ def parse_agent(text: str | AgentEntry, work_dir: str | Path = "out/agents") -> 
         hint = " (no such package file)"
     raise AgentArgError(f"agent {text!r} is not a zoo agent, a checkpoint, an agent package or NAME=COMMAND{hint}; "
                         f"zoo agents: {', '.join(ZOO)}")
+
+
+def _node_or_sdk(name: str, command: str) -> AgentSpec:
+    """``NAME=COMMAND`` (an AIDO node) or ``NAME=sdk[...]:COMMAND`` (an SDK program)."""
+    from proxybench.dtps.options import SdkOptions, parse_sdk
+
+    try:
+        sdk = parse_sdk(command)
+    except ValueError as exc:
+        raise AgentArgError(f"agent {name!r}: {exc}") from None
+    if sdk is None:
+        return AgentSpec(name, command)
+    return AgentSpec.sdk(name, sdk[0], SdkOptions(**sdk[1]))
 
 
 def parse_agents(texts: list[str | AgentEntry] | tuple[str | AgentEntry, ...], work_dir: str | Path = "out/agents",

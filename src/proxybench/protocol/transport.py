@@ -192,13 +192,14 @@ def _grow_pipe(fd: int) -> None:
 
 
 class Launch:
-    """One agent process and the parent's ends of its streams (``in_fd`` write, ``out_fd`` read)."""
+    """One agent process and the parent's ends of its streams (``in_fd`` write, ``out_fd`` read); with transport
+    ``"none"`` it has no protocol stream (both are -1) and its stdout goes to the stderr drain."""
 
     def __init__(self, argv: list[str], *, transport: str = "pipes", env: dict[str, str] | None = None,
                  cwd: str | None = None, stderr_lines: int = 50, on_stderr: Callable[[str], None] | None = None,
                  fifo_dir: str | None = None):
-        if transport not in ("pipes", "fifos"):
-            raise ValueError(f"transport must be 'pipes' or 'fifos', not {transport!r}")
+        if transport not in ("pipes", "fifos", "none"):
+            raise ValueError(f"transport must be 'pipes', 'fifos' or 'none', not {transport!r}")
         self.transport = transport
         self.fifo_dir = fifo_dir
         self.tmpdir: str | None = None
@@ -208,9 +209,9 @@ class Launch:
         full_env = {k: v for k, v in os.environ.items() if k not in (ENV_DATA_IN, ENV_DATA_OUT)}
         full_env.update(env or {})
         err_r, err_w = os.pipe()
+        start = {"pipes": self._start_pipes, "fifos": self._start_fifos, "none": self._start_plain}[transport]
         try:
-            self.proc = self._start_pipes(argv, full_env, cwd, err_w) if transport == "pipes" else \
-                self._start_fifos(argv, full_env, cwd, err_w)
+            self.proc = start(argv, full_env, cwd, err_w)
         except BaseException:
             os.close(err_r)
             self._cleanup_tmp()
@@ -243,6 +244,12 @@ class Launch:
         os.set_blocking(in_w, False)
         os.set_blocking(out_r, False)
         return proc
+
+    def _start_plain(self, argv: list[str], env: dict, cwd: str | None, err_w: int) -> subprocess.Popen:
+        """No protocol stream (a program that talks over the network, e.g. an SDK agent): stdout joins stderr."""
+        self.in_fd = -1
+        return subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=err_w, stderr=err_w, cwd=cwd, env=env,
+                                start_new_session=True)
 
     def _start_fifos(self, argv: list[str], env: dict, cwd: str | None, err_w: int) -> subprocess.Popen:
         self.tmpdir = tempfile.mkdtemp(prefix="proxybench-node-", dir=self.fifo_dir)

@@ -15,12 +15,17 @@ from proxybench.domain.dynamics import ST, TRACE_FIELDS, wheel_ticks
 from proxybench.domain.episode_end import end_event, ended
 from proxybench.domain.kinds import DomainKind
 from proxybench.domain.lane_pose import LanePose
+from proxybench.domain.maps import Map
+from proxybench.domain.params import DomainParams
+from proxybench.domain.range_sensor import front_range
 from proxybench.domain.simulator import Simulator
 from proxybench.runner.npcs import NpcDrivers
 from proxybench.runner.rollout import AgentPolicy, PrivilegedAgentError, rollout
 from proxybench.tasks.trajectory import Event, Trajectory
 
-__all__ = ["PrivilegedAgentError", "SimPlant", "run_episode", "run_episodes"]
+__all__ = ["PrivilegedAgentError", "SimPlant", "run_episode", "run_episodes", "sim_plant"]
+
+_NO_ROBOTS = np.zeros((0, 3))
 
 
 class SimPlant:
@@ -78,7 +83,16 @@ class SimPlant:
         ticks = wheel_ticks(s[[ST.WHEEL_L, ST.WHEEL_R]], res)
         lp = LanePose.from_row(sim.lane[i]) if privileged else None
         route = sim.routes.info(i, sim.lane[i]) if privileged else None
-        return Observation(image, float(sim.time[i]), (float(ticks[0] * res), float(ticks[1] * res)), res, lp, route)
+        pose = (float(s[ST.X]), float(s[ST.Y]), float(s[ST.THETA])) if privileged else None
+        return Observation(image, float(sim.time[i]), (float(ticks[0] * res), float(ticks[1] * res)), res, lp, route,
+                           pose, lambda: self.front_range(i))
+
+    def front_range(self, i: int) -> float | None:
+        """Robot ``i``'s front time-of-flight range [m] now (None: nothing within range)."""
+        sim = self.sim
+        s = sim.state[i]
+        robots = sim.npc_state[sim.npc_world == i, :3] if sim.worlds.k else _NO_ROBOTS
+        return front_range(sim.objects.colliders, robots, s[ST.X], s[ST.Y], s[ST.THETA])
 
     def time(self, i: int) -> float:
         return float(self.sim.time[i])
@@ -122,6 +136,14 @@ class SimPlant:
         if self.drivers is not None:
             self.drivers.close()
             self.drivers = None
+
+
+def sim_plant(map_: Map | str, params: DomainParams | None = None) -> SimPlant:
+    """A plant of one simulated robot on ``map_`` whose camera frames are what camera agents see (the JPEG round
+    trip): for servers of the simulator that drive it from outside the runner (``proxybench dtps serve``)."""
+    from proxybench.runner.outcomes import camera_filter
+
+    return SimPlant(Simulator(map_, params or DomainParams()), camera_filter())
 
 
 def run_episode(

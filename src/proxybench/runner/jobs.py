@@ -37,32 +37,47 @@ __all__ = ["DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "
 class AgentSpec:
     """A zoo agent by ``name``, or an external node started with ``command`` (any language; a string may use
     shell syntax) and ``options``: the non-default fields of :class:`~proxybench.protocol.options.NodeOptions`
-    (working directory, transport, timeouts, reflection) as sorted pairs, so the spec stays hashable."""
+    (working directory, transport, timeouts, reflection) as sorted pairs, so the spec stays hashable.
+    ``protocol``: ``"aido"`` (an AIDO agent node) or ``"sdk"`` (a duckietown-sdk program driving a virtual
+    DB21J over DTPS, :mod:`proxybench.dtps`; its options are :class:`~proxybench.dtps.options.SdkOptions`)."""
 
     name: str
     command: str | None = None
     options: tuple[tuple[str, Any], ...] = ()
+    protocol: str = "aido"
 
     @classmethod
     def node(cls, name: str, command: str, options: Any = None) -> AgentSpec:
         """A node agent; ``options``: a ``NodeOptions`` (or None for the defaults)."""
         return cls(name, command, options.items() if options is not None else ())
 
+    @classmethod
+    def sdk(cls, name: str, command: str, options: Any = None) -> AgentSpec:
+        """A duckietown-sdk agent program; ``options``: an ``SdkOptions`` (or None for the defaults)."""
+        return cls(name, command, options.items() if options is not None else (), "sdk")
+
     @property
     def label(self) -> str:
         return self.name
 
     def node_options(self):
-        """The ``NodeOptions`` of a node agent."""
+        """The ``NodeOptions`` of a node agent (``SdkOptions`` of an SDK agent)."""
+        if self.protocol == "sdk":
+            from proxybench.dtps.options import SdkOptions
+
+            return SdkOptions(**dict(self.options))
         from proxybench.protocol.options import NodeOptions
 
         return NodeOptions(**dict(self.options))
 
     def key_data(self) -> dict[str, Any]:
-        """What identifies the agent in a job's hash (options only when set, so older keys stay valid)."""
+        """What identifies the agent in a job's hash (options and protocol only when set, so older keys stay
+        valid)."""
         data: dict[str, Any] = {"name": self.name, "command": self.command}
         if self.options:
             data["options"] = dict(self.options)
+        if self.protocol != "aido":
+            data["protocol"] = self.protocol
         return data
 
 
@@ -251,8 +266,10 @@ def batch_group(job: Job) -> tuple:
 
 
 def is_privileged(spec: AgentSpec) -> bool:
-    """Whether the agent a spec names reads the true lane pose, without starting it: a zoo agent's flag;
-    False for node agents and checkpoints (camera only)."""
+    """Whether the agent a spec names reads the true lane pose, without starting it: a zoo agent's flag, an SDK
+    agent's ``privileged`` option; False for node agents and checkpoints (camera only)."""
     from proxybench.agents.zoo import ZOO
 
+    if spec.protocol == "sdk":
+        return bool(dict(spec.options).get("privileged", False))
     return bool(spec.command is None and spec.name in ZOO and ZOO[spec.name].privileged)

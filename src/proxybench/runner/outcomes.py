@@ -16,7 +16,11 @@ __all__ = ["all_metrics", "camera_filter", "make_agent_for", "refused", "result_
 
 
 def make_agent_for(spec: AgentSpec):
-    """The agent a spec names: a zoo agent in-process, or a node process behind the protocol."""
+    """The agent a spec names: a zoo agent in-process, a node process behind the protocol, or an SDK program."""
+    if spec.command and spec.protocol == "sdk":
+        from proxybench.dtps.agent import SdkAgent
+
+        return SdkAgent(spec.command, name=spec.name, options=spec.node_options())
     if spec.command:
         from proxybench.protocol import RemoteAgent
 

@@ -113,8 +113,9 @@ def _record(plant, agent: Agent, seed: int, seconds: float, out: Path, stem: str
             on_frame(k)
 
     try:
-        traj = rollout(plant, AgentPolicy([agent]), [seed], seconds, poses=[pose], camera=not agent.privileged,
-                       routes=[route], on_frame=frame, metas=[meta])[0]
+        camera = not agent.privileged or getattr(agent, "wants_camera", False)
+        traj = rollout(plant, AgentPolicy([agent]), [seed], seconds, poses=[pose], camera=camera, routes=[route],
+                       on_frame=frame, metas=[meta])[0]
     except RobotLacksGroundTruth as exc:
         raise RobotLacksGroundTruth(f"{exc}, which the privileged agent {agent.name!r} needs") from None
     finally:

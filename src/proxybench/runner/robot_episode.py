@@ -86,7 +86,8 @@ class RobotPlant:
         o = self.obs.observations
         if not privileged:
             return Observation(image, o.timestamp, o.odometry, o.resolution)
-        return Observation(image, o.timestamp, o.odometry, o.resolution, self.obs.lane_pose, self.obs.route)
+        return Observation(image, o.timestamp, o.odometry, o.resolution, self.obs.lane_pose, self.obs.route,
+                           tuple(self.states[-1].pose))
 
     def time(self, i: int) -> float:
         return self.obs.observations.timestamp

@@ -108,6 +108,11 @@ class AgentPolicy:
         self.names = [a.name for a in self.agents]
         self.privileged = [bool(a.privileged) for a in self.agents]
 
+    def set_map(self, map_: Map) -> None:
+        """Tell every agent the episode's map (before :meth:`reset`)."""
+        for a in self.agents:
+            a.set_map(map_)
+
     def reset(self, seeds: Sequence[int]) -> dict[int, BaseException]:
         failures = {}
         for i, a in enumerate(self.agents):
@@ -210,6 +215,8 @@ def rollout(
     termination = [Termination.TIMEOUT] * n
     frames = [steps] * n
     alive = np.ones(n, dtype=bool)
+    if isinstance(policy, AgentPolicy):
+        policy.set_map(plant.map)
     at_start = policy.reset(seeds)
     for i, exc in at_start.items():
         events[i].append(failure_event(0.0, exc))

@@ -50,7 +50,8 @@ def execute_sim_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
             return [refused(j, a, (t1 - t0) / len(jobs)) for j, a in zip(jobs, agents, strict=True)]
         trajs = run_episodes(
             sim, agents, [j.seed for j in jobs], job0.duration, poses=[j.pose for j in jobs],
-            routes=[j.route for j in jobs], camera=not agents[0].privileged, allow_privileged=not job0.camera_only,
+            routes=[j.route for j in jobs], allow_privileged=not job0.camera_only,
+            camera=not agents[0].privileged or getattr(agents[0], "wants_camera", False),
             image_filter=camera_filter(),
             metas=[{"map": j.map, "episode": j.episode, "domain": j.domain.name, "domain_kind": j.domain.kind,
                     "source": j.domain.kind, "job": j.key} for j in jobs],

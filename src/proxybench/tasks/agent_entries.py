@@ -14,6 +14,10 @@ is checked when the agent starts, so a file naming agents of another machine sti
         start_timeout: 60                     # s: start + handshake, and each setup message
         step_timeout: 2                       # s: each observations + get_commands exchange
         reflection: false                     # skip describe_protocol
+      - name: my-sdk                          # a duckietown-sdk program (docs/dtps.md)
+        sdk: python3 agent.py                 # instead of command:
+        timing: lockstep                      # realtime (default) | lockstep
+        privileged: false                     # true: the true pose on state/pose
 
 Unknown keys are errors naming the entry (``agents.1.transprot: unknown key (did you mean transport?)``).
 """
@@ -22,7 +26,7 @@ from __future__ import annotations
 
 import shlex
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
@@ -38,8 +42,11 @@ class AgentEntry(NodeOptions):
 
     name: str = Field(min_length=1, max_length=64, description="zoo agent, or the label of an agent node")
     command: str | list[str] | None = Field(None, description="the node command: as typed in a shell, or argv")
+    sdk: str | list[str] | None = Field(None, description="a duckietown-sdk program's command (instead of command)")
+    timing: Literal["realtime", "lockstep"] | None = Field(None, description="sdk: realtime (default) | lockstep")
+    privileged: bool | None = Field(None, description="sdk: publish the true pose on state/pose")
 
-    @field_validator("command")
+    @field_validator("command", "sdk")
     @classmethod
     def _not_empty(cls, cmd: str | list[str] | None) -> str | list[str] | None:
         if (isinstance(cmd, str) and not cmd.strip()) or (isinstance(cmd, list) and (not cmd or not cmd[0])):
@@ -49,13 +56,40 @@ class AgentEntry(NodeOptions):
     @model_validator(mode="after")
     def _options_need_command(self) -> AgentEntry:
         options = [k for k in NodeOptions.model_fields if k in self.model_fields_set]
+        if self.command is not None and self.sdk is not None:
+            raise ValueError("give command (an AIDO agent node) or sdk (a duckietown-sdk program), not both")
+        if self.sdk is not None:
+            wrong = [k for k in ("transport", "fifo_dir", "reflection") if k in options]
+            if wrong:
+                raise ValueError(f"{', '.join(wrong)}: not options of an sdk agent (it talks DTPS, not over pipes)")
+            return self
+        sdk_only = [k for k in ("timing", "privileged") if k in self.model_fields_set]
+        if sdk_only:
+            raise ValueError(f"{', '.join(sdk_only)}: options of an sdk agent (give sdk: instead of command:)")
         if self.command is None and options:
             raise ValueError(f"{', '.join(options)}: start-up options need a command (a zoo agent runs in-process)")
         return self
 
     @property
     def is_node(self) -> bool:
-        return self.command is not None
+        return self.command is not None or self.sdk is not None
+
+    @property
+    def is_sdk(self) -> bool:
+        return self.sdk is not None
+
+    @property
+    def sdk_line(self) -> str | None:
+        """The sdk command as one string (an argv list is quoted)."""
+        return self.sdk if self.sdk is None or isinstance(self.sdk, str) else shlex.join(self.sdk)
+
+    def sdk_options(self):
+        """The ``SdkOptions`` of an sdk entry (fields not written take SdkOptions' defaults)."""
+        from proxybench.dtps.options import SdkOptions
+
+        given = {k: getattr(self, k) for k in ("cwd", "start_timeout", "step_timeout", "timing", "privileged")
+                 if k in self.model_fields_set or (k == "cwd" and self.cwd is not None)}
+        return SdkOptions(**given)
 
     @property
     def command_line(self) -> str | None:

@@ -1,0 +1,95 @@
+"""`proxybench dtps setup|check|serve`: duckietown-sdk agents and DTPS robots (docs/dtps.md)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.markup import escape
+
+from proxybench.cli.app import app, console, err_console
+from proxybench.cli.options import positive
+
+dtps_app = typer.Typer(no_args_is_help=True, help="duckietown-sdk agents and DTPS robots (docs/dtps.md).")
+app.add_typer(dtps_app, name="dtps")
+
+PathOpt = typer.Option(None, "--path", help="the SDK environment's folder (default: $PROXYBENCH_DTPS_ENV, else "
+                       "~/.cache/proxybench/dtps-env)")
+
+
+def _show(status) -> None:
+    console.print(f"SDK environment: {escape(str(status.path))}", highlight=False)
+    for pkg, version in status.versions.items():
+        console.print(f"  {pkg} {version}", highlight=False)
+    for problem in status.problems:
+        err_console.print(f"[red]✗[/red] {escape(problem)}", highlight=False)
+    if status.ok:
+        console.print("[green]ok[/green]: SDK agents (--agent NAME=sdk:COMMAND) and DTPS robots can run here")
+
+
+@dtps_app.command("setup")
+def setup(path: Path | None = PathOpt) -> None:
+    """Make the SDK environment (a venv with duckietown-sdk, dtps-http, duckietown-messages; libturbojpeg0 with apt
+    when root): a few minutes once, nothing when it is there. Exit 1 when something is still missing."""
+    from proxybench.dtps.env import DtpsEnvError, setup_env
+
+    try:
+        status = setup_env(path, say=lambda line: console.print(escape(line), highlight=False))
+    except DtpsEnvError as exc:
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
+        raise typer.Exit(1) from exc
+    _show(status)
+    if not status.ok:
+        raise typer.Exit(1)
+
+
+@dtps_app.command("check")
+def check(path: Path | None = PathOpt) -> None:
+    """Say whether SDK agents and DTPS robots can run here (imports the SDK in its environment); exit 1 if not."""
+    from proxybench.dtps.env import check_env
+
+    status = check_env(path)
+    _show(status)
+    if not status.ok:
+        raise typer.Exit(1)
+
+
+@dtps_app.command("serve")
+def serve(
+    map_name: str = typer.Option("loop_3x3", "--map", help="built-in map name or YAML file"),
+    name: str = typer.Option("map_0/vehicle_0", "--name", help="the robot's name (DB21J(NAME, simulated=True))"),
+    port: int = typer.Option(7501, "--port", min=1, max=65535, help="TCP port (the SDK's simulator default)"),
+    seconds: float | None = typer.Option(None, callback=positive, help="serve this long [s] (default: until Ctrl-C)"),
+    episode_seconds: float = typer.Option(60.0, callback=positive, help="longest episode [s]"),
+    seed: int = typer.Option(0, min=0, help="first episode's seed (start pose, noise); +1 per episode"),
+    width: int = typer.Option(640, min=8, max=4096, help="camera width [px]"),
+    height: int = typer.Option(480, min=8, max=4096, help="camera height [px]"),
+    out: Path = typer.Option(Path("out/dtps-serve"), help="folder for the episodes' trajectories"),
+) -> None:
+    """Serve the simulator as a virtual DB21J on http://127.0.0.1:PORT/robot/NAME/ for an SDK agent you start.
+
+    A SIMULATION in real time, not a robot. The agent connects with DB21J(NAME, simulated=True); its
+    state/reset ends the episode and teleports the robot to the next start; so do leaving the road, a
+    collision and --episode-seconds. Every episode is written to OUT as a trajectory.
+    """
+    from proxybench.domain.maps import MapError
+    from proxybench.domain.params import DomainParams
+    from proxybench.dtps.env import DtpsEnvError
+    from proxybench.dtps.link import BridgeError
+    from proxybench.runner.dtps_serve import serve as run_serve
+
+    def said(k: int, traj) -> None:
+        console.print(f"episode {k}: {traj.duration:.1f} s, end={traj.termination}", highlight=False)
+
+    console.print(f"serving a SIMULATED DB21J at http://127.0.0.1:{port}/robot/{escape(name)}/ (Ctrl-C to stop)",
+                  highlight=False)
+    try:
+        files = run_serve(map_name, out, name=name, port=port, seconds=seconds or float("inf"),
+                          episode_seconds=episode_seconds, seed=seed,
+                          params=DomainParams(image_width=width, image_height=height), on_episode=said)
+    except (DtpsEnvError, BridgeError, MapError, OSError) as exc:
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
+        raise typer.Exit(1) from exc
+    except KeyboardInterrupt:
+        raise typer.Exit(0) from None
+    console.print(f"wrote {len(files)} episodes to {escape(str(out))}", highlight=False)

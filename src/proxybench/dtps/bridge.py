@@ -1,0 +1,379 @@
+"""The DTPS bridge: a process of proxybench's run by the SDK environment's interpreter (never importing proxybench).
+
+duckietown-sdk and dtps-http pin their own dependencies (pydantic 2.10.6 exactly), so they live in an
+environment of their own (``proxybench dtps setup``) and proxybench talks to them through this process, over
+its stdin/stdout in the format of ``pipe.py`` (loaded by path). Two roles:
+
+``server``  a virtual DB21J: a dtps-http server on HOST:PORT with every queue an SDK agent uses, under
+            ``<prefix>/<name>/`` (the Duckiematrix's addressing: ``robot/map_0/vehicle_0/...``), and the map
+            layer at ``map/{frames,tiles,tile_maps}``. proxybench sends frames (``op: frame``: camera JPEG,
+            encoder ticks, ToF range, pose, Δt) and the map; the bridge publishes them and sends back every
+            wheel command (``ev: cmd``, from ``pwm_filtered`` and ``pwm``), reset request and lights pattern.
+            With ``nudge`` it pings the agent's websockets until a command answers the frame: the SDK's
+            publisher sits on a queue its event loop only looks at when a packet wakes it, so a blocking
+            ``capture(); set_pwm()`` agent's command otherwise waits for the next camera frame.
+``client``  a DTPS robot (a Duckiebot, a Duckiematrix robot): subscribes to its camera, encoders and a pose
+            topic, forwards them (``ev: camera|ticks|pose``), publishes wheel commands (``op: cmd``) on its
+            PWM topic, reconnecting the publisher when it fails, and sends (0, 0) when no command came for
+            ``--watchdog`` seconds, on ``op: stop``, at the end of its input and on exit.
+
+Run: ``<sdk python> -I bridge.py server --port 7501 --name map_0/vehicle_0`` (docs/dtps.md, "The bridge").
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import importlib.util
+import logging
+import math
+import os
+import time
+import weakref
+from pathlib import Path
+
+_spec = importlib.util.spec_from_file_location("proxybench_dtps_pipe", Path(__file__).with_name("pipe.py"))
+pipe = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(pipe)
+
+#: robot topics of a DB21J under <prefix>/<name>/ (what duckietown-sdk 0.2.0's DB21J subscribes or publishes to)
+ROBOT_TOPICS = ("sensor/camera/front_center/jpeg", "sensor/wheel_encoder/left/ticks",
+                "sensor/wheel_encoder/right/ticks", "sensor/time_of_flight/front_center/range", "sensor/delta_t",
+                "state/pose", "state/reset", "actuator/wheels/base/pwm_filtered", "actuator/wheels/base/pwm",
+                "actuator/lights/base/pattern")
+#: the map layer, at the server's root
+MAP_TOPICS = ("map/frames", "map/tiles", "map/tile_maps")
+_COMMAND_TOPICS = ("actuator/wheels/base/pwm_filtered", "actuator/wheels/base/pwm")
+_NUDGE_EVERY = 0.002  # [s] between websocket pings while a lock-step frame waits for its command
+
+
+class Out:
+    """Events to proxybench on fd 1 (blocking writes: a reader that stalls holds the bridge back)."""
+
+    def __init__(self) -> None:
+        self.fd = os.dup(1)
+        os.dup2(2, 1)  # a stray print of a library goes to stderr, never into the pipe
+
+    def send(self, **message) -> None:
+        data = memoryview(pipe.pack(message))
+        while data:
+            data = data[os.write(self.fd, data):]
+
+
+class In:
+    """Requests from proxybench on fd 0, as an async iterator; ends at EOF."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self.reader = pipe.Reader()
+        self.queue: asyncio.Queue = asyncio.Queue()
+        os.set_blocking(0, False)
+        loop.add_reader(0, self._readable)
+
+    def _readable(self) -> None:
+        if self.reader.read_from(0) == 0:
+            asyncio.get_running_loop().remove_reader(0)
+        while (msg := self.reader.next()) is not None:
+            self.queue.put_nowait(msg)
+        if self.reader.eof:
+            self.queue.put_nowait(None)
+
+    def __aiter__(self):
+        return self
+
+    async def __anext__(self) -> dict:
+        msg = await self.queue.get()
+        if msg is None:
+            raise StopAsyncIteration
+        return msg
+
+
+def _header(stamp: float | None = None) -> dict:
+    return {"version": "1.0", "frame": None, "txt": None, "timestamp": time.time() if stamp is None else stamp}
+
+
+def _quaternion(theta: float) -> dict:
+    """A yaw about +z as the (w, x, y, z) quaternion of duckietown-messages' Transformation."""
+    return {"header": _header(), "w": math.cos(theta / 2), "x": 0.0, "y": 0.0, "z": math.sin(theta / 2)}
+
+
+def _track_websockets() -> weakref.WeakSet:
+    """Every websocket the dtps-http server opens, so that lock-step frames can ping them (see the docstring)."""
+    from aiohttp import web
+
+    live: weakref.WeakSet = weakref.WeakSet()
+    base = web.WebSocketResponse
+
+    class Tracked(base):
+        async def prepare(self, request):
+            out = await super().prepare(request)
+            live.add(self)
+            return out
+
+    web.WebSocketResponse = Tracked
+    return live
+
+
+class Server:
+    """The virtual DB21J (role ``server``)."""
+
+    def __init__(self, args: argparse.Namespace, out: Out) -> None:
+        self.args, self.out = args, out
+        self.queues: dict[str, object] = {}
+        self.seq = -1
+        self.answered = True
+        self.count = 0  # commands since the last frame
+
+    async def start(self) -> None:
+        from dtps import context
+
+        self.live = _track_websockets()
+        url = f"http://{self.args.host}:{self.args.port}/"
+        try:
+            self.ctx = await context("pbserver", urls=["create:" + url])
+        except OSError as exc:
+            self.out.send(ev="error", detail=f"cannot serve on {url}: {exc.strerror or exc}")
+            raise SystemExit(2) from None
+        base = self.ctx.navigate(*self.args.prefix.split("/"), self.args.name)
+        for topic in ROBOT_TOPICS:
+            self.queues[topic] = await base.navigate(topic).queue_create()
+        for topic in MAP_TOPICS:
+            self.queues[topic] = await self.ctx.navigate(topic).queue_create()
+        for topic in _COMMAND_TOPICS:
+            await self.queues[topic].subscribe(self._on_command(topic))
+        await self.queues["state/reset"].subscribe(self._on_reset)
+        await self.queues["actuator/lights/base/pattern"].subscribe(self._on_lights)
+        self.out.send(ev="ready", url=url, prefix=f"{self.args.prefix}/{self.args.name}".strip("/"),
+                      topics=list(ROBOT_TOPICS) + list(MAP_TOPICS))
+
+    def _on_command(self, topic: str):
+        async def on_data(rd) -> None:
+            try:
+                msg = rd.get_as_native_object()
+                left, right = msg["left"], msg["right"]
+                if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in (left, right)):
+                    raise TypeError(f"left/right are {type(left).__name__}/{type(right).__name__}, not numbers")
+            except Exception as exc:
+                self.out.send(ev="bad", topic=topic, detail=f"{type(exc).__name__}: {exc}"[:500])
+                return
+            self.count += 1
+            self.answered = True
+            self.out.send(ev="cmd", topic=topic, left=float(left), right=float(right), seq=self.seq, n=self.count,
+                          wall=time.time())
+        return on_data
+
+    async def _on_reset(self, rd) -> None:
+        try:
+            flag = bool(rd.get_as_native_object().get("data", True))
+        except Exception:
+            flag = True
+        if flag:
+            self.out.send(ev="reset", wall=time.time())
+
+    async def _on_lights(self, rd) -> None:
+        self.out.send(ev="lights", wall=time.time())
+
+    async def _publish(self, topic: str, obj: dict) -> None:
+        from dtps_http import RawData
+
+        await self.queues[topic].publish(RawData.cbor_from_native_object(obj))
+
+    async def frame(self, m: dict) -> None:
+        stamp = float(m.get("t", 0.0))
+        self.seq, self.count, self.answered = int(m["seq"]), 0, False
+        h = _header()
+        if m.get("ticks") is not None:
+            for side, ticks in zip(("left", "right"), m["ticks"], strict=True):
+                await self._publish(f"sensor/wheel_encoder/{side}/ticks", {"header": h, "data": int(ticks)})
+        await self._publish("sensor/time_of_flight/front_center/range", {"header": h, "data": m.get("range")})
+        if m.get("dt") is not None:
+            await self._publish("sensor/delta_t", {"header": h, "data": float(m["dt"])})
+        if m.get("pose") is not None:
+            x, y, theta = m["pose"]
+            await self._publish("state/pose", {
+                "header": h, "source": "map_0", "target": self.args.name,
+                "position": {"header": h, "x": float(x), "y": float(y), "z": 0.0}, "rotation": _quaternion(theta)})
+        if m.get("jpeg"):  # the camera last: an agent reacting to it finds the other sensors of this frame
+            h = _header()
+            h["txt"] = {"sim_time": stamp, "seq": self.seq}
+            await self._publish("sensor/camera/front_center/jpeg", {"header": h, "format": "jpeg", "data": m["jpeg"]})
+        if m.get("nudge"):
+            asyncio.get_running_loop().create_task(self._nudge(self.seq))
+
+    async def _nudge(self, seq: int) -> None:
+        """Ping the agent's websockets until a command answers frame ``seq`` (or the next frame comes)."""
+        deadline = time.monotonic() + 30.0
+        await asyncio.sleep(_NUDGE_EVERY)
+        while not self.answered and self.seq == seq and time.monotonic() < deadline:
+            for ws in list(self.live):
+                if not ws.closed:
+                    with contextlib.suppress(Exception):  # a closing socket
+                        await ws.ping()
+            await asyncio.sleep(_NUDGE_EVERY)
+
+    async def map(self, m: dict) -> None:
+        h = _header()
+        for layer in ("frames", "tiles", "tile_maps"):
+            await self._publish(f"map/{layer}", {"header": h, "data": m[layer]})
+
+    async def listeners(self) -> None:
+        info = self.queues["sensor/camera/front_center/jpeg"].get_listener_info()
+        self.out.send(ev="listeners", camera=0 if info is None else int(info.num_listeners))
+
+    async def run(self, requests: In) -> None:
+        await self.start()
+        async for m in requests:
+            op = m.get("op")
+            if op == "frame":
+                await self.frame(m)
+            elif op == "map":
+                await self.map(m)
+            elif op == "listeners":
+                await self.listeners()
+            elif op == "quit":
+                break
+            else:
+                self.out.send(ev="error", detail=f"unknown request {op!r}")
+        await self.ctx.aclose()
+
+
+class Client:
+    """A DTPS robot (role ``client``)."""
+
+    def __init__(self, args: argparse.Namespace, out: Out) -> None:
+        self.args, self.out = args, out
+        self.last_command = time.monotonic()
+        self.stopped = False
+        self.pending: asyncio.Queue = asyncio.Queue(maxsize=1)
+
+    def _topic(self, path: str):
+        if path.startswith("/"):  # a full path from the server's root (e.g. a localisation system's topic)
+            return self.ctx.navigate(path.strip("/"))
+        return self.ctx.navigate(*self.args.prefix.split("/"), self.args.name, path)
+
+    async def start(self) -> None:
+        from dtps import context
+
+        self.ctx = await context("pbclient", urls=[self.args.url])
+        cam = self._topic("sensor/camera/front_center/jpeg")
+        await cam.subscribe(self._forward("camera"))
+        for side in ("left", "right"):
+            await self._topic(f"sensor/wheel_encoder/{side}/ticks").subscribe(self._forward("ticks", side))
+        if self.args.pose:
+            await self._topic(self.args.pose).subscribe(self._forward("pose"))
+        asyncio.get_running_loop().create_task(self._publisher())
+        asyncio.get_running_loop().create_task(self._watchdog())
+        self.out.send(ev="ready", url=self.args.url, prefix=f"{self.args.prefix}/{self.args.name}".strip("/"))
+
+    def _forward(self, kind: str, side: str | None = None):
+        async def on_data(rd) -> None:
+            try:
+                msg = rd.get_as_native_object()
+                stamp = (msg.get("header") or {}).get("timestamp")
+                if kind == "camera":
+                    self.out.send(ev="camera", jpeg=bytes(msg["data"]), stamp=stamp, wall=time.time())
+                elif kind == "ticks":
+                    self.out.send(ev="ticks", side=side, ticks=int(msg["data"]), stamp=stamp, wall=time.time())
+                else:
+                    self.out.send(ev="pose", pose=_pose_of(msg), stamp=stamp, wall=time.time())
+            except Exception as exc:
+                self.out.send(ev="bad", topic=kind, detail=f"{type(exc).__name__}: {exc}"[:500])
+        return on_data
+
+    async def _publisher(self) -> None:
+        """Publish the latest command; on any failure reconnect with backoff (0.1 … 2 s), telling proxybench."""
+        from dtps_http import RawData
+
+        backoff = 0.1
+        while True:
+            try:
+                async with self._topic(self.args.pwm).publisher_context() as pub:
+                    self.out.send(ev="link", state="ok", detail="publisher connected")
+                    backoff = 0.1
+                    while True:
+                        left, right = await self.pending.get()
+                        await pub.publish(RawData.cbor_from_native_object(
+                            {"header": _header(), "left": left, "right": right}))
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:
+                self.out.send(ev="link", state="lost", detail=f"{type(exc).__name__}: {exc}"[:300])
+                await asyncio.sleep(backoff)
+                backoff = min(2.0, backoff * 2)
+
+    def command(self, left: float, right: float) -> None:
+        if self.pending.full():
+            self.pending.get_nowait()  # only the latest command matters
+        self.pending.put_nowait((left, right))
+
+    async def _watchdog(self) -> None:
+        while True:
+            await asyncio.sleep(self.args.watchdog / 4)
+            if time.monotonic() - self.last_command > self.args.watchdog:
+                self.command(0.0, 0.0)
+                self.last_command = time.monotonic()
+                self.out.send(ev="watchdog", wall=time.time())
+
+    async def stop(self) -> None:
+        for _ in range(5):
+            self.command(0.0, 0.0)
+            await asyncio.sleep(0.02)
+
+    async def run(self, requests: In) -> None:
+        await self.start()
+        try:
+            async for m in requests:
+                op = m.get("op")
+                if op == "cmd":
+                    self.last_command = time.monotonic()
+                    self.command(float(m["left"]), float(m["right"]))
+                elif op == "stop":
+                    self.last_command = time.monotonic()
+                    await self.stop()
+                elif op == "quit":
+                    break
+        finally:
+            await self.stop()
+            await asyncio.sleep(0.2)
+
+
+def _pose_of(msg: dict) -> list[float]:
+    """(x, y, θ) of a Transformation (position + quaternion) or of a plain {x, y, theta|yaw} map."""
+    if "position" in msg:
+        p, q = msg["position"], msg["rotation"]
+        w, x, y, z = (float(q[k]) for k in "wxyz")
+        return [float(p["x"]), float(p["y"]), math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))]
+    return [float(msg["x"]), float(msg["y"]), float(msg.get("theta", msg.get("yaw", 0.0)))]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="role", required=True)
+    srv = sub.add_parser("server")
+    srv.add_argument("--host", default="127.0.0.1")
+    srv.add_argument("--port", type=int, default=7501)
+    srv.add_argument("--name", default="map_0/vehicle_0")
+    srv.add_argument("--prefix", default="robot")
+    cli = sub.add_parser("client")
+    cli.add_argument("--url", required=True)
+    cli.add_argument("--name", required=True)
+    cli.add_argument("--prefix", default="")
+    cli.add_argument("--pwm", default="actuator/wheels/base/pwm")
+    cli.add_argument("--pose", default="state/pose")
+    cli.add_argument("--watchdog", type=float, default=0.5)
+    args = parser.parse_args()
+    logging.basicConfig()
+    for handler in logging.getLogger().handlers:  # dtps sets its loggers to DEBUG when imported: filter here
+        handler.setLevel(logging.WARNING)
+    out = Out()
+
+    async def run() -> None:
+        role = Server(args, out) if args.role == "server" else Client(args, out)
+        await role.run(In(asyncio.get_running_loop()))
+
+    with contextlib.suppress(KeyboardInterrupt):
+        asyncio.run(run())
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,143 @@
+"""The SDK environment: a virtual environment of its own holding duckietown-sdk, dtps-http and duckietown-messages.
+
+dtps-http pins ``pydantic==2.10.6`` exactly, so these packages cannot share proxybench's environment. They
+live in a venv in the user's cache folder (``$PROXYBENCH_DTPS_ENV``, else ``$XDG_CACHE_HOME/proxybench/
+dtps-env``, else ``~/.cache/proxybench/dtps-env``), made by ``proxybench dtps setup`` and checked by
+``proxybench dtps check``. proxybench reaches it only by running its interpreter (the bridge, SDK agents).
+duckietown-sdk also needs the system library ``libturbojpeg.so.0`` (Debian: ``libturbojpeg0``), which
+setup installs with apt when it runs as root and otherwise names the command to run.
+"""
+
+from __future__ import annotations
+
+import ctypes.util
+import json
+import os
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ["PACKAGES", "DtpsEnvError", "EnvStatus", "check_env", "env_path", "sdk_python", "setup_env"]
+
+#: the released versions this integration was built and tested against (dtps-http is imported by the SDK
+#: without being declared, so it is named here)
+PACKAGES = ("duckietown-sdk==0.2.0", "dtps-http==1.6.1", "duckietown-messages==0.0.28")
+_MARKER = "proxybench-dtps.json"
+_APT = "apt-get install -y libturbojpeg0"
+_PROBE = """
+import json, importlib.metadata as md
+import dtps, dtps_http, duckietown_messages
+from duckietown.sdk.robots.duckiebot import DB21J
+print(json.dumps({p: md.version(p) for p in ("duckietown-sdk", "dtps-http", "duckietown-messages", "pydantic")}))
+"""
+
+
+class DtpsEnvError(RuntimeError):
+    """The SDK environment is missing or broken; the message says how to fix it."""
+
+
+@dataclass
+class EnvStatus:
+    """What ``proxybench dtps check`` reports: where the environment is, what it holds, what is wrong."""
+
+    path: Path
+    python: Path
+    versions: dict[str, str] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def env_path(path: str | Path | None = None) -> Path:
+    """The SDK environment's folder: ``path``, else ``$PROXYBENCH_DTPS_ENV``, else the user's cache folder."""
+    if path is not None:
+        return Path(path).expanduser().resolve()
+    if os.environ.get("PROXYBENCH_DTPS_ENV"):
+        return Path(os.environ["PROXYBENCH_DTPS_ENV"]).expanduser().resolve()
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return (cache / "proxybench" / "dtps-env").resolve()
+
+
+def _python(path: Path) -> Path:
+    return path / "bin" / "python"
+
+
+def sdk_python(path: str | Path | None = None) -> Path:
+    """The SDK environment's interpreter; :class:`DtpsEnvError` (naming the fix) when it was never set up."""
+    where = env_path(path)
+    py = _python(where)
+    if not (py.exists() and (where / _MARKER).exists()):
+        raise DtpsEnvError(f"the duckietown-sdk environment is not set up at {where}: run `proxybench dtps setup`"
+                           f"{'' if path is None else f' --path {where}'}")
+    return py
+
+
+def turbojpeg_found() -> bool:
+    """Whether the dynamic linker finds libturbojpeg (what duckietown-sdk's JPEG decoder loads)."""
+    return ctypes.util.find_library("turbojpeg") is not None
+
+
+def _install_turbojpeg(say) -> str | None:
+    """Install libturbojpeg0 with apt as root; None when done, else the problem with the command to run."""
+    if turbojpeg_found():
+        return None
+    if os.geteuid() != 0 or shutil.which("apt-get") is None:
+        return f"libturbojpeg.so.0 is missing (duckietown-sdk decodes camera frames with it): run `sudo {_APT}`"
+    say(f"installing libturbojpeg0: {_APT}")
+    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    run = subprocess.run(_APT.split(), capture_output=True, text=True, env=env)
+    if run.returncode != 0:  # a fresh machine has no package lists yet
+        subprocess.run(["apt-get", "update", "-qq"], capture_output=True, env=env)
+        run = subprocess.run(_APT.split(), capture_output=True, text=True, env=env)
+    if run.returncode != 0 or not turbojpeg_found():
+        tail = (run.stderr or run.stdout).strip().splitlines()[-1:] or ["no output"]
+        return f"`{_APT}` failed ({tail[0]}): install libturbojpeg0 and run setup again"
+    return None
+
+
+def setup_env(path: str | Path | None = None, *, say=print) -> EnvStatus:
+    """Make (or complete) the SDK environment; idempotent: an environment holding :data:`PACKAGES` is kept."""
+    where = env_path(path)
+    problem = _install_turbojpeg(say)
+    marker = where / _MARKER
+    current = json.loads(marker.read_text()).get("packages") if marker.exists() else None
+    if current != list(PACKAGES) or not _python(where).exists():
+        if not _python(where).exists():
+            say(f"creating the SDK environment in {where}")
+            where.parent.mkdir(parents=True, exist_ok=True)
+            subprocess.run([sys.executable, "-m", "venv", str(where)], check=True)
+        say(f"installing {' '.join(PACKAGES)} (a few minutes)")
+        pip = subprocess.run([str(_python(where)), "-m", "pip", "install", "-q", "--disable-pip-version-check",
+                              *PACKAGES], capture_output=True, text=True)
+        if pip.returncode != 0:
+            raise DtpsEnvError(f"pip could not install {', '.join(PACKAGES)} into {where}:\n"
+                               + "\n".join(pip.stderr.strip().splitlines()[-10:]))
+        marker.write_text(json.dumps({"packages": list(PACKAGES)}) + "\n")
+    status = check_env(where)
+    if problem and problem not in status.problems:
+        status.problems.insert(0, problem)
+    return status
+
+
+def check_env(path: str | Path | None = None) -> EnvStatus:
+    """What the SDK environment holds and what is wrong with it (each problem names its fix)."""
+    where = env_path(path)
+    status = EnvStatus(where, _python(where))
+    if not status.python.exists():
+        status.problems.append(f"no environment at {where}: run `proxybench dtps setup`")
+        return status
+    if not turbojpeg_found():
+        status.problems.append(f"libturbojpeg.so.0 is missing: run `sudo {_APT}` (or `proxybench dtps setup` as root)")
+    probe = subprocess.run([str(status.python), "-I", "-c", _PROBE], capture_output=True, text=True, timeout=120)
+    if probe.returncode != 0:
+        last = (probe.stderr.strip().splitlines() or ["no output"])[-1]
+        status.problems.append(f"the environment cannot import the SDK ({last}): run `proxybench dtps setup`")
+    else:
+        status.versions = json.loads(probe.stdout.strip().splitlines()[-1])
+    if not (where / _MARKER).exists():
+        status.problems.append("the environment was not made by `proxybench dtps setup`: run it")
+    return status

@@ -1,0 +1,151 @@
+"""proxybench's end of a DTPS bridge process (``bridge.py`` run by the SDK environment's interpreter).
+
+Every wait has a deadline and watches the process, so nothing hangs on a bridge that died or stalled; a
+bridge failure raises :class:`BridgeError` with its last stderr lines. What the bridge sends is checked like
+any input from outside (:mod:`.pipe`): the events it forwards carry what an SDK agent or a robot wrote.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import select
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from proxybench.dtps import pipe
+from proxybench.dtps.env import sdk_python
+from proxybench.protocol.transport import Launch
+
+__all__ = ["BRIDGE", "BridgeError", "BridgeLink", "PortLock"]
+
+#: the bridge script (runs in the SDK environment; never imports proxybench)
+BRIDGE = Path(__file__).with_name("bridge.py")
+
+
+class BridgeError(RuntimeError):
+    """The bridge process failed (could not start, could not serve, ended); ``stderr_tail``: its last lines."""
+
+    def __init__(self, detail: str, stderr_tail: list[str] | None = None, exit_code: int | None = None):
+        self.detail, self.stderr_tail, self.exit_code = detail, list(stderr_tail or []), exit_code
+        tail = "".join(f"\n  {line}" for line in self.stderr_tail[-8:])
+        super().__init__(detail + (f" (exit code {exit_code})" if exit_code is not None else "") + tail)
+
+
+class PortLock:
+    """One virtual robot per TCP port on this machine at a time (an unchanged SDK agent always connects to 7501):
+    an exclusive ``flock`` on a file in the temporary folder, released when the holder closes it or dies."""
+
+    def __init__(self, port: int):
+        self.path = Path(tempfile.gettempdir()) / f"proxybench-dtps-{port}.lock"
+        self.fd: int | None = None
+
+    def acquire(self, timeout: float | None = None) -> bool:
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                self.fd = fd
+                return True
+            except BlockingIOError:
+                if deadline is not None and time.monotonic() >= deadline:
+                    os.close(fd)
+                    return False
+                time.sleep(0.05)
+
+    def release(self) -> None:
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None
+
+
+class BridgeLink:
+    """A running bridge: ``args`` after ``bridge.py`` (role and options), started with the SDK interpreter."""
+
+    def __init__(self, args: list[str], *, python: str | Path | None = None, start_timeout: float = 30.0,
+                 env: dict[str, str] | None = None):
+        py = Path(python) if python is not None else sdk_python()
+        self.reader = pipe.Reader()
+        self.events: list[dict[str, Any]] = []
+        self._os = Launch([str(py), "-I", str(BRIDGE), *args], transport="pipes", env=env, stderr_lines=40)
+        self.ready = self.wait_for("ready", time.monotonic() + start_timeout)
+
+    # ------------------------------------------------------------------------------------------ I/O
+    def send(self, **message: Any) -> None:
+        data = memoryview(pipe.pack(message))
+        deadline = time.monotonic() + 10.0
+        while data:
+            try:
+                data = data[os.write(self._os.in_fd, data):]
+                continue
+            except BlockingIOError:
+                pass
+            except OSError:
+                self._fail("the bridge closed its input")
+            if time.monotonic() > deadline:
+                self._fail("the bridge read nothing for 10 s")
+            self._pump(0.005)  # read its output meanwhile: it may be blocked writing to us
+
+    def poll(self, deadline: float) -> list[dict[str, Any]]:
+        """Events that arrived by ``deadline`` (returns as soon as there is at least one, or at the deadline)."""
+        while not self.events:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            self._pump(left)
+        out, self.events = self.events, []
+        return out
+
+    def wait_for(self, kind: str, deadline: float) -> dict[str, Any]:
+        """The first event ``kind`` (the others stay queued for :meth:`poll`); :class:`BridgeError` at the deadline
+        or on an ``error`` event."""
+        seen = 0
+        while True:
+            for k in range(seen, len(self.events)):
+                ev = self.events[k]
+                if ev.get("ev") == "error":
+                    self._fail(str(ev.get("detail")))
+                if ev.get("ev") == kind:
+                    return self.events.pop(k)
+            seen = len(self.events)
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self._fail(f"no {kind!r} event from the bridge in time")
+            self._pump(left)
+
+    def _pump(self, timeout: float) -> None:
+        fds = [self._os.out_fd] + ([self._os.pidfd] if self._os.pidfd is not None else [])
+        ready, _, _ = select.select(fds, [], [], max(0.0, timeout))
+        if self._os.out_fd in ready:
+            self.reader.read_from(self._os.out_fd)
+        try:
+            while (msg := self.reader.next()) is not None:
+                self.events.append(msg)
+        except pipe.PipeError as exc:
+            self._fail(f"the bridge wrote garbage: {exc}")
+        if self.reader.eof or (self._os.pidfd is not None and self._os.pidfd in ready and not self.events):
+            self._fail("the bridge ended")
+
+    # -------------------------------------------------------------------------------------- life
+    @property
+    def alive(self) -> bool:
+        return self._os.returncode is None and not self._os.exited()
+
+    def stderr_tail(self) -> list[str]:
+        return self._os.stderr.tail()
+
+    def _fail(self, detail: str) -> None:
+        code = self._os.terminate(0.5)
+        raise BridgeError(detail, self._os.stderr.finish(), code)
+
+    def close(self, timeout: float = 2.0) -> None:
+        if self._os.returncode is None:
+            with contextlib.suppress(OSError, BridgeError):
+                self.send(op="quit")
+            self._os.close_input()
+            self._os.terminate(timeout, term_first=True)
+            self._os.stderr.finish()

@@ -1,0 +1,100 @@
+"""``proxybench dtps serve``: the simulator as a virtual DB21J that an SDK agent started by the user drives.
+
+The runner's part of :mod:`proxybench.dtps`: it builds the plant (:func:`~proxybench.runner.episode.sim_plant`)
+and plays :func:`~proxybench.runner.rollout.rollout` with a :class:`ServeDriver` on the virtual robot. The
+server runs in real time whether or not an agent is connected (the robot holds (0, 0) until a command comes),
+like the Duckiematrix. An episode ends when the agent publishes ``state/reset`` (termination ``reset``), when
+the robot leaves the road or collides, or after ``episode_seconds``; the robot is then teleported to the next
+start pose (seed + 1) and a new episode begins. Every episode is saved as a trajectory (``episode-<k>.parquet``)
+in the output folder, with the serve's timing in its metadata.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from proxybench.agents.base import Observation
+from proxybench.domain.params import DomainParams
+from proxybench.dtps.driver import RobotDriver
+from proxybench.dtps.virtual_robot import DEFAULT_NAME, DEFAULT_PORT, VirtualDB21J
+from proxybench.runner.episode import sim_plant
+from proxybench.runner.rollout import AgentPolicy, rollout
+from proxybench.tasks.trajectory import Event, Termination
+
+__all__ = ["ServeDriver", "serve"]
+
+
+class ServeDriver(RobotDriver):
+    """Real time with an agent that comes and goes: no start or silence timeouts (the robot holds the last
+    command, (0, 0) before any), and ``state/reset`` requests are remembered for the plant to end the episode."""
+
+    def __init__(self, robot: VirtualDB21J):
+        super().__init__(robot, timing="realtime", start_timeout=float("inf"), step_timeout=float("inf"))
+        self.name = "dtps-agent"
+        self.reset_requested = False
+
+    def reset(self, seed: int, episode: str | None = None) -> None:
+        super().reset(seed, episode)
+        self.reset_requested = False
+
+    def act(self, obs: Observation) -> np.ndarray:
+        if self.t0 is None:
+            self.t0 = time.monotonic() - obs.time
+            self.first_seq = self.robot.seq + 1
+        resets = self.resets
+        out = super().act(obs)
+        self.reset_requested = self.reset_requested or self.resets > resets
+        return out
+
+
+class _ResetPlant:
+    """A plant whose episode also ends when the driver saw ``state/reset`` (termination ``reset``)."""
+
+    def __init__(self, plant: Any, driver: ServeDriver):
+        self._plant, self._driver = plant, driver
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._plant, name)
+
+    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, Event, bool]]:
+        out = self._plant.advance(commands, alive, k)
+        if self._driver.reset_requested and not any(final for _, _, final in out):
+            out.append((0, Event(self._plant.time(0), Termination.RESET, "the agent published state/reset"), True))
+        return out
+
+
+def serve(map_name: str, out: Path, *, name: str = DEFAULT_NAME, port: int = DEFAULT_PORT,
+          seconds: float = float("inf"), episode_seconds: float = 60.0, seed: int = 0,
+          params: DomainParams | None = None, on_episode: Callable[[int, Any], None] | None = None,
+          host: str = "127.0.0.1") -> list[Path]:
+    """Serve until ``seconds`` of wall time have passed (or Ctrl-C); the trajectory files written."""
+    out.mkdir(parents=True, exist_ok=True)
+    plant = sim_plant(map_name, params)
+    robot = VirtualDB21J(name=name, port=port, host=host)
+    files: list[Path] = []
+    try:
+        robot.publish_map(plant.map)
+        driver = ServeDriver(robot)
+        end = time.monotonic() + seconds
+        k = 0
+        while time.monotonic() < end:
+            length = min(episode_seconds, end - time.monotonic())
+            meta = {"map": plant.map.name, "episode": k, "served": {"url": robot.url, "timing": "realtime"}}
+            traj = rollout(_ResetPlant(plant, driver), AgentPolicy([driver]), [seed + k], length, metas=[meta])[0]
+            traj.meta["served"]["stats"] = driver.stats()
+            path = out / f"episode-{k}.parquet"
+            traj.save(path)
+            files.append(path)
+            if on_episode is not None:
+                on_episode(k, traj)
+            k += 1
+    finally:
+        robot.close()
+    (out / "served.json").write_text(json.dumps({"url": robot.url, "episodes": [p.name for p in files]}, indent=2))
+    return files

@@ -1,0 +1,183 @@
+"""duckietown-sdk agents in proxybench (docs/dtps.md): parsing without the SDK, episodes with it.
+
+Tests marked ``sdk`` need the SDK environment (``proxybench dtps setup``) and skip with the reason when it is
+missing, except under ``PROXYBENCH_REQUIRE_DTPS=1`` (CI sets it after running setup), where they fail.
+The SDK agents here (tests/dtps_agents) use only the SDK's public API, except the misbehaving ones.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from proxybench.dtps import pipe
+from proxybench.dtps.env import DtpsEnvError, sdk_python
+from proxybench.dtps.maplayer import map_layers
+from proxybench.dtps.options import SdkOptions, parse_sdk
+from proxybench.experiments.agent_args import AgentArgError, parse_agent
+from proxybench.runner.jobs import AgentSpec, is_privileged
+from proxybench.tasks.agent_entries import AgentEntry
+
+AGENTS = Path(__file__).parent / "dtps_agents"
+
+
+def _sdk_missing() -> str | None:
+    try:
+        sdk_python()
+    except DtpsEnvError as exc:
+        return str(exc)
+    return None
+
+
+_MISSING = _sdk_missing()
+if _MISSING and os.environ.get("PROXYBENCH_REQUIRE_DTPS") == "1":
+    raise RuntimeError(f"PROXYBENCH_REQUIRE_DTPS=1 but {_MISSING}")
+sdk = pytest.mark.skipif(_MISSING is not None, reason=f"{_MISSING}")
+
+
+# -------------------------------------------------------------------------------- without the SDK
+def test_agent_arguments_name_sdk_programs_and_their_modifiers():
+    spec = parse_agent("mine=sdk[lockstep]:python3 agent.py --fast")
+    assert (spec.name, spec.command, spec.protocol) == ("mine", "python3 agent.py --fast", "sdk")
+    assert spec.node_options() == SdkOptions(timing="lockstep")
+    assert parse_agent("node=python3 node.py").protocol == "aido"
+    assert is_privileged(parse_agent("p=sdk[privileged]:python3 a.py"))
+    with pytest.raises(AgentArgError, match="unknown sdk modifier 'fast'"):
+        parse_agent("mine=sdk[fast]:python3 a.py")
+    with pytest.raises(AgentArgError, match="no command"):
+        parse_agent("mine=sdk:")
+    # the protocol is part of a job's key: the same command as an AIDO node is another agent
+    assert AgentSpec.sdk("a", "python3 a.py").key_data() != AgentSpec("a", "python3 a.py").key_data()
+    assert parse_sdk("python3 sdk.py") is None
+
+
+def test_benchmark_entries_take_sdk_programs_and_refuse_mixed_options():
+    entry = AgentEntry(name="mine", sdk="python3 a.py", timing="lockstep", step_timeout=2)
+    spec = parse_agent(entry)
+    assert spec.protocol == "sdk" and spec.node_options() == SdkOptions(timing="lockstep", step_timeout=2)
+    for bad, match in (({"sdk": "a", "command": "b"}, "not both"), ({"sdk": "a", "transport": "fifo"}, "transport"),
+                       ({"command": "a", "timing": "lockstep"}, "timing")):
+        with pytest.raises(ValueError, match=match):
+            AgentEntry(name="x", **bad)
+
+
+def test_the_map_layer_places_every_tile_and_object():
+    from proxybench.domain.maps import load_map
+
+    m = load_map("loop_3x3")
+    layers = map_layers(m)
+    assert len(layers["tiles"]) == m.width * m.height
+    t = layers["frames"]["map_0/tile_2_1"]["pose"]
+    assert (t["x"], t["y"]) == pytest.approx((2.5 * m.tile_size, 1.5 * m.tile_size))
+    assert layers["tiles"]["map_0/tile_2_1"]["i"] == 2 and "orientation" in layers["tiles"]["map_0/tile_1_0"]
+
+
+def test_the_pipe_format_splits_messages_and_refuses_garbage():
+    r = pipe.Reader()
+    data = pipe.pack({"op": "frame", "jpeg": b"\xff\xd8"}) + pipe.pack({"op": "quit"})
+    r.feed(data[:7])
+    assert r.next() is None
+    r.feed(data[7:])
+    assert r.next() == {"op": "frame", "jpeg": b"\xff\xd8"} and r.next() == {"op": "quit"}
+    r.feed(b"\x00\x00\x00\x01\x05")  # the CBOR integer 5
+    with pytest.raises(pipe.PipeError, match="not a map"):
+        r.next()
+    r.feed(b"\xff\xff\xff\xff")
+    with pytest.raises(pipe.PipeError, match="more than"):
+        r.next()
+
+
+# ---------------------------------------------------------------------------------- with the SDK
+def _episode(command: str, seconds: float, **options):
+    from proxybench.domain.params import DomainParams
+    from proxybench.domain.simulator import Simulator
+    from proxybench.dtps.agent import SdkAgent
+    from proxybench.runner.episode import run_episode
+    from proxybench.runner.outcomes import camera_filter
+
+    sim = Simulator("loop_3x3", DomainParams(image_width=160, image_height=120))
+    options = {"start_timeout": 30.0, "cwd": str(AGENTS)} | options
+    with SdkAgent(command, options=SdkOptions(**options)) as agent:
+        traj = run_episode(sim, agent, 3, seconds, image_filter=camera_filter())
+        return traj, agent.stats()
+
+
+@sdk
+def test_an_unchanged_sdk_agent_drives_proxybench_run(tmp_path):
+    out = tmp_path / "run"
+    run = subprocess.run([sys.executable, "-m", "proxybench", "run", "--agent", "mine=sdk:python3 lane.py",
+                          "--seconds", "2", "--width", "160", "--height", "120", "--no-video", "--out", str(out)],
+                         cwd=AGENTS, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr + run.stdout
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["agent"] == "mine" and metrics["termination"] == "timeout" and metrics["survival_time"] == 2.0
+    assert (out / "trajectory.parquet").exists() and metrics["driven_lanedir_consec"] > 0.1  # it drove
+
+
+@sdk
+def test_lockstep_runs_repeat_sample_for_sample():
+    (a, stats), (b, _) = _episode("python3 lane.py", 1.5, timing="lockstep"), \
+        _episode("python3 lane.py", 1.5, timing="lockstep")
+    assert a.termination == b.termination == "timeout"
+    assert stats["extra_commands"] == 0 and stats["frames_answered"] == round(1.5 * 15) - 1
+    np.testing.assert_array_equal(a.pose(), b.pose())
+
+
+@sdk
+@pytest.mark.parametrize(("how", "timing", "reason"), [
+    ("silent", "lockstep", "init-timeout"), ("crash", "lockstep", "exited"), ("flood", "realtime", "stdout-flood"),
+    ("nan", "lockstep", "bad-commands")])
+def test_misbehaving_sdk_agents_end_as_named_failures(how, timing, reason):
+    traj, _ = _episode(f"python3 misbehave.py {how}", 3.0, timing=timing, start_timeout=15.0, step_timeout=3.0)
+    assert traj.termination == "agent_failure"
+    (event,) = [e for e in traj.events if e.kind == "agent_failure"]
+    assert event.reason == reason, event
+    if how == "crash":
+        assert event.exit_code == 3 and any("giving up on frame 3" in line for line in event.stderr_tail)
+
+
+@sdk
+def test_an_sdk_agent_is_ranked_by_predictivity(tmp_path):
+    out = tmp_path / "p"
+    run = subprocess.run([sys.executable, "-m", "proxybench", "predictivity", "--quick", "--agent", "pid",
+                          "--agent", "straight", "--agent", f"mine=sdk[lockstep]:cd {AGENTS} && exec python3 lane.py",
+                          "--episodes", "1", "--seconds", "1.5", "--sweep", "trim=0,0.2", "--pod-seconds", "0",
+                          "--backend", "inline", "--out", str(out)], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:] + run.stdout[-3000:]
+    import pandas as pd
+
+    results = pd.read_parquet(next((out / "runs").rglob("results.parquet")))
+    assert {"pid", "straight", "mine"} <= set(results.agent)
+    assert set(results[results.agent == "mine"].termination) == {"timeout"}
+
+
+@sdk
+def test_dtps_serve_records_episodes_ended_by_the_agents_reset(tmp_path):
+    out = tmp_path / "serve"
+    server = subprocess.Popen([sys.executable, "-m", "proxybench", "dtps", "serve", "--seconds", "90", "--width", "160",
+                               "--height", "120", "--out", str(out)], stdout=subprocess.PIPE, text=True)
+    agent = None
+    try:
+        assert "serving a SIMULATED DB21J" in server.stdout.readline()
+        agent = subprocess.Popen([str(sdk_python()), str(AGENTS / "reset.py")], stderr=subprocess.DEVNULL)
+        lines = []
+        while not any("end=reset" in line for line in lines):  # until an episode ends by the agent's reset
+            line = server.stdout.readline()
+            assert line, f"the server ended: {lines}"
+            lines.append(line)
+    finally:
+        if agent is not None:
+            agent.kill()
+            agent.wait()
+        server.kill()
+        server.wait()
+    from proxybench.tasks.trajectory import Trajectory
+
+    ends = [Trajectory.load(p).termination for p in sorted(out.glob("episode-*.parquet"))]
+    assert "reset" in ends, ends
