@@ -26,8 +26,7 @@ def test_defaults_and_derived_quantities():
 def test_unknown_key_rejected_naming_it(key):
     with pytest.raises(ValidationError) as exc_info:
         DomainParams(**{key: 0.1})
-    assert key in str(exc_info.value)
-    assert exc_info.value.errors()[0]["loc"] == (key,)
+    assert f"unknown domain parameter {key!r}" in exc_info.value.errors()[0]["msg"]
 
 
 def test_unknown_key_rejected_by_model_validate_and_replace():

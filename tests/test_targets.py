@@ -187,7 +187,30 @@ def test_open_target_tells_the_kinds_apart(tmp_path):
         open_target(str(tmp_path / "nowhere"))
     with pytest.raises(TargetError, match="robot: needs the command"):
         open_target("robot:")
-    with pytest.raises(TargetError, match="target_params: trimm"):
+    with pytest.raises(TargetError, match=r"target_params: unknown domain parameter 'trimm' \(did you mean 'trim'"):
         open_target("reality", params={"trimm": 0.1})
     with pytest.raises(TargetError, match="only the reality model's parameters"):
         open_target(str(tmp_path / "lab"), params={"trim": 0.1})
+
+
+def test_imported_runs_that_stop_early_are_counted_as_ended_early(tmp_path):
+    """A run whose samples stop before the episode's length ended early: off the road when its last pose is off
+    the drivable tiles, else 'ended_early'; `target check`'s table counts both (it said 0 for every agent)."""
+    from typer.testing import CliRunner
+
+    from proxybench.cli import app
+
+    root = write_lab(tmp_path / "lab")
+    short = run_csv(0.3).iloc[:21]  # 1 s of a 2 s episode, still on the road
+    short.to_csv(root / "runs" / "a" / "0.csv", index=False)
+    gone = run_csv(0.3).iloc[:21].copy()
+    gone.loc[20, "y"] = 0.585 * 1.5  # its last pose on the grass tile in the middle of loop_3x3
+    gone.to_csv(root / "runs" / "b" / "1.csv", index=False)
+    rec = load_recording(root, ("survival_time",))
+    assert rec.episodes[("a", 0)].termination == "ended_early"
+    assert rec.episodes[("b", 1)].termination == "off_road"
+    assert rec.episodes[("a", 1)].termination == rec.episodes[("b", 0)].termination == "timeout"
+    res = CliRunner().invoke(app, ["target", "check", str(root)], env={"COLUMNS": "200"})
+    assert res.exit_code == 0, res.output
+    rows = {line.split("│")[1].strip(): line for line in res.output.splitlines() if line.count("│") > 3}
+    assert rows["a"].rstrip("│ ").endswith("1") and rows["b"].rstrip("│ ").endswith("1"), res.output

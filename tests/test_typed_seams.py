@@ -39,7 +39,7 @@ def _traj(road, **kw) -> Trajectory:
 
 def test_terminations_keep_the_strings_files_hold():
     assert [str(t) for t in Termination] == ["timeout", "off_road", "left_map", "collision", "agent_failure", "reset",
-                                             "robot_failure"]
+                                             "ended_early", "robot_failure"]
     assert Termination.TIMEOUT == "timeout" and json.dumps({"t": Termination.COLLISION}) == '{"t": "collision"}'
     assert Termination.ROBOT_FAILURE not in TERMINATIONS  # a failed robot leaves no trajectory
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import yaml
 
-__all__ = ["UntrustedInputError", "clean_text", "clean_tree", "find_non_finite", "load_yaml"]
+__all__ = ["UntrustedInputError", "clean_text", "clean_tree", "find_non_finite", "load_yaml", "problems"]
 
 # NUL (PostgreSQL text cannot hold it) and lone surrogates (not encodable as UTF-8)
 _UNSTORABLE = re.compile("[\x00\ud800-\udfff]")
@@ -104,3 +104,15 @@ def load_yaml(text: str, *, max_depth: int = 64, allow_aliases: bool = True) -> 
         raise UntrustedInputError(f"nested too deeply (more than {max_depth} levels)") from None
     finally:
         loader.dispose()
+
+
+def problems(exc: Any, prefix: str = "") -> str:
+    """A pydantic ``ValidationError`` as ``prefix.field: message`` parts joined by "; " (``prefix: message``
+    for a check of the whole model, whose message names its fields itself), without pydantic's
+    "Value error, " prefix: one way of naming the field at fault wherever input is validated."""
+    parts = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in (prefix, *err["loc"]) if p != "")
+        msg = err["msg"].removeprefix("Value error, ")
+        parts.append(f"{loc}: {msg}" if loc else msg)
+    return "; ".join(parts)

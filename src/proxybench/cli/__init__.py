@@ -9,6 +9,7 @@ from proxybench.cli import (  # noqa: F401 - importing registers the commands
     heldout,
     learning,
     maps,
+    params,
     plan,
     robot,
     sandbox,

@@ -65,22 +65,24 @@ def agent_check(
     no_reflection: bool = typer.Option(False, "--no-reflection", help=NO_REFLECTION_HELP),
     seconds: float = typer.Option(2.0, min=0.1, help="length of the test episode [s] (simulated time)"),
     map_name: str = typer.Option("loop_3x3", "--map", help="map of the test episode"),
+    contract: bool = typer.Option(True, "--contract/--no-contract",
+                                  help="then run the agent contract (proxybench.testing.AgentContract)"),
 ) -> None:
     """Start an agent node as `run` and `evaluate` would and drive it through one short simulated episode.
 
     Reports how it started (protocol reflection, privileged or camera-only), each exchange's time and the
     commands it sent; a node that fails says why (reason, exit code, last stderr lines) and the command
-    exits 1. E.g. `proxybench agent check "cd sub && exec python3 solution.py" --transport fifo`.
+    exits 1. Then the agent contract, one line per check (commands, determinism, privileged flag, isolation
+    between episodes, clean failure; docs/protocol.md); a failed check exits 1 too.
+    E.g. `proxybench agent check "cd sub && exec python3 solution.py" --transport fifo`.
     """
     import time
 
     import numpy as np
 
     from proxybench.domain.params import DomainParams
-    from proxybench.domain.simulator import Simulator
     from proxybench.protocol import AgentFailure
-    from proxybench.runner.episode import run_episode
-    from proxybench.runner.outcomes import camera_filter
+    from proxybench.runner.episode import play
 
     options = node_options(agent_cwd, transport, start_timeout, step_timeout, no_reflection)
     t0 = time.perf_counter()
@@ -105,9 +107,8 @@ def agent_check(
         return out
 
     agent.act = timed  # type: ignore[method-assign]
-    sim = Simulator(map_name, DomainParams(image_width=160, image_height=120))
     try:
-        traj = run_episode(sim, agent, 0, seconds, camera=not agent.privileged, image_filter=camera_filter())
+        traj = play(map_name, DomainParams(image_width=160, image_height=120), agent, 0, seconds)
     finally:
         code = agent.close()
     failure = traj.failure.message if traj.failure is not None else None
@@ -121,3 +122,12 @@ def agent_check(
                   f"{np.median(ms):.1f} ms, max {ms.max():.1f} ms; wheel PWM left {cmd[:, 0].min():+.2f}..."
                   f"{cmd[:, 0].max():+.2f}, right {cmd[:, 1].min():+.2f}...{cmd[:, 1].max():+.2f}; episode end: "
                   f"{traj.termination}; node exit code {code}", highlight=False)
+    if contract:
+        from proxybench.cli.checks import print_report
+        from proxybench.testing import AgentContract, StreamSpec
+
+        stream = StreamSpec(map=map_name, params=DomainParams(image_width=160, image_height=120))
+        if proc.reflection_note is not None:  # it failed describe_protocol: its next starts need not ask
+            options = options.model_copy(update={"reflection": False})
+        if not print_report(AgentContract.for_command(command, options, stream=stream).run()):
+            raise typer.Exit(1)

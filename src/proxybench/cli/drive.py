@@ -97,15 +97,16 @@ def run(
         raise typer.Exit(1) from exc
     if robot_cmd is not None:  # the robot decides its camera; it is asked to step at the default rate
         domain = DomainSpec.robot(robot_cmd, frame_rate=DEFAULT_FRAME_RATE, options=robot_options)
-        seconds_label = f"{seconds:g} s on robot node"
+        seconds_label, frames = f"{seconds:g} s on robot node", None  # the robot says its rate when it starts
     else:
-        domain = DomainSpec("simulation", DomainParams(image_width=width, image_height=height))
-        seconds_label = f"{seconds:g} s"
+        params = DomainParams(image_width=width, image_height=height)
+        domain = DomainSpec("simulation", params)
+        seconds_label, frames = f"{seconds:g} s", max(1, round(seconds * params.frame_rate))
     agent = _agent(agent_name, agent_cmd, options)
     with progress_bar(TextColumn("[bold]driving[/bold] {task.description}"), BarColumn(),
-                      TextColumn("{task.completed} frames"), TimeRemainingColumn(),
-                      console=console, transient=True) as progress:
-        task = progress.add_task(f"{m.name}, {seconds_label}", total=None)
+                      TextColumn("{task.completed}/{task.total} frames" if frames else "{task.completed} frames"),
+                      TimeRemainingColumn(), console=console, transient=True) as progress:
+        task = progress.add_task(f"{m.name}, {seconds_label}", total=frames)
         try:
             rec = record_run(domain, agent, m, seed, seconds, out, video=video,
                              meta={"map": m.name}, on_frame=lambda k: progress.advance(task))

@@ -1,4 +1,5 @@
-"""`proxybench robot serve`: the simulator as a robot node (`proxybench run --robot-cmd` drives one)."""
+"""`proxybench robot serve`: the simulator as a robot node (`proxybench run --robot-cmd` drives one); `proxybench
+robot check`: the plant contract on a robot node (yours: a bridge)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,14 @@ import typer
 from rich.markup import escape
 
 from proxybench.cli.app import err_console, robot_app
+from proxybench.cli.node_options import (
+    RobotCwd,
+    RobotNoReflection,
+    RobotStartTimeout,
+    RobotStepTimeout,
+    RobotTransport,
+    robot_node_options,
+)
 
 if TYPE_CHECKING:
 
@@ -32,8 +41,9 @@ def parse_params(items: list[str]) -> DomainParams:
     try:
         return DomainParams.model_validate(values)
     except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
-        raise typer.BadParameter(problems, param_hint="--param") from exc
+        from proxybench.untrusted import problems
+
+        raise typer.BadParameter(problems(exc), param_hint="--param") from exc
 
 
 @robot_app.command("serve")
@@ -61,3 +71,44 @@ def robot_serve(
     print(f"[{name}] serving a SIMULATED robot (proxybench simulator, {params.image_width}x{params.image_height} "
           f"at {params.frame_rate:g} Hz) on the robot protocol", file=sys.stderr, flush=True)
     raise typer.Exit(serve_robot(node, exit_on_abort=False))
+
+
+@robot_app.command("check")
+def robot_check(
+    command: str = typer.Argument(..., help="the robot node's command, as typed in a shell (e.g. your bridge)"),
+    map_name: str = typer.Option("loop_3x3", "--map", help="map the test episodes are driven on (sent by set_map)"),
+    frame_rate: float = typer.Option(15.0, "--frame-rate", min=0.1, help="frame rate the robot must keep [Hz] (the "
+                                     "benchmark's)"),
+    seconds: float = typer.Option(1.0, min=0.1, help="length of each test episode [s]"),
+    position_tolerance: float = typer.Option(1e-3, min=0.0, help="start pose: how far off the requested position "
+                                             "the robot may start [m] (a robot placed by hand needs more)"),
+    heading_tolerance: float = typer.Option(1e-3, min=0.0, help="start pose: heading tolerance [rad]"),
+    time_tolerance: float = typer.Option(1e-6, min=0.0, help="how far frame and sample times may be off [s]"),
+    robot_cwd: RobotCwd = None,
+    robot_transport: RobotTransport = None,
+    robot_start_timeout: RobotStartTimeout = None,
+    robot_step_timeout: RobotStepTimeout = None,
+    robot_no_reflection: RobotNoReflection = False,
+) -> None:
+    """Run the plant contract on a robot node: what a lab's bridge must do for proxybench to drive it.
+
+    Starts the node as `run --robot-cmd` would and checks, one line each: it starts (or fails with a named
+    reason), starts episodes at the requested pose, steps, sends frames of one size at the frame rate, gives
+    the same trajectory for the same seed, and fails cleanly when killed (docs/robot-protocol.md, "Checking a
+    bridge"). Exits 1 if a check fails. E.g. `proxybench robot check "python3 my_bridge.py"`.
+    """
+    from proxybench.cli.checks import print_report
+    from proxybench.domain.maps import MapError
+    from proxybench.testing import PlantContract
+
+    options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
+                                 robot_no_reflection, command=command)
+    try:
+        suite = PlantContract.for_robot_command(command, map_name, options, frame_rate, seconds=seconds,
+                                                position_tolerance=position_tolerance,
+                                                heading_tolerance=heading_tolerance, time_tolerance=time_tolerance)
+    except (MapError, FileNotFoundError) as exc:
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
+        raise typer.Exit(2) from exc
+    if not print_report(suite.run()):
+        raise typer.Exit(1)

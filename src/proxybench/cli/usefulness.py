@@ -315,6 +315,9 @@ def optimize(
                "best_params": res.best_params, "best_value": res.best_value, "truth": res.truth,
                "noise_floor_prpv": [res.noise_floor.value, res.noise_floor.low, res.noise_floor.high]
                if res.noise_floor else None, "wall_s": round(wall, 1),
+               "tied": None if res.tied is None else {"trials": list(res.tied.trials), "separated": res.tied.separated,
+                                                      "spread": {k: dict(zip(("median", "min", "max"), v, strict=True))
+                                                                 for k, v in res.tied.spread.items()}},
                "experiment": res.experiment.to_dict() if res.experiment else None}
     (out / "trials.json").write_text(json.dumps(res.trials, indent=1))
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
@@ -324,14 +327,20 @@ def optimize(
     table = Table(title=f"proxy optimisation: {len(res.trials)} trials, objective {exp.search.objective}, "
                         f"{len(exp.agents)} agents × {exp.episodes} episodes × {exp.seconds:g} s, {wall:.0f} s "
                         f"(target: {res.target.label})")
-    for col in ("parameter", "searched", "recovered (best decile)", "known truth", "error", "single best trial"):
+    tied = res.tied
+    recovered = "recovered (best decile)" if tied is None else f"recovered (median of {len(tied.trials)} tied)"
+    for col in ("parameter", "searched", recovered, "tied set [min, max]", "known truth", "error", "single best trial"):
         table.add_column(escape(col), justify="left" if col == "parameter" else "right")  # "[…]" is not markup
     for name, v in res.recovered.items():
         t = res.truth.get(name)
         lo, hi = exp.search.space[name]
-        table.add_row(name, f"[{lo:g}, {hi:g}]", f"{v:.3f}", "–" if t is None else f"{t:g}",
+        span = "–" if tied is None else f"[{tied.spread[name][1]:.3f}, {tied.spread[name][2]:.3f}]"
+        table.add_row(name, f"[{lo:g}, {hi:g}]", f"{v:.3f}", span, "–" if t is None else f"{t:g}",
                       "–" if t is None else f"{v - t:+.3f}", f"{res.best_params[name]:.3f}")
     console.print(table)
+    warning = tied.warning() if tied is not None else None
+    if warning:
+        err_console.print(f"[yellow]warning:[/yellow] {escape(warning)}", highlight=False)
     best = next(t for t in res.trials if t["value"] == res.best_value)
     nf = res.noise_floor
     console.print(f"residual (best objective, the gap no θ in this family closed): {res.best_value:.4f}; its PRPV "

@@ -42,6 +42,9 @@ class Termination(StrEnum):
     AGENT_FAILURE = "agent_failure"
     #: the agent asked for a reset (``state/reset`` of a served DTPS robot, docs/dtps.md)
     RESET = "reset"
+    #: a recorded run whose samples stop before the episode's length, on the road, for a reason its file does not
+    #: say
+    ENDED_EARLY = "ended_early"
     #: a job result only: the robot node failed, so no episode happened (never a trajectory's ending)
     ROBOT_FAILURE = "robot_failure"
 

@@ -16,6 +16,7 @@ True
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
@@ -24,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 __all__ = [
     "DUCKIEBOT_DISTORTION", "DUCKIEBOT_INTRINSICS", "DUCKIEBOT_RGB", "DUCKIE_RGB", "DomainParams", "ParamSpace",
-    "ParamSpaceError",
+    "ParamSpaceError", "bounds_of", "closest_parameter", "describe_params", "unit_of", "unknown_parameter",
 ]
 
 RGB = tuple[float, float, float]
@@ -51,7 +52,10 @@ class DomainParams(BaseModel):
     dynamics: Literal["dynamic", "kinematic"] = Field(
         "dynamic", description="'dynamic': AIDO's first-order velocity model; 'kinematic': wheel speed = PWM × max"
     )
-    trim: float = Field(0.0, ge=-1.0, le=1.0, description="wheel imbalance: right gain (1+trim), left (1-trim) [-]")
+    trim: float = Field(
+        0.0, ge=-1.0, le=1.0,
+        description="wheel imbalance: right wheel gain 1+trim, left 1−trim; positive trim drifts the robot left "
+                    "(counter-clockwise) under equal commands [-]")
     gain: float = Field(1.0, gt=0.0, le=5.0, description="multiplier on both wheel commands [-]")
     v_decay: float = Field(5.0, gt=0.0, description="linear velocity decay a_v [1/s] (dv/dt = -a_v v + b_v (R+L))")
     v_gain: float = Field(1.5, gt=0.0, description="linear input gain b_v [m/s² per unit PWM]")
@@ -114,16 +118,16 @@ class DomainParams(BaseModel):
     vignetting: float = Field(0.0, ge=0.0, le=1.0, description="darkening at the image corners [-]")
     texture_noise: float = Field(0.06, ge=0.0, le=1.0, description="surface grain: texel brightness spread [-]")
     texture_seed: int = Field(0, ge=0, description="seed of the surface texture pattern")
-    road_rgb: RGB = (52.0, 52.0, 56.0)
-    white_rgb: RGB = (235.0, 235.0, 235.0)
-    yellow_rgb: RGB = (240.0, 200.0, 30.0)
-    red_rgb: RGB = (215.0, 35.0, 35.0)
-    grass_rgb: RGB = (70.0, 135.0, 60.0)
-    floor_rgb: RGB = (150.0, 125.0, 100.0)
-    asphalt_rgb: RGB = (90.0, 90.0, 95.0)
-    outside_rgb: RGB = (120.0, 110.0, 100.0)
-    sky_rgb: RGB = (160.0, 190.0, 225.0)
-    horizon_rgb: RGB = (215.0, 220.0, 225.0)
+    road_rgb: RGB = Field((52.0, 52.0, 56.0), description="colour of the asphalt of road tiles [0..255]")
+    white_rgb: RGB = Field((235.0, 235.0, 235.0), description="colour of the white lane markings [0..255]")
+    yellow_rgb: RGB = Field((240.0, 200.0, 30.0), description="colour of the yellow centre line [0..255]")
+    red_rgb: RGB = Field((215.0, 35.0, 35.0), description="colour of the red stop lines [0..255]")
+    grass_rgb: RGB = Field((70.0, 135.0, 60.0), description="colour of the grass tiles [0..255]")
+    floor_rgb: RGB = Field((150.0, 125.0, 100.0), description="colour of the floor tiles [0..255]")
+    asphalt_rgb: RGB = Field((90.0, 90.0, 95.0), description="colour of the asphalt tiles [0..255]")
+    outside_rgb: RGB = Field((120.0, 110.0, 100.0), description="colour of the ground outside the map [0..255]")
+    sky_rgb: RGB = Field((160.0, 190.0, 225.0), description="colour of the sky at the zenith [0..255]")
+    horizon_rgb: RGB = Field((215.0, 220.0, 225.0), description="colour of the sky at the horizon [0..255]")
 
     # --- objects and other road users (the defaults add nothing and change nothing) ---
     duckie_rgb: RGB = Field(DUCKIE_RGB, description="colour of duckies: map objects, extras, pedestrians [0..255]")
@@ -133,6 +137,16 @@ class DomainParams(BaseModel):
     npc_speed_scale: float = Field(
         1.0, ge=0.0, le=3.0, description="multiplies NPC robots' wheel commands and pedestrians' speeds [-]"
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _known_names(cls, data: Any) -> Any:
+        """An unknown name is an error that lists the valid ones (with units) and the likely meant one."""
+        if isinstance(data, Mapping):
+            for name in data:
+                if name not in cls.model_fields:
+                    raise ValueError(unknown_parameter(str(name)))
+        return data
 
     @model_validator(mode="after")
     def _check_rates(self) -> DomainParams:
@@ -176,6 +190,63 @@ class DomainParams(BaseModel):
 STRUCTURAL_FIELDS = ("image_width", "image_height", "physics_rate", "frame_rate")
 
 
+def unit_of(name: str) -> str:
+    """The unit of a θ field: the last ``[...]`` of its description ("" where it states none)."""
+    found = re.findall(r"\[([^\[\]]+)\]", DomainParams.model_fields[name].description or "")
+    return found[-1] if found else ""
+
+
+def bounds_of(name: str) -> tuple[float | None, float | None]:
+    """(lowest, highest) value a θ field accepts (None: unbounded on that side)."""
+    lo = hi = None
+    for m in DomainParams.model_fields[name].metadata:
+        lo = getattr(m, "ge", None) if getattr(m, "ge", None) is not None else getattr(m, "gt", lo)
+        hi = getattr(m, "le", None) if getattr(m, "le", None) is not None else getattr(m, "lt", hi)
+    return lo, hi
+
+
+def describe_params() -> list[dict[str, Any]]:
+    """Every θ field: name, unit, default, accepted range and meaning (``proxybench params`` prints them)."""
+    rows = []
+    for name, f in DomainParams.model_fields.items():
+        lo, hi = bounds_of(name)
+        unit = unit_of(name)
+        desc = (f.description or "").replace(f" [{unit}]", "") if unit else (f.description or "")
+        rows.append({"name": name, "unit": unit, "default": f.default, "low": lo, "high": hi, "description": desc})
+    return rows
+
+
+#: words people use for a θ field that no spelling distance finds
+_SYNONYMS = {"delay": "command_delay", "latency": "command_delay", "blur": "blur_time", "motion_blur": "blur_time",
+             "fov": "camera_fov_y", "width": "image_width", "height": "image_height", "resolution": "image_width",
+             "fps": "frame_rate", "pitch": "camera_pitch", "tilt": "camera_pitch"}
+
+
+def closest_parameter(name: str) -> str | None:
+    """The θ field a misspelled or differently named ``name`` most likely means: one sharing a word with it
+    (``motion_blur`` → ``blur_time``), else the closest spelling; None when nothing is close."""
+    import difflib
+
+    if name.lower() in _SYNONYMS:
+        return _SYNONYMS[name.lower()]
+    names = list(DomainParams.model_fields)
+    words = set(name.lower().split("_"))
+    sharing = [n for n in names if words & set(n.split("_"))]
+    if sharing:
+        return max(sharing, key=lambda n: (len(words & set(n.split("_"))),
+                                           difflib.SequenceMatcher(None, name, n).ratio()))
+    close = difflib.get_close_matches(name, names, n=1, cutoff=0.6)
+    return close[0] if close else None
+
+
+def unknown_parameter(name: str) -> str:
+    """The message for a θ name that does not exist: the likely meant one and every valid name with its unit."""
+    guess = closest_parameter(name)
+    hint = f" (did you mean {guess!r}?)" if guess else ""
+    valid = ", ".join(f"{n} [{unit_of(n)}]" if unit_of(n) else n for n in DomainParams.model_fields)
+    return f"unknown domain parameter {name!r}{hint}; valid: {valid} (`proxybench params` describes each)"
+
+
 class ParamSpaceError(ValueError):
     """A domain family description is invalid; the message names the parameter at fault."""
 
@@ -206,7 +277,7 @@ class ParamSpace:
 
     def _check(self, name: str, spec: Any) -> tuple[str, list[Any]]:
         if name not in DomainParams.model_fields:
-            raise ParamSpaceError(f"unknown domain parameter {name!r}")
+            raise ParamSpaceError(unknown_parameter(name))
         if name in STRUCTURAL_FIELDS:
             raise ParamSpaceError(f"{name!r} is structural (shared by a whole batch) and cannot be randomised")
         if not isinstance(spec, Mapping) or len(spec) != 1:

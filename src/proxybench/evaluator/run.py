@@ -8,10 +8,11 @@ episodes finish; it sends the outcome through a pipe only it holds (``--outcome-
 agent could forge, and dies with its parent. Agent packages run in the sandbox (:mod:`.sandbox`) as
 another user, in their own PID namespace, and see none of the job's folder.
 
-Who is at fault decides the status: :class:`SubmissionFault` (archive refused, agent node crashed, hung
-or misbehaved, privileged agent on a camera-only benchmark) → ``failed``; :class:`HostFault` (this host
-cannot do it: target not compliant, sandbox unusable, benchmark too new for this evaluator, disk full)
-→ ``host-error``; any other exception is a bug of ours → ``error``.
+Before the episodes, the agent checker (:meth:`_Job.agent_contract`) runs on the agent. Who is at fault
+decides the status: :class:`SubmissionFault` (archive refused, agent node crashed, hung or misbehaved, in the
+agent contract or in an episode, privileged agent on a camera-only benchmark) → ``failed``;
+:class:`HostFault` (this host cannot do it: target not compliant, sandbox unusable, benchmark too new for
+this evaluator, disk full) → ``host-error``; any other exception is a bug of ours → ``error``.
 """
 
 from __future__ import annotations
@@ -129,6 +130,43 @@ class _Job:
                 "agent: package %r (%s), command %s, transport %s; sandbox: %s", manifest.name,
                 (sub.archive_sha256 or "")[:12], manifest.command, manifest.transport, isolation.note)
         return spec
+
+    def agent_contract(self, bench, spec) -> None:
+        """The agent checker on the job's agent before its episodes (``proxybench.testing.AgentContract`` on a second
+        of the benchmark's frames). ``commands`` decides: an agent whose answers are not wheel commands (or that
+        fails on the observations the benchmark gives it) would fail every episode, so it is refused here, named,
+        with the node's failure in ``agent_failures`` as an episode's would be (a built-in agent failing it is a
+        bug of ours). The privileged flag's honesty is reported, not enforced (the benchmark's camera-only rule is);
+        determinism and isolation, which cost fresh node starts, are `proxybench agent check`'s."""
+        from proxybench.protocol.failures import AgentFailure
+        from proxybench.testing import AgentContract, ContractReport, StreamSpec
+
+        self.phase = "agent-contract"
+        stream = StreamSpec(map=bench.map, params=bench.domain_params(), seconds=min(1.0, bench.duration))
+        contract = AgentContract.for_spec(spec, stream=stream)
+        report = contract.run(["commands"])
+        if report.ok:  # one node start more at most (a privileged node's), none for a camera-only node
+            more = contract.run(["privileged"]).results
+            report = ContractReport(report.contract, report.subject, report.results + more)
+        self.outcome.public_report["agent_contract"] = report.to_dict()
+        for r in report.results:
+            log.log(logging.INFO if r.passed else logging.WARNING, "agent contract %s", r.line())
+        commands = report.results[0]
+        if commands.passed:
+            return
+        if spec.command is None:
+            raise RuntimeError(f"built-in agent {spec.name!r} fails the agent contract: {commands.reason}")
+        text = f"the agent failed the agent contract before its episodes: commands: {commands.reason}"
+        if isinstance(commands.error, AgentFailure):
+            exc = commands.error
+            self.check_sandbox([exc.stderr_tail])
+            self.outcome.public_report["agent_failures"] = [
+                {"episode": "agent contract", "reason": exc.reason, "message": commands.reason,
+                 "exit_code": exc.exit_code, "stderr_tail": list(exc.stderr_tail)[-20:]}]
+            if exc.stderr_tail:
+                text += "\nlast lines the agent wrote to stderr:\n" + "\n".join("  " + line
+                                                                             for line in exc.stderr_tail[-15:])
+        raise SubmissionFault(text)
 
     # -- running -----------------------------------------------------------------------------------
 
@@ -284,6 +322,7 @@ class _Job:
             kind = self.compliance(bench)
         self.outcome.public_report["domain_kind"] = kind
         spec = self.agent(bench)
+        self.agent_contract(bench, spec)
         public = self.split(bench, spec, "validation", target, kind, hidden=False)
         self.outcome.public_scores = public.scores
         test_seed = self.lease.benchmark.test_seed

@@ -55,6 +55,7 @@ from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP, proxy_
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.targets.manifest import TargetError, format_errors
 from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
+from proxybench.untrusted import problems
 
 __all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "SearchConfig", "load_config",
            "resolve"]
@@ -90,11 +91,10 @@ class ConfigError(TargetError):
 
 
 def _param_name(name: str) -> str:
-    from proxybench.domain.params import DomainParams
+    from proxybench.domain.params import DomainParams, unknown_parameter
 
     if name not in DomainParams.model_fields:
-        close = difflib.get_close_matches(name, list(DomainParams.model_fields), n=1)
-        raise ValueError(f"unknown domain parameter {name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+        raise ValueError(unknown_parameter(name))
     return name
 
 
@@ -224,8 +224,7 @@ class ExperimentConfig(_Strict):
         try:
             proxy_params(self.image_size, self.proxy)
         except ValidationError as exc:
-            bad = "; ".join(f"proxy.{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
-            raise ValueError(bad) from None
+            raise ValueError(problems(exc, "proxy")) from None
         return self
 
 

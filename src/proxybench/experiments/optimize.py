@@ -34,9 +34,32 @@ from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, TargetInfo, by_agent
 from proxybench.tasks.metrics import METRICS
 from proxybench.usefulness.metrics import Estimate, PairedResults, dominance, ppv_value, prpv_value
-from proxybench.usefulness.noise import noise_floor
+from proxybench.usefulness.noise import compare_paired, noise_floor, paired_prpv_samples
 
-__all__ = ["OBJECTIVES", "OptimizeResult", "optimize_proxy", "plot_optimization"]
+__all__ = ["OBJECTIVES", "OptimizeResult", "TiedSet", "optimize_proxy", "plot_optimization", "tied_set"]
+
+
+@dataclass(frozen=True)
+class TiedSet:
+    """The trials the data cannot tell from the best one, and what θ they span.
+
+    A trial is tied with the best when the paired interval of ΔPRPV (the same target episodes resampled in
+    both) contains 0. ``spread``: per parameter, (median, min, max) over the tied set: a summary that does
+    not depend on the order trials ran in (the mean of "the first few at the best value" did).
+    """
+
+    trials: tuple[int, ...]  # trial numbers, the best first
+    spread: dict[str, tuple[float, float, float]]
+    separated: bool  # the best trial is separated from every other one
+
+    def warning(self) -> str | None:
+        """What to tell the user when the best θ is not one θ but a set."""
+        if self.separated:
+            return None
+        ranges = "; ".join(f"{k} {lo:.4g} … {hi:.4g}" for k, (_, lo, hi) in self.spread.items())
+        return (f"the best trial is not separated from {len(self.trials) - 1} other(s) (paired 95 % intervals of "
+                f"ΔPRPV contain 0): the data support θ anywhere in {ranges}; more target episodes narrow it "
+                f"(`proxybench plan`)")
 
 
 @dataclass
@@ -44,8 +67,9 @@ class OptimizeResult:
     """θ* and its objective value (the residual gap), the known truth beside it (if any), and the study.
 
     Each trial's objective is itself an estimate from a few episodes per agent, so the single best trial
-    is partly luck; ``recovered`` is the mean θ of the best decile of trials (at least 3), a consensus
-    that the noise of one evaluation cannot drag away. ``best_params`` is the single best trial.
+    is partly luck. ``tied``: the trials the data cannot tell from the best (objective prpv), with their
+    spread per parameter; ``recovered`` is the median θ of that tied set (for the other objectives, the
+    mean θ of the best decile, at least 3 trials). ``best_params`` is the single best trial.
     ``noise_floor``: PRPV of the target against a replicate of itself (the PRPV no proxy can beat
     reliably with this many episodes).
     """
@@ -60,6 +84,7 @@ class OptimizeResult:
     experiment: Experiment | None = None
     noise_floor: Estimate | None = None
     target_episodes_run: int = 0
+    tied: TiedSet | None = None
 
     def errors(self) -> dict[str, float]:
         return {k: v - self.truth[k] for k, v in self.recovered.items() if k in self.truth}
@@ -70,6 +95,24 @@ def best_decile(trials: list[dict[str, Any]], names: list[str]) -> dict[str, flo
     ranked = sorted((t for t in trials if t.get("value") is not None), key=lambda t: t["value"])
     top = ranked[: max(3, len(ranked) // 10)]
     return {n: float(np.mean([t[n] for t in top])) for n in names} if top else {}
+
+
+def tied_set(trials: list[dict[str, Any]], proxies: dict[int, Mapping[str, np.ndarray]],
+             target: Mapping[str, np.ndarray], higher: tuple[bool, ...], names: list[str], *, n_boot: int,
+             seed: int) -> TiedSet:
+    """The trials whose PRPV is not separated from the best trial's (paired intervals of ΔPRPV)."""
+    done = sorted((t for t in trials if t.get("prpv") is not None and t["number"] in proxies),
+                  key=lambda t: (t["prpv"], t["number"]))
+    if not done:
+        return TiedSet((), {}, True)
+    samples = paired_prpv_samples(target, [proxies[t["number"]] for t in done], higher, n_boot=n_boot, seed=seed)
+    labels = [str(t["number"]) for t in done]
+    points = [float(t["prpv"]) for t in done]
+    tied = [0] + [j for j in range(1, len(done)) if not compare_paired(labels, points, samples, 0, j).separated]
+    members = [done[j] for j in tied]
+    spread = {n: (float(np.median([m[n] for m in members])), float(min(m[n] for m in members)),
+                  float(max(m[n] for m in members))) for n in names}
+    return TiedSet(tuple(int(m["number"]) for m in members), spread, len(members) == 1)
 
 
 def _objective_value(kind: str, proxy: Mapping[str, np.ndarray], target: Mapping[str, np.ndarray],
@@ -131,13 +174,17 @@ def optimize_proxy(
                      progress=target_progress)
     space = exp.search.space
 
-    def objective(trial) -> float:
-        theta = {name: trial.suggest_int(name, int(lo), int(hi)) if _is_count(name)
-                 else trial.suggest_float(name, lo, hi) for name, (lo, hi) in space.items()}  # counts are ints
+    def proxy_of(theta: dict[str, Any]) -> dict[str, np.ndarray]:
+        """The proxy's per-agent results at θ (run, or read from the run directory's cache)."""
         params = proxy_params(exp.image_size, exp.proxy, **theta)
         dom = DomainSpec("proxy " + " ".join(f"{k}={v:.4g}" for k, v in theta.items()), params)
         jobs = proxy_jobs(exp, tgt, dom)
-        proxy = by_agent(jobs, run_jobs(jobs, run_dir, backend).results, exp.metrics)
+        return by_agent(jobs, run_jobs(jobs, run_dir, backend).results, exp.metrics)
+
+    def objective(trial) -> float:
+        theta = {name: trial.suggest_int(name, int(lo), int(hi)) if _is_count(name)
+                 else trial.suggest_float(name, lo, hi) for name, (lo, hi) in space.items()}  # counts are ints
+        proxy = proxy_of(theta)
         value, parts = _objective_value(exp.search.objective, proxy, tgt.results, higher)
         for k, v in parts.items():
             trial.set_user_attr(k, v)
@@ -158,8 +205,14 @@ def optimize_proxy(
     known = {**tgt.truth, **exp.truth}
     truth = {k: float(known[k]) for k in space if k in known}
     floor = noise_floor(tgt.results, higher, n_boot=exp.n_boot, seed=exp.seed)
+    tied = None
+    recovered = best_decile(trials, list(space))
+    if exp.search.objective == "prpv":  # the trials' proxies again: each from the cache of its episodes
+        proxies = {t["number"]: proxy_of({n: t[n] for n in space}) for t in trials}
+        tied = tied_set(trials, proxies, tgt.results, higher, list(space), n_boot=exp.n_boot, seed=exp.seed)
+        recovered = {n: med for n, (med, _, _) in tied.spread.items()}
     return OptimizeResult(dict(study.best_params), float(study.best_value), truth, study, trials,
-                          best_decile(trials, list(space)), tgt.info, exp, floor, tgt.ran)
+                          recovered, tgt.info, exp, floor, tgt.ran, tied)
 
 
 def plot_optimization(res: OptimizeResult, out: str | Path) -> list[Path]:
@@ -193,8 +246,11 @@ def plot_optimization(res: OptimizeResult, out: str | Path) -> list[Path]:
                             label="trial (colour: trial number)")
         if name in res.truth:
             ax.axvline(res.truth[name], color="tab:red", ls="--", lw=1, label="known truth (not used by the search)")
+        if res.tied is not None and name in res.tied.spread:
+            _, lo, hi = res.tied.spread[name]
+            ax.axvspan(lo, hi, color="0.6", alpha=0.25, lw=0, label="tied with the best (paired 95 %)")
         ax.axvline(res.recovered.get(name, res.best_params[name]), color="k", ls=":", lw=1,
-                   label="recovered (best decile)")
+                   label="recovered (tied-set median)" if res.tied is not None else "recovered (best decile)")
         ax.set_xlabel(param_label(name))
         ax.set_ylabel(ylabel)
         ax.legend(fontsize=7)

@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 
 from proxybench.domain.kinds import DomainKind
+from proxybench.domain.maps import load_map
+from proxybench.experiments.baselines import NOMINAL, baseline_tables, baselines, diagnose
 from proxybench.experiments.config import Experiment, ExperimentConfig, resolve
 from proxybench.experiments.pod import pod
 from proxybench.experiments.proxies import proxy_params
@@ -29,6 +31,7 @@ from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, TargetRun, by_agent
 from proxybench.tasks.metrics import METRICS
 from proxybench.usefulness.agent_sets import means_of, order_structure, sensitivity
+from proxybench.usefulness.diagnosis import PairDisagreement
 from proxybench.usefulness.intervals import Usefulness, usefulness
 from proxybench.usefulness.metrics import Estimate, PairedResults, agent_means
 from proxybench.usefulness.noise import compare_paired, lowest_claim, noise_floor, paired_prpv_samples, ppv_noise_floor
@@ -64,6 +67,8 @@ class PredictivityResult:
     ppv_noise: Estimate | None = None  # PPV of the target against a replicate of itself
     agent_sensitivity: dict[str, Any] = field(default_factory=dict)  # parameter → agent_sets.AgentSensitivity
     order: dict[str, float] = field(default_factory=dict)  # agent_sets.order_structure of the target
+    baselines: dict[str, Usefulness] = field(default_factory=dict)  # experiments.baselines: no tuning, no simulator
+    diagnosis: dict[str, list[PairDisagreement]] = field(default_factory=dict)  # predictor → pairs it orders wrong
 
     def notes(self) -> list[str]:
         """Every distinct note of the usefulness figures (constant metrics, missing values, PPV scales)."""
@@ -122,7 +127,8 @@ def run_predictivity(
                      metrics=exp.metrics, image_size=exp.image_size, run_dir=run_dir, backend=backend,
                      progress=progress)
     domains = proxy_domains(exp)
-    jobs = [j for _, _, d in domains for j in proxy_jobs(exp, tgt, d)]
+    nominal = DomainSpec(NOMINAL, proxy_params(exp.image_size, exp.proxy))  # cached if swept
+    jobs = [j for _, _, d in domains for j in proxy_jobs(exp, tgt, d)] + proxy_jobs(exp, tgt, nominal)
     sweep = run_jobs(jobs, run_dir, backend,
                      progress=(lambda done, total, _r: progress("proxy episodes", done, total)) if progress else None)
     by_domain: dict[str, tuple[list[Job], list[JobResult]]] = {}
@@ -155,9 +161,14 @@ def run_predictivity(
     means = agent_means(tgt.results, list(tgt.results))
     target_scores = {a: dict(zip(exp.metrics, means[i].tolist(), strict=True)) for i, a in enumerate(tgt.results)}
     caps = [tgt.seconds if m in ("survival_time", "lane_score") else None for m in exp.metrics]
+    base = baselines(tgt, proxies[NOMINAL], higher, exp.metrics, n_boot=exp.n_boot, seed=exp.seed)
+    best = min(rows, key=lambda r: r["prpv"])["domain"]
+    size = load_map(tgt.map).size_m
+    diagnosis = diagnose({f"best proxy ({best})": proxies[best], **baseline_tables(tgt, proxies[NOMINAL], higher)},
+                         tgt, higher, exp.metrics, size)
     return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran, details, ppv_floor,
                               _agent_sensitivity(exp, domains, proxies, tgt, higher),
-                              order_structure(tgt.results, higher, caps))
+                              order_structure(tgt.results, higher, caps), base, diagnosis)
 
 
 def _agent_sensitivity(exp: Experiment, domains, proxies, tgt: TargetRun, higher) -> dict[str, Any]:

@@ -23,7 +23,7 @@ from proxybench.runner.npcs import NpcDrivers
 from proxybench.runner.rollout import AgentPolicy, PrivilegedAgentError, rollout
 from proxybench.tasks.trajectory import Event, Trajectory
 
-__all__ = ["PrivilegedAgentError", "SimPlant", "run_episode", "run_episodes", "sim_plant"]
+__all__ = ["PrivilegedAgentError", "SimPlant", "play", "run_episode", "run_episodes", "sim_plant"]
 
 _NO_ROBOTS = np.zeros((0, 3))
 
@@ -138,12 +138,22 @@ class SimPlant:
             self.drivers = None
 
 
-def sim_plant(map_: Map | str, params: DomainParams | None = None) -> SimPlant:
-    """A plant of one simulated robot on ``map_`` whose camera frames are what camera agents see (the JPEG round
-    trip): for servers of the simulator that drive it from outside the runner (``proxybench dtps serve``)."""
+def sim_plant(map_: Map | str, params: DomainParams | None = None, n: int = 1) -> SimPlant:
+    """A plant of ``n`` simulated robots on ``map_`` whose camera frames are what camera agents see (the JPEG round
+    trip): for callers that drive the simulator from outside the runner, which build no simulator of their own
+    (``proxybench dtps serve``, the contract suites of ``proxybench.testing``)."""
     from proxybench.runner.outcomes import camera_filter
 
-    return SimPlant(Simulator(map_, params or DomainParams()), camera_filter())
+    return SimPlant(Simulator(map_, params or DomainParams(), n=n), camera_filter())
+
+
+def play(map_: Map | str, params: DomainParams, agent: Agent, seed: int, seconds: float) -> Trajectory:
+    """One episode of ``agent`` in a fresh simulator of θ ``params``, camera frames as a node receives them (JPEG),
+    e.g. to try an agent out (``proxybench agent check``)."""
+    from proxybench.runner.outcomes import camera_filter
+
+    return run_episode(Simulator(map_, params), agent, seed, seconds, camera=not agent.privileged,
+                       image_filter=camera_filter())
 
 
 def run_episode(

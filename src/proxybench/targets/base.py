@@ -6,7 +6,7 @@ these types; :func:`~.spec.open_target` picks the kind a user's text names.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,9 +16,10 @@ import numpy as np
 from proxybench.domain.kinds import DomainKind
 from proxybench.domain.params import DomainParams
 from proxybench.runner.backends import Backend
-from proxybench.runner.jobs import AgentSpec, Job, JobResult
+from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
 
-__all__ = ["Progress", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "by_agent", "episode_seed"]
+__all__ = ["Episodes", "Progress", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "by_agent", "episode_ids",
+           "episode_seed", "live_run"]
 
 Progress = Callable[[str, int, int], None]
 
@@ -63,6 +64,7 @@ class TargetRun:
     truth: dict[str, float] = field(default_factory=dict)
     params: DomainParams | None = None  # θ of a simulated target when known (POD needs it)
     ran: int = 0  # episodes simulated or driven now (not cached, not read from files)
+    files: dict[tuple[str, int], str] = field(default_factory=dict)  # (agent, episode) → its trajectory file
 
     def episodes_of(self, agent: str) -> list[TargetEpisode]:
         return [e for e in self.episodes if e.agent == agent]
@@ -81,10 +83,45 @@ class Target:
     def info(self) -> TargetInfo:
         raise NotImplementedError
 
-    def run(self, agents: list[AgentSpec], *, map_name: str, seconds: float, episodes: int, seed: int,
+    def run(self, agents: list[AgentSpec], *, map_name: str, seconds: float, episodes: Episodes, seed: int,
             metrics: tuple[str, ...], image_size: tuple[int, int], run_dir: str | Path,
             backend: Backend | None = None, progress: Progress | None = None) -> TargetRun:
+        """The target's episodes of ``agents``: ``episodes`` is a count (ids 0 … n−1) or the ids themselves
+        (e.g. a held-out split ``5-9``); episode id e of a live target starts from ``episode_seed(seed, e)``."""
         raise NotImplementedError
+
+
+#: which episodes: the first n ids, or these ids
+Episodes = int | Sequence[int]
+
+
+def episode_ids(episodes: Episodes) -> list[int]:
+    """The ids ``episodes`` names: 0 … n−1 for a count, else the ids as given."""
+    return list(range(episodes)) if isinstance(episodes, int) else [int(e) for e in episodes]
+
+
+def live_run(target: Target, dom: DomainSpec, agents: list[AgentSpec], *, map_name: str, seconds: float,
+             episodes: Episodes, seed: int, metrics: tuple[str, ...], run_dir: str | Path,
+             backend: Backend | None, progress: Progress | None, stage: str = "target episodes"
+             ) -> tuple[TargetRun, Any]:
+    """The episodes of a target the runner plays (reality model, held-out model, robot node), through its jobs and
+    cache: (the run, the sweep behind it). Every agent plays every id, from the start pose its seed draws."""
+    from proxybench.runner.backends import InlineBackend
+    from proxybench.runner.starts import start_poses
+    from proxybench.runner.sweep import run_jobs
+
+    ids = episode_ids(episodes)
+    seeds = {e: episode_seed(seed, e) for e in ids}
+    poses = dict(zip(ids, start_poses(map_name, [seeds[e] for e in ids]), strict=True))
+    eps = [TargetEpisode(a.label, e, seeds[e], poses[e]) for a in agents for e in ids]
+    jobs = [Job(a, dom, map_name, e, seeds[e], seconds, pose=poses[e], metrics=metrics) for a in agents for e in ids]
+    sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
+                     progress=(lambda d, t, _r: progress(stage, d, t)) if progress else None)
+    files = {(j.agent.label, j.episode): r.trajectory for j, r in zip(jobs, sweep.results, strict=True)
+             if r.trajectory}
+    run = TargetRun(target.info(), map_name, seconds, metrics, eps, by_agent(jobs, sweep.results, metrics),
+                    params=dom.params, ran=sweep.ran, files=files)
+    return run, sweep
 
 
 def by_agent(jobs: list[Job], results: list[JobResult], metrics: tuple[str, ...]) -> dict[str, np.ndarray]:

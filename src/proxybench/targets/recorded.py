@@ -18,13 +18,14 @@ off the map, a file recorded on another map, unknown metrics. :func:`check_recor
 from __future__ import annotations
 
 import difflib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from proxybench.domain.events import Termination
+from proxybench.domain.events import Event, Termination
 from proxybench.targets.manifest import TargetError, TargetManifest, load_manifest
 
 __all__ = ["CheckReport", "RecordedEpisode", "Recording", "check_recording", "load_recording", "resolve_map"]
@@ -80,18 +81,40 @@ class Recording:
     def agents(self) -> list[str]:
         return list(self.manifest.agents)
 
-    def select(self, agents: list[str], n_episodes: int | None) -> list[RecordedEpisode]:
-        """Episodes of ``agents`` (each must be recorded), the first ``n_episodes`` ids of the manifest."""
+    def select(self, agents: list[str], episodes: int | Sequence[int] | None) -> list[RecordedEpisode]:
+        """Episodes of ``agents`` (each must be recorded): the first ``episodes`` ids of the manifest (a count),
+        those ids (a list: a fit / held-out split of one recording), or all (None)."""
         missing = [a for a in agents if a not in self.manifest.agents]
         if missing:
             raise TargetError(f"{self.root}: agent(s) {', '.join(map(repr, missing))} not in the recording "
                               f"(it has {', '.join(self.manifest.agents)})")
-        ids = self.manifest.episodes
-        if n_episodes is not None:
-            if n_episodes > len(ids):
-                raise TargetError(f"episodes: {n_episodes} asked, the recording at {self.root} has {len(ids)}")
-            ids = ids[:n_episodes]
+        ids = list(self.manifest.episodes)
+        if isinstance(episodes, int):
+            if episodes > len(ids):
+                raise TargetError(f"episodes: {episodes} asked, the recording at {self.root} has {len(ids)}")
+            ids = ids[:episodes]
+        elif episodes is not None:
+            absent = [e for e in episodes if e not in ids]
+            if absent:
+                raise TargetError(f"episodes: {', '.join(map(str, absent))} not in the recording at {self.root} (it "
+                                  f"has {_id_ranges(ids)})")
+            ids = list(episodes)
         return [self.episodes[(a, e)] for a in agents for e in ids]
+
+
+def _id_ranges(ids: Sequence[int]) -> str:
+    """Episode ids written as ranges: 0-4, 7."""
+    out, run = [], []
+    for e in sorted(ids):
+        if run and e == run[-1] + 1:
+            run.append(e)
+            continue
+        if run:
+            out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+        run = [e]
+    if run:
+        out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+    return ", ".join(out)
 
 
 def resolve_map(root: Path, name: str) -> str:
@@ -212,12 +235,32 @@ def _load_trajectory(root: Path, manifest: TargetManifest, m, agent: str, episod
     except TrajectoryError as exc:
         return None, [str(exc)], notes
     traj.meta["episode_seconds"] = manifest.seconds
+    if traj.termination is Termination.TIMEOUT:
+        _mark_early_end(traj, manifest.seconds, m)
     if traj.duration > manifest.seconds + 0.5:
         notes.append(f"{path}: {traj.duration:.1f} s long, longer than the manifest's seconds ({manifest.seconds:g}); "
                      "survival_time is capped there")
     seed = int(meta.get("seed", manifest.seed * 10_000 + episode))
     scores = {name: METRICS[name](traj) for name in metrics}
     return RecordedEpisode(agent, episode, seed, pose0, str(path), scores, traj.termination, traj.duration), [], notes
+
+
+def _mark_early_end(traj, seconds: float, m) -> None:
+    """An imported run whose samples stop before the episode's length ended early: off the road when its last
+    pose is off the drivable tiles (the simulator's rule), else for a reason the file does not say."""
+    t = traj["t"]
+    step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    if seconds - traj.duration <= max(2 * step, 0.1):  # the recording runs to the end (within a sample or two)
+        return
+    x, y = float(traj["x"][-1]), float(traj["y"][-1])
+    tile = m.tile_at(x, y)
+    if tile is None or not tile.drivable:
+        kind, why = Termination.OFF_ROAD, f"its last pose ({x:.2f}, {y:.2f}) m is off the road"
+    else:
+        kind, why = Termination.ENDED_EARLY, "the file does not say why"
+    traj.termination = kind
+    traj.events.append(Event(traj.duration, kind, f"the recording ends at {traj.duration:.2f} s of {seconds:g} s; "
+                                                  f"{why}"))
 
 
 def _metric_problem(name: str) -> str | None:

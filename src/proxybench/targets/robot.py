@@ -13,11 +13,8 @@ from __future__ import annotations
 from proxybench.domain.events import Termination
 from proxybench.domain.kinds import DomainKind
 from proxybench.protocol.options import RobotNodeOptions
-from proxybench.runner.backends import InlineBackend
-from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec, Job
-from proxybench.runner.starts import start_poses
-from proxybench.runner.sweep import run_jobs
-from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, by_agent, episode_seed
+from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec
+from proxybench.targets.base import Target, TargetInfo, TargetRun, live_run
 from proxybench.targets.manifest import TargetError
 
 __all__ = ["RobotTarget"]
@@ -56,22 +53,18 @@ class RobotTarget(Target):
 
     def run(self, agents, *, map_name, seconds, episodes, seed, metrics, image_size, run_dir, backend=None,
             progress=None) -> TargetRun:
-        seeds = [episode_seed(seed, e) for e in range(episodes)]
-        poses = start_poses(map_name, seeds)
-        dom = self.domain()
-        eps = [TargetEpisode(a.label, e, seeds[e], poses[e]) for a in agents for e in range(episodes)]
-        jobs = [Job(a, dom, map_name, e, seeds[e], seconds, pose=poses[e], metrics=metrics)
-                for a in agents for e in range(episodes)]
-        sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
-                         progress=(lambda d, t, _r: progress("target episodes (robot)", d, t)) if progress else None)
+        run, sweep = live_run(self, self.domain(), agents, map_name=map_name, seconds=seconds, episodes=episodes,
+                              seed=seed, metrics=metrics, run_dir=run_dir, backend=backend, progress=progress,
+                              stage="target episodes (robot)")
         failed = [r for r in sweep.results if r.termination is Termination.ROBOT_FAILURE]
         if failed:
             shown = "\n  ".join(f"{r.agent} episode {r.episode}: {r.message}" for r in failed[:5])
-            raise TargetError(f"target: the robot node `{self.command}` failed on {len(failed)} of {len(jobs)} "
-                              f"episode(s); finished episodes are cached, run again to retry the rest:\n  {shown}")
+            raise TargetError(f"target: the robot node `{self.command}` failed on {len(failed)} of "
+                              f"{len(sweep.results)} episode(s); finished episodes are cached, run again to retry the "
+                              f"rest:\n  {shown}")
         self._said = _robot_kind(sweep.results)
-        return TargetRun(self.info(), map_name, seconds, metrics, eps, by_agent(jobs, sweep.results, metrics),
-                         {}, None, sweep.ran)
+        run.info = self.info()
+        return run
 
 
 def _robot_kind(results) -> str:

@@ -22,11 +22,8 @@ import numpy as np
 
 from proxybench.domain.kinds import DomainKind
 from proxybench.domain.params import DomainParams
-from proxybench.runner.backends import InlineBackend
-from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec, Job
-from proxybench.runner.starts import start_poses
-from proxybench.runner.sweep import run_jobs
-from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, by_agent, episode_seed
+from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec
+from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, episode_seed, live_run
 from proxybench.targets.manifest import TargetError, TargetManifest
 
 __all__ = ["RealityTarget", "RecordedTarget", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "episode_seed",
@@ -43,16 +40,10 @@ class _LiveTarget(Target):
 
     def run(self, agents, *, map_name, seconds, episodes, seed, metrics, image_size, run_dir, backend=None,
             progress=None) -> TargetRun:
-        seeds = [episode_seed(seed, e) for e in range(episodes)]
-        poses = start_poses(map_name, seeds)
-        dom = self.domain(image_size)
-        eps = [TargetEpisode(a.label, e, seeds[e], poses[e]) for a in agents for e in range(episodes)]
-        jobs = [Job(a, dom, map_name, e, seeds[e], seconds, pose=poses[e], metrics=metrics)
-                for a in agents for e in range(episodes)]
-        sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
-                         progress=(lambda d, t, _r: progress("target episodes", d, t)) if progress else None)
-        return TargetRun(self.info(), map_name, seconds, metrics, eps, by_agent(jobs, sweep.results, metrics),
-                         self.truth(), dom.params, sweep.ran)
+        run, _ = live_run(self, self.domain(image_size), agents, map_name=map_name, seconds=seconds, episodes=episodes,
+                          seed=seed, metrics=metrics, run_dir=run_dir, backend=backend, progress=progress)
+        run.truth = self.truth()
+        return run
 
 
 class RealityTarget(_LiveTarget):
@@ -64,13 +55,13 @@ class RealityTarget(_LiveTarget):
         from pydantic import ValidationError
 
         from proxybench.domain.reality import reality_params
+        from proxybench.untrusted import problems
 
         self.overrides = dict(overrides or {})
         try:
             reality_params(**self.overrides)
         except ValidationError as exc:
-            bad = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
-            raise TargetError(f"target_params: {bad}") from None
+            raise TargetError(problems(exc, "target_params")) from None
 
     def domain(self, image_size: tuple[int, int]) -> DomainSpec:
         from proxybench.domain.reality import reality_params
@@ -149,7 +140,8 @@ class RecordedTarget(Target):
         m = self.manifest
         params = _recorded_theta(m) if m.domain_kind is DomainKind.REALITY_MODEL else None
         return TargetRun(self.info(), resolve_map(self.root, m.map), m.seconds, metrics, eps,
-                         {a: np.asarray(v, dtype=float) for a, v in results.items()}, dict(m.truth or {}), params, 0)
+                         {a: np.asarray(v, dtype=float) for a, v in results.items()}, dict(m.truth or {}), params, 0,
+                         {(e.agent, e.episode): e.file for e in chosen if e.file})
 
 
 def _recorded_theta(m: TargetManifest) -> DomainParams | None:

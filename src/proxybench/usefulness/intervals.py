@@ -6,8 +6,10 @@ both domains (paired), separately for each agent (stratified), with ``scipy.stat
 
 - **Smooth figures** — PPV (per agent, mean, sum), Pearson's r, Spearman's ρ, Kendall's τ, MMRV — get
   BCa intervals. Where BCa cannot be computed (a degenerate distribution, e.g. a metric every episode
-  caps at the same value, or replicates in which a figure is undefined) the percentile interval over the
-  replicates that define it is used instead, and ``Estimate.method`` says so.
+  caps at the same value, or replicates in which a figure is undefined), or where its bias correction is
+  so extreme that the interval misses its own estimate (near-degenerate resamples), the percentile
+  interval over the replicates that define it is used instead, and ``Estimate.method`` says so. Every
+  reported interval contains its estimate.
 - **PRPV** is a step function of the signs of mean differences. Its plug-in value is biased upward by
   noise (a near tie flips at random), and a bootstrap replicate adds that noise once more — why percentile
   intervals could lie wholly above their own point value ("6.0 [8.0, 35.0]") and covered the true PRPV of
@@ -135,18 +137,45 @@ def paired_bootstrap(pr: PairedResults, statistic: Callable[[np.ndarray, np.ndar
     pairing = "paired" if pr.paired else "unpaired"
     method = [f"BCa, {pairing}"] * len(point)
     for j in range(len(point)):
-        finite = reps[j][np.isfinite(reps[j])]
-        if np.isfinite(low[j]) and np.isfinite(high[j]) and finite.size == reps.shape[1]:
-            continue
-        if finite.size:
-            low[j], high[j] = np.percentile(finite, [100 * (1 - level) / 2, 100 * (1 + level) / 2])
-            missing = reps.shape[1] - finite.size
-            method[j] = f"percentile, {pairing}" + (f" ({missing} of {reps.shape[1]} resamples undefined)"
-                                                    if missing else " (BCa undefined)")
-        else:
-            low[j] = high[j] = np.nan
-            method[j] = "none (undefined in every resample)"
+        method[j], low[j], high[j] = _checked(point[j], low[j], high[j], reps[j], level, pairing)
     return Bootstrap(point, low, high, method, reps)
+
+
+def _contains(point: float, low: float, high: float) -> bool:
+    tol = 1e-9 * max(1.0, abs(point))
+    return bool(low - tol <= point <= high + tol)
+
+
+def _checked(point: float, low: float, high: float, reps: np.ndarray, level: float,
+             pairing: str) -> tuple[str, float, float]:
+    """(method, low, high) of one output: BCa where it is defined and contains its own estimate, else the
+    percentile interval, saying why.
+
+    BCa corrects for bias with z0 = Φ⁻¹(share of replicates below the estimate). On near-degenerate
+    resamples (many tied or capped values, a correlation at ±1) almost every replicate lies on one side
+    of the estimate, z0 is extreme and the corrected interval can miss the estimate it belongs to (seen:
+    PPV "1.63 [1.57, 1.62]"). Such an interval is not reported; where even the percentile interval misses
+    the estimate (every replicate on one side), it is widened to the estimate and says so.
+    """
+    finite = reps[np.isfinite(reps)]
+    if not finite.size:
+        return "none (undefined in every resample)", np.nan, np.nan
+    missing = reps.size - finite.size
+    if np.isfinite(low) and np.isfinite(high) and not missing and _contains(point, low, high):
+        return f"BCa, {pairing}", low, high
+    low, high = np.percentile(finite, [100 * (1 - level) / 2, 100 * (1 + level) / 2])
+    if missing:
+        why = f"{missing} of {reps.size} resamples undefined"
+    elif not (np.isfinite(low) and np.isfinite(high)) or np.ptp(finite) == 0:
+        why = "BCa undefined"
+    else:
+        below = float(np.mean(finite < point))
+        why = f"BCa excluded its estimate: {100 * below:.0f} % of resamples below it"
+    method = f"percentile, {pairing} ({why})"
+    if np.isfinite(point) and not _contains(point, low, high):
+        low, high = min(low, point), max(high, point)
+        method += "; widened to the estimate, which lies beyond every resample it should centre"
+    return method, float(low), float(high)
 
 
 def sign_sets(point: np.ndarray, replicates: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:

@@ -126,7 +126,12 @@ def compare_paired(labels: Sequence[str], points: Sequence[float], samples: np.n
                    level: float = 0.95) -> PairedComparison:
     """Paired comparison of entries ``a`` and ``b`` of :func:`paired_prpv_samples`' columns."""
     lo, hi = _level(samples[:, a] - samples[:, b], level)
-    return PairedComparison(labels[a], labels[b], Estimate(float(points[a] - points[b]), lo, hi))
+    delta = float(points[a] - points[b])
+    method = "percentile of paired resamples"
+    if np.isfinite(delta) and np.isfinite(lo) and not lo <= delta <= hi:  # a plug-in PRPV is biased by noise
+        lo, hi = min(lo, delta), max(hi, delta)
+        method += "; widened to the estimate, which lies beyond the resamples"
+    return PairedComparison(labels[a], labels[b], Estimate(delta, lo, hi, method))
 
 
 def lowest_claim(labels: Sequence[str], points: Sequence[float], samples: np.ndarray,

@@ -19,7 +19,8 @@ import numpy as np
 
 from proxybench import __version__
 from proxybench.experiments.heldout_analysis import HeldOutResult
-from proxybench.experiments.reports.predictivity import THESIS, pyplot, save_figure, source_commit
+from proxybench.experiments.reports.common import pyplot, save_figure, source_commit
+from proxybench.experiments.reports.predictivity import THESIS
 
 __all__ = ["findings", "write_heldout_report"]
 

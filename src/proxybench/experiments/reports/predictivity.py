@@ -10,7 +10,6 @@ from __future__ import annotations
 import base64
 import html
 import json
-import subprocess
 import time
 from pathlib import Path
 
@@ -19,6 +18,15 @@ import numpy as np
 from proxybench import __version__
 from proxybench.experiments.predictivity import PredictivityResult
 from proxybench.experiments.proxies import param_label
+from proxybench.experiments.reports.common import pyplot, save_figure, source_commit
+from proxybench.experiments.reports.diagnosis import (
+    baseline_findings,
+    baselines_html,
+    diagnosis_csv,
+    diagnosis_findings,
+    diagnosis_html,
+    figure_pairs,
+)
 
 __all__ = ["DEFINITIONS", "THESIS", "agent_set_findings", "episodes_statement", "findings", "noise_statement",
            "plot_plan", "ppv_agent_frame", "pyplot", "save_figure", "source_commit", "write_report"]
@@ -75,28 +83,8 @@ DEFINITIONS = (
 )
 
 
-def source_commit() -> str:
-    """The git commit of the proxybench sources in use (``+dirty`` with local changes), or why it is unknown."""
-    here = Path(__file__).resolve().parent
-    try:
-        rev = subprocess.run(["git", "-C", str(here), "rev-parse", "--short=12", "HEAD"], capture_output=True,
-                             text=True, timeout=5)
-        if rev.returncode != 0:
-            return "unknown (not a git checkout)"
-        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=5)
-        return rev.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
-    except (OSError, subprocess.SubprocessError):
-        return "unknown (git not available)"
 
 
-def pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _main_parameter(res: PredictivityResult) -> str:
@@ -177,13 +165,6 @@ def _short(text: str, width: int) -> str:
     return textwrap.shorten(text, max(width, 60), placeholder=" …")
 
 
-def save_figure(fig, path: Path) -> Path:
-    """PNG at 110 dpi and SVG beside it (the reports embed the PNG; the SVG is for papers)."""
-    plt = pyplot()
-    fig.savefig(path, dpi=110)
-    fig.savefig(path.with_suffix(".svg"))
-    plt.close(fig)
-    return path
 
 
 def _fmt(v: float) -> str:
@@ -279,6 +260,8 @@ def findings(res: PredictivityResult) -> list[str]:
                      else f"is smallest at {_fmt(claim.best)} ({low:.1f})")
             out.append(f"{name}: PRPV {where}, but the paired intervals do not separate the minimum from its "
                        f"neighbours; values the data cannot tell apart from it: {plausible}{known}.")
+    out.extend(baseline_findings(res))
+    out.extend(diagnosis_findings(res))
     out.extend(agent_set_findings(res))
     main = _main_parameter(res)
     d = df[df.parameter == main].sort_values("value")
@@ -373,6 +356,15 @@ def _compact_table(res: PredictivityResult) -> str:
     return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>")
 
 
+def _diagnosis_section(res: PredictivityResult, files: dict[str, Path]) -> str:
+    if not res.diagnosis:
+        return ""
+    return (f"<h2>Which pairs of agents each predictor orders differently from the target</h2>"
+            f"<p>Start directions: whether an episode's start faces clockwise or counter-clockwise around the map's "
+            f"centre; a pair listed under one of them is ordered differently there.</p>{diagnosis_html(res)}"
+            f"{_img(files['pairs'], 'per-pair disagreements')}")
+
+
 def write_report(res: PredictivityResult, out: str | Path, wall_s: float | None = None) -> dict[str, Path]:
     """PNG + SVG figures, CSV + Parquet tables and one self-contained ``report.html`` in ``out``."""
     out = Path(out)
@@ -386,6 +378,9 @@ def write_report(res: PredictivityResult, out: str | Path, wall_s: float | None 
         "ppv_agents": out / "ppv_agents.csv",
         "html": out / "report.html",
     }
+    if res.diagnosis:
+        files["pairs"] = figure_pairs(res, out / "pairs.png")
+        files["diagnosis"] = diagnosis_csv(res, out / "diagnosis.csv")
     df.to_csv(files["csv"], index=False)
     df.to_parquet(files["parquet"], index=False)
     per_agent = ppv_agent_frame(res)
@@ -415,6 +410,7 @@ resamples (95% intervals){f"; wall time {wall_s:.0f} s" if wall_s else ""}.</p>
 <h2>Findings</h2><p><small>PRPV, PPV, SRCC, POD, noise floor: <a href="#definitions">definitions and
 ranges below</a>.</small></p><ul>{"".join(f"<li>{_code(html.escape(f))}</li>" for f in findings(res))}</ul>
 <h2>Results</h2>{_compact_table(res)}
+{"<h2>Baselines: no tuning, no simulator</h2>" + baselines_html(res) if res.baselines else ""}
 <details><summary>every figure with its interval (per-metric correlations and MMRV, PPV sum, normalised PRPV,
 notes, …)</summary>
 {details}</details>
@@ -423,6 +419,7 @@ notes, …)</summary>
 <h2>Figure 3.3: usefulness metrics against proxy {html.escape(_main_parameter(res))}</h2>
 {_img(files["fig3_3"], "figure 3.3")}
 <h2>Figure 3.4: PRPV for each swept parameter</h2>{_img(files["fig3_4"], "figure 3.4")}
+{_diagnosis_section(res, files)}
 <h2 id="definitions">What the figures mean</h2><dl>{defs}</dl>
 <h2>Agents on the target (mean over episodes)</h2><table><tr><th>agent</th>
 {"".join(f"<th>{html.escape(m)}</th>" for m in exp.metrics)}</tr>{target_rows}</table>
