@@ -121,10 +121,10 @@ def test_lockstep_runs_repeat_sample_for_sample():
 def test_misbehaving_sdk_agents_end_as_named_failures(how, timing, reason):
     traj, _ = _episode(f"python3 misbehave.py {how}", 3.0, timing=timing, start_timeout=15.0, step_timeout=3.0)
     assert traj.termination == "agent_failure"
-    (event,) = [e for e in traj.events if e["kind"] == "agent_failure"]
-    assert event["reason"] == reason, event
+    (event,) = [e for e in traj.events if e.kind == "agent_failure"]
+    assert event.reason == reason, event
     if how == "crash":
-        assert event["exit_code"] == 3 and any("giving up on frame 3" in line for line in event["stderr_tail"])
+        assert event.exit_code == 3 and any("giving up on frame 3" in line for line in event.stderr_tail)
 
 
 @sdk

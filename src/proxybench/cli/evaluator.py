@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 import socket
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 from rich.markup import escape
@@ -20,6 +20,9 @@ from proxybench.cli.node_options import (
     robot_node_options,
 )
 from proxybench.cli.options import positive
+
+if TYPE_CHECKING:
+    from proxybench.contract import Lease
 
 KNOWN_FEATURES = ("sim", "target")
 
@@ -37,29 +40,28 @@ def _reporter():
             self.progress: Progress | None = None
             self.task: Any = None
 
-        def job_started(self, lease: dict[str, Any]) -> None:
-            b, s = lease["benchmark"], lease["submission"]
-            who = s.get("agent") or (s.get("manifest") or {}).get("name", "archive")
-            console.print(f"[bold]job {lease['job_id']}[/bold] (attempt {lease.get('attempt', 1)}): "
-                          + escape(f"{b['name']} v{b['version']} ← submission {s.get('id')} {s.get('label', '')} "
-                                   f"[{who}]"), highlight=False)
+        def job_started(self, lease: Lease) -> None:
+            b, s = lease.benchmark, lease.submission
+            who = s.agent or (s.manifest or {}).get("name", "archive")
+            console.print(f"[bold]job {lease.job_id}[/bold] (attempt {lease.attempt}): "
+                          + escape(f"{b.name} v{b.version} ← submission {s.id} {s.label} [{who}]"), highlight=False)
             self.progress = progress_bar(TextColumn("  {task.description}"), BarColumn(), MofNCompleteColumn(),
                                          TimeElapsedColumn(), console=console, transient=True)
             self.progress.start()
             self.task = self.progress.add_task("setting up", total=None)
 
-        def job_progress(self, lease: dict[str, Any], progress: dict[str, Any]) -> None:
+        def job_progress(self, lease: Lease, progress: dict[str, Any]) -> None:
             if self.progress is not None:
                 self.progress.update(self.task, description=f"{progress.get('phase', '')} episodes",
                                      completed=progress.get("done", 0), total=progress.get("total"))
 
-        def job_finished(self, lease: dict[str, Any], status: str, message: str) -> None:
+        def job_finished(self, lease: Lease, status: str, message: str) -> None:
             if self.progress is not None:
                 self.progress.stop()
                 self.progress = None
             colour = {"success": "green", "failed": "yellow", "lost": "yellow"}.get(status, "red")
             first = message.splitlines()[0] if message else ""
-            console.print(f"  job {lease['job_id']}: [{colour}]{status}[/{colour}] {escape(first[:300])}",
+            console.print(f"  job {lease.job_id}: [{colour}]{status}[/{colour}] {escape(first[:300])}",
                           highlight=False)
 
         def note(self, text: str) -> None:

@@ -140,6 +140,7 @@ def check(
 
     from proxybench.targets.recorded import check_recording
     from proxybench.targets.spec import RecordedTarget
+    from proxybench.tasks.trajectory import Termination
 
     report = check_recording(root, tuple(metric) or None)
     if not report.ok:
@@ -169,7 +170,7 @@ def check(
         for k in metrics:
             v = np.array([e.scores[k] for e in eps], dtype=float)
             cells.append(f"{np.nanmean(v):.2f} [{np.nanmin(v):.2f} … {np.nanmax(v):.2f}]")
-        early = sum(e.termination not in ("timeout",) for e in eps) if m.kind == "trajectories" else "–"
+        early = sum(e.termination is not Termination.TIMEOUT for e in eps) if m.kind == "trajectories" else "–"
         table.add_row(a, str(len(eps)), *cells, str(early))
     console.print(table)
     for note in report.notes:

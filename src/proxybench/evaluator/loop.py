@@ -29,7 +29,7 @@ import os
 import signal
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +37,8 @@ from pydantic import ValidationError
 
 from proxybench import __version__
 from proxybench.client import ServerClient, ServerError
-from proxybench.contract import LeasedBenchmark, ResultUpload
+from proxybench.contract import Lease, LeasedBenchmark, ResultUpload
+from proxybench.evaluator.job import EvaluatorInfo, WorkerJob
 from proxybench.evaluator.outcome import Artifact, Outcome
 from proxybench.evaluator.sandbox import AGENT_USER, Isolation, Limits, detect_isolation
 from proxybench.evaluator.workdir import JobDir, StateDir
@@ -76,16 +77,16 @@ class EvaluatorConfig:
 class Reporter:
     """What the loop tells its user; the CLI draws it with rich, the default logs it."""
 
-    def job_started(self, lease: dict[str, Any]) -> None:
-        b, s = lease["benchmark"], lease["submission"]
-        log.info("job %s: %s v%s, submission %s (%s)", lease["job_id"], b["name"], b["version"], s.get("id"),
-                 s.get("agent") or (s.get("manifest") or {}).get("name", "archive"))
+    def job_started(self, lease: Lease) -> None:
+        b, s = lease.benchmark, lease.submission
+        log.info("job %s: %s v%s, submission %s (%s)", lease.job_id, b.name, b.version, s.id,
+                 s.agent or (s.manifest or {}).get("name", "archive"))
 
-    def job_progress(self, lease: dict[str, Any], progress: dict[str, Any]) -> None:
+    def job_progress(self, lease: Lease, progress: dict[str, Any]) -> None:
         pass
 
-    def job_finished(self, lease: dict[str, Any], status: str, message: str) -> None:
-        log.info("job %s: %s %s", lease["job_id"], status, message.splitlines()[0] if message else "")
+    def job_finished(self, lease: Lease, status: str, message: str) -> None:
+        log.info("job %s: %s %s", lease.job_id, status, message.splitlines()[0] if message else "")
 
     def note(self, text: str) -> None:
         log.info("%s", text)
@@ -94,11 +95,10 @@ class Reporter:
 class _Heartbeat(threading.Thread):
     """Extends one lease until stopped; sets ``lost`` on a 409 (or 404) answer."""
 
-    def __init__(self, client: ServerClient, lease: dict[str, Any], name: str, job: JobDir,
-                 wake: threading.Event):
-        super().__init__(name=f"heartbeat-{lease['job_id']}", daemon=True)
+    def __init__(self, client: ServerClient, lease: Lease, name: str, job: JobDir, wake: threading.Event):
+        super().__init__(name=f"heartbeat-{lease.job_id}", daemon=True)
         self.client, self.lease, self.evaluator, self.job, self.wake = client, lease, name, job, wake
-        self.interval = max(0.2, float(lease.get("lease_seconds", 120.0)) / 4)
+        self.interval = max(0.2, lease.lease_seconds / 4)
         self.done = threading.Event()
         self.lost = threading.Event()
         self.lost_reason = ""
@@ -109,14 +109,14 @@ class _Heartbeat(threading.Thread):
             with contextlib.suppress(OSError, ValueError):
                 self.progress = json.loads(self.job.read("progress.json", 1 << 16))
             try:
-                self.client.heartbeat(self.lease["job_id"], self.lease["lease_id"], self.evaluator, self.progress)
+                self.client.heartbeat(self.lease.job_id, self.lease.lease_id, self.evaluator, self.progress)
             except ServerError as exc:
                 if exc.status in (404, 409):
                     self.lost_reason = exc.message
                     self.lost.set()
                     self.wake.set()
                     return
-                log.warning("heartbeat for job %s failed (%s); trying again", self.lease["job_id"], exc)
+                log.warning("heartbeat for job %s failed (%s); trying again", self.lease.job_id, exc)
 
     def stop(self) -> None:
         self.done.set()
@@ -208,37 +208,36 @@ class Evaluator:
             return None
         if leased is None:
             return None
-        lease = leased.model_dump(mode="json")  # proxybench.contract.Lease, as plain data for the worker
-        self.reporter.job_started(lease)
-        status = self._process(lease)
+        self.reporter.job_started(leased)
+        status = self._process(leased)
         self.jobs_done += 1
         return status
 
     # -- one job -----------------------------------------------------------------------------------
 
-    def _features_of(self, lease: dict[str, Any]) -> list[str]:
-        if "features" in lease:
-            return list(lease["features"])
+    def _features_of(self, lease: Lease) -> list[str]:
+        if "features" in lease.model_fields_set:  # a server that says them (all but the oldest)
+            return list(lease.features)
         try:
-            return list(self.client.get(f"/jobs/{lease['job_id']}").get("features", []))
+            return list(self.client.get(f"/jobs/{lease.job_id}").get("features", []))
         except ServerError as exc:
-            log.warning("cannot read job %s's features (%s); assuming a simulation job", lease["job_id"], exc)
+            log.warning("cannot read job %s's features (%s); assuming a simulation job", lease.job_id, exc)
             return ["sim"]
 
-    def _process(self, lease: dict[str, Any]) -> str:
+    def _process(self, lease: Lease) -> str:
         try:  # job.json holds the hidden test seed: a folder of the evaluator's user only, made afresh
-            job = self.work.new_job(f"job-{lease['job_id']}-{lease['lease_id'][:8]}")
+            job = self.work.new_job(f"job-{lease.job_id}-{lease.lease_id[:8]}")
         except OSError as exc:
             self.reporter.job_finished(lease, "host-error", f"cannot make the job folder: {exc}")
             return self._report(lease, Outcome("host-error", f"this host cannot prepare the job: {exc}"), None, None)
-        heart_client = ServerClient(self.server, self._token, retry_for=max(1.0, lease["lease_seconds"] / 4))
+        heart_client = ServerClient(self.server, self._token, retry_for=max(1.0, lease.lease_seconds / 4))
         heart = _Heartbeat(heart_client, lease, self.config.name, job, self._wake)
         heart.start()
         try:
             try:
                 outcome = self._work(lease, job, heart)
             except OSError as exc:  # e.g. a full disk while preparing the job
-                log.exception("job %s: cannot prepare the job", lease["job_id"])
+                log.exception("job %s: cannot prepare the job", lease.job_id)
                 outcome = Outcome("host-error", f"this host cannot prepare the job: {exc}")
             if self._keep_spare and not self._stopping.is_set() and (self._spare is None or not self._spare.ready):
                 self._spare = self._new_worker()  # the next job's worker imports while this one uploads
@@ -253,26 +252,26 @@ class Evaluator:
             heart_client.close()
             job.close(remove=not self.config.keep_work)
 
-    def _work(self, lease: dict[str, Any], job: JobDir, heart: _Heartbeat) -> Outcome:
-        sub = lease["submission"]
-        if sub.get("archive_sha256"):
+    def _work(self, lease: Lease, job: JobDir, heart: _Heartbeat) -> Outcome:
+        sub = lease.submission
+        if sub.archive_sha256:
             try:
-                job.write("agent.archive", self.client.get_artifact(sub["archive_sha256"]))
+                job.write("agent.archive", self.client.get_artifact(sub.archive_sha256))
             except ServerError as exc:
                 status = "host-error" if exc.status == 0 else "error"
                 return Outcome(status, f"cannot download the submission's archive: {exc}")
-        cfg = {"lease": lease, "job_features": self._features_of(lease),
-               "evaluator": {"name": self.config.name, "features": list(self.config.features),
-                             "version": __version__},
-               "isolation": asdict(self.isolation), "limits": asdict(self.config.limits), "video": self.config.video,
-               "robot_cmd": self.config.robot_cmd, "robot_options": dict(self.config.robot_options)}
-        job.write("job.json", json.dumps(cfg, indent=1).encode())
+        worker_job = WorkerJob(lease=lease, job_features=self._features_of(lease),
+                               evaluator=EvaluatorInfo(name=self.config.name, features=list(self.config.features),
+                                                       version=__version__),
+                               isolation=self.isolation, limits=self.config.limits, video=self.config.video,
+                               robot_cmd=self.config.robot_cmd, robot_options=dict(self.config.robot_options))
+        job.write("job.json", worker_job.model_dump_json(indent=1).encode())
         if self._stopping.is_set():
             return Outcome("host-error", f"evaluator {self.config.name!r} is shutting down ({self.stop_reason}); "
                                          "job not started")
         worker = self._spare if self._spare is not None and self._spare.ready else self._new_worker()
         self._spare = None
-        budget = LeasedBenchmark.model_validate(lease["benchmark"]).wall_budget
+        budget = lease.benchmark.wall_budget
         deadline = math.inf if budget is None else time.monotonic() + budget + self.config.start_allowance_s
         worker.give(job.path)
         try:
@@ -292,9 +291,9 @@ class Evaluator:
             try:
                 return job_artifacts_only(Outcome.parse(sent), job.path)
             except ValueError as exc:
-                log.error("job %s: the worker's outcome is unusable: %s", lease["job_id"], exc)
+                log.error("job %s: the worker's outcome is unusable: %s", lease.job_id, exc)
         if time.monotonic() > deadline:  # the submission's fault: its agent answered too slowly
-            outcome = Outcome("failed", self._over_budget(lease["benchmark"], budget or 0.0))
+            outcome = Outcome("failed", self._over_budget(lease.benchmark, budget or 0.0))
         elif self._stopping.is_set():
             outcome = Outcome("aborted", f"evaluator {self.config.name!r} was stopped ({self.stop_reason}) while "
                                          "evaluating this job")
@@ -308,10 +307,10 @@ class Evaluator:
                 outcome.artifacts.append(Artifact(name, str(job.path / name), hidden, "text/plain"))
         return outcome
 
-    def _over_budget(self, bench: dict[str, Any], budget: float) -> str:
+    def _over_budget(self, bench: LeasedBenchmark, budget: float) -> str:
         return (f"the job ran past its wall-clock budget of {budget + self.config.start_allowance_s:.0f} s: "
-                f"{bench.get('wall_time_factor'):g}× the simulated time of its episodes ({budget:.0f} s for "
-                f"{bench.get('simulated_seconds'):g} s per split) plus {self.config.start_allowance_s:g} s to start; "
+                f"{bench.wall_time_factor:g}× the simulated time of its episodes ({budget:.0f} s for "
+                f"{bench.simulated_seconds:g} s per split) plus {self.config.start_allowance_s:g} s to start; "
                 "the agent answered too slowly (each step may take up to its step timeout, but not every step)")
 
     def _new_worker(self) -> Worker:
@@ -320,24 +319,23 @@ class Evaluator:
     # -- reporting ---------------------------------------------------------------------------------
 
     def _upload(self, artifacts: list[Artifact], heart: _Heartbeat, job: JobDir,
-                lease: dict[str, Any]) -> tuple[list[dict[str, Any]], list[str]]:
+                lease: Lease) -> tuple[list[dict[str, Any]], list[str]]:
         refs, notes = [], []
         for a in artifacts:
             if heart.lost.is_set():
                 break
             try:  # a plain file of the job folder, read through its descriptor (no link is followed)
-                sha = self.client.put_artifact(job.read(a.name), a.media_type, lease=(lease["job_id"],
-                                                                                        lease["lease_id"]))
+                sha = self.client.put_artifact(job.read(a.name), a.media_type, lease=(lease.job_id, lease.lease_id))
             except (ServerError, OSError) as exc:
                 notes.append(f"artifact {a.name} not uploaded: {exc}")
                 continue
             refs.append({"name": a.name, "sha256": sha, "hidden": a.hidden})
         return refs, notes
 
-    def _report(self, lease: dict[str, Any], outcome: Outcome, heart: _Heartbeat | None, job: JobDir | None) -> str:
+    def _report(self, lease: Lease, outcome: Outcome, heart: _Heartbeat | None, job: JobDir | None) -> str:
         refs, notes = self._upload(outcome.artifacts, heart, job, lease) if heart and job else ([], [])
         message = "\n".join([outcome.message, *notes]) if notes else outcome.message
-        body = {"lease_id": lease["lease_id"], "evaluator": self.config.name, "status": outcome.status,
+        body = {"lease_id": lease.lease_id, "evaluator": self.config.name, "status": outcome.status,
                 "public_scores": outcome.public_scores, "hidden_scores": outcome.hidden_scores,
                 "public_report": outcome.public_report, "hidden_report": outcome.hidden_report,
                 "message": message[:_MAX_MESSAGE], "artifacts": refs}
@@ -349,8 +347,8 @@ class Evaluator:
                 if isinstance(exc, ServerError) and exc.status != 422:
                     raise
                 why = exc.message if isinstance(exc, ServerError) else str(exc)
-                log.error("job %s: the result was refused (%s); reporting an error instead", lease["job_id"], why)
-                upload = ResultUpload(lease_id=lease["lease_id"], evaluator=self.config.name, status="error",
+                log.error("job %s: the result was refused (%s); reporting an error instead", lease.job_id, why)
+                upload = ResultUpload(lease_id=lease.lease_id, evaluator=self.config.name, status="error",
                                       message=f"the server refused this evaluator's result: {why}"[:_MAX_MESSAGE])
                 self._post(lease, upload)
                 return "error"
@@ -358,22 +356,22 @@ class Evaluator:
             if exc.status in (401, 403):
                 raise
             if exc.status == 409:
-                log.warning("job %s: result refused, the lease was lost: %s", lease["job_id"], exc.message)
+                log.warning("job %s: result refused, the lease was lost: %s", lease.job_id, exc.message)
                 return "lost"
             log.error("job %s: the result could not be delivered (%s); the lease will lapse and the job run again",
-                      lease["job_id"], exc)
+                      lease.job_id, exc)
             return "unreported"
         return outcome.status
 
-    def _post(self, lease: dict[str, Any], body: ResultUpload) -> None:
+    def _post(self, lease: Lease, body: ResultUpload) -> None:
         """POST the result; network failures and 5xx are retried for ``post_retry_s`` (stored once per lease)."""
         deadline = time.monotonic() + self.config.post_retry_s
         while True:
             try:
-                self.client.result(lease["job_id"], body)
+                self.client.result(lease.job_id, body)
                 return
             except ServerError as exc:
                 if (exc.status != 0 and exc.status < 500) or time.monotonic() > deadline:
                     raise
-                log.warning("posting the result of job %s failed (%s); retrying", lease["job_id"], exc)
+                log.warning("posting the result of job %s failed (%s); retrying", lease.job_id, exc)
                 time.sleep(2.0)

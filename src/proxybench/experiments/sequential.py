@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from proxybench.domain.events import Termination
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, Job
 from proxybench.runner.starts import start_poses
@@ -82,7 +83,7 @@ def run_sequential(target: Target, agents: list[AgentSpec], *, map_name: str, se
             counts[a] += 1
             jobs.append(Job(specs[a], dom, map_name, e, seeds[e], seconds, pose=poses[e], metrics=metrics))
         sweep = run_jobs(jobs, run_dir, backend)
-        failed = [r for r in sweep.results if r.termination == "robot_failure"]
+        failed = [r for r in sweep.results if r.termination is Termination.ROBOT_FAILURE]
         if failed:  # not the agent's fault, and not cached: stop, as a robot target's pilot does
             raise TargetError(f"target: the robot node failed on {len(failed)} episode(s) "
                               f"({failed[0].agent} episode {failed[0].episode}: {failed[0].message}); finished "

@@ -277,9 +277,9 @@ class RobotNode(NodeLogic):
         when = self._time
         end = self.backend.ending()
         if end is not None:  # the backend's rule (the runner's, for proxybench's simulator)
-            self.termination = {"when": end["t"], "desc": end["message"], "code": end["kind"]}
-            if "with" in end:
-                self.termination["with"] = end["with"]
+            self.termination = {"when": end.t, "desc": end.message, "code": str(end.kind)}
+            if end.with_ is not None:
+                self.termination["with"] = end.with_
         elif self.frame_limit is not None and self.frames >= self.frame_limit:
             self.termination = {"when": when, "desc": "the episode's time is up", "code": "timeout"}
 

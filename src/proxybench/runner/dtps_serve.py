@@ -25,6 +25,7 @@ from proxybench.dtps.driver import RobotDriver
 from proxybench.dtps.virtual_robot import DEFAULT_NAME, DEFAULT_PORT, VirtualDB21J
 from proxybench.runner.episode import sim_plant
 from proxybench.runner.rollout import AgentPolicy, rollout
+from proxybench.tasks.trajectory import Event, Termination
 
 __all__ = ["ServeDriver", "serve"]
 
@@ -61,11 +62,10 @@ class _ResetPlant:
     def __getattr__(self, name: str) -> Any:
         return getattr(self._plant, name)
 
-    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, dict[str, Any], bool]]:
+    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, Event, bool]]:
         out = self._plant.advance(commands, alive, k)
         if self._driver.reset_requested and not any(final for _, _, final in out):
-            out.append((0, {"t": self._plant.time(0), "kind": "reset", "message": "the agent published state/reset"},
-                        True))
+            out.append((0, Event(self._plant.time(0), Termination.RESET, "the agent published state/reset"), True))
         return out
 
 

@@ -15,8 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.maps import load_map
-from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
 from proxybench.protocol import jpeg
 from proxybench.runner.episode import SimPlant
@@ -40,7 +41,7 @@ class Probe:
     seconds: float  # [s] of commands actually driven (less when the episode ended early)
     wall_s: float  # [s] of wall time: starting the episode and driving it
     declared: dict[str, Any] = field(default_factory=dict)  # the calibration the domain declares, if any
-    ended: str | None = None  # why the episode ended before the commands were spent, if it did
+    ended: Termination | None = None  # why the episode ended before the commands were spent, if it did
     ground_truth: bool = True  # whether it reports the true lane pose (privileged agents need it)
 
     @property
@@ -61,13 +62,13 @@ def probe(domain: DomainSpec, map_name: str, *, frame_rate: float, seed: int = 0
     ``frame_rate`` [Hz]: what a robot node is asked to step at (a simulated domain's comes from its θ).
     A robot node that fails raises :class:`~proxybench.protocol.RobotFailure`.
     """
-    if domain.kind == "robot":
+    if domain.kind is DomainKind.ROBOT:
         robot = open_robot(domain, frame_rate)
         try:
             return _drive(robot.plant(load_map(map_name)), seed, pwm, seconds)
         finally:
             robot.close()
-    sim = Simulator(map_name, DomainParams.model_validate(domain.params), n=1)
+    sim = Simulator(map_name, domain.params, n=1)
     return _drive(SimPlant(sim, camera_filter()), seed, pwm, seconds, kind=domain.kind)
 
 
@@ -89,7 +90,7 @@ def _drive(plant, seed: int, pwm: float, seconds: float, kind: str | None = None
     said = traj.meta
     declared = said.get("params") or {}
     pose = np.column_stack([traj["x"], traj["y"], traj["theta"]])
+    ended = None if traj.termination is Termination.TIMEOUT else traj.termination
     return Probe(kind or said.get("source", "unknown"), float(plant.frame_rate), first[0] if first else None,
                  tuple(float(v) for v in pose[0]), tuple(float(v) for v in pose[-1]), float(traj.duration), wall,
-                 declared if kind is None else {}, None if traj.termination == "timeout" else traj.termination,
-                 bool(truth and truth[0]))
+                 declared if kind is None else {}, ended, bool(truth and truth[0]))

@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from proxybench.agents.base import Agent
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.maps import Map, load_map
-from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
 from proxybench.domain.topdown import top_down
 from proxybench.media import VideoWriter, side_by_side, write_strip
@@ -65,9 +65,9 @@ def record_run(
     out.mkdir(parents=True, exist_ok=True)
     m = load_map(map_) if isinstance(map_, str) else map_
     t0 = time.perf_counter()
-    if domain.kind == "robot" and streams is not None:
+    if domain.kind is DomainKind.ROBOT and streams is not None:
         raise ValueError("watchtower streams are simulated: they need a simulated domain, not a robot node")
-    if domain.kind == "robot":
+    if domain.kind is DomainKind.ROBOT:
         robot = open_robot(domain, frame_rate)
         try:
             rec = _record(robot.plant(m), agent, seed, seconds, out, stem, video, pose, route, strip_frames,
@@ -76,7 +76,7 @@ def record_run(
             robot.close()
     else:
         world = with_fixtures(m, streams.fixtures) if streams is not None else m  # the lab's calibration tags
-        sim = Simulator(world, DomainParams.model_validate(domain.params), npcs=npcs)
+        sim = Simulator(world, domain.params, npcs=npcs)
         recorder = StreamRecorder(sim, streams, out / "watchtowers") if streams is not None else None
         try:
             rec = _record(SimPlant(sim, camera_filter()), agent, seed, seconds, out, stem, video, pose, route,

@@ -25,7 +25,7 @@ from proxybench.protocol import jpeg
 from proxybench.protocol import robot_wire as rw
 from proxybench.protocol.robot_process import RemoteRobot
 from proxybench.runner.rollout import AgentPolicy, PrivilegedAgentError, rollout
-from proxybench.tasks.trajectory import Trajectory
+from proxybench.tasks.trajectory import Event, Termination, Trajectory
 
 __all__ = ["RobotLacksGroundTruth", "RobotPlant", "run_episode_on_plant", "run_episode_on_robot"]
 
@@ -92,16 +92,15 @@ class RobotPlant:
     def time(self, i: int) -> float:
         return self.obs.observations.timestamp
 
-    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, dict[str, Any], bool]]:
+    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, Event, bool]]:
         robot = self.robot
         sim_state, state, self.obs = robot.frame(self.time(0), np.clip(commands[0], -1.0, 1.0),
                                                  (k + 1) * self.frame_dt, observe=k + 1 < self.steps)
         self.states.append(state)
         end = sim_state.terminations.get(robot.robot_name)
-        if end is None or end.termination == "timeout":  # the episode's length is the engine's to count
+        if end is None or end.termination is Termination.TIMEOUT:  # the episode's length is the engine's to count
             return []
-        event = {"t": end.when, "kind": end.termination, "message": end.desc}
-        return [(0, event if end.hit is None else event | {"with": end.hit}, True)]
+        return [(0, Event(end.when, end.termination, end.desc, with_=end.hit), True)]
 
     def samples(self, i: int, frames: int) -> np.ndarray:
         return np.vstack([_samples(s) for s in self.states])

@@ -21,6 +21,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.protocol import RobotFailure
 from proxybench.runner.jobs import Job, JobResult
 from proxybench.runner.outcomes import all_metrics, make_agent_for, refused, result_of
@@ -108,7 +110,7 @@ def execute_robot_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]
                         route=None if job.route is None else list(job.route), camera=not agent.privileged,
                         allow_privileged=not job.camera_only,
                         meta={"map": job.map, "episode": job.episode, "domain": job.domain.name,
-                              "domain_kind": "robot", "job": job.key})
+                              "domain_kind": DomainKind.ROBOT, "job": job.key})
                 except RobotFailure as exc:
                     failure, in_a_row = exc, in_a_row + 1
                     results.append(_robot_failed(job, exc))
@@ -145,4 +147,4 @@ def _robot_failed(job: Job, exc: RobotFailure, skipped: bool = False) -> JobResu
     if skipped:
         text = f"not run: the robot failed {FAILURES_IN_A_ROW} times in a row; last: {text}"
     return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed,
-                     dict.fromkeys(job.metrics or all_metrics(), float("nan")), "robot_failure", None, text)
+                     dict.fromkeys(job.metrics or all_metrics(), float("nan")), Termination.ROBOT_FAILURE, None, text)

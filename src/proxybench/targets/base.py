@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.kinds import DomainKind
+from proxybench.domain.params import DomainParams
 from proxybench.runner.backends import Backend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
 
@@ -42,7 +44,7 @@ class TargetInfo:
     """What a target is, in words a report can print: ``kind`` (reality-model | recorded | robot),
     ``simulated`` (True, False, or None when proxybench cannot tell), a short ``label`` and a ``statement``."""
 
-    kind: str
+    kind: DomainKind
     simulated: bool | None
     label: str
     statement: str
@@ -60,7 +62,7 @@ class TargetRun:
     episodes: list[TargetEpisode]
     results: dict[str, np.ndarray]
     truth: dict[str, float] = field(default_factory=dict)
-    params: dict[str, Any] | None = None  # θ of a simulated target when known (POD needs it)
+    params: DomainParams | None = None  # θ of a simulated target when known (POD needs it)
     ran: int = 0  # episodes simulated or driven now (not cached, not read from files)
     files: dict[tuple[str, int], str] = field(default_factory=dict)  # (agent, episode) → its trajectory file
 
@@ -72,7 +74,7 @@ class Target:
     """Base of the three kinds. A recorded target fixes its map, length, agents and episodes; the others
     take them from the experiment."""
 
-    kind = "target"
+    kind: DomainKind  # each kind's own
     fixed_map: str | None = None
     fixed_seconds: float | None = None
     fixed_agents: list[str] | None = None
@@ -132,7 +134,7 @@ def live_run(target: Target, dom: DomainSpec, agents: list[AgentSpec], *, map_na
     files = {(j.agent.label, j.episode): r.trajectory for j, r in zip(jobs, sweep.results, strict=True)
              if r.trajectory}
     run = TargetRun(target.info(), map_name, seconds, metrics, eps, by_agent(jobs, sweep.results, metrics),
-                    params=dom.params if dom.kind != "robot" else None, ran=sweep.ran, files=files)
+                    params=dom.params, ran=sweep.ran, files=files)
     return run, sweep
 
 

@@ -35,20 +35,26 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
+from proxybench.domain.kinds import ROBOT_NODE, DomainKind
 from proxybench.dtps.robot_options import DtpsRobotOptions
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.untrusted import UntrustedInputError, load_yaml_file
 
-__all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "ExcludedRun", "RobotInfo", "SimulatorInfo", "TargetError",
-           "TargetManifest", "check_pattern",
-           "format_errors", "load_manifest", "write_manifest"]
+__all__ = ["FORMAT", "MANIFEST_NAME", "SOURCES", "SOURCE_KINDS", "ExcludedRun", "RobotInfo", "SimulatorInfo",
+           "TargetError", "TargetManifest", "check_pattern", "format_errors", "load_manifest", "source_of",
+           "write_manifest"]
 
 FORMAT = "proxybench-target/1"
 MANIFEST_NAME = "target.yaml"
-#: where a recording came from. Only ``real`` is a physical robot; the others are simulations (``robot-node``:
-#: a process on the robot protocol, whose own description says whether it simulates; ``dtps-robot``: a DTPS
-#: robot, real or a Duckiematrix robot, which proxybench cannot tell apart: the recording says what the user said)
-SOURCES = ("real", "reality-model", "robot-node", "dtps-robot", "simulation")
+#: where a recording came from (its ``source``) → the :class:`DomainKind` its episodes ran in. The manifest keeps
+#: its own words on purpose: ``robot-node`` for a robot domain (a process on the robot protocol, whose own
+#: description says whether it simulates), ``dtps-robot`` for a DTPS robot (real or a Duckiematrix robot, which
+#: proxybench cannot tell apart: the recording says what the user said), and ``real`` for physical robots recorded
+#: outside proxybench, which no domain kind names (proxybench never ran them). Only ``real`` is a physical robot
+SOURCE_KINDS: dict[str, DomainKind | None] = {"real": None, "reality-model": DomainKind.REALITY_MODEL,
+                                              ROBOT_NODE: DomainKind.ROBOT, "dtps-robot": DomainKind.ROBOT,
+                                              "simulation": DomainKind.SIMULATION}
+SOURCES = tuple(SOURCE_KINDS)
 DEFAULT_TRAJECTORIES = "episodes/{agent}/{episode}.parquet"
 MANIFEST_MAX_BYTES = 1 << 20
 #: an agent's name: one path component (it is put into file names)
@@ -81,6 +87,15 @@ def check_pattern(pattern: str) -> str:
     if pattern.startswith(("/", "~")) or "\\" in pattern or ".." in PurePosixPath(pattern).parts:
         raise ValueError(f"{pattern!r} must be a path relative to the manifest's folder, without '..'")
     return pattern
+
+
+def source_of(kind: DomainKind) -> str:
+    """The manifest's word for recordings made on a domain of ``kind``.
+
+    >>> source_of(DomainKind.ROBOT), source_of(DomainKind.REALITY_MODEL)
+    ('robot-node', 'reality-model')
+    """
+    return next(s for s, k in SOURCE_KINDS.items() if k is kind)
 
 
 class TargetError(ValueError):
@@ -248,7 +263,7 @@ class TargetManifest(BaseModel):
                 check_pattern(self.trajectories)
             except ValueError as exc:
                 raise ValueError(f"trajectories: {exc}") from None
-        if self.source in ("robot-node", "dtps-robot") and self.robot is None:
+        if self.domain_kind is DomainKind.ROBOT and self.robot is None:
             raise ValueError(f"source {self.source} needs robot: {{command: ...}}")
         return self
 
@@ -273,6 +288,11 @@ class TargetManifest(BaseModel):
         """The file of (agent, episode), relative to the manifest's folder: the pattern filled in
         (``{episode}`` as written, ``{episode:03d}`` zero-padded)."""
         return self.pattern.format(agent=_Verbatim(agent), episode=_Episode(episode, self.episode_name(episode)))
+
+    @property
+    def domain_kind(self) -> DomainKind | None:
+        """The kind of domain the episodes ran in (None: real robots, recorded outside proxybench)."""
+        return SOURCE_KINDS[self.source]
 
 
 def _allowed(model: type[BaseModel], loc: tuple) -> list[str]:

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from proxybench import __version__
+from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, Job, JobResult
 from proxybench.runner.streams import StreamSpec
@@ -30,10 +32,12 @@ from proxybench.targets.base import Target, episode_seed
 from proxybench.targets.dtps import DtpsTarget
 from proxybench.targets.manifest import (
     MANIFEST_NAME,
+    SOURCE_KINDS,
     RobotInfo,
     TargetError,
     TargetManifest,
     load_manifest,
+    source_of,
     write_manifest,
 )
 from proxybench.targets.robot import robot_said
@@ -62,12 +66,12 @@ def _check_label(label: str) -> None:
 
 def _source(target: Target) -> tuple[str, RobotInfo | None]:
     if isinstance(target, RealityTarget):
-        return "reality-model", None
+        return source_of(DomainKind.REALITY_MODEL), None
     if isinstance(target, DtpsTarget):
         return "dtps-robot", RobotInfo(command=target.command, kind=target.options.kind or "", dtps=target.options)
     command = getattr(target, "command", None)
     if command:
-        return "robot-node", RobotInfo(command=command, options=getattr(target, "options", None))
+        return source_of(DomainKind.ROBOT), RobotInfo(command=command, options=getattr(target, "options", None))
     raise TargetError(f"cannot record a {target.kind} target (record the reality model, a robot node or a DTPS "
                       "robot)")
 
@@ -160,7 +164,8 @@ def record_target(
     except (MapError, FileNotFoundError) as exc:
         raise TargetError(f"map: {exc}") from None
     source, robot = _source(target)
-    if streams is not None and source != "reality-model":
+    new_kind = SOURCE_KINDS[source]
+    if streams is not None and new_kind is not DomainKind.REALITY_MODEL:
         raise TargetError("watchtowers are simulated: record them on the reality model, not on a robot node")
     dom = target.domain(image_size)  # type: ignore[attr-defined]
     truth = {k: float(v) for k, v in TRUTH.items() if isinstance(v, int | float) and not isinstance(v, bool)}
@@ -169,8 +174,8 @@ def record_target(
         source=source, description=description, who=who, where=where, when=when,
         map=str(Path(map_name).resolve()) if Path(map_name).is_file() else map_name, seconds=seconds,
         agents=[a.label for a in agents], episodes=list(range(episodes)), seed=seed, robot=robot,
-        params=dom.params if source == "reality-model" else None,
-        truth=truth if source == "reality-model" else None, recorded_with=f"proxybench {__version__}")
+        params=dom.params.model_dump(mode="json") if new_kind is DomainKind.REALITY_MODEL else None,
+        truth=truth if new_kind is DomainKind.REALITY_MODEL else None, recorded_with=f"proxybench {__version__}")
     out.mkdir(parents=True, exist_ok=True)
     manifest = _plan(out, new, agents)
     write_manifest(out, manifest)  # first: an interrupted recording still says what it is
@@ -195,7 +200,7 @@ def record_target(
     robot_failed: list[str] = []
 
     def keep(res: JobResult) -> None:
-        if res.termination == "robot_failure":  # no episode happened: nothing to keep, retried next time
+        if res.termination is Termination.ROBOT_FAILURE:  # no episode happened: nothing to keep, retried next time
             robot_failed.append(f"{res.agent} episode {res.episode}: {res.message}")
             return
         _place(res, dest[res.key])
@@ -204,7 +209,7 @@ def record_target(
             _place_streams(Path(res.streams), folder / "watchtowers")
             if on_streams is not None:
                 on_streams(res, folder)
-        if res.termination == "agent_failure":
+        if res.termination is Termination.AGENT_FAILURE:
             failed.append(f"{res.agent} episode {res.episode}: {res.message}")
 
     def place(done: int, total: int, res: JobResult | None) -> None:
@@ -216,14 +221,14 @@ def record_target(
     cache = out / ".record"
     sweep = run_jobs(todo, cache, backend or InlineBackend(), progress=place)
     for job, res in zip(todo, sweep.results, strict=True):  # episodes the cache held from an interrupted run
-        if not dest[job.key].is_file() and res.termination != "robot_failure":
+        if not dest[job.key].is_file() and res.termination is not Termination.ROBOT_FAILURE:
             keep(res)
     if robot_failed:
         shown = "\n  ".join(robot_failed[:5])
         what = getattr(target, "what", "robot node")
         raise TargetError(f"the {what} failed on {len(robot_failed)} episode(s); the others are recorded in {out}; "
                           f"run the same command again to retry:\n  {shown}")
-    if source == "robot-node" and robot is not None and todo:
+    if source == source_of(DomainKind.ROBOT) and robot is not None and todo:
         kind, simulator = robot_said(dest[todo[0].key])
         if kind:
             update = {"kind": kind} | ({"simulator": simulator} if simulator is not None else {})

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.events import Event, Termination
 from proxybench.messages import shown
 from proxybench.targets.manifest import MANIFEST_NAME, TargetError, TargetManifest, load_manifest
 from proxybench.untrusted import UntrustedInputError, inside
@@ -71,7 +72,7 @@ class RecordedEpisode:
     pose: tuple[float, float, float] | None
     file: str | None
     scores: dict[str, float]
-    termination: str = "timeout"
+    termination: Termination = Termination.TIMEOUT
     duration: float = float("nan")
 
 
@@ -298,7 +299,7 @@ def _load_trajectory(root: Path, manifest: TargetManifest, m, agent: str, episod
     except TrajectoryError as exc:
         return None, [str(exc)], notes
     traj.meta["episode_seconds"] = manifest.seconds
-    if traj.termination == "timeout":
+    if traj.termination is Termination.TIMEOUT:
         _mark_early_end(traj, manifest.seconds, m)
     if traj.duration > manifest.seconds + 0.5:
         notes.append(f"{path}: {traj.duration:.1f} s long, longer than the manifest's seconds ({manifest.seconds:g}); "
@@ -318,12 +319,12 @@ def _mark_early_end(traj, seconds: float, m) -> None:
     x, y = float(traj["x"][-1]), float(traj["y"][-1])
     tile = m.tile_at(x, y)
     if tile is None or not tile.drivable:
-        kind, why = "off_road", f"its last pose ({x:.2f}, {y:.2f}) m is off the road"
+        kind, why = Termination.OFF_ROAD, f"its last pose ({x:.2f}, {y:.2f}) m is off the road"
     else:
-        kind, why = "ended_early", "the file does not say why"
+        kind, why = Termination.ENDED_EARLY, "the file does not say why"
     traj.termination = kind
-    traj.events.append({"t": traj.duration, "kind": kind,
-                        "message": f"the recording ends at {traj.duration:.2f} s of {seconds:g} s; {why}"})
+    traj.events.append(Event(traj.duration, kind, f"the recording ends at {traj.duration:.2f} s of {seconds:g} s; "
+                                                  f"{why}"))
 
 
 def _metric_problem(name: str) -> str | None:

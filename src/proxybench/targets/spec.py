@@ -22,9 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.kinds import DomainKind
+from proxybench.domain.params import DomainParams
 from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec
 from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, episode_seed, live_run
-from proxybench.targets.manifest import TargetError
+from proxybench.targets.manifest import TargetError, TargetManifest
 
 __all__ = ["RealityTarget", "RecordedTarget", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "episode_seed",
            "open_target"]
@@ -49,7 +51,7 @@ class _LiveTarget(Target):
 class RealityTarget(_LiveTarget):
     """The built-in reality model, optionally with some of its parameters changed."""
 
-    kind = "reality-model"
+    kind = DomainKind.REALITY_MODEL
 
     def __init__(self, overrides: dict[str, Any] | None = None):
         from pydantic import ValidationError
@@ -68,7 +70,7 @@ class RealityTarget(_LiveTarget):
 
         w, h = image_size
         params = reality_params(**{**self.overrides, "image_width": w, "image_height": h})
-        return DomainSpec("reality", params.model_dump(), kind="reality-model")
+        return DomainSpec("reality", params, kind=DomainKind.REALITY_MODEL)
 
     def truth(self) -> dict[str, float]:
         from proxybench.domain.reality import TRUTH
@@ -80,7 +82,7 @@ class RealityTarget(_LiveTarget):
     def info(self) -> TargetInfo:
         changed = ", ".join(f"{k}={v}" for k, v in self.overrides.items())
         return TargetInfo(
-            "reality-model", True, "reality model (simulated)" + (f", {changed}" if changed else ""),
+            DomainKind.REALITY_MODEL, True, "reality model (simulated)" + (f", {changed}" if changed else ""),
             "SIMULATED: the target is proxybench's reality model, a simulated stand-in for a Duckiebot with effects "
             "the proxies cannot express (wheel slip, motor dead-band, latency jitter, a lens that differs from its "
             "calibration, other light, sensor noise)" + (f", with {changed}" if changed else "") + ". No real robot "
@@ -90,7 +92,7 @@ class RealityTarget(_LiveTarget):
 class RecordedTarget(Target):
     """A directory of recorded episodes (see :mod:`proxybench.targets.recorded`)."""
 
-    kind = "recorded"
+    kind = DomainKind.RECORDED
 
     def __init__(self, root: str | Path):
         from proxybench.targets.manifest import load_manifest
@@ -123,7 +125,7 @@ class RecordedTarget(Target):
                      "robot-node": True if m.robot and m.robot.kind == "simulation" else None,
                      "dtps-robot": {"real": False, "simulated": True}.get(told or "")}[m.source]
         return TargetInfo(
-            "recorded", simulated, f"recorded: {self.root} (source: {m.source})",
+            DomainKind.RECORDED, simulated, f"recorded: {self.root} (source: {m.source})",
             f"The target is a recording at {self.root.resolve()} (source: {m.source}): {what}"
             + (f"; recorded {who}" if who else "") + (f". {m.description}" if m.description else "") + ".",
             {"root": str(self.root.resolve()), "source": m.source, "who": m.who, "where": m.where, "when": m.when,
@@ -142,7 +144,7 @@ class RecordedTarget(Target):
         for e in chosen:
             results.setdefault(e.agent, []).append([e.scores[m] for m in metrics])
         m = self.manifest
-        params = m.params if m.source == "reality-model" else None
+        params = _recorded_theta(m) if m.domain_kind is DomainKind.REALITY_MODEL else None
         return TargetRun(self.info(), resolve_map(self.root, m.map), m.seconds, metrics, eps,
                          {a: np.asarray(v, dtype=float) for a, v in results.items()}, dict(m.truth or {}), params, 0,
                          {(e.agent, e.episode): e.file for e in chosen if e.file})
@@ -155,6 +157,17 @@ def _dtps_words(robot: Any) -> str:
     from proxybench.targets.dtps import describe_robot
 
     return "runs on " + describe_robot(robot.command.removeprefix("dtps:"), robot.dtps)[1]
+
+
+def _recorded_theta(m: TargetManifest) -> DomainParams | None:
+    """θ a recording of the reality model says it ran with, where it is a θ of this version (a recording made
+    by a version whose θ had other fields keeps its θ in the manifest only, for the record; none is used)."""
+    from pydantic import ValidationError
+
+    try:
+        return None if m.params is None else DomainParams.model_validate(m.params)
+    except ValidationError:
+        return None
 
 
 def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes: int = 1,

@@ -21,6 +21,7 @@ from typing import Any
 import httpx
 import numpy as np
 
+from proxybench.domain.events import Termination
 from proxybench.server.benchmarks import parse_benchmark
 from proxybench.tasks.aggregate import aggregate, scores_by_agent
 from proxybench.tasks.benchmark import derive_seed
@@ -84,7 +85,7 @@ def demo_scores(spec_yaml: str, label: str, skill: float, seeds: list[int]) -> t
     for i, seed in enumerate(seeds):
         rng = np.random.default_rng([zlib.crc32(label.encode()), seed])
         values = _episode(rng, skill, bench.duration)
-        ended = "timeout" if values["survival_time"] >= bench.duration else "off_road"
+        ended = Termination.TIMEOUT if values["survival_time"] >= bench.duration else Termination.OFF_ROAD
         episodes.append({"episode": i, "seed": seed, "termination": ended, "duration": values["survival_time"],
                          "scores": {m: round(values[m], 4) for m in bench.metrics}, "events": [], "message": ""})
     table = [{"agent": label, "domain": "demo", "episode": e["episode"], "metric": m, "value": v}
@@ -155,7 +156,7 @@ def _finish(client: httpx.Client, token: str, job: dict[str, Any], outcome: str,
     if outcome == "failed":  # the agent crashed in its first episode: the evaluator reports what it saw
         first = parse_benchmark(bench["spec_yaml"]).episode_specs()[0]
         _, report = demo_scores(bench["spec_yaml"], label, 0.0, [first.seed])
-        report["episodes"][0].update(termination="agent_failure", message=MESSAGES["failed"])
+        report["episodes"][0].update(termination=Termination.AGENT_FAILURE, message=MESSAGES["failed"])
         report["agent_failures"] = [{"episode": 0, "reason": "exited", "message": MESSAGES["failed"], "stderr_tail": [
             "Traceback (most recent call last):", '  File "agent.py", line 12, in on_observation',
             "    image = obs['camera']", "ValueError: observation has no 'camera'"]}]
