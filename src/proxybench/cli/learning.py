@@ -42,40 +42,43 @@ def plv(
     dagger: bool = typer.Option(False, "--dagger", help="spend half of every rung on on-policy (DAgger) samples"),
     eta_on: float = typer.Option(1.0, callback=positive, help="cost of one on-policy target sample (generalised PLV)"),
     eta_off: float = typer.Option(1.0, callback=positive, help="cost of one off-policy target sample"),
+    target: str | None = typer.Option(None, help="reality (default) or robot:COMMAND: a robot node whose true lane "
+                                      "pose the expert reads; target samples are collected and networks scored on it"),
+    seeds: int | None = typer.Option(None, min=2, max=1000, help="training seeds per arm (default: 15; --quick 3)"),
 ) -> None:
     """How many target samples does pre-training on a proxy save a behaviour-cloning agent? (Table 3.1, Fig. 3.6)
 
-    The target is the reality model, a *simulated* stand-in for a real Duckiebot; the proxies are the
-    simulator with camera pitch 3°, 19°, 35° and a domain-randomised family. Work is cached in OUT/cache,
-    so an interrupted run resumes.
+    The target is the reality model, a *simulated* stand-in for a real Duckiebot, or a robot node (--target);
+    the proxies are the simulator with camera pitch 3°, 19°, 35° and a domain-randomised family. PLV comes from
+    fitted learning curves (a continuous crossing of P) with bootstrap intervals over seeds; the ladder rule is
+    shown beside it. Work is cached in OUT/cache, so an interrupted run resumes.
     """
+    from proxybench.cli.usefulness import _stage_progress
     from proxybench.experiments.plv import PLVConfig, run_plv
     from proxybench.experiments.reports.plv import findings, summarize, table_rows, write_report
+    from proxybench.protocol import RobotFailure
 
     cfg = PLVConfig.quick() if quick else PLVConfig()
     try:
         extra = json.loads(config.read_text()) if config else {}
         extra |= {"eta_on": eta_on, "eta_off": eta_off} | ({"use_dagger": True} if dagger else {})
+        extra |= ({"target": target} if target else {}) | ({"seeds": list(range(seeds))} if seeds else {})
         cfg = PLVConfig.from_dict(extra, cfg)
     except (OSError, ValueError, TypeError) as exc:
         raise _fail(f"{config}: {exc}") from exc
     t0 = time.perf_counter()
     with _bars() as bar:
-        tasks: dict[str, int] = {}
-
-        def progress(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = bar.add_task(stage, total=total)
-            bar.update(tasks[stage], completed=done, total=total)
-
-        res = run_plv(cfg, out, progress)
+        try:
+            res = run_plv(cfg, out, _stage_progress(bar))
+        except (RuntimeError, RobotFailure) as exc:  # a robot node that fails or serves no lane pose
+            raise _fail(f"{cfg.target}: {exc}") from exc
     files = write_report(res, out)
     s = summarize(res)
     wall = time.perf_counter() - t0
     note = f", {res.cached} units from the cache" if res.cached else ""
     rows = table_rows(res, s)
-    table = Table(title=f"Table 3.1 — PLV of proxies (target: reality model, simulated) — {len(cfg.seeds)} seeds, "
-                        f"95 % bootstrap intervals over seeds — {wall:.0f} s{note}")
+    table = Table(title=f"Table 3.1 — PLV of proxies (target: {s.target_label}) — {len(cfg.seeds)} seeds, fitted "
+                        f"curves, 95 % bootstrap intervals over seeds — {wall:.0f} s{note}")
     for col in rows[0]:
         table.add_column(col, justify="left" if col == "domain" else "right")
     for r in rows:
@@ -186,3 +189,63 @@ def learn_evaluate(
     console.print(f"{agent.name} in {dom.name} ({what}): lane score {res.mean:.2f} over {episodes} × {seconds:g} s "
                   f"(per episode {', '.join(f'{x:.1f}' for x in res.scores)}; expert {expert.mean:.2f})",
                   highlight=False)
+
+
+@app.command("plv-vs-prpv")
+def plv_vs_prpv(
+    quick: bool = typer.Option(False, "--quick", help="the quick predictivity defaults and PLVConfig.quick()"),
+    config: Path | None = typer.Option(None, "--config", help="experiment file (YAML; `plv:` sets PLV fields)"),
+    target: str | None = typer.Option(None, help="reality (default) or robot:COMMAND (a live target for both)"),
+    agent: list[str] = typer.Option([], "--agent", help="agents ranked for PRPV (repeat; default: the zoo's 12)"),
+    episodes: int | None = typer.Option(None, min=1, help="target episodes per agent for PRPV"),
+    seconds: float | None = typer.Option(None, callback=positive, help="episode length for PRPV [s]"),
+    sweep: list[str] = typer.Option([], "--sweep", help="candidate θ, NAME=V1,V2,… (repeat; one parameter changed "
+                                    "at a time; default camera_pitch=12,19.15,26)"),
+    seed: int | None = typer.Option(None, min=0, help="experiment seed (default: 0)"),
+    out: Path = typer.Option(Path("out/plv-vs-prpv"), help="folder for choice.json/.csv/.png and the caches"),
+    backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
+    workers: int | None = typer.Option(None, min=1, help="parallel workers (default: one per core)"),
+) -> None:
+    """Do the two uses of a simulator pick the same θ? argmin PRPV (predict) and argmax PLV (teach) on one target.
+
+    For every candidate θ: PRPV of the agents' replays with its order range and the paired difference to the
+    lowest, and PLV of a network pre-trained on it (fitted curves) with its interval; then both picks and their
+    tied sets (docs/learning.md). Work is cached in OUT, so an interrupted run resumes.
+    """
+    from proxybench.cli.usefulness import _load, _overrides, _stage_progress, _sweep
+    from proxybench.experiments.optimize_plv import torch_available
+    from proxybench.experiments.plv_prpv import run_plv_prpv
+    from proxybench.experiments.reports.plv_prpv import table_rows, write_choice
+    from proxybench.protocol import RobotFailure
+    from proxybench.runner.backends import make_backend
+    from proxybench.targets.manifest import TargetError
+
+    if not torch_available():
+        raise _fail("PLV needs PyTorch: pip install -e '.[learning]'")
+    cfg = _load(config, _overrides(target=target, agents=agent, episodes=episodes, seconds=seconds,
+                                   sweep=_sweep(sweep), seed=seed))
+    be = make_backend(backend, workers)
+    t0 = time.perf_counter()
+    with _bars() as bar:
+        try:
+            res = run_plv_prpv(cfg, out, quick=quick, backend=be, progress=_stage_progress(bar))
+        except (TargetError, ValueError, RuntimeError, RobotFailure) as exc:
+            raise _fail(str(exc)) from exc
+        finally:
+            be.close()
+    wall = time.perf_counter() - t0
+    files = write_choice(res, out, wall)
+    rows = table_rows(res)
+    table = Table(title=f"predict (argmin PRPV) vs teach (argmax PLV) — {len(res.agents)} agents × {res.episodes} "
+                        f"episodes; PLV over {res.plv_seeds} seeds; {wall:.0f} s")
+    for col in rows[0]:
+        table.add_column(escape(col), justify="left" if col == "candidate θ" else "right")
+    for r in rows:
+        table.add_row(*(escape(str(v)) for v in r.values()))
+    console.print(f"[bold]target:[/bold] {escape(res.target)}", highlight=False)
+    console.print(table)
+    console.print(f"• argmin PRPV: {res.prpv_pick} (not separated from it: {', '.join(res.prpv_tied)}); argmax PLV: "
+                  f"{res.plv_pick or 'none'} (intervals reaching it: {', '.join(res.plv_tied) or '–'})",
+                  highlight=False, markup=False)
+    console.print(f"• {res.verdict()}", highlight=False, markup=False)
+    console.print(f"wrote {files['json']}, {files['csv']}, {files['png']} (+ .svg)", highlight=False)

@@ -59,6 +59,13 @@ def plan(
                                            help="probability of picking the pilot's best candidate to reach"),
     confidence: float = typer.Option(0.8, callback=probability, help="probability of reaching --width"),
     power: float = typer.Option(0.8, callback=probability, help="probability of settling a pair (per-pair needs)"),
+    tolerance: list[str] = typer.Option([], "--tolerance", help="ε of a metric, NAME=VALUE (repeat): pairs within it "
+                                        "are ties (default: AIDO's semiorder tolerances scaled to the episode "
+                                        "length; NAME=0: strict order)"),
+    range_level: float = typer.Option(0.8, "--range", callback=probability, help="central share of the pilot's "
+                                      "posterior that the episode ranges span"),
+    pilot_as_truth: bool = typer.Option(False, "--pilot-as-truth", help="take the pilot's means and spreads as the "
+                                        "truth (the former planner; ranges then collapse to points)"),
     max_episodes: int = typer.Option(320, min=2, max=100_000, help="largest n per agent considered"),
     reps: int | None = typer.Option(None, min=20, max=100_000, help="simulated experiments per n (default: 400; "
                                     "--quick 150)"),
@@ -72,10 +79,13 @@ def plan(
     backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
     workers: int | None = typer.Option(None, min=1, help="parallel workers (default: one per core)"),
 ) -> None:
-    """Plan target episodes: n per agent for a PRPV interval of a given width or a given chance of the right θ.
+    """Plan target episodes: n per agent to settle every pair of agents, for a PRPV interval of a given width, or
+    for a given chance of the right θ.
 
-    The pilot is taken as the truth and experiments with n episodes per agent are simulated by resampling
-    it (docs/usefulness.md). Episodes are cached in OUT/runs: `predictivity --out OUT` re-uses them.
+    Pairs within the task's tolerance ε count as ties, so every pair settles with finitely many episodes; the
+    pilot is not taken as the truth: every count is a range over its posterior, and experiments with n episodes
+    per agent are simulated in worlds drawn from it (docs/usefulness.md). Episodes are cached in OUT/runs:
+    `predictivity --out OUT` re-uses them.
     """
     from proxybench.experiments.config import resolve
     from proxybench.experiments.predictivity import proxy_domains, proxy_jobs
@@ -94,19 +104,21 @@ def plan(
                       sweep=_sweep(sweep), seed=seed)
     cfg = _load(config, over)
     candidates = "sweep" in cfg.model_fields_set
+    eps_over = _kv(tolerance, "--tolerance")
     be = make_backend(backend, workers)
     t0 = time.perf_counter()
     seq = None
     with _bars() as bar:
         try:
             exp, tgt_obj = resolve(cfg, "plan", quick=quick, work_dir=out / "agents")
+            tol = _tolerances(exp.metrics, exp.seconds, eps_over)
             run_kw = dict(map_name=exp.map, seconds=exp.seconds, seed=exp.seed, metrics=exp.metrics,
                           image_size=exp.image_size, run_dir=out / "runs", backend=be, progress=_stage_progress(bar))
             if sequential:
                 from proxybench.experiments.sequential import run_sequential
 
                 seq = run_sequential(tgt_obj, exp.agents, pilot=exp.episodes, budget=budget or (4 if quick else 20),
-                                     batch=batch, **run_kw)
+                                     batch=batch, tolerances=tol, **run_kw)
                 tgt = seq.run
             else:
                 tgt = tgt_obj.run(exp.agents, episodes=exp.episodes, **run_kw)
@@ -124,12 +136,38 @@ def plan(
     try:
         p = make_plan(tgt.results, higher, exp.metrics, proxies=proxies, width=width, p_correct=p_correct,
                       confidence=confidence, grid=grid, reps=reps or (150 if quick else 400), power=power,
-                      batch=batch, seed=exp.seed)
+                      batch=batch, seed=exp.seed, tolerances=tol, range_level=range_level,
+                      uncertain=not pilot_as_truth)
     except ValueError as exc:
         _fail(exc)
     wall = time.perf_counter() - t0
     _print_plan(p, tgt, seq, wall)
     _write(p, tgt, seq, out, wall)
+
+
+def _tolerances(metrics: tuple[str, ...], seconds: float, over: dict) -> tuple[float, ...]:
+    """ε per metric: AIDO's semiorder tolerances at this episode length, with the command line's overrides."""
+    from proxybench.usefulness.indifference import semiorder_tolerances
+
+    def number(v) -> float:
+        try:
+            return float(v)
+        except (TypeError, ValueError):
+            return math.nan
+
+    over = {k: number(v) for k, v in over.items()}
+    unknown = sorted(set(over) - set(metrics))
+    if unknown:
+        raise typer.BadParameter(f"{', '.join(unknown)}: not a metric of this plan ({', '.join(metrics)})",
+                                 param_hint="--tolerance")
+    bad = [k for k, v in over.items() if not (math.isfinite(v) and v >= 0)]
+    if bad:
+        raise typer.BadParameter(f"{', '.join(bad)}: a tolerance is a number >= 0", param_hint="--tolerance")
+    return semiorder_tolerances(metrics, seconds, overrides=over)
+
+
+def _n(x: float) -> str:
+    return f"{x:,.0f}" if math.isfinite(x) else "> 100,000"
 
 
 def _print_plan(p, tgt, seq, wall: float) -> None:
@@ -138,14 +176,19 @@ def _print_plan(p, tgt, seq, wall: float) -> None:
     what = "pilot episodes" if seq is None else "target episodes (pilot + sequential)"
     console.print(f"{what} per agent: {pilot}; {len(p.agents)} agents, PRPV in [0, "
                   f"{len(p.agents) * (len(p.agents) - 1)}]; {wall:.0f} s", highlight=False)
+    eps = ", ".join(f"{m} {e:g}" for m, e in zip(p.metrics, p.tolerances, strict=True))
+    console.print(f"tolerances ε (pairs within them are ties): {eps}", highlight=False)
     if seq is not None:
-        rounds = ", ".join(f"{'+'.join(h['agents'])} → {h['open_pairs']}" for h in seq.history)
+        rounds = ", ".join(f"{'+'.join(h['agents'])}" + (f" → {h['open_pairs']}" if h.get("look") else "")
+                           for h in seq.history)
         console.print(f"sequential: {sum(len(h['agents']) for h in seq.history)} more episodes "
-                      f"({'every pair settled' if seq.stopped == 'settled' else 'budget spent'}); open pairs: "
-                      f"{seq.open_after_pilot} after the pilot" + (f", then {rounds}" if rounds else ""),
-                      highlight=False)
-    table = Table(title="what n target episodes per agent give (simulated from the pilot)")
-    cols = ["n per agent", "order range width: mean", f"{p.confidence:.0%} of runs ≤", "open pairs"]
+                      f"({'every pair settled' if seq.stopped == 'settled' else 'budget spent'}; the level split "
+                      f"over {seq.looks} looks); open pairs: {seq.open_after_pilot} after the pilot"
+                      + (f", then {rounds}" if rounds else ""), highlight=False)
+    how = "worlds drawn from the pilot's posterior" if p.uncertain else "the pilot taken as the truth"
+    table = Table(title=f"what n target episodes per agent give (simulated experiments in {how})")
+    cols = ["n per agent", "order range width: mean", f"{p.confidence:.0%} of runs ≤", "open pairs",
+            "P(all settled)"]
     if p.width is not None:
         cols.append(f"P(width ≤ {p.width:g})")
     if p.candidates:
@@ -153,7 +196,7 @@ def _print_plan(p, tgt, seq, wall: float) -> None:
     for c in cols:
         table.add_column(c, justify="right")
     for r in p.rows:
-        cells = [str(r.n), f"{r.width_mean:.1f}", f"{r.width_q:.1f}", f"{r.open_pairs:.1f}"]
+        cells = [str(r.n), f"{r.width_mean:.1f}", f"{r.width_q:.1f}", f"{r.open_pairs:.1f}", f"{r.p_settled:.2f}"]
         if p.width is not None:
             cells.append(f"{r.p_width:.2f}")
         if p.candidates:
@@ -170,13 +213,18 @@ def _print_plan(p, tgt, seq, wall: float) -> None:
         if p.p_correct_goal is not None:
             console.print(_answer(p.n_for_p_correct, f"picking {best} with probability {p.p_correct_goal:.0%}",
                                   p.rows[-1].n), highlight=False)
-    pairs = Table(title="pairs on the target still open (near ties): episodes per agent to settle each")
-    for c in ("pair", "metric", "difference", "se (pilot)", "episodes per agent"):
+    lo, mid, hi = p.settle_all[1], p.settle_all[0], p.settle_all[2]
+    console.print(f"→ every pair settled (ordered, or tied within ε) with probability {p.power:.0%} each: {_n(mid)} "
+                  f"episodes per agent [{_n(lo)}, {_n(hi)}] ({p.range_level:.0%} of the pilot's posterior)",
+                  highlight=False)
+    pairs = Table(title=f"pairs on the target still open: episodes per agent to settle each, median "
+                        f"[{p.range_level:.0%} range] over the pilot's posterior")
+    for c in ("pair", "metric", "difference", "se (pilot)", "ε", "episodes per agent", "pilot as truth"):
         pairs.add_column(c, justify="left" if c in ("pair", "metric") else "right")
     open_ = [q for q in p.pairs if not q.settled]
     for q in open_[:12]:
-        need = "tie within the noise" if not math.isfinite(q.episodes) else f"{q.episodes:g}"
-        pairs.add_row(f"{q.a} – {q.b}", q.metric, f"{q.difference:+.3g}", f"{q.se:.3g}", need)
+        pairs.add_row(f"{q.a} – {q.b}", q.metric, f"{q.difference:+.3g}", f"{q.se:.3g}", f"{q.tolerance:g}",
+                      f"{_n(q.episodes)} [{_n(q.episodes_low)}, {_n(q.episodes_high)}]", _n(q.plug_in))
     if open_:
         console.print(pairs)
         if len(open_) > 12:
@@ -201,9 +249,9 @@ def _write(p, tgt, seq, out: Path, wall: float) -> None:
     out.mkdir(parents=True, exist_ok=True)
     data = {"target": tgt.info.statement, "wall_s": round(wall, 1), **p.to_dict()}
     if seq is not None:
-        data["sequential"] = {"episodes": seq.episodes, "stopped": seq.stopped,
-                              "open_after_pilot": seq.open_after_pilot,
-                              "rounds": [{"agents": h["agents"], "open_pairs": h["open_pairs"]} for h in seq.history]}
+        data["sequential"] = {"episodes": seq.episodes, "stopped": seq.stopped, "looks": seq.looks,
+                              "open_after_pilot": seq.open_after_pilot, "rounds": seq.history,
+                              "decisions": [{"a": a, "b": b, "decision": d} for (a, b), d in seq.decisions.items()]}
     (out / "plan.json").write_text(json.dumps(data, indent=1, default=str))
     pd.DataFrame([r.__dict__ for r in p.rows]).to_csv(out / "plan.csv", index=False)
     pd.DataFrame([q.__dict__ for q in p.pairs]).to_csv(out / "pairs.csv", index=False)

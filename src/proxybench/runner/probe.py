@@ -17,13 +17,9 @@ import numpy as np
 
 from proxybench.domain.events import Termination
 from proxybench.domain.kinds import DomainKind
-from proxybench.domain.maps import load_map
-from proxybench.domain.simulator import Simulator
 from proxybench.protocol import jpeg
-from proxybench.runner.episode import SimPlant
 from proxybench.runner.jobs import DomainSpec
-from proxybench.runner.outcomes import camera_filter
-from proxybench.runner.robots import open_robot
+from proxybench.runner.plants import open_plant
 from proxybench.runner.rollout import OpenLoopPolicy, rollout
 
 __all__ = ["Probe", "probe"]
@@ -62,14 +58,8 @@ def probe(domain: DomainSpec, map_name: str, *, frame_rate: float, seed: int = 0
     ``frame_rate`` [Hz]: what a robot node is asked to step at (a simulated domain's comes from its θ).
     A robot node that fails raises :class:`~proxybench.protocol.RobotFailure`.
     """
-    if domain.kind is DomainKind.ROBOT:
-        robot = open_robot(domain, frame_rate)
-        try:
-            return _drive(robot.plant(load_map(map_name)), seed, pwm, seconds)
-        finally:
-            robot.close()
-    sim = Simulator(map_name, domain.params, n=1)
-    return _drive(SimPlant(sim, camera_filter()), seed, pwm, seconds, kind=domain.kind)
+    with open_plant(domain, map_name, frame_rate=frame_rate) as plant:
+        return _drive(plant, seed, pwm, seconds, kind=None if domain.kind is DomainKind.ROBOT else domain.kind)
 
 
 def _drive(plant, seed: int, pwm: float, seconds: float, kind: str | None = None) -> Probe:
