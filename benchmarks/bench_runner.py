@@ -22,6 +22,7 @@ from rich.console import Console
 from rich.table import Table
 
 from proxybench.agents import ZOO
+from proxybench.domain.params import DomainParams
 from proxybench.runner.backends import make_backend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.sweep import run_jobs
@@ -37,7 +38,7 @@ def main() -> None:
     ap.add_argument("--batch-size", type=int, default=8, help="robots per batched simulator (1: no batching)")
     args = ap.parse_args()
     episodes, seconds = (2, 10.0) if args.quick else (10, 60.0)
-    dom = DomainSpec("default-160x120", {"image_width": 160, "image_height": 120})
+    dom = DomainSpec("default-160x120", DomainParams(image_width=160, image_height=120))
     jobs = [Job(AgentSpec(a), dom, "loop_3x3", e, 1000 + e, seconds) for a in AGENTS for e in range(episodes)]
     backend = make_backend("local", args.workers)
     with tempfile.TemporaryDirectory() as tmp:

@@ -11,7 +11,8 @@ from support.postgres import PostgresServer
 # Programs the tests start as separate processes (agent and robot nodes, AIDO's own code, hostile agents):
 # never import them into the test process (``--doctest-modules`` would), where their module-level code
 # (e.g. AIDO scripts' ``logging.disable``) would change every later test.
-collect_ignore_glob = ["aido/*.py", "hostile_agents/*.py", "protocol_agents/*.py"]
+collect_ignore_glob = ["aido/*.py", "hostile_agents/*.py", "protocol_agents/*.py", "dtps_agents/*.py",
+                       "dtps_robots/*.py"]
 
 
 @pytest.fixture(scope="session")

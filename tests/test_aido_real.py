@@ -214,7 +214,7 @@ def test_proxybench_drives_a_stock_aido_simulator(stock_sim: list[str], transpor
     assert described or "describe_protocol failed" in note  # on Python >= 3.11: the agent's crash, and fallback
     assert traj.meta["source"] == "unreported" and traj.meta["robot"]["kind"] == "unreported"
     assert traj.termination == "off_road"  # AIDO's out-of-tile
-    assert traj.events[-1]["message"] == "Robot 'ego' is out of tile." and 1.0 < traj.duration < 4.0
+    assert traj.events[-1].message == "Robot 'ego' is out of tile." and 1.0 < traj.duration < 4.0
     x, y, _ = start_pose(load_map("loop_3x3"), 3)
     assert (traj["x"][0], traj["y"][0]) == pytest.approx((x, y))
     assert np.diff(traj["t"]) == pytest.approx(1 / 15)  # one sample per frame: a stock simulator sends no trace

@@ -81,7 +81,7 @@ INVALID = [
     # (change, field path, words in the message)
     (_set("durration", 60), "durration", "unknown key (did you mean duration"),
     (_set("episodes.cuont", 3), "episodes.cuont", "unknown key"),
-    (_set("domain.params.trimm", 0.1), "domain.params.trimm", "did you mean trim"),
+    (_set("domain.params.trimm", 0.1), "domain.params", "unknown domain parameter 'trimm' (did you mean 'trim'?)"),
     (_set("scoring.1.tol", 1.0), "scoring.1.tol", "allowed: metric, higher_is_better, tolerance"),
     (_set("duration", -5), "duration", "greater than 0"),
     (_set("scoring.0.tolerance", -0.1), "scoring.0.tolerance", "Input should be greater than or equal to 0"),

@@ -1,14 +1,12 @@
 """duckietown-sdk agents in proxybench (docs/dtps.md): parsing without the SDK, episodes with it.
 
-Tests marked ``sdk`` need the SDK environment (``proxybench dtps setup``) and skip with the reason when it is
-missing, except under ``PROXYBENCH_REQUIRE_DTPS=1`` (CI sets it after running setup), where they fail.
+Tests marked ``sdk`` need the SDK environment (``proxybench dtps setup``; see tests/support/dtps.py).
 The SDK agents here (tests/dtps_agents) use only the SDK's public API, except the misbehaving ones.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,28 +15,15 @@ import numpy as np
 import pytest
 
 from proxybench.dtps import pipe
-from proxybench.dtps.env import DtpsEnvError, sdk_python
+from proxybench.dtps.env import sdk_python
 from proxybench.dtps.maplayer import map_layers
 from proxybench.dtps.options import SdkOptions, parse_sdk
 from proxybench.experiments.agent_args import AgentArgError, parse_agent
 from proxybench.runner.jobs import AgentSpec, is_privileged
 from proxybench.tasks.agent_entries import AgentEntry
+from support.dtps import sdk
 
 AGENTS = Path(__file__).parent / "dtps_agents"
-
-
-def _sdk_missing() -> str | None:
-    try:
-        sdk_python()
-    except DtpsEnvError as exc:
-        return str(exc)
-    return None
-
-
-_MISSING = _sdk_missing()
-if _MISSING and os.environ.get("PROXYBENCH_REQUIRE_DTPS") == "1":
-    raise RuntimeError(f"PROXYBENCH_REQUIRE_DTPS=1 but {_MISSING}")
-sdk = pytest.mark.skipif(_MISSING is not None, reason=f"{_MISSING}")
 
 
 # -------------------------------------------------------------------------------- without the SDK
@@ -136,10 +121,10 @@ def test_lockstep_runs_repeat_sample_for_sample():
 def test_misbehaving_sdk_agents_end_as_named_failures(how, timing, reason):
     traj, _ = _episode(f"python3 misbehave.py {how}", 3.0, timing=timing, start_timeout=15.0, step_timeout=3.0)
     assert traj.termination == "agent_failure"
-    (event,) = [e for e in traj.events if e["kind"] == "agent_failure"]
-    assert event["reason"] == reason, event
+    (event,) = [e for e in traj.events if e.kind == "agent_failure"]
+    assert event.reason == reason, event
     if how == "crash":
-        assert event["exit_code"] == 3 and any("giving up on frame 3" in line for line in event["stderr_tail"])
+        assert event.exit_code == 3 and any("giving up on frame 3" in line for line in event.stderr_tail)
 
 
 @sdk
@@ -159,17 +144,25 @@ def test_an_sdk_agent_is_ranked_by_predictivity(tmp_path):
 
 @sdk
 def test_dtps_serve_records_episodes_ended_by_the_agents_reset(tmp_path):
+    """The agent is started once the server says it serves (an SDK agent started earlier cannot connect); the
+    agent reads the camera and publishes state/reset after a second, which ends the episode as ``reset``."""
     out = tmp_path / "serve"
-    server = subprocess.Popen([sys.executable, "-m", "proxybench", "dtps", "serve", "--seconds", "90", "--width", "160",
-                               "--height", "120", "--out", str(out)], stdout=subprocess.PIPE, text=True)
+    server = subprocess.Popen([sys.executable, "-m", "proxybench", "dtps", "serve", "--seconds", "90",
+                               "--episode-seconds", "30", "--width", "160", "--height", "120", "--out", str(out)],
+                              stdout=subprocess.PIPE, text=True)
     agent = None
+    log = tmp_path / "agent.log"
+    lines: list[str] = []
     try:
-        assert "serving a SIMULATED DB21J" in server.stdout.readline()
-        agent = subprocess.Popen([str(sdk_python()), str(AGENTS / "reset.py")], stderr=subprocess.DEVNULL)
-        lines = []
-        while not any("end=reset" in line for line in lines):  # until an episode ends by the agent's reset
+        while not any("serving a SIMULATED DB21J" in line for line in lines):
             line = server.stdout.readline()
-            assert line, f"the server ended: {lines}"
+            assert line, f"the server ended before serving: {lines}"
+            lines.append(line)
+        with log.open("w") as err:
+            agent = subprocess.Popen([str(sdk_python()), str(AGENTS / "reset.py")], stderr=err)
+        while not any("end=reset" in line for line in lines):  # until an episode ends by the agent's reset
+            line = server.stdout.readline()  # the server ends within --seconds: this loop does too
+            assert line, f"the server ended: {lines}; agent (exit {agent.poll()}): {log.read_text()[-2000:]}"
             lines.append(line)
     finally:
         if agent is not None:
@@ -179,5 +172,7 @@ def test_dtps_serve_records_episodes_ended_by_the_agents_reset(tmp_path):
         server.wait()
     from proxybench.tasks.trajectory import Trajectory
 
-    ends = [Trajectory.load(p).termination for p in sorted(out.glob("episode-*.parquet"))]
-    assert "reset" in ends, ends
+    trajs = [Trajectory.load(p) for p in sorted(out.glob("episode-*.parquet"))]
+    ended = [t for t in trajs if t.termination == "reset"]
+    assert ended, [t.termination for t in trajs]
+    assert ended[0].meta["served"]["stats"]["resets"] >= 1 and ended[0].duration < 30.0

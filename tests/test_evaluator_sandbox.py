@@ -30,7 +30,9 @@ from proxybench.evaluator.sandbox import (
     detect_isolation,
     prepare_agent,
 )
-from proxybench.protocol.package import PackageError, check_archive, extract_archive
+from proxybench.protocol.package import PackageError, check_archive
+from proxybench.protocol.unpack import extract_archive
+from support.jobs import worker_job
 from support.sandbox import require_safe_sandbox
 
 MANIFEST = b"name: t\nprotocol: aido-z2\ncommand: [python3, agent.py]\n"
@@ -257,9 +259,7 @@ def test_a_fifo_package_printing_to_stdout_runs_in_the_sandbox(tmp_path: Path, i
     job_dir.mkdir(mode=0o700)
     (job_dir / "agent.archive").write_bytes(data)
     (job_dir / "job.json").write_text('{"hidden_seed": 123}')
-    cfg = {"lease": {"submission": {"agent": None, "archive_sha256": hashlib.sha256(data).hexdigest()}},
-           "isolation": dataclasses.asdict(isolation), "limits": dataclasses.asdict(Limits())}
-    job = _Job(job_dir, cfg)
+    job = _Job(job_dir, worker_job(isolation, archive_sha256=hashlib.sha256(data).hexdigest(), limits=Limits()))
     spec = job.agent(None)
     assert spec.node_options().transport == "fifo"
     agent = make_agent_for(spec)
@@ -336,7 +336,7 @@ def test_calibration_and_reality_model_compliance() -> None:
     bad = check_calibration({"trim": 0.3, "camera_height": 0.2}, spec)
     assert not bad.ok and "trim" in bad.detail and "camera_height" in bad.detail
     bench = Benchmark.load("aido_lf")
-    target = DomainParams.model_validate(benchmark_domain(bench, "reality").params)
+    target = benchmark_domain(bench, "reality").params
     report = check_reality_model(bench, target)
     assert report.ok, report.failures()
     assert report.domain_kind == "reality-model" and "not a real robot" in report.target
@@ -387,19 +387,21 @@ def test_an_agent_cannot_pass_its_failure_off_as_the_hosts(tmp_path: Path, isola
     from proxybench.evaluator.run import _Job
 
     tail = [["bwrap: Creating new namespace failed: No space left on device"]]
-    _Job(tmp_path, {"lease": {}, "isolation": dataclasses.asdict(isolation)}).check_sandbox(tail)  # no fault
+    _Job(tmp_path, worker_job(isolation)).check_sandbox(tail)  # no fault
     broken = dataclasses.replace(isolation, bwrap="/bin/false")
     with pytest.raises(HostFault, match="the sandbox stopped working on this host"):
-        _Job(tmp_path, {"lease": {}, "isolation": dataclasses.asdict(broken)}).check_sandbox(tail)
+        _Job(tmp_path, worker_job(broken)).check_sandbox(tail)
 
 
 def test_the_evaluator_uploads_only_files_of_the_job_folder(tmp_path: Path) -> None:
     """Even an outcome naming /etc/shadow or a link to it (say, from a buggy worker) uploads nothing of it."""
     from proxybench.evaluator.outcome import Artifact, Outcome
-    from proxybench.evaluator.worker import job_artifacts_only, read_plain_file
+    from proxybench.evaluator.workdir import StateDir
+    from proxybench.evaluator.worker import job_artifacts_only
 
-    job = tmp_path / "job"
-    job.mkdir()
+    state = StateDir(tmp_path / "work")
+    folder = state.new_job("job")
+    job = folder.path
     (job / "evaluator.log").write_text("fine")
     (job / "trajectories-validation.zip").symlink_to("/etc/passwd")
     zipped = "trajectories-validation.zip"
@@ -410,8 +412,9 @@ def test_the_evaluator_uploads_only_files_of_the_job_folder(tmp_path: Path) -> N
     kept = job_artifacts_only(Outcome.parse(json.dumps(dataclasses.asdict(sent))), job)
     assert [a.name for a in kept.artifacts] == ["evaluator.log", "trajectories-validation.zip"]
     assert "'shadow' refused" in kept.message and "'../evaluator.log' refused" in kept.message
-    assert read_plain_file(job / "evaluator.log") == b"fine"
+    assert folder.read("evaluator.log") == b"fine"
     with pytest.raises(OSError):  # a link is never followed when uploading
-        read_plain_file(job / "trajectories-validation.zip")
+        folder.read("trajectories-validation.zip")
+    state.close()
     with pytest.raises(ValueError, match="unknown status"):
         Outcome.parse('{"status": "rank-1"}')

@@ -68,25 +68,29 @@ def test_summary_counts_a_rung_only_when_the_score_stays_above_the_reference():
                "bad": _proxy("proxy:camera_pitch=35", 12.0), "free": _proxy("randomized", 19.5)}
     res = PLVResult(cfg, runs, proxies, expert_score=21.0)
     s = summarize(res)
-    assert s.reference == pytest.approx(0.95 * 20.05) and not s.converged_ok  # 18.05 → 20.05 is > 5 %
+    assert s.ladder_reference == pytest.approx(0.95 * 20.05) and not s.converged_ok  # 18.05 → 20.05 is > 5 %
     assert s.target_first == DataCost(500) and s.target_needed == DataCost(2000)  # 500 fell below P at 1,000
     rows = {r["proxy"]: r for r in s.rows}
-    assert rows["good"]["needed"] == 250 and rows["good"]["plv"] == 1750 and rows["good"]["reduction_label"] == "88 %"
-    assert rows["flaky"]["first_reached"] == 0 and rows["flaky"]["needed"] == 500  # zero-shot reached P, then fell
-    assert rows["flaky"]["plv"] == 1500
-    assert rows["bad"]["plv"] is None and rows["bad"]["plv_label"] == "not reached"
-    assert rows["bad"]["needed_label"] == "not reached" and rows["bad"]["tried_up_to"] == 2000
-    assert rows["free"]["needed"] == 0 and rows["free"]["reduction_label"] == "100 %"  # zero-shot, and it stays
+    good, flaky, bad, free = rows["good"], rows["flaky"], rows["bad"], rows["free"]
+    assert good["ladder_needed"] == 250 and good["ladder_plv"] == 1750 and good["ladder_reduction_label"] == "88 %"
+    assert flaky["first_reached"] == 0 and flaky["ladder_needed"] == 500  # zero-shot reached P, then fell
+    assert flaky["ladder_plv"] == 1500
+    assert bad["ladder_plv"] is None and bad["ladder_plv_label"] == "not reached"
+    assert bad["ladder_needed_label"] == "not reached" and bad["tried_up_to"] == 2000
+    assert free["ladder_needed"] == 0 and free["ladder_reduction_label"] == "100 %"  # zero-shot, and it stays
     # every seed sits 0.05 from its rung's mean, far from P: the bootstrap cannot move any answer
-    assert rows["good"]["plv_ci"] == "1,750 [1,750, 1,750]" and rows["bad"]["plv_ci"] == "not reached"
-    assert rows["free"]["reached_share"] == 1.0 and rows["bad"]["reached_share"] == 0.0
+    assert good["ladder_plv_ci"] == "1,750 [1,750, 1,750]" and bad["ladder_plv_ci"] == "not reached"
+    assert free["ladder_reached_share"] == 1.0 and bad["ladder_reached_share"] == 0.0
     assert s.intervals.target_needed.label() == "2,000 [2,000, 2,000]"
+    # the fitted curves: a bad proxy stays far below P (not reached); the others reach it, each with a number
+    assert bad["plv"] is None and bad["status"] == "not reached" and bad["plv_label"] == "not reached"
+    assert good["status"] == "ok" and good["plv"] == pytest.approx(s.target_cost - good["needed"])
+    assert free["needed"] == 0.0 and free["reduction"] == pytest.approx(1.0)  # above P from zero-shot on
     text = "\n".join(findings(res, s))
-    assert "flaky first reached P with 0 target samples but did not stay above it" in text
-    assert "Target-only first reached P with 500 samples but fell below it again" in text
+    assert "flaky" in text and "the ladder rule" in text and "Fitted target-only curve" in text
     assert "bad: zero-shot 12.05 [12.00, 12.10]; P not reached" in text and "Spearman" in text
     table = table_rows(res, s)
-    assert table[0]["first reached P"] == "500" and "2,000 [2,000, 2,000]" in table[0].values()
+    assert table[0]["ladder: samples (reach and stay)"] == "2,000 [2,000, 2,000]"
     assert table[2]["zero-shot score [95 % CI]"] == "19.55 [19.50, 19.60]"
 
 
@@ -145,7 +149,8 @@ def test_plv_command_runs_a_tiny_experiment_and_writes_the_report(tmp_path):
     assert all(r["on_policy"] > 0 for r in blob["runs"])  # DAgger spent part of each rung on-policy
     assert blob["config"]["width"] == 32 and blob["config"]["replicates"] == 2000  # quick's, where not overridden
     assert set(blob["proxies"]["pitch 35°"]["zero_shot_by_seed"]) == {"0", "1"}  # one pre-training per seed
-    assert blob["summary"]["intervals"]["method"] == "percentile bootstrap over seeds"
+    assert blob["summary"]["intervals"]["method"] == "percentile bootstrap over seeds"  # the ladder rule's
+    assert "saturating power law" in blob["summary"]["fitted"]["method"]
     assert "simulated stand-in" in (out / "report.html").read_text()
     again = CliRunner().invoke(app, args)
     assert again.exit_code == 0 and "units from the cache" in again.output  # resumed from the cache

@@ -95,7 +95,7 @@ def test_bc_agent_drives_a_simulator_episode(trained, tmp_path):
     # the robot's camera is larger than the network input: frames are resampled
     sim = Simulator("loop_3x3", reality_domain(64, 48).params)
     traj = run_episode(sim, agent, seed=4, seconds=2.0, allow_privileged=False)
-    assert traj.termination in ("timeout", "off_road") and not [e for e in traj.events if e["kind"] == "agent_failure"]
+    assert traj.termination in ("timeout", "off_road") and not [e for e in traj.events if e.kind == "agent_failure"]
     assert len(traj) > 10 and np.isfinite(METRICS["lane_score"](traj))
     assert np.abs(traj["pwm_left"][1:]).max() > 0  # it actually commanded the wheels
 

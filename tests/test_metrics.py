@@ -8,7 +8,7 @@ import pytest
 
 from proxybench.domain.maps import load_map
 from proxybench.tasks.metrics import LANE_HALF_WIDTH, METRICS, UNIT_DECIMALS, deviation_curves, repeatability
-from proxybench.tasks.trajectory import Trajectory, TrajectoryError
+from proxybench.tasks.trajectory import Event, Trajectory, TrajectoryError
 
 TS = 0.585
 EAST_LANE_Y = 1.5 * TS - 0.22 * TS  # centre of the eastbound right lane on straight_road
@@ -125,7 +125,7 @@ def test_unknown_format_and_missing_file(tmp_path):
 
 def test_parquet_round_trip_keeps_columns_meta_and_events(road, tmp_path):
     traj = _drive(road, 0.3, 0.2, 2.0, EAST_LANE_Y, 0.0)
-    traj.events.append({"t": 1.0, "kind": "note", "message": "hello"})
+    traj.events.append(Event(1.0, "note", "hello", extra={"by": "a lab's importer"}))
     path = traj.save(tmp_path / "a.parquet")
     back = Trajectory.load(path)
     assert back.meta == traj.meta and back.events == traj.events and back.termination == traj.termination

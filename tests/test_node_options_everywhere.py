@@ -13,12 +13,14 @@ import pytest
 from typer.testing import CliRunner
 
 from proxybench.cli import app
+from proxybench.domain.params import DomainParams
 from proxybench.experiments.agent_args import parse_agents
 from proxybench.experiments.config import ConfigError, load_config, resolve
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets import TargetError, open_target
+from support.jobs import worker_job
 
 runner = CliRunner()
 HERE = Path(__file__).resolve().parent
@@ -132,7 +134,7 @@ def test_evaluator_target_jobs_start_the_robot_node_with_its_options(tmp_path: P
         "name": "tiny_robot", "map": "loop_3x3", "episodes": {"count": 1, "seed": 1}, "duration": 1.0,
         "domain": {"params": {"image_width": 80, "image_height": 60}}, "metrics": ["survival_time"],
         "scoring": [{"metric": "survival_time_median"}]})
-    options = _Job(tmp_path, {"lease": {}, "robot_options": {"cwd": str(bridge), "transport": "fifo"}}).robot_options()
+    options = _Job(tmp_path, worker_job(robot_options={"cwd": str(bridge), "transport": "fifo"})).robot_options()
     assert options == RobotNodeOptions(cwd=str(bridge), transport="fifo")
     report = check_robot(bench, ROBOT, options=options)
     assert report.ok, report.failures()
@@ -159,8 +161,7 @@ def _solution(tmp_path: Path) -> Path:
 
 def test_experiment_agents_take_benchmark_entries_with_node_options(tmp_path: Path) -> None:
     sub = _solution(tmp_path)
-    exp = tmp_path / "exp" / "exp.yaml"
-    exp.parent.mkdir()
+    exp = tmp_path / "exp.yaml"  # the submission lies inside the file's folder (a cwd may not leave it)
     exp.write_text(f"""
 agents:
   - pid
@@ -168,7 +169,7 @@ agents:
   - quick=python3 agent.py
   - name: lf
     command: {PY} solution.py --print --need model.bin
-    cwd: ../submissions/lf
+    cwd: submissions/lf
     transport: fifo
     step_timeout: 2
     reflection: false
@@ -181,7 +182,7 @@ agents:
     assert (options.cwd, options.transport, options.step_timeout, options.reflection) == (str(sub), "fifo", 2.0,
                                                                                           False)
     # the node runs with them: it prints to stdout (fine over FIFOs) and needs a file of its folder
-    (res,) = run_jobs([Job(specs[3], DomainSpec("small", {"image_width": 80, "image_height": 60}), "loop_3x3", 0,
+    (res,) = run_jobs([Job(specs[3], DomainSpec("small", DomainParams(image_width=80, image_height=60)), "loop_3x3", 0,
                            1, 0.5)], tmp_path / "runs").results
     assert res.termination == "timeout", res.message
 

@@ -122,11 +122,11 @@ def test_driving_into_an_npc_robot_ends_the_episode_with_collision():
     sim = Simulator(STRAIGHT, SMALL, npcs=Traffic(robots=(PARKED,)))
     traj = run_episode(sim, StraightAgent(0.5), 0, 6.0, pose=POSE, camera=False)
     assert traj.termination == "collision" and traj.duration < 3.0
-    hit = [e for e in traj.events if e["kind"] == "collision"]
-    assert hit[0]["with"] == "robot"
+    hit = [e for e in traj.events if e.kind == "collision"]
+    assert hit[0].with_ == "robot"
     gap = math.hypot(traj["x"][-1] - AHEAD[0], traj["y"][-1] - AHEAD[1])
     assert 0.13 < gap < 0.15  # stopped at the first tick within 0.15 m of its centre
-    assert any(e["kind"] == "npc_stopped" and "hit a robot" in e["message"] for e in traj.events)
+    assert any(e.kind == "npc_stopped" and "hit a robot" in e.message for e in traj.events)
     assert traj.meta["npcs"]["robots"][0]["speed_scale"] == 0.0
 
 
@@ -137,7 +137,7 @@ def test_a_crossing_pedestrian_ends_the_episode_a_waiting_one_does_not():
         traj = run_episode(sim, StraightAgent(0.5), 0, 4.0, pose=POSE, camera=False)
         assert traj.termination == ending
         if ending == "collision":
-            assert traj.events[-1]["with"] == "pedestrian"
+            assert traj.events[-1].with_ == "pedestrian"
 
 
 def test_an_npc_that_leaves_the_road_stops_for_good():
@@ -145,8 +145,8 @@ def test_an_npc_that_leaves_the_road_stops_for_good():
     sim = Simulator(STRAIGHT, SMALL, npcs=Traffic(robots=(off,)))
     traj = run_episode(sim, make_agent("pid"), 0, 5.0, pose=POSE, camera=False)
     assert sim.npc_stopped.tolist() == [True] and abs(sim.npc_state[0, 3]) < 0.01  # stopped, standing
-    stop = [e for e in traj.events if e["kind"] == "npc_stopped"]
-    assert len(stop) == 1 and "left the road" in stop[0]["message"] and stop[0]["t"] < 2.0
+    stop = [e for e in traj.events if e.kind == "npc_stopped"]
+    assert len(stop) == 1 and "left the road" in stop[0].message and stop[0].t < 2.0
     assert traj.termination == "timeout"  # stranded beside the road, it is in nobody's way
 
 
@@ -267,7 +267,7 @@ def test_lfv_and_lfp_load_and_run_a_short_episode(tmp_path, name):
     ev = evaluate_benchmark(short, [AgentSpec("pid")], tmp_path)
     (res,) = ev.sweep.results
     assert res.termination in ("timeout", "collision") and res.scores["survival_time"] > 0
-    plain = Job(AgentSpec("pid"), DomainSpec("default", DomainParams().model_dump(mode="json")), "loop_3x3", 0, 0, 2.0)
+    plain = Job(AgentSpec("pid"), DomainSpec("default", DomainParams()), "loop_3x3", 0, 0, 2.0)
     assert dataclasses.replace(plain, npcs=bench.traffic()).key != plain.key  # NPCs are part of the job key
 
 

@@ -226,7 +226,7 @@ def test_collision_ends_runner_episodes_and_env_episodes_with_reason():
     m = with_objects(MapObject("duckie", POSE[0] + 0.5, POSE[1]))
     sim = Simulator(m, DomainParams(image_width=80, image_height=60))
     traj = run_episode(sim, StraightAgent(0.5), 0, 10.0, pose=POSE)
-    assert traj.termination == "collision" and traj.events[-1]["kind"] == "collision"
+    assert traj.termination == "collision" and traj.events[-1].kind == "collision"
     assert traj.duration < 3.0
     env = LaneFollowingEnv(map=m, params={"image_width": 80, "image_height": 60})
     env.reset(seed=0, options={"pose": POSE})

@@ -38,15 +38,19 @@ def test_pair_needs_follow_the_two_sample_formula():
     assert need.a == "a" and need.b == "b"
     exact = (1.96 + 0.8416) ** 2 * (few["a"].std(ddof=1) ** 2 + few["b"].std(ddof=1) ** 2) / (
         few["a"].mean() - few["b"].mean()) ** 2
-    assert need.episodes == math.ceil(exact)
+    assert abs(need.plug_in - math.ceil(exact)) <= 2  # the pilot's point values (t, not z: a little more)
+    assert need.episodes_low < need.plug_in < need.episodes_high  # a 3-episode pilot gives a range, not a point
 
 
-def test_exact_ties_are_settled_and_ties_within_noise_need_infinitely_many():
+def test_exact_ties_are_settled_and_ties_within_noise_need_a_tolerance_to_be_finite():
     tie = {"a": np.full((3, 1), 20.0), "b": np.full((3, 1), 20.0)}  # both always survive the whole episode
     assert pair_needs(tie, (True,), ("survival",))[0].settled
     noisy = {"a": np.array([[1.0], [2.0], [3.0]]), "b": np.array([[3.0], [2.0], [1.0]])}
-    need = pair_needs(noisy, (True,), ("x",))[0]
-    assert not need.settled and need.episodes == math.inf
+    strict = pair_needs(noisy, (True,), ("x",))[0]
+    assert not strict.settled and strict.plug_in == math.inf  # no tolerance: a tie is never settled
+    tolerant = pair_needs(noisy, (True,), ("x",), tolerances=(1.0,))[0]
+    assert not tolerant.settled and math.isfinite(tolerant.plug_in) and math.isfinite(tolerant.episodes_high)
+    assert tolerant.episodes_high < strict.episodes_high
 
 
 def test_plan_finds_the_episodes_for_a_width_near_the_analytic_answer():

@@ -130,7 +130,7 @@ def test_the_runner_drives_a_robot_that_sends_no_extension(stand_in: list[str], 
         traj = run_episode_on_robot(robot, make_agent("straight"), seed=3, seconds=4.0, map_="loop_3x3")
         assert "describe_protocol failed" in robot.process.reflection_note  # restarted without it
     assert traj.meta["source"] == "unreported" and traj.termination == "off_road"
-    assert traj.events[-1]["message"] == "Robot 'ego' is out of tile."
+    assert traj.events[-1].message == "Robot 'ego' is out of tile."
     x, y, _ = start_pose(LOOP, 3)
     assert (traj["x"][0], traj["y"][0]) == pytest.approx((x, y))
     assert np.diff(traj["t"]) == pytest.approx(1 / 15)  # one sample per frame

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import shlex
 import sys
@@ -10,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from proxybench.domain.params import DomainParams
 from proxybench.runner.backends import LocalBackend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.robot_jobs import robot_slot
@@ -34,7 +36,7 @@ def test_spec_rejects_what_a_robot_domain_cannot_be():
     with pytest.raises(ValueError, match="needs command"):
         DomainSpec("r", kind="robot")
     with pytest.raises(ValueError, match="takes no params"):
-        DomainSpec("r", {"trim": 0.1}, kind="robot", command="x")
+        DomainSpec("r", DomainParams(trim=0.1), kind="robot", command="x")
     with pytest.raises(ValueError, match="only for kind='robot'"):
         DomainSpec("s", command="x")
     with pytest.raises(ValueError, match="kind must be one of"):
@@ -48,12 +50,13 @@ def test_the_command_is_part_of_the_key_and_simulated_keys_did_not_change():
     job = _jobs(a)[0]
     assert job.key != Job(job.agent, b, job.map, job.episode, job.seed, job.duration, job.pose,
                           metrics=job.metrics).key
-    assert DomainSpec("s", SMALL).canonical() == '{"kind": "simulation", "params": {"image_height": 60, ' \
-                                                 '"image_width": 80}}'
+    small = DomainParams(**SMALL)  # θ in the key exactly as the dict of its fields was before it was typed
+    assert DomainSpec("s", small).canonical() == json.dumps({"kind": "simulation",
+                                                             "params": small.model_dump(mode="json")}, sort_keys=True)
 
 
 def test_robot_domain_equals_the_in_process_run_and_resumes_from_the_cache(tmp_path):
-    sim = run_jobs(_jobs(DomainSpec("small", SMALL)), tmp_path / "sim")
+    sim = run_jobs(_jobs(DomainSpec("small", DomainParams(**SMALL))), tmp_path / "sim")
     robot_dom = DomainSpec("robot", kind="robot", command=SERVE)
     got = run_jobs(_jobs(robot_dom), tmp_path / "robot", batch_size=3)  # two node processes, one after another
     assert got.ran == 4 and got.cached == 0

@@ -105,7 +105,7 @@ def test_agent_failure_ends_the_episode_like_in_process(robot, sim):
     ref = run_episode(sim, Failing(), 1, 2.0, image_filter=camera_filter())
     got = run_episode_on_robot(robot, Failing(), 1, 2.0, map_="loop_3x3")
     assert_same(got, ref)
-    assert got.termination == "agent_failure" and "gives up" in got.events[0]["message"]
+    assert got.termination == "agent_failure" and "gives up" in got.events[0].message
 
 
 def test_run_cli_drives_an_external_robot(tmp_path):

@@ -45,7 +45,7 @@ def test_an_agent_that_fails_ends_only_its_own_robot():
 
     trajs = rollout(SimPlant(Simulator("loop_3x3", SMALL, n=2)), AgentPolicy([Breaks(0.3), StraightAgent(0.3)]),
                     [1, 2], 1.0, camera=False)
-    assert trajs[0].termination == "agent_failure" and "lost" in trajs[0].events[-1]["message"]
+    assert trajs[0].termination == "agent_failure" and "lost" in trajs[0].events[-1].message
     assert trajs[1].termination == "timeout" and trajs[1].duration == pytest.approx(1.0)
 
 
@@ -55,7 +55,7 @@ def test_the_ending_rule_names_what_ended_the_episode():
     while not ended(sim)[0]:
         sim.step(np.array([[0.6, 0.6]]))
     event = end_event(sim, 0)
-    assert event["kind"] == "off_road" and event["t"] == pytest.approx(float(sim.time[0]))
+    assert event.kind == "off_road" and event.t == pytest.approx(float(sim.time[0]))
     with pytest.raises(ValueError, match="not ended"):
         sim.reset(0, 1)
         end_event(sim, 0)

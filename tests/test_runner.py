@@ -27,7 +27,7 @@ METRIC_NAMES = ("survival_time", "driven_lanedir_consec", "deviation_center_line
 
 
 def _jobs(agents=("pid", "straight"), episodes=2, duration=4.0):
-    dom = DomainSpec("small", SMALL)
+    dom = DomainSpec("small", DomainParams(**SMALL))
     return [Job(AgentSpec(a), dom, "loop_3x3", e, 10 + e, duration, metrics=METRIC_NAMES)
             for a in agents for e in range(episodes)]
 
@@ -69,9 +69,10 @@ def test_a_damaged_record_is_redone(tmp_path):
 def test_killed_sweep_resumes_without_redoing_finished_episodes(tmp_path):
     script = tmp_path / "sweep.py"
     script.write_text(textwrap.dedent(f"""
+        from proxybench.domain.params import DomainParams
         from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
         from proxybench.runner.sweep import run_jobs
-        dom = DomainSpec("small", {SMALL!r})
+        dom = DomainSpec("small", DomainParams(**{SMALL!r}))
         jobs = [Job(AgentSpec("pid"), dom, "loop_3x3", e, e, 8.0, metrics={METRIC_NAMES!r}) for e in range(40)]
         run_jobs(jobs, {str(tmp_path / "run")!r})
     """))
@@ -84,7 +85,7 @@ def test_killed_sweep_resumes_without_redoing_finished_episodes(tmp_path):
     proc.wait()
     done_before = {p.name: p.stat().st_mtime_ns for p in ep.glob("*.json")}
     assert 3 <= len(done_before) < 40, "the sweep should have been killed mid-way"
-    dom = DomainSpec("small", SMALL)
+    dom = DomainSpec("small", DomainParams(**SMALL))
     jobs = [Job(AgentSpec("pid"), dom, "loop_3x3", e, e, 8.0, metrics=METRIC_NAMES) for e in range(40)]
     res = run_jobs(jobs, tmp_path / "run")
     assert res.cached >= len(done_before) and res.cached + res.ran == 40
@@ -151,7 +152,7 @@ def test_agent_failure_ends_the_episode_with_its_message():
     sim = Simulator("loop_3x3", DomainParams(**SMALL))
     traj = run_episode(sim, _Crashing(5), 0, 10.0)
     assert traj.termination == "agent_failure"
-    assert traj.events[-1]["kind"] == "agent_failure" and "boom" in traj.events[-1]["message"]
+    assert traj.events[-1].kind == "agent_failure" and "boom" in traj.events[-1].message
     assert traj.duration == pytest.approx(5 / 15)
 
 

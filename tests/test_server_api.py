@@ -214,9 +214,10 @@ def test_archive_submissions_checked_and_artifacts_scoped(api):
     import hashlib
 
     h_log, h_secret = hashlib.sha256(log).hexdigest(), hashlib.sha256(secret).hexdigest()
+    under = {"job_id": lease["job_id"], "lease_id": lease["lease_id"]}  # a result names only its lease's uploads
     assert api.c.put(f"/api/v1/artifacts/{h_log}", headers=api.ev, content=b"other bytes").status_code == 422
-    assert api.c.put(f"/api/v1/artifacts/{h_log}", headers=api.ev, content=log).status_code == 201
-    assert api.c.put(f"/api/v1/artifacts/{h_secret}", headers=api.ev, content=secret).status_code == 201
+    assert api.c.put(f"/api/v1/artifacts/{h_log}", headers=api.ev, content=log, params=under).status_code == 201
+    assert api.c.put(f"/api/v1/artifacts/{h_secret}", headers=api.ev, content=secret, params=under).status_code == 201
     assert api.c.put(f"/api/v1/artifacts/{h_log}", headers=api.dev, content=log).status_code == 403
     r = api.finish(lease, artifacts=[{"name": "log.txt", "sha256": h_log},
                                      {"name": "test.parquet", "sha256": h_secret, "hidden": True}])

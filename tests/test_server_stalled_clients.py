@@ -25,9 +25,9 @@ BODY_TIMEOUT = 8.0  # s: the server's body_timeout in this test
 TRAFFIC_SECONDS = 5.0
 
 
-def _stall(port: int, kind: int, ev_token: str) -> socket.socket:
-    """Open a connection and send headers and half of a body, then nothing more."""
-    s = socket.create_connection(("127.0.0.1", port), timeout=30)
+def _stall(port: int, kind: int, ev_token: str, source: str) -> socket.socket:
+    """Open a connection from ``source`` and send headers and half of a body, then nothing more."""
+    s = socket.create_connection(("127.0.0.1", port), timeout=30, source_address=(source, 0))
     if kind == 0:  # unauthenticated JSON
         head, declared = b"POST /api/v1/submissions HTTP/1.1\r\nContent-Type: application/json\r\n", 20_000
     elif kind == 1:  # an evaluator's artifact upload that stops halfway
@@ -94,7 +94,8 @@ def test_stalled_bodies_do_not_freeze_the_server(tmp_path, database_url):
             ev = c.post("/api/v1/users", headers={"Authorization": f"Bearer {admin}"},
                         json={"name": "ev", "role": "evaluator"}).json()["token"]
         t_stall = time.monotonic()
-        stalled = [_stall(server.port, k % 4, ev) for k in range(STALLED)]
+        # from two addresses other than the traffic's (one address gets at most max_readers_per_address bodies)
+        stalled = [_stall(server.port, k % 4, ev, f"127.0.0.{2 + k % 2}") for k in range(STALLED)]
         time.sleep(0.5)
         lat: dict[str, list[float]] = {"health": [], "leaderboard": [], "submission": []}
         failures: list[str] = []

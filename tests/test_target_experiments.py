@@ -143,14 +143,14 @@ def test_cli_reports_bad_targets_and_configs_by_name(tmp_path):
     res = runner.invoke(app, ["predictivity", "--config", str(bad), "--out", str(tmp_path / "o")])
     assert res.exit_code == 2 and f"{bad}: n_bot: unknown key (did you mean 'n_boot'?)" in res.output
     res = runner.invoke(app, ["optimize", "--target", str(tmp_path / "none"), "--out", str(tmp_path / "o")])
-    assert res.exit_code == 2 and "is not 'reality', 'robot:COMMAND' or an existing directory" in res.output
+    assert res.exit_code == 2 and "is not 'reality', 'robot:COMMAND', 'dtps:HOST[:PORT]/PATH' or an" in res.output
     res = runner.invoke(app, ["predictivity", "--agent", "nobody", "--out", str(tmp_path / "o")])
     assert res.exit_code == 2 and "agents: agent 'nobody' is not a zoo agent" in res.output
     res = runner.invoke(app, ["predictivity", "--sweep", "trim=a,b", "--out", str(tmp_path / "o")])
     assert res.exit_code == 2 and "expected NAME=V1,V2" in res.output
     res = runner.invoke(app, ["target", "record", "--out", str(tmp_path / "r"), "--agent", "pid", "--reality",
                               "--robot-cmd", "x"])
-    assert res.exit_code == 2 and "not both" in res.output
+    assert res.exit_code == 2 and "give one of --reality, --robot-cmd, --dtps" in res.output
 
 
 def test_score_saves_its_table_and_the_table_is_a_metrics_target(tmp_path):

@@ -63,7 +63,8 @@ def test_a_lab_recording_loads_with_scores_starts_and_seeds(tmp_path):
 def test_manifest_is_strict_and_names_the_field(tmp_path):
     cases = [
         (manifest(seconds=None), "seconds: required, missing"),
-        (manifest(source="lab"), "source: Input should be 'real', 'reality-model', 'robot-node' or 'simulation'"),
+        (manifest(source="lab"),
+         "source: Input should be 'real', 'reality-model', 'robot-node', 'dtps-robot' or 'simulation'"),
         ({**manifest(), "agnets": ["a"]}, "agnets: unknown key (did you mean 'agents'?)"),
         (manifest(agents=["a", "a"]), "agents: agent 'a' is listed twice"),
         (manifest(trajectories="runs/{agent}.csv"), "lacks {episode}"),
@@ -183,7 +184,8 @@ def test_open_target_tells_the_kinds_apart(tmp_path):
     lab = open_target(str(write_lab(tmp_path / "lab")))
     assert isinstance(lab, RecordedTarget) and lab.info().simulated is False
     assert "REAL robots (as its manifest declares)" in lab.info().statement and "by test lab" in lab.info().statement
-    with pytest.raises(TargetError, match="not 'reality', 'robot:COMMAND' or an existing directory"):
+    with pytest.raises(TargetError, match=r"not 'reality', 'robot:COMMAND', 'dtps:HOST\[:PORT\]/PATH' or an "
+                                          "existing directory"):
         open_target(str(tmp_path / "nowhere"))
     with pytest.raises(TargetError, match="robot: needs the command"):
         open_target("robot:")

@@ -159,9 +159,13 @@ class ServerClient:
             body = Heartbeat(lease_id=lease_id, evaluator=evaluator)
         return HeartbeatReply.model_validate(self.post(f"/jobs/{job_id}/heartbeat", body.model_dump()))
 
-    def put_artifact(self, data: bytes, media_type: str = "application/octet-stream") -> str:
+    def put_artifact(self, data: bytes, media_type: str = "application/octet-stream", *,
+                     lease: tuple[int, str] | None = None) -> str:
+        """Upload bytes by their hash; ``lease`` (job id, lease id): the lease they belong to (a result may list
+        only artifacts its own lease uploaded)."""
         sha = hashlib.sha256(data).hexdigest()
-        self.request("PUT", f"/artifacts/{sha}", content=data, headers={"content-type": media_type})
+        params = {"job_id": lease[0], "lease_id": lease[1]} if lease is not None else None
+        self.request("PUT", f"/artifacts/{sha}", content=data, headers={"content-type": media_type}, params=params)
         return sha
 
     def get_artifact(self, sha256: str) -> bytes:

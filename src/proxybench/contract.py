@@ -22,11 +22,12 @@ NUL bytes and lone surrogates become U+FFFD, so every database stores it. Scores
 
 from __future__ import annotations
 
+import json
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, field_validator, model_validator
 
-from proxybench.untrusted import clean_text, clean_tree, find_non_finite
+from proxybench.untrusted import clean_text, clean_tree, find_non_finite, nesting_depth
 
 __all__ = [
     "REPORTABLE", "ArtifactRef", "Heartbeat", "HeartbeatReply", "Lease", "LeaseRequest", "LeasedBenchmark",
@@ -44,6 +45,10 @@ LeaseId = Annotated[str, StringConstraints(min_length=1, max_length=64, pattern=
 Sha256 = Annotated[str, StringConstraints(pattern=r"^[0-9a-f]{64}$")]
 #: a score: a finite number, or None when it could not be computed (ranks last)
 Score = Annotated[float | None, Field(allow_inf_nan=False)]
+#: how deep and how large a report may be (a report nested 300 deep was stored, then every read of its
+#: submission failed); the evaluator's reports nest about 5 levels
+MAX_REPORT_DEPTH = 32
+MAX_REPORT_BYTES = 4 << 20
 
 
 class _Request(BaseModel):
@@ -78,6 +83,16 @@ class LeasedBenchmark(_Reply):
     version: int
     spec_yaml: str
     test_seed: int | None = Field(None, description="seed of the hidden test episodes (None: no hidden split)")
+    simulated_seconds: float | None = Field(None, description="simulated time of one split: every episode [s]")
+    wall_time_factor: float | None = Field(None, description="the job may take this multiple of its simulated time "
+                                                             "(every split) in wall-clock time")
+
+    @property
+    def wall_budget(self) -> float | None:
+        """Wall-clock seconds the job's episodes may take (every split), or None when the server did not say."""
+        if self.simulated_seconds is None or self.wall_time_factor is None:
+            return None
+        return self.wall_time_factor * self.simulated_seconds * (2 if self.test_seed is not None else 1)
 
 
 class Lease(_Reply):
@@ -121,9 +136,16 @@ class ArtifactRef(_Request):
 
 
 def _finite_tree(value: Any, field: str) -> Any:
+    """A report or progress tree: finite numbers only, nested at most MAX_REPORT_DEPTH, at most MAX_REPORT_BYTES."""
+    depth = nesting_depth(value)
+    if depth > MAX_REPORT_DEPTH:
+        raise ValueError(f"{field} is nested {depth} levels deep; at most {MAX_REPORT_DEPTH}")
     bad = find_non_finite(value)
     if bad is not None:
         raise ValueError(f"{field}.{bad} is not a finite number (NaN and ±inf are not JSON; send null)")
+    size = len(json.dumps(value, ensure_ascii=False, default=str).encode())
+    if size > MAX_REPORT_BYTES:
+        raise ValueError(f"{field} is {size} bytes as JSON; at most {MAX_REPORT_BYTES}")
     return value
 
 

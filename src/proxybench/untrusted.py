@@ -1,4 +1,5 @@
-"""Helpers for input from strangers: YAML with bounded depth, text that any database can store, finite numbers.
+"""Helpers for input from strangers: YAML with bounded depth, text that any database can store, finite numbers,
+files read within limits, and paths written in a file that stay in that file's folder.
 
 Used by the agent-package checks (:mod:`proxybench.protocol.package`), the server and the evaluator's upload
 contract (:mod:`proxybench.contract`), so both sides refuse and clean the same things.
@@ -15,14 +16,19 @@ proxybench.untrusted.UntrustedInputError: line 1, column 9: nested deeper than 3
 
 from __future__ import annotations
 
+import errno
 import math
+import os
 import re
+import stat
 from collections.abc import Mapping
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 import yaml
 
-__all__ = ["UntrustedInputError", "clean_text", "clean_tree", "find_non_finite", "load_yaml", "problems"]
+__all__ = ["UntrustedInputError", "clean_text", "clean_tree", "compose_yaml", "find_non_finite", "inside", "load_yaml",
+           "load_yaml_file", "nesting_depth", "problems", "read_text_file"]
 
 # NUL (PostgreSQL text cannot hold it) and lone surrogates (not encodable as UTF-8)
 _UNSTORABLE = re.compile("[\x00\ud800-\udfff]")
@@ -66,6 +72,23 @@ def find_non_finite(value: Any, path: str = "") -> str | None:
     return None
 
 
+def nesting_depth(value: Any) -> int:
+    """How deeply a JSON-like tree nests (a scalar: 0, ``[1]``: 1), walked without recursion.
+
+    >>> nesting_depth({"a": [1, {"b": []}]})
+    3
+    """
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        node, depth = stack.pop()
+        deepest = max(deepest, depth)
+        if isinstance(node, Mapping):
+            stack.extend((v, depth + 1) for v in node.values())
+        elif isinstance(node, list | tuple):
+            stack.extend((v, depth + 1) for v in node)
+    return deepest
+
+
 class _BoundedLoader(yaml.SafeLoader):
     """PyYAML's safe loader with a nesting limit (deep nesting otherwise ends in a RecursionError) and,
     optionally, no aliases (an alias bomb expands to billions of nodes in whoever walks the result)."""
@@ -93,6 +116,19 @@ class _BoundedLoader(yaml.SafeLoader):
             self._depth -= 1
 
 
+def compose_yaml(text: str, *, max_depth: int = 64, allow_aliases: bool = True) -> Any:
+    """The YAML node tree of ``text`` (what ``yaml.compose`` gives: marks for every node), with the limits of
+    :func:`load_yaml`."""
+    loader_cls = type("Loader", (_BoundedLoader,), {"max_depth": max_depth, "allow_aliases": allow_aliases})
+    loader = loader_cls(text)
+    try:
+        return loader.get_single_node()
+    except RecursionError:
+        raise UntrustedInputError(f"nested too deeply (more than {max_depth} levels)") from None
+    finally:
+        loader.dispose()
+
+
 def load_yaml(text: str, *, max_depth: int = 64, allow_aliases: bool = True) -> Any:
     """``yaml.safe_load`` that cannot recurse without bound. Raises :class:`UntrustedInputError` for too deep
     or (``allow_aliases=False``) aliased documents and ``yaml.YAMLError`` for invalid YAML."""
@@ -104,6 +140,80 @@ def load_yaml(text: str, *, max_depth: int = 64, allow_aliases: bool = True) -> 
         raise UntrustedInputError(f"nested too deeply (more than {max_depth} levels)") from None
     finally:
         loader.dispose()
+
+
+def read_text_file(path: str | os.PathLike[str], *, max_bytes: int = 1 << 20, follow_links: bool = True) -> str:
+    """A file's text: a regular file (not a folder, a device or, with ``follow_links=False``, a link), at most
+    ``max_bytes``, UTF-8. Raises :class:`UntrustedInputError` naming the file and what is wrong."""
+    flags = os.O_RDONLY | os.O_CLOEXEC | os.O_NONBLOCK | (0 if follow_links else os.O_NOFOLLOW)
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        why = "a link (links are not followed here)" if exc.errno == errno.ELOOP else exc.strerror
+        raise UntrustedInputError(f"{path}: cannot read ({why})") from None
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        raise UntrustedInputError(f"{path}: " + ("is a folder, not a file" if stat.S_ISDIR(st.st_mode) else
+                                                 "not a regular file"))
+    with open(fd, "rb") as f:
+        if st.st_size > max_bytes:
+            raise UntrustedInputError(f"{path}: {st.st_size} bytes; at most {max_bytes} are read")
+        data = f.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise UntrustedInputError(f"{path}: more than {max_bytes} bytes")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise UntrustedInputError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+
+
+def load_yaml_file(path: str | os.PathLike[str], *, max_bytes: int = 1 << 20, max_depth: int = 32,
+                   allow_aliases: bool = True, follow_links: bool = True) -> Any:
+    """:func:`load_yaml` of a file read by :func:`read_text_file`; every refusal is an
+    :class:`UntrustedInputError` naming the file (and line and column where YAML says)."""
+    import yaml
+
+    text = read_text_file(path, max_bytes=max_bytes, follow_links=follow_links)
+    try:
+        return load_yaml(text, max_depth=max_depth, allow_aliases=allow_aliases)
+    except UntrustedInputError as exc:
+        raise UntrustedInputError(f"{path}: {exc}") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f":{mark.line + 1}:{mark.column + 1}" if mark is not None else ""
+        raise UntrustedInputError(f"{path}{at}: not valid YAML ({getattr(exc, 'problem', None) or exc})") from None
+
+
+def inside(root: str | os.PathLike[str], written: str, *, field: str) -> Path:
+    """The path ``written`` in a file of the folder ``root`` (its ``field``), as a path inside ``root``.
+
+    It must be relative (no ``/…``, no ``~``), never leave ``root`` (no ``..``), and pass through no link
+    below ``root``: a file from another lab cannot make proxybench read the user's files. Whether the path
+    exists is the caller's to check. Raises :class:`UntrustedInputError` naming the field.
+
+    >>> inside("/data/lab", "runs/a.csv", field="trajectories").as_posix().endswith("lab/runs/a.csv")
+    True
+    >>> inside("/data/lab", "../secret", field="map")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    proxybench.untrusted.UntrustedInputError: map: '../secret' leaves the folder /data/lab (paths in the file ...
+    """
+    base = Path(os.path.realpath(root))
+    if not written or "\x00" in written or "\\" in written:
+        raise UntrustedInputError(f"{field}: {written!r} is not a path inside the folder {base}")
+    rel = PurePosixPath(written)
+    if rel.is_absolute() or written.startswith("~"):
+        raise UntrustedInputError(f"{field}: {written!r} is not relative to the folder {base} (absolute paths and ~ "
+                                  "are not accepted in the file: put the file inside that folder)")
+    if ".." in rel.parts:
+        raise UntrustedInputError(f"{field}: {written!r} leaves the folder {base} (paths in the file stay inside it)")
+    current = base
+    for part in rel.parts:
+        current = current / part
+        if current.is_symlink():
+            raise UntrustedInputError(f"{field}: {written!r}: {current} is a link (links are not followed)")
+    return current
 
 
 def problems(exc: Any, prefix: str = "") -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import resource
 import signal
 import socket
 import subprocess
@@ -23,13 +24,15 @@ def free_port() -> int:
 
 class LiveServer:
     def __init__(self, data_dir: Path, database_url: str | None = None, lease_seconds: float = 120.0,
-                 evaluators: int = 0, workers: int | None = None, env: dict[str, str] | None = None) -> None:
+                 evaluators: int = 0, workers: int | None = None, env: dict[str, str] | None = None,
+                 open_files: int | None = None) -> None:
         self.data_dir = data_dir
         self.database_url = database_url
         self.lease_seconds = lease_seconds
         self.evaluators = evaluators
         self.workers = workers
         self.env = env or {}
+        self.open_files = open_files  # the soft RLIMIT_NOFILE it starts with (the usual 1,024: as deployed)
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.proc: subprocess.Popen | None = None
@@ -43,7 +46,7 @@ class LiveServer:
             cmd += ["--workers", str(self.workers)]
         log = open(self.data_dir.parent / f"server-{self.port}.log", "ab")  # noqa: SIM115 - lives with the process
         self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-                                     env={**os.environ, **self.env})
+                                     env={**os.environ, **self.env}, preexec_fn=self._limits)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
@@ -55,6 +58,11 @@ class LiveServer:
                 pass
             time.sleep(0.1)
         raise TimeoutError(f"server on {self.url} not up after {timeout} s")
+
+    def _limits(self) -> None:
+        if self.open_files is not None:
+            _, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+            resource.setrlimit(resource.RLIMIT_NOFILE, (self.open_files, hard))
 
     @property
     def admin_token(self) -> str:

@@ -111,7 +111,7 @@ def agent_check(
         traj = play(map_name, DomainParams(image_width=160, image_height=120), agent, 0, seconds)
     finally:
         code = agent.close()
-    failure = next((e["message"] for e in traj.events if e["kind"] == "agent_failure"), None)
+    failure = traj.failure.message if traj.failure is not None else None
     if failure is not None or isinstance(proc.failure, AgentFailure):
         err_console.print(f"[red]✗[/red] the agent failed after {len(times)} frames: {escape(str(failure))}",
                           highlight=False)

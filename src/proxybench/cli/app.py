@@ -23,6 +23,22 @@ app.add_typer(gym_app, name="gym")
 console = Console(soft_wrap=True, width=None if sys.stdout.isatty() else 160, emoji=False)
 err_console = Console(stderr=True, soft_wrap=True, width=None if sys.stderr.isatty() else 160, emoji=False)
 
+def problem(text: object, *, mark: str = "✗", style: str = "red") -> None:
+    """Print ``text`` to stderr, each line after a styled ``mark``. The text is shown as it is: nothing in it
+    is read as rich markup (a user's ``[x]`` stays), and off a terminal the mark is plain (no styles, and
+    no literal ``[red]…[/red]`` either: the mark is styled text, not markup)."""
+    from rich.text import Text
+
+    for line in str(text).splitlines() or [""]:
+        err_console.print(Text.assemble((mark, style), " ", line), highlight=False)
+
+
+def fail(text: object, code: int = 2) -> typer.Exit:
+    """:func:`problem`, then the exit to raise: ``raise fail(exc)``."""
+    problem(text)
+    return typer.Exit(code)
+
+
 #: what the optional ``server`` extra provides (the challenges server, its clients and evaluators)
 SERVER_MODULES = ("fastapi", "uvicorn", "sqlalchemy", "alembic", "httpx", "jinja2", "multipart")
 

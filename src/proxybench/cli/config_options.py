@@ -177,9 +177,15 @@ def _scalar(tp: Any) -> Callable[[str], Any]:
 
 
 def _yaml(text: str) -> Any:
+    """A value written on the command line, read as YAML (bounded); a ValueError when it is not YAML."""
+    import yaml
+
     from proxybench.untrusted import load_yaml
 
-    return load_yaml(text, max_depth=8, allow_aliases=False)
+    try:
+        return load_yaml(text, max_depth=8, allow_aliases=False)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"not YAML ({exc})") from None
 
 
 def _elements(tp: Any) -> tuple[Any, bool] | None:
@@ -203,9 +209,12 @@ def key_values(items: list[str], option: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for item in items:
         key, eq, raw = item.partition("=")
-        if not eq or not key.strip():
-            raise typer.BadParameter(f"{item!r}: expected NAME=VALUE", param_hint=option)
-        out[key.strip()] = _yaml(raw.strip())
+        try:
+            if not eq or not key.strip():
+                raise ValueError("expected NAME=VALUE")
+            out[key.strip()] = _yaml(raw.strip())
+        except ValueError as exc:
+            raise typer.BadParameter(f"{item!r}: {exc}", param_hint=option) from None
     return out
 
 
@@ -325,9 +334,12 @@ def _option(path: tuple[str, ...], field: Any, name: str, command_default: str |
         kind, decls = _Kind(bool, _same, {}), [f"{name}/{_negative(name, path[-1])}"]
     elif tp in (int, float, str, Path) or typing.get_origin(tp) is Literal:
         kind = _scalar_kind(tp, field, hint)
+    elif seq is not None and hint.count:  # a count N: 0 … N−1
+        kind = _Kind(int, lambda n: list(range(n)), {"min": 1, "max": 100_000, "metavar": "N"})
     elif seq is not None:
         kind = _tuple_kind(tp, seq[0], sep, name, hint) if seq[1] else _list_kind(seq[0], sep, name, hint)
-    elif typing.get_origin(tp) in (dict, Mapping) or dataclasses.is_dataclass(tp):
+    elif typing.get_origin(tp) in (dict, Mapping) or dataclasses.is_dataclass(tp) or \
+            (isinstance(tp, type) and issubclass(tp, BaseModel)):
         kind = _mapping_kind(tp, sep, name, hint)
     else:
         return None
@@ -357,6 +369,9 @@ def study_option_list(model: type[BaseModel], *, exclude: tuple[str, ...] = (),
         hint = cli_hint(field)
         tp, _ = unwrap_optional(field.annotation)
         if isinstance(tp, type) and issubclass(tp, BaseModel):
+            if hint.option:  # the section also takes KEY=VALUE (``--dtps-option pose=/watchtower/pose``)
+                made = _option(path, field, hint.option, (defaults or {}).get(".".join(path)), panel)
+                out += [made] if made is not None else []
             prefix = _prefix + (hint.prefix if hint.prefix is not None else name.replace("_", "-") + "-")
             out += study_option_list(tp, exclude=exclude, defaults=defaults, _path=path, _prefix=prefix,
                                      panel=f"{name}: {_text(field.description)}" if field.description else name)
@@ -378,7 +393,10 @@ def overrides_of(options: list[StudyOption], values: Mapping[str, Any]) -> dict[
         node = out
         for key in o.path[:-1]:
             node = node.setdefault(key, {})
-        node[o.path[-1]] = o.convert(list(raw) if isinstance(raw, tuple) else raw)
+        value = o.convert(list(raw) if isinstance(raw, tuple) else raw)
+        if isinstance(value, dict) and isinstance(node.get(o.path[-1]), dict):  # a section's KEY=VALUE and flags
+            value = {**value, **node[o.path[-1]]}
+        node[o.path[-1]] = value
     return out
 
 
@@ -399,11 +417,9 @@ def _name_options(message: str, options: list[StudyOption]) -> str:
 
 def fail(exc: Exception, options: list[StudyOption] | None = None) -> typing.NoReturn:
     """Print a study's problem, one ``✗`` line each (naming options where the command line is at fault); exit 2."""
-    from proxybench.cli.app import err_console
+    from proxybench.cli.app import fail as exit_with
 
-    for line in _name_options(str(exc), options or []).splitlines():
-        err_console.print(f"[red]✗[/red] {escape(line)}", highlight=False)
-    raise typer.Exit(2)
+    raise exit_with(_name_options(str(exc), options or []))
 
 
 def study_options(model: type[BaseModel], *, load: Loader | None = None, exclude: tuple[str, ...] = (),

@@ -118,7 +118,7 @@ def run(
         seconds_label, frames = f"{seconds:g} s on robot node", None  # the robot says its rate when it starts
     else:
         params = DomainParams(image_width=width, image_height=height)
-        domain = DomainSpec("simulation", params.model_dump(mode="json"))
+        domain = DomainSpec("simulation", params)
         seconds_label, frames = f"{seconds:g} s", max(1, round(seconds * params.frame_rate))
     agent = _agent(agent_name, agent_cmd, options)
     with progress_bar(TextColumn("[bold]driving[/bold] {task.description}"), BarColumn(),
@@ -154,9 +154,8 @@ def run(
     (out / "metrics.json").write_text(json.dumps(record, indent=2))
     names = [*rec.files, out / "trajectory.parquet", out / "metrics.json"]
     console.print(f"wrote {', '.join(str(f) for f in names)}", markup=False, highlight=False)
-    failure = [e["message"] for e in traj.events if e["kind"] == "agent_failure"]
-    if failure:
-        err_console.print(f"[red]agent failure:[/red] {escape(failure[0])}", highlight=False)
+    if traj.failure is not None:
+        err_console.print(f"[red]agent failure:[/red] {escape(traj.failure.message)}", highlight=False)
     where = "simulated" if robot_cmd is None else f"robot={source}"
     console.print(
         f"metrics: map={m.name} agent={agent.name}{' (privileged)' if agent.privileged else ''} {where} "

@@ -81,12 +81,16 @@ def serve(
     def said(k: int, traj) -> None:
         console.print(f"episode {k}: {traj.duration:.1f} s, end={traj.termination}", highlight=False)
 
-    console.print(f"serving a SIMULATED DB21J at http://127.0.0.1:{port}/robot/{escape(name)}/ (Ctrl-C to stop)",
-                  highlight=False)
+    def ready(url: str) -> None:
+        console.print(f"serving a SIMULATED DB21J at {escape(url)} (start the agent now; Ctrl-C to stop)",
+                      highlight=False)
+
+    console.print(f"starting a virtual DB21J on port {port} ...", highlight=False)
     try:
         files = run_serve(map_name, out, name=name, port=port, seconds=seconds or float("inf"),
                           episode_seconds=episode_seconds, seed=seed,
-                          params=DomainParams(image_width=width, image_height=height), on_episode=said)
+                          params=DomainParams(image_width=width, image_height=height), on_episode=said,
+                          on_ready=ready)
     except (DtpsEnvError, BridgeError, MapError, OSError) as exc:
         err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(1) from exc

@@ -283,24 +283,26 @@ def _videos(ev, specs, run_dir: Path) -> None:
 
 def _collisions(results) -> dict[str, tuple[int, int, dict[str, int]]]:
     """Per agent: (episodes ended by a collision, episodes, {what was hit: count}) from the stored runs."""
-    from proxybench.tasks.trajectory import Trajectory, TrajectoryError
+    from proxybench.tasks.trajectory import Termination, Trajectory, TrajectoryError
 
     out: dict[str, tuple[int, int, dict[str, int]]] = {}
     for r in results:
         hit, total, what = out.get(r.agent, (0, 0, {}))
-        if r.termination == "collision":
+        if r.termination is Termination.COLLISION:
             hit += 1
             try:
-                events = Trajectory.load(r.trajectory).events if r.trajectory else []
+                end = Trajectory.load(r.trajectory).event(Termination.COLLISION) if r.trajectory else None
             except (TrajectoryError, OSError):
-                events = []
-            kind = next((e.get("with", "object") for e in events if e["kind"] == "collision"), "object")
+                end = None
+            kind = (end.with_ if end is not None else None) or "object"
             what[kind] = what.get(kind, 0) + 1
         out[r.agent] = (hit, total + 1, what)
     return out
 
 
 def _print_leaderboard(ev, run_dir: Path) -> None:
+
+    from proxybench.tasks.trajectory import Termination
 
     bench = ev.benchmark
     agg = ev.aggregates.set_index("agent")
@@ -329,7 +331,7 @@ def _print_leaderboard(ev, run_dir: Path) -> None:
     console.print(table)
     for name, why in ev.refused.items():
         console.print(f"[yellow]not admitted:[/yellow] {escape(str(name))}: {escape(str(why))}", highlight=False)
-    failures = [r for r in ev.sweep.results if r.termination == "agent_failure"]
+    failures = [r for r in ev.sweep.results if r.termination is Termination.AGENT_FAILURE]
     for r in failures[:5]:
         console.print(f"[red]agent failure[/red] {r.agent} episode {r.episode}: {escape(str(r.message))}",
                       highlight=False)

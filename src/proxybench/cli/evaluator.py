@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import logging
 import socket
-import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 from rich.markup import escape
@@ -21,6 +20,9 @@ from proxybench.cli.node_options import (
     robot_node_options,
 )
 from proxybench.cli.options import positive
+
+if TYPE_CHECKING:
+    from proxybench.contract import Lease
 
 KNOWN_FEATURES = ("sim", "target")
 
@@ -38,29 +40,28 @@ def _reporter():
             self.progress: Progress | None = None
             self.task: Any = None
 
-        def job_started(self, lease: dict[str, Any]) -> None:
-            b, s = lease["benchmark"], lease["submission"]
-            who = s.get("agent") or (s.get("manifest") or {}).get("name", "archive")
-            console.print(f"[bold]job {lease['job_id']}[/bold] (attempt {lease.get('attempt', 1)}): "
-                          + escape(f"{b['name']} v{b['version']} ← submission {s.get('id')} {s.get('label', '')} "
-                                   f"[{who}]"), highlight=False)
+        def job_started(self, lease: Lease) -> None:
+            b, s = lease.benchmark, lease.submission
+            who = s.agent or (s.manifest or {}).get("name", "archive")
+            console.print(f"[bold]job {lease.job_id}[/bold] (attempt {lease.attempt}): "
+                          + escape(f"{b.name} v{b.version} ← submission {s.id} {s.label} [{who}]"), highlight=False)
             self.progress = progress_bar(TextColumn("  {task.description}"), BarColumn(), MofNCompleteColumn(),
                                          TimeElapsedColumn(), console=console, transient=True)
             self.progress.start()
             self.task = self.progress.add_task("setting up", total=None)
 
-        def job_progress(self, lease: dict[str, Any], progress: dict[str, Any]) -> None:
+        def job_progress(self, lease: Lease, progress: dict[str, Any]) -> None:
             if self.progress is not None:
                 self.progress.update(self.task, description=f"{progress.get('phase', '')} episodes",
                                      completed=progress.get("done", 0), total=progress.get("total"))
 
-        def job_finished(self, lease: dict[str, Any], status: str, message: str) -> None:
+        def job_finished(self, lease: Lease, status: str, message: str) -> None:
             if self.progress is not None:
                 self.progress.stop()
                 self.progress = None
             colour = {"success": "green", "failed": "yellow", "lost": "yellow"}.get(status, "red")
             first = message.splitlines()[0] if message else ""
-            console.print(f"  job {lease['job_id']}: [{colour}]{status}[/{colour}] {escape(first[:300])}",
+            console.print(f"  job {lease.job_id}: [{colour}]{status}[/{colour}] {escape(first[:300])}",
                           highlight=False)
 
         def note(self, text: str) -> None:
@@ -81,7 +82,9 @@ def evaluator(
     once: bool = typer.Option(False, "--once", help="try to take one job, evaluate it, and exit"),
     poll: float = typer.Option(2.0, min=0.1, callback=positive,
                                help="seconds between lease attempts while the queue is empty"),
-    work_dir: Path | None = typer.Option(None, help="folder for job files [<tmp>/proxybench-evaluator/<name>]"),
+    work_dir: Path | None = typer.Option(None, help="folder for job files, this user's only (mode 700) "
+                                                    "[root: /var/lib/proxybench-evaluator/<name>, else "
+                                                    "~/.local/state/proxybench-evaluator/<name>]"),
     agent_user: str = typer.Option("proxybench-agent", help="unprivileged user that agent packages run as "
                                                             "(`proxybench sandbox setup` makes it)"),
     dev_unsafe_same_user: bool = typer.Option(False, "--dev-unsafe-same-user",
@@ -137,9 +140,15 @@ def evaluator(
     name = name or socket.gethostname()
     logging.basicConfig(level=logging.WARNING, handlers=[RichHandler(console=err_console, show_path=False)],
                         format="%(message)s")
+    from proxybench.evaluator.workdir import WorkDirError, default_work_dir
+
+    try:
+        work_dir = work_dir or default_work_dir(name)
+    except WorkDirError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--name") from None
     config = EvaluatorConfig(
         name=name, features=feats, poll=poll, agent_user=agent_user, dev_unsafe=dev_unsafe_same_user,
-        work_dir=work_dir or Path(tempfile.gettempdir()) / "proxybench-evaluator" / name,
+        work_dir=work_dir,
         limits=Limits(cpu_seconds=cpu_seconds, memory_bytes=memory_mb << 20, file_bytes=file_mb << 20,
                       scratch_bytes=scratch_mb << 20, tmp_bytes=max(1, scratch_mb // 4) << 20),
         video=video, keep_work=keep_work, robot_cmd=robot_cmd, robot_options=robot_options.non_default())

@@ -30,11 +30,13 @@ def plan(
     backend: BackendOption = "local",
     workers: WorkersOption = None,
 ) -> None:
-    """Plan target episodes: n per agent for a PRPV interval of a given width or a given chance of the right θ.
+    """Plan target episodes: n per agent to settle every pair of agents, for a PRPV interval of a given width, or
+    for a given chance of the right θ.
 
-    The pilot (--episodes per agent) is taken as the truth and experiments with n episodes per agent are
-    simulated by resampling it (docs/usefulness.md); --sweep gives candidate θ to pick among. Episodes are
-    cached in OUT/runs: `predictivity --out OUT` re-uses them.
+    Pairs within the task's tolerance ε count as ties, so every pair settles with finitely many episodes; the
+    pilot (--episodes per agent) is not taken as the truth: every count is a range over its posterior, and
+    experiments with n episodes per agent are simulated in worlds drawn from it (docs/usefulness.md); --sweep
+    gives candidate θ to pick among. Episodes are cached in OUT/runs: `predictivity --out OUT` re-uses them.
     """
     from proxybench.experiments.plan import run_plan, write_plan
 
@@ -44,20 +46,29 @@ def plan(
     console.print(f"wrote {', '.join(map(str, files))} (+ .svg)", highlight=False)
 
 
+def _n(x: float) -> str:
+    return f"{x:,.0f}" if math.isfinite(x) else "> 100,000"
+
+
 def _print_plan(p, tgt, seq, wall: float) -> None:
     console.print(f"[bold]target:[/bold] {tgt.info.statement}", highlight=False)
     pilot = ", ".join(f"{a} {n}" for a, n in p.pilot_episodes.items())
     what = "pilot episodes" if seq is None else "target episodes (pilot + sequential)"
     console.print(f"{what} per agent: {pilot}; {len(p.agents)} agents, PRPV in [0, "
                   f"{len(p.agents) * (len(p.agents) - 1)}]; {wall:.0f} s", highlight=False)
+    eps = ", ".join(f"{m} {e:g}" for m, e in zip(p.metrics, p.tolerances, strict=True))
+    console.print(f"tolerances ε (pairs within them are ties): {eps}", highlight=False)
     if seq is not None:
-        rounds = ", ".join(f"{'+'.join(h['agents'])} → {h['open_pairs']}" for h in seq.history)
+        rounds = ", ".join(f"{'+'.join(h['agents'])}" + (f" → {h['open_pairs']}" if h.get("look") else "")
+                           for h in seq.history)
         console.print(f"sequential: {sum(len(h['agents']) for h in seq.history)} more episodes "
-                      f"({'every pair settled' if seq.stopped == 'settled' else 'budget spent'}); open pairs: "
-                      f"{seq.open_after_pilot} after the pilot" + (f", then {rounds}" if rounds else ""),
-                      highlight=False)
-    table = Table(title="what n target episodes per agent give (simulated from the pilot)")
-    cols = ["n per agent", "order range width: mean", f"{p.confidence:.0%} of runs ≤", "open pairs"]
+                      f"({'every pair settled' if seq.stopped == 'settled' else 'budget spent'}; the level split "
+                      f"over {seq.looks} looks); open pairs: {seq.open_after_pilot} after the pilot"
+                      + (f", then {rounds}" if rounds else ""), highlight=False)
+    how = "worlds drawn from the pilot's posterior" if p.uncertain else "the pilot taken as the truth"
+    table = Table(title=f"what n target episodes per agent give (simulated experiments in {how})")
+    cols = ["n per agent", "order range width: mean", f"{p.confidence:.0%} of runs ≤", "open pairs",
+            "P(all settled)"]
     if p.width is not None:
         cols.append(f"P(width ≤ {p.width:g})")
     if p.candidates:
@@ -65,7 +76,7 @@ def _print_plan(p, tgt, seq, wall: float) -> None:
     for c in cols:
         table.add_column(c, justify="right")
     for r in p.rows:
-        cells = [str(r.n), f"{r.width_mean:.1f}", f"{r.width_q:.1f}", f"{r.open_pairs:.1f}"]
+        cells = [str(r.n), f"{r.width_mean:.1f}", f"{r.width_q:.1f}", f"{r.open_pairs:.1f}", f"{r.p_settled:.2f}"]
         if p.width is not None:
             cells.append(f"{r.p_width:.2f}")
         if p.candidates:
@@ -82,13 +93,18 @@ def _print_plan(p, tgt, seq, wall: float) -> None:
         if p.p_correct_goal is not None:
             console.print(_answer(p.n_for_p_correct, f"picking {best} with probability {p.p_correct_goal:.0%}",
                                   p.rows[-1].n), highlight=False)
-    pairs = Table(title="pairs on the target still open (near ties): episodes per agent to settle each")
-    for c in ("pair", "metric", "difference", "se (pilot)", "episodes per agent"):
+    lo, mid, hi = p.settle_all[1], p.settle_all[0], p.settle_all[2]
+    console.print(f"→ every pair settled (ordered, or tied within ε) with probability {p.power:.0%} each: {_n(mid)} "
+                  f"episodes per agent [{_n(lo)}, {_n(hi)}] ({p.range_level:.0%} of the pilot's posterior)",
+                  highlight=False)
+    pairs = Table(title=f"pairs on the target still open: episodes per agent to settle each, median "
+                        f"[{p.range_level:.0%} range] over the pilot's posterior")
+    for c in ("pair", "metric", "difference", "se (pilot)", "ε", "episodes per agent", "pilot as truth"):
         pairs.add_column(c, justify="left" if c in ("pair", "metric") else "right")
     open_ = [q for q in p.pairs if not q.settled]
     for q in open_[:12]:
-        need = "tie within the noise" if not math.isfinite(q.episodes) else f"{q.episodes:g}"
-        pairs.add_row(f"{q.a} – {q.b}", q.metric, f"{q.difference:+.3g}", f"{q.se:.3g}", need)
+        pairs.add_row(f"{q.a} – {q.b}", q.metric, f"{q.difference:+.3g}", f"{q.se:.3g}", f"{q.tolerance:g}",
+                      f"{_n(q.episodes)} [{_n(q.episodes_low)}, {_n(q.episodes_high)}]", _n(q.plug_in))
     if open_:
         console.print(pairs)
         if len(open_) > 12:

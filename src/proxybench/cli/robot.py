@@ -31,13 +31,17 @@ def parse_params(items: list[str]) -> DomainParams:
     from pydantic import ValidationError
 
     from proxybench.domain.params import DomainParams
+    from proxybench.untrusted import UntrustedInputError, load_yaml
 
     values = {}
     for item in items:
         key, sep, raw = item.partition("=")
         if not sep or not key:
             raise typer.BadParameter(f"{item!r} is not k=v", param_hint="--param")
-        values[key.strip()] = yaml.safe_load(raw)
+        try:
+            values[key.strip()] = load_yaml(raw, max_depth=8)
+        except (yaml.YAMLError, UntrustedInputError) as exc:
+            raise typer.BadParameter(f"{item!r}: the value is not YAML ({exc})", param_hint="--param") from None
     try:
         return DomainParams.model_validate(values)
     except ValidationError as exc:

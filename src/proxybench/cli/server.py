@@ -19,7 +19,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from proxybench.cli.app import app, console, err_console, require_extra
+from proxybench.cli.app import app, console, err_console, fail, require_extra
 from proxybench.cli.node_options import (
     RobotCwd,
     RobotNoReflection,
@@ -69,8 +69,7 @@ def _client(server: str | None, token: str | None, token_file: Path | None):
 
 
 def _fail(exc: Exception) -> typer.Exit:
-    err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
-    return typer.Exit(1)
+    return fail(exc, 1)
 
 
 def _evaluator_token(settings) -> Path:
@@ -135,6 +134,9 @@ def serve(
     from proxybench.server import clock
     from proxybench.server.app import create_app, prepare
     from proxybench.server.config import Settings
+    from proxybench.server.connections import PROTOCOL, raise_open_files
+
+    raise_open_files()  # before the workers start: they inherit it (each client is a socket)
 
     if workers is None:
         workers = max(1, min(4, len(os.sched_getaffinity(0))))
@@ -161,12 +163,14 @@ def serve(
         robot = f"; target jobs on the robot node `{robot_cmd}`" if robot_cmd else ""
         console.print(f"  {evaluators} local evaluator(s) started (features: {features}{escape(robot)})",
                       highlight=False)
+    # connections: a deadline for request headers and a cap per address (server/connections.py), idle ones closed
+    front = {"host": host, "port": port, "log_level": "warning", "timeout_keep_alive": settings.idle_timeout,
+             "http": PROTOCOL}
     try:
         if settings.workers == 1:
-            uvicorn.run(application, host=host, port=port, log_level="warning", timeout_keep_alive=15)
+            uvicorn.run(application, **front)
         else:
-            uvicorn.run("proxybench.server.app:app_from_env", factory=True, workers=settings.workers, host=host,
-                        port=port, log_level="warning", timeout_keep_alive=15)
+            uvicorn.run("proxybench.server.app:app_from_env", factory=True, workers=settings.workers, **front)
     finally:
         for p in procs:
             p.terminate()
@@ -334,8 +338,13 @@ def benchmark_add(
     """Upload a benchmark file (a changed file under a known name becomes a new version)."""
     require_extra("server", ("httpx",))
     from proxybench.client import ServerError
+    from proxybench.untrusted import UntrustedInputError, read_text_file
 
-    body = {"yaml": file.read_text(encoding="utf-8"), "features": [f for f in features.split(",") if f]}
+    try:
+        text = read_text_file(file)
+    except UntrustedInputError as exc:
+        raise _fail(exc) from None
+    body = {"yaml": text, "features": [f for f in features.split(",") if f]}
     try:
         out = _client(server, token, token_file).post("/benchmarks", body)
     except ServerError as exc:
@@ -349,15 +358,14 @@ def path_add(
     server: str | None = ServerOpt, token: str | None = TokenOpt, token_file: Path | None = TokenFileOpt,
 ) -> None:
     """Define a benchmark path: steps (benchmarks) and edges with conditions to progress."""
-    import yaml
-
     require_extra("server", ("httpx",))
     from proxybench.client import ServerError
+    from proxybench.untrusted import UntrustedInputError, load_yaml_file
 
     try:
-        data = yaml.safe_load(file.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        raise _fail(ValueError(f"{file}: not valid YAML ({exc})")) from None
+        data = load_yaml_file(file, max_depth=32)
+    except UntrustedInputError as exc:
+        raise _fail(exc) from None
     if not isinstance(data, dict):
         raise _fail(ValueError(f"{file}: expected a mapping with name, steps, edges"))
     body = {"name": data.get("name"), "description": data.get("description", ""),

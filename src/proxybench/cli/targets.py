@@ -8,7 +8,8 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from proxybench.cli.app import app, console, err_console
+from proxybench.cli.app import app, console, fail, problem
+from proxybench.cli.dtps_options import DtpsKind, DtpsOption, DtpsReset, dtps_option_values
 from proxybench.cli.node_options import (
     RobotCwd,
     RobotNoReflection,
@@ -20,15 +21,13 @@ from proxybench.cli.node_options import (
 from proxybench.cli.options import positive
 from proxybench.cli.progress import status
 
-target_app = typer.Typer(no_args_is_help=True, help="Record a target once (reality model or robot node), check "
-                                                    "recorded targets (your lab's runs).")
+target_app = typer.Typer(no_args_is_help=True, help="Record a target once (reality model, robot node or DTPS robot), "
+                                                    "check recorded targets (your lab's runs).")
 app.add_typer(target_app, name="target")
 
 
 def _fail(message: str, code: int = 2) -> None:
-    for line in message.splitlines():
-        err_console.print(f"[red]✗[/red] {line}", highlight=False, markup=False)
-    raise typer.Exit(code)
+    raise fail(message, code)
 
 
 @target_app.command("record")
@@ -43,6 +42,11 @@ def record(
     robot_start_timeout: RobotStartTimeout = None,
     robot_step_timeout: RobotStepTimeout = None,
     robot_no_reflection: RobotNoReflection = False,
+    dtps: str | None = typer.Option(None, "--dtps", help="record the DTPS robot at HOST[:PORT]/PATH (a Duckiebot: "
+                                    "mybot.local/mybot; the Duckiematrix: 127.0.0.1:7501/robot/map_0/vehicle_0)"),
+    dtps_reset: DtpsReset = None,
+    dtps_kind: DtpsKind = None,
+    dtps_option: DtpsOption = [],  # noqa: B006 (typer reads the default, never mutates it)
     target_param: list[str] = typer.Option([], "--target-param", help="reality model θ, k=v (repeat)"),
     episodes: int = typer.Option(10, min=1, help="episodes per agent"),
     seconds: float = typer.Option(60.0, callback=positive, max=3600.0, help="episode length in s"),
@@ -62,7 +66,8 @@ def record(
     """Record agents on a live target into DIR: one trajectory per (agent, episode) plus target.yaml.
 
     Every finished episode is written at once; run the same command again after an interruption and only
-    the missing episodes are recorded. Robot episodes run one after another.
+    the missing episodes are recorded. Robot episodes run one after another (a DTPS robot's in real time,
+    each started by --dtps-reset: an operator prompt by default).
     """
     from proxybench.cli.config_options import image_size as parse_size
     from proxybench.cli.config_options import key_values
@@ -72,16 +77,21 @@ def record(
     from proxybench.targets.record import record_target
     from proxybench.targets.spec import open_target
 
-    if reality and robot_cmd:
-        _fail("give --reality or --robot-cmd, not both")
+    if sum(map(bool, (reality, robot_cmd, dtps))) > 1:
+        _fail("give one of --reality, --robot-cmd, --dtps")
     robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
                                        robot_no_reflection, command=robot_cmd)
+    dtps_given = dtps_option_values(dtps_reset, dtps_kind, dtps_option)
+    if dtps_given and not dtps:
+        _fail("--dtps-reset, --dtps-kind, --dtps-option: only with --dtps (they say how to drive a DTPS robot)")
     try:
-        target = open_target(f"robot:{robot_cmd}" if robot_cmd else "reality",
-                             params=key_values(target_param, "--target-param") or None, robot_nodes=robot_nodes,
-                             robot_options=robot_options)
+        from proxybench.dtps.robot_options import DtpsRobotOptions
+
+        text = f"robot:{robot_cmd}" if robot_cmd else f"dtps:{dtps}" if dtps else "reality"
+        target = open_target(text, params=key_values(target_param, "--target-param") or None, robot_nodes=robot_nodes,
+                             robot_options=robot_options, dtps_options=DtpsRobotOptions(**dtps_given))
         specs = parse_agents(agent, out / ".agents")
-    except (TargetError, AgentArgError) as exc:
+    except (TargetError, AgentArgError, ValueError) as exc:
         _fail(str(exc))
     size = parse_size(image_size)
     assert size is not None
@@ -98,7 +108,7 @@ def record(
 
         def on_streams(res, folder):
             result_log(res, folder, layout, map_name, seconds, "reality-model")
-    be = make_backend(backend, min(workers or robot_nodes, robot_nodes) if robot_cmd else workers)
+    be = make_backend(backend, min(workers or robot_nodes, robot_nodes) if robot_cmd else 1 if dtps else workers)
     t0 = time.perf_counter()
     with status("recording") as spinner:
         try:
@@ -116,7 +126,7 @@ def record(
                   f"{time.perf_counter() - t0:.0f} s: {len(m.agents)} agents × {len(m.episodes)} episodes × "
                   f"{m.seconds:g} s on {m.map} (source: {m.source}) → {out}", highlight=False)
     for line in summary.failed:
-        err_console.print(f"[yellow]agent failure recorded:[/yellow] {line}", highlight=False, markup=False)
+        problem(line, mark="agent failure recorded:", style="yellow")
     console.print(f"check it with: proxybench target check {out}", highlight=False)
 
 
@@ -131,17 +141,20 @@ def check(
 
     from proxybench.targets.recorded import check_recording
     from proxybench.targets.spec import RecordedTarget
+    from proxybench.tasks.trajectory import Termination
 
     report = check_recording(root, tuple(metric) or None)
     if not report.ok:
-        err_console.print(f"[red]✗[/red] {root}: {len(report.problems)} problem(s)", highlight=False)
+        problem(f"{root}: {len(report.problems)} problem(s)")
         _fail("\n".join(report.problems), code=1)
     m = report.manifest
     assert m is not None
     console.print(f"[green]✓[/green] {report.root}: {RecordedTarget(report.root).info().statement}", highlight=False)
     console.print(f"map {m.map}, {m.seconds:g} s episodes, {len(m.agents)} agents × {len(m.episodes)} episodes "
                   f"({m.kind}: {m.metrics_table or m.pattern})", highlight=False)
-    if m.robot is not None:
+    if m.robot is not None and m.robot.dtps is not None:
+        console.print(f"DTPS robot: {m.robot.describe()}", highlight=False, markup=False)
+    elif m.robot is not None:
         said = f", which described itself as a {m.robot.kind}" if m.robot.kind else ""
         console.print(f"robot node: {m.robot.describe()}{said}", highlight=False, markup=False)
         if m.robot.simulator is not None:
@@ -158,7 +171,7 @@ def check(
         for k in metrics:
             v = np.array([e.scores[k] for e in eps], dtype=float)
             cells.append(f"{np.nanmean(v):.2f} [{np.nanmin(v):.2f} … {np.nanmax(v):.2f}]")
-        early = sum(e.termination not in ("timeout",) for e in eps) if m.kind == "trajectories" else "–"
+        early = sum(e.termination is not Termination.TIMEOUT for e in eps) if m.kind == "trajectories" else "–"
         table.add_row(a, str(len(eps)), *cells, str(early))
     console.print(table)
     for note in report.notes:

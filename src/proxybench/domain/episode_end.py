@@ -12,10 +12,11 @@ at the same tick with the same words.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from proxybench.domain.events import Event, Termination
 from proxybench.domain.worlds import HIT_KINDS
 
 if TYPE_CHECKING:
@@ -24,7 +25,7 @@ if TYPE_CHECKING:
 __all__ = ["END_KINDS", "end_event", "ended"]
 
 #: the ends a plant decides, in the order they win when several happen in one frame
-END_KINDS = ("collision", "off_road")
+END_KINDS = (Termination.COLLISION, Termination.OFF_ROAD)
 
 
 def ended(sim: Simulator) -> np.ndarray:
@@ -32,13 +33,13 @@ def ended(sim: Simulator) -> np.ndarray:
     return sim.collided | sim.off_road
 
 
-def end_event(sim: Simulator, i: int) -> dict[str, Any]:
+def end_event(sim: Simulator, i: int) -> Event:
     """Robot ``i``'s end as a trajectory event: ``t``, ``kind`` (``END_KINDS``), ``message`` and, for a
-    collision, ``with`` (what was hit). Raises if its episode has not ended."""
+    collision, ``with_`` (what was hit). Raises if its episode has not ended."""
     t = float(sim.time[i])
     if sim.collided[i]:
         what = HIT_KINDS[int(sim.hit_kind[i])] or "map object"
-        return {"t": t, "kind": "collision", "with": what, "message": f"the robot came too close to a {what}"}
+        return Event(t, Termination.COLLISION, f"the robot came too close to a {what}", with_=what)
     if sim.off_road[i]:
-        return {"t": t, "kind": "off_road", "message": "the robot centre left the drivable area"}
+        return Event(t, Termination.OFF_ROAD, "the robot centre left the drivable area")
     raise ValueError(f"robot {i}'s episode has not ended")

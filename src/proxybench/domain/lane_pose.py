@@ -272,6 +272,15 @@ class LanePose:
             curvature=r[LP.CURVATURE],
         )
 
+    def to_row(self) -> np.ndarray:
+        """The inverse of :meth:`from_row`: a lane-pose row (LP.N,), e.g. for the vectorised expert."""
+        row = np.zeros(LP.N)
+        row[[LP.VALID, LP.SEGMENT, LP.ALONG, LP.LATERAL, LP.HEADING_ERROR, LP.LEFT_IN_LANE, LP.RIGHT_IN_LANE,
+             LP.LEFT_ON_ROAD, LP.RIGHT_ON_ROAD, LP.ON_ROAD, LP.TILE_I, LP.TILE_J, LP.CURVATURE]] = (
+            self.valid, self.segment, self.along, self.lateral, self.heading_error, self.left_in_lane,
+            self.right_in_lane, self.left_on_road, self.right_on_road, self.on_road, *self.tile, self.curvature)
+        return row
+
 
 def lane_pose(net: LaneNetwork | LaneArrays, x: float, y: float, heading: float,
               wheel_distance: float = 0.102) -> LanePose:

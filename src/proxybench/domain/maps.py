@@ -30,11 +30,15 @@ from typing import Any
 import yaml
 
 from proxybench.domain.map_objects import AprilTag, parse_objects
+from proxybench.untrusted import UntrustedInputError, compose_yaml, read_text_file
 
 __all__ = [
     "DRIVABLE_KINDS", "GROUND_KINDS", "NON_DRIVABLE_KINDS", "ROAD_END_KINDS", "Direction", "Map", "MapError",
     "MapIssue", "MapObject", "MapWarning", "Tile", "builtin_map_names", "load_map", "parse_map",
 ]
+
+#: a map file is read whole: at most this many bytes (a map may come from a recording of another lab)
+MAP_MAX_BYTES = 4 << 20
 
 
 class Direction(IntEnum):
@@ -285,9 +289,9 @@ def load_map(name_or_path: str | Path) -> Map:
                                      f"with {DUCKIETOWN_WORLD} installed, its maps too)")])
         path = builtin
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError([MapIssue(str(path), f"cannot read map file: {exc}")]) from exc
+        text = read_text_file(path, max_bytes=MAP_MAX_BYTES)
+    except UntrustedInputError as exc:
+        raise MapError([MapIssue(str(path), f"cannot read map file: {str(exc).removeprefix(f'{path}: ')}")]) from None
     m = parse_map(text, path=str(path), name=path.stem)
     for w in m.warnings:  # where nobody prints Map.warnings (an env, a runner): once per message and place
         warnings.warn(str(w), MapWarning, stacklevel=2)
@@ -324,8 +328,11 @@ class _MapParser:
         return MapError(self.issues)
 
     def parse(self) -> Map:
-        try:
-            root = yaml.compose(self.text, Loader=yaml.SafeLoader)
+        try:  # bounded nesting: a map may come from a recording of another lab
+            root = compose_yaml(self.text, max_depth=64)
+        except UntrustedInputError as exc:
+            self.issues.append(MapIssue(self.path, f"invalid YAML: {exc}"))
+            raise self.fail() from None
         except yaml.YAMLError as exc:
             mark = getattr(exc, "problem_mark", None)
             line = mark.line + 1 if mark is not None else None

@@ -25,7 +25,10 @@ from proxybench.dtps.virtual_robot import VirtualDB21J
 from proxybench.protocol.failures import AgentFailure
 from proxybench.protocol.transport import Launch, node_argv
 
-__all__ = ["SdkAgent"]
+__all__ = ["NETNS_ENV", "SdkAgent"]
+
+#: where the program (the evaluator's sandbox shim) finds the virtual robot's network namespace
+NETNS_ENV = "PROXYBENCH_DTPS_NETNS"
 
 _GRACE = {"exited": 1.0}
 
@@ -67,7 +70,8 @@ class SdkAgent(RobotDriver):
     def _robot(self) -> VirtualDB21J:
         if self.robot is None:
             try:
-                self.robot = VirtualDB21J(python=str(self.python), start_timeout=self.options.start_timeout)
+                self.robot = VirtualDB21J(python=str(self.python), start_timeout=self.options.start_timeout,
+                                          own_netns=self.options.own_netns)
             except BridgeError as exc:
                 raise AgentFailure("start-failed", f"the virtual DB21J (DTPS bridge) did not start: {exc.detail}",
                                    exc.exit_code, exc.stderr_tail) from None
@@ -88,6 +92,8 @@ class SdkAgent(RobotDriver):
         robot.drain()
         env = {"PATH": self.bin + os.pathsep + os.environ.get("PATH", "/usr/bin:/bin"), "PYTHONUNBUFFERED": "1",
                "PROXYBENCH_EPISODE_SEED": str(int(seed))}
+        if robot.netns is not None:  # the sandbox joins the robot's network namespace
+            env[NETNS_ENV] = robot.netns
         cwd = self.options.cwd
         if cwd is not None and not os.path.isdir(cwd):
             raise AgentFailure("start-failed", f"cannot start {self.cmd!r}: working directory {cwd!r} does not exist")

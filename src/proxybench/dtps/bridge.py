@@ -12,10 +12,17 @@ its stdin/stdout in the format of ``pipe.py`` (loaded by path). Two roles:
             With ``nudge`` it pings the agent's websockets until a command answers the frame: the SDK's
             publisher sits on a queue its event loop only looks at when a packet wakes it, so a blocking
             ``capture(); set_pwm()`` agent's command otherwise waits for the next camera frame.
-``client``  a DTPS robot (a Duckiebot, a Duckiematrix robot): subscribes to its camera, encoders and a pose
-            topic, forwards them (``ev: camera|ticks|pose``), publishes wheel commands (``op: cmd``) on its
-            PWM topic, reconnecting the publisher when it fails, and sends (0, 0) when no command came for
-            ``--watchdog`` seconds, on ``op: stop``, at the end of its input and on exit.
+``client``  a DTPS robot (a Duckiebot, a Duckiematrix robot) at ``--url``, its topics under ``--name``:
+            subscribes to its camera, encoders and a pose topic (the robot's ``state/pose``, or a
+            localisation system's, ``--pose /PATH`` on ``--pose-url``), forwards them (``ev:
+            camera|ticks|pose``), publishes the wheel command in force (``op: cmd``) on its PWM topic,
+            re-sending it on every reconnection of the publisher, publishes ``state/reset`` (``op: reset``),
+            and sends (0, 0) when no command came for ``--watchdog`` seconds, on ``op: stop``, and at its
+            end (``op: quit``, end of input, SIGTERM), trying for ``--stop-grace`` s to deliver it.
+
+With ``--own-netns`` (root; the evaluator's agent packages) the server moves into a network namespace of its
+own before it listens, and with ``--drop-to USER`` runs on as that user: the package's sandbox joins that
+namespace, so the agent reaches the robot on 127.0.0.1:7501 and nothing else, and cannot reach this process.
 
 Run: ``<sdk python> -I bridge.py server --port 7501 --name map_0/vehicle_0`` (docs/dtps.md, "The bridge").
 """
@@ -29,6 +36,7 @@ import importlib.util
 import logging
 import math
 import os
+import signal
 import time
 import weakref
 from pathlib import Path
@@ -59,6 +67,64 @@ class Out:
         data = memoryview(pipe.pack(message))
         while data:
             data = data[os.write(self.fd, data):]
+
+
+class LatestOut:
+    """Events to proxybench that never block the bridge's loop (role ``client``): a proxybench that stops reading
+    (a slow agent, a pause) must not stall the watchdog or the publisher. Sensor messages (``latest``) keep only
+    the newest of each kind while the pipe is full; other events are all kept, in order."""
+
+    def __init__(self, out: Out) -> None:
+        self.fd = out.fd
+        os.set_blocking(self.fd, False)
+        self.buf = bytearray()
+        self.latest: dict[str, dict] = {}
+        self.waiting = False
+        self.gone = False
+
+    def send(self, **message) -> None:
+        self.buf += pipe.pack(message)
+        self._flush()
+
+    def sensor(self, key: str, **message) -> None:
+        self.latest[key] = message
+        self._flush()
+
+    def _flush(self) -> None:
+        if not self.buf:  # one generation of sensor messages at a time: the newest
+            for message in self.latest.values():
+                self.buf += pipe.pack(message)
+            self.latest.clear()
+        while self.buf and not self.gone:
+            try:
+                n = os.write(self.fd, self.buf)
+            except BlockingIOError:
+                break
+            except OSError:  # proxybench is gone: the end of input ends the bridge
+                self.gone = True
+                self.buf.clear()
+                break
+            del self.buf[:n]
+            if not self.buf and self.latest:
+                self._flush()
+                return
+        loop = asyncio.get_running_loop()
+        if self.buf and not self.gone and not self.waiting:
+            loop.add_writer(self.fd, self._writable)
+            self.waiting = True
+
+    def _writable(self) -> None:
+        asyncio.get_running_loop().remove_writer(self.fd)
+        self.waiting = False
+        self._flush()
+
+    def finish(self, timeout: float = 5.0) -> None:
+        """Write what is left, waiting up to ``timeout`` s for proxybench to read it (at the bridge's end)."""
+        deadline = time.monotonic() + timeout
+        while (self.buf or self.latest) and not self.gone and time.monotonic() < deadline:
+            self._flush()
+            if self.buf:
+                time.sleep(0.01)
 
 
 class In:
@@ -143,6 +209,8 @@ class Server:
             await self.queues[topic].subscribe(self._on_command(topic))
         await self.queues["state/reset"].subscribe(self._on_reset)
         await self.queues["actuator/lights/base/pattern"].subscribe(self._on_lights)
+        if getattr(self.args, "drop_to", ""):
+            _drop_to(self.args.drop_to)
         self.out.send(ev="ready", url=url, prefix=f"{self.args.prefix}/{self.args.name}".strip("/"),
                       topics=list(ROBOT_TOPICS) + list(MAP_TOPICS))
 
@@ -238,32 +306,39 @@ class Server:
 
 
 class Client:
-    """A DTPS robot (role ``client``)."""
+    """A DTPS robot (role ``client``): its sensors forwarded, the latest wheel command published.
+
+    The publisher re-sends the command in force whenever it (re)connects, so after a lost connection the
+    robot hears the current command (after a stop or the watchdog: (0, 0)) as soon as it is back. On exit
+    (``op: quit``, end of input, SIGTERM) the bridge publishes (0, 0) and waits up to ``--stop-grace`` s for
+    it to be delivered, reconnecting meanwhile, and says whether it was (``ev: stopped``).
+    """
 
     def __init__(self, args: argparse.Namespace, out: Out) -> None:
-        self.args, self.out = args, out
+        self.args, self.out = args, LatestOut(out)
         self.last_command = time.monotonic()
-        self.stopped = False
-        self.pending: asyncio.Queue = asyncio.Queue(maxsize=1)
+        self.latest = (0.0, 0.0)
+        self.dirty = asyncio.Event()
+        self.zero_delivered = asyncio.Event()
 
-    def _topic(self, path: str):
+    def _topic(self, ctx, path: str):
         if path.startswith("/"):  # a full path from the server's root (e.g. a localisation system's topic)
-            return self.ctx.navigate(path.strip("/"))
-        return self.ctx.navigate(*self.args.prefix.split("/"), self.args.name, path)
+            return ctx.navigate(*path.strip("/").split("/"))
+        return ctx.navigate(*self.args.name.strip("/").split("/"), *path.split("/"))
 
     async def start(self) -> None:
         from dtps import context
 
         self.ctx = await context("pbclient", urls=[self.args.url])
-        cam = self._topic("sensor/camera/front_center/jpeg")
-        await cam.subscribe(self._forward("camera"))
+        self.pose_ctx = self.ctx if not self.args.pose_url else await context("pblocal", urls=[self.args.pose_url])
+        await self._topic(self.ctx, "sensor/camera/front_center/jpeg").subscribe(self._forward("camera"))
         for side in ("left", "right"):
-            await self._topic(f"sensor/wheel_encoder/{side}/ticks").subscribe(self._forward("ticks", side))
+            await self._topic(self.ctx, f"sensor/wheel_encoder/{side}/ticks").subscribe(self._forward("ticks", side))
         if self.args.pose:
-            await self._topic(self.args.pose).subscribe(self._forward("pose"))
-        asyncio.get_running_loop().create_task(self._publisher())
-        asyncio.get_running_loop().create_task(self._watchdog())
-        self.out.send(ev="ready", url=self.args.url, prefix=f"{self.args.prefix}/{self.args.name}".strip("/"))
+            await self._topic(self.pose_ctx, self.args.pose).subscribe(self._forward("pose"))
+        loop = asyncio.get_running_loop()
+        self.tasks = [loop.create_task(self._publisher()), loop.create_task(self._watchdog())]
+        self.out.send(ev="ready", url=self.args.url, prefix=self.args.name.strip("/"))
 
     def _forward(self, kind: str, side: str | None = None):
         async def on_data(rd) -> None:
@@ -271,29 +346,36 @@ class Client:
                 msg = rd.get_as_native_object()
                 stamp = (msg.get("header") or {}).get("timestamp")
                 if kind == "camera":
-                    self.out.send(ev="camera", jpeg=bytes(msg["data"]), stamp=stamp, wall=time.time())
+                    self.out.sensor(kind, ev=kind, jpeg=bytes(msg["data"]), stamp=stamp, wall=time.time())
                 elif kind == "ticks":
-                    self.out.send(ev="ticks", side=side, ticks=int(msg["data"]), stamp=stamp, wall=time.time())
+                    self.out.sensor(f"ticks/{side}", ev=kind, side=side, ticks=int(msg["data"]), stamp=stamp,
+                                    wall=time.time())
                 else:
-                    self.out.send(ev="pose", pose=_pose_of(msg), stamp=stamp, wall=time.time())
+                    self.out.sensor(kind, ev=kind, pose=_pose_of(msg), stamp=stamp, wall=time.time())
             except Exception as exc:
                 self.out.send(ev="bad", topic=kind, detail=f"{type(exc).__name__}: {exc}"[:500])
         return on_data
 
     async def _publisher(self) -> None:
-        """Publish the latest command; on any failure reconnect with backoff (0.1 … 2 s), telling proxybench."""
+        """Publish the command in force whenever it changes, and again on every (re)connection; on any failure
+        (a publish unanswered for 2 s included) reconnect with backoff (0.1 … 2 s), telling proxybench."""
         from dtps_http import RawData
 
         backoff = 0.1
         while True:
             try:
-                async with self._topic(self.args.pwm).publisher_context() as pub:
+                async with _within(5.0, self._topic(self.ctx, self.args.pwm).publisher_context()) as pub:
                     self.out.send(ev="link", state="ok", detail="publisher connected")
                     backoff = 0.1
+                    self.dirty.set()  # the robot hears the command in force at once
                     while True:
-                        left, right = await self.pending.get()
-                        await pub.publish(RawData.cbor_from_native_object(
-                            {"header": _header(), "left": left, "right": right}))
+                        await self.dirty.wait()
+                        self.dirty.clear()
+                        left, right = self.latest
+                        await asyncio.wait_for(pub.publish(RawData.cbor_from_native_object(
+                            {"header": _header(), "left": left, "right": right})), 2.0)
+                        if (left, right) == (0.0, 0.0) and self.latest == (0.0, 0.0):
+                            self.zero_delivered.set()
             except asyncio.CancelledError:
                 raise
             except Exception as exc:
@@ -302,22 +384,31 @@ class Client:
                 backoff = min(2.0, backoff * 2)
 
     def command(self, left: float, right: float) -> None:
-        if self.pending.full():
-            self.pending.get_nowait()  # only the latest command matters
-        self.pending.put_nowait((left, right))
+        """The command in force from now on (only the latest matters)."""
+        self.latest = (left, right)
+        if (left, right) != (0.0, 0.0):
+            self.zero_delivered.clear()
+        self.dirty.set()
 
     async def _watchdog(self) -> None:
         while True:
             await asyncio.sleep(self.args.watchdog / 4)
             if time.monotonic() - self.last_command > self.args.watchdog:
-                self.command(0.0, 0.0)
                 self.last_command = time.monotonic()
-                self.out.send(ev="watchdog", wall=time.time())
+                if self.latest != (0.0, 0.0):
+                    self.command(0.0, 0.0)
+                    self.out.send(ev="watchdog", wall=time.time())
 
-    async def stop(self) -> None:
-        for _ in range(5):
-            self.command(0.0, 0.0)
-            await asyncio.sleep(0.02)
+    async def reset(self) -> None:
+        """Publish ``state/reset`` (a Duckiematrix robot goes back to its start), telling proxybench when done."""
+        from dtps_http import RawData
+
+        try:
+            await asyncio.wait_for(self._topic(self.ctx, "state/reset").publish(
+                RawData.cbor_from_native_object({"header": _header(), "data": True})), 5.0)
+            self.out.send(ev="reset-sent", wall=time.time())
+        except Exception as exc:
+            self.out.send(ev="reset-failed", detail=f"{type(exc).__name__}: {exc}"[:300])
 
     async def run(self, requests: In) -> None:
         await self.start()
@@ -329,12 +420,33 @@ class Client:
                     self.command(float(m["left"]), float(m["right"]))
                 elif op == "stop":
                     self.last_command = time.monotonic()
-                    await self.stop()
+                    self.command(0.0, 0.0)
+                elif op == "reset":
+                    await self.reset()
                 elif op == "quit":
                     break
         finally:
-            await self.stop()
-            await asyncio.sleep(0.2)
+            self.command(0.0, 0.0)
+            delivered = True
+            try:
+                await asyncio.wait_for(self.zero_delivered.wait(), self.args.stop_grace)
+            except TimeoutError:
+                delivered = False
+            self.out.send(ev="stopped", delivered=delivered, wall=time.time())
+            self.out.finish()
+
+
+@contextlib.asynccontextmanager
+async def _within(seconds: float, cm):
+    """Enter the async context manager ``cm`` within ``seconds`` (a server that accepts and never answers)."""
+    value = await asyncio.wait_for(cm.__aenter__(), seconds)
+    try:
+        yield value
+    except BaseException as exc:
+        if not await cm.__aexit__(type(exc), exc, exc.__traceback__):
+            raise
+    else:
+        await cm.__aexit__(None, None, None)
 
 
 def _pose_of(msg: dict) -> list[float]:
@@ -346,6 +458,43 @@ def _pose_of(msg: dict) -> list[float]:
     return [float(msg["x"]), float(msg["y"]), float(msg.get("theta", msg.get("yaw", 0.0)))]
 
 
+def _own_network() -> None:
+    """Move this process into a network namespace of its own, its loopback up (needs root): the virtual robot
+    of an agent package serves there, and only that package's sandbox joins it."""
+    import ctypes
+    import fcntl
+    import socket
+    import struct
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.unshare(0x40000000) != 0:  # CLONE_NEWNET
+        err = ctypes.get_errno()
+        raise OSError(err, f"unshare(CLONE_NEWNET): {os.strerror(err)} (a namespace of its own needs root)")
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        flags = struct.unpack("16sH14x", fcntl.ioctl(s, 0x8913, struct.pack("16sH14x", b"lo", 0)))[1]  # SIOCGIFFLAGS
+        fcntl.ioctl(s, 0x8914, struct.pack("16sH14x", b"lo", flags | 1))  # SIOCSIFFLAGS: IFF_UP
+
+
+def _drop_to(user: str) -> None:
+    """Run on as ``user`` (no groups): the server parses what a stranger's agent sends, so it gets no rights to
+    lose. Called once the server listens; every module it may still import is imported first, while the SDK
+    environment (in root's home, say) is still readable."""
+    import importlib
+    import pkgutil
+    import pwd
+
+    for name in ("dtps", "dtps_http", "aiohttp", "cbor2", "multidict", "yarl"):
+        package = importlib.import_module(name)
+        for info in pkgutil.walk_packages(getattr(package, "__path__", []), name + "."):
+            with contextlib.suppress(Exception):  # an optional part without its dependency
+                importlib.import_module(info.name)
+    importlib.import_module("encodings.idna")
+    pw = pwd.getpwnam(user)
+    os.setgroups([])
+    os.setgid(pw.pw_gid)
+    os.setuid(pw.pw_uid)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="role", required=True)
@@ -354,22 +503,35 @@ def main() -> None:
     srv.add_argument("--port", type=int, default=7501)
     srv.add_argument("--name", default="map_0/vehicle_0")
     srv.add_argument("--prefix", default="robot")
+    srv.add_argument("--own-netns", action="store_true", help="serve in a network namespace of its own (root)")
+    srv.add_argument("--drop-to", default="", help="once listening, run on as this user")
     cli = sub.add_parser("client")
     cli.add_argument("--url", required=True)
-    cli.add_argument("--name", required=True)
-    cli.add_argument("--prefix", default="")
+    cli.add_argument("--name", required=True, help="the robot's path on the server (a real DB21: its name; the "
+                     "Duckiematrix: robot/map_0/vehicle_0)")
     cli.add_argument("--pwm", default="actuator/wheels/base/pwm")
-    cli.add_argument("--pose", default="state/pose")
+    cli.add_argument("--pose", default="state/pose", help="pose topic under the robot, or /PATH from the root")
+    cli.add_argument("--pose-url", default="", help="the localisation server's URL, when not the robot's")
     cli.add_argument("--watchdog", type=float, default=0.5)
+    cli.add_argument("--stop-grace", type=float, default=3.0, help="how long to try to deliver (0, 0) on exit [s]")
     args = parser.parse_args()
     logging.basicConfig()
     for handler in logging.getLogger().handlers:  # dtps sets its loggers to DEBUG when imported: filter here
         handler.setLevel(logging.WARNING)
     out = Out()
+    if getattr(args, "own_netns", False):
+        try:
+            _own_network()
+        except OSError as exc:
+            out.send(ev="error", detail=f"cannot serve in a network namespace of its own: {exc}")
+            raise SystemExit(2) from None
 
     async def run() -> None:
+        loop = asyncio.get_running_loop()
         role = Server(args, out) if args.role == "server" else Client(args, out)
-        await role.run(In(asyncio.get_running_loop()))
+        requests = In(loop)
+        loop.add_signal_handler(signal.SIGTERM, requests.queue.put_nowait, None)  # ends like the end of input
+        await role.run(requests)
 
     with contextlib.suppress(KeyboardInterrupt):
         asyncio.run(run())

@@ -91,7 +91,10 @@ class BridgeLink:
             self._pump(0.005)  # read its output meanwhile: it may be blocked writing to us
 
     def poll(self, deadline: float) -> list[dict[str, Any]]:
-        """Events that arrived by ``deadline`` (returns as soon as there is at least one, or at the deadline)."""
+        """Events that arrived by ``deadline`` (returns as soon as there is at least one, or at the deadline); what
+        the bridge wrote already is always taken, even when the deadline has passed."""
+        while select.select([self._os.out_fd], [], [], 0)[0]:
+            self._pump(0.0)
         while not self.events:
             left = deadline - time.monotonic()
             if left <= 0:
@@ -131,6 +134,10 @@ class BridgeLink:
             self._fail("the bridge ended")
 
     # -------------------------------------------------------------------------------------- life
+    @property
+    def pid(self) -> int:
+        return self._os.pid
+
     @property
     def alive(self) -> bool:
         return self._os.returncode is None and not self._os.exited()

@@ -33,7 +33,9 @@ class SdkOptions(BaseModel):
     (importing the SDK and connecting take a few seconds). ``step_timeout`` [s]: real time: the longest
     silence between two commands; lock-step: the longest wait for one frame's command. ``timing``:
     ``realtime`` (the simulation runs at the camera's rate in wall time, as on a robot) or ``lockstep``
-    (each frame waits for its command). ``privileged``: publish the true pose on ``state/pose``.
+    (each frame waits for its command). ``privileged``: publish the true pose on ``state/pose``. ``own_netns``
+    (set by the evaluator for agent packages, needs root): the virtual robot serves in a network namespace
+    of its own, whose path the program is given in ``$PROXYBENCH_DTPS_NETNS`` for its sandbox to join.
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
@@ -43,6 +45,8 @@ class SdkOptions(BaseModel):
     step_timeout: float = Field(5.0, gt=0.0, allow_inf_nan=False, description="longest wait for a command [s]")
     timing: Literal["realtime", "lockstep"] = Field("realtime", description="realtime | lockstep")
     privileged: bool = Field(False, description="publish the true pose on state/pose")
+    own_netns: bool = Field(False, description="the virtual robot in a network namespace of its own, which the "
+                                              "agent's sandbox joins (the evaluator's packages; needs root)")
 
     def non_default(self) -> dict[str, Any]:
         return self.model_dump(exclude_defaults=True)

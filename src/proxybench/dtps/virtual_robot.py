@@ -17,11 +17,13 @@ from proxybench.dtps.link import BridgeLink, PortLock
 from proxybench.dtps.maplayer import map_layers
 from proxybench.protocol import jpeg
 
-__all__ = ["DEFAULT_NAME", "DEFAULT_PORT", "TICKS_PER_TURN", "VirtualDB21J"]
+__all__ = ["DEFAULT_NAME", "DEFAULT_PORT", "NETNS_USER", "TICKS_PER_TURN", "VirtualDB21J"]
 
 DEFAULT_NAME = "map_0/vehicle_0"  # what an SDK agent names the Duckiematrix's first robot
 DEFAULT_PORT = 7501  # duckietown-sdk's DEFAULT_DUCKIEMATRIX_PORT
 TICKS_PER_TURN = 135  # duckietown-sdk's wheel encoder resolution
+#: who a virtual robot in a namespace of its own runs as: neither root nor the agent user
+NETNS_USER = "nobody"
 
 
 class VirtualDB21J:
@@ -32,19 +34,22 @@ class VirtualDB21J:
     """
 
     def __init__(self, *, name: str = DEFAULT_NAME, host: str = "127.0.0.1", port: int = DEFAULT_PORT,
-                 python: str | None = None, start_timeout: float = 60.0, lock: bool = True):
+                 python: str | None = None, start_timeout: float = 60.0, lock: bool = True, own_netns: bool = False):
         self.name, self.host, self.port = name, host, port
         self.lock = PortLock(port)
-        if lock:
+        if lock and not own_netns:  # a namespace of its own has its own port 7501
             self.lock.acquire()
+        extra = ["--own-netns", "--drop-to", NETNS_USER] if own_netns else []
         try:
-            self.link = BridgeLink(["server", "--host", host, "--port", str(port), "--name", name],
+            self.link = BridgeLink(["server", "--host", host, "--port", str(port), "--name", name, *extra],
                                    python=python, start_timeout=start_timeout)
         except BaseException:
             self.lock.release()
             raise
         self.url = f"{self.link.ready['url']}{self.link.ready['prefix']}/"
         self.seq = -1
+        #: where a sandbox joins the robot's network (``own_netns``): the bridge's namespace
+        self.netns = f"/proc/{self.link.pid}/ns/net" if own_netns else None
 
     def publish_map(self, m: Map) -> None:
         """The map layer (``map/frames``, ``map/tiles``, ``map/tile_maps``) of ``m``."""

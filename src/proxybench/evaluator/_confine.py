@@ -18,6 +18,12 @@ worker; it ends as the guard of bubblewrap (or, in the developer's unsafe mode w
    bounded tmpfs for ``/scratch`` (``$HOME``), ``/tmp`` and ``/dev/shm``, its own ``/proc`` and ``/dev``,
    a read-only root, and a clean environment.
 
+With ``--join-netns-env VAR`` (a duckietown-sdk package, docs/dtps.md) the shim, still root, joins the
+network namespace named in ``$VAR`` (``/proc/PID/ns/net`` of the virtual robot's bridge, which made it and
+runs there as another user) and bwrap shares it instead of making an empty one: the agent reaches the robot
+on that namespace's loopback and nothing else, and sees no process of the host. With ``--host-net`` (the
+developer's unsafe mode only) bwrap keeps the host's network.
+
 With ``--fifo-root ROOT`` (the node's FIFO transport) the caller has made a folder directly in ROOT
 holding the two FIFOs and named them in ``AIDONODE_DATA_IN`` / ``AIDONODE_DATA_OUT``; that one folder,
 checked, is shown read-only at ``/fifo`` (a FIFO on a read-only mount can still be opened both ways) and
@@ -38,6 +44,7 @@ import sys
 PR_SET_PDEATHSIG = 1
 PR_SET_NO_NEW_PRIVS = 38
 CLONE_NEWNS = 0x00020000
+CLONE_NEWNET = 0x40000000
 MS_RDONLY, MS_NOSUID, MS_NODEV, MS_BIND, MS_REMOUNT, MS_REC, MS_PRIVATE = 1, 2, 4, 4096, 32, 16384, 1 << 18
 STAGE = "/tmp"  # over-mounted in the shim's private mount namespace only
 PACKAGE_AT = "/agent"
@@ -122,6 +129,19 @@ def _fifo_folder(root: str) -> str | None:
     return os.path.join(real_root, os.path.basename(folder))
 
 
+def _join_netns(variable: str) -> None:
+    """Join the network namespace ``/proc/PID/ns/net`` named in ``$variable`` (as root, before the user switch)."""
+    path = os.environ.get(variable, "")
+    parts = path.split("/")
+    if not (len(parts) == 5 and parts[:2] == ["", "proc"] and parts[2].isdigit() and parts[3:] == ["ns", "net"]):
+        raise Refused(f"${variable} must name /proc/PID/ns/net, got {path!r}")
+    fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    try:
+        _check(_libc.setns(fd, CLONE_NEWNET), f"setns({path})")
+    finally:
+        os.close(fd)
+
+
 def _data_fd(text: str) -> str:
     fd = os.memfd_create("proxybench-etc", 0)
     os.write(fd, text.encode())
@@ -132,7 +152,8 @@ def _data_fd(text: str) -> str:
 
 def _bwrap_argv(args: argparse.Namespace, runtime: list[tuple[str, str]], package: str, fifo: str | None,
                 env: dict[str, str], uid: int, gid: int) -> list[str]:
-    argv = [args.bwrap, "--unshare-user", "--unshare-pid", "--unshare-net", "--unshare-ipc", "--unshare-uts",
+    net = [] if args.join_netns_env or args.host_net else ["--unshare-net"]
+    argv = [args.bwrap, "--unshare-user", "--unshare-pid", *net, "--unshare-ipc", "--unshare-uts",
             "--unshare-cgroup-try", "--disable-userns", "--die-with-parent", "--new-session", "--cap-drop", "ALL",
             "--hostname", "sandbox", "--clearenv"]
     for key, value in env.items():
@@ -174,6 +195,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--parent", type=int, help="exit at once unless this is still our parent process")
     p.add_argument("--env", action="append", default=[], help="KEY=VALUE for the agent's environment")
     p.add_argument("--fifo-root", help="FIFO transport: the folder in which the caller makes each node's FIFO folder")
+    p.add_argument("--join-netns-env", help="join the network namespace /proc/PID/ns/net named in this variable (root)")
+    p.add_argument("--host-net", action="store_true", help="keep the host's network (developer's unsafe mode)")
     p.add_argument("command", nargs=argparse.REMAINDER)
     return p
 
@@ -186,6 +209,8 @@ def main(argv: list[str]) -> int:
         return 2
     env = dict(item.split("=", 1) for item in args.env if "=" in item)
     try:
+        if args.join_netns_env:
+            _join_netns(args.join_netns_env)
         fifo = _fifo_folder(args.fifo_root) if args.fifo_root else None
         if args.bwrap and args.uid is not None:
             staged = _stage([*args.runtime, args.package, *([fifo] if fifo else [])])

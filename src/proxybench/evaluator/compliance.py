@@ -3,9 +3,9 @@
 A target is what the proxies stand in for: the *reality model* (``proxybench.domain.reality``, a simulated
 stand-in with effects outside the proxy family), or a robot node started with ``--robot-cmd`` (a physical
 robot's bridge, or a simulator served as a robot: what it is, it says itself, and reports carry it as
-``domain_kind`` = ``robot-node/<kind>``, so a simulator behind the protocol is never called a robot). The
-runner probes it (:func:`proxybench.runner.probe.probe`: one second of equal forward commands, one frame);
-this module judges the probe. Three checks, each with a measured value and its bound:
+``domain_kind`` = ``robot-node/<kind>`` (``domain.kinds.robot_node_kind``), so a simulator behind the protocol
+is never called a robot). The runner probes it (:func:`proxybench.runner.probe.probe`: one second of equal
+forward commands, one frame); this module judges the probe. Three checks, each with a measured value and its bound:
 
 - **responds**: commanded forward (PWM 0.5 on both wheels for one second), the robot moves at least
   ``MIN_RESPONSE_M`` within ``RESPONSE_TIMEOUT_S`` of wall time;
@@ -22,6 +22,7 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from proxybench.domain.kinds import DomainKind, robot_node_kind
 from proxybench.domain.params import DomainParams
 from proxybench.runner.jobs import DomainSpec
 from proxybench.runner.probe import Probe, probe
@@ -29,7 +30,7 @@ from proxybench.tasks.benchmark import Benchmark
 
 __all__ = [
     "CALIBRATION_TOLERANCES", "Check", "ComplianceReport", "check_calibration", "check_frame", "check_reality_model",
-    "check_robot", "check_target", "judge", "robot_domain_kind",
+    "check_robot", "check_target", "judge",
 ]
 
 #: |declared − benchmark| allowed per calibrated quantity [units of the DomainParams field]
@@ -56,7 +57,7 @@ class ComplianceReport:
     """What was checked on which target; ``ok`` when every check passed."""
 
     target: str
-    domain_kind: str
+    domain_kind: str  # a DomainKind, or robot_node_kind(what the node says) for a robot node
     checks: list[Check] = field(default_factory=list)
 
     @property
@@ -67,7 +68,7 @@ class ComplianceReport:
         return "; ".join(f"{c.name}: {c.detail}" for c in self.checks if not c.ok)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"target": self.target, "domain_kind": self.domain_kind, "ok": self.ok,
+        return {"target": self.target, "domain_kind": str(self.domain_kind), "ok": self.ok,
                 "checks": [asdict(c) for c in self.checks]}
 
 
@@ -132,9 +133,9 @@ def check_target(bench: Benchmark, domain: DomainSpec, *, seed: int = 0) -> tupl
     from proxybench.domain.reality import TRUTH
     from proxybench.protocol import RobotFailure
 
-    robot = domain.kind == "robot"
+    robot = domain.kind is DomainKind.ROBOT
     if robot:
-        report = ComplianceReport(f"robot node {domain.command!r}", robot_domain_kind("unknown"))
+        report = ComplianceReport(f"robot node {domain.command!r}", robot_node_kind("unknown"))
     else:
         report = ComplianceReport("reality model (simulated stand-in, not a real robot)", domain.kind)
     try:
@@ -143,20 +144,15 @@ def check_target(bench: Benchmark, domain: DomainSpec, *, seed: int = 0) -> tupl
         report.checks.append(Check("responds", False, f"the robot node failed: {exc}"))
         return report, None
     if robot:
-        report.domain_kind = robot_domain_kind(p.kind)
+        report.domain_kind = robot_node_kind(p.kind)
         report.target = f"robot node {domain.command!r} (says it is: {p.kind})"
     report.checks += judge(bench, p, p.declared if robot else TRUTH, robot=robot)
     return report, p
 
 
-def robot_domain_kind(kind: str) -> str:
-    """How reports name a robot node's kind: ``robot-node/<what it says it is>``."""
-    return f"robot-node/{kind}"
-
-
 def check_reality_model(bench: Benchmark, params: DomainParams, *, seed: int = 0) -> ComplianceReport:
     """Check the reality model instance ``params`` (as the target run will use it) against ``bench``."""
-    return check_target(bench, DomainSpec("reality", params.model_dump(mode="json"), "reality-model"), seed=seed)[0]
+    return check_target(bench, DomainSpec("reality", params, DomainKind.REALITY_MODEL), seed=seed)[0]
 
 
 def check_robot(bench: Benchmark, cmd: str, *, seed: int = 0, options: Any = None) -> ComplianceReport:

@@ -22,15 +22,14 @@ SIGTERM / SIGINT (:meth:`Evaluator.stop`) end the loop; a job being worked on is
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import logging
+import math
 import os
-import shutil
 import signal
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -38,10 +37,12 @@ from pydantic import ValidationError
 
 from proxybench import __version__
 from proxybench.client import ServerClient, ServerError
-from proxybench.contract import ResultUpload
+from proxybench.contract import Lease, LeasedBenchmark, ResultUpload
+from proxybench.evaluator.job import EvaluatorInfo, WorkerJob
 from proxybench.evaluator.outcome import Artifact, Outcome
 from proxybench.evaluator.sandbox import AGENT_USER, Isolation, Limits, detect_isolation
-from proxybench.evaluator.worker import Worker, job_artifacts_only, read_plain_file
+from proxybench.evaluator.workdir import JobDir, StateDir
+from proxybench.evaluator.worker import Worker, job_artifacts_only
 
 __all__ = ["Evaluator", "EvaluatorConfig", "Reporter"]
 
@@ -54,7 +55,9 @@ class EvaluatorConfig:
     the reality model), ``robot_options``: how to start it (the non-default fields of ``RobotNodeOptions``);
     ``post_retry_s`` [s]: how long a result upload is retried; ``agent_user``: the
     unprivileged user agent packages run as; ``dev_unsafe``: the developer's flag that lets them run as the
-    evaluator's own user where that is impossible (every report says so)."""
+    evaluator's own user where that is impossible (every report says so); ``start_allowance_s`` [s]: what a
+    job may take beyond its benchmark's wall-clock budget (starting the worker, agent and target, the
+    video): past both, the job ends ``failed``."""
 
     name: str
     work_dir: Path
@@ -68,21 +71,22 @@ class EvaluatorConfig:
     robot_cmd: str | None = None
     robot_options: dict[str, Any] = field(default_factory=dict)
     post_retry_s: float = 600.0
+    start_allowance_s: float = 300.0
 
 
 class Reporter:
     """What the loop tells its user; the CLI draws it with rich, the default logs it."""
 
-    def job_started(self, lease: dict[str, Any]) -> None:
-        b, s = lease["benchmark"], lease["submission"]
-        log.info("job %s: %s v%s, submission %s (%s)", lease["job_id"], b["name"], b["version"], s.get("id"),
-                 s.get("agent") or (s.get("manifest") or {}).get("name", "archive"))
+    def job_started(self, lease: Lease) -> None:
+        b, s = lease.benchmark, lease.submission
+        log.info("job %s: %s v%s, submission %s (%s)", lease.job_id, b.name, b.version, s.id,
+                 s.agent or (s.manifest or {}).get("name", "archive"))
 
-    def job_progress(self, lease: dict[str, Any], progress: dict[str, Any]) -> None:
+    def job_progress(self, lease: Lease, progress: dict[str, Any]) -> None:
         pass
 
-    def job_finished(self, lease: dict[str, Any], status: str, message: str) -> None:
-        log.info("job %s: %s %s", lease["job_id"], status, message.splitlines()[0] if message else "")
+    def job_finished(self, lease: Lease, status: str, message: str) -> None:
+        log.info("job %s: %s %s", lease.job_id, status, message.splitlines()[0] if message else "")
 
     def note(self, text: str) -> None:
         log.info("%s", text)
@@ -91,11 +95,10 @@ class Reporter:
 class _Heartbeat(threading.Thread):
     """Extends one lease until stopped; sets ``lost`` on a 409 (or 404) answer."""
 
-    def __init__(self, client: ServerClient, lease: dict[str, Any], name: str, job_dir: Path,
-                 wake: threading.Event):
-        super().__init__(name=f"heartbeat-{lease['job_id']}", daemon=True)
-        self.client, self.lease, self.evaluator, self.job_dir, self.wake = client, lease, name, job_dir, wake
-        self.interval = max(0.2, float(lease.get("lease_seconds", 120.0)) / 4)
+    def __init__(self, client: ServerClient, lease: Lease, name: str, job: JobDir, wake: threading.Event):
+        super().__init__(name=f"heartbeat-{lease.job_id}", daemon=True)
+        self.client, self.lease, self.evaluator, self.job, self.wake = client, lease, name, job, wake
+        self.interval = max(0.2, lease.lease_seconds / 4)
         self.done = threading.Event()
         self.lost = threading.Event()
         self.lost_reason = ""
@@ -104,16 +107,16 @@ class _Heartbeat(threading.Thread):
     def run(self) -> None:
         while not self.done.wait(self.interval):
             with contextlib.suppress(OSError, ValueError):
-                self.progress = json.loads((self.job_dir / "progress.json").read_text())
+                self.progress = json.loads(self.job.read("progress.json", 1 << 16))
             try:
-                self.client.heartbeat(self.lease["job_id"], self.lease["lease_id"], self.evaluator, self.progress)
+                self.client.heartbeat(self.lease.job_id, self.lease.lease_id, self.evaluator, self.progress)
             except ServerError as exc:
                 if exc.status in (404, 409):
                     self.lost_reason = exc.message
                     self.lost.set()
                     self.wake.set()
                     return
-                log.warning("heartbeat for job %s failed (%s); trying again", self.lease["job_id"], exc)
+                log.warning("heartbeat for job %s failed (%s); trying again", self.lease.job_id, exc)
 
     def stop(self) -> None:
         self.done.set()
@@ -129,7 +132,7 @@ class Evaluator:
         self.client = ServerClient(server, token)
         self.reporter = reporter or Reporter()
         self.isolation: Isolation = detect_isolation(config.agent_user, config.dev_unsafe)
-        work = str(config.work_dir.resolve())
+        work = os.path.realpath(config.work_dir)
         for root in self.isolation.runtime:
             if work == root or work.startswith(root.rstrip("/") + "/"):
                 raise RuntimeError(f"work dir {config.work_dir} lies inside {root}, which agents see (the runtime): "
@@ -138,19 +141,12 @@ class Evaluator:
         self._wake = threading.Event()
         self.stop_reason = ""
         self.jobs_done = 0
-        config.work_dir.mkdir(parents=True, exist_ok=True)
-        self._lock = open(config.work_dir / ".lock", "w")  # noqa: SIM115 - held for the evaluator's lifetime
-        try:
-            fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            self._lock.close()
-            raise RuntimeError(f"work dir {config.work_dir} is in use by another evaluator; give each evaluator "
-                               "its own --name or --work-dir") from None
+        self.work = StateDir(config.work_dir)  # this user's only (mode 700), locked: see evaluator/workdir.py
         self._spare: Worker | None = None
         self._keep_spare = False  # run(): start the next job's worker as soon as one is free
         self._worker_env = {k: v for k, v in os.environ.items() if not k.startswith("PROXYBENCH_TOKEN")}
-        for stale in config.work_dir.glob("job-*"):  # left by a killed evaluator: never resumed, the lease is gone
-            shutil.rmtree(stale, ignore_errors=True)
+        for stale in self.work.entries("job-"):  # left by a killed evaluator: never resumed, the lease is gone
+            self.work.remove(stale)
 
     # -- control -----------------------------------------------------------------------------------
 
@@ -195,8 +191,7 @@ class Evaluator:
             self._spare.kill()
             self._spare = None
         self.client.close()
-        if not self._lock.closed:
-            self._lock.close()
+        self.work.close()
 
     def take_one(self) -> str | None:
         """Lease one job and see it through. Returns the status reported, ``lost`` (the lease was lost: work
@@ -213,72 +208,76 @@ class Evaluator:
             return None
         if leased is None:
             return None
-        lease = leased.model_dump(mode="json")  # proxybench.contract.Lease, as plain data for the worker
-        self.reporter.job_started(lease)
-        status = self._process(lease)
+        self.reporter.job_started(leased)
+        status = self._process(leased)
         self.jobs_done += 1
         return status
 
     # -- one job -----------------------------------------------------------------------------------
 
-    def _features_of(self, lease: dict[str, Any]) -> list[str]:
-        if "features" in lease:
-            return list(lease["features"])
+    def _features_of(self, lease: Lease) -> list[str]:
+        if "features" in lease.model_fields_set:  # a server that says them (all but the oldest)
+            return list(lease.features)
         try:
-            return list(self.client.get(f"/jobs/{lease['job_id']}").get("features", []))
+            return list(self.client.get(f"/jobs/{lease.job_id}").get("features", []))
         except ServerError as exc:
-            log.warning("cannot read job %s's features (%s); assuming a simulation job", lease["job_id"], exc)
+            log.warning("cannot read job %s's features (%s); assuming a simulation job", lease.job_id, exc)
             return ["sim"]
 
-    def _process(self, lease: dict[str, Any]) -> str:
-        job_dir = self.config.work_dir / f"job-{lease['job_id']}-{lease['lease_id'][:8]}"
-        job_dir.mkdir(parents=True, exist_ok=True)
-        job_dir.chmod(0o700)  # job.json holds the hidden test seed: the evaluator's user only
-        heart_client = ServerClient(self.server, self._token, retry_for=max(1.0, lease["lease_seconds"] / 4))
-        heart = _Heartbeat(heart_client, lease, self.config.name, job_dir, self._wake)
+    def _process(self, lease: Lease) -> str:
+        try:  # job.json holds the hidden test seed: a folder of the evaluator's user only, made afresh
+            job = self.work.new_job(f"job-{lease.job_id}-{lease.lease_id[:8]}")
+        except OSError as exc:
+            self.reporter.job_finished(lease, "host-error", f"cannot make the job folder: {exc}")
+            return self._report(lease, Outcome("host-error", f"this host cannot prepare the job: {exc}"), None, None)
+        heart_client = ServerClient(self.server, self._token, retry_for=max(1.0, lease.lease_seconds / 4))
+        heart = _Heartbeat(heart_client, lease, self.config.name, job, self._wake)
         heart.start()
         try:
             try:
-                outcome = self._work(lease, job_dir, heart)
+                outcome = self._work(lease, job, heart)
             except OSError as exc:  # e.g. a full disk while preparing the job
-                log.exception("job %s: cannot prepare the job", lease["job_id"])
+                log.exception("job %s: cannot prepare the job", lease.job_id)
                 outcome = Outcome("host-error", f"this host cannot prepare the job: {exc}")
             if self._keep_spare and not self._stopping.is_set() and (self._spare is None or not self._spare.ready):
                 self._spare = self._new_worker()  # the next job's worker imports while this one uploads
             if heart.lost.is_set():
                 self.reporter.job_finished(lease, "lost", f"lease lost, work dropped: {heart.lost_reason}")
                 return "lost"
-            status = self._report(lease, outcome, heart)
+            status = self._report(lease, outcome, heart, job)
             self.reporter.job_finished(lease, status, outcome.message)
             return status
         finally:
             heart.stop()
             heart_client.close()
-            if not self.config.keep_work:
-                shutil.rmtree(job_dir, ignore_errors=True)
+            job.close(remove=not self.config.keep_work)
 
-    def _work(self, lease: dict[str, Any], job_dir: Path, heart: _Heartbeat) -> Outcome:
-        sub = lease["submission"]
-        if sub.get("archive_sha256"):
+    def _work(self, lease: Lease, job: JobDir, heart: _Heartbeat) -> Outcome:
+        sub = lease.submission
+        if sub.archive_sha256:
             try:
-                (job_dir / "agent.archive").write_bytes(self.client.get_artifact(sub["archive_sha256"]))
+                job.write("agent.archive", self.client.get_artifact(sub.archive_sha256))
             except ServerError as exc:
                 status = "host-error" if exc.status == 0 else "error"
                 return Outcome(status, f"cannot download the submission's archive: {exc}")
-        cfg = {"lease": lease, "job_features": self._features_of(lease),
-               "evaluator": {"name": self.config.name, "features": list(self.config.features),
-                             "version": __version__},
-               "isolation": asdict(self.isolation), "limits": asdict(self.config.limits), "video": self.config.video,
-               "robot_cmd": self.config.robot_cmd, "robot_options": dict(self.config.robot_options)}
-        (job_dir / "job.json").write_text(json.dumps(cfg, indent=1))
+        worker_job = WorkerJob(lease=lease, job_features=self._features_of(lease),
+                               evaluator=EvaluatorInfo(name=self.config.name, features=list(self.config.features),
+                                                       version=__version__),
+                               isolation=self.isolation, limits=self.config.limits, video=self.config.video,
+                               robot_cmd=self.config.robot_cmd, robot_options=dict(self.config.robot_options))
+        job.write("job.json", worker_job.model_dump_json(indent=1).encode())
         if self._stopping.is_set():
             return Outcome("host-error", f"evaluator {self.config.name!r} is shutting down ({self.stop_reason}); "
                                          "job not started")
         worker = self._spare if self._spare is not None and self._spare.ready else self._new_worker()
         self._spare = None
-        worker.give(job_dir)
+        budget = lease.benchmark.wall_budget
+        deadline = math.inf if budget is None else time.monotonic() + budget + self.config.start_allowance_s
+        worker.give(job.path)
         try:
             while worker.proc.poll() is None and not heart.lost.is_set() and not self._stopping.is_set():
+                if time.monotonic() > deadline:
+                    break
                 self._wake.wait(0.25)
                 self._wake.clear()  # the events themselves say what happened
                 if heart.progress is not None:
@@ -290,46 +289,53 @@ class Evaluator:
             return Outcome("error", "lease lost")
         if sent is not None:
             try:
-                return job_artifacts_only(Outcome.parse(sent), job_dir)
+                return job_artifacts_only(Outcome.parse(sent), job.path)
             except ValueError as exc:
-                log.error("job %s: the worker's outcome is unusable: %s", lease["job_id"], exc)
-        if self._stopping.is_set():
+                log.error("job %s: the worker's outcome is unusable: %s", lease.job_id, exc)
+        if time.monotonic() > deadline:  # the submission's fault: its agent answered too slowly
+            outcome = Outcome("failed", self._over_budget(lease.benchmark, budget or 0.0))
+        elif self._stopping.is_set():
             outcome = Outcome("aborted", f"evaluator {self.config.name!r} was stopped ({self.stop_reason}) while "
                                          "evaluating this job")
         else:
-            log_file = job_dir / "worker.log"
-            if not log_file.is_file():  # it died before it took the job
-                log_file = self.config.work_dir / "spare-worker.log"
-            tail = log_file.read_text(errors="replace").splitlines()[-15:] if log_file.is_file() else []
+            # it died before it took the job: its output is in the spare's log
+            tail = job.tail("worker.log") if job.exists("worker.log") else self.work.tail("spare-worker.log")
             outcome = Outcome("error", f"evaluator worker died (exit status {worker.proc.returncode}) without an "
                                        "outcome; last output:\n" + "\n".join(tail))
         for name, hidden in (("evaluator.log", False), ("evaluator-hidden.log", True), ("worker.log", True)):
-            if (job_dir / name).is_file():
-                outcome.artifacts.append(Artifact(name, str(job_dir / name), hidden, "text/plain"))
+            if job.exists(name):
+                outcome.artifacts.append(Artifact(name, str(job.path / name), hidden, "text/plain"))
         return outcome
 
+    def _over_budget(self, bench: LeasedBenchmark, budget: float) -> str:
+        return (f"the job ran past its wall-clock budget of {budget + self.config.start_allowance_s:.0f} s: "
+                f"{bench.wall_time_factor:g}× the simulated time of its episodes ({budget:.0f} s for "
+                f"{bench.simulated_seconds:g} s per split) plus {self.config.start_allowance_s:g} s to start; "
+                "the agent answered too slowly (each step may take up to its step timeout, but not every step)")
+
     def _new_worker(self) -> Worker:
-        return Worker(self.config.work_dir / "spare-worker.log", self._worker_env)
+        return Worker(self.work.fresh_file("spare-worker.log"), self._worker_env)
 
     # -- reporting ---------------------------------------------------------------------------------
 
-    def _upload(self, artifacts: list[Artifact], heart: _Heartbeat) -> tuple[list[dict[str, Any]], list[str]]:
+    def _upload(self, artifacts: list[Artifact], heart: _Heartbeat, job: JobDir,
+                lease: Lease) -> tuple[list[dict[str, Any]], list[str]]:
         refs, notes = [], []
         for a in artifacts:
             if heart.lost.is_set():
                 break
-            try:
-                sha = self.client.put_artifact(read_plain_file(Path(a.path)), a.media_type)
+            try:  # a plain file of the job folder, read through its descriptor (no link is followed)
+                sha = self.client.put_artifact(job.read(a.name), a.media_type, lease=(lease.job_id, lease.lease_id))
             except (ServerError, OSError) as exc:
                 notes.append(f"artifact {a.name} not uploaded: {exc}")
                 continue
             refs.append({"name": a.name, "sha256": sha, "hidden": a.hidden})
         return refs, notes
 
-    def _report(self, lease: dict[str, Any], outcome: Outcome, heart: _Heartbeat) -> str:
-        refs, notes = self._upload(outcome.artifacts, heart)
+    def _report(self, lease: Lease, outcome: Outcome, heart: _Heartbeat | None, job: JobDir | None) -> str:
+        refs, notes = self._upload(outcome.artifacts, heart, job, lease) if heart and job else ([], [])
         message = "\n".join([outcome.message, *notes]) if notes else outcome.message
-        body = {"lease_id": lease["lease_id"], "evaluator": self.config.name, "status": outcome.status,
+        body = {"lease_id": lease.lease_id, "evaluator": self.config.name, "status": outcome.status,
                 "public_scores": outcome.public_scores, "hidden_scores": outcome.hidden_scores,
                 "public_report": outcome.public_report, "hidden_report": outcome.hidden_report,
                 "message": message[:_MAX_MESSAGE], "artifacts": refs}
@@ -341,8 +347,8 @@ class Evaluator:
                 if isinstance(exc, ServerError) and exc.status != 422:
                     raise
                 why = exc.message if isinstance(exc, ServerError) else str(exc)
-                log.error("job %s: the result was refused (%s); reporting an error instead", lease["job_id"], why)
-                upload = ResultUpload(lease_id=lease["lease_id"], evaluator=self.config.name, status="error",
+                log.error("job %s: the result was refused (%s); reporting an error instead", lease.job_id, why)
+                upload = ResultUpload(lease_id=lease.lease_id, evaluator=self.config.name, status="error",
                                       message=f"the server refused this evaluator's result: {why}"[:_MAX_MESSAGE])
                 self._post(lease, upload)
                 return "error"
@@ -350,22 +356,22 @@ class Evaluator:
             if exc.status in (401, 403):
                 raise
             if exc.status == 409:
-                log.warning("job %s: result refused, the lease was lost: %s", lease["job_id"], exc.message)
+                log.warning("job %s: result refused, the lease was lost: %s", lease.job_id, exc.message)
                 return "lost"
             log.error("job %s: the result could not be delivered (%s); the lease will lapse and the job run again",
-                      lease["job_id"], exc)
+                      lease.job_id, exc)
             return "unreported"
         return outcome.status
 
-    def _post(self, lease: dict[str, Any], body: ResultUpload) -> None:
+    def _post(self, lease: Lease, body: ResultUpload) -> None:
         """POST the result; network failures and 5xx are retried for ``post_retry_s`` (stored once per lease)."""
         deadline = time.monotonic() + self.config.post_retry_s
         while True:
             try:
-                self.client.result(lease["job_id"], body)
+                self.client.result(lease.job_id, body)
                 return
             except ServerError as exc:
                 if (exc.status != 0 and exc.status < 500) or time.monotonic() > deadline:
                     raise
-                log.warning("posting the result of job %s failed (%s); retrying", lease["job_id"], exc)
+                log.warning("posting the result of job %s failed (%s); retrying", lease.job_id, exc)
                 time.sleep(2.0)

@@ -12,21 +12,21 @@ from __future__ import annotations
 
 import math
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from proxybench.runner.evaluate import Evaluation
-from proxybench.tasks.trajectory import TERMINATIONS, Trajectory, TrajectoryError
+from proxybench.tasks.trajectory import TERMINATIONS, Termination, Trajectory, TrajectoryError
 
 __all__ = ["INVALIDATING_EVENTS", "SplitSummary", "check_data", "clean", "pack_trajectories", "summarize",
            "topdown_video"]
 
 #: event kinds after which an episode cannot be scored: a target that lost track of the robot, needed a
 #: human hand, or had a fault of its own
-INVALIDATING_EVENTS = frozenset({"invalid", "robot_failure", "tracking_lost", "manual_intervention"})
+INVALIDATING_EVENTS = frozenset({"invalid", Termination.ROBOT_FAILURE, "tracking_lost", "manual_intervention"})
 _MAX_EVENTS = 20
 
 
@@ -87,38 +87,38 @@ def check_data(ev: Evaluation) -> list[str]:
             problems.append(f"{where}: unknown termination {r.termination!r}")
         traj, error = _load(r.trajectory)
         if traj is None:
-            if r.termination != "agent_failure" or r.trajectory:  # a refused agent has no trajectory, rightly
+            if r.termination is not Termination.AGENT_FAILURE or r.trajectory:  # a refused agent has none, rightly
                 problems.append(f"{where}: {error}")
             continue
         pose = traj.pose()
         if pose.size == 0 or not np.all(np.isfinite(pose)) or not np.all(np.isfinite(traj["t"])):
             problems.append(f"{where}: the trajectory has missing or non-finite samples")
-        if r.termination == "timeout" and traj.duration < bench.duration - 1.5 * frame_dt:
+        if r.termination is Termination.TIMEOUT and traj.duration < bench.duration - 1.5 * frame_dt:
             problems.append(f"{where}: ended after {traj.duration:.2f} s of {bench.duration:g} s without a reason "
                             "(incomplete episode)")
-        bad = [e for e in traj.events if e.get("kind") in INVALIDATING_EVENTS]
-        if bad:
-            problems.append(f"{where}: invalidating event {bad[0]['kind']!r} at t={bad[0].get('t', '?')}: "
-                            f"{bad[0].get('message', '')}")
+        bad = next((e for e in traj.events if e.kind in INVALIDATING_EVENTS), None)
+        if bad is not None:
+            problems.append(f"{where}: invalidating event {str(bad.kind)!r} at t={bad.t}: {bad.message}")
     return problems
 
 
 def _episode_row(r: Any) -> tuple[dict[str, Any], dict[str, Any] | None]:
     traj, _ = _load(r.trajectory)
-    events = traj.events if traj is not None else []
     row: dict[str, Any] = {
         "episode": r.episode, "termination": r.termination,
         "duration": clean(traj.duration) if traj is not None else None,
         "scores": {k: clean(v) for k, v in r.scores.items()},
-        "events": [{k: v for k, v in e.items() if k != "stderr_tail"} for e in events[:_MAX_EVENTS]],
+        "events": [replace(e, stderr_tail=()).to_dict() for e in traj.events[:_MAX_EVENTS]] if traj else [],
         "message": r.message, "seed": r.seed,
     }
     failure = None
-    if r.termination == "agent_failure":
-        ev = next((e for e in events if e.get("kind") == "agent_failure"), {})
-        failure = {"episode": r.episode, "reason": ev.get("reason", "agent_failure"),
-                   "message": ev.get("message", r.message), "exit_code": ev.get("exit_code"),
-                   "stderr_tail": ev.get("stderr_tail", [])}
+    if r.termination is Termination.AGENT_FAILURE:
+        ev = traj.failure if traj is not None else None
+        failure = {"episode": r.episode, "reason": str(Termination.AGENT_FAILURE), "message": r.message,
+                   "exit_code": None, "stderr_tail": []}
+        if ev is not None:
+            failure.update(reason=ev.reason or failure["reason"], message=ev.message, exit_code=ev.exit_code,
+                           stderr_tail=list(ev.stderr_tail))
     return row, failure
 
 

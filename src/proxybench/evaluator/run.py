@@ -2,7 +2,8 @@
 
 The evaluator loop runs ``python -m proxybench.evaluator.run JOB_DIR --parent PID`` per job, so that it
 can kill the whole job (lease lost, SIGTERM) without killing itself, and so that a crash in the job
-cannot take the evaluator down. The worker reads ``JOB_DIR/job.json`` and writes ``progress.json`` as
+cannot take the evaluator down. The worker reads ``JOB_DIR/job.json`` (a :class:`~.job.WorkerJob`: the typed
+lease and how to run it) and writes ``progress.json`` as
 episodes finish; it sends the outcome through a pipe only it holds (``--outcome-fd``), never a file an
 agent could forge, and dies with its parent. Agent packages run in the sandbox (:mod:`.sandbox`) as
 another user, in their own PID namespace, and see none of the job's folder.
@@ -29,6 +30,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+from proxybench.evaluator.job import WorkerJob
 from proxybench.evaluator.outcome import Artifact, Fault, HostFault, Outcome, SubmissionFault
 
 __all__ = ["main", "run_job"]
@@ -62,10 +64,10 @@ def _log_to(path: Path) -> logging.Handler:
 class _Job:
     """One job's work; fills :attr:`outcome` as it goes, so a fault still reports what was done."""
 
-    def __init__(self, job_dir: Path, cfg: dict[str, Any]):
+    def __init__(self, job_dir: Path, job: WorkerJob):
         self.dir = job_dir
-        self.cfg = cfg
-        self.lease = cfg["lease"]
+        self.job = job
+        self.lease = job.lease
         self.outcome = Outcome("success")
         self.phase = "setup"
         self.unsafe = False  # an agent package ran outside the safe sandbox (developer's flag)
@@ -77,19 +79,18 @@ class _Job:
     # -- setup -------------------------------------------------------------------------------------
 
     def benchmark(self, test_seed: int | None = None):
-        import yaml
-
         from proxybench.tasks.benchmark import Benchmark, BenchmarkError
+        from proxybench.untrusted import load_yaml
 
-        b = self.lease["benchmark"]
-        data = yaml.safe_load(b["spec_yaml"])
+        b = self.lease.benchmark
+        data = load_yaml(b.spec_yaml, max_depth=32)  # the server checked it; bounded all the same
         if test_seed is not None:
             data["episodes"] = {**data["episodes"], "seed": int(test_seed)}
             data["episodes"].pop("seeds", None)  # explicit seeds would make the hidden split the public one
         try:
-            return Benchmark.from_dict(data, origin=f"{b['name']} v{b['version']}")
+            return Benchmark.from_dict(data, origin=f"{b.name} v{b.version}")
         except BenchmarkError as exc:
-            raise HostFault(f"this evaluator (proxybench {self.cfg['evaluator']['version']}) cannot read the "
+            raise HostFault(f"this evaluator (proxybench {self.job.evaluator.version}) cannot read the "
                             f"benchmark: {exc}") from None
 
     def agent(self, bench):
@@ -98,35 +99,35 @@ class _Job:
         from proxybench.protocol.package import PackageError
         from proxybench.runner.jobs import AgentSpec
 
-        sub = self.lease["submission"]
-        if sub.get("agent"):
-            name = sub["agent"]
+        sub = self.lease.submission
+        if sub.agent:
+            name = sub.agent
             if name not in ZOO:
                 raise HostFault(f"built-in agent {name!r} is unknown to this evaluator (proxybench "
-                                f"{self.cfg['evaluator']['version']}); a newer evaluator can run it")
+                                f"{self.job.evaluator.version}); a newer evaluator can run it")
             if bench.camera_only and ZOO[name].privileged:
                 raise SubmissionFault(f"agent {name!r} is privileged (reads the true lane pose); benchmark "
                                       f"{bench.name!r} admits camera-only agents")
             log.info("agent: built-in %r (in-process)", name)
             return AgentSpec(name)
-        isolation = sb.Isolation.from_dict(self.cfg["isolation"])
+        isolation = self.job.isolation
         if not isolation.usable:  # checked before unpacking: nothing of the stranger's is touched
             raise HostFault(isolation.problem)
         archive = (self.dir / "agent.archive").read_bytes()
         try:
-            manifest = sb.prepare_agent(archive, sub["archive_sha256"], self.dir / "agent")
+            manifest = sb.prepare_agent(archive, sub.archive_sha256, self.dir / "agent")
         except PackageError as exc:
             raise SubmissionFault(f"agent archive refused: {exc}") from None
         except sb.ArchiveMismatch as exc:
             raise HostFault(str(exc)) from None
         try:  # FIFO transport: a folder of FIFOs beside the package, in the job folder (mode 700)
-            spec = sb.package_spec(manifest, self.dir / "agent", sb.Limits(**self.cfg["limits"]), isolation)
+            spec = sb.package_spec(manifest, self.dir / "agent", self.job.limits, isolation)
         except sb.SandboxError as exc:
             raise HostFault(str(exc)) from None
         self.unsafe = not isolation.safe
         log.log(logging.WARNING if self.unsafe else logging.INFO,
                 "agent: package %r (%s), command %s, transport %s; sandbox: %s", manifest.name,
-                sub["archive_sha256"][:12], manifest.command, manifest.transport, isolation.note)
+                (sub.archive_sha256 or "")[:12], manifest.command, manifest.transport, isolation.note)
         return spec
 
     def agent_contract(self, bench, spec) -> None:
@@ -175,6 +176,7 @@ class _Job:
         jobs, starts, routes and trajectory files; a robot node is a :class:`~proxybench.runner.jobs.DomainSpec`.
         """
         from proxybench.agents.zoo import ZOO
+        from proxybench.domain.events import Termination
         from proxybench.protocol.failures import AgentFailure
         from proxybench.runner.backends import InlineBackend
         from proxybench.runner.episode import PrivilegedAgentError
@@ -183,7 +185,7 @@ class _Job:
         from proxybench.tasks.benchmark import BenchmarkError
 
         self.phase = split
-        robot = self.cfg.get("robot_cmd") if target else None
+        robot = self.job.robot_cmd if target else None
         where = f"robot node {robot!r}" if robot else "the reality model" if target else \
             f"domain {bench.domain.named or 'of the benchmark'}"
         log.info("%s: %d episodes of %g s on %s, in %s", split, len(bench.episode_specs()), bench.duration,
@@ -207,7 +209,7 @@ class _Job:
             raise
         except PrivilegedAgentError as exc:
             raise SubmissionFault(str(exc)) from None
-        lost = [r for r in ev.sweep.results if r.termination == "robot_failure"]
+        lost = [r for r in ev.sweep.results if r.termination is Termination.ROBOT_FAILURE]
         if lost:
             raise HostFault(f"the target robot cannot run this job: {lost[0].message}")
         return ev
@@ -222,7 +224,7 @@ class _Job:
 
         if not any(line.startswith(("bwrap:", "_confine:")) for tail in stderr_tails for line in tail[:5]):
             return
-        isolation = sb.Isolation.from_dict(self.cfg["isolation"])
+        isolation = self.job.isolation
         if isolation.kind != "bwrap":
             return
         problem = sb.probe(isolation)
@@ -231,11 +233,12 @@ class _Job:
         log.info("the agent's failure mentions the sandbox, but the sandbox works here: the agent's fault")
 
     def split(self, bench, spec, split: str, target: bool, domain_kind: str, hidden: bool):
+        from proxybench.domain.kinds import ROBOT_NODE
         from proxybench.evaluator.report import pack_trajectories, summarize
 
         ev = self.evaluate(bench, spec, split, target)
         summary = summarize(ev, split, domain_kind=domain_kind,
-                            extra={"benchmark_version": self.lease["benchmark"]["version"]})
+                            extra={"benchmark_version": self.lease.benchmark.version})
         if hidden:
             self.outcome.hidden_report = summary.report
         else:
@@ -247,7 +250,7 @@ class _Job:
                            for k, v in summary.scores.items() if k in summary.report["criteria"]))
         if summary.problems:
             text = f"invalid {split} data: " + "; ".join(summary.problems[:5])
-            if not domain_kind.startswith("robot-node"):
+            if not domain_kind.startswith(ROBOT_NODE):
                 raise RuntimeError(text + " (our own simulator should never produce this)")
             raise HostFault(text)
         if summary.failures:
@@ -256,7 +259,7 @@ class _Job:
                 raise SubmissionFault(f"the agent failed in {len(summary.failures)} hidden test episodes "
                                       "(details are shown to the operators only)")
             raise SubmissionFault(summary.failure_message())
-        if not hidden and self.cfg.get("video", True):
+        if not hidden and self.job.video:
             self.video(ev, bench)
         return summary
 
@@ -277,7 +280,7 @@ class _Job:
         """How the evaluator's robot node is started (``--robot-cwd``, ``--robot-transport``, ...)."""
         from proxybench.protocol.options import RobotNodeOptions
 
-        return RobotNodeOptions(**self.cfg.get("robot_options", {}))
+        return RobotNodeOptions(**self.job.robot_options)
 
     def compliance(self, bench) -> str:
         """Check the target before a target job; its ``domain_kind``. Not compliant: :class:`HostFault`."""
@@ -286,7 +289,7 @@ class _Job:
         from proxybench.runner.jobs import DomainSpec
 
         self.phase = "compliance"
-        robot = self.cfg.get("robot_cmd")
+        robot = self.job.robot_cmd
         if robot:
             log.info("target job: the target is the robot node %r", robot)
             domain = DomainSpec.robot(robot, frame_rate=bench.frame_rate, options=self.robot_options())
@@ -303,17 +306,17 @@ class _Job:
         return report.domain_kind
 
     def run(self) -> Outcome:
-        features = set(self.cfg.get("job_features") or [])
+        features = set(self.job.job_features)
         unknown = features - {"sim", "target"}
         if unknown:
             raise HostFault(f"job needs feature(s) {', '.join(sorted(unknown))} that this evaluator cannot provide")
         bench = self.benchmark()
         target = "target" in features
-        kind = "reality-model" if bench.domain.named == "reality" else "simulation"
-        from proxybench.evaluator.sandbox import Isolation
+        from proxybench.runner.evaluate import benchmark_domain
 
-        self.outcome.public_report.update(evaluator=self.cfg["evaluator"],
-                                          sandbox=Isolation.from_dict(self.cfg["isolation"]).report())
+        kind = str(benchmark_domain(bench).kind)
+        self.outcome.public_report.update(evaluator=self.job.evaluator.model_dump(mode="json"),
+                                          sandbox=self.job.isolation.report())
         if target:
             kind = self.compliance(bench)
         self.outcome.public_report["domain_kind"] = kind
@@ -321,7 +324,7 @@ class _Job:
         self.agent_contract(bench, spec)
         public = self.split(bench, spec, "validation", target, kind, hidden=False)
         self.outcome.public_scores = public.scores
-        test_seed = self.lease["benchmark"].get("test_seed")
+        test_seed = self.lease.benchmark.test_seed
         if test_seed is not None:
             log.info("validation done; the hidden test episodes are logged apart (shown to operators only)")
             _log_to(self.dir / "evaluator-hidden.log")
@@ -336,12 +339,12 @@ def run_job(job_dir: Path) -> Outcome:
     """Do the job in ``job_dir`` and return its outcome (never raises for the job's own failures)."""
     job_dir = Path(job_dir)
     _log_to(job_dir / "evaluator.log")
-    cfg = json.loads((job_dir / "job.json").read_text())
-    lease = cfg["lease"]
+    work = WorkerJob.read(job_dir / "job.json")
+    lease = work.lease
     log.info("job %s (lease %s…, attempt %s) on evaluator %r: benchmark %s v%s, submission %s",
-             lease["job_id"], lease["lease_id"][:8], lease.get("attempt"), cfg["evaluator"]["name"],
-             lease["benchmark"]["name"], lease["benchmark"]["version"], lease["submission"].get("id"))
-    job = _Job(job_dir, cfg)
+             lease.job_id, lease.lease_id[:8], lease.attempt, work.evaluator.name, lease.benchmark.name,
+             lease.benchmark.version, lease.submission.id)
+    job = _Job(job_dir, work)
     t0 = time.perf_counter()
     try:
         outcome = job.run()
@@ -392,7 +395,15 @@ def _wait_for_job() -> Path | None:
     if not line:
         return None  # the evaluator closed without a job for us
     job_dir = Path(line)
-    fd = os.open(job_dir / "worker.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC, 0o600)
+    folder = os.open(job_dir, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    try:  # the evaluator made it (mode 700, ours) in its private work folder: anything else is not our job
+        st = os.fstat(folder)
+        if st.st_uid != os.geteuid() or st.st_mode & 0o077:
+            raise SystemExit(f"job folder {job_dir} is not this user's private folder: refusing it")
+        fd = os.open("worker.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600,
+                     dir_fd=folder)
+    finally:
+        os.close(folder)
     sys.stdout.flush()
     sys.stderr.flush()
     os.dup2(fd, 1)

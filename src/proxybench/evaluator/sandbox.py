@@ -40,11 +40,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from proxybench.protocol.package import AgentManifest, PackageError, extract_archive
+from proxybench.protocol.package import SDK_PROTOCOL, AgentManifest, PackageError
+from proxybench.protocol.unpack import extract_archive
 
 __all__ = [
     "AGENT_USER", "ArchiveMismatch", "Isolation", "Limits", "SandboxError", "agent_command", "confine",
-    "detect_isolation", "fifo_root", "package_spec", "prepare_agent", "probe", "runtime_paths",
+    "detect_isolation", "fifo_root", "package_spec", "prepare_agent", "probe", "runtime_paths", "sdk_package_spec",
 ]
 
 log = logging.getLogger("proxybench.evaluator")
@@ -255,21 +256,25 @@ def _agent_env(isolation: Isolation, folder: str) -> dict[str, str]:
 
 def confine(argv: list[str], folder: str | Path, limits: Limits, isolation: Isolation, *,
             extra_env: dict[str, str] | None = None, parent: int | None = -1,
-            fifo_root: str | Path | None = None) -> list[str]:
+            fifo_root: str | Path | None = None, python: str | None = None, extra_runtime: tuple[str, ...] = (),
+            join_netns_env: str | None = None, host_net: bool = False) -> list[str]:
     """The command line that runs ``argv`` (from the package ``folder``) inside the sandbox.
 
-    ``python`` / ``python3`` as ``argv[0]`` become this interpreter. ``parent``: the process that will
-    start it (default: this one); the shim exits if it is already gone. ``fifo_root``: for the FIFO
-    transport, the folder in which the caller makes each start's FIFO folder (the ``fifo_dir`` of its
-    node options, see :func:`fifo_root`); the shim shows the agent that one folder. Raises
-    :class:`SandboxError` when ``isolation`` cannot run agents.
+    ``python`` / ``python3`` as ``argv[0]`` become ``python`` (default: this interpreter). ``parent``: the
+    process that will start it (default: this one); the shim exits if it is already gone. ``fifo_root``: for
+    the FIFO transport, the folder in which the caller makes each start's FIFO folder (the ``fifo_dir`` of its
+    node options, see :func:`fifo_root`); the shim shows the agent that one folder. ``extra_runtime``: more
+    folders the agent sees read-only (the SDK environment). ``join_netns_env``: the variable in which the
+    starter names the network namespace the sandbox joins (a duckietown-sdk package's virtual robot);
+    ``host_net``: keep the host's network (the developer's unsafe mode). Raises :class:`SandboxError` when
+    ``isolation`` cannot run agents.
     """
     if not isolation.usable:
         raise SandboxError(isolation.problem)
     folder = str(Path(folder).resolve())
     argv = list(argv)
     if argv and argv[0] in ("python", "python3"):
-        argv[0] = os.path.abspath(sys.executable)
+        argv[0] = python or os.path.abspath(sys.executable)
     if isolation.kind == "none":
         Path(folder, ".tmp").mkdir(exist_ok=True)
     uid = isolation.uid if isolation.uid is not None else os.getuid()
@@ -279,8 +284,12 @@ def confine(argv: list[str], folder: str | Path, limits: Limits, isolation: Isol
             "--tmp", str(limits.tmp_bytes)]
     if isolation.kind == "bwrap":
         shim += ["--bwrap", str(isolation.bwrap)]
-        for path in isolation.runtime:
+        for path in (*isolation.runtime, *extra_runtime):
             shim += ["--runtime", path]
+        if join_netns_env is not None:
+            shim += ["--join-netns-env", join_netns_env]
+        elif host_net:
+            shim += ["--host-net"]
     if isolation.uid is not None:
         shim += ["--uid", str(isolation.uid), "--gid", str(isolation.gid)]
     if parent is not None:
@@ -341,8 +350,12 @@ def package_spec(manifest: AgentManifest, folder: str | Path, limits: Limits, is
                  parent: int | None = -1):
     """The runner's ``AgentSpec`` of a package unpacked in ``folder``: its sandboxed command and the start-up
     options of its manifest. With ``transport: fifo`` the FIFOs are made in :func:`fifo_root` (the
-    options' ``fifo_dir``), one folder per start, shown to the agent read-only at ``/fifo``."""
+    options' ``fifo_dir``), one folder per start, shown to the agent read-only at ``/fifo``. A duckietown-sdk
+    package: :func:`sdk_package_spec`."""
     from proxybench.runner.jobs import AgentSpec
+
+    if manifest.protocol == SDK_PROTOCOL:
+        return sdk_package_spec(manifest, folder, limits, isolation, parent=parent)
 
     options = manifest.node_options()
     root = None
@@ -351,3 +364,32 @@ def package_spec(manifest: AgentManifest, folder: str | Path, limits: Limits, is
         options = manifest.node_options(fifo_dir=str(root))
     command = agent_command(manifest, Path(folder), limits, isolation, fifo_root=root, parent=parent)
     return AgentSpec.node(manifest.name, command, options)
+
+
+def sdk_package_spec(manifest: AgentManifest, folder: str | Path, limits: Limits, isolation: Isolation, *,
+                     parent: int | None = -1):
+    """The ``AgentSpec`` of a duckietown-sdk package: its program in the sandbox with the SDK environment (read-only,
+    first on ``PATH``; ``python3`` is its interpreter), and its virtual robot (the DTPS bridge) where only the
+    sandbox reaches it. Safe sandbox (root): the bridge makes a network namespace of its own, drops to
+    ``nobody`` and serves there; the sandbox joins that namespace instead of an empty one, so the agent finds
+    the robot at 127.0.0.1:7501 as on the Duckiematrix, reaches nothing else, and cannot see or signal the
+    bridge or write to its pipes (another user, in another PID namespace). Developer's unsafe modes: the
+    agent shares the host's network with the bridge (reported as unsafe like the rest of those modes)."""
+    from proxybench.dtps.agent import NETNS_ENV
+    from proxybench.dtps.env import DtpsEnvError, env_path, sdk_python
+    from proxybench.dtps.options import SdkOptions
+    from proxybench.runner.jobs import AgentSpec
+
+    try:
+        python = str(sdk_python())
+    except DtpsEnvError as exc:
+        raise SandboxError(f"duckietown-sdk package {manifest.name!r}: {exc}") from None
+    env_dir = str(env_path())
+    own = isolation.kind == "bwrap" and isolation.uid is not None  # root, switching to the agent user
+    default_path = _agent_env(isolation, str(folder))["PATH"]
+    command = confine(list(manifest.command), folder, limits, isolation, parent=parent, python=python,
+                      extra_runtime=(env_dir,), extra_env={"PATH": f"{env_dir}/bin{os.pathsep}{default_path}"},
+                      join_netns_env=NETNS_ENV if own else None, host_net=not own)
+    options = SdkOptions(timing=manifest.timing or "realtime", start_timeout=manifest.start_timeout,
+                         step_timeout=manifest.step_timeout, own_netns=own)
+    return AgentSpec.sdk(manifest.name, shlex.join(command), options)

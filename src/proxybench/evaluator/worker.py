@@ -14,7 +14,6 @@ import logging
 import os
 import re
 import signal
-import stat
 import subprocess
 import sys
 import threading
@@ -22,7 +21,7 @@ from pathlib import Path
 
 from proxybench.evaluator.outcome import Outcome
 
-__all__ = ["Worker", "job_artifacts_only", "read_plain_file"]
+__all__ = ["Worker", "job_artifacts_only"]
 
 log = logging.getLogger("proxybench.evaluator")
 _MAX_OUTCOME = 64 << 20
@@ -56,24 +55,24 @@ class _Channel(threading.Thread):
 class Worker:
     """One worker process, started ahead of its job (``python -m proxybench.evaluator.run --spare``).
 
-    ``log``: where it writes until it has a job (then: the job's ``worker.log``). ``env``: its environment
-    (the evaluator's, without tokens).
+    ``log_fd``: an open file it writes to until it has a job (then: the job's ``worker.log``), closed here;
+    ``env``: its environment (the evaluator's, without tokens).
     """
 
-    def __init__(self, log: Path, env: dict[str, str]):
+    def __init__(self, log_fd: int, env: dict[str, str]):
         read_fd, write_fd = os.pipe()
         try:
-            with open(log, "ab") as out:
-                self.proc = subprocess.Popen(
-                    [sys.executable, "-m", "proxybench.evaluator.run", "--spare", "--parent", str(os.getpid()),
-                     "--outcome-fd", str(write_fd)],
-                    stdin=subprocess.PIPE, stdout=out, stderr=subprocess.STDOUT, env=env, start_new_session=True,
-                    pass_fds=(write_fd,))
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "proxybench.evaluator.run", "--spare", "--parent", str(os.getpid()),
+                 "--outcome-fd", str(write_fd)],
+                stdin=subprocess.PIPE, stdout=log_fd, stderr=subprocess.STDOUT, env=env, start_new_session=True,
+                pass_fds=(write_fd,))
         except BaseException:
             os.close(read_fd)
             raise
         finally:
             os.close(write_fd)
+            os.close(log_fd)
         self._channel = _Channel(read_fd)
         self.given = False
 
@@ -125,12 +124,3 @@ def job_artifacts_only(outcome: Outcome, job_dir: Path) -> Outcome:
             outcome.message += f"\nartifact {a.name!r} refused: not a file of the job folder"
     outcome.artifacts = kept
     return outcome
-
-
-def read_plain_file(path: Path) -> bytes:
-    """A regular file's bytes, refusing symbolic links and anything that is not a plain file."""
-    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
-    with open(fd, "rb") as f:
-        if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
-            raise OSError(f"{path.name} is not a regular file")
-        return f.read()

@@ -19,6 +19,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
+from proxybench.dtps.robot_options import DtpsRobotOptions
 from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP, proxy_params
 from proxybench.experiments.study import Cli, ConfigError, StudyConfig
 from proxybench.protocol.options import RobotNodeOptions
@@ -135,6 +136,13 @@ class PlanConfig(StudyConfig):
     """probability of reaching the width"""
     power: float = Field(0.8, gt=0.0, lt=1.0)
     """probability of settling a pair (per-pair needs)"""
+    tolerance: Annotated[dict[str, float], Cli("--tolerance", default="AIDO's semiorder tolerances scaled to the "
+                                               "episode length")] = Field(default_factory=dict)
+    """ε of a metric: pairs within it are ties (NAME=0: strict order)"""
+    range_level: Annotated[float, Cli("--range")] = Field(0.8, gt=0.0, lt=1.0)
+    """central share of the pilot's posterior that the episode ranges span"""
+    pilot_as_truth: bool = False
+    """take the pilot's means and spreads as the truth (the former planner; ranges then collapse to points)"""
     max_episodes: int = Field(320, ge=2, le=100_000)
     """largest n per agent considered"""
     reps: int | None = Field(None, ge=20, le=100_000)
@@ -151,13 +159,16 @@ class ExperimentConfig(StudyConfig):
     """The experiment file (see the module docstring); ``None`` means the command's default."""
 
     target: str = "reality"
-    """reality (the simulated reality model) | DIR (a recorded target) | robot:CMD (a robot node)"""
+    """reality (the simulated reality model) | DIR (a recorded target) | robot:CMD (a robot node) |
+    dtps:HOST[:PORT]/PATH (a DTPS robot)"""
     target_params: Annotated[dict[str, Any], Cli("--target-param")] = Field(default_factory=dict)
     """the reality model's θ, overridden (reality only)"""
     robot_nodes: int = Field(1, ge=1, le=64)
     """processes of a robot node at once (robot:CMD only; 1 for a physical robot)"""
     robot_options: Annotated[RobotNodeOptions | None, Cli(prefix="robot-")] = None
     """how to start and talk to the robot node (robot:CMD only)"""
+    dtps_options: Annotated[DtpsRobotOptions | None, Cli("--dtps-option", metavar="KEY=VALUE", prefix="dtps-")] = None
+    """how to drive a DTPS robot (dtps:HOST[:PORT]/PATH only; docs/dtps.md)"""
     agents: Annotated[list[str | AgentEntry] | None, Cli("--agent", metavar="AGENT")] = Field(None, min_length=1)
     """zoo name, NAME=COMMAND (node), NAME=sdk:COMMAND (duckietown-sdk program), checkpoint X.pt, or agent package
     .zip/.tar.gz"""
@@ -185,16 +196,16 @@ class ExperimentConfig(StudyConfig):
     """POD rollout [s], 0: none"""
     seed: int = Field(0, ge=0, le=100_000)
     """experiment seed (episodes, resampling, sampler)"""
-    truth: dict[str, float] = Field(default_factory=dict)
+    truth: dict[str, Annotated[float, Field(allow_inf_nan=False)]] = Field(default_factory=dict)
     """the target's known θ, marked on plots and printed beside results only (never used by a sweep or search)"""
     plv: dict[str, Any] = Field(default_factory=dict)
     """objective plv: PLV settings (PLVConfig fields, e.g. ladder, seeds, train: {...}), checked when used"""
 
     @classmethod
-    def prepare(cls, data: dict[str, Any], folder: Path) -> dict[str, Any]:
-        """A relative ``robot_options.cwd`` is taken from ``folder`` (the file's; the command line's: where the
-        command runs)."""
-        return robot_cwd_from(data, folder)
+    def prepare(cls, data: dict[str, Any], folder: Path | None) -> dict[str, Any]:
+        """The robot's working directory and the DTPS robot's files: a file's inside its ``folder``, the command
+        line's from where the command runs."""
+        return robot_cwd_from(data, folder, DTPS_FILES)
 
     @model_validator(mode="before")
     @classmethod
@@ -215,6 +226,8 @@ class ExperimentConfig(StudyConfig):
                 out.append(resolve_agent_cwd(AgentEntry.model_validate(item), base))
             except ValidationError as exc:
                 problems += [f"agents.{i}{_entry_problem(e)}" for e in exc.errors()]
+            except ValueError as exc:  # a cwd that leaves the file's folder
+                problems.append(f"agents.{i}.{exc}")
         if problems:
             raise ValueError("\n".join(problems))
         return {**data, "agents": out}
@@ -271,16 +284,29 @@ class ExperimentConfig(StudyConfig):
         return self
 
 
-def robot_cwd_from(data: dict[str, Any], folder: Path) -> dict[str, Any]:
-    """``data`` with a relative ``robot_options.cwd`` taken from ``folder``; it must be a folder."""
-    options = data.get("robot_options")
-    cwd = options.get("cwd") if isinstance(options, dict) else None
-    if not isinstance(cwd, str) or not cwd:
-        return data
-    path = (folder / Path(cwd).expanduser()).resolve()
-    if not path.is_dir():
-        raise ConfigError(f"robot_options.cwd: {cwd!r} is not a directory")
-    return {**data, "robot_options": {**options, "cwd": str(path)}}
+#: the files a DTPS robot's options name (a section's keys that are paths)
+DTPS_FILES = ("start_poses", "reset_input")
+
+
+def robot_cwd_from(data: dict[str, Any], folder: Path | None, dtps_files: tuple[str, ...] = ()) -> dict[str, Any]:
+    """``data`` with ``robot_options.cwd`` (and the DTPS robot's ``dtps_files``) resolved: a file's paths inside its
+    ``folder`` (:func:`proxybench.untrusted.inside`), the command line's (``folder`` None) from where the command
+    runs; a working directory must be a folder."""
+    from proxybench.untrusted import inside
+
+    for section, keys in (("robot_options", ("cwd",)), ("dtps_options", dtps_files)):
+        options = data.get(section)
+        for key in keys:
+            value = options.get(key) if isinstance(options, dict) else None
+            if not isinstance(value, str) or not value:
+                continue
+            path = inside(folder, value, field=f"{section}.{key}") if folder is not None else \
+                Path(value).expanduser().resolve()
+            if key == "cwd" and not path.is_dir():
+                raise ConfigError(f"{section}.{key}: {value!r} is not a directory")
+            options = {**options, key: str(path)}
+            data = {**data, section: options}
+    return data
 
 
 def _entry_problem(err: Any) -> str:
@@ -349,7 +375,7 @@ def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize", 
     from proxybench.targets.spec import open_target
 
     target = target or open_target(cfg.target, params=cfg.target_params, robot_nodes=cfg.robot_nodes,
-                                   robot_options=cfg.robot_options,
+                                   robot_options=cfg.robot_options, dtps_options=cfg.dtps_options,
                                    frame_rate=proxy_params(cfg.image_size, cfg.proxy).frame_rate)
     d = COMMAND_DEFAULTS[(command, quick)]
     if target.fixed_map is not None and cfg.map is not None and cfg.map != target.fixed_map:

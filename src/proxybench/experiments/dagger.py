@@ -18,6 +18,7 @@ from proxybench.learning.domains import Domain
 from proxybench.learning.model import PilotNet
 from proxybench.learning.training import TrainConfig, TrainResult, train
 from proxybench.runner.collect import CollectConfig, collect
+from proxybench.runner.plants import PlantPool
 
 __all__ = ["DaggerConfig", "dagger"]
 
@@ -31,12 +32,13 @@ def dagger(
     train_cfg: TrainConfig,
     cfg: DaggerConfig | None = None,
     progress: Callable[[int, int], None] | None = None,
+    pool: PlantPool | None = None,
 ) -> tuple[Dataset, list[TrainResult]]:
     """Run DAgger on ``model`` (in place): ``on_samples`` on-policy samples spread over the rounds.
 
     ``data`` is the aggregate so far (off-policy expert data, may be None); each round appends its
     on-policy samples and continues training ``model`` on the whole aggregate. Returns the final
-    aggregate and each round's training record.
+    aggregate and each round's training record. A robot domain's node comes from ``pool``.
     """
     cfg = cfg or DaggerConfig()
     results: list[TrainResult] = []
@@ -45,7 +47,7 @@ def dagger(
         if n == 0:
             continue
         ccfg = replace(collect_cfg, samples=n, seed=collect_cfg.seed * 1000 + 17 + r)
-        fresh = collect(domain, ccfg, policy=torch_policy(model), beta=cfg.beta * cfg.beta_decay ** r)
+        fresh = collect(domain, ccfg, policy=torch_policy(model), beta=cfg.beta * cfg.beta_decay ** r, pool=pool)
         data = fresh if data is None else Dataset.concat([data, fresh])
         results.append(train(model, data, replace(train_cfg, seed=train_cfg.seed + 101 * (r + 1))))
         if progress:

@@ -47,7 +47,6 @@ __all__ = ["Case", "CaseRun", "Criteria", "HeldOutConfig", "HeldOutRun", "cases_
 
 Progress = Callable[[str, int, int], None]
 
-
 @dataclass
 class Case:
     """A target as the experiment sees it (a black box), the θ every proxy of this case has on top of the
@@ -184,7 +183,7 @@ def run_heldout(cfg: HeldOutConfig, out: str | Path, backend: Backend | None = N
             progress("target episodes (cases)", k + 1, len(cases))
         for g, p in enumerate(grid.points):
             params = proxy_params(tuple(s["image_size"]), case.proxy, **p)
-            jobs.extend(_proxy_jobs(specs, tgt, DomainSpec(grid.label(g), params.model_dump()), metrics))
+            jobs.extend(_proxy_jobs(specs, tgt, DomainSpec(grid.label(g), params), metrics))
     keys = [j.key for j in jobs]
     unique = list({k: j for k, j in zip(keys, jobs, strict=True)}.values())  # cases with equal θ share episodes
     sweep = run_jobs(unique, run_dir, backend,

@@ -178,7 +178,7 @@ def optimize_proxy(
     def proxy_of(theta: dict[str, Any]) -> dict[str, np.ndarray]:
         """The proxy's per-agent results at θ (run, or read from the run directory's cache)."""
         params = proxy_params(exp.image_size, exp.proxy, **theta)
-        dom = DomainSpec("proxy " + " ".join(f"{k}={v:.4g}" for k, v in theta.items()), params.model_dump())
+        dom = DomainSpec("proxy " + " ".join(f"{k}={v:.4g}" for k, v in theta.items()), params)
         jobs = proxy_jobs(exp, tgt, dom)
         return by_agent(jobs, run_jobs(jobs, run_dir, backend).results, exp.metrics)
 

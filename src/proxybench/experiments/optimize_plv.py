@@ -123,7 +123,8 @@ def plv_search_settings(cfg: ExperimentConfig, *, quick: bool = False):
     search = PLVSearch(dict(s.space), trials=s.trials or PLV_TRIALS[quick], family=s.family, sampler=s.sampler,
                        seed=cfg.seed, storage=s.storage, study_name=name,
                        fixed={k: v for k, v in cfg.proxy.items() if k not in s.space})
-    ignored = [f for f in _NOT_USED if f in given] + (["robot_options"] if cfg.robot_options is not None else [])
+    ignored = [f for f in _NOT_USED if f in given] + (["robot_options"] if cfg.robot_options is not None else []) \
+        + (["dtps_options"] if cfg.dtps_options is not None else [])
     return plv_cfg, search, ignored
 
 

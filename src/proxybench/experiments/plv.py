@@ -35,14 +35,16 @@ import numpy as np
 from proxybench.experiments.dagger import dagger
 from proxybench.experiments.plv_config import THESIS_PROXIES, PLVConfig
 from proxybench.learning.dataset import Dataset
-from proxybench.learning.domains import Domain, parse_domain, reality_domain
+from proxybench.learning.domains import Domain, parse_domain
 from proxybench.learning.model import configure_threads, default_device
 from proxybench.learning.training import TrainConfig, build_model, save_checkpoint, train
 from proxybench.runner.collect import collect
+from proxybench.runner.plants import PlantPool
 from proxybench.runner.policy_eval import evaluate_expert, evaluate_policy
+from proxybench.usefulness.plv import ladder_done
 
-__all__ = ["THESIS_PROXIES", "PLVConfig", "PLVResult", "Workspace", "proxy_arm", "run_plv", "target_arm"]
-
+__all__ = ["THESIS_PROXIES", "PLVConfig", "PLVResult", "Workspace", "fitted_reference", "proxy_arm", "run_plv",
+           "target_arm", "target_domain", "target_label"]
 
 @dataclass
 class PLVResult:
@@ -72,7 +74,8 @@ class Workspace:
         self.cfg, self.out, self.progress = cfg, Path(out), progress
         self.root = self.out / "cache" / cfg.work_key()
         self.device = default_device()
-        self.target = reality_domain(cfg.width, cfg.height)
+        self.target = target_domain(cfg)
+        self.pool = PlantPool()  # a robot target's node, started once for the whole run
         self.eval_cfg = cfg.eval
         self.stage_s: dict[str, float] = {}
         self.cached = 0
@@ -91,13 +94,13 @@ class Workspace:
             return Dataset.load(folder)
         t0 = time.perf_counter()
         data = collect(domain, replace(self.cfg.collect, samples=samples, seed=seed),
-                       progress=lambda d, t: self.tick(f"data: {name}", d, t))
+                       progress=lambda d, t: self.tick(f"data: {name}", d, t), pool=self.pool)
         data.save(folder)
         self.add_time("data", t0)
         return data
 
     @property
-    def pool(self) -> Dataset:
+    def data_pool(self) -> Dataset:
         """The target data every rung draws its seeded subsets from (expert-driven, off-policy)."""
         if self._pool is None:
             size = max(self.cfg.split(n).off_policy for n in self.cfg.ladder)
@@ -114,14 +117,15 @@ class Workspace:
         t0 = time.perf_counter()
         cost = cfg.split(n)
         model = make(seed)
-        off = self.pool.take(cost.off_policy, seed) if cost.off_policy else None
+        off = self.data_pool.take(cost.off_policy, seed) if cost.off_policy else None
         losses = train(model, off, replace(tcfg, seed=seed)).losses if off is not None else []
         if cost.on_policy:
             ccfg = replace(cfg.collect, seed=10_000 + 97 * seed + n)
-            _, rounds = dagger(model, self.target, off, cost.on_policy, ccfg, replace(tcfg, seed=seed), cfg.dagger)
+            _, rounds = dagger(model, self.target, off, cost.on_policy, ccfg, replace(tcfg, seed=seed), cfg.dagger,
+                               pool=self.pool)
             losses += [x for r in rounds for x in r.losses]
         t1 = time.perf_counter()
-        ev = evaluate_policy(_policy(model), self.target, self.eval_cfg)
+        ev = self.evaluate(_policy(model))
         ckpt = save_checkpoint(self.root / "models" / _slug(arm) / f"n{n}-s{seed}.pt", model,
                                {"arm": arm, "target_samples": asdict(cost), "seed": seed, "score": ev.mean,
                                 "domain": self.target.describe()})
@@ -132,6 +136,26 @@ class Workspace:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(row, indent=1))
         return row
+
+
+    def evaluate(self, policy) -> Any:
+        """A network's score on the target (the evaluation episodes, on the target's plant)."""
+        return evaluate_policy(policy, self.target, self.eval_cfg, pool=self.pool)
+
+    def close(self) -> None:
+        self.pool.close()
+
+
+def target_domain(cfg: PLVConfig) -> Domain:
+    """The experiment's target at its image size: the reality model, or a robot node."""
+    return parse_domain(cfg.target, cfg.width, cfg.height)
+
+
+def target_label(cfg: PLVConfig) -> str:
+    """Short words for the target, for titles: it says when a result is simulated."""
+    if cfg.target == "reality":
+        return "reality model, simulated"
+    return f"robot node `{cfg.target.removeprefix('robot:')}`"
 
 
 def _slug(name: str) -> str:
@@ -165,9 +189,7 @@ def _ladder(work: Workspace, arm: str, make: Callable[[int], Any], tcfg: TrainCo
             work.tick(f"train: {arm}", k * len(cfg.seeds) + j + 1, total)
         rows += rung
         means.append(_rung_mean(rung))
-        tail = means[-(cfg.confirm + 1):]
-        if (reference is not None and cfg.stop_when_reached and len(tail) == cfg.confirm + 1
-                and min(tail) >= reference):
+        if reference is not None and cfg.stop_when_reached and ladder_done(means, reference, cfg.confirm):
             work.tick(f"train: {arm}", total, total)
             break
     return rows
@@ -202,7 +224,7 @@ def _pretrain(work: Workspace, name: str, spec: str | Domain, data_seed: int,
         model = build_model(cfg.model, seed, work.device)
         res = train(model, data, replace(cfg.pretrain, seed=seed),
                     progress=lambda s, t, j=j: work.tick(f"pre-train: {name}", j * t + s, t * len(cfg.seeds)))
-        zero = evaluate_policy(_policy(model), work.target, work.eval_cfg)
+        zero = work.evaluate(_policy(model))
         own = evaluate_policy(_policy(model), domain, work.eval_cfg)
         save_checkpoint(ckpt, model, {"arm": name, "domain": domain.describe(), "pretrain": asdict(cfg.pretrain),
                                       "seed": seed, "proxy_samples": cfg.proxy_samples, "zero_shot": zero.mean})
@@ -223,16 +245,25 @@ def _pretrain(work: Workspace, name: str, spec: str | Domain, data_seed: int,
 
 def target_arm(work: Workspace) -> tuple[list[dict[str, Any]], float, float]:
     """The target-only curve over the whole ladder: its runs, the expert's score and the reference P."""
-    from proxybench.usefulness.plv import reference_score
 
     cfg = work.cfg
-    _ = work.pool
-    expert = evaluate_expert(work.target, work.eval_cfg).mean
+    _ = work.data_pool
+    expert = evaluate_expert(work.target, work.eval_cfg, pool=work.pool).mean
     t1 = time.perf_counter()
     runs = _ladder(work, "target-only", lambda seed: build_model(cfg.model, seed, work.device), cfg.train, None)
     work.add_time("target-only", t1)
-    reference = reference_score(_rung_mean([r for r in runs if r["n"] == cfg.ladder[-1]]), cfg.tolerance)
-    return runs, expert, reference
+    return runs, expert, fitted_reference(runs, cfg)
+
+
+def fitted_reference(runs: list[dict[str, Any]], cfg: PLVConfig) -> float:
+    """P: the fitted target-only curve at the largest rung, less the tolerance (the proxies' ladders stop on it)."""
+    from proxybench.usefulness.plv import reference_score
+    from proxybench.usefulness.plv_curve import fit, rung_weights
+    from proxybench.usefulness.plv_intervals import curves_from_runs
+
+    curve = curves_from_runs(runs, "target-only", cfg.ladder)
+    f = fit(curve.costs, curve.means(), rung_weights(curve.scores), float(cfg.ladder[0]))
+    return reference_score(float(f.at(float(curve.costs.max()))[0]), cfg.tolerance)
 
 
 def proxy_arm(work: Workspace, name: str, spec: str | Domain, reference: float,
@@ -260,9 +291,12 @@ def run_plv(cfg: PLVConfig, out: str | Path, progress: Progress | None = None) -
     t0 = time.perf_counter()
     configure_threads()
     work = Workspace(cfg, out, progress)
-    runs, expert, reference = target_arm(work)
-    proxies: dict[str, dict[str, Any]] = {}
-    for k, (name, spec) in enumerate(cfg.proxies.items()):
-        proxies[name], arm_runs = proxy_arm(work, name, spec, reference, data_seed=cfg.seed + 1 + k)
-        runs += arm_runs
+    try:
+        runs, expert, reference = target_arm(work)
+        proxies: dict[str, dict[str, Any]] = {}
+        for k, (name, spec) in enumerate(cfg.proxies.items()):
+            proxies[name], arm_runs = proxy_arm(work, name, spec, reference, data_seed=cfg.seed + 1 + k)
+            runs += arm_runs
+    finally:
+        work.close()
     return PLVResult(cfg, runs, proxies, expert, time.perf_counter() - t0, work.stage_s, work.cached)

@@ -4,12 +4,13 @@ Thesis §3.6: for teaching, the proxy to find is p(θ)* = argmax_{p(θ)} PLV(θ)
 instance θ, or a distribution of instances (domain randomisation). :class:`PLVObjective` fixes
 everything but the proxy: the target-only learning curve (and with it the reference P and |D_target|)
 is computed once and cached; each call pre-trains on the proxy it is given (one network per seed),
-fine-tunes up the ladder until the score has settled above P, and returns the PLV with its bootstrap
-interval over seeds. Every unit of work is cached under ``out``, so a repeated θ costs nothing.
+fine-tunes up the ladder until the score has settled above P, and returns the PLV of the fitted curves with its
+bootstrap interval over seeds. Every unit of work is cached under ``out``, so a repeated θ costs nothing.
 
-PLV is quantised by the ladder and a proxy may never settle above P; an optimiser still needs a
-number, so :attr:`PLVTrial.value` is the PLV, and for "not reached" |D_target| − 2 · (largest rung):
-as if the proxy had needed twice the largest data set tried, worse than every proxy that settles.
+PLV comes from fitted learning curves (a continuous crossing of P, :mod:`proxybench.usefulness.plv_curve`), and
+a proxy may never reach P; an optimiser still needs a number, so :attr:`PLVTrial.value` is the PLV, and for
+"not reached" |D_target| − 2 · (largest rung): as if the proxy had needed twice the largest data set tried,
+worse than every proxy that reaches P.
 The PLV itself stays "not reached" in :attr:`PLVTrial.plv`.
 
 >>> family_domain({"trim": {"uniform": [-0.1, 0.1]}}, 40, 30).kind
@@ -117,12 +118,15 @@ class PLVObjective:
         name, spec = self.domain(proxy, family)
         record, arm = proxy_arm(self.work, name, spec, reference)
         s = summarize(PLVResult(self.cfg, [*runs, *arm], {name: record}, expert))
-        row, iv, cfg = s.rows[0], s.intervals, self.cfg
-        tc = None if s.target_needed is None else s.target_needed.weighted(cfg.eta_on, cfg.eta_off)
-        value = PLVValue(row["plv"], row["reduction"], row["status"], tc, row["needed"])
+        row, fitted = s.rows[0], s.fitted
+        value = PLVValue(row["plv"], row["reduction"], row["status"], s.target_cost, row["needed"])
         score = objective_value(value, max(float(r["cost"]) for r in runs))
-        return PLVTrial(name, record["domain"], score, value, iv.plv[name], iv.reached[name], row["needed"],
+        return PLVTrial(name, record["domain"], score, value, fitted.plv[name], fitted.reached[name], row["needed"],
                         row["zero_shot"], arm)
+
+    def close(self) -> None:
+        """Stop a robot target's node (if one was started)."""
+        self.work.close()
 
 
 @dataclass(frozen=True)
@@ -207,8 +211,11 @@ def optimize_plv(search: PLVSearch, cfg: PLVConfig, out: str | Path, progress: P
         return res.value
 
     remaining = search.trials - len([t for t in study.trials if t.state.is_finished()])
-    if remaining > 0:
-        study.optimize(run, n_trials=remaining)
+    try:
+        if remaining > 0:
+            study.optimize(run, n_trials=remaining)
+    finally:
+        objective.close()
     done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
     rows = [{"number": t.number, "value": t.value, **t.user_attrs} for t in done]
     best = max(rows, key=lambda r: r["value"])

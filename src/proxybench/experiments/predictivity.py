@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.maps import load_map
-from proxybench.domain.params import DomainParams
 from proxybench.experiments.baselines import NOMINAL, baseline_tables, baselines, diagnose
 from proxybench.experiments.config import Experiment, ExperimentConfig, resolve
 from proxybench.experiments.pod import pod
@@ -94,7 +94,7 @@ def proxy_domains(exp: Experiment) -> list[tuple[str, float, DomainSpec]]:
     for name, values in exp.sweep.items():
         for v in values:
             params = proxy_params(exp.image_size, exp.proxy, **{name: v})
-            out.append((name, float(v), DomainSpec(f"{name}={v:g}", params.model_dump())))
+            out.append((name, float(v), DomainSpec(f"{name}={v:g}", params)))
     return out
 
 
@@ -128,7 +128,7 @@ def run_predictivity(
                      metrics=exp.metrics, image_size=exp.image_size, run_dir=run_dir, backend=backend,
                      progress=progress)
     domains = proxy_domains(exp)
-    nominal = DomainSpec(NOMINAL, proxy_params(exp.image_size, exp.proxy).model_dump())  # cached if swept
+    nominal = DomainSpec(NOMINAL, proxy_params(exp.image_size, exp.proxy))  # cached if swept
     jobs = [j for _, _, d in domains for j in proxy_jobs(exp, tgt, d)] + proxy_jobs(exp, tgt, nominal)
     sweep = run_jobs(jobs, run_dir, backend,
                      progress=(lambda done, total, _r: progress("proxy episodes", done, total)) if progress else None)
@@ -151,7 +151,7 @@ def run_predictivity(
         for name, e in est.items():
             row[name], row[f"{name}_low"], row[f"{name}_high"] = e.value, e.low, e.high
         row["notes"] = "; ".join(est.notes)
-        row["pod"] = (pod(DomainParams.model_validate(dom.params), DomainParams.model_validate(tgt.params), tgt.map,
+        row["pod"] = (pod(dom.params, tgt.params, tgt.map,
                           commands, seed=exp.seed) if commands is not None else float("nan"))
         rows.append(row)
         if progress:
@@ -212,7 +212,7 @@ def _claims(exp: Experiment, tgt: TargetRun, domains, proxies, rows, higher) -> 
 
 def _has_pod(exp: Experiment, target: Target, tgt: TargetRun) -> bool:
     """POD needs the target's camera: known only for the live reality model."""
-    return exp.pod_seconds > 0 and target.kind == "reality-model" and tgt.params is not None
+    return exp.pod_seconds > 0 and target.kind == DomainKind.REALITY_MODEL and tgt.params is not None
 
 
 def _pod_commands(exp: Experiment, tgt: TargetRun) -> np.ndarray:
@@ -220,5 +220,5 @@ def _pod_commands(exp: Experiment, tgt: TargetRun) -> np.ndarray:
     from proxybench.agents import make_agent
     from proxybench.runner.replay import agent_commands
 
-    return agent_commands(tgt.map, DomainParams.model_validate(tgt.params), make_agent("pid"), exp.seed,
+    return agent_commands(tgt.map, tgt.params, make_agent("pid"), exp.seed,
                           exp.pod_seconds)

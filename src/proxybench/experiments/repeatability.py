@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.params import DomainParams
 from proxybench.domain.reality import hardware_variation, reality_params
 from proxybench.experiments.repeatability_config import DESIGNS, Design, RepeatabilityConfig
@@ -45,7 +46,7 @@ from proxybench.runner.jobs import DEFAULT_FRAME_RATE, AgentSpec, DomainSpec, Jo
 from proxybench.runner.starts import start_pose
 from proxybench.runner.sweep import run_jobs
 from proxybench.tasks.metrics import repeatability
-from proxybench.tasks.trajectory import Trajectory
+from proxybench.tasks.trajectory import Termination, Trajectory
 
 if TYPE_CHECKING:
     from proxybench.protocol.options import RobotNodeOptions
@@ -74,7 +75,7 @@ class DesignResult:
     @property
     def early(self) -> int:
         """Runs that ended before their time (left the road, collided, failed)."""
-        return sum(t.termination != "timeout" for t in self.runs)
+        return sum(t.termination is not Termination.TIMEOUT for t in self.runs)
 
 
 @dataclass
@@ -142,8 +143,8 @@ def repeatability_study(
         for k, (name, d) in enumerate(designs.items()):
             cells = [(lab, r, i) for lab in range(d.labs) for r in range(d.robots) for i in range(d.runs)]
             jobs = [Job(AgentSpec(agent), DomainSpec(f"lab {lab}/robot {r}",
-                                                     robot_params(base, seed, lab, r).model_dump(mode="json"),
-                                                     "reality-model"),
+                                                     robot_params(base, seed, lab, r),
+                                                     DomainKind.REALITY_MODEL),
                         map_name, j, int(np.random.SeedSequence([seed, k, lab, r, i]).generate_state(1)[0] % 2**31),
                         seconds, pose=placed(start, _rng(seed, 0x9A5E, k, j), placement))
                     for j, (lab, r, i) in enumerate(cells)]
@@ -215,7 +216,7 @@ def recorded_study(paths: Sequence[str | Path], map_name: str = "loop_3x3") -> R
     trajs = []
     for lab, robot, f in found:
         tr = _load_run(f, map_name, T)
-        tr.meta.update({"lab": lab, "robot": robot, "source": "recorded", "file": str(f)})
+        tr.meta.update({"lab": lab, "robot": robot, "source": DomainKind.RECORDED, "file": str(f)})
         trajs.append(tr)
     labs = list(dict.fromkeys(lab for lab, _, _ in found))
     robots = list(dict.fromkeys((lab, r) for lab, r, _ in found))
@@ -224,7 +225,8 @@ def recorded_study(paths: Sequence[str | Path], map_name: str = "loop_3x3") -> R
     labels = [f"{lab}/{robot}" for lab, robot, _ in found]
     name = f"recorded {d.label}"
     notes = {name: f"{len(found)} runs from {len(labs)} lab(s), {len(robots)} robot(s); runs per robot: {per}"}
-    return RepeatabilityResult({name: DesignResult(d, trajs, labels, _figures(trajs, labels, d))}, "recorded", notes)
+    designs = {name: DesignResult(d, trajs, labels, _figures(trajs, labels, d))}
+    return RepeatabilityResult(designs, DomainKind.RECORDED, notes)
 
 
 def _load_run(path: Path, map_name: str, T) -> Trajectory:

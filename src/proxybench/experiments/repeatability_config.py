@@ -91,12 +91,16 @@ class RepeatabilityConfig(StudyConfig):
     """how to start and talk to the robot nodes"""
 
     @classmethod
-    def prepare(cls, data: dict[str, Any], folder: Path) -> dict[str, Any]:
-        """Relative recorded paths and robot working directory are taken from ``folder``."""
+    def prepare(cls, data: dict[str, Any], folder: Path | None) -> dict[str, Any]:
+        """Recorded paths and the robot nodes' working directory: a file's inside its ``folder``, the command
+        line's from where the command runs."""
+        from proxybench.untrusted import inside
+
         recorded = data.get("recorded")
         if isinstance(recorded, list | tuple):
-            data = {**data, "recorded": [str(folder / Path(p).expanduser()) if isinstance(p, str | Path) else p
-                                         for p in recorded]}
+            data = {**data, "recorded": [
+                (str(inside(folder, p, field=f"recorded.{i}")) if folder is not None else str(Path(p).expanduser()))
+                if isinstance(p, str) else p for i, p in enumerate(recorded)]}
         return robot_cwd_from(data, folder)
 
     @field_validator("designs")

@@ -35,8 +35,9 @@ from proxybench.targets.manifest import TargetError, format_errors
 
 __all__ = ["Cli", "ConfigError", "StudyConfig", "cli_hint", "is_section", "unwrap_optional"]
 
-#: deepest nesting a study file may have (a config is a handful of levels; this bounds hostile input)
+#: deepest nesting and largest size of a study file (a config is a handful of levels; this bounds hostile input)
 MAX_DEPTH = 32
+MAX_BYTES = 1 << 20
 
 
 class ConfigError(TargetError):
@@ -51,7 +52,8 @@ class Cli:
     ``metavar``: the shape of a value (``NAME=LOW:HIGH``); ``sep``: what separates the numbers of one value
     (``","`` by default, ``":"`` for a range, ``"x"`` for ``160x120``); ``prefix``: for a nested model, what
     its fields' options start with (``""``: their own names, as ``--trials`` for ``search.trials``);
-    ``default``: the default as ``--help`` words it, where the field's own would mislead.
+    ``default``: the default as ``--help`` words it, where the field's own would mislead; ``count``: a
+    sequence of integers given as a count N, standing for 0 … N−1 (``--seeds 15``).
     """
 
     option: str | None = None
@@ -60,6 +62,7 @@ class Cli:
     sep: str | None = None
     prefix: str | None = None
     default: str | None = None
+    count: bool = False
 
 
 def cli_hint(field: Any) -> Cli:
@@ -104,37 +107,33 @@ class StudyConfig(BaseModel):
         return {name for name, f in cls.model_fields.items() if is_section(f.annotation)}
 
     @classmethod
-    def prepare(cls, data: dict[str, Any], folder: Path) -> dict[str, Any]:
-        """The data of a file, or of the command line, before validation: override to resolve relative paths
-        from ``folder`` (the file's; the command line's: where the command runs); raise ConfigError naming the
-        field."""
+    def prepare(cls, data: dict[str, Any], folder: Path | None) -> dict[str, Any]:
+        """The data of a file (``folder``: the file's) or of the command line (``folder`` None) before validation:
+        override to resolve paths (a file's stay inside its folder, :func:`proxybench.untrusted.inside`; the
+        command line's are taken from where the command runs); raise ConfigError or UntrustedInputError naming
+        the field."""
         return data
 
     @classmethod
     def read_file(cls, path: str | Path) -> dict[str, Any]:
         """The mapping of fields in ``path`` (YAML, or JSON, which is YAML), prepared; errors name the file."""
-        import yaml
+        from proxybench.untrusted import UntrustedInputError, load_yaml_file
 
-        from proxybench.untrusted import UntrustedInputError, load_yaml
-
-        path = Path(path)
-        try:
-            loaded = load_yaml(path.read_text(), max_depth=MAX_DEPTH)
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-        except UnicodeDecodeError:
-            raise ConfigError(f"{path}: not a text file") from None
-        except (yaml.YAMLError, UntrustedInputError) as exc:
-            raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+        try:  # bounded: size, nesting, UTF-8 (a folder or a binary file is an error, not a traceback)
+            loaded = load_yaml_file(path, max_bytes=MAX_BYTES, max_depth=MAX_DEPTH)
+        except UntrustedInputError as exc:
+            raise ConfigError(str(exc)) from None
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{path}: expected a mapping of fields, got {type(loaded).__name__}")
-        return cls._prepared(loaded or {}, path.parent.resolve(), str(path))
+        return cls._prepared(loaded or {}, Path(path).parent, str(path))
 
     @classmethod
-    def _prepared(cls, data: dict[str, Any], folder: Path, origin: str) -> dict[str, Any]:
+    def _prepared(cls, data: dict[str, Any], folder: Path | None, origin: str) -> dict[str, Any]:
+        from proxybench.untrusted import UntrustedInputError
+
         try:
             return cls.prepare(data, folder)
-        except ConfigError as exc:
+        except (ConfigError, UntrustedInputError) as exc:
             raise ConfigError(f"{origin}: {exc}") from None
 
     @classmethod
@@ -146,7 +145,7 @@ class StudyConfig(BaseModel):
         data = dict(base or {})
         if path is not None:
             data = _merge(data, cls.read_file(path), sections)
-        data = _merge(data, cls._prepared(dict(overrides or {}), Path.cwd(), "command line"), sections)
+        data = _merge(data, cls._prepared(dict(overrides or {}), None, "command line"), sections)
         try:
             return cls.model_validate(data, context=context)
         except ValidationError as exc:

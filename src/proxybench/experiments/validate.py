@@ -26,6 +26,8 @@ import inspect
 import itertools
 import json
 import secrets
+import shlex
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -56,7 +58,7 @@ _POOL = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "
          "pure-pursuit-fast", "vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",
          "vision-wide", "vision-twitchy")
 #: a camera agent behind the AIDO protocol (its own process per episode), to keep node agents in every pool
-NODE_AGENT = "vision-node=python -m proxybench.protocol vision"
+NODE_AGENT = f"vision-node={shlex.quote(sys.executable)} -m proxybench.protocol vision"
 _QUICK_POOL = ("straight", "pid", "pid-twitchy", "pure-pursuit", "vision", "vision-fast", "vision-pitch25",
                "vision-slow")
 
@@ -65,8 +67,7 @@ _QUICK_POOL = ("straight", "pid", "pid-twitchy", "pure-pursuit", "vision", "visi
 FAMILIES: dict[str, dict[bool, dict[str, Any]]] = {
     "heldout": {
         False: {"targets": 40, "agents": (*_POOL, NODE_AGENT), "bc_agents": 2, "episodes_tune": 3, "episodes_eval": 3,
-                "seconds": 15.0, "grid": {"trim": (-0.2, -0.1, 0.0, 0.1, 0.2),
-                                          "camera_pitch": (15.15, 17.15, 19.15, 21.15, 23.15)},
+                "seconds": 15.0, "grid": {"trim": (-0.2, 0.0, 0.2), "camera_pitch": (15.15, 19.15, 23.15)},
                 "draw": {"trim": (-0.15, 0.35), "camera_pitch": (13.15, 27.15), "gain": (0.85, 1.15),
                          "command_delay": (0.02, 0.2), "blur_time": (0.0, 0.1), "camera_height": (0.1, 0.116)},
                 "maps": ("loop_3x3",)},
@@ -76,8 +77,7 @@ FAMILIES: dict[str, dict[bool, dict[str, Any]]] = {
     },
 }
 FAMILIES["gym"] = {
-    False: {**FAMILIES["heldout"][False], "grid": {"trim": (-0.2, -0.1, 0.0, 0.1, 0.2),
-                                                   "command_delay": (0.05, 0.1, 0.15, 0.2, 0.25)},
+    False: {**FAMILIES["heldout"][False], "grid": {"trim": (-0.2, 0.0, 0.2), "command_delay": (0.05, 0.15, 0.25)},
             "draw": {"trim": (-0.15, 0.35), "delay": (0.02, 0.3), "cam_angle": (13.15, 27.15),
                      "cam_height": (0.1, 0.116)}, "maps": ("loop_3x3", "zigzag"), "robot_nodes": 2},
     True: {**FAMILIES["heldout"][True], "grid": {"trim": (-0.2, 0.0, 0.2), "command_delay": (0.05, 0.15, 0.25)},

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.events import Event
 from proxybench.domain.lane_pose import LanePose, lane_pose
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, MapError, MapObject, load_map, parse_map
@@ -101,7 +102,7 @@ class GymRobot:
         self._text = text
         self._sent = text
         self._state: dict[str, Any] = {}
-        self._end: dict[str, Any] | None = None
+        self._end: Event | None = None
 
     # ------------------------------------------------------------------------------------- the pipe
     def _call(self, msg: dict[str, Any], blob: bool = False) -> Any:
@@ -184,7 +185,7 @@ class GymRobot:
         if blob:
             self._frame = (reply["t"], self._image(blob))
         if self._end is None and "end" in reply:
-            self._end = {"t": float(reply["t"]), **reply["end"]}
+            self._end = Event.from_dict({"t": float(reply["t"]), **reply["end"]})
         return FrameStep(np.asarray(reply["trace"], dtype=np.float64).reshape(-1, 8))
 
     def time(self) -> float:
@@ -201,7 +202,7 @@ class GymRobot:
 
     def state(self) -> BackendState:
         x, y, th, v, w, left, right = self._state["motion"]
-        kind = (self._end or {}).get("kind")
+        kind = self._end.kind if self._end is not None else None
         return BackendState((x, y, th), v, w, (left, right), kind == "off_road", kind == "collision")
 
     def lane(self) -> tuple[LanePose, None]:
@@ -212,7 +213,7 @@ class GymRobot:
     def route_choices(self) -> None:
         return None
 
-    def ending(self) -> dict[str, Any] | None:
+    def ending(self) -> Event | None:
         return self._end
 
     def info(self) -> dict[str, Any]:

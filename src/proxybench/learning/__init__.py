@@ -1,6 +1,6 @@
 """Behaviour cloning: a learning agent trained from a privileged expert.
 
-- ``domains``: where data comes from (a proxy θ, a randomised family Θ, the reality model);
+- ``domains``: where data comes from (a proxy θ, a randomised family Θ, the reality model, a robot node);
 - ``expert``, ``dataset``: the vectorised privileged expert; NPZ shards + JSON of frames and commands;
 - ``model``, ``training``, ``agent``: a PilotNet-style CNN, training / fine-tuning / checkpoints, ``BCAgent``.
 
@@ -31,14 +31,14 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 __all__ = [
     "CHECKPOINTS", "BCAgent", "CheckpointKind", "Dataset", "Domain", "ModelConfig", "PilotNet", "TrainConfig",
     "build_model", "expert_actions", "is_checkpoint", "load_checkpoint", "make_bc_agent", "parse_domain",
-    "proxy_domain", "randomized_domain", "reality_domain", "save_checkpoint", "train",
+    "proxy_domain", "randomized_domain", "reality_domain", "robot_domain", "save_checkpoint", "train",
 ]
 
 _WHERE = {
     "BCAgent": "agent", "make_bc_agent": "agent",
     "Dataset": "dataset",
     "Domain": "domains", "parse_domain": "domains", "proxy_domain": "domains", "randomized_domain": "domains",
-    "reality_domain": "domains",
+    "reality_domain": "domains", "robot_domain": "domains",
     "expert_actions": "expert",
     "ModelConfig": "model", "PilotNet": "model",
     "TrainConfig": "training", "build_model": "training", "load_checkpoint": "training",

@@ -24,7 +24,8 @@ import numpy as np
 from proxybench.domain.params import DomainParams, ParamSpace
 from proxybench.domain.reality import TRUTH, reality_params
 
-__all__ = ["DEFAULT_RANDOMIZATION", "Domain", "parse_domain", "proxy_domain", "randomized_domain", "reality_domain"]
+__all__ = ["DEFAULT_RANDOMIZATION", "Domain", "parse_domain", "proxy_domain", "randomized_domain", "reality_domain",
+           "robot_domain"]
 
 #: the default domain-randomisation family around the calibrated proxy: dynamics, camera mounting,
 #: light, sensor and surface appearance (the lens distortion and slip of the reality model are *not* in it)
@@ -49,13 +50,17 @@ class Domain:
     """A named source of domain parameters: ``params`` (one θ) or ``space`` (a family, drawn per episode)."""
 
     name: str
-    kind: str  # "simulation", "family" or "reality-model"
+    kind: str  # "simulation", "family", "reality-model" or "robot"
     params: DomainParams | None = None
     space: ParamSpace | None = None
+    command: str | None = None  # a robot node's command (kind "robot"); params then only give the image size
+    frame_rate: float = 15.0  # [Hz] what a robot node is asked to step at
 
     def __post_init__(self) -> None:
         if (self.params is None) == (self.space is None):
             raise ValueError(f"domain {self.name!r}: give exactly one of params (θ) or space (Θ)")
+        if (self.kind == "robot") != bool(self.command and self.command.strip()):
+            raise ValueError(f"domain {self.name!r}: a robot domain needs the node's command, and only it has one")
 
     @property
     def base(self) -> DomainParams:
@@ -74,6 +79,9 @@ class Domain:
     def describe(self) -> dict[str, Any]:
         """JSON-able record of the domain, stored beside datasets, checkpoints and results."""
         out: dict[str, Any] = {"name": self.name, "kind": self.kind}
+        if self.command is not None:
+            return out | {"command": self.command, "frame_rate": self.frame_rate,
+                          "image_size": list(self.image_size)}
         if self.params is not None:
             out["params"] = self.params.model_dump(mode="json")
         else:
@@ -84,6 +92,8 @@ class Domain:
     @classmethod
     def from_description(cls, d: dict[str, Any]) -> Domain:
         """The inverse of :meth:`describe`."""
+        if "command" in d:
+            return robot_domain(d["command"], *d["image_size"], frame_rate=d.get("frame_rate", 15.0))
         if "params" in d:
             return cls(d["name"], d["kind"], params=DomainParams.model_validate(d["params"]))
         return cls(d["name"], d["kind"], space=ParamSpace(DomainParams.model_validate(d["base"]), d["space"]))
@@ -92,6 +102,13 @@ class Domain:
 def reality_domain(width: int, height: int) -> Domain:
     """The target: the reality model (a simulated stand-in for a real Duckiebot) at this image size."""
     return Domain("reality", "reality-model", params=reality_params(image_width=width, image_height=height))
+
+
+def robot_domain(command: str, width: int, height: int, *, frame_rate: float = 15.0) -> Domain:
+    """A robot node as a domain (a physical robot's bridge, another simulator, ``proxybench robot serve``): its θ is
+    its own; ``width`` × ``height`` is the size its camera frames are brought to for the network."""
+    return Domain(f"robot:{command}", "robot", params=DomainParams(image_width=width, image_height=height),
+                  command=command, frame_rate=frame_rate)
 
 
 def proxy_domain(width: int, height: int, name: str | None = None, **changes: Any) -> Domain:
@@ -120,12 +137,18 @@ def parse_domain(spec: str, width: int, height: int) -> Domain:
     """A domain from a short spec, as the command line takes it.
 
     ``reality`` (the target), ``proxy`` or ``proxy:NAME=VALUE,...`` (the calibrated simulator with changes),
-    ``randomized`` (the default family) or a ``.json`` / ``.yaml`` file holding a ``ParamSpace`` mapping.
+    ``randomized`` (the default family), a ``.json`` / ``.yaml`` file holding a ``ParamSpace`` mapping, or
+    ``robot:COMMAND`` (a robot node: a target, whose samples are collected on the node).
     """
     if spec == "reality":
         return reality_domain(width, height)
     if spec == "randomized":
         return randomized_domain(width, height)
+    if spec.startswith("robot:"):
+        command = spec.removeprefix("robot:").strip()
+        if not command:
+            raise ValueError(f"{spec!r}: expected robot:COMMAND (the robot node to start)")
+        return robot_domain(command, width, height)
     if spec == "proxy" or spec.startswith("proxy:"):
         changes = {}
         for item in filter(None, spec.partition(":")[2].split(",")):
@@ -136,8 +159,9 @@ def parse_domain(spec: str, width: int, height: int) -> Domain:
         return proxy_domain(width, height, name=spec, **changes)
     path = Path(spec)
     if path.suffix in (".json", ".yaml", ".yml") and path.exists():
-        import yaml
+        from proxybench.untrusted import load_yaml_file, read_text_file
 
-        dists = yaml.safe_load(path.read_text()) if path.suffix != ".json" else json.loads(path.read_text())
+        dists = load_yaml_file(path, max_depth=16) if path.suffix != ".json" else json.loads(read_text_file(path))
         return randomized_domain(width, height, dists, name=path.stem)
-    raise ValueError(f"unknown domain {spec!r}: use reality, proxy[:NAME=VALUE,...], randomized or a family file")
+    raise ValueError(f"unknown domain {spec!r}: use reality, proxy[:NAME=VALUE,...], randomized, a family file or "
+                     "robot:COMMAND")

@@ -38,6 +38,7 @@ ROBOT_REASONS: dict[str, str] = {
     "incompatible": "the node's protocol description lacks the robot protocol's topics",
     "init-timeout": "no complete answer within the init timeout (start, handshake, seed, episode setup)",
     "step-timeout": "no complete answer within the step timeout (commands, step, observations, state)",
+    "connection-lost": "a DTPS robot's camera or pose stopped arriving, or its command publisher lost the robot",
 }
 
 

@@ -31,6 +31,7 @@ from proxybench.agents.base import Agent, Observation
 from proxybench.protocol import jpeg, wire
 from proxybench.protocol.description import decode_extras, protocol_description
 from proxybench.protocol.language import META_REPLIES, AgentLanguage, Language
+from proxybench.untrusted import UntrustedInputError, load_yaml
 
 __all__ = ["AgentNode", "ExternalProtocolViolation", "NodeLogic", "serve", "serve_node"]
 
@@ -54,8 +55,8 @@ def _payload_seed(payload: str) -> int | None:
         doc = json.loads(payload)
     except ValueError:
         try:
-            doc = yaml.safe_load(payload)
-        except yaml.YAMLError:
+            doc = load_yaml(payload, max_depth=16)
+        except (yaml.YAMLError, UntrustedInputError):
             return None
     seed = doc.get("seed") if isinstance(doc, dict) else None
     return seed if type(seed) is int else None

@@ -19,7 +19,11 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-__all__ = ["NODE_OPTION_FIELDS", "NodeOptions", "RobotNodeOptions"]
+__all__ = ["MAX_TIMEOUT_S", "NODE_OPTION_FIELDS", "NodeOptions", "RobotNodeOptions"]
+
+#: the longest timeout a node may be given [s]: a day (the kernel's waits take at most 2^31 ms, ~24.8 days;
+#: a larger value, 1e300 say, was an OverflowError when the node started)
+MAX_TIMEOUT_S = 86_400.0
 
 
 class NodeOptions(BaseModel):
@@ -40,8 +44,10 @@ class NodeOptions(BaseModel):
     cwd: str | None = Field(None, min_length=1, description="working directory of the command")
     transport: Literal["pipe", "fifo"] = Field("pipe", description="pipe (stdin/stdout) or fifo (AIDO's default)")
     fifo_dir: str | None = Field(None, min_length=1, description="folder for the FIFOs (transport fifo)")
-    start_timeout: float = Field(30.0, gt=0.0, allow_inf_nan=False, description="start + handshake, setup [s]")
-    step_timeout: float = Field(5.0, gt=0.0, allow_inf_nan=False, description="each per-frame exchange [s]")
+    start_timeout: float = Field(30.0, gt=0.0, le=MAX_TIMEOUT_S, allow_inf_nan=False,
+                                 description="start + handshake, setup [s]")
+    step_timeout: float = Field(5.0, gt=0.0, le=MAX_TIMEOUT_S, allow_inf_nan=False,
+                                description="each per-frame exchange [s]")
     reflection: bool = Field(True, description="ask describe_protocol (falls back without it on failure)")
 
     def process_kwargs(self) -> dict[str, Any]:
@@ -64,8 +70,10 @@ class RobotNodeOptions(NodeOptions):
     same fields, with longer default timeouts, since a robot node may start a simulator or reach hardware
     before it answers (120 s), and a robot stepping in real time needs longer than one step (10 s)."""
 
-    start_timeout: float = Field(120.0, gt=0.0, allow_inf_nan=False, description="start + handshake, setup [s]")
-    step_timeout: float = Field(10.0, gt=0.0, allow_inf_nan=False, description="each per-frame exchange [s]")
+    start_timeout: float = Field(120.0, gt=0.0, le=MAX_TIMEOUT_S, allow_inf_nan=False,
+                                 description="start + handshake, setup [s]")
+    step_timeout: float = Field(10.0, gt=0.0, le=MAX_TIMEOUT_S, allow_inf_nan=False,
+                                description="each per-frame exchange [s]")
 
 
 #: the option names, for error messages and manifests

@@ -3,7 +3,8 @@
 The manifest, ``proxybench-agent.yaml`` at the archive root::
 
     name: my-agent
-    protocol: aido-z2            # the AIDO lane-following agent protocol (docs/protocol.md)
+    protocol: aido-z2            # the AIDO lane-following agent protocol (docs/protocol.md), or
+                                 # duckietown-sdk: a program using duckietown-sdk's DB21J (docs/dtps.md)
     command: [python3, agent.py] # started in the unpacked folder; speaks the protocol on stdin/stdout
     # or, as typed in a shell:  command: cd solution && exec python3 solution.py
     description: optional text
@@ -12,9 +13,11 @@ The manifest, ``proxybench-agent.yaml`` at the archive root::
     start_timeout: 60            # optional [s]: start + handshake, and each setup message (at most 600)
     step_timeout: 2              # optional [s]: each observations + get_commands exchange (at most 30)
     reflection: false            # optional: skip describe_protocol (e.g. zuper-nodes on Python >= 3.11)
+    timing: lockstep             # optional, duckietown-sdk only: realtime (default) | lockstep
 
 Archives come from strangers, so :func:`check_archive` refuses anything that could write outside the
-folder it is unpacked in (absolute paths, ``..``, links, devices) or blow up on unpacking, naming the
+folder it is unpacked in (absolute paths, ``..``, links, devices) or fail to unpack (a member that is both
+a file and a folder, ``a`` then ``a/b``; a file named ``.``; a name component over 255 bytes), naming the
 member at fault. The cheap checks come first and are bounded before anything is decompressed: a zip's
 member count and central-directory size are read from its end record; a tar is read as a stream, one
 header at a time, with extension headers (pax, GNU long names) size-limited, so an archive of millions
@@ -22,7 +25,7 @@ of empty headers is refused after ``max_members`` of them. Then the manifest (at
 bytes, YAML without aliases, bounded nesting), then every member's data is read once, bounded by
 ``max_unpacked`` bytes and ``max_seconds``, so a bad CRC, a truncated stream or an encrypted member is a
 :class:`PackageError` here, not a crash later. The server runs it on upload, the evaluator again before
-it runs the agent.
+it runs the agent, which unpacks it with :func:`proxybench.protocol.unpack.extract_archive`.
 """
 
 from __future__ import annotations
@@ -39,7 +42,6 @@ import tarfile
 import time
 import zipfile
 import zlib
-from pathlib import Path
 from typing import IO, Any, Literal
 
 import yaml
@@ -47,17 +49,19 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from proxybench.untrusted import UntrustedInputError, load_yaml
 
-__all__ = ["MANIFEST_NAME", "AgentManifest", "ArchiveLimits", "PackageError", "check_archive", "extract_archive"]
+__all__ = ["MANIFEST_NAME", "AgentManifest", "ArchiveLimits", "PackageError", "check_archive"]
 
 MANIFEST_NAME = "proxybench-agent.yaml"
-PROTOCOLS = ("aido-z2",)
+PROTOCOLS = ("aido-z2", "duckietown-sdk")
+SDK_PROTOCOL = "duckietown-sdk"
 SHELL = "/bin/sh"
 #: the shell snippet that runs "$@" in the folder "$1" (what ``cwd`` adds in front of the command)
 _CD = 'cd -- "$1" && shift && exec "$@"'
 _ZIP_METHODS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate", zipfile.ZIP_BZIP2: "bzip2",
                 zipfile.ZIP_LZMA: "lzma"}
-_CHUNK = 1 << 20
+CHUNK = 1 << 20
 _MAX_NAME = 1024  # characters in a member's path
+_MAX_COMPONENT = 255  # bytes of one name in a path (the file systems' limit)
 _MAX_EXTENSION_HEADER = 1 << 20  # bytes of one pax / GNU long-name header
 _MAX_EXTENSION_CHAIN = 8  # extension headers in a row before a member
 
@@ -97,6 +101,7 @@ class AgentManifest(BaseModel):
     start_timeout: float = Field(30.0, gt=0.0, le=600.0, allow_inf_nan=False, description="[s], at most 600")
     step_timeout: float = Field(5.0, gt=0.0, le=30.0, allow_inf_nan=False, description="[s], at most 30")
     reflection: bool = Field(True, description="ask describe_protocol (a node failing it is restarted without)")
+    timing: Literal["realtime", "lockstep"] | None = Field(None, description="duckietown-sdk: realtime | lockstep")
 
     @field_validator("command", mode="before")
     @classmethod
@@ -124,6 +129,15 @@ class AgentManifest(BaseModel):
         if cwd.startswith(("/", "\\")) or norm == ".." or norm.startswith("../"):
             raise ValueError(f"{cwd!r} leaves the package folder (give a folder inside it)")
         return norm
+
+    @model_validator(mode="after")
+    def _options_of_its_protocol(self) -> AgentManifest:
+        if self.protocol == SDK_PROTOCOL and self.transport != "pipe":
+            raise ValueError("transport: a duckietown-sdk program talks DTPS over the network, not AIDO's pipes or "
+                             "FIFOs; leave transport out")
+        if self.protocol != SDK_PROTOCOL and self.timing is not None:
+            raise ValueError(f"timing: only for protocol {SDK_PROTOCOL} (this is {self.protocol})")
+        return self
 
     @model_validator(mode="after")
     def _in_cwd(self) -> AgentManifest:
@@ -158,7 +172,7 @@ class _Budget:
             raise PackageError(f"{where}: checking the archive took longer than {self.limits.max_seconds:g} s")
 
 
-def _check_name(name: str) -> str:
+def member_path(name: str) -> str:
     if len(name) > _MAX_NAME:
         raise PackageError(f"member {name[:80]!r}…: path longer than {_MAX_NAME} characters")
     if "\x00" in name:
@@ -166,6 +180,8 @@ def _check_name(name: str) -> str:
     norm = posixpath.normpath(name.replace("\\", "/"))
     if name.startswith(("/", "\\")) or (len(name) > 1 and name[1] == ":") or norm == ".." or norm.startswith("../"):
         raise PackageError(f"member {name!r}: path leaves the package folder")
+    if any(len(part.encode("utf-8", "surrogateescape")) > _MAX_COMPONENT for part in norm.split("/")):
+        raise PackageError(f"member {name[:80]!r}: a name in its path is longer than {_MAX_COMPONENT} bytes")
     return norm
 
 
@@ -195,24 +211,42 @@ def _parse_manifest(raw_bytes: bytes, limits: ArchiveLimits) -> AgentManifest:
 
 
 class _Members:
-    """Names seen so far: duplicates are refused (which of two manifests would count?)."""
+    """Names seen so far: duplicates are refused (which of two manifests would count?), and so is a path that is
+    a file in one member and a folder in another (``a``, then ``a/b``): it could not be unpacked."""
 
     def __init__(self, limits: ArchiveLimits) -> None:
         self.limits = limits
         self.names: set[str] = set()
+        self.files: set[str] = set()
+        self.folders: set[str] = set()
         self.declared = 0
 
     def add(self, name: str, size: int, is_dir: bool) -> str:
-        norm = _check_name(name)
+        norm = member_path(name)
         if len(self.names) >= self.limits.max_members:
             raise PackageError(f"more than {self.limits.max_members} members")
         if not is_dir and norm in self.names:
             raise PackageError(f"member {name!r} appears twice")
+        if not is_dir and norm == ".":
+            raise PackageError(f"member {name!r}: a file must have a name")
+        parents = [p for p in _parents(norm)]
+        clash = next((p for p in parents if p in self.files), None) or \
+            (norm if (norm in self.files if is_dir else norm in self.folders) else None)
+        if clash is not None:
+            raise PackageError(f"member {name!r}: {clash!r} is both a file and a folder in this archive")
+        self.folders.update(parents)
+        (self.folders if is_dir else self.files).add(norm)
         self.names.add(norm)
         self.declared += max(0, size)
         if self.declared > self.limits.max_unpacked:
             raise PackageError(f"member {name!r}: the members add up to more than {self.limits.max_unpacked} bytes")
         return norm
+
+
+def _parents(norm: str) -> list[str]:
+    """``a/b/c`` → ``a``, ``a/b``."""
+    parts = norm.split("/")[:-1]
+    return ["/".join(parts[: k + 1]) for k in range(len(parts))]
 
 
 # -- zip -----------------------------------------------------------------------------------------------
@@ -268,7 +302,7 @@ def _check_zip(f: IO[bytes], size: int, limits: ArchiveLimits) -> AgentManifest:
             if info.compress_type not in _ZIP_METHODS:
                 raise PackageError(f"member {info.filename!r}: compression method {info.compress_type} is not "
                                    f"supported ({', '.join(_ZIP_METHODS.values())})")
-        entry = next((i for i in infos if not i.is_dir() and _check_name(i.filename) == MANIFEST_NAME), None)
+        entry = next((i for i in infos if not i.is_dir() and member_path(i.filename) == MANIFEST_NAME), None)
         if entry is None:
             raise PackageError(f"no {MANIFEST_NAME} at the archive root")
         if entry.file_size > limits.max_manifest:
@@ -290,7 +324,7 @@ def _read_zip_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, budget: _Budget
     got = 0
     try:
         with zf.open(info) as m:
-            while chunk := m.read(_CHUNK):
+            while chunk := m.read(CHUNK):
                 got += len(chunk)
                 budget.spend(len(chunk), f"member {info.filename!r}")
                 if got > info.file_size:
@@ -327,7 +361,7 @@ class _BoundedStream(io.RawIOBase):
         return n
 
 
-class _CheckedTarInfo(tarfile.TarInfo):
+class BoundedTarInfo(tarfile.TarInfo):
     """Refuses oversized or endless chains of extension headers *before* tarfile reads them into memory."""
 
     def _proc_member(self, tf):  # type: ignore[no-untyped-def]
@@ -364,9 +398,9 @@ def _check_tar(f: IO[bytes], limits: ArchiveLimits) -> AgentManifest:
                                    max_unpacked=limits.max_unpacked + limits.max_members * 1024 + (1 << 20)))
     members = _Members(limits)
     manifest: AgentManifest | None = None
-    stream = io.BufferedReader(_BoundedStream(_decompressed(f), budget), _CHUNK)
+    stream = io.BufferedReader(_BoundedStream(_decompressed(f), budget), CHUNK)
     try:
-        with tarfile.open(fileobj=stream, mode="r|", tarinfo=_CheckedTarInfo) as tf:
+        with tarfile.open(fileobj=stream, mode="r|", tarinfo=BoundedTarInfo) as tf:
             while (m := tf.next()) is not None:
                 norm = members.add(m.name, m.size, m.isdir())
                 tf.members.clear()  # a stream is read once: keep no list of every member seen
@@ -395,7 +429,7 @@ def _check_tar(f: IO[bytes], limits: ArchiveLimits) -> AgentManifest:
 # -- entry points --------------------------------------------------------------------------------------
 
 
-def _source(data: bytes | str | os.PathLike[str] | IO[bytes]) -> tuple[IO[bytes], int, bool]:
+def open_source(data: bytes | str | os.PathLike[str] | IO[bytes]) -> tuple[IO[bytes], int, bool]:
     """(seekable binary file, size, whether we opened it)."""
     if isinstance(data, bytes | bytearray | memoryview):
         return io.BytesIO(data), len(data), True
@@ -418,7 +452,7 @@ def check_archive(data: bytes | str | os.PathLike[str] | IO[bytes], *, limits: A
     limits = limits or ArchiveLimits()
     if overrides:
         limits = limits.model_copy(update=overrides)
-    f, size, opened = _source(data)
+    f, size, opened = open_source(data)
     try:
         if size == 0:
             raise PackageError("the archive is empty")
@@ -436,36 +470,3 @@ def check_archive(data: bytes | str | os.PathLike[str] | IO[bytes], *, limits: A
     finally:
         if opened:
             f.close()
-
-
-def extract_archive(data: bytes | str | os.PathLike[str] | IO[bytes], dest: Path, **limits: Any) -> AgentManifest:
-    """Check, then unpack into ``dest`` (created; must be empty). Returns the manifest."""
-    manifest = check_archive(data, **limits)
-    dest.mkdir(parents=True, exist_ok=True)
-    if any(dest.iterdir()):
-        raise PackageError(f"{dest}: unpack folder is not empty")
-    root = dest.resolve()
-    f, _, opened = _source(data)
-    try:
-        if zipfile.is_zipfile(f):
-            f.seek(0)
-            with zipfile.ZipFile(f) as zf:
-                for info in zf.infolist():
-                    target = (root / _check_name(info.filename)).resolve()
-                    if not target.is_relative_to(root):
-                        raise PackageError(f"member {info.filename!r}: path leaves the package folder")
-                    if info.is_dir():
-                        target.mkdir(parents=True, exist_ok=True)
-                        continue
-                    target.parent.mkdir(parents=True, exist_ok=True)
-                    target.write_bytes(zf.read(info))
-                    if (info.external_attr >> 16) & 0o111:
-                        target.chmod(0o755)
-        else:
-            f.seek(0)
-            with tarfile.open(fileobj=f, mode="r:*") as tf:
-                tf.extractall(root, filter="data")  # the stdlib's own refusal of links out, devices, absolute paths
-    finally:
-        if opened:
-            f.close()
-    return manifest

@@ -24,6 +24,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from proxybench.domain.events import Event
 from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.maps import MapObject
 from proxybench.domain.routes import RouteInfo
@@ -87,9 +88,9 @@ class RobotBackend(Protocol):
     def route_choices(self) -> dict[str, Any] | None:
         """``{"active": bool, "choices": [...]}`` of the route tracker (intersection turns), None: no routes."""
 
-    def ending(self) -> dict[str, Any] | None:
-        """Why the episode ended (``{"t", "kind", "message"}`` and ``"with"`` for a collision), None while
-        the robot drives on. ``kind``: a termination of ``robot_wire.TERMINATION_CODES``."""
+    def ending(self) -> Event | None:
+        """Why the episode ended (an :class:`~proxybench.domain.events.Event`: ``kind`` a termination of
+        ``robot_wire.TERMINATION_CODES``, ``with_`` what was hit), None while the robot drives on."""
 
     def info(self) -> dict[str, Any]:
         """``robot_interface_description.proxybench``: kind, frame_rate, physics_rate, wheel_distance,

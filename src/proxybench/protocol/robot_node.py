@@ -37,6 +37,7 @@ from proxybench.protocol.language import RobotLanguage
 from proxybench.protocol.node import NodeLogic, serve_node
 from proxybench.protocol.robot_backend import RobotBackend
 from proxybench.protocol.robot_description import robot_protocol_description
+from proxybench.untrusted import UntrustedInputError, load_yaml
 
 __all__ = ["RobotBackend", "RobotNode", "serve_robot"]
 
@@ -66,8 +67,8 @@ def _episode_payload(payload: str) -> dict[str, Any]:
         doc = json.loads(payload)
     except ValueError:
         try:
-            doc = yaml.safe_load(payload)
-        except yaml.YAMLError as exc:
+            doc = load_yaml(payload, max_depth=16)
+        except (yaml.YAMLError, UntrustedInputError) as exc:
             raise wire.MessageTypeError(f"episode_start: yaml_payload is neither JSON nor YAML: {exc}") from exc
     doc = doc if isinstance(doc, dict) else {}
     out: dict[str, Any] = {}
@@ -276,9 +277,9 @@ class RobotNode(NodeLogic):
         when = self._time
         end = self.backend.ending()
         if end is not None:  # the backend's rule (the runner's, for proxybench's simulator)
-            self.termination = {"when": end["t"], "desc": end["message"], "code": end["kind"]}
-            if "with" in end:
-                self.termination["with"] = end["with"]
+            self.termination = {"when": end.t, "desc": end.message, "code": str(end.kind)}
+            if end.with_ is not None:
+                self.termination["with"] = end.with_
         elif self.frame_limit is not None and self.frames >= self.frame_limit:
             self.termination = {"when": when, "desc": "the episode's time is up", "code": "timeout"}
 

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.events import Termination
 from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.routes import RouteInfo
 from proxybench.protocol import wire
@@ -42,8 +43,9 @@ __all__ = [
 ]
 
 #: termination code a robot may report → proxybench's termination (AIDO's out-of-lane / out-of-tile: off road)
-TERMINATION_CODES = {"collision": "collision", "off_road": "off_road", "timeout": "timeout",
-                     "out-of-lane": "off_road", "out-of-tile": "off_road"}
+TERMINATION_CODES = {"collision": Termination.COLLISION, "off_road": Termination.OFF_ROAD,
+                     "timeout": Termination.TIMEOUT, "out-of-lane": Termination.OFF_ROAD,
+                     "out-of-tile": Termination.OFF_ROAD}
 #: the columns of the proxybench tick trace in ``robot_state.state.proxybench.trace``
 TRACE_COLUMNS = ("t", "x", "y", "theta", "v", "omega", "pwm_left", "pwm_right")
 _ZERO_VELOCITY = {"x": 0.0, "y": 0.0, "theta_deg": 0.0}
@@ -414,7 +416,7 @@ class Ending:
     """Why and when a robot's episode ended: ``termination`` is proxybench's name for the reported code
     (:data:`TERMINATION_CODES`), ``desc`` the robot's words, ``when`` [s]; ``hit``: what it collided with."""
 
-    termination: str
+    termination: Termination
     desc: str
     when: float
     hit: str | None = None

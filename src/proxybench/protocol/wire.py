@@ -200,8 +200,13 @@ def _is_float(x: Any) -> bool:
     return type(x) is float
 
 
+#: an int beyond this is not a number a message carries (2**1024 made float() and isfinite() raise OverflowError
+#: in the caller, which killed the evaluator's worker instead of failing the agent)
+_MAX_INT = 2**53
+
+
 def _is_number(x: Any) -> bool:
-    return type(x) in (float, int)
+    return type(x) is float or (type(x) is int and -_MAX_INT <= x <= _MAX_INT)
 
 
 def _need(data: Any, key: str, check, what: str, topic: str) -> Any:

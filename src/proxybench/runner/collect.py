@@ -13,13 +13,18 @@ Who drives and who labels are separate, as BC practice wants:
 The expert is pure pursuit on the true lane pose (privileged; only a simulator or a motion-capture lab
 knows it). A robot whose episode ends by the engine's rule (``domain.episode_end``: off the road, a
 collision), completes ``episode_frames`` or has no valid expert label starts a new episode at once with a
-new seed — and, for a domain family, a new θ. (Data collection is a continuing stream with per-robot
-resets, not a set of episodes with trajectories, so it steps the simulator itself rather than through
-``runner.rollout``.)
+new seed — and, for a domain family, a new θ. (In a simulated domain data collection is a continuing stream
+with per-robot resets, not a set of episodes with trajectories, so it steps the batched simulator itself.)
+
+A **robot node** (``Domain.kind == "robot"``: a physical robot's bridge, another simulator, ``proxybench robot
+serve``) is driven through the episode engine instead — :func:`~proxybench.runner.rollout.rollout` on its
+:class:`~proxybench.runner.robot_episode.RobotPlant`, one episode at a time from the same perturbed starts: the
+expert reads the true lane pose the node serves, and its frames are brought to the domain's image size.
 """
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from dataclasses import asdict
 from typing import Any
@@ -30,13 +35,15 @@ from proxybench import __version__
 from proxybench.domain.episode_end import ended
 from proxybench.domain.lane_pose import LP
 from proxybench.domain.params import DomainParams
-from proxybench.domain.simulator import Simulator, StartDistribution
+from proxybench.domain.simulator import Simulator, StartDistribution, start_pose
 from proxybench.learning.configs import CollectConfig
 from proxybench.learning.dataset import ARRAYS, Dataset
 from proxybench.learning.domains import Domain
 from proxybench.learning.expert import expert_actions
+from proxybench.runner.jobs import DomainSpec
+from proxybench.runner.plants import PlantPool, fit_frames
 
-__all__ = ["CollectConfig", "Policy", "collect", "episode_seed_for"]
+__all__ = ["CollectConfig", "Policy", "collect", "episode_seed_for", "lane_rows", "robot_spec"]
 
 #: a batched learner: camera frames (N, H, W, 3) uint8 → wheel PWM (N, 2)
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -58,14 +65,16 @@ class _Recorder:
         self.thetas: list[dict[str, Any]] = []
         self._theta_key: dict[str, int] = {}
 
-    def new_episode(self, sim: Simulator, robot: int, on_policy: bool) -> int:
-        """Start the next episode on ``robot`` (new seed, new θ for a family); returns its id."""
+    def new_episode(self, sim: Simulator | None, robot: int, on_policy: bool) -> int:
+        """Start the next episode on ``robot`` of ``sim`` (new seed, new θ for a family); returns its id. Without a
+        simulator (a robot node) only the bookkeeping: the caller starts the episode."""
         e = len(self.episodes)
         seed = episode_seed_for(self.cfg.seed, e)
         theta = self.domain.sample(np.random.default_rng(seed))
-        if self.domain.space is not None:  # a fixed θ is already the simulator's
-            sim.set_params(robot, theta)
-        sim.reset(robot, seed)
+        if sim is not None:
+            if self.domain.space is not None:  # a fixed θ is already the simulator's
+                sim.set_params(robot, theta)
+            sim.reset(robot, seed)
         key = theta.model_dump_json()
         if key not in self._theta_key:
             self._theta_key[key] = len(self.thetas)
@@ -107,15 +116,21 @@ def collect(
     policy: Policy | None = None,
     beta: float = 0.0,
     progress: Callable[[int, int], None] | None = None,
+    pool: PlantPool | None = None,
 ) -> Dataset:
     """Record ``cfg.samples`` labelled frames in ``domain``.
 
     Without ``policy`` the noisy expert drives (off-policy data); with one, the learner drives and the
     expert's command is executed instead with probability ``beta`` per frame (DAgger's mixture).
-    Frames where the robot is off every lane (no valid expert label) are not recorded.
+    Frames where the robot is off every lane (no valid expert label) are not recorded. A robot domain's node
+    comes from ``pool`` (kept running there), else is started for this call.
     """
     if not 0.0 <= beta <= 1.0:
         raise ValueError(f"beta must be in [0, 1], got {beta}")
+    if domain.kind == "robot":
+        with contextlib.ExitStack() as stack:
+            pool = pool or stack.enter_context(PlantPool())
+            return _collect_on_robot(pool.robot(robot_spec(domain), cfg.map), domain, cfg, policy, beta, progress)
     base = domain.base
     start = StartDistribution(lateral=cfg.start_lateral, heading=cfg.start_heading, use_map_start=False)
     first = base if domain.space is None else _roomiest(base)
@@ -147,3 +162,94 @@ def collect(
         if progress:
             progress(min(rec.count, cfg.samples), cfg.samples)
     return rec.dataset({"beta": beta if on_policy else None})
+
+
+def robot_spec(domain: Domain) -> DomainSpec:
+    """The runner's spec of a robot domain (its node, stepped at the domain's frame rate)."""
+    return DomainSpec.robot(domain.command, frame_rate=domain.frame_rate)
+
+
+def lane_rows(plant: Any) -> np.ndarray:
+    """(N, LP.N) true lane-pose rows of a plant's robots: the simulator's array, or what a robot node serves
+    (a row that is not valid where it serves none)."""
+    sim = getattr(plant, "sim", None)
+    if sim is not None:
+        return sim.lane[: plant.n]
+    rows = np.zeros((plant.n, LP.N))
+    for i in range(plant.n):
+        lp = plant.observation(i, None, True).lane_pose
+        if lp is not None:
+            rows[i] = lp.to_row()
+    return rows
+
+
+class _NoLabel(RuntimeError):
+    """Ends a collection episode: the expert has no label here, or the data set is full."""
+
+
+class _RobotDriver:
+    """The episode engine's policy for collecting on a robot node: the noisy expert or the learner drives, the
+    expert labels, and every frame with a valid label is recorded."""
+
+    def __init__(self, rec: _Recorder, episode: int, size: tuple[int, int], policy: Policy | None, beta: float,
+                 rng: np.random.Generator):
+        self.privileged = [True]  # the expert reads the true lane pose
+        self.rec, self.episode, self.size, self.policy, self.beta, self.rng = rec, episode, size, policy, beta, rng
+        self.names = ["learner" if policy is not None else "expert"]
+        self.noise, self.k = np.zeros(2), 0
+
+    def reset(self, seeds) -> dict[int, BaseException]:
+        return {}
+
+    def act(self, plant: Any, images: Any, alive: np.ndarray) -> tuple[np.ndarray, dict[int, BaseException]]:
+        cfg = self.rec.cfg
+        lane = lane_rows(plant)
+        if lane[0, LP.VALID] <= 0.5 or images is None or images[0] is None or self.rec.count >= cfg.samples:
+            return np.zeros((1, 2)), {0: _NoLabel("no expert label (off every lane), or the data set is full")}
+        frame = fit_frames(np.asarray(images[0])[None], self.size)
+        label = expert_actions(lane)
+        if self.policy is None:
+            executed = label + self.noise
+            innov = cfg.noise_std * np.sqrt(1.0 - cfg.noise_corr ** 2)
+            self.noise = cfg.noise_corr * self.noise + innov * self.rng.standard_normal(2)
+        else:
+            learner = np.asarray(self.policy(frame), dtype=np.float64).reshape(1, 2)
+            executed = label if self.rng.random() < self.beta else learner
+        executed = np.clip(executed, -1.0, 1.0)
+        self.rec.add(np.array([True]), images=frame, actions=label, executed=executed, episode=[self.episode],
+                     frame=[self.k], on_policy=[self.policy is not None])
+        self.k += 1
+        return executed, {}
+
+
+def _collect_on_robot(plant: Any, domain: Domain, cfg: CollectConfig, policy: Policy | None, beta: float,
+                      progress: Callable[[int, int], None] | None) -> Dataset:
+    """Episodes of ``cfg.episode_frames`` frames, one after another, on a robot node, through the episode engine."""
+    from proxybench.runner.rollout import rollout
+
+    rec = _Recorder(domain, cfg)
+    rng = np.random.default_rng([cfg.seed, 0x5EED])
+    start = StartDistribution(lateral=cfg.start_lateral, heading=cfg.start_heading, use_map_start=False)
+    empty = 0
+    while rec.count < cfg.samples:
+        before = rec.count
+        seconds = cfg.episode_frames / _rate(plant, domain.frame_rate)  # a node may step at its own rate
+        e = rec.new_episode(None, 0, policy is not None)
+        seed = rec.episodes[e]["seed"]
+        rollout(plant, _RobotDriver(rec, e, domain.image_size, policy, beta, rng), [seed], seconds,
+                poses=[start_pose(plant.map, seed, start)])
+        if progress:
+            progress(min(rec.count, cfg.samples), cfg.samples)
+        empty = empty + 1 if rec.count == before else 0
+        if empty >= 20:
+            raise RuntimeError(f"{domain.name}: no labelled frame in 20 episodes in a row: the node serves no true "
+                               "lane pose, or every start is off the lanes")
+    return rec.dataset({"beta": beta if policy is not None else None})
+
+
+def _rate(plant: Any, asked: float) -> float:
+    """The rate a robot node steps at: what it said when its last episode began, else what it is asked."""
+    try:
+        return float(plant.frame_rate)
+    except AttributeError:  # no episode yet
+        return asked

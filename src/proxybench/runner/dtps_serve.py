@@ -25,6 +25,7 @@ from proxybench.dtps.driver import RobotDriver
 from proxybench.dtps.virtual_robot import DEFAULT_NAME, DEFAULT_PORT, VirtualDB21J
 from proxybench.runner.episode import sim_plant
 from proxybench.runner.rollout import AgentPolicy, rollout
+from proxybench.tasks.trajectory import Event, Termination
 
 __all__ = ["ServeDriver", "serve"]
 
@@ -61,25 +62,30 @@ class _ResetPlant:
     def __getattr__(self, name: str) -> Any:
         return getattr(self._plant, name)
 
-    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, dict[str, Any], bool]]:
+    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, Event, bool]]:
         out = self._plant.advance(commands, alive, k)
         if self._driver.reset_requested and not any(final for _, _, final in out):
-            out.append((0, {"t": self._plant.time(0), "kind": "reset", "message": "the agent published state/reset"},
-                        True))
+            out.append((0, Event(self._plant.time(0), Termination.RESET, "the agent published state/reset"), True))
         return out
 
 
 def serve(map_name: str, out: Path, *, name: str = DEFAULT_NAME, port: int = DEFAULT_PORT,
           seconds: float = float("inf"), episode_seconds: float = 60.0, seed: int = 0,
           params: DomainParams | None = None, on_episode: Callable[[int, Any], None] | None = None,
-          host: str = "127.0.0.1") -> list[Path]:
-    """Serve until ``seconds`` of wall time have passed (or Ctrl-C); the trajectory files written."""
+          on_ready: Callable[[str], None] | None = None, host: str = "127.0.0.1") -> list[Path]:
+    """Serve until ``seconds`` of wall time have passed (or Ctrl-C); the trajectory files written.
+
+    ``on_ready(url)`` runs once the robot's queues exist: an SDK agent started before then cannot connect
+    (the SDK gives up at once on a server that is not there), so say "start your agent" only then.
+    """
     out.mkdir(parents=True, exist_ok=True)
     plant = sim_plant(map_name, params)
     robot = VirtualDB21J(name=name, port=port, host=host)
     files: list[Path] = []
     try:
         robot.publish_map(plant.map)
+        if on_ready is not None:
+            on_ready(robot.url)
         driver = ServeDriver(robot)
         end = time.monotonic() + seconds
         k = 0

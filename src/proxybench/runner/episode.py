@@ -13,6 +13,7 @@ import numpy as np
 from proxybench.agents.base import Agent, Observation
 from proxybench.domain.dynamics import ST, TRACE_FIELDS, wheel_ticks
 from proxybench.domain.episode_end import end_event, ended
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.maps import Map
 from proxybench.domain.params import DomainParams
@@ -20,7 +21,7 @@ from proxybench.domain.range_sensor import front_range
 from proxybench.domain.simulator import Simulator
 from proxybench.runner.npcs import NpcDrivers
 from proxybench.runner.rollout import AgentPolicy, FrameHook, PrivilegedAgentError, rollout
-from proxybench.tasks.trajectory import Trajectory
+from proxybench.tasks.trajectory import Event, Trajectory
 
 __all__ = ["PrivilegedAgentError", "SimPlant", "play", "run_episode", "run_episodes", "sim_plant"]
 
@@ -96,7 +97,7 @@ class SimPlant:
     def time(self, i: int) -> float:
         return float(self.sim.time[i])
 
-    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, dict[str, Any], bool]]:
+    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, Event, bool]]:
         sim, drivers = self.sim, self.drivers
         self.lanes[:, :, k] = sim.routes.pin[: self.n], sim.routes.next[: self.n]  # the egos' rows (NPCs follow)
         sim.step(commands, self.trace[:, k], None if drivers is None else drivers.act(alive))
@@ -122,7 +123,7 @@ class SimPlant:
             list(routes.choices[i])
 
     def meta(self, i: int) -> dict[str, Any]:
-        out = {"source": "simulation", "params": self.sim.params[i].model_dump(mode="json")}
+        out = {"source": DomainKind.SIMULATION, "params": self.sim.params[i].model_dump(mode="json")}
         traffic = self.sim.worlds.traffic[i]
         if not traffic.empty:
             out["npcs"] = traffic.to_dict()

@@ -10,6 +10,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from proxybench.domain.kinds import DomainKind
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.streams import StreamSpec
@@ -37,11 +38,14 @@ def benchmark_domain(bench: Benchmark, named: str | None = None) -> DomainSpec:
         if named not in NAMED_DOMAINS:
             raise BenchmarkError(f"unknown domain {named!r}; known: {', '.join(NAMED_DOMAINS)}")
         params = NAMED_DOMAINS[named]().replace(physics_rate=bench.physics_rate, frame_rate=bench.frame_rate)
-        kind = "reality-model" if named == "reality" else "simulation"
-        return DomainSpec(named, params.model_dump(mode="json"), kind)
+        return DomainSpec(named, params, _kind(named))
     name = bench.domain.named or "benchmark"
-    kind = "reality-model" if bench.domain.named == "reality" else "simulation"
-    return DomainSpec(name, bench.domain_params().model_dump(mode="json"), kind)
+    return DomainSpec(name, bench.domain_params(), _kind(bench.domain.named))
+
+
+def _kind(named: str | None) -> DomainKind:
+    """The kind of a named domain: the reality model, else a simulation."""
+    return DomainKind.REALITY_MODEL if named == "reality" else DomainKind.SIMULATION
 
 
 def evaluate_benchmark(
@@ -72,7 +76,7 @@ def evaluate_benchmark(
     dom = domain if isinstance(domain, DomainSpec) else benchmark_domain(bench, domain)
     metrics = tuple(bench.metrics)
     npcs = bench.traffic()
-    if dom.kind == "robot":
+    if dom.kind is DomainKind.ROBOT:
         if streams is not None:
             raise BenchmarkError("watchtower streams are simulated: they need a simulated domain, not a robot node")
         if npcs is not None and not npcs.empty:

@@ -16,6 +16,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from proxybench import __version__
+from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
+from proxybench.domain.params import DomainParams
 
 if TYPE_CHECKING:
     from proxybench.domain.npcs import Traffic
@@ -81,75 +84,108 @@ class AgentSpec:
 
 #: [Hz] the camera rate of :class:`~proxybench.domain.params.DomainParams` when nobody sets one
 DEFAULT_FRAME_RATE = 15.0
-#: what a domain can be: a proxy instance S_θ, the built-in reality model, or a robot node (the robot protocol)
-DOMAIN_KINDS = ("simulation", "reality-model", "robot")
+#: what a job's domain can be: a proxy instance S_θ, the built-in reality model, or a robot node (the robot
+#: protocol); a recording (``DomainKind.RECORDED``) is read, never run
+DOMAIN_KINDS = (DomainKind.SIMULATION, DomainKind.REALITY_MODEL, DomainKind.ROBOT)
 
 
 @dataclass(frozen=True)
 class DomainSpec:
-    """A domain instance: a label, its parameters θ (DomainParams fields) and what kind of domain it is.
+    """A domain instance: a label, its parameters θ (a :class:`DomainParams`) and what kind of domain it is.
 
     ``kind`` is "simulation" for proxy instances, "reality-model" for the built-in stand-in target, and
     "robot" for a robot node started with ``command`` (docs/robot-protocol.md: a physical robot's bridge,
-    another simulator, or ``proxybench robot serve``). A robot is what it is: its θ is not ours to set, so
-    ``params`` stays empty, and its episodes are cached by *what was asked* (the command string, map,
-    episode, agent), not by what the robot is: after changing the robot (recalibration, new firmware), use
-    a fresh run directory or delete its cached episodes. ``nodes``: how many processes of ``command`` may
-    run at once on this machine (one per busy worker, up to this; not part of any key): keep 1 for a bridge
-    to one physical robot, raise it for a simulator node. ``options``: how to start and talk to the node,
-    the non-default fields of :class:`~proxybench.protocol.options.RobotNodeOptions` (working directory,
-    transport, timeouts, reflection) as sorted pairs; of them only ``cwd`` is part of the key (it changes
-    what the command runs; a timeout or the transport does not change an episode). ``frame_rate`` [Hz]: what a
-    robot node is asked to step at (the benchmark's or the proxies' rate; a node that says its own rate is
-    stepped at that); part of the key when it is not the default 15 Hz.
+    another simulator, or ``proxybench robot serve``). A simulated domain without ``params`` has the default
+    θ. A robot is what it is: its θ is not ours to set, so ``params`` stays None, and its episodes are cached
+    by *what was asked* (the command string, map, episode, agent), not by what the robot is: after changing
+    the robot (recalibration, new firmware), use a fresh run directory or delete its cached episodes.
+    ``nodes``: how many processes of ``command`` may run at once on this machine (one per busy worker, up to
+    this; not part of any key): keep 1 for a bridge to one physical robot, raise it for a simulator node.
+    ``options``: how to start and talk to the node, the non-default fields of
+    :class:`~proxybench.protocol.options.RobotNodeOptions` (working directory, transport, timeouts,
+    reflection) as sorted pairs; of them only ``cwd`` is part of the key (it changes what the command runs; a
+    timeout or the transport does not change an episode). ``frame_rate`` [Hz]: what a robot node is asked to
+    step at (the benchmark's or the proxies' rate; a node that says its own rate is stepped at that); part of
+    the key when it is not the default 15 Hz. ``link``: how the robot is reached:
+    ``protocol`` (a robot node process, above) or ``dtps`` (a DTPS robot, :meth:`dtps`: ``command`` is then its
+    address ``HOST:PORT/PATH`` and ``options`` a :class:`~proxybench.dtps.robot_options.DtpsRobotOptions`).
     """
 
     name: str
-    params: dict[str, Any] = field(default_factory=dict)
-    kind: str = "simulation"
+    params: DomainParams | None = None
+    kind: DomainKind = DomainKind.SIMULATION
     command: str | None = None
     nodes: int = 1
     options: tuple[tuple[str, Any], ...] = ()
     frame_rate: float = DEFAULT_FRAME_RATE
+    link: str = "protocol"
 
     @classmethod
     def robot(cls, command: str, *, frame_rate: float, name: str | None = None, nodes: int = 1,
               options: Any = None) -> DomainSpec:
         """A robot domain stepped at ``frame_rate`` [Hz]; ``options``: a ``RobotNodeOptions`` (or None for the
         defaults)."""
-        return cls(name or f"robot:{command}", kind="robot", command=command, nodes=nodes,
+        return cls(name or f"robot:{command}", kind=DomainKind.ROBOT, command=command, nodes=nodes,
                    options=options.items() if options is not None else (), frame_rate=float(frame_rate))
 
+    @classmethod
+    def dtps(cls, address: Any, *, frame_rate: float, options: Any = None) -> DomainSpec:
+        """The DTPS robot at ``address`` (a ``DtpsAddress``) stepped at ``frame_rate`` [Hz]; ``options``: a
+        ``DtpsRobotOptions`` (or None for the defaults). One robot: one episode at a time."""
+        return cls(f"dtps:{address}", kind="robot", command=str(address), nodes=1,
+                   options=options.items() if options is not None else (), frame_rate=float(frame_rate), link="dtps")
+
     def node_options(self):
-        """The ``RobotNodeOptions`` of a robot domain."""
+        """The ``RobotNodeOptions`` of a robot domain (``DtpsRobotOptions`` of a DTPS robot)."""
+        if self.link == "dtps":
+            from proxybench.dtps.robot_options import DtpsRobotOptions
+
+            return DtpsRobotOptions(**dict(self.options))
         from proxybench.protocol.options import RobotNodeOptions
 
         return RobotNodeOptions(**dict(self.options))
 
     def __post_init__(self) -> None:
         if self.kind not in DOMAIN_KINDS:
-            raise ValueError(f"DomainSpec {self.name!r}: kind must be one of {DOMAIN_KINDS}, got {self.kind!r}")
-        if self.kind == "robot":
+            raise ValueError(f"DomainSpec {self.name!r}: kind must be one of {', '.join(DOMAIN_KINDS)}, got "
+                             f"{str(self.kind)!r}")
+        object.__setattr__(self, "kind", DomainKind(self.kind))  # a member, given its string or itself
+        if self.link not in ("protocol", "dtps") or (self.link == "dtps" and self.kind is not DomainKind.ROBOT):
+            raise ValueError(f"DomainSpec {self.name!r}: link must be 'protocol', or 'dtps' for a robot domain, got "
+                             f"{self.link!r} ({self.kind})")
+        if self.kind is DomainKind.ROBOT:
             if not (isinstance(self.command, str) and self.command.strip()):
                 raise ValueError(f"DomainSpec {self.name!r}: a robot domain needs command= (the robot node to start)")
-            if self.params:
+            if self.params is not None:
                 raise ValueError(f"DomainSpec {self.name!r}: a robot domain takes no params (the robot's θ is its "
-                                 f"own; pass settings in its command), got {sorted(self.params)}")
+                                 f"own; pass settings in its command)")
             if not (isinstance(self.nodes, int) and self.nodes >= 1):
                 raise ValueError(f"DomainSpec {self.name!r}: nodes must be a positive integer, got {self.nodes!r}")
-        elif self.command is not None or self.options:
+            return
+        if self.command is not None or self.options:
             raise ValueError(f"DomainSpec {self.name!r}: command= and options= are only for kind='robot', not "
                              f"{self.kind!r}")
+        if self.params is None:
+            object.__setattr__(self, "params", DomainParams())
+        elif not isinstance(self.params, DomainParams):  # θ crosses the job seam validated, once
+            raise TypeError(f"DomainSpec {self.name!r}: params must be a DomainParams, got "
+                            f"{type(self.params).__name__} (build one with DomainParams.model_validate)")
 
     def canonical(self) -> str:
-        doc: dict[str, Any] = {"params": self.params, "kind": self.kind}
+        """What identifies the domain in a job's key: θ as JSON (``{}`` for a robot), the kind, and a robot's
+        command, working directory and rate where they are set (so older keys stay valid)."""
+        params = self.params.model_dump(mode="json") if self.params is not None else {}
+        doc: dict[str, Any] = {"params": params, "kind": self.kind}
         if self.command is not None:  # absent otherwise, so simulated domains keep their keys
             doc["command"] = self.command
         cwd = dict(self.options).get("cwd")
         if cwd is not None:  # absent otherwise, so robot domains without one keep their keys
             doc["cwd"] = cwd
-        if self.kind == "robot" and self.frame_rate != DEFAULT_FRAME_RATE:  # likewise
+        if self.kind is DomainKind.ROBOT and self.frame_rate != DEFAULT_FRAME_RATE:  # likewise
             doc["frame_rate"] = self.frame_rate
+        if self.link != "protocol":  # likewise; what changes a DTPS robot's episodes is part of its key
+            doc["link"] = self.link
+            doc["dtps"] = self.node_options().key_data()
         return json.dumps(doc, sort_keys=True)
 
 
@@ -171,7 +207,7 @@ class Job:
     streams: StreamSpec | None = None  # fixed cameras (watchtowers) recorded during the episode (runner.streams)
 
     def __post_init__(self) -> None:
-        if self.domain.kind == "robot" and self.npcs is not None and not self.npcs.empty:
+        if self.domain.kind is DomainKind.ROBOT and self.npcs is not None and not self.npcs.empty:
             raise ValueError(f"job {self.agent.label} / {self.domain.name}: a robot node drives one robot and no "
                              f"NPCs; this job has npcs (a benchmark with `npcs:` needs a simulated domain)")
 
@@ -199,11 +235,14 @@ class JobResult:
     episode: int
     seed: int
     scores: dict[str, float]
-    termination: str
+    termination: Termination
     trajectory: str | None
     message: str = ""
     timings: dict[str, float] = field(default_factory=dict)
     streams: str | None = None  # folder of the episode's fixed-camera streams, if it recorded any
+
+    def __post_init__(self) -> None:
+        self.termination = Termination(self.termination)  # a member, given its string (an unknown one raises)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)
@@ -243,8 +282,8 @@ def batch_group(job: Job) -> tuple:
     agent groups only with itself. Jobs on one robot domain share a node process whatever their agent, map
     or length (one after another).
     """
-    if job.domain.kind == "robot":
-        return ("robot", job.domain.canonical())
+    if job.domain.kind is DomainKind.ROBOT:
+        return (DomainKind.ROBOT, job.domain.canonical())
     who = job.agent if job.agent.command else ("in-process", is_privileged(job.agent))
     return (who, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs, job.streams)
 

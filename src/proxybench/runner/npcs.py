@@ -10,12 +10,12 @@ in the same call as the egos', through the same JPEG round trip). A driver that 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
 from proxybench.agents.base import Agent, Observation
 from proxybench.domain.dynamics import ST, wheel_ticks
+from proxybench.domain.events import Event
 from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.simulator import Simulator
 from proxybench.domain.worlds import HIT_KINDS
@@ -89,7 +89,7 @@ class NpcDrivers:
                 self.failed[j] = True
         return out
 
-    def events(self) -> list[tuple[int, dict[str, Any]]]:
+    def events(self) -> list[tuple[int, Event]]:
         """(world, event) for every NPC robot that stopped since the last call."""
         sim = self.sim
         new = (self.failed | sim.npc_stopped) & ~self._reported
@@ -103,8 +103,8 @@ class NpcDrivers:
                 why = f"it hit {_a(HIT_KINDS[int(sim.npc_hit_kind[j])])}"
             else:
                 why = "it left the road"
-            out.append((w, {"t": float(sim.time[w]), "kind": "npc_stopped", "npc": int(self.local[j]),
-                            "message": f"NPC robot {int(self.local[j])} ({self.agents[j].name}) stopped: {why}"}))
+            out.append((w, Event(float(sim.time[w]), "npc_stopped", npc=int(self.local[j]),
+                                 message=f"NPC robot {int(self.local[j])} ({self.agents[j].name}) stopped: {why}")))
         return out
 
     def close(self) -> None:

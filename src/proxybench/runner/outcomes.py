@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from proxybench.domain.events import Termination
 from proxybench.runner.jobs import AgentSpec, Job, JobResult
 
 __all__ = ["all_metrics", "camera_filter", "make_agent_for", "refused", "result_of"]
@@ -49,7 +50,7 @@ def refused(job: Job, agent, setup_s: float, msg: str | None = None) -> JobResul
     reason, NaN scores."""
     msg = msg or f"agent {agent.name!r} is privileged (reads the true lane pose); this benchmark is camera-only"
     return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed,
-                     dict.fromkeys(job.metrics or all_metrics(), float("nan")), "agent_failure", None, msg,
+                     dict.fromkeys(job.metrics or all_metrics(), float("nan")), Termination.AGENT_FAILURE, None, msg,
                      {"setup_s": setup_s})
 
 
@@ -60,7 +61,7 @@ def result_of(job: Job, traj, out_dir: str | None, setup_s: float, episode_s: fl
     if out_dir is not None:
         path = str(Path(out_dir) / f"{job.key}.parquet")
         traj.save(path)
-    message = next((e["message"] for e in traj.events if e["kind"] == "agent_failure"), "")
+    message = traj.failure.message if traj.failure is not None else ""
     timing = traj.meta.get("timing", {})
     sim_s, agent_s = timing.get("sim_s", 0.0), timing.get("agent_s", 0.0)
     timings = {"setup_s": setup_s, "sim_s": sim_s, "agent_s": agent_s,

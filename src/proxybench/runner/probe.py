@@ -15,14 +15,11 @@ from typing import Any
 
 import numpy as np
 
-from proxybench.domain.maps import load_map
-from proxybench.domain.params import DomainParams
-from proxybench.domain.simulator import Simulator
+from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.protocol import jpeg
-from proxybench.runner.episode import SimPlant
 from proxybench.runner.jobs import DomainSpec
-from proxybench.runner.outcomes import camera_filter
-from proxybench.runner.robot_episode import RobotPlant
+from proxybench.runner.plants import open_plant
 from proxybench.runner.rollout import OpenLoopPolicy, rollout
 
 __all__ = ["Probe", "probe"]
@@ -40,7 +37,7 @@ class Probe:
     seconds: float  # [s] of commands actually driven (less when the episode ended early)
     wall_s: float  # [s] of wall time: starting the episode and driving it
     declared: dict[str, Any] = field(default_factory=dict)  # the calibration the domain declares, if any
-    ended: str | None = None  # why the episode ended before the commands were spent, if it did
+    ended: Termination | None = None  # why the episode ended before the commands were spent, if it did
     ground_truth: bool = True  # whether it reports the true lane pose (privileged agents need it)
 
     @property
@@ -61,13 +58,8 @@ def probe(domain: DomainSpec, map_name: str, *, frame_rate: float, seed: int = 0
     ``frame_rate`` [Hz]: what a robot node is asked to step at (a simulated domain's comes from its θ).
     A robot node that fails raises :class:`~proxybench.protocol.RobotFailure`.
     """
-    if domain.kind == "robot":
-        from proxybench.protocol import RemoteRobot
-
-        with RemoteRobot(domain.command, frame_rate=frame_rate, **domain.node_options().process_kwargs()) as robot:
-            return _drive(RobotPlant(robot, load_map(map_name)), seed, pwm, seconds)
-    sim = Simulator(map_name, DomainParams.model_validate(domain.params), n=1)
-    return _drive(SimPlant(sim, camera_filter()), seed, pwm, seconds, kind=domain.kind)
+    with open_plant(domain, map_name, frame_rate=frame_rate) as plant:
+        return _drive(plant, seed, pwm, seconds, kind=None if domain.kind is DomainKind.ROBOT else domain.kind)
 
 
 def _drive(plant, seed: int, pwm: float, seconds: float, kind: str | None = None) -> Probe:
@@ -88,7 +80,7 @@ def _drive(plant, seed: int, pwm: float, seconds: float, kind: str | None = None
     said = traj.meta
     declared = said.get("params") or {}
     pose = np.column_stack([traj["x"], traj["y"], traj["theta"]])
+    ended = None if traj.termination is Termination.TIMEOUT else traj.termination
     return Probe(kind or said.get("source", "unknown"), float(plant.frame_rate), first[0] if first else None,
                  tuple(float(v) for v in pose[0]), tuple(float(v) for v in pose[-1]), float(traj.duration), wall,
-                 declared if kind is None else {}, None if traj.termination == "timeout" else traj.termination,
-                 bool(truth and truth[0]))
+                 declared if kind is None else {}, ended, bool(truth and truth[0]))

@@ -15,15 +15,16 @@ from typing import Any
 import numpy as np
 
 from proxybench.agents.base import Agent
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.maps import Map, load_map
-from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
 from proxybench.domain.topdown import top_down
 from proxybench.media import VideoWriter, side_by_side, write_strip
 from proxybench.runner.episode import SimPlant
 from proxybench.runner.jobs import DomainSpec
 from proxybench.runner.outcomes import camera_filter
-from proxybench.runner.robot_episode import RobotLacksGroundTruth, RobotPlant
+from proxybench.runner.robot_episode import RobotLacksGroundTruth
+from proxybench.runner.robots import open_robot
 from proxybench.runner.rollout import AgentPolicy, rollout
 from proxybench.runner.streams import StreamRecorder, StreamSpec, with_fixtures
 from proxybench.tasks.trajectory import Trajectory
@@ -64,18 +65,18 @@ def record_run(
     out.mkdir(parents=True, exist_ok=True)
     m = load_map(map_) if isinstance(map_, str) else map_
     t0 = time.perf_counter()
-    if domain.kind == "robot" and streams is not None:
+    if domain.kind is DomainKind.ROBOT and streams is not None:
         raise ValueError("watchtower streams are simulated: they need a simulated domain, not a robot node")
-    if domain.kind == "robot":
-        from proxybench.protocol import RemoteRobot
-
-        with RemoteRobot(domain.command, frame_rate=frame_rate or domain.frame_rate,
-                         **domain.node_options().process_kwargs()) as robot:
-            rec = _record(RobotPlant(robot, m), agent, seed, seconds, out, stem, video, pose, route, strip_frames,
+    if domain.kind is DomainKind.ROBOT:
+        robot = open_robot(domain, frame_rate)
+        try:
+            rec = _record(robot.plant(m), agent, seed, seconds, out, stem, video, pose, route, strip_frames,
                           on_frame, meta)
+        finally:
+            robot.close()
     else:
         world = with_fixtures(m, streams.fixtures) if streams is not None else m  # the lab's calibration tags
-        sim = Simulator(world, DomainParams.model_validate(domain.params), npcs=npcs)
+        sim = Simulator(world, domain.params, npcs=npcs)
         recorder = StreamRecorder(sim, streams, out / "watchtowers") if streams is not None else None
         try:
             rec = _record(SimPlant(sim, camera_filter()), agent, seed, seconds, out, stem, video, pose, route,
@@ -97,7 +98,7 @@ def _view(plant) -> np.ndarray:
         s = plant.sim
         objects, npcs = s.world_view(0)
         return top_down(m, s.state[:1, :3], px_per_tile=px, params=s.params[0], objects=objects, npc_poses=npcs)
-    return top_down(m, np.asarray([plant.states[-1].pose]), px_per_tile=px)
+    return top_down(m, np.asarray([plant.samples(0, 10**9)[-1, 1:4]]), px_per_tile=px)
 
 
 def _record(plant, agent: Agent, seed: int, seconds: float, out: Path, stem: str, video: bool, pose, route,

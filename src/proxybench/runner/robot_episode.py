@@ -25,9 +25,9 @@ from proxybench.protocol import jpeg
 from proxybench.protocol import robot_wire as rw
 from proxybench.protocol.robot_process import RemoteRobot
 from proxybench.runner.rollout import AgentPolicy, PrivilegedAgentError, rollout
-from proxybench.tasks.trajectory import Trajectory
+from proxybench.tasks.trajectory import Event, Termination, Trajectory
 
-__all__ = ["RobotLacksGroundTruth", "RobotPlant", "run_episode_on_robot"]
+__all__ = ["RobotLacksGroundTruth", "RobotPlant", "run_episode_on_plant", "run_episode_on_robot"]
 
 
 class RobotLacksGroundTruth(PrivilegedAgentError):
@@ -92,16 +92,15 @@ class RobotPlant:
     def time(self, i: int) -> float:
         return self.obs.observations.timestamp
 
-    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, dict[str, Any], bool]]:
+    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, Event, bool]]:
         robot = self.robot
         sim_state, state, self.obs = robot.frame(self.time(0), np.clip(commands[0], -1.0, 1.0),
                                                  (k + 1) * self.frame_dt, observe=k + 1 < self.steps)
         self.states.append(state)
         end = sim_state.terminations.get(robot.robot_name)
-        if end is None or end.termination == "timeout":  # the episode's length is the engine's to count
+        if end is None or end.termination is Termination.TIMEOUT:  # the episode's length is the engine's to count
             return []
-        event = {"t": end.when, "kind": end.termination, "message": end.desc}
-        return [(0, event if end.hit is None else event | {"with": end.hit}, True)]
+        return [(0, Event(end.when, end.termination, end.desc, with_=end.hit), True)]
 
     def samples(self, i: int, frames: int) -> np.ndarray:
         return np.vstack([_samples(s) for s in self.states])
@@ -153,9 +152,19 @@ def run_episode_on_robot(
     termination ``agent_failure``; a failing robot raises :class:`~proxybench.protocol.RobotFailure`
     (there is no valid trajectory then). A privileged agent needs a robot that reports the true lane pose.
     """
+    return run_episode_on_plant(RobotPlant(robot, map_), agent, seed, seconds, pose=pose, route=route, camera=camera,
+                                allow_privileged=allow_privileged, on_frame=on_frame, meta=meta)
+
+
+def run_episode_on_plant(
+    plant: Any, agent: Agent, seed: int, seconds: float, *, pose: tuple[float, float, float] | None = None,
+    route: list[str] | None = None, camera: bool = True, allow_privileged: bool = True,
+    on_frame: Callable[[int, np.ndarray | None], None] | None = None, meta: dict[str, Any] | None = None,
+) -> Trajectory:
+    """:func:`run_episode_on_robot` on a plant of one robot already made (a robot node's or a DTPS robot's)."""
     hook = None if on_frame is None else (lambda k, images, alive, plant: on_frame(k, images[0]))
     try:
-        return rollout(RobotPlant(robot, map_), AgentPolicy([agent]), [seed], seconds, poses=[pose], routes=[route],
-                       camera=camera, allow_privileged=allow_privileged, on_frame=hook, metas=[meta])[0]
+        return rollout(plant, AgentPolicy([agent]), [seed], seconds, poses=[pose], routes=[route], camera=camera,
+                       allow_privileged=allow_privileged, on_frame=hook, metas=[meta])[0]
     except RobotLacksGroundTruth as exc:
         raise RobotLacksGroundTruth(f"{exc}, which the privileged agent {agent.name!r} needs") from None

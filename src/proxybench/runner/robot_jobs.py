@@ -21,10 +21,13 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from proxybench.protocol import RemoteRobot, RobotFailure
+from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
+from proxybench.protocol import RobotFailure
 from proxybench.runner.jobs import Job, JobResult
 from proxybench.runner.outcomes import all_metrics, make_agent_for, refused, result_of
-from proxybench.runner.robot_episode import RobotLacksGroundTruth, run_episode_on_robot
+from proxybench.runner.robot_episode import RobotLacksGroundTruth, run_episode_on_plant
+from proxybench.runner.robots import RobotConnection, open_robot
 
 __all__ = ["ROBOT_INIT_TIMEOUT_S", "ROBOT_STEP_TIMEOUT_S", "execute_robot_batch", "robot_slot"]
 
@@ -66,20 +69,21 @@ def robot_slot(command: str, nodes: int, poll_s: float = 0.05) -> Iterator[int]:
 
 
 def execute_robot_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]:
-    """Run jobs on one robot domain one after another on one node process (closed at the end).
+    """Run jobs on one robot domain one after another on one node process, or one DTPS bridge (closed at the end).
 
     A :class:`~proxybench.protocol.RobotFailure` becomes that job's result (termination ``robot_failure``,
     NaN scores, the reason in ``message``) instead of ending the sweep; :func:`~.sweep.run_jobs` does not
-    cache such results, so a later run retries them. After two failures in a row the rest of the batch is
-    recorded with the last failure instead of being tried (a node that cannot start would otherwise cost a
-    timeout per episode). A privileged agent on a robot that reports no true lane pose, or on a camera-only
-    job, is refused like on a simulated domain (termination ``agent_failure``, a reason, NaN scores).
+    cache such results, so a later run retries them. A failed robot is closed and the next episode reaches
+    it afresh. After two failures in a row the rest of the batch is recorded with the last failure instead
+    of being tried (a node that cannot start would otherwise cost a timeout per episode). A privileged
+    agent on a robot that reports no true lane pose, or on a camera-only job, is refused like on a
+    simulated domain (termination ``agent_failure``, a reason, NaN scores).
     """
     from proxybench.domain.maps import load_map
     from proxybench.tasks.metrics import METRICS
 
     domain = jobs[0].domain
-    robot: RemoteRobot | None = None
+    robot: RobotConnection | None = None
     maps: dict[str, Any] = {}
     results: list[JobResult] = []
     failure: RobotFailure | None = None
@@ -97,20 +101,20 @@ def execute_robot_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]
                         results.append(refused(job, agent, time.perf_counter() - t0))
                         continue
                     if robot is None:  # a robot not saying its rate is stepped at the domain's
-                        robot = RemoteRobot(domain.command, frame_rate=domain.frame_rate,
-                                            **domain.node_options().process_kwargs())
+                        robot = open_robot(domain)
                     if job.map not in maps:
                         maps[job.map] = load_map(job.map)
                     t1 = time.perf_counter()
-                    traj = run_episode_on_robot(
-                        robot, agent, job.seed, job.duration, map_=maps[job.map], pose=job.pose,
+                    traj = run_episode_on_plant(
+                        robot.plant(maps[job.map]), agent, job.seed, job.duration, pose=job.pose,
                         route=None if job.route is None else list(job.route), camera=not agent.privileged,
                         allow_privileged=not job.camera_only,
                         meta={"map": job.map, "episode": job.episode, "domain": job.domain.name,
-                              "domain_kind": "robot", "job": job.key})
+                              "domain_kind": DomainKind.ROBOT, "job": job.key})
                 except RobotFailure as exc:
                     failure, in_a_row = exc, in_a_row + 1
                     results.append(_robot_failed(job, exc))
+                    robot = _closed(robot)
                     continue
                 except RobotLacksGroundTruth as exc:
                     results.append(refused(job, agent, time.perf_counter() - t0, str(exc)))
@@ -125,6 +129,14 @@ def execute_robot_batch(jobs: list[Job], out_dir: str | None) -> list[JobResult]
     return results
 
 
+def _closed(robot: RobotConnection | None) -> None:
+    """Close a robot whose episode failed (a node already reaped, a DTPS bridge still delivering its (0, 0))."""
+    if robot is not None:
+        with contextlib.suppress(Exception):
+            robot.close()
+    return None
+
+
 def _robot_failed(job: Job, exc: RobotFailure, skipped: bool = False) -> JobResult:
     """The result of a job whose robot node failed: no trajectory, NaN scores, the failure in words."""
     text = f"robot failure ({exc.reason}): {exc.detail}"
@@ -133,6 +145,6 @@ def _robot_failed(job: Job, exc: RobotFailure, skipped: bool = False) -> JobResu
     if exc.stderr_tail:
         text += "; last stderr lines: " + " | ".join(exc.stderr_tail[-5:])
     if skipped:
-        text = f"not run: the robot node failed {FAILURES_IN_A_ROW} times in a row; last: {text}"
+        text = f"not run: the robot failed {FAILURES_IN_A_ROW} times in a row; last: {text}"
     return JobResult(job.key, job.agent.label, job.domain.name, job.episode, job.seed,
-                     dict.fromkeys(job.metrics or all_metrics(), float("nan")), "robot_failure", None, text)
+                     dict.fromkeys(job.metrics or all_metrics(), float("nan")), Termination.ROBOT_FAILURE, None, text)

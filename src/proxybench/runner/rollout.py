@@ -31,7 +31,7 @@ from proxybench import __version__
 from proxybench.agents.base import Agent, Observation
 from proxybench.domain.maps import Map
 from proxybench.domain.routes import given_route_samples
-from proxybench.tasks.trajectory import Trajectory
+from proxybench.tasks.trajectory import Event, Termination, Trajectory
 
 __all__ = ["AgentPolicy", "BatchPolicy", "FrameHook", "OpenLoopPolicy", "Plant", "Policy", "PrivilegedAgentError",
            "failure_event", "rollout"]
@@ -65,7 +65,7 @@ class Plant(Protocol):
     def time(self, i: int) -> float:
         """Robot ``i``'s episode time now [s]."""
 
-    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, dict[str, Any], bool]]:
+    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, Event, bool]]:
         """Hold ``commands`` (N, 2) for frame ``k``; the events of running robots as (robot, event, ends it)."""
 
     def samples(self, i: int, frames: int) -> np.ndarray:
@@ -214,8 +214,8 @@ def rollout(
     t0 = time.perf_counter()
     steps = plant.begin(seeds, poses, routes, seconds, camera, policy.privileged)
     t_plant, t_agent = time.perf_counter() - t0, 0.0
-    events: list[list[dict[str, Any]]] = [[] for _ in range(n)]
-    termination = ["timeout"] * n
+    events: list[list[Event]] = [[] for _ in range(n)]
+    termination = [Termination.TIMEOUT] * n
     frames = [steps] * n
     alive = np.ones(n, dtype=bool)
     if isinstance(policy, AgentPolicy):
@@ -223,7 +223,7 @@ def rollout(
     at_start = policy.reset(seeds)
     for i, exc in at_start.items():
         events[i].append(failure_event(0.0, exc))
-        termination[i], frames[i], alive[i] = "agent_failure", 0, False
+        termination[i], frames[i], alive[i] = Termination.AGENT_FAILURE, 0, False
     k = 0
     while k < steps and alive.any():
         t0 = time.perf_counter()
@@ -235,12 +235,12 @@ def rollout(
         t2 = time.perf_counter()
         for i, exc in failed.items():
             events[i].append(failure_event(plant.time(i), exc))
-            termination[i], frames[i], alive[i] = "agent_failure", k, False
+            termination[i], frames[i], alive[i] = Termination.AGENT_FAILURE, k, False
         commands[~alive] = 0.0
         for i, event, final in plant.advance(commands, alive, k) if alive.any() else ():
             events[i].append(event)
             if final:
-                termination[i], frames[i], alive[i] = event["kind"], k + 1, False
+                termination[i], frames[i], alive[i] = Termination(event.kind), k + 1, False
         t_plant += (t1 - t0) + (time.perf_counter() - t2)
         t_agent += t2 - t1
         k += 1
@@ -250,9 +250,9 @@ def rollout(
                         routes[i], None if i in at_start else timing) for i in range(n)]
 
 
-def _trajectory(plant: Plant, policy: Policy, i: int, seed: int, seconds: float, frames: int, termination: str,
-                events: list[dict[str, Any]], meta: dict[str, Any] | None, route: Sequence[str] | None,
-                timing: dict[str, float] | None) -> Trajectory:
+def _trajectory(plant: Plant, policy: Policy, i: int, seed: int, seconds: float, frames: int,
+                termination: Termination, events: list[Event], meta: dict[str, Any] | None,
+                route: Sequence[str] | None, timing: dict[str, float] | None) -> Trajectory:
     """The one trajectory assembly: the plant's samples and what it says, the driver, the caller's meta."""
     said = plant.meta(i)
     info = {"source": said.pop("source"), "agent": policy.names[i], "privileged": policy.privileged[i],
@@ -276,13 +276,10 @@ def _trajectory(plant: Plant, policy: Policy, i: int, seed: int, seconds: float,
                                  termination=termination, wheel_distance=plant.wheel_distance(i))
 
 
-def failure_event(t: float, exc: BaseException) -> dict[str, Any]:
-    """The ``agent_failure`` event of an exception: its words, reason and, for a node, exit status and stderr."""
+def failure_event(t: float, exc: BaseException) -> Event:
+    """The ``agent_failure`` event of an exception: its words, reason and, for a node, exit status and last
+    stderr lines (e.g. its traceback)."""
     detail = getattr(exc, "detail", None) or "".join(traceback.format_exception_only(exc)).strip()
-    event = {"t": t, "kind": "agent_failure", "message": f"{type(exc).__name__}: {detail}",
-             "reason": getattr(exc, "reason", type(exc).__name__)}
-    if getattr(exc, "exit_code", None) is not None:  # a node's exit status and last words (e.g. its traceback)
-        event["exit_code"] = exc.exit_code
-    if getattr(exc, "stderr_tail", None):
-        event["stderr_tail"] = list(exc.stderr_tail)[-20:]
-    return event
+    return Event(t, Termination.AGENT_FAILURE, f"{type(exc).__name__}: {detail}",
+                 reason=getattr(exc, "reason", type(exc).__name__), exit_code=getattr(exc, "exit_code", None),
+                 stderr_tail=tuple(getattr(exc, "stderr_tail", None) or ())[-20:])

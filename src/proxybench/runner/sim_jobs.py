@@ -17,7 +17,6 @@ _SIMS: dict[tuple[Any, ...], Any] = {}
 
 def _simulator(job: Job, n: int = 1):
     """One cached simulator per (map, θ, batch size) per worker: building one costs more than an episode."""
-    from proxybench.domain.params import DomainParams
     from proxybench.domain.simulator import Simulator
 
     fixtures = job.streams.fixtures if job.streams is not None else ()
@@ -31,7 +30,7 @@ def _simulator(job: Job, n: int = 1):
             from proxybench.runner.streams import with_fixtures
 
             m = with_fixtures(load_map(job.map), fixtures)
-        _SIMS[k] = Simulator(m, DomainParams.model_validate(job.domain.params), n=n, npcs=job.npcs)
+        _SIMS[k] = Simulator(m, job.domain.params, n=n, npcs=job.npcs)
     return _SIMS[k]
 
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from proxybench.domain.dynamics import ST, TRACE_FIELDS
 from proxybench.domain.episode_end import end_event, ended
+from proxybench.domain.events import Event
 from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.maps import Map, MapError, MapObject, load_map, parse_map
 from proxybench.domain.params import DomainParams
@@ -123,7 +124,7 @@ class SimRobot:
         routes = self.sim.routes
         return {"active": bool(routes.active), "choices": routes.choices[0]}
 
-    def ending(self) -> dict[str, Any] | None:
+    def ending(self) -> Event | None:
         return end_event(self.sim, 0) if ended(self.sim)[0] else None  # the runner's rule: equal trajectories
 
     def info(self) -> dict[str, Any]:

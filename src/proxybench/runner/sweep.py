@@ -23,13 +23,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import Path
 
+from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import Job, JobResult, batch_group, is_privileged
 
 __all__ = ["UNSTORED", "SweepResult", "results_frame", "run_jobs"]
 
 #: terminations that say the episode did not happen (the plant failed): reported, never cached
-UNSTORED = frozenset({"robot_failure"})
+UNSTORED = frozenset({Termination.ROBOT_FAILURE})
 
 
 @dataclass
@@ -170,9 +172,9 @@ def _batches(todo: Sequence[Job], batch_size: int, workers: int) -> list[list[Jo
     def cost(job: Job) -> float:
         return max(job.duration, 1e-3) * (1.0 if is_privileged(job.agent) else 10.0)
 
-    out = [jobs[i : i + batch_size] for g, jobs in groups.items() if g[0] == "robot"
+    out = [jobs[i : i + batch_size] for g, jobs in groups.items() if g[0] == DomainKind.ROBOT
            for i in range(0, len(jobs), batch_size)]
-    ordered = sorted((jobs for g, jobs in groups.items() if g[0] != "robot"), key=lambda jobs: -cost(jobs[0]))
+    ordered = sorted((jobs for g, jobs in groups.items() if g[0] != DomainKind.ROBOT), key=lambda jobs: -cost(jobs[0]))
     left = sum(cost(jobs[0]) * len(jobs) for jobs in ordered)
     for jobs in ordered:
         c = cost(jobs[0])

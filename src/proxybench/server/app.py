@@ -31,6 +31,8 @@ from proxybench import __version__
 from proxybench.server.artifacts import ArtifactStore
 from proxybench.server.benchmarks import register_builtins
 from proxybench.server.config import Settings
+from proxybench.server.connections import configure as configure_connections
+from proxybench.server.connections import raise_open_files
 from proxybench.server.db import make_engine, migrate, session_scope
 from proxybench.server.errors import ServiceError
 from proxybench.server.leaderboards import BoardCache
@@ -182,10 +184,13 @@ def create_app(settings: Settings | None = None, *, prepared: bool = False) -> F
     app.state.boards = BoardCache(factory)
     app.state.tokens = TokenCache(settings.token_cache_seconds)
     app.state.admin_token = None if prepared else bootstrap(settings, factory)
+    configure_connections(settings.header_timeout, settings.max_connections_per_address)
+    raise_open_files()
     rules = BodyRules(limits=[(f"{API}/artifacts/", settings.artifact_max_bytes),
                               (f"{API}/submissions/upload", settings.archive_max_bytes + (1 << 20))],
                       default=settings.json_max_bytes, timeout=settings.body_timeout,
-                      min_rate=settings.body_min_rate, spool_dir=settings.data_dir / "spool")
+                      min_rate=settings.body_min_rate, spool_dir=settings.data_dir / "spool",
+                      max_readers_per_address=settings.max_readers_per_address)
     for stale in rules.spool_dir.glob(".body-*") if not prepared else ():  # left by a killed server
         stale.unlink(missing_ok=True)
     app.add_middleware(RequestGate, body=rules, concurrency=settings.max_concurrent_requests,

@@ -37,6 +37,15 @@ class Settings(BaseModel):
                                  "body_timeout seconds")
     send_timeout: float = Field(60.0, gt=0, description="a client that reads none of its reply for this long "
                                 "is disconnected")
+    header_timeout: float = Field(10.0, gt=0, le=3600, description="a connection whose request headers are not "
+                                  "complete this long after it opened (or after its last reply) is closed")
+    idle_timeout: float = Field(15.0, gt=0, le=3600, description="a kept-alive connection idle this long between "
+                                "requests is closed")
+    max_connections_per_address: int = Field(256, ge=0, description="open connections per client address and "
+                                             "worker process; beyond: 503 and closed (0: no cap, e.g. behind a "
+                                             "front that limits them itself)")
+    max_readers_per_address: int = Field(32, ge=1, description="request bodies being received at once from one "
+                                         "client address; beyond: 503 (requests without a body never count)")
     token_cache_seconds: float = Field(2.0, ge=0, description="a process remembers a checked token this long "
                                        "(a revoked one is refused at once by the process that revoked it, by "
                                        "the others within this time; 0: check every request)")

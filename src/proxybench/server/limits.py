@@ -9,6 +9,8 @@ the way, so an artifact upload is stored by renaming that file). A body must kee
 than ``timeout`` seconds, or an average rate below ``min_rate`` bytes/s once ``timeout`` seconds have
 passed, ends the request with 408 and closes the connection. Over its path's size limit: 413.
 
+At most ``max_readers`` bodies are received at once, ``max_readers_per_address`` of them from one client
+address (so one address cannot take them all); a request without a body (no length, or 0) never counts.
 Admission is a semaphore of ``concurrency`` slots (the app's worker threads, database connections and
 SQLite write turn are sized to it, so they can never run out); at most ``queue`` requests wait for one,
 for at most ``queue_timeout`` seconds (then 503 with Retry-After). A slot is given back as soon as the
@@ -25,6 +27,7 @@ import json
 import os
 import tempfile
 import weakref
+from collections import Counter
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +49,7 @@ class BodyRules:
     spool_dir: Path | None = None
     spool_over: int = 64 << 10  # bodies above this many bytes go to a file
     max_readers: int = 1024  # bodies being received at once (beyond: 503)
+    max_readers_per_address: int = 32  # of them from one client address (beyond: 503)
 
     def limit(self, path: str) -> int:
         return next((n for prefix, n in self.limits if path.startswith(prefix)), self.default)
@@ -71,6 +75,14 @@ class _Refusal(Exception):
     def __init__(self, status: int, message: str, headers: Sequence[tuple[bytes, bytes]] = ()) -> None:
         super().__init__(message)
         self.status, self.message, self.headers = status, message, list(headers)
+
+
+def _has_body(headers: dict[bytes, bytes]) -> bool:
+    """Whether a request announces a body (a length above 0, or chunks): only those wait for bytes."""
+    if b"transfer-encoding" in headers:
+        return True
+    length = headers.get(b"content-length", b"0").strip()
+    return not (length.isdigit() and int(length) == 0)
 
 
 async def _answer(send, status: int, message: str, headers: Sequence[tuple[bytes, bytes]] = ()) -> None:
@@ -101,7 +113,8 @@ class RequestGate:
         loop = asyncio.get_running_loop()
         state = self._loops.get(loop)
         if state is None:
-            state = self._loops[loop] = {"sem": asyncio.Semaphore(self.concurrency), "waiting": 0, "reading": 0}
+            state = self._loops[loop] = {"sem": asyncio.Semaphore(self.concurrency), "waiting": 0, "reading": 0,
+                                         "by_address": Counter()}
         return state
 
     async def __call__(self, scope, receive, send) -> None:
@@ -134,14 +147,25 @@ class RequestGate:
             # a large upload (artifact, archive) from someone without a valid token: not a byte of it is read
             raise _Refusal(401, "invalid, revoked or missing API token: send 'Authorization: Bearer <token>' "
                                 "(large uploads are refused before their body is read)")
+        if not _has_body(headers):  # nothing to wait for: never counted against anyone's readers
+            return await self._read(receive, limit)
+        address = (scope.get("client") or ("",))[0]
+        by_address: Counter[str] = state["by_address"]
+        if by_address[address] >= rules.max_readers_per_address:
+            raise _Refusal(503, f"too many request bodies from your address are being received "
+                                f"({rules.max_readers_per_address}); finish those first", [(b"retry-after", b"2")])
         if state["reading"] >= rules.max_readers:
             raise _Refusal(503, f"too many request bodies are being received ({rules.max_readers}); try again",
                            [(b"retry-after", b"2")])
         state["reading"] += 1
+        by_address[address] += 1
         try:
             return await self._read(receive, limit)
         finally:
             state["reading"] -= 1
+            by_address[address] -= 1
+            if by_address[address] <= 0:
+                del by_address[address]
 
     async def _read(self, receive, limit: int) -> SpooledBody | None:
         rules = self.rules

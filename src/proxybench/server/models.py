@@ -16,7 +16,7 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
 __all__ = [
     "FINAL_STATUSES", "JOB_STATUSES", "ROLES", "ApiToken", "Artifact", "ArtifactLink", "Base", "BenchmarkPath",
-    "BenchmarkVersion", "Evaluator", "Job", "JobEvent", "Result", "Submission", "User", "WebSession",
+    "BenchmarkVersion", "Evaluator", "Job", "JobEvent", "LeaseArtifact", "Result", "Submission", "User", "WebSession",
 ]
 
 ROLES = ("superuser", "developer", "evaluator")
@@ -194,3 +194,15 @@ class ArtifactLink(Base):
     name: Mapped[str] = mapped_column(String(255))
     hidden: Mapped[bool] = mapped_column(Boolean, default=False)
 
+
+class LeaseArtifact(Base):
+    """An artifact uploaded under a job's lease: the only artifacts that lease's result may name (an evaluator
+    cannot hand a developer another job's files, or their own archive's, by naming a hash)."""
+
+    __tablename__ = "lease_artifacts"
+    __table_args__ = (UniqueConstraint("job_id", "lease_id", "sha256"),)
+    id: Mapped[int] = mapped_column(primary_key=True)
+    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id"))
+    lease_id: Mapped[str] = mapped_column(String(32))
+    sha256: Mapped[str] = mapped_column(ForeignKey("artifacts.sha256"))
+    created_at: Mapped[float] = mapped_column(Float)

@@ -1,7 +1,11 @@
 """The job queue: leases with heartbeats, bounded retries, and results recorded exactly once.
 
-Leasing is a compare-and-set (``UPDATE … WHERE status = 'queued'``), which is correct on SQLite and
-PostgreSQL alike: two evaluators racing for one job cannot both get it. On PostgreSQL the candidate is
+Every change of a job's state is one conditional ``UPDATE … WHERE <the state expected>`` checked by the
+rows it changed (:func:`_change`): leasing (``WHERE status = 'queued'``), heartbeats, results and host
+errors (``WHERE status = 'evaluating' AND lease_id = …``), the reaper (``… AND lease_expires_at < now``),
+aborts. That is correct on SQLite and PostgreSQL alike: two evaluators racing for one job cannot both get
+it, and a result racing its lease's expiry either ends the job or is refused (409), never stored for a job
+that is then leased again. On PostgreSQL the candidate is
 first locked with ``FOR UPDATE SKIP LOCKED``, so racing evaluators take different jobs instead of queueing
 behind one row lock. A lease lapses ``lease_seconds`` after the last heartbeat, on the server's monotonic
 clock (:mod:`.clock`: a wall-clock step cannot end leases); the next queue operation or the reaper puts
@@ -18,8 +22,7 @@ import secrets
 import time
 from typing import Any
 
-from sqlalchemy import insert, select, update
-from sqlalchemy.exc import IntegrityError
+from sqlalchemy import case, insert, select, update
 from sqlalchemy.orm import Session, joinedload
 
 from proxybench.contract import REPORTABLE, ResultUpload
@@ -31,37 +34,75 @@ __all__ = ["REPORTABLE", "abort_jobs", "bump_boards", "finish", "heartbeat", "in
            "log_event", "requeue_expired", "retry"]
 
 
-def log_event(session: Session, job: Job, kind: str, evaluator_id: int | None = None, message: str = "") -> None:
+def log_event(session: Session, job: Job | int, kind: str, evaluator_id: int | None = None, message: str = "") -> None:
     """One line of the job's history (a plain INSERT: no object for the unit of work to track)."""
-    session.execute(insert(JobEvent).values(job_id=job.id, at=time.time(), kind=kind, evaluator_id=evaluator_id,
+    job_id = job if isinstance(job, int) else job.id
+    session.execute(insert(JobEvent).values(job_id=job_id, at=time.time(), kind=kind, evaluator_id=evaluator_id,
                                             message=message))
 
 
-def _release(job: Job, status: str, message: str = "") -> None:
-    job.status = status
-    job.lease_id = None
-    job.lease_expires_at = None
-    job.message = message
-    if status in FINAL_STATUSES:
-        job.finished_at = time.time()
+def _released(status: str, message: str = "", *, final: Any = None) -> dict[str, Any]:
+    """Column values of a job leaving its lease (``final``: whether it ends here; a SQL condition may say)."""
+    if final is None:
+        final = status in FINAL_STATUSES
+    if not isinstance(final, bool):  # a SQL condition: the row decides
+        return {"status": status, "lease_id": None, "lease_expires_at": None, "message": message,
+                "finished_at": case((final, time.time()), else_=None)}
+    return {"status": status, "lease_id": None, "lease_expires_at": None, "message": message,
+            "finished_at": time.time() if final else None}
+
+
+def _change(session: Session, where: tuple[Any, ...], values: dict[str, Any]) -> list[int]:
+    """The one way a job's state changes: ``UPDATE jobs … WHERE <its expected state>``; the ids it changed.
+
+    Whoever changes a job names the state it expects (status, and the lease for a held job); a job that
+    moved on meanwhile is not touched. On PostgreSQL a second writer waits for the first's row lock, then
+    evaluates its WHERE again on the committed row (so a reaper that read a lease as lapsed no longer
+    matches a job whose result was just stored); on SQLite writers take turns. Job objects this session
+    loaded are expired, so nothing stale is shown or written back.
+    """
+    ids = list(session.scalars(update(Job).where(*where).values(**values).returning(Job.id)
+                               .execution_options(synchronize_session=False)))
+    if ids:
+        changed = set(ids)
+        for obj in list(session.identity_map.values()):
+            if isinstance(obj, Job) and obj.id in changed:
+                session.expire(obj)
+    return ids
+
+
+def _held(job_id: int, lease_id: str, evaluator: Evaluator) -> tuple[Any, ...]:
+    """WHERE: the job is still evaluating under this lease, held by this evaluator."""
+    return (Job.id == job_id, Job.status == "evaluating", Job.lease_id == lease_id, Job.evaluator_id == evaluator.id)
+
+
+def _lost(session: Session, job_id: int, lease_id: str, evaluator: Evaluator) -> ServiceError:
+    status = session.scalar(select(Job.status).where(Job.id == job_id))
+    if status is None:
+        return ServiceError(404, f"no job {job_id}")
+    return ServiceError(409, f"job {job_id}: lease {lease_id[:8]}… is no longer held by {evaluator.name!r} "
+                             f"(job is {status}); stop working on it")
 
 
 def requeue_expired(session: Session, now: float | None = None) -> int:
-    """Return lapsed leases to the queue (or give the job up after its last attempt). Returns how many."""
+    """Return lapsed leases to the queue (or give the job up after its last attempt). Returns how many.
+
+    Each job changes only if it still holds the very lease that was seen lapsed: a result or heartbeat that
+    got there first wins, and the job is left alone."""
     now = clock.now() if now is None else now
-    ids = session.scalars(select(Job.id).where(Job.status == "evaluating", Job.lease_expires_at < now)).all()
-    if not ids:  # the usual case: one cheap indexed query, no objects
-        return 0
-    lapsed = session.scalars(select(Job).where(Job.id.in_(ids), Job.status == "evaluating",
-                                               Job.lease_expires_at < now)).all()
-    for job in lapsed:
-        who = job.evaluator_id
-        if job.attempts >= job.max_attempts:
-            _release(job, "timeout", f"lease lapsed on attempt {job.attempts} of {job.max_attempts}")
+    lapsed = session.execute(select(Job.id, Job.lease_id, Job.evaluator_id, Job.attempts, Job.max_attempts)
+                             .where(Job.status == "evaluating", Job.lease_expires_at < now)).all()
+    n = 0
+    for job_id, lease_id, who, attempts, max_attempts in lapsed:  # the usual case: none (one indexed query)
+        if attempts >= max_attempts:
+            status, why = "timeout", f"lease lapsed on attempt {attempts} of {max_attempts}"
         else:
-            _release(job, "queued", "lease lapsed (evaluator silent); back in the queue")
-        log_event(session, job, "lease-lapsed", who, job.message)
-    return len(lapsed)
+            status, why = "queued", "lease lapsed (evaluator silent); back in the queue"
+        if _change(session, (Job.id == job_id, Job.status == "evaluating", Job.lease_id == lease_id,
+                             Job.lease_expires_at < now), _released(status, why)):
+            log_event(session, job_id, "lease-lapsed", who, why)
+            n += 1
+    return n
 
 
 def lease(session: Session, evaluator: Evaluator, lease_seconds: float) -> Job | None:
@@ -101,25 +142,18 @@ def lease(session: Session, evaluator: Evaluator, lease_seconds: float) -> Job |
     return None
 
 
-def _held(session: Session, job_id: int, lease_id: str, evaluator: Evaluator) -> Job:
-    job = session.get(Job, job_id)
-    if job is None:
-        raise ServiceError(404, f"no job {job_id}")
-    if job.status != "evaluating" or job.lease_id != lease_id or job.evaluator_id != evaluator.id:
-        raise ServiceError(409, f"job {job_id}: lease {lease_id[:8]}… is no longer held by {evaluator.name!r} "
-                                f"(job is {job.status}); stop working on it")
-    return job
-
-
 def heartbeat(session: Session, job_id: int, lease_id: str, evaluator: Evaluator, lease_seconds: float,
-              progress: dict[str, Any] | None = None) -> Job:
-    """Extend a held lease; 409 when the lease was lost (lapsed and re-leased, or the job was aborted)."""
-    job = _held(session, job_id, lease_id, evaluator)
-    job.lease_expires_at = clock.now() + lease_seconds
+              progress: dict[str, Any] | None = None) -> float:
+    """Extend a held lease; returns when it now lapses. 409 when it was lost (lapsed and re-leased, or the job
+    was aborted)."""
+    now = clock.now()
+    values: dict[str, Any] = {"lease_expires_at": now + lease_seconds}
     if progress is not None:
-        job.progress = progress
-    evaluator.last_seen_at = clock.now()
-    return job
+        values["progress"] = progress
+    if not _change(session, _held(job_id, lease_id, evaluator), values):
+        raise _lost(session, job_id, lease_id, evaluator)
+    evaluator.last_seen_at = now
+    return now + lease_seconds
 
 
 def bump_boards(session: Session, benchmark_ids: set[int] | list[int]) -> None:
@@ -155,8 +189,11 @@ def install_board_bumps(factory) -> None:
 def finish(session: Session, job_id: int, upload: ResultUpload, evaluator: Evaluator) -> tuple[Result | None, bool]:
     """Record the outcome of a held lease. Returns (result, created); idempotent for a retried upload.
 
-    ``host-error`` stores no result: the job is queued again with this evaluator excluded (or given up
-    after the last attempt). The upload's text was cleaned by :class:`ResultUpload` (no NUL bytes).
+    The job leaves its lease in one conditional UPDATE (:func:`_change`) before the result is inserted: if
+    the lease lapsed and the reaper (or another evaluator) got there first, nothing is stored and the
+    answer is 409, so a stored result always belongs to a job that ended with it. ``host-error`` stores no
+    result: the job is queued again with this evaluator excluded (or given up after the last attempt).
+    The upload's text was cleaned by :class:`ResultUpload` (no NUL bytes).
     """
     lease_id, status = upload.lease_id, upload.status
     if status not in REPORTABLE:
@@ -166,31 +203,35 @@ def finish(session: Session, job_id: int, upload: ResultUpload, evaluator: Evalu
         if existing.lease_id == lease_id:
             return existing, False  # the same upload again (the first reply was lost): already recorded
         raise ServiceError(409, f"job {job_id} already has a result (from another lease)")
-    job = _held(session, job_id, lease_id, evaluator)
-    evaluator.last_seen_at = clock.now()
+    held = _held(job_id, lease_id, evaluator)
     if status == "host-error":
-        job.excluded = [*job.excluded, evaluator.id]
-        final = job.attempts >= job.max_attempts
-        _release(job, "host-error" if final else "queued", upload.message)
-        log_event(session, job, "host-error", evaluator.id, job.message)
+        final = Job.attempts >= Job.max_attempts
+        if not _change(session, held, {**_released("queued", upload.message, final=final),
+                                       "status": case((final, "host-error"), else_="queued")}):
+            raise _lost(session, job_id, lease_id, evaluator)
+        # the row is ours until commit (PostgreSQL's row lock, SQLite's write lock): extend its exclusions
+        excluded = session.scalar(select(Job.excluded).where(Job.id == job_id)) or []
+        _change(session, (Job.id == job_id,), {"excluded": [*excluded, evaluator.id]})
+        evaluator.last_seen_at = clock.now()
+        log_event(session, job_id, "host-error", evaluator.id, upload.message)
         return None, False
-    result = Result(job_id=job.id, submission_id=job.submission_id, benchmark_id=job.benchmark_id,
+    if not _change(session, held, _released(status, upload.message)):
+        again = session.scalar(select(Result).where(Result.job_id == job_id))
+        if again is not None and again.lease_id == lease_id:  # a concurrent retry of this upload got there first
+            return again, False
+        raise _lost(session, job_id, lease_id, evaluator)
+    job = session.get(Job, job_id)
+    assert job is not None
+    result = Result(job_id=job_id, submission_id=job.submission_id, benchmark_id=job.benchmark_id,
                     lease_id=lease_id, evaluator_id=evaluator.id, status=status,
                     public_scores=upload.public_scores, hidden_scores=upload.hidden_scores,
                     public_report=upload.public_report, hidden_report=upload.hidden_report,
                     message=upload.message, created_at=time.time())
     session.add(result)
-    _release(job, status, result.message)  # before the flush: one UPDATE per row (a failed flush rolls back)
-    evaluator.jobs_done += 1
-    try:
-        session.flush()
-    except IntegrityError:  # a concurrent retry of the same upload won the race
-        session.rollback()
-        again = session.scalar(select(Result).where(Result.job_id == job_id))
-        if again is not None and again.lease_id == lease_id:
-            return again, False
-        raise ServiceError(409, f"job {job_id} already has a result") from None
-    log_event(session, job, status, evaluator.id, result.message[:500])
+    evaluator.last_seen_at = clock.now()
+    evaluator.jobs_done = Evaluator.jobs_done + 1  # in SQL: concurrent results of one evaluator all count
+    session.flush()  # the job row is locked by our UPDATE: no second result can get here for this job
+    log_event(session, job_id, status, evaluator.id, result.message[:500])
     if status == "success":
         bump_boards(session, [job.benchmark_id])
     return result, True
@@ -201,19 +242,18 @@ def abort_jobs(session: Session, submission: Submission, why: str) -> int:
     boards = session.scalars(select(Result.benchmark_id).where(Result.submission_id == submission.id,
                                                                Result.status == "success")).all()
     bump_boards(session, set(boards))
-    n = 0
-    for job in submission.jobs:
-        if job.status in ("queued", "evaluating"):
-            _release(job, "aborted", why)
-            log_event(session, job, "aborted", None, why)
-            n += 1
-    return n
+    ids = _change(session, (Job.submission_id == submission.id, Job.status.in_(("queued", "evaluating"))),
+                  _released("aborted", why))
+    for job_id in sorted(ids):
+        log_event(session, job_id, "aborted", None, why)
+    return len(ids)
 
 
 def retry(session: Session, job: Job, max_attempts: int) -> Job:
     """An operator re-runs a job that ended without success: a new job; the old one and its result stay."""
-    if job.status not in ("error", "timeout", "host-error", "aborted", "failed"):
-        raise ServiceError(409, f"job {job.id} is {job.status}; only jobs that ended in error, timeout, "
+    status = session.scalar(select(Job.status).where(Job.id == job.id).with_for_update())  # one retry at a time
+    if status not in ("error", "timeout", "host-error", "aborted", "failed"):
+        raise ServiceError(409, f"job {job.id} is {status}; only jobs that ended in error, timeout, "
                                 "host-error, aborted or failed can be retried")
     again = session.scalar(select(JobEvent).where(JobEvent.job_id == job.id, JobEvent.kind == "retried").limit(1))
     if again is not None:  # a double click or a repeated request must not queue the job twice

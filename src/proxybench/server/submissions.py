@@ -36,6 +36,8 @@ def _check_limit(session: Session, user: User, default_limit: int) -> None:
     limit = user.daily_limit if user.daily_limit is not None else default_limit
     if user.role == "superuser" or limit == 0:
         return
+    # the user's row locked (PostgreSQL; SQLite's writers take turns): concurrent submissions count one by one
+    session.execute(select(User.id).where(User.id == user.id).with_for_update())
     since = time.time() - _DAY
     n = session.scalar(select(func.count()).select_from(Submission)
                        .where(Submission.user_id == user.id, Submission.created_at > since)) or 0

@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.kinds import DomainKind
+from proxybench.domain.params import DomainParams
 from proxybench.runner.backends import Backend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
 
@@ -42,7 +44,7 @@ class TargetInfo:
     """What a target is, in words a report can print: ``kind`` (reality-model | recorded | robot),
     ``simulated`` (True, False, or None when proxybench cannot tell), a short ``label`` and a ``statement``."""
 
-    kind: str
+    kind: DomainKind
     simulated: bool | None
     label: str
     statement: str
@@ -60,7 +62,7 @@ class TargetRun:
     episodes: list[TargetEpisode]
     results: dict[str, np.ndarray]
     truth: dict[str, float] = field(default_factory=dict)
-    params: dict[str, Any] | None = None  # θ of a simulated target when known (POD needs it)
+    params: DomainParams | None = None  # θ of a simulated target when known (POD needs it)
     ran: int = 0  # episodes simulated or driven now (not cached, not read from files)
     files: dict[tuple[str, int], str] = field(default_factory=dict)  # (agent, episode) → its trajectory file
 
@@ -72,7 +74,7 @@ class Target:
     """Base of the three kinds. A recorded target fixes its map, length, agents and episodes; the others
     take them from the experiment."""
 
-    kind = "target"
+    kind: DomainKind  # each kind's own
     fixed_map: str | None = None
     fixed_seconds: float | None = None
     fixed_agents: list[str] | None = None
@@ -80,6 +82,18 @@ class Target:
 
     def info(self) -> TargetInfo:
         raise NotImplementedError
+
+    def planned_poses(self, map_name: str, episodes: list[int], seeds: list[int]) -> list[Any]:
+        """The start pose each episode is asked to begin at (None: wherever the target puts its robot): the pose
+        each seed draws, unless the target knows its starts otherwise (a DTPS robot's pose file)."""
+        from proxybench.runner.starts import start_poses
+
+        return start_poses(map_name, seeds)
+
+    def started_at(self, job: Job, result: JobResult) -> tuple[float, float, float] | None:
+        """Where an episode the runner played began, for the proxies to replay it from: the pose it was asked to
+        start at (a simulator or a robot node puts its robot there; a DTPS robot says where it stood)."""
+        return job.pose
 
     def run(self, agents: list[AgentSpec], *, map_name: str, seconds: float, episodes: Episodes, seed: int,
             metrics: tuple[str, ...], image_size: tuple[int, int], run_dir: str | Path,
@@ -103,22 +117,24 @@ def live_run(target: Target, dom: DomainSpec, agents: list[AgentSpec], *, map_na
              backend: Backend | None, progress: Progress | None, stage: str = "target episodes"
              ) -> tuple[TargetRun, Any]:
     """The episodes of a target the runner plays (reality model, held-out model, robot node), through its jobs and
-    cache: (the run, the sweep behind it). Every agent plays every id, from the start pose its seed draws."""
+    cache: (the run, the sweep behind it). Every agent plays every id, from the start pose the target plans for
+    it (:meth:`Target.planned_poses`: the one its seed draws); the proxies replay it from where it began
+    (:meth:`Target.started_at`)."""
     from proxybench.runner.backends import InlineBackend
-    from proxybench.runner.starts import start_poses
     from proxybench.runner.sweep import run_jobs
 
     ids = episode_ids(episodes)
     seeds = {e: episode_seed(seed, e) for e in ids}
-    poses = dict(zip(ids, start_poses(map_name, [seeds[e] for e in ids]), strict=True))
-    eps = [TargetEpisode(a.label, e, seeds[e], poses[e]) for a in agents for e in ids]
+    poses = dict(zip(ids, target.planned_poses(map_name, ids, [seeds[e] for e in ids]), strict=True))
     jobs = [Job(a, dom, map_name, e, seeds[e], seconds, pose=poses[e], metrics=metrics) for a in agents for e in ids]
     sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
                      progress=(lambda d, t, _r: progress(stage, d, t)) if progress else None)
+    eps = [TargetEpisode(j.agent.label, j.episode, j.seed, target.started_at(j, r))
+           for j, r in zip(jobs, sweep.results, strict=True)]
     files = {(j.agent.label, j.episode): r.trajectory for j, r in zip(jobs, sweep.results, strict=True)
              if r.trajectory}
     run = TargetRun(target.info(), map_name, seconds, metrics, eps, by_agent(jobs, sweep.results, metrics),
-                    params=dom.params if dom.kind != "robot" else None, ran=sweep.ran, files=files)
+                    params=dom.params, ran=sweep.ran, files=files)
     return run, sweep
 
 

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.params import DUCKIEBOT_DISTORTION, DUCKIEBOT_INTRINSICS, DomainParams
 from proxybench.runner.jobs import DomainSpec
 from proxybench.targets.spec import TargetInfo, TargetRun, _LiveTarget
@@ -113,7 +114,7 @@ class HeldOutTarget(_LiveTarget):
     """One held-out target, a black box to the experiment: runs agents, tells nothing of its θ until
     :meth:`reveal`. Simulated, and every statement it makes says so."""
 
-    kind = "reality-model"
+    kind = DomainKind.REALITY_MODEL
 
     def __init__(self, seed: int, index: int, ranges: dict[str, tuple[float, float]] | None = None):
         self.name = f"heldout-{index}"
@@ -122,8 +123,8 @@ class HeldOutTarget(_LiveTarget):
     def domain(self, image_size: tuple[int, int]) -> DomainSpec:
         w, h = image_size
         params = {k: v for k, v in self._drawn.items() if k != "command_delay_mean"}
-        return DomainSpec(self.name, DomainParams.model_validate({**params, "image_width": w, "image_height": h})
-                          .model_dump(), kind="reality-model")
+        return DomainSpec(self.name, DomainParams.model_validate({**params, "image_width": w, "image_height": h}),
+                          kind=DomainKind.REALITY_MODEL)
 
     def truth(self) -> dict[str, float]:
         return {}  # hidden: an experiment must not see it before scoring
@@ -138,7 +139,7 @@ class HeldOutTarget(_LiveTarget):
 
     def info(self) -> TargetInfo:
         return TargetInfo(
-            "reality-model", True, f"{self.name} (held-out, simulated)",
+            DomainKind.REALITY_MODEL, True, f"{self.name} (held-out, simulated)",
             f"SIMULATED: {self.name} is a held-out stand-in drawn from a hidden seed, with structural differences "
             "from the proxies (unequal motor response curves, dead-band and saturation, wheel slip, latency "
             "jitter, camera yaw and roll, another lens, other light and paint) and a θ the experiment does not "

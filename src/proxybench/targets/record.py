@@ -22,18 +22,22 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from proxybench import __version__
+from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, Job, JobResult
-from proxybench.runner.starts import start_poses
 from proxybench.runner.streams import StreamSpec
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, episode_seed
+from proxybench.targets.dtps import DtpsTarget
 from proxybench.targets.manifest import (
     MANIFEST_NAME,
+    SOURCE_KINDS,
     RobotInfo,
     TargetError,
     TargetManifest,
     load_manifest,
+    source_of,
     write_manifest,
 )
 from proxybench.targets.robot import robot_said
@@ -62,11 +66,14 @@ def _check_label(label: str) -> None:
 
 def _source(target: Target) -> tuple[str, RobotInfo | None]:
     if isinstance(target, RealityTarget):
-        return "reality-model", None
+        return source_of(DomainKind.REALITY_MODEL), None
+    if isinstance(target, DtpsTarget):
+        return "dtps-robot", RobotInfo(command=target.command, kind=target.options.kind or "", dtps=target.options)
     command = getattr(target, "command", None)
     if command:
-        return "robot-node", RobotInfo(command=command, options=getattr(target, "options", None))
-    raise TargetError(f"cannot record a {target.kind} target (record the reality model or a robot node)")
+        return source_of(DomainKind.ROBOT), RobotInfo(command=command, options=getattr(target, "options", None))
+    raise TargetError(f"cannot record a {target.kind} target (record the reality model, a robot node or a DTPS "
+                      "robot)")
 
 
 def _plan(out: Path, new: TargetManifest, agents: list[AgentSpec]) -> TargetManifest:
@@ -95,7 +102,7 @@ def _plan(out: Path, new: TargetManifest, agents: list[AgentSpec]) -> TargetMani
             raise TargetError(f"the recording at {out} has agent(s) {', '.join(lacking)}, which need the new episodes "
                               "too: give them again with --agent")
     robot = old.robot if new.robot is None or old.robot is None else old.robot.model_copy(
-        update={"options": new.robot.options})  # timeouts, transport, reflection: as started this time
+        update={"options": new.robot.options, "dtps": new.robot.dtps})  # timeouts, transport, ...: as started now
     return old.model_copy(update={"agents": agents_all, "episodes": episodes_all, "robot": robot,
                                   "description": new.description or old.description,
                                   "who": new.who or old.who, "where": new.where or old.where,
@@ -157,7 +164,8 @@ def record_target(
     except (MapError, FileNotFoundError) as exc:
         raise TargetError(f"map: {exc}") from None
     source, robot = _source(target)
-    if streams is not None and source != "reality-model":
+    new_kind = SOURCE_KINDS[source]
+    if streams is not None and new_kind is not DomainKind.REALITY_MODEL:
         raise TargetError("watchtowers are simulated: record them on the reality model, not on a robot node")
     dom = target.domain(image_size)  # type: ignore[attr-defined]
     truth = {k: float(v) for k, v in TRUTH.items() if isinstance(v, int | float) and not isinstance(v, bool)}
@@ -166,20 +174,20 @@ def record_target(
         source=source, description=description, who=who, where=where, when=when,
         map=str(Path(map_name).resolve()) if Path(map_name).is_file() else map_name, seconds=seconds,
         agents=[a.label for a in agents], episodes=list(range(episodes)), seed=seed, robot=robot,
-        params=dom.params if source == "reality-model" else None,
-        truth=truth if source == "reality-model" else None, recorded_with=f"proxybench {__version__}")
+        params=dom.params.model_dump(mode="json") if new_kind is DomainKind.REALITY_MODEL else None,
+        truth=truth if new_kind is DomainKind.REALITY_MODEL else None, recorded_with=f"proxybench {__version__}")
     out.mkdir(parents=True, exist_ok=True)
     manifest = _plan(out, new, agents)
     write_manifest(out, manifest)  # first: an interrupted recording still says what it is
     specs = {a.label: a for a in agents}
     seeds = {e: episode_seed(seed, e) for e in manifest.episodes}
-    poses = dict(zip(seeds, start_poses(manifest.map, list(seeds.values())), strict=True))
+    poses = dict(zip(seeds, target.planned_poses(manifest.map, list(seeds), list(seeds.values())), strict=True))
     todo: list[Job] = []
     dest: dict[str, Path] = {}
     kept = 0
     for label in manifest.agents:
         for e in manifest.episodes:
-            path = out / manifest.pattern.format(agent=label, episode=e)
+            path = out / manifest.trajectory_file(label, e)
             if path.is_file():
                 kept += 1
                 continue
@@ -192,7 +200,7 @@ def record_target(
     robot_failed: list[str] = []
 
     def keep(res: JobResult) -> None:
-        if res.termination == "robot_failure":  # no episode happened: nothing to keep, retried next time
+        if res.termination is Termination.ROBOT_FAILURE:  # no episode happened: nothing to keep, retried next time
             robot_failed.append(f"{res.agent} episode {res.episode}: {res.message}")
             return
         _place(res, dest[res.key])
@@ -201,7 +209,7 @@ def record_target(
             _place_streams(Path(res.streams), folder / "watchtowers")
             if on_streams is not None:
                 on_streams(res, folder)
-        if res.termination == "agent_failure":
+        if res.termination is Termination.AGENT_FAILURE:
             failed.append(f"{res.agent} episode {res.episode}: {res.message}")
 
     def place(done: int, total: int, res: JobResult | None) -> None:
@@ -213,19 +221,20 @@ def record_target(
     cache = out / ".record"
     sweep = run_jobs(todo, cache, backend or InlineBackend(), progress=place)
     for job, res in zip(todo, sweep.results, strict=True):  # episodes the cache held from an interrupted run
-        if not dest[job.key].is_file() and res.termination != "robot_failure":
+        if not dest[job.key].is_file() and res.termination is not Termination.ROBOT_FAILURE:
             keep(res)
     if robot_failed:
         shown = "\n  ".join(robot_failed[:5])
-        raise TargetError(f"the robot node failed on {len(robot_failed)} episode(s); the others are recorded in "
-                          f"{out}; run the same command again to retry:\n  {shown}")
-    if source == "robot-node" and robot is not None and todo:
+        what = getattr(target, "what", "robot node")
+        raise TargetError(f"the {what} failed on {len(robot_failed)} episode(s); the others are recorded in {out}; "
+                          f"run the same command again to retry:\n  {shown}")
+    if source == source_of(DomainKind.ROBOT) and robot is not None and todo:
         kind, simulator = robot_said(dest[todo[0].key])
         if kind:
             update = {"kind": kind} | ({"simulator": simulator} if simulator is not None else {})
             manifest = manifest.model_copy(update={"robot": manifest.robot.model_copy(update=update)})
             write_manifest(out, manifest)
-    if all((out / manifest.pattern.format(agent=a, episode=e)).is_file()
+    if all((out / manifest.trajectory_file(a, e)).is_file()
            for a in manifest.agents for e in manifest.episodes):
         shutil.rmtree(cache, ignore_errors=True)
     return RecordSummary(out, manifest, sweep.ran, kept, failed)

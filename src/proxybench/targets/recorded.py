@@ -10,14 +10,21 @@ Two kinds, after the manifest (:mod:`proxybench.targets.manifest`):
   scores (no start poses then: proxies draw their starts from the episode seeds).
 
 Every problem names the file, the row (1 = the first data row; for CSV also the line) and the column:
-missing columns, files or agents, numbers that are not finite, time that does not increase, a first pose
-off the map, a file recorded on another map, unknown metrics. :func:`check_recording` collects them all;
-:func:`load_recording` raises :class:`TargetError` with them.
+missing columns, files or agents, numbers that are not finite (in any column: a trajectory holds numbers
+only), time that does not increase, a first pose off the map, a file recorded on another map, unknown
+metrics. :func:`check_recording` collects them all; :func:`load_recording` raises :class:`TargetError`
+with them.
+
+A recording may come from another lab, so it is read as untrusted input: every path it names (the
+trajectory files, ``map``, ``metrics_table``) lies inside its folder, through no link
+(:func:`proxybench.untrusted.inside`), and each file's size, rows and columns are checked against
+:data:`LIMITS` from its metadata (Parquet's footer, the CSV's size) before it is read.
 """
 
 from __future__ import annotations
 
 import difflib
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,9 +32,13 @@ from typing import Any
 
 import numpy as np
 
-from proxybench.targets.manifest import TargetError, TargetManifest, load_manifest
+from proxybench.domain.events import Event, Termination
+from proxybench.messages import shown
+from proxybench.targets.manifest import MANIFEST_NAME, TargetError, TargetManifest, load_manifest
+from proxybench.untrusted import UntrustedInputError, inside
 
-__all__ = ["CheckReport", "RecordedEpisode", "Recording", "check_recording", "load_recording", "resolve_map"]
+__all__ = ["LIMITS", "CheckReport", "FileLimits", "RecordedEpisode", "Recording", "check_recording",
+           "load_recording", "resolve_map"]
 
 _ALIASES = {"time": "t", "timestamp": "t", "heading": "theta", "yaw": "theta"}
 _CORE = ("t", "x", "y", "theta")
@@ -35,6 +46,20 @@ _OPTIONAL = ("v", "omega", "pwm_left", "pwm_right")
 _MAX_PROBLEMS = 30
 #: columns of a metrics table that describe a row rather than score it (``proxybench score --out`` writes them)
 _INFO_COLUMNS = ("agent", "episode", "file", "source", "termination", "seed", "notes")
+
+
+@dataclass(frozen=True)
+class FileLimits:
+    """What one file of a recording may hold, checked before it is read."""
+
+    rows: int = 2_000_000  # samples of one trajectory (an hour at 500 Hz) or rows of a metrics table
+    columns: int = 256
+    csv_bytes: int = 256 << 20
+    parquet_bytes: int = 512 << 20  # uncompressed, as its footer declares
+    map_bytes: int = 4 << 20
+
+
+LIMITS = FileLimits()
 
 
 @dataclass
@@ -47,7 +72,7 @@ class RecordedEpisode:
     pose: tuple[float, float, float] | None
     file: str | None
     scores: dict[str, float]
-    termination: str = "timeout"
+    termination: Termination = Termination.TIMEOUT
     duration: float = float("nan")
 
 
@@ -117,14 +142,38 @@ def _id_ranges(ids: Sequence[int]) -> str:
 
 
 def resolve_map(root: Path, name: str) -> str:
-    """A map file relative to the manifest as an absolute path; a built-in name as it is."""
-    p = (root / name)
-    return str(p.resolve()) if p.suffix in (".yaml", ".yml") and p.is_file() else name
+    """A map file of the recording (relative to the manifest, inside its folder, no link) as an absolute path;
+    a built-in name as it is. Raises :class:`~proxybench.untrusted.UntrustedInputError` for a path that leaves
+    the folder, and for a map file over :data:`LIMITS`."""
+    if "/" not in name and "\\" not in name and Path(name).suffix not in (".yaml", ".yml"):
+        return name
+    path = inside(root, name, field="map")
+    if path.is_file() and path.stat().st_size > LIMITS.map_bytes:
+        raise UntrustedInputError(f"map: {path}: {path.stat().st_size} bytes; a map file holds at most "
+                                  f"{LIMITS.map_bytes}")
+    return str(path)
 
 
 def _row(k: int, csv: bool) -> str:
     """Human row number of sample ``k`` (0-based): data row k + 1, and the file line for CSV."""
     return f"row {k + 1} (line {k + 2})" if csv else f"row {k + 1}"
+
+
+def _check_size(path: Path) -> None:
+    """Refuse a file over :data:`LIMITS` from what it declares (Parquet's footer; a CSV's size), unread."""
+    if path.suffix.lower() == ".parquet":
+        import pyarrow.parquet as pq
+
+        meta = pq.ParquetFile(path).metadata
+        declared = sum(meta.row_group(k).total_byte_size for k in range(meta.num_row_groups))
+        if meta.num_rows > LIMITS.rows:
+            raise TargetError(f"{path}: {meta.num_rows} rows; a file of a recording holds at most {LIMITS.rows}")
+        if meta.num_columns > LIMITS.columns:
+            raise TargetError(f"{path}: {meta.num_columns} columns; at most {LIMITS.columns}")
+        if declared > LIMITS.parquet_bytes:
+            raise TargetError(f"{path}: {declared} bytes uncompressed; at most {LIMITS.parquet_bytes}")
+    elif os.stat(path).st_size > LIMITS.csv_bytes:
+        raise TargetError(f"{path}: {os.stat(path).st_size} bytes; a CSV file holds at most {LIMITS.csv_bytes}")
 
 
 def _read_columns(path: Path) -> tuple[dict[str, Any], dict[str, Any] | None]:
@@ -133,6 +182,7 @@ def _read_columns(path: Path) -> tuple[dict[str, Any], dict[str, Any] | None]:
 
     suffix = path.suffix.lower()
     try:
+        _check_size(path)
         if suffix == ".parquet":
             import pyarrow.parquet as pq
 
@@ -143,8 +193,12 @@ def _read_columns(path: Path) -> tuple[dict[str, Any], dict[str, Any] | None]:
         if suffix in (".csv", ".txt"):
             import pandas as pd
 
-            df = pd.read_csv(path, skipinitialspace=True)
+            df = pd.read_csv(path, skipinitialspace=True, nrows=LIMITS.rows + 1)
+            if len(df) > LIMITS.rows or len(df.columns) > LIMITS.columns:
+                raise TargetError(f"{path}: more than {LIMITS.rows} rows or {LIMITS.columns} columns")
             return {str(c).strip(): df[c].to_numpy() for c in df.columns}, None
+    except TargetError:
+        raise
     except (OSError, ValueError) as exc:  # pyarrow's ArrowInvalid and pandas' ParserError are ValueErrors
         raise TargetError(f"{path}: cannot read ({str(exc).splitlines()[0]})") from None
     raise TargetError(f"{path}: unknown file format {suffix!r} (use .csv or .parquet)")
@@ -159,13 +213,16 @@ def _numbers(path: Path, name: str, values: Any, csv: bool) -> tuple[np.ndarray 
     if bad.any():
         k = int(np.argmax(bad))
         v = values[k]
-        v = v.item() if isinstance(v, np.generic) else v
-        what = "empty (or NaN)" if isinstance(v, float) and np.isnan(v) else f"{v!r} is not a finite number"
+        what = "empty (or NaN)" if isinstance(v, float | np.floating) and np.isnan(v) else \
+            f"{shown(v)} is not a finite number"
         return None, f"{path}: {_row(k, csv)}, column {name!r}: {what}"
     return arr, None
 
 
-def _check_trajectory_columns(path: Path, cols: dict[str, Any], csv: bool) -> tuple[dict[str, np.ndarray], list[str]]:
+def _check_trajectory_columns(path: Path, cols: dict[str, Any], csv: bool,
+                              own_file: bool = False) -> tuple[dict[str, np.ndarray], list[str]]:
+    """The core and optional columns as numbers, and every problem (an extra column of text, too: readers of
+    the file later convert every column; ``own_file``: proxybench's own trajectory, whose columns it knows)."""
     data = {_ALIASES.get(k, k): v for k, v in cols.items()}
     problems = []
     missing = [c for c in _CORE if c not in data]
@@ -179,18 +236,23 @@ def _check_trajectory_columns(path: Path, cols: dict[str, Any], csv: bool) -> tu
             problems.append(problem)
         else:
             out[name] = arr
+    for name in (c for c in data if c not in _CORE and c not in _OPTIONAL and not own_file):
+        _, problem = _numbers(path, name, data[name], csv)  # an extra column is ignored, but must be numbers
+        if problem:
+            problems.append(f"{problem} (a trajectory file holds numbers only; remove the column {name!r})")
     if "t" in out:
         t = out["t"]
         if t.size == 0:
             problems.append(f"{path}: no rows")
         elif t.size > 1 and np.any(np.diff(t) <= 0):
             k = int(np.argmax(np.diff(t) <= 0)) + 1
-            problems.append(f"{path}: {_row(k, csv)}, column 't': time is not increasing ({t[k - 1]!r} → {t[k]!r} s)")
+            problems.append(f"{path}: {_row(k, csv)}, column 't': time is not increasing ({shown(t[k - 1])} → "
+                            f"{shown(t[k])} s)")
     return out, problems
 
 
 def _episode_file(root: Path, manifest: TargetManifest, agent: str, episode: int) -> Path:
-    return root / manifest.pattern.format(agent=agent, episode=episode)
+    return inside(root, manifest.trajectory_file(agent, episode), field="trajectories")
 
 
 def _load_trajectory(root: Path, manifest: TargetManifest, m, agent: str, episode: int,
@@ -199,7 +261,10 @@ def _load_trajectory(root: Path, manifest: TargetManifest, m, agent: str, episod
     from proxybench.tasks.metrics import METRICS
     from proxybench.tasks.trajectory import Trajectory, TrajectoryError
 
-    path = _episode_file(root, manifest, agent, episode)
+    try:
+        path = _episode_file(root, manifest, agent, episode)
+    except UntrustedInputError as exc:
+        return None, [f"{root / MANIFEST_NAME}: {exc}"], []
     if not path.is_file():
         return None, [f"{path}: missing (agent {agent!r}, episode {episode}; pattern {manifest.pattern!r})"], []
     try:
@@ -207,7 +272,7 @@ def _load_trajectory(root: Path, manifest: TargetManifest, m, agent: str, episod
     except TargetError as exc:
         return None, [str(exc)], []
     csv = path.suffix.lower() != ".parquet"
-    data, problems = _check_trajectory_columns(path, cols, csv)
+    data, problems = _check_trajectory_columns(path, cols, csv, own_file=block is not None)
     notes: list[str] = []
     meta = (block or {}).get("meta", {})
     if block is not None:
@@ -234,7 +299,7 @@ def _load_trajectory(root: Path, manifest: TargetManifest, m, agent: str, episod
     except TrajectoryError as exc:
         return None, [str(exc)], notes
     traj.meta["episode_seconds"] = manifest.seconds
-    if traj.termination == "timeout":
+    if traj.termination is Termination.TIMEOUT:
         _mark_early_end(traj, manifest.seconds, m)
     if traj.duration > manifest.seconds + 0.5:
         notes.append(f"{path}: {traj.duration:.1f} s long, longer than the manifest's seconds ({manifest.seconds:g}); "
@@ -254,12 +319,12 @@ def _mark_early_end(traj, seconds: float, m) -> None:
     x, y = float(traj["x"][-1]), float(traj["y"][-1])
     tile = m.tile_at(x, y)
     if tile is None or not tile.drivable:
-        kind, why = "off_road", f"its last pose ({x:.2f}, {y:.2f}) m is off the road"
+        kind, why = Termination.OFF_ROAD, f"its last pose ({x:.2f}, {y:.2f}) m is off the road"
     else:
-        kind, why = "ended_early", "the file does not say why"
+        kind, why = Termination.ENDED_EARLY, "the file does not say why"
     traj.termination = kind
-    traj.events.append({"t": traj.duration, "kind": kind,
-                        "message": f"the recording ends at {traj.duration:.2f} s of {seconds:g} s; {why}"})
+    traj.events.append(Event(traj.duration, kind, f"the recording ends at {traj.duration:.2f} s of {seconds:g} s; "
+                                                  f"{why}"))
 
 
 def _metric_problem(name: str) -> str | None:
@@ -275,7 +340,11 @@ def _metric_problem(name: str) -> str | None:
 def _load_table(root: Path, manifest: TargetManifest, metrics: tuple[str, ...] | None,
                 problems: list[str]) -> tuple[list[RecordedEpisode], tuple[str, ...]]:
     assert manifest.metrics_table is not None
-    path = root / manifest.metrics_table
+    try:
+        path = inside(root, manifest.metrics_table, field="metrics_table")
+    except UntrustedInputError as exc:
+        problems.append(f"{root / MANIFEST_NAME}: {exc}")
+        return [], ()
     if not path.is_file():
         problems.append(f"{path}: missing (the manifest's metrics_table)")
         return [], ()
@@ -368,8 +437,11 @@ def check_recording(root: str | Path, metrics: tuple[str, ...] | None = None) ->
         return report
     try:
         m = load_map(resolve_map(root, manifest.map))
+    except UntrustedInputError as exc:
+        report.problems.append(f"{root / MANIFEST_NAME}: {exc}")
+        return report
     except (MapError, FileNotFoundError) as exc:
-        report.problems.append(f"{root / 'target.yaml'}: map: {exc}")
+        report.problems.append(f"{root / MANIFEST_NAME}: map: {exc}")
         return report
     wanted = metrics or ("survival_time", "driven_lanedir_consec")
     for agent in manifest.agents:

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from proxybench.domain.events import Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec
 from proxybench.targets.base import Target, TargetInfo, TargetRun, live_run
@@ -28,7 +30,8 @@ class RobotTarget(Target):
     proxies' rate, so that target and proxy episodes see and decide alike (a node that says its own rate is
     stepped at that)."""
 
-    kind = "robot"
+    kind = DomainKind.ROBOT
+    what = "robot node"
 
     def __init__(self, command: str, nodes: int = 1, options: RobotNodeOptions | None = None,
                  frame_rate: float = DEFAULT_FRAME_RATE):
@@ -43,7 +46,7 @@ class RobotTarget(Target):
         return DomainSpec.robot(self.command, frame_rate=self.frame_rate, nodes=self.nodes, options=self.options)
 
     def info(self) -> TargetInfo:
-        simulated = {"simulation": True, "robot": None}.get(self._said)
+        simulated = True if self._said == DomainKind.SIMULATION else None  # a node's word; "robot" may be either
         said = f"; it described itself as a {self._said}" if self._said else ""
         sim = self._simulator
         if sim is not None and self._said == "simulation":
@@ -51,7 +54,7 @@ class RobotTarget(Target):
         label = (f"robot node: {self.command}" if sim is None
                  else f"{sim.name} {sim.version} (simulated): {self.command}")
         return TargetInfo(
-            "robot", simulated, label,
+            DomainKind.ROBOT, simulated, label,
             f"The target is a robot node started with `{self.command}`{said}. proxybench cannot tell a real robot "
             "from a simulator behind the robot protocol: treat results as real only if you know the node drives "
             "a physical robot.", {"command": self.command, "kind": self._said, "nodes": self.nodes,
@@ -63,10 +66,10 @@ class RobotTarget(Target):
         run, sweep = live_run(self, self.domain(), agents, map_name=map_name, seconds=seconds, episodes=episodes,
                               seed=seed, metrics=metrics, run_dir=run_dir, backend=backend, progress=progress,
                               stage="target episodes (robot)")
-        failed = [r for r in sweep.results if r.termination == "robot_failure"]
+        failed = [r for r in sweep.results if r.termination is Termination.ROBOT_FAILURE]
         if failed:
             shown = "\n  ".join(f"{r.agent} episode {r.episode}: {r.message}" for r in failed[:5])
-            raise TargetError(f"target: the robot node `{self.command}` failed on {len(failed)} of "
+            raise TargetError(f"target: the {self.what} `{self.command}` failed on {len(failed)} of "
                               f"{len(sweep.results)} episode(s); finished episodes are cached, run again to retry the "
                               f"rest:\n  {shown}")
         made = next((r.trajectory for r in sweep.results if r.trajectory), None)

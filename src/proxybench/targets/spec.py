@@ -5,7 +5,9 @@
 - a **recorded** directory (:mod:`proxybench.targets.recorded`): a lab's runs, or runs recorded earlier
   with ``proxybench target record``; it costs no simulation;
 - ``robot:CMD``: a robot node started with CMD (the robot protocol, docs/robot-protocol.md), its episodes
-  run one after another through the runner, cached like any other episode.
+  run one after another through the runner, cached like any other episode;
+- ``dtps:HOST[:PORT]/PATH``: a DTPS robot, a real Duckiebot or a Duckiematrix robot (:mod:`.dtps`,
+  docs/dtps.md), likewise.
 
 Every target gives the experiments the same thing, a :class:`TargetRun`: the episodes (agent, id, seed,
 start pose) and each agent's per-episode scores. Proxies replay each agent's target episodes from the
@@ -20,9 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.kinds import DomainKind
+from proxybench.domain.params import DomainParams
 from proxybench.runner.jobs import DEFAULT_FRAME_RATE, DomainSpec
 from proxybench.targets.base import Target, TargetEpisode, TargetInfo, TargetRun, episode_seed, live_run
-from proxybench.targets.manifest import TargetError
+from proxybench.targets.manifest import TargetError, TargetManifest
 
 __all__ = ["RealityTarget", "RecordedTarget", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "episode_seed",
            "open_target"]
@@ -47,7 +51,7 @@ class _LiveTarget(Target):
 class RealityTarget(_LiveTarget):
     """The built-in reality model, optionally with some of its parameters changed."""
 
-    kind = "reality-model"
+    kind = DomainKind.REALITY_MODEL
 
     def __init__(self, overrides: dict[str, Any] | None = None):
         from pydantic import ValidationError
@@ -66,7 +70,7 @@ class RealityTarget(_LiveTarget):
 
         w, h = image_size
         params = reality_params(**{**self.overrides, "image_width": w, "image_height": h})
-        return DomainSpec("reality", params.model_dump(), kind="reality-model")
+        return DomainSpec("reality", params, kind=DomainKind.REALITY_MODEL)
 
     def truth(self) -> dict[str, float]:
         from proxybench.domain.reality import TRUTH
@@ -78,7 +82,7 @@ class RealityTarget(_LiveTarget):
     def info(self) -> TargetInfo:
         changed = ", ".join(f"{k}={v}" for k, v in self.overrides.items())
         return TargetInfo(
-            "reality-model", True, "reality model (simulated)" + (f", {changed}" if changed else ""),
+            DomainKind.REALITY_MODEL, True, "reality model (simulated)" + (f", {changed}" if changed else ""),
             "SIMULATED: the target is proxybench's reality model, a simulated stand-in for a Duckiebot with effects "
             "the proxies cannot express (wheel slip, motor dead-band, latency jitter, a lens that differs from its "
             "calibration, other light, sensor noise)" + (f", with {changed}" if changed else "") + ". No real robot "
@@ -88,7 +92,7 @@ class RealityTarget(_LiveTarget):
 class RecordedTarget(Target):
     """A directory of recorded episodes (see :mod:`proxybench.targets.recorded`)."""
 
-    kind = "recorded"
+    kind = DomainKind.RECORDED
 
     def __init__(self, root: str | Path):
         from proxybench.targets.manifest import load_manifest
@@ -114,11 +118,14 @@ class RecordedTarget(Target):
                               if m.robot and m.robot.simulator and m.robot.kind == "simulation" else "")
                            + "); proxybench cannot tell whether a robot node is a real robot or a simulator"),
             "simulation": "SIMULATED runs of another simulator",
+            "dtps-robot": _dtps_words(m.robot),
         }[m.source]
+        told = m.robot.dtps.kind if m.robot and m.robot.dtps else None
         simulated = {"real": False, "reality-model": True, "simulation": True,
-                     "robot-node": True if m.robot and m.robot.kind == "simulation" else None}[m.source]
+                     "robot-node": True if m.robot and m.robot.kind == "simulation" else None,
+                     "dtps-robot": {"real": False, "simulated": True}.get(told or "")}[m.source]
         return TargetInfo(
-            "recorded", simulated, f"recorded: {self.root} (source: {m.source})",
+            DomainKind.RECORDED, simulated, f"recorded: {self.root} (source: {m.source})",
             f"The target is a recording at {self.root.resolve()} (source: {m.source}): {what}"
             + (f"; recorded {who}" if who else "") + (f". {m.description}" if m.description else "") + ".",
             {"root": str(self.root.resolve()), "source": m.source, "who": m.who, "where": m.where, "when": m.when,
@@ -137,20 +144,42 @@ class RecordedTarget(Target):
         for e in chosen:
             results.setdefault(e.agent, []).append([e.scores[m] for m in metrics])
         m = self.manifest
-        params = m.params if m.source == "reality-model" else None
+        params = _recorded_theta(m) if m.domain_kind is DomainKind.REALITY_MODEL else None
         return TargetRun(self.info(), resolve_map(self.root, m.map), m.seconds, metrics, eps,
                          {a: np.asarray(v, dtype=float) for a, v in results.items()}, dict(m.truth or {}), params, 0,
                          {(e.agent, e.episode): e.file for e in chosen if e.file})
 
 
+def _dtps_words(robot: Any) -> str:
+    """What a DTPS robot's recording says it was (what the user said it is, else that proxybench cannot tell)."""
+    if robot is None or robot.dtps is None:
+        return "runs on a DTPS robot; proxybench cannot tell a Duckiematrix robot from a real one"
+    from proxybench.targets.dtps import describe_robot
+
+    return "runs on " + describe_robot(robot.command.removeprefix("dtps:"), robot.dtps)[1]
+
+
+def _recorded_theta(m: TargetManifest) -> DomainParams | None:
+    """θ a recording of the reality model says it ran with, where it is a θ of this version (a recording made
+    by a version whose θ had other fields keeps its θ in the manifest only, for the record; none is used)."""
+    from pydantic import ValidationError
+
+    try:
+        return None if m.params is None else DomainParams.model_validate(m.params)
+    except ValidationError:
+        return None
+
+
 def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes: int = 1,
-                robot_options: Any = None, frame_rate: float = DEFAULT_FRAME_RATE) -> Target:
-    """The target ``text`` names: ``reality``, ``robot:CMD``, or a directory (or manifest file) of recordings.
+                robot_options: Any = None, frame_rate: float = DEFAULT_FRAME_RATE, dtps_options: Any = None) -> Target:
+    """The target ``text`` names: ``reality``, ``robot:CMD``, ``dtps:HOST[:PORT]/PATH`` or a directory (or manifest
+    file) of recordings.
 
     ``params``: θ overrides of the reality model (only with ``reality``); ``robot_nodes``: how many processes
     of a robot node may run at once, ``robot_options``: how to start and talk to it (a
-    :class:`~proxybench.protocol.options.RobotNodeOptions`; both only with ``robot:``); ``frame_rate`` [Hz]:
-    the proxies' camera rate, at which a robot node is asked to step.
+    :class:`~proxybench.protocol.options.RobotNodeOptions`; both only with ``robot:``); ``dtps_options``: how to
+    drive a DTPS robot (a :class:`~proxybench.dtps.robot_options.DtpsRobotOptions`; only with ``dtps:``);
+    ``frame_rate`` [Hz]: the proxies' camera rate, at which a robot is driven.
     """
     text = text.strip()
     if params and text != "reality":
@@ -159,8 +188,15 @@ def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes:
     if robot_options is not None and robot_options.non_default() and not text.startswith("robot:"):
         raise TargetError(f"robot_options (--robot-cwd, --robot-transport, ...): only a robot node (robot:COMMAND) is "
                           f"started with them; the target is {text!r}")
+    if dtps_options is not None and dtps_options.non_default() and not text.startswith("dtps:"):
+        raise TargetError(f"dtps_options (--dtps-reset, --dtps-pose, ...): only a DTPS robot (dtps:HOST/PATH) is "
+                          f"driven with them; the target is {text!r}")
     if text == "reality":
         return RealityTarget(params)
+    if text.startswith("dtps:"):
+        from proxybench.targets.dtps import DtpsTarget
+
+        return DtpsTarget(text, dtps_options, frame_rate)
     if text.startswith("robot:"):
         from proxybench.targets.robot import RobotTarget
 
@@ -171,4 +207,5 @@ def open_target(text: str, *, params: dict[str, Any] | None = None, robot_nodes:
         return RobotTarget(command, robot_nodes, robot_options, frame_rate)
     if Path(text).exists():
         return RecordedTarget(text)
-    raise TargetError(f"target: {text!r} is not 'reality', 'robot:COMMAND' or an existing directory of recordings")
+    raise TargetError(f"target: {text!r} is not 'reality', 'robot:COMMAND', 'dtps:HOST[:PORT]/PATH' or an existing "
+                      "directory of recordings")

@@ -5,7 +5,7 @@ The names below load on first use (:mod:`proxybench.lazy`).
 
 from proxybench.lazy import lazy_exports
 
-__getattr__ = lazy_exports(__name__, {"Trajectory": "proxybench.tasks.trajectory",
-                                      "TrajectoryError": "proxybench.tasks.trajectory"})
+__getattr__ = lazy_exports(__name__, {n: "proxybench.tasks.trajectory" for n in ("Termination", "Trajectory",
+                                                                                 "TrajectoryError")})
 
-__all__ = ["Trajectory", "TrajectoryError"]
+__all__ = ["Termination", "Trajectory", "TrajectoryError"]

@@ -2,14 +2,16 @@
 
 An entry is a zoo agent's name, or a mapping naming an agent *node* — any program speaking the AIDO agent
 protocol — with how to start it (the fields of :class:`~proxybench.protocol.options.NodeOptions`). A
-relative ``cwd`` is taken from the benchmark file's folder, which is also the default; whether it exists
-is checked when the agent starts, so a file naming agents of another machine still loads::
+``cwd`` is a folder inside the file's folder, named relative to it (no ``..``, no absolute path or ``~``,
+no link on the way), which is also the default; whether it exists is checked when the agent starts, so a
+file naming agents of another machine still loads. (To run a node elsewhere, give it on the command line:
+``--agent NAME=COMMAND`` with ``--agent-cwd``.)::
 
     agents:
       - pid                                   # a built-in agent
       - name: my-lf                           # a label for the leaderboard
         command: cd solution && exec python3 solution.py   # as typed in a shell (shell syntax allowed)
-        cwd: ../submissions/my-lf             # relative to this benchmark file (default: its folder)
+        cwd: submissions/my-lf                # inside this file's folder (default: the folder itself)
         transport: fifo                       # pipe | fifo (AIDO's default)
         start_timeout: 60                     # s: start + handshake, and each setup message
         step_timeout: 2                       # s: each observations + get_commands exchange
@@ -31,6 +33,7 @@ from typing import Any, Literal
 from pydantic import Field, field_validator, model_validator
 
 from proxybench.protocol.options import NodeOptions
+from proxybench.untrusted import UntrustedInputError, inside
 
 __all__ = ["AgentEntry", "agent_entry_issues", "as_entry", "resolve_agent_cwd"]
 
@@ -108,11 +111,14 @@ def as_entry(value: Any) -> Any:
 
 
 def resolve_agent_cwd(entry: AgentEntry, base_dir: Path | None) -> AgentEntry:
-    """A node's ``cwd`` made absolute against the benchmark file's folder (that folder when not given)."""
+    """A node's ``cwd`` as an absolute folder inside the file's folder ``base_dir`` (that folder when not given).
+    Raises ValueError (``cwd: …``) for a path that leaves it (:func:`proxybench.untrusted.inside`)."""
     if base_dir is None or not entry.is_node:
         return entry
-    cwd = Path(entry.cwd).expanduser() if entry.cwd is not None else Path(".")
-    resolved = cwd if cwd.is_absolute() else (Path(base_dir) / cwd).resolve()
+    try:
+        resolved = inside(base_dir, entry.cwd, field="cwd") if entry.cwd is not None else Path(base_dir).resolve()
+    except UntrustedInputError as exc:
+        raise ValueError(str(exc)) from None
     return entry.model_copy(update={"cwd": str(resolved)})
 
 

@@ -33,7 +33,6 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import (
     AfterValidator,
     BaseModel,
@@ -55,6 +54,7 @@ from proxybench.tasks.aggregate import STATS
 from proxybench.tasks.metrics import METRICS
 from proxybench.tasks.npcs import NpcEntry, npc_issues, traffic_of
 from proxybench.tasks.scoring import Criterion
+from proxybench.untrusted import UntrustedInputError, inside, load_yaml_file
 
 __all__ = [
     "NAMED_DOMAINS",
@@ -74,6 +74,7 @@ NAMED_DOMAINS: dict[str, Callable[[], DomainParams]] = {"default": DomainParams,
 
 #: statistic meant by a bare metric name in ``scoring``
 DEFAULT_STAT = "mean"
+BENCHMARK_MAX_BYTES = 1 << 20
 _RATE_FIELDS = ("physics_rate", "frame_rate")
 
 
@@ -213,11 +214,17 @@ class ScoringEntry(_Strict):
 
 
 def _resolve_map(name: str, base_dir: Path | None) -> str:
-    """A built-in name stays as is; a path is made relative to the benchmark file's folder."""
+    """A built-in name stays as is; a map file is named relative to the benchmark file's folder and lies inside
+    it (no ``..``, no absolute path, no link: :func:`proxybench.untrusted.inside`)."""
     if "/" not in name and "\\" not in name and not name.endswith((".yaml", ".yml")):
         return name
-    p = Path(name).expanduser()
-    return str(base_dir / p if base_dir is not None and not p.is_absolute() else p)
+    if base_dir is None:
+        raise ValueError(f"{name!r}: this benchmark has no file, so it names built-in maps only (a map file is "
+                         "named relative to the benchmark file)")
+    try:
+        return str(inside(base_dir, name, field="map"))
+    except UntrustedInputError as exc:
+        raise ValueError(str(exc).removeprefix("map: ")) from None
 
 
 class Benchmark(_Strict):
@@ -235,6 +242,10 @@ class Benchmark(_Strict):
     scoring: list[ScoringEntry] = Field(min_length=1)
     npcs: list[NpcEntry] = Field(default_factory=list, description="NPC duckiebots and pedestrians of every episode")
     camera_only: bool = Field(False, description="refuse privileged agents (those reading the true lane pose)")
+    wall_time_factor: float = Field(
+        20.0, ge=1.0, le=1000.0, allow_inf_nan=False,
+        description="an evaluator gives a job at most this multiple of its simulated time (every episode of every "
+                    "split) in wall-clock time, plus a start-up allowance; beyond, the job ends failed")
     agents: list[AgentEntry] = Field(default_factory=list, description="agents `evaluate` runs when none are named: "
                                      "zoo names, or {name, command, cwd, transport, ...} of agent nodes")
 
@@ -247,7 +258,13 @@ class Benchmark(_Strict):
     @classmethod
     def _agent_dirs(cls, entries: list[AgentEntry], info: ValidationInfo) -> list[AgentEntry]:
         base = (info.context or {}).get("base_dir")
-        return [resolve_agent_cwd(e, base) for e in entries]
+        out = []
+        for i, e in enumerate(entries):
+            try:
+                out.append(resolve_agent_cwd(e, base))
+            except ValueError as exc:
+                raise ValueError(f"entry {i}: {exc}") from None
+        return out
 
     @field_validator("map")
     @classmethod
@@ -333,14 +350,10 @@ class Benchmark(_Strict):
             BenchmarkError: naming the file and the field path of every problem found.
         """
         path, origin = _locate(source)
-        try:
-            data = yaml.safe_load(path.read_text(encoding="utf-8"))
-        except OSError as exc:
-            raise BenchmarkError(f"{origin}: cannot read ({exc})") from exc
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            at = f":{mark.line + 1}:{mark.column + 1}" if mark is not None else ""
-            raise BenchmarkError(f"{origin}{at}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        try:  # bounded: size, nesting, UTF-8 (a folder or a binary file is an error, not a traceback)
+            data = load_yaml_file(path, max_bytes=BENCHMARK_MAX_BYTES, max_depth=32)
+        except UntrustedInputError as exc:
+            raise BenchmarkError(str(exc).replace(str(path), origin, 1)) from None
         return cls.from_dict(data, origin=origin, base_dir=path.parent)
 
     @classmethod
@@ -375,6 +388,11 @@ class Benchmark(_Strict):
         seeds = ep.seeds if ep.seeds is not None else [derive_seed(ep.seed, i) for i in range(len(ep.poses))]
         pairs = zip(ep.poses, seeds, routes, strict=True)
         return [EpisodeSpec(i, s, (float(p[0]), float(p[1]), float(p[2])), r) for i, (p, s, r) in enumerate(pairs)]
+
+    @property
+    def simulated_seconds(self) -> float:
+        """Simulated time of one split: every episode's duration."""
+        return self.episodes.n * self.duration
 
     def criteria(self) -> list[Criterion]:
         """The scoring criteria, in order, on aggregated column names (``<metric>_<stat>``)."""
@@ -411,7 +429,7 @@ def builtin_benchmark_names() -> list[str]:
 def _locate(source: str | Path) -> tuple[Path, str]:
     """(file, name to use in messages) of a path or built-in benchmark name."""
     path = Path(source)
-    if path.is_file():
+    if path.exists():  # a folder too: the loader says what is wrong with it
         return path, str(source)
     name = str(source)
     if "/" not in name and "\\" not in name:

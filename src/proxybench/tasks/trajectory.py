@@ -24,17 +24,18 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.domain.events import EPISODE_TERMINATIONS, Event, Termination
+from proxybench.domain.kinds import DomainKind
 from proxybench.domain.lane_pose import LANE_POSE_FIELDS, lane_poses
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
 from proxybench.domain.routes import RouteGraph, pin_route, route_columns
+from proxybench.messages import shown
 
-__all__ = ["TERMINATIONS", "Trajectory", "TrajectoryError"]
+__all__ = ["TERMINATIONS", "Event", "Termination", "Trajectory", "TrajectoryError"]
 
-#: why an episode ended
-#: reset: asked for by the agent (state/reset of a served DTPS robot, docs/dtps.md); ended_early: a recorded run
-#: whose samples stop before the episode's length, on the road, for a reason its file does not say
-TERMINATIONS = ("timeout", "off_road", "left_map", "collision", "agent_failure", "reset", "ended_early")
+#: why an episode ended: the endings a trajectory may record (``Termination`` less ``robot_failure``)
+TERMINATIONS = EPISODE_TERMINATIONS
 _CORE = ("t", "x", "y", "theta")
 _OPTIONAL = ("v", "omega", "pwm_left", "pwm_right")
 _LANE = ("valid", "segment", "along", "lateral", "heading_error", "left_in_lane", "right_in_lane",
@@ -52,22 +53,27 @@ class TrajectoryError(ValueError):
 @dataclass
 class Trajectory:
     """One episode: ``columns`` maps names to equal-length 1-D arrays (see ``_CORE``, ``_OPTIONAL``, lane
-    pose fields); ``meta`` holds θ, agent, map, episode spec, seed, versions and ``source``
-    ("simulation", "reality-model" or "recorded"); ``events`` are ``{t, kind, message}`` dicts.
+    pose fields); ``meta`` holds θ, agent, map, episode spec, seed, versions and ``source`` (a ``DomainKind``:
+    "simulation", "reality-model" or "recorded"; on a robot node, the node's own word); ``events`` are
+    :class:`Event` records (``{t, kind, message, ...}`` objects in the file); ``termination`` says why the
+    episode ended.
     """
 
     columns: dict[str, np.ndarray]
     meta: dict[str, Any] = field(default_factory=dict)
-    events: list[dict[str, Any]] = field(default_factory=list)
-    termination: str = "timeout"
+    events: list[Event] = field(default_factory=list)
+    termination: Termination = Termination.TIMEOUT
+
+    def __post_init__(self) -> None:
+        self.termination = _termination(self.termination, "trajectory")
 
     # -- construction ----------------------------------------------------------------------------
 
     @classmethod
     def from_poses(
         cls, m: Map, t: np.ndarray, pose: np.ndarray, *, extra: dict[str, np.ndarray] | None = None,
-        meta: dict[str, Any] | None = None, events: list[dict[str, Any]] | None = None,
-        termination: str = "timeout", wheel_distance: float = 0.102, origin: str = "trajectory",
+        meta: dict[str, Any] | None = None, events: list[Event] | None = None,
+        termination: Termination = Termination.TIMEOUT, wheel_distance: float = 0.102, origin: str = "trajectory",
     ) -> Trajectory:
         """Build from times [s] and poses (T, 3) [m, m, rad]; the lane pose is computed from the map."""
         t = np.asarray(t, dtype=np.float64)
@@ -87,8 +93,7 @@ class Trajectory:
             cols[name] = lane[:, k]
         cols["route_segment"] = route.astype(np.float64)
         cols.update(route_columns(graph, lane))
-        if termination not in TERMINATIONS:
-            raise TrajectoryError(f"{origin}: unknown termination {termination!r} (one of {TERMINATIONS})")
+        termination = _termination(termination, origin)
         meta = {"map": m.name, **(meta or {})}
         if visits:
             meta["route"] = [{"t": float(t[v.pop("sample")]), **v} for v in visits]
@@ -116,6 +121,16 @@ class Trajectory:
         """(T, LP.N) lane-pose rows, the layout the lane-pose kernel writes."""
         return np.stack([self.columns[name] for name in LANE_POSE_FIELDS], axis=1)
 
+    def event(self, kind: str) -> Event | None:
+        """The first event of ``kind`` (e.g. ``Termination.COLLISION``), or None."""
+        return next((e for e in self.events if e.kind == kind), None)
+
+    @property
+    def failure(self) -> Event | None:
+        """The agent's failure (its ``agent_failure`` event: message, reason, a node's exit status and last
+        stderr lines), or None when the agent did not fail."""
+        return self.event(Termination.AGENT_FAILURE)
+
     def pose(self) -> np.ndarray:
         return np.stack([self.columns["x"], self.columns["y"], self.columns["theta"]], axis=1)
 
@@ -128,7 +143,8 @@ class Trajectory:
 
         path = Path(path)
         table = pa.table({k: pa.array(v) for k, v in self.columns.items()})
-        block = {"meta": self.meta, "events": self.events, "termination": self.termination, "format": 1}
+        block = {"meta": self.meta, "events": [e.to_dict() for e in self.events], "termination": self.termination,
+                 "format": 1}
         table = table.replace_schema_metadata({b"proxybench": json.dumps(block, default=_jsonable).encode()})
         tmp = path.with_name(f".{path.name}.tmp")
         pq.write_table(table, tmp, compression="zstd")
@@ -153,7 +169,8 @@ class Trajectory:
         missing = [c for c in (*_CORE, *LANE_POSE_FIELDS) if c not in cols]
         if missing:
             raise TrajectoryError(f"{path}: missing column(s) {', '.join(missing)}")
-        return cls(cols, block.get("meta", {}), block.get("events", []), block.get("termination", "timeout"))
+        return cls(cols, block.get("meta", {}), _events(block.get("events", []), str(path)),
+                   _termination(block.get("termination", Termination.TIMEOUT), str(path)))
 
     @classmethod
     def from_file(cls, path: str | Path, m: Map | str, *, meta: dict[str, Any] | None = None) -> Trajectory:
@@ -178,18 +195,38 @@ class Trajectory:
         _check_samples(t, pose, str(path))
         w, h = m.size_m
         off = ~((pose[:, 0] >= 0) & (pose[:, 0] < w) & (pose[:, 1] >= 0) & (pose[:, 1] < h))
-        termination, events = "timeout", []
+        termination, events = Termination.TIMEOUT, []
         if off.any():
             k = int(np.argmax(off))
             if k == 0:
                 raise TrajectoryError(f"{path}: the first pose ({pose[0, 0]:.3f}, {pose[0, 1]:.3f}) m is off the "
                                       f"map {m.name!r} ({w:.2f} × {h:.2f} m): wrong map or frame?")
-            events.append({"t": float(t[k]), "kind": "left_map", "message": f"pose {k} is off the map"})
-            t, pose, termination = t[:k], pose[:k], "left_map"
+            events.append(Event(float(t[k]), Termination.LEFT_MAP, f"pose {k} is off the map"))
+            t, pose, termination = t[:k], pose[:k], Termination.LEFT_MAP
         extra = {k: v[: t.size] for k, v in data.items() if k in _OPTIONAL}
-        info = {"source": "recorded", "file": str(path), **(meta or {})}
+        info = {"source": DomainKind.RECORDED, "file": str(path), **(meta or {})}
         return cls.from_poses(m, t, pose, extra=extra, meta=info, events=events, termination=termination,
                               origin=str(path))
+
+
+def _termination(value: object, origin: str) -> Termination:
+    """``value`` as a trajectory's :class:`Termination`; an unknown one is an error naming ``origin``."""
+    if value not in TERMINATIONS:
+        raise TrajectoryError(f"{origin}: unknown termination {value!r} (one of {', '.join(TERMINATIONS)})")
+    return Termination(value)
+
+
+def _events(raw: object, origin: str) -> list[Event]:
+    """The events of a file's metadata block; a malformed one is an error naming ``origin`` and the event."""
+    if not isinstance(raw, list):
+        raise TrajectoryError(f"{origin}: events must be a list, got {type(raw).__name__}")
+    out = []
+    for k, data in enumerate(raw):
+        try:
+            out.append(Event.from_dict(data))
+        except ValueError as exc:
+            raise TrajectoryError(f"{origin}: event {k}: {exc}") from None
+    return out
 
 
 def _check_samples(t: np.ndarray, pose: np.ndarray, origin: str) -> None:
@@ -202,7 +239,7 @@ def _check_samples(t: np.ndarray, pose: np.ndarray, origin: str) -> None:
         raise TrajectoryError(f"{origin}: sample {bad} is not a finite number")
     if t.size > 1 and np.any(np.diff(t) <= 0):
         k = int(np.argmax(np.diff(t) <= 0)) + 1
-        raise TrajectoryError(f"{origin}: time is not increasing at sample {k} ({t[k - 1]!r} → {t[k]!r})")
+        raise TrajectoryError(f"{origin}: time is not increasing at sample {k} ({shown(t[k - 1])} → {shown(t[k])})")
 
 
 def _read_table(path: Path) -> dict[str, np.ndarray]:

@@ -7,8 +7,8 @@ A plant is where the robots of :func:`~proxybench.runner.rollout.rollout` live (
   named error, e.g. :class:`~proxybench.protocol.RobotFailure` ``start-failed``: the reason says which);
 - ``start-pose``: an episode begun at a requested start pose starts there (t = 0, within a tolerance);
 - ``stepping``: the plant runs at the frame rate asked for (``plant.frame_rate``), ``begin`` counts the
-  episode's frames, ``advance`` holds the commands and answers events as (robot, event with ``t`` and
-  ``kind``, ends it), the robots move, and ``samples`` are finite rows
+  episode's frames, ``advance`` holds the commands and answers events as (robot, an ``Event``, ends it; an
+  ending's kind is a ``Termination``), the robots move, and ``samples`` are finite rows
   t, x, y, θ, v, ω, pwm_left, pwm_right from t = 0 to the last frame's time;
 - ``observations``: camera frames are (H, W, 3) uint8 of one size; observation times advance by 1/frame_rate;
   camera agents are given no ground truth, privileged agents the true lane pose (where the plant has one);
@@ -38,6 +38,7 @@ from proxybench.domain.params import DomainParams
 from proxybench.protocol.process import NodeProcess
 from proxybench.runner.robot_episode import RobotPlant
 from proxybench.runner.rollout import Plant, PrivilegedAgentError
+from proxybench.tasks.trajectory import TERMINATIONS, Event
 from proxybench.testing.results import CheckFailed, Contract, describe_error, expect_node_failure, kill_node, release
 
 __all__ = ["PlantContract"]
@@ -254,10 +255,13 @@ class PlantContract(Contract):
                           f"(expected {expected})"
         for i, events in enumerate(ep.events):
             for k, event, final in events:
-                if not (isinstance(event, dict) and isinstance(event.get("kind"), str)
-                        and isinstance(event.get("t"), int | float) and isinstance(final, bool)):
-                    return False, f"robot {i}, frame {k}: advance() answered ({event!r}, {final!r}), not an event " \
-                                  "with 't' and 'kind' and whether it ends the episode"
+                if not (isinstance(event, Event) and isinstance(event.kind, str) and isinstance(event.t, int | float)
+                        and isinstance(final, bool)):
+                    return False, f"robot {i}, frame {k}: advance() answered ({event!r}, {final!r}), not an Event " \
+                                  "(with t and kind) and whether it ends the episode"
+                if final and event.kind not in TERMINATIONS:
+                    return False, f"robot {i}, frame {k}: an episode-ending event of kind {str(event.kind)!r}, not " \
+                                  f"a Termination ({', '.join(TERMINATIONS)})"
         for i, rows in enumerate(ep.samples):
             problem = self._samples_problem(rows, ep.frames[i])
             if problem is not None:
@@ -270,7 +274,7 @@ class PlantContract(Contract):
                 return False, f"robot {i}: meta() is {meta!r}, not a dict with 'source' and 'params'"
             if not (isinstance(ep.wheel_distance[i], int | float) and ep.wheel_distance[i] > 0):
                 return False, f"robot {i}: wheel_distance() is {ep.wheel_distance[i]!r}"
-        ended = [f"robot {i}: {events[-1][1]['kind']} at frame {ep.frames[i]}" for i, events in enumerate(ep.events)
+        ended = [f"robot {i}: {events[-1][1].kind} at frame {ep.frames[i]}" for i, events in enumerate(ep.events)
                  if events and events[-1][2]]
         return True, (f"{len(ep.samples)} robot(s) × {ep.steps} frames: finite samples from t = 0 to the last frame, "
                       "robots moving" + (f"; ended: {', '.join(ended)}" if ended else ""))

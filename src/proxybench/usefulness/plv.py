@@ -44,7 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DataCost", "PLVValue", "first_reaching", "mean_ci", "plv", "reference_score", "settled_rung"]
+__all__ = ["DataCost", "PLVValue", "first_reaching", "ladder_done", "mean_ci", "plv", "reference_score",
+           "settled_rung"]
 
 
 @dataclass(frozen=True)
@@ -143,6 +144,17 @@ def settled_rung(ns: Sequence[float], scores: Sequence[float], threshold: float,
     if above.size - 1 - k < confirm and not through_end:
         return None
     return int(x[k]) if float(x[k]).is_integer() else float(x[k])
+
+
+def ladder_done(means: Sequence[float], reference: float, confirm: int) -> bool:
+    """Whether a proxy's ladder can stop: the last ``confirm + 1`` rung means tried (the zero-shot score counting
+    as rung 0) are all at or above the reference, so "reach and stay" is decided whatever came before.
+
+    >>> ladder_done([3.0, 9.6, 9.7, 9.9], 9.5, 2), ladder_done([3.0, 9.6, 9.4, 9.9], 9.5, 2)
+    (True, False)
+    """
+    tail = list(means)[-(confirm + 1):]
+    return len(tail) == confirm + 1 and min(tail) >= reference
 
 
 def reference_score(converged: float, tolerance: float) -> float:

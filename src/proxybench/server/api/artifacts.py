@@ -7,20 +7,21 @@ renamed into the store, and one short transaction records it.
 
 from __future__ import annotations
 
+import time
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import FileResponse
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from proxybench.server.api.deps import DB, Caller, Conf, require_reader, run_write
-from proxybench.server.api.schemas import ArtifactStored
+from proxybench.server.api.schemas import MAX_ID, ArtifactStored
 from proxybench.server.artifacts import TooLarge, is_sha256
 from proxybench.server.errors import ServiceError
 from proxybench.server.limits import BODY_SCOPE_KEY, SpooledBody
-from proxybench.server.models import Artifact, ArtifactLink, Evaluator, Job, Submission, User
+from proxybench.server.models import Artifact, ArtifactLink, Evaluator, Job, LeaseArtifact, Submission, User
 
 router = APIRouter(tags=["artifacts"])
 Uploader = Annotated[User, Depends(require_reader("evaluator"))]
@@ -32,9 +33,16 @@ def _check(sha256: str) -> None:
 
 
 @router.put("/artifacts/{sha256}", status_code=201, response_model=ArtifactStored)
-async def put_artifact(sha256: str, request: Request, settings: Conf, user: Uploader) -> ArtifactStored:
-    """Store bytes whose SHA-256 is ``sha256`` (refused if they hash otherwise or exceed the size limit)."""
+async def put_artifact(sha256: str, request: Request, settings: Conf, user: Uploader,
+                       job_id: Annotated[int | None, Query(ge=1, le=MAX_ID)] = None,
+                       lease_id: Annotated[str | None, Query(max_length=64, pattern=r"^[0-9a-f]+$")] = None,
+                       ) -> ArtifactStored:
+    """Store bytes whose SHA-256 is ``sha256`` (refused if they hash otherwise or exceed the size limit), for the
+    result of the lease ``job_id`` / ``lease_id`` (held by one of the caller's evaluators): a result may list
+    only artifacts its own lease uploaded."""
     _check(sha256)
+    if (job_id is None) != (lease_id is None):
+        raise ServiceError(422, "query: give both job_id and lease_id (the lease the artifact belongs to), or neither")
     store = request.app.state.store
     body: SpooledBody | None = request.scope.get(BODY_SCOPE_KEY)
     if body is None:  # served without the front door (never in proxybench serve): read it here
@@ -59,9 +67,31 @@ async def put_artifact(sha256: str, request: Request, settings: Conf, user: Uplo
 
     def _record(session: Session) -> None:
         store.record(session, sha256, size, media, user.id)
+        if job_id is not None and lease_id is not None:
+            _record_for_lease(session, user, job_id, lease_id, sha256)
 
     await run_write(request, _record)
     return ArtifactStored(sha256=sha256, size=size)
+
+
+def _record_for_lease(session: Session, user: User, job_id: int, lease_id: str, sha256: str) -> None:
+    held = session.scalar(select(Job.id).join(Evaluator, Job.evaluator_id == Evaluator.id)
+                          .where(Job.id == job_id, Job.status == "evaluating", Job.lease_id == lease_id,
+                                 Evaluator.user_id == user.id))
+    if held is None:
+        raise ServiceError(409, f"job {job_id}: lease {lease_id[:8]}… is not held by an evaluator of {user.name!r}; "
+                                "stop working on it")
+    known = session.scalar(select(LeaseArtifact.id).where(LeaseArtifact.job_id == job_id,
+                                                          LeaseArtifact.lease_id == lease_id,
+                                                          LeaseArtifact.sha256 == sha256))
+    if known is None:
+        session.add(LeaseArtifact(job_id=job_id, lease_id=lease_id, sha256=sha256, created_at=time.time()))
+
+
+def uploaded_under(session: Session, job_id: int, lease_id: str) -> set[str]:
+    """The artifacts uploaded under this lease: the only ones its result may name."""
+    return set(session.scalars(select(LeaseArtifact.sha256).where(LeaseArtifact.job_id == job_id,
+                                                                  LeaseArtifact.lease_id == lease_id)))
 
 
 def _may_read(session: DB, user: User, sha256: str) -> bool:

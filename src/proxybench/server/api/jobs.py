@@ -14,6 +14,7 @@ from sqlalchemy.orm import Session, joinedload
 
 from proxybench.contract import Heartbeat, HeartbeatReply, Lease, LeaseRequest, ResultUpload
 from proxybench.server import clock
+from proxybench.server.api.artifacts import uploaded_under
 from proxybench.server.api.deps import DB, Caller, Conf, require, run_write
 from proxybench.server.api.schemas import (
     MAX_ID,
@@ -70,12 +71,14 @@ def _lease_job(body: LeaseRequest, session: Session, settings: Settings, user: U
         return Response(status_code=204)
     sub = job.submission
     bench = job.benchmark
+    spec = benchmark_of(bench)  # its wall-clock budget: the evaluator ends a job that runs past it
     return Lease(job_id=job.id, lease_id=job.lease_id or "", lease_seconds=settings.lease_seconds,
                  attempt=job.attempts, step=job.step, features=job.features,
                  submission={"id": sub.id, "label": sub.label, "agent": sub.agent_name,
                              "archive_sha256": sub.archive_sha256, "manifest": sub.manifest},
                  benchmark={"name": bench.name, "version": bench.version, "spec_yaml": bench.spec_yaml,
-                            "test_seed": bench.test_seed})
+                            "test_seed": bench.test_seed, "simulated_seconds": spec.simulated_seconds,
+                            "wall_time_factor": spec.wall_time_factor})
 
 
 @router.post("/jobs/{job_id}/heartbeat", response_model=HeartbeatReply)
@@ -85,8 +88,8 @@ async def job_heartbeat(job_id: JobId, body: Heartbeat, request: Request, settin
 
     def work(session: Session) -> HeartbeatReply:
         ev = _evaluator(session, user, body.evaluator)
-        job = heartbeat(session, job_id, body.lease_id, ev, settings.lease_seconds, body.progress)
-        return HeartbeatReply(job_id=job.id, lease_expires_at=job.lease_expires_at or 0.0)
+        expires = heartbeat(session, job_id, body.lease_id, ev, settings.lease_seconds, body.progress)
+        return HeartbeatReply(job_id=job_id, lease_expires_at=expires)
 
     return await run_write(request, work)
 
@@ -114,10 +117,12 @@ def _record_result(job_id: int, body: ResultUpload, request: Request, session: S
     if job is None:
         raise ServiceError(404, f"no job {job_id}")
     store = request.app.state.store
+    own = uploaded_under(session, job_id, body.lease_id) if body.artifacts else set()
     for k, ref in enumerate(body.artifacts):
-        if not store.has(ref.sha256):
-            raise ServiceError(422, f"artifacts.{k}: {ref.name!r} ({ref.sha256[:12]}…) was not uploaded; "
-                                    "PUT it to /api/v1/artifacts/{sha256} first")
+        if ref.sha256 not in own or not store.has(ref.sha256):
+            raise ServiceError(422, f"artifacts.{k}: {ref.name!r} ({ref.sha256[:12]}…) was not uploaded under this "
+                                    "lease; PUT it to /api/v1/artifacts/{sha256}?job_id=…&lease_id=… first (a "
+                                    "result names only artifacts its own lease uploaded)")
     if body.status == "success":
         _check_scores(job, body)
     result, created = finish(session, job_id, body, ev)

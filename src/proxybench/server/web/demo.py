@@ -21,6 +21,7 @@ from typing import Any
 import httpx
 import numpy as np
 
+from proxybench.domain.events import Termination
 from proxybench.server.benchmarks import parse_benchmark
 from proxybench.tasks.aggregate import aggregate, scores_by_agent
 from proxybench.tasks.benchmark import derive_seed
@@ -84,7 +85,7 @@ def demo_scores(spec_yaml: str, label: str, skill: float, seeds: list[int]) -> t
     for i, seed in enumerate(seeds):
         rng = np.random.default_rng([zlib.crc32(label.encode()), seed])
         values = _episode(rng, skill, bench.duration)
-        ended = "timeout" if values["survival_time"] >= bench.duration else "off_road"
+        ended = Termination.TIMEOUT if values["survival_time"] >= bench.duration else Termination.OFF_ROAD
         episodes.append({"episode": i, "seed": seed, "termination": ended, "duration": values["survival_time"],
                          "scores": {m: round(values[m], 4) for m in bench.metrics}, "events": [], "message": ""})
     table = [{"agent": label, "domain": "demo", "episode": e["episode"], "metric": m, "value": v}
@@ -100,9 +101,11 @@ def demo_scores(spec_yaml: str, label: str, skill: float, seeds: list[int]) -> t
                     "criteria": [c.metric for c in bench.criteria()]}
 
 
-def _upload(client: httpx.Client, token: str, data: bytes, media: str) -> str:
+def _upload(client: httpx.Client, token: str, data: bytes, media: str, job: dict[str, Any]) -> str:
+    """Upload under the job's lease (a result names only artifacts its lease uploaded)."""
     sha = hashlib.sha256(data).hexdigest()
-    _call(client, "PUT", f"/artifacts/{sha}", token, content=data, headers={"content-type": media})
+    _call(client, "PUT", f"/artifacts/{sha}", token, content=data, headers={"content-type": media},
+          params={"job_id": job["job_id"], "lease_id": job["lease_id"]})
     return sha
 
 
@@ -153,7 +156,7 @@ def _finish(client: httpx.Client, token: str, job: dict[str, Any], outcome: str,
     if outcome == "failed":  # the agent crashed in its first episode: the evaluator reports what it saw
         first = parse_benchmark(bench["spec_yaml"]).episode_specs()[0]
         _, report = demo_scores(bench["spec_yaml"], label, 0.0, [first.seed])
-        report["episodes"][0].update(termination="agent_failure", message=MESSAGES["failed"])
+        report["episodes"][0].update(termination=Termination.AGENT_FAILURE, message=MESSAGES["failed"])
         report["agent_failures"] = [{"episode": 0, "reason": "exited", "message": MESSAGES["failed"], "stderr_tail": [
             "Traceback (most recent call last):", '  File "agent.py", line 12, in on_observation',
             "    image = obs['camera']", "ValueError: observation has no 'camera'"]}]
@@ -169,13 +172,13 @@ def _finish(client: httpx.Client, token: str, job: dict[str, Any], outcome: str,
     log = (f"evaluator lab-1 (proxybench 0.1.0), job {job['job_id']} attempt {job['attempt']}\n"
            f"benchmark {bench['name']} v{bench['version']}, submission {label!r}\n"
            f"outcome: {outcome}\n{body['message']}\n").encode()
-    arts = [{"name": "evaluator.log", "sha256": _upload(client, token, log, "text/plain")}]
+    arts = [{"name": "evaluator.log", "sha256": _upload(client, token, log, "text/plain", job)}]
     if outcome == "success":
         hidden_log = b"hidden test episodes: per-episode details for operators only\n"
-        arts.append({"name": "test/episodes.log", "sha256": _upload(client, token, hidden_log, "text/plain"),
+        arts.append({"name": "test/episodes.log", "sha256": _upload(client, token, hidden_log, "text/plain", job),
                      "hidden": True})
         if video is not None and label == "vision v2":
-            arts.append({"name": "episode-0.mp4", "sha256": _upload(client, token, video, "video/mp4")})
+            arts.append({"name": "episode-0.mp4", "sha256": _upload(client, token, video, "video/mp4", job)})
     body["artifacts"] = arts
     _call(client, "POST", f"/jobs/{job['job_id']}/result", token, json=body)
 
