@@ -25,10 +25,11 @@ from proxybench.experiments.config import ExperimentConfig, default_help, load_c
 OUT_HELP = "report folder (figures, tables, report.html) and episode cache (OUT/runs)"
 
 
-def experiment_options(command: str, exclude: tuple[str, ...]):
-    """The options of :class:`ExperimentConfig` for ``command`` (its defaults worded as it settles them)."""
+def experiment_options(command: str, exclude: tuple[str, ...], defaults: dict[str, str] | None = None):
+    """The options of :class:`ExperimentConfig` for ``command`` (its defaults worded as it settles them, or as
+    ``defaults`` says)."""
     return study_options(ExperimentConfig, load=lambda path, over, _own: load_config(path, over), exclude=exclude,
-                         defaults=default_help(command),
+                         defaults=default_help(command) | (defaults or {}),
                          config_help="experiment file (YAML; every field: docs/targets.md)")
 
 
