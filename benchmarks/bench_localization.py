@@ -38,7 +38,7 @@ def record(map_name: str, seconds: float, out: Path) -> Path:
     from proxybench.runner.record import record_run
 
     layout, streams, _ = layout_streams("auto", load_map(map_name))
-    domain = DomainSpec("simulation", DomainParams(image_width=32, image_height=24).model_dump(mode="json"))
+    domain = DomainSpec("simulation", DomainParams(image_width=32, image_height=24))
     traj = record_run(domain, make_agent("pid"), map_name, 0, seconds, out, video=False, meta={"map": map_name},
                       streams=streams).trajectory
     traj.save(out / "trajectory.parquet")

@@ -63,7 +63,7 @@ def _layout(**kw) -> Layout:
 def _record(out: Path, seconds: float = 1.5, layout: Layout | None = None) -> Path:
     layout = layout or _layout()
     _, streams, _ = layout_streams_for(layout)
-    traj = record_run(DomainSpec("simulation", SMALL.model_dump(mode="json")), make_agent("pid"), "straight_road", 0,
+    traj = record_run(DomainSpec("simulation", SMALL), make_agent("pid"), "straight_road", 0,
                       seconds, out, video=False, pose=(0.6, LANE_Y, 0.0), meta={"map": "straight_road"},
                       streams=streams).trajectory
     traj.save(out / "trajectory.parquet")

@@ -227,7 +227,7 @@ def test_the_robot_hears_zero_when_the_agent_stalls_or_fails(tmp_path):
     with FakeRobot(tmp_path, START) as fake:
         with DtpsRobot(parse_address(fake.address), DtpsRobotOptions(reset="teleport"), 15.0) as robot:
             traj = run_episode_on_plant(robot.plant("loop_3x3"), _StallsThenFails(), 3, 5.0)
-            assert traj.termination == "agent_failure" and "gave up" in traj.events[-1]["message"]
+            assert traj.termination == "agent_failure" and "gave up" in traj.events[-1].message
             assert traj.meta["robot"]["watchdogs"] >= 1
             failed_at = time.time()
             # the end of the episode stops the robot at once, before the bridge is closed

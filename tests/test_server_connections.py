@@ -10,6 +10,7 @@ loopback address of its own; the latencies are printed, benchmarks/bench_soak.py
 from __future__ import annotations
 
 import asyncio
+import resource
 import socket
 import time
 
@@ -124,16 +125,19 @@ def test_idle_and_half_header_connections_are_closed_and_capped_per_address(tmp_
 
 @pytest.mark.slow
 def test_thousands_of_idle_and_half_header_sockets_do_not_stop_the_server(tmp_path) -> None:
+    if resource.getrlimit(resource.RLIMIT_NOFILE)[1] < 4096:  # the server cannot lift its limit past 1,024 here
+        pytest.skip(f"this machine's hard RLIMIT_NOFILE is {resource.getrlimit(resource.RLIMIT_NOFILE)[1]} (< 4,096)")
     data = tmp_path / "data"
     data.mkdir()
     server = LiveServer(data, workers=2, open_files=1024, env={"PROXYBENCH_SERVER_HEADER_TIMEOUT": "8"}).start()
     try:  # the traffic runs while the sockets are open (they are closed 8 s after they were accepted)
         figures = soak(server.url, server.port, server.admin_token, processes=5, per_process=500, traffic_seconds=4.0,
-                       hold=25.0)
+                       hold=40.0)  # the hold leaves a loaded CI machine 32 s past the header timeout
     finally:
         server.stop()
-    print("\n" + figures.line())
-    assert figures.sockets >= 2000, figures.floods  # more than the 1,024 files the server started with
-    assert figures.failures == [], figures.failures[:5]
-    assert len(figures.latencies["health"]) >= 5 and len(figures.latencies["leaderboard"]) >= 5
-    assert all(f["open_at_end"] == 0 for f in figures.floods), figures.floods  # all closed, within the hold
+    said = figures.line()
+    print("\n" + said)
+    assert figures.sockets >= 2000, (said, figures.floods)  # more than the 1,024 files the server started with
+    assert figures.failures == [], (said, figures.failures[:5])
+    assert len(figures.latencies["health"]) >= 5 and len(figures.latencies["leaderboard"]) >= 5, said
+    assert all(f["open_at_end"] == 0 for f in figures.floods), (said, figures.floods)  # all closed, within the hold

@@ -141,7 +141,7 @@ def run_plv_prpv(cfg: ExperimentConfig, out: str | Path, *, quick: bool = False,
     higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
     proxies = {}
     for label, theta in cands:
-        dom = DomainSpec(label, proxy_params(exp.image_size, exp.proxy, **theta).model_dump())
+        dom = DomainSpec(label, proxy_params(exp.image_size, exp.proxy, **theta))
         jobs = proxy_jobs(exp, tgt, dom)
         proxies[label] = by_agent(jobs, run_jobs(jobs, out / "runs", backend).results, exp.metrics)
     rows = [Candidate(label, theta) for label, theta in cands]

@@ -358,7 +358,7 @@ def run_target(k: int, target: Target, s: dict[str, Any], specs: list[AgentSpec]
     cands = _candidates(s)
     jobs_a, jobs_b = [], []
     for c, theta in enumerate(cands):
-        dom = DomainSpec(f"candidate {c}", proxy_params(size, **theta).model_dump())
+        dom = DomainSpec(f"candidate {c}", proxy_params(size, **theta))
         jobs_a.append(_replay_jobs(by_label, t_a, dom, metrics))
         jobs_b.append(_replay_jobs(by_label, t_b, dom, metrics))
     flat = [j for js in (*jobs_a, *jobs_b) for j in js]

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from proxybench.agents.base import Observation
+from proxybench.domain.events import Event, Termination
 from proxybench.domain.lane_pose import point_on_road
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
@@ -174,7 +175,7 @@ class DtpsPlant:
     def time(self, i: int) -> float:
         return self.k / self.frame_rate
 
-    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, dict[str, Any], bool]]:
+    def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, Event, bool]]:
         link = self.robot.link
         left, right = (float(v) for v in np.clip(commands[0], -1.0, 1.0))
         link.command(left, right)
@@ -195,8 +196,8 @@ class DtpsPlant:
         a = self._arrays
         if not point_on_road(x, y, a.tile_kind, a.curve_corner, a.tile_size):
             link.stop()
-            return [(0, {"t": t, "kind": "off_road", "message": "the robot centre left the drivable area (its "
-                                                                "reported pose)"}, True)]
+            return [(0, Event(t, Termination.OFF_ROAD, "the robot centre left the drivable area (its reported pose)"),
+                     True)]
         return []
 
     def samples(self, i: int, frames: int) -> np.ndarray:
