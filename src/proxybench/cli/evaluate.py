@@ -10,22 +10,18 @@ from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.config_options import study_options
 from proxybench.cli.node_options import (
     AGENT_CWD_HELP,
     NO_REFLECTION_HELP,
     START_TIMEOUT_HELP,
     STEP_TIMEOUT_HELP,
     TRANSPORT_HELP,
-    RobotCwd,
-    RobotNoReflection,
-    RobotStartTimeout,
-    RobotStepTimeout,
-    RobotTransport,
     node_options,
-    robot_node_options,
 )
 from proxybench.cli.options import positive
 from proxybench.cli.progress import progress_bar, status
+from proxybench.experiments.repeatability_config import RepeatabilityConfig
 
 _SCORE_METRICS = ("survival_time", "driven_lanedir_consec", "driven_any", "deviation_center_line",
                   "deviation_heading", "in_drivable_lane", "lane_score")
@@ -101,25 +97,10 @@ def _load_any(path: Path, map_name: str, Trajectory, TrajectoryError):
 
 
 @app.command()
+@study_options(RepeatabilityConfig, defaults={"designs": "the thesis' three, 1×1×9, 1×3×3, 2×1×6",
+                                              "runs": "each design's; robot nodes: 3"})
 def repeatability(
-    agent: str = typer.Option("vision", help="zoo agent"),
-    design: list[str] = typer.Option([], "--design", help="repeatability | inter-robot | inter-lab | LABSxROBOTSxRUNS "
-                                     "(repeat; default: the thesis' three, 1×1×9, 1×3×3, 2×1×6)"),
-    runs: int | None = typer.Option(None, min=2, help="runs per robot, overriding every design's"),
-    seconds: float = typer.Option(30.0, callback=positive, help="length of each run [s]"),
-    map_name: str = typer.Option("loop_3x3", "--map"),
-    seed: int = typer.Option(0, min=0),
-    placement_cm: float = typer.Option(0.5, min=0.0, help="operator's placement error across the lane, std [cm]"),
-    placement_deg: float = typer.Option(1.0, min=0.0, help="operator's placement error of the heading, std [deg]"),
-    recorded: list[Path] = typer.Option([], "--recorded", help="recorded runs instead: a LAB/ROBOT/run.csv folder "
-                                        "or run files (repeat); t, x, y, theta in the map frame"),
-    robot_cmd: list[str] = typer.Option([], "--robot-cmd", help="NAME=COMMAND of a robot node (repeat: one per "
-                                        "robot); runs --runs (default 3) per robot"),
-    robot_cwd: RobotCwd = None,
-    robot_transport: RobotTransport = None,
-    robot_start_timeout: RobotStartTimeout = None,
-    robot_step_timeout: RobotStepTimeout = None,
-    robot_no_reflection: RobotNoReflection = False,
+    cfg: RepeatabilityConfig,
     out: Path = typer.Option(Path("out/repeatability"), help="folder for the tables and the plots"),
 ) -> None:
     """MPD / MOD of one agent, thesis §5.4: one robot, robots, labs (figs. 5.8–5.10).
@@ -128,81 +109,31 @@ def repeatability(
     mean heading error [deg]; STD is the run-to-run standard deviation along the route. The target is the
     reality model (simulated stand-ins for Duckiebots) unless --recorded or --robot-cmd is given.
     """
-    from proxybench.experiments.repeatability import Design, recorded_study, repeatability_study, robot_study
+    from proxybench.experiments.repeatability import run_repeatability
+    from proxybench.experiments.reports.repeatability import design_rows, thesis_text, write_report
 
-    if recorded and robot_cmd:
-        raise typer.BadParameter("give --recorded or --robot-cmd, not both", param_hint="--recorded")
-    robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
-                                       robot_no_reflection, command=robot_cmd[0] if robot_cmd else None)
+    what, step = ("driving robot nodes", "run {k}/{t}") if cfg.robots else ("running", "{t} runs side by side")
     try:
-        if recorded:
-            res = recorded_study(recorded, map_name)
-        elif robot_cmd:
-            cmds = {}
-            for item in robot_cmd:
-                name, sep, cmd = item.partition("=")
-                if not sep or not name.strip() or not cmd.strip():
-                    raise typer.BadParameter(f"{item!r}: expected NAME=COMMAND", param_hint="--robot-cmd")
-                cmds[name.strip()] = cmd.strip()
-            with status("driving robot nodes") as spinner:
-                res = robot_study(agent, cmds, runs or 3, seconds, map_name, seed,
-                                  progress=lambda n, k, t: spinner.update(f"{n}: run {k}/{t}"), options=robot_options)
-        else:
-            designs = dict(Design.parse(d) for d in design) if design else None
-            if runs is not None:
-                from proxybench.experiments.repeatability import DESIGNS
-
-                designs = {k: Design(d.labs, d.robots, runs) for k, d in (designs or DESIGNS).items()}
-            with status("running") as spinner:
-                res = repeatability_study(agent, designs, seconds, map_name, seed,
-                                          placement=(placement_cm / 100.0, placement_deg),
-                                          progress=lambda n, k, t: spinner.update(f"{n}: {t} runs side by side"))
+        with status(what) as spinner:
+            res = run_repeatability(cfg, progress=lambda n, k, t: spinner.update(f"{n}: " + step.format(k=k, t=t)))
     except (ValueError, FileNotFoundError) as exc:
-        err_console.print(f"[red]error:[/red] {exc}", highlight=False)
+        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(2) from exc
-    _repeatability_report(res, agent, seconds, map_name, out)
-
-
-def _repeatability_report(res, agent: str, seconds: float, map_name: str, out: Path) -> None:
-    """The table (beside the thesis' figures), repeatability.json / .csv, trajectories and MPD/MOD curves."""
-    import pandas as pd
-
-    from proxybench.domain.maps import load_map
-    from proxybench.experiments.repeatability import THESIS_FIGURES
-    from proxybench.plots import plot_deviation_curves, plot_trajectories
-    from proxybench.tasks.metrics import deviation_curves
-
-    out.mkdir(parents=True, exist_ok=True)
-    table = Table(title=escape(f"repeatability of {agent} ({res.source}; {seconds:g} s runs): MPD [cm] (+ = left of "
-                               "the lane centre), MOD [deg]; STD = run-to-run"))
-    cols = ("design", "labs×robots×runs", "AVG MPD", "STD MPD", "AVG MOD", "STD MOD", "within / between STD MPD",
-            "ended early", "route (m)", "thesis (real robots): MPD ± STD, MOD ± STD")
-    for col in cols:
+    table = Table(title=escape(f"repeatability of {cfg.agent} ({res.source}; {cfg.seconds:g} s runs): MPD [cm] (+ = "
+                               "left of the lane centre), MOD [deg]; STD = run-to-run"))
+    for col in ("design", "labs×robots×runs", "AVG MPD", "STD MPD", "AVG MOD", "STD MOD", "within / between STD MPD",
+                "ended early", "route (m)", "thesis (real robots): MPD ± STD, MOD ± STD"):
         table.add_column(col, justify="left" if col == "design" else "right")
-    rows = []
-    for name, r in res.designs.items():
-        f = r.figures
-        split = (f"{f['MPD_within_std_cm']:.2f} / {f['MPD_between_std_cm']:.2f}" if "MPD_within_std_cm" in f else "–")
-        th = THESIS_FIGURES.get(name)
-        thesis = (f"{th['MPD_cm']:+.1f} ± {th['MPD_std_cm']:.1f}, {th['MOD_deg']:+.1f} ± {th['MOD_std_deg']:.1f}"
-                  if th else "–")
+    for (name, r), f in zip(res.designs.items(), design_rows(res), strict=True):
+        split = f"{f['MPD_within_std_cm']:.2f} / {f['MPD_between_std_cm']:.2f}" if "MPD_within_std_cm" in f else "–"
         table.add_row(name, r.design.label, f"{f['MPD_cm']:+.2f}", f"{f['MPD_std_cm']:.2f}", f"{f['MOD_deg']:+.2f}",
-                      f"{f['MOD_std_deg']:.2f}", split, f"{r.early}/{len(r.runs)}", f"{f['route_m']:.1f}", thesis)
-        rows.append({"design": name, "labs": r.design.labs, "robots": r.design.robots, "runs": r.design.runs,
-                     "source": res.source, "ended_early": r.early, **f})
+                      f"{f['MOD_std_deg']:.2f}", split, f"{r.early}/{len(r.runs)}", f"{f['route_m']:.1f}",
+                      thesis_text(name))
     console.print(table)
     for name, note in res.notes.items():
         console.print(f"{name}: {note}", highlight=False)
-    (out / "repeatability.json").write_text(json.dumps({"source": res.source, "agent": agent, "seconds": seconds,
-                                                        "map": map_name, "figures": res.figures, "notes": res.notes},
-                                                       indent=2))
-    pd.DataFrame(rows).to_csv(out / "repeatability.csv", index=False)
-    titles = {k: f"{k} ({r.design.label})" for k, r in res.designs.items()}
-    png = plot_trajectories(load_map(map_name), res.runs, out / "trajectories.png", titles)
-    curves = plot_deviation_curves({k: deviation_curves(r.runs) for k, r in res.designs.items()},
-                                   out / "mpd_mod.png", titles)
-    console.print(f"wrote {out / 'repeatability.json'}, {out / 'repeatability.csv'}, {png}, {curves} (+ .svg)",
-                  highlight=False)
+    files = write_report(res, cfg, out)
+    console.print(f"wrote {', '.join(map(str, files))} (+ .svg)", highlight=False)
 
 
 def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:
@@ -370,7 +301,6 @@ def _collisions(results) -> dict[str, tuple[int, int, dict[str, int]]]:
 
 
 def _print_leaderboard(ev, run_dir: Path) -> None:
-    import json
 
     from proxybench.tasks.trajectory import Termination
 

@@ -1,32 +1,36 @@
 """`proxybench plv` and `proxybench learn ...`: behaviour cloning and the proxy learning value (PLV).
 
 Everything here needs PyTorch (the ``learning`` extra); it is imported inside the commands, so the
-rest of the command line works without it.
+rest of the command line works without it (``plv``'s options come from :class:`PLVConfig`, which needs neither
+PyTorch nor the simulator).
 """
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict
 from pathlib import Path
 
 import typer
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import Progress
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
+from proxybench.cli.config_options import mode_defaults, study_options
 from proxybench.cli.options import non_negative, positive
-from proxybench.cli.progress import progress_bar
+from proxybench.cli.progress import stage_bars, stage_progress
+from proxybench.cli.studies import BackendOption, WorkersOption, run_study
+from proxybench.cli.usefulness import experiment_options
+from proxybench.experiments.config import ExperimentConfig
+from proxybench.experiments.plv_config import PLVConfig
 
 learn_app = typer.Typer(no_args_is_help=True, help="Behaviour cloning: datasets, training, fine-tuning, evaluation.")
 app.add_typer(learn_app, name="learn")
 
 
 def _bars() -> Progress:
-    return progress_bar(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                        TimeRemainingColumn(), console=console, transient=True)
+    return stage_bars(elapsed=True)
 
 
 def _fail(msg: str, code: int = 2) -> typer.Exit:
@@ -34,17 +38,24 @@ def _fail(msg: str, code: int = 2) -> typer.Exit:
     return typer.Exit(code)
 
 
+def _load_plv(path: Path | None, overrides: dict, own: dict) -> PLVConfig:
+    """The file and the options over ``PLVConfig()``, or with ``--quick`` over ``PLVConfig.quick()``."""
+    base = PLVConfig.quick() if own["quick"] else PLVConfig()
+    return PLVConfig.load(path, overrides, base=base.to_dict())
+
+
+def _plv_defaults() -> dict[str, str]:
+    full, quick = PLVConfig(), PLVConfig.quick()
+    return mode_defaults(full.to_dict(), quick.to_dict()) | {"seeds": f"{len(full.seeds)}; --quick {len(quick.seeds)}"}
+
+
 @app.command()
+@study_options(PLVConfig, load=_load_plv, defaults=_plv_defaults(),
+               config_help="YAML or JSON file of PLVConfig fields (sections: train: {max_steps: 100}, eval, ...)")
 def plv(
+    cfg: PLVConfig,
     quick: bool = typer.Option(False, "--quick", help="40×30 frames, short ladder, 3 seeds (minutes)"),
     out: Path = typer.Option(Path("out/plv"), help="report folder (figure, tables, report.html) and cache"),
-    config: Path | None = typer.Option(None, help="JSON file overriding PLVConfig fields (nested: train, eval, ...)"),
-    dagger: bool = typer.Option(False, "--dagger", help="spend half of every rung on on-policy (DAgger) samples"),
-    eta_on: float = typer.Option(1.0, callback=positive, help="cost of one on-policy target sample (generalised PLV)"),
-    eta_off: float = typer.Option(1.0, callback=positive, help="cost of one off-policy target sample"),
-    target: str | None = typer.Option(None, help="reality (default) or robot:COMMAND: a robot node whose true lane "
-                                      "pose the expert reads; target samples are collected and networks scored on it"),
-    seeds: int | None = typer.Option(None, min=2, max=1000, help="training seeds per arm (default: 15; --quick 3)"),
 ) -> None:
     """How many target samples does pre-training on a proxy save a behaviour-cloning agent? (Table 3.1, Fig. 3.6)
 
@@ -53,23 +64,14 @@ def plv(
     fitted learning curves (a continuous crossing of P) with bootstrap intervals over seeds; the ladder rule is
     shown beside it. Work is cached in OUT/cache, so an interrupted run resumes.
     """
-    from proxybench.cli.usefulness import _stage_progress
-    from proxybench.experiments.plv import PLVConfig, run_plv
+    from proxybench.experiments.plv import run_plv
     from proxybench.experiments.reports.plv import findings, summarize, table_rows, write_report
     from proxybench.protocol import RobotFailure
 
-    cfg = PLVConfig.quick() if quick else PLVConfig()
-    try:
-        extra = json.loads(config.read_text()) if config else {}
-        extra |= {"eta_on": eta_on, "eta_off": eta_off} | ({"use_dagger": True} if dagger else {})
-        extra |= ({"target": target} if target else {}) | ({"seeds": list(range(seeds))} if seeds else {})
-        cfg = PLVConfig.from_dict(extra, cfg)
-    except (OSError, ValueError, TypeError) as exc:
-        raise _fail(f"{config}: {exc}") from exc
     t0 = time.perf_counter()
     with _bars() as bar:
         try:
-            res = run_plv(cfg, out, _stage_progress(bar))
+            res = run_plv(cfg, out, stage_progress(bar))
         except (RuntimeError, RobotFailure) as exc:  # a robot node that fails or serves no lane pose
             raise _fail(f"{cfg.target}: {exc}") from exc
     files = write_report(res, out)
@@ -192,19 +194,14 @@ def learn_evaluate(
 
 
 @app.command("plv-vs-prpv")
+@experiment_options("predictivity", exclude=("search", "plan", "pod_seconds", "truth", "dtps_options"),
+                    defaults={"sweep": "camera_pitch=12,19.15,26 (one parameter changed at a time)"})
 def plv_vs_prpv(
+    cfg: ExperimentConfig,
     quick: bool = typer.Option(False, "--quick", help="the quick predictivity defaults and PLVConfig.quick()"),
-    config: Path | None = typer.Option(None, "--config", help="experiment file (YAML; `plv:` sets PLV fields)"),
-    target: str | None = typer.Option(None, help="reality (default) or robot:COMMAND (a live target for both)"),
-    agent: list[str] = typer.Option([], "--agent", help="agents ranked for PRPV (repeat; default: the zoo's 12)"),
-    episodes: int | None = typer.Option(None, min=1, help="target episodes per agent for PRPV"),
-    seconds: float | None = typer.Option(None, callback=positive, help="episode length for PRPV [s]"),
-    sweep: list[str] = typer.Option([], "--sweep", help="candidate θ, NAME=V1,V2,… (repeat; one parameter changed "
-                                    "at a time; default camera_pitch=12,19.15,26)"),
-    seed: int | None = typer.Option(None, min=0, help="experiment seed (default: 0)"),
     out: Path = typer.Option(Path("out/plv-vs-prpv"), help="folder for choice.json/.csv/.png and the caches"),
-    backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
-    workers: int | None = typer.Option(None, min=1, help="parallel workers (default: one per core)"),
+    backend: BackendOption = "local",
+    workers: WorkersOption = None,
 ) -> None:
     """Do the two uses of a simulator pick the same θ? argmin PRPV (predict) and argmax PLV (teach) on one target.
 
@@ -212,27 +209,19 @@ def plv_vs_prpv(
     lowest, and PLV of a network pre-trained on it (fitted curves) with its interval; then both picks and their
     tied sets (docs/learning.md). Work is cached in OUT, so an interrupted run resumes.
     """
-    from proxybench.cli.usefulness import _load, _overrides, _stage_progress, _sweep
     from proxybench.experiments.optimize_plv import torch_available
     from proxybench.experiments.plv_prpv import run_plv_prpv
     from proxybench.experiments.reports.plv_prpv import table_rows, write_choice
     from proxybench.protocol import RobotFailure
-    from proxybench.runner.backends import make_backend
-    from proxybench.targets.manifest import TargetError
 
     if not torch_available():
         raise _fail("PLV needs PyTorch: pip install -e '.[learning]'")
-    cfg = _load(config, _overrides(target=target, agents=agent, episodes=episodes, seconds=seconds,
-                                   sweep=_sweep(sweep), seed=seed))
-    be = make_backend(backend, workers)
     t0 = time.perf_counter()
-    with _bars() as bar:
-        try:
-            res = run_plv_prpv(cfg, out, quick=quick, backend=be, progress=_stage_progress(bar))
-        except (TargetError, ValueError, RuntimeError, RobotFailure) as exc:
-            raise _fail(str(exc)) from exc
-        finally:
-            be.close()
+    try:
+        res = run_study(backend, workers, lambda be, progress: run_plv_prpv(cfg, out, quick=quick, backend=be,
+                                                                           progress=progress))
+    except (RuntimeError, RobotFailure) as exc:
+        raise _fail(str(exc)) from exc
     wall = time.perf_counter() - t0
     files = write_choice(res, out, wall)
     rows = table_rows(res)

@@ -22,17 +22,27 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
 from rich.console import Console
-from rich.progress import BarColumn, Progress, ProgressColumn, SpinnerColumn, TaskID
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    ProgressColumn,
+    SpinnerColumn,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.text import Text
 
 from proxybench.cli.app import console as _stdout
 
-__all__ = ["PlainProgress", "PlainStatus", "progress_bar", "status"]
+__all__ = ["PlainProgress", "PlainStatus", "progress_bar", "stage_bars", "stage_progress", "status"]
 
 
 def _interval() -> float:
@@ -96,6 +106,25 @@ def progress_bar(*columns: str | ProgressColumn, console: Console | None = None,
     if out.is_terminal:
         return Progress(*columns, console=out, **kwargs)
     return PlainProgress(*columns, console=out, **kwargs)
+
+
+def stage_bars(elapsed: bool = False) -> Progress:
+    """Bars for a study's stages (one per stage, added as the stage starts; see :func:`stage_progress`)."""
+    columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+               *([TimeElapsedColumn()] if elapsed else []), TimeRemainingColumn()]
+    return progress_bar(*columns, transient=True)
+
+
+def stage_progress(bar: Progress) -> Callable[[str, int, int], None]:
+    """A study's ``progress(stage, done, total)`` callback drawing on ``bar``: a bar per stage."""
+    tasks: dict[str, TaskID] = {}
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if stage not in tasks:
+            tasks[stage] = bar.add_task(stage, total=total)
+        bar.update(tasks[stage], completed=done, total=total)
+
+    return progress
 
 
 class PlainStatus:

@@ -69,7 +69,8 @@ def record(
     the missing episodes are recorded. Robot episodes run one after another (a DTPS robot's in real time,
     each started by --dtps-reset: an operator prompt by default).
     """
-    from proxybench.cli.usefulness import _image_size, _kv
+    from proxybench.cli.config_options import image_size as parse_size
+    from proxybench.cli.config_options import key_values
     from proxybench.experiments.agent_args import AgentArgError, parse_agents
     from proxybench.runner.backends import make_backend
     from proxybench.targets.manifest import TargetError
@@ -87,12 +88,12 @@ def record(
         from proxybench.dtps.robot_options import DtpsRobotOptions
 
         text = f"robot:{robot_cmd}" if robot_cmd else f"dtps:{dtps}" if dtps else "reality"
-        target = open_target(text, params=_kv(target_param, "--target-param") or None, robot_nodes=robot_nodes,
+        target = open_target(text, params=key_values(target_param, "--target-param") or None, robot_nodes=robot_nodes,
                              robot_options=robot_options, dtps_options=DtpsRobotOptions(**dtps_given))
         specs = parse_agents(agent, out / ".agents")
     except (TargetError, AgentArgError, ValueError) as exc:
         _fail(str(exc))
-    size = _image_size(image_size)
+    size = parse_size(image_size)
     assert size is not None
     streams = on_streams = None
     if watchtowers is not None:

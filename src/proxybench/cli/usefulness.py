@@ -1,163 +1,46 @@
 """`proxybench predictivity` and `proxybench optimize`: how well simulators predict a target, and the best θ.
 
-Both take the same experiment options (``--config FILE`` for all of them at once; a command-line option
-beats the file, the file beats the command's default) and any target: ``--target reality`` (default),
-``--target DIR`` (a recorded target), ``--target "robot:CMD"`` (a robot node) or ``--target dtps:HOST/PATH`` (a
-DTPS robot: a Duckiebot or a Duckiematrix robot).
+Both take the experiment's options, generated from :class:`~proxybench.experiments.config.ExperimentConfig`
+(``--config FILE`` for all of them at once; a command-line option beats the file, the file beats the
+command's default), and any target: ``--target reality`` (default), ``--target DIR`` (a recorded target)
+or ``--target "robot:CMD"`` (a robot node).
 """
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any
 
 import typer
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from proxybench.cli.app import app, console, err_console, fail
-from proxybench.cli.dtps_options import DtpsKind, DtpsOption, DtpsReset, dtps_option_values
-from proxybench.cli.node_options import (
-    RobotCwd,
-    RobotNoReflection,
-    RobotStartTimeout,
-    RobotStepTimeout,
-    RobotTransport,
-    robot_option_values,
-)
-from proxybench.cli.options import non_negative, positive
-from proxybench.cli.progress import progress_bar
+from proxybench.cli.app import app, console, err_console
+from proxybench.cli.config_options import fail, study_options
+from proxybench.cli.progress import progress_bar, stage_bars, stage_progress
+from proxybench.cli.studies import BackendOption, WorkersOption, run_study
+from proxybench.experiments.config import ExperimentConfig, default_help, load_config
 
-_TARGET_HELP = ("reality (the simulated reality model) | DIR (recorded target) | robot:CMD (a robot node) | "
-                "dtps:HOST[:PORT]/PATH (a DTPS robot)")
-_AGENT_HELP = ("zoo name, NAME=COMMAND (node), NAME=sdk:COMMAND (duckietown-sdk program), checkpoint X.pt, or agent "
-               "package .zip/.tar.gz (repeat)")
+OUT_HELP = "report folder (figures, tables, report.html) and episode cache (OUT/runs)"
 
 
-def _kv(items: list[str], option: str) -> dict[str, Any]:
-    """``k=v`` items, values read as YAML (numbers, booleans, lists)."""
-    import yaml
-
-    from proxybench.untrusted import UntrustedInputError, load_yaml
-
-    out = {}
-    for item in items:
-        key, sep, raw = item.partition("=")
-        if not sep or not key.strip():
-            raise typer.BadParameter(f"{item!r} is not NAME=VALUE", param_hint=option)
-        try:
-            out[key.strip()] = load_yaml(raw, max_depth=8)
-        except (yaml.YAMLError, UntrustedInputError) as exc:
-            raise typer.BadParameter(f"{item!r}: the value is not YAML ({exc})", param_hint=option) from None
-    return out
-
-
-def _sweep(items: list[str]) -> dict[str, list[float]]:
-    out = {}
-    for item in items:
-        name, sep, raw = item.partition("=")
-        try:
-            if not sep:
-                raise ValueError
-            out[name.strip()] = [float(v) for v in raw.split(",") if v.strip()]
-        except ValueError:
-            raise typer.BadParameter(f"{item!r}: expected NAME=V1,V2,…, e.g. trim=-0.2,0,0.2",
-                                     param_hint="--sweep") from None
-    return out
-
-
-def _space(items: list[str]) -> dict[str, tuple[float, float]]:
-    space = {}
-    for item in items:
-        try:
-            name, rng = item.split("=", 1)
-            lo, hi = (float(v) for v in rng.split(":"))
-        except ValueError as exc:
-            raise typer.BadParameter(f"{item!r}: expected NAME=LOW:HIGH, e.g. trim=-0.3:0.3",
-                                     param_hint="--param") from exc
-        space[name.strip()] = (lo, hi)
-    return space
-
-
-def _image_size(text: str | None) -> list[int] | None:
-    if text is None:
-        return None
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise typer.BadParameter(f"{text!r}: expected WIDTHxHEIGHT, e.g. 160x120", param_hint="--image-size") from None
-    return [w, h]
-
-
-def _overrides(**given: Any) -> dict[str, Any]:
-    """The options given on the command line (None and empty lists: not given)."""
-    return {k: v for k, v in given.items() if v is not None and v != [] and v != {}}
-
-
-def _load(config: Path | None, overrides: dict[str, Any]):
-    from proxybench.experiments.config import ConfigError, load_config
-
-    try:
-        return load_config(config, overrides)
-    except ConfigError as exc:
-        _fail(exc)
-
-
-def _fail(exc: Exception) -> None:
-    raise fail(exc)
-
-
-def _bars():
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-    return progress_bar(*columns, console=console, transient=True)
-
-
-def _stage_progress(bar):
-    tasks: dict[str, int] = {}
-
-    def progress(stage: str, done: int, total: int) -> None:
-        if stage not in tasks:
-            tasks[stage] = bar.add_task(stage, total=total)
-        bar.update(tasks[stage], completed=done, total=total)
-
-    return progress
+def experiment_options(command: str, exclude: tuple[str, ...], defaults: dict[str, str] | None = None):
+    """The options of :class:`ExperimentConfig` for ``command`` (its defaults worded as it settles them, or as
+    ``defaults`` says)."""
+    return study_options(ExperimentConfig, load=lambda path, over, _own: load_config(path, over), exclude=exclude,
+                         defaults=default_help(command) | (defaults or {}),
+                         config_help="experiment file (YAML; every field: docs/targets.md)")
 
 
 @app.command()
+@experiment_options("predictivity", exclude=("search", "plan", "plv"))
 def predictivity(
+    cfg: ExperimentConfig,
     quick: bool = typer.Option(False, "--quick", help="12 agents × 3 episodes × 20 s (a minute or two)"),
-    config: Path | None = typer.Option(None, "--config", help="experiment file (YAML; see docs/targets.md)"),
-    target: str | None = typer.Option(None, help=f"{_TARGET_HELP} (default: reality)"),
-    target_param: list[str] = typer.Option([], "--target-param", help="reality model θ, k=v (repeat)"),
-    robot_nodes: int | None = typer.Option(None, min=1, help="robot node processes at once (default: 1)"),
-    robot_cwd: RobotCwd = None,
-    robot_transport: RobotTransport = None,
-    robot_start_timeout: RobotStartTimeout = None,
-    robot_step_timeout: RobotStepTimeout = None,
-    robot_no_reflection: RobotNoReflection = False,
-    dtps_reset: DtpsReset = None,
-    dtps_kind: DtpsKind = None,
-    dtps_option: DtpsOption = [],  # noqa: B006 (typer reads the default, never mutates it)
-    agent: list[str] = typer.Option([], "--agent", help=f"{_AGENT_HELP} (default: the target's, else the zoo set)"),
-    map_name: str | None = typer.Option(None, "--map", help="map (default: the target's, else loop_3x3)"),
-    episodes: int | None = typer.Option(None, min=1, help="episodes per agent (default: 10; --quick 3)"),
-    seconds: float | None = typer.Option(None, callback=positive, help="episode length in s (default: 60; --quick 20)"),
-    metric: list[str] = typer.Option([], "--metric", help="task metric (repeat) (default: driven_lanedir_consec, "
-                                     "survival_time)"),
-    image_size: str | None = typer.Option(None, help="camera WIDTHxHEIGHT (default: 160x120)"),
-    proxy_param: list[str] = typer.Option([], "--proxy-param", help="θ every proxy has, k=v (repeat)"),
-    sweep: list[str] = typer.Option([], "--sweep", help="NAME=V1,V2,… (repeat) (default: trim ±0.3 in 7 steps, "
-                                    "delay, blur, pitch around the nominal calibration)"),
-    n_boot: int | None = typer.Option(None, min=10, help="bootstrap resamples (default: 300; --quick 100)"),
-    pod_seconds: float | None = typer.Option(None, callback=non_negative,
-                                             help="POD rollout in s, 0: none (default: 10; --quick 4)"),
-    seed: int | None = typer.Option(None, min=0, help="experiment seed (default: 0)"),
-    truth: list[str] = typer.Option([], "--truth", help="target's known θ k=v, only marked on plots (repeat)"),
-    out: Path = typer.Option(Path("out/predictivity"), help="report folder (figures, tables, report.html)"),
-    backend: str = typer.Option("local", help="inline | local (process pool) | ray"),
-    workers: int | None = typer.Option(None, min=1, help="parallel workers (default: one per core)"),
+    out: Path = typer.Option(Path("out/predictivity"), help=OUT_HELP),
+    backend: BackendOption = "local",
+    workers: WorkersOption = None,
 ) -> None:
     """Rank agents on a target and on swept simulator instances; PRPV, PPV, SRCC, POD beside the target's noise floor.
 
@@ -166,27 +49,10 @@ def predictivity(
     """
     from proxybench.experiments.predictivity import run_predictivity
     from proxybench.experiments.reports.predictivity import findings, write_report
-    from proxybench.runner.backends import make_backend
-    from proxybench.targets.manifest import TargetError
 
-    over = _overrides(target=target, target_params=_kv(target_param, "--target-param"), robot_nodes=robot_nodes,
-                      robot_options=robot_option_values(robot_cwd, robot_transport, robot_start_timeout,
-                                                        robot_step_timeout, robot_no_reflection),
-                      dtps_options=dtps_option_values(dtps_reset, dtps_kind, dtps_option),
-                      agents=agent, map=map_name,
-                      episodes=episodes, seconds=seconds, metrics=metric, image_size=_image_size(image_size),
-                      proxy=_kv(proxy_param, "--proxy-param"), sweep=_sweep(sweep), n_boot=n_boot,
-                      pod_seconds=pod_seconds, seed=seed, truth=_kv(truth, "--truth"))
-    cfg = _load(config, over)
-    be = make_backend(backend, workers)
     t0 = time.perf_counter()
-    with _bars() as bar:
-        try:
-            res = run_predictivity(cfg, out / "runs", be, _stage_progress(bar), quick=quick)
-        except (TargetError, ValueError) as exc:
-            _fail(exc)
-        finally:
-            be.close()
+    res = run_study(backend, workers, lambda be, progress: run_predictivity(cfg, out / "runs", be, progress,
+                                                                            quick=quick))
     wall = time.perf_counter() - t0
     files = write_report(res, out, wall)
     console.print(f"[bold]target:[/bold] {res.target.info.statement}", highlight=False)
@@ -227,47 +93,14 @@ def _print_table(res, wall: float) -> None:
 
 
 @app.command()
+@experiment_options("optimize", exclude=("sweep", "pod_seconds", "plan"))
 def optimize(
+    cfg: ExperimentConfig,
     quick: bool = typer.Option(False, "--quick", help="8 agents × 2 episodes × 12 s, at most 20 trials (plv: "
                                "PLVConfig.quick(), 4 trials)"),
-    config: Path | None = typer.Option(None, "--config", help="experiment file (YAML; see docs/targets.md)"),
-    target: str | None = typer.Option(None, help=f"{_TARGET_HELP} (default: reality)"),
-    target_param: list[str] = typer.Option([], "--target-param", help="reality model θ, k=v (repeat)"),
-    robot_nodes: int | None = typer.Option(None, min=1, help="robot node processes at once (default: 1)"),
-    robot_cwd: RobotCwd = None,
-    robot_transport: RobotTransport = None,
-    robot_start_timeout: RobotStartTimeout = None,
-    robot_step_timeout: RobotStepTimeout = None,
-    robot_no_reflection: RobotNoReflection = False,
-    dtps_reset: DtpsReset = None,
-    dtps_kind: DtpsKind = None,
-    dtps_option: DtpsOption = [],  # noqa: B006 (typer reads the default, never mutates it)
-    agent: list[str] = typer.Option([], "--agent", help=f"{_AGENT_HELP} (default: the target's, else 12 zoo agents)"),
-    map_name: str | None = typer.Option(None, "--map", help="map (default: the target's, else loop_3x3)"),
-    episodes: int | None = typer.Option(None, min=1, help="episodes per agent (default: 4; --quick 2)"),
-    seconds: float | None = typer.Option(None, callback=positive, help="episode length in s (default: 20; --quick 12)"),
-    metric: list[str] = typer.Option([], "--metric", help="task metric (repeat) (default: driven_lanedir_consec, "
-                                     "survival_time)"),
-    image_size: str | None = typer.Option(None, help="camera WIDTHxHEIGHT (default: 160x120)"),
-    proxy_param: list[str] = typer.Option([], "--proxy-param", help="θ every proxy has, k=v (repeat)"),
-    param: list[str] = typer.Option([], "--param", help="a parameter to search, NAME=LOW:HIGH (repeat) "
-                                    "(default: trim=-0.3:0.3, camera_pitch=12:26)"),
-    objective: str | None = typer.Option(None, help="prpv (the thesis' θ* = argmin PRPV) | ppv | mix "
-                                         "(PRPV/K(K−1) + PPV/m) | plv (argmax PLV, eq. 3.6.2: trains a "
-                                         "behaviour-cloning agent per trial; needs the learning extra) "
-                                         "(default: prpv)"),
-    family: bool = typer.Option(False, "--family", help="objective plv: search families p(θ) (a uniform range "
-                                "per parameter) instead of instances θ"),
-    trials: int | None = typer.Option(None, min=1, help="(default: 60; --quick 20; plv: 12, --quick 4)"),
-    sampler: str | None = typer.Option(None, help="tpe | gp | random (default: tpe)"),
-    storage: str | None = typer.Option(None, help="SQLite file or SQLAlchemy URL (PostgreSQL to share a study)"),
-    study_name: str | None = typer.Option(None, help="(default: proxybench-proxy)"),
-    n_boot: int | None = typer.Option(None, min=10, help="resamples for the noise floor (default: 300)"),
-    seed: int | None = typer.Option(None, min=0, help="experiment and sampler seed (default: 0)"),
-    truth: list[str] = typer.Option([], "--truth", help="target's known θ k=v, printed beside the result only"),
     out: Path = typer.Option(Path("out/optimize"), help="folder for plots, trials table and episode cache"),
-    backend: str = typer.Option("local", help="inline | local | ray"),
-    workers: int | None = typer.Option(None, min=1),
+    backend: BackendOption = "local",
+    workers: WorkersOption = None,
 ) -> None:
     """Find the simulator parameters θ* whose agent ranking best matches the target's (Optuna).
 
@@ -276,23 +109,10 @@ def optimize(
     With --objective plv: the proxy (θ, or with --family p(θ)) that saves a learning agent the most target
     samples, against the reality model; PLV settings in the experiment file's `plv:` (docs/learning.md).
     """
-    import json
-
-    from proxybench.experiments.optimize import optimize_proxy, plot_optimization
+    from proxybench.experiments.optimize import optimize_proxy, write_optimization
     from proxybench.runner.backends import make_backend
     from proxybench.targets.manifest import TargetError
 
-    search = _overrides(space=_space(param) or None, objective=objective, trials=trials, sampler=sampler,
-                        storage=storage, study_name=study_name, family=family or None)
-    over = _overrides(target=target, target_params=_kv(target_param, "--target-param"), robot_nodes=robot_nodes,
-                      robot_options=robot_option_values(robot_cwd, robot_transport, robot_start_timeout,
-                                                        robot_step_timeout, robot_no_reflection),
-                      dtps_options=dtps_option_values(dtps_reset, dtps_kind, dtps_option),
-                      agents=agent, map=map_name,
-                      episodes=episodes, seconds=seconds, metrics=metric, image_size=_image_size(image_size),
-                      proxy=_kv(proxy_param, "--proxy-param"), search=search or None, n_boot=n_boot, seed=seed,
-                      truth=_kv(truth, "--truth"))
-    cfg = _load(config, over)
     if cfg.search.objective == "plv":
         _optimize_plv(cfg, out, quick)
         return
@@ -318,21 +138,11 @@ def optimize(
         try:
             res = optimize_proxy(cfg, out / "runs", be, progress, quick=quick, target_progress=on_target)
         except (TargetError, ValueError) as exc:
-            _fail(exc)
+            fail(exc)
         finally:
             be.close()
     wall = time.perf_counter() - t0
-    paths = plot_optimization(res, out)
-    summary = {"target": res.target.statement if res.target else None, "recovered": res.recovered,
-               "best_params": res.best_params, "best_value": res.best_value, "truth": res.truth,
-               "noise_floor_prpv": [res.noise_floor.value, res.noise_floor.low, res.noise_floor.high]
-               if res.noise_floor else None, "wall_s": round(wall, 1),
-               "tied": None if res.tied is None else {"trials": list(res.tied.trials), "separated": res.tied.separated,
-                                                      "spread": {k: dict(zip(("median", "min", "max"), v, strict=True))
-                                                                 for k, v in res.tied.spread.items()}},
-               "experiment": res.experiment.to_dict() if res.experiment else None}
-    (out / "trials.json").write_text(json.dumps(res.trials, indent=1))
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    paths = write_optimization(res, out, wall)
     exp = res.experiment
     assert exp is not None and res.target is not None
     console.print(f"[bold]target:[/bold] {res.target.statement}", highlight=False)
@@ -358,21 +168,14 @@ def optimize(
     console.print(f"residual (best objective, the gap no θ in this family closed): {res.best_value:.4f}; its PRPV "
                   f"{best.get('prpv', float('nan')):.1f} against the target's noise floor "
                   f"{nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}]" if nf else "", highlight=False)
-    console.print(f"wrote {', '.join(str(p) for p in paths)}, {out / 'trials.json'}, {out / 'summary.json'}",
-                  highlight=False)
+    console.print(f"wrote {', '.join(str(p) for p in paths)}", highlight=False)
 
 
-def _optimize_plv(cfg, out: Path, quick: bool) -> None:
+def _optimize_plv(cfg: ExperimentConfig, out: Path, quick: bool) -> None:
     """`optimize --objective plv`: argmax PLV over the search space, its table, plot, trials and summary."""
-    import json
-
     from proxybench.experiments.config import ConfigError
-    from proxybench.experiments.optimize_plv import (
-        plot_plv_search,
-        plv_search_settings,
-        run_plv_search,
-        torch_available,
-    )
+    from proxybench.experiments.optimize_plv import plv_search_settings, run_plv_search, torch_available
+    from proxybench.experiments.optimize_plv import write_plv_search as write
 
     if not torch_available():
         err_console.print("[red]✗[/red] --objective plv trains a behaviour-cloning network and needs PyTorch, the "
@@ -381,21 +184,19 @@ def _optimize_plv(cfg, out: Path, quick: bool) -> None:
     try:
         plv_cfg, _search, ignored = plv_search_settings(cfg, quick=quick)
     except ConfigError as exc:
-        _fail(exc)
+        fail(exc)
     if ignored:
         err_console.print(f"[yellow]![/yellow] not used by --objective plv (it trains its own agent on its own frames "
                           f"and episodes): {', '.join(ignored)}", highlight=False)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    with _bars() as bar:
+    with stage_bars() as bar:
         try:
-            res = run_plv_search(cfg, out, _stage_progress(bar), quick=quick)
+            res = run_plv_search(cfg, out, stage_progress(bar), quick=quick)
         except (ConfigError, ValueError) as exc:
-            _fail(exc)
+            fail(exc)
     wall = time.perf_counter() - t0
-    paths = plot_plv_search(res, out)
-    (out / "trials.json").write_text(json.dumps(res.trials, indent=1, default=str))
-    (out / "summary.json").write_text(json.dumps({**res.summary(), "wall_s": round(wall, 1)}, indent=1, default=str))
+    paths = write(res, out, wall)
     console.print("[bold]target:[/bold] the reality model, a SIMULATED stand-in for a real Duckiebot (PLV needs target "
                   "samples and evaluation episodes in the target as the agent trains)", highlight=False)
     what = "families p(θ)" if res.family else "instances θ"
@@ -430,5 +231,4 @@ def _optimize_plv(cfg, out: Path, quick: bool) -> None:
         console.print(f"• highest PLV: trial {b['number']} ({theta}), PLV {b['plv_ci']}; its interval overlaps "
                       "other trials': the seeds cannot tell them apart (more seeds: plv: {seeds: [...]})",
                       highlight=False, markup=False)
-    console.print(f"wrote {', '.join(str(p) for p in paths)} (+ .svg), {out / 'trials.json'}, {out / 'summary.json'}",
-                  highlight=False, markup=False)
+    console.print(f"wrote {', '.join(str(p) for p in paths)} (+ .svg)", highlight=False, markup=False)

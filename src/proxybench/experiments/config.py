@@ -1,48 +1,13 @@
 """One experiment file for ``proxybench predictivity``, ``optimize`` and ``plan`` (``--config FILE``).
 
-Every field is optional and has a command-line option; what neither gives takes the command's default
-(shown by ``--help``). Unknown keys and bad values are errors naming the field. Relative working
-directories in the file are taken from its folder; ``NAME=COMMAND`` strings run where proxybench runs::
-
-    target: reality              # reality | DIR (a recorded target) | robot:COMMAND | dtps:HOST[:PORT]/PATH
-    target_params: {}            # the reality model's θ, overridden (reality only)
-    robot_nodes: 1               # processes of a robot node at once (robot:CMD only; 1 for a physical robot)
-    robot_options:               # how to start and talk to the robot node (robot:CMD only; all optional)
-      cwd: my-bridge             # working directory of the command, inside this file's folder
-      transport: fifo            # pipe | fifo (AIDO's default)
-      start_timeout: 120         # s: start + handshake, and each episode's setup
-      step_timeout: 10           # s: each per-frame exchange
-      reflection: false          # skip describe_protocol
-    dtps_options:                # how to drive a DTPS robot (dtps:HOST[:PORT]/PATH only; all optional; docs/dtps.md)
-      reset: prompt              # prompt | teleport | pose-file (then start_poses: FILE, relative to this file)
-      kind: real                 # what you say the robot is: real | simulated (proxybench cannot tell)
-      pose: state/pose           # or /PATH on pose_url (a localisation system)
-    agents: [pid, vision, my-agent=python3 agent.py, models/bc.pt, my-agent.zip]
-    # or, as in benchmark files, an agent node with how to start it (tasks/agent_entries.py):
-    #   - name: my-lf                # its label
-    #     command: cd solution && exec python3 solution.py
-    #     cwd: submissions/my-lf     # inside this file's folder (default: the folder itself)
-    #     transport: fifo            # pipe | fifo; also start_timeout, step_timeout, reflection
-    map: loop_3x3                # default: the recorded target's map, else loop_3x3
-    episodes: 10                 # per agent; a recorded target: how many of its episodes (default all)
-    seconds: 60                  # episode length; a recorded target fixes it
-    metrics: [driven_lanedir_consec, survival_time]
-    image_size: [160, 120]
-    proxy: {}                    # θ every proxy has, on top of the nominal calibration
-    sweep:                       # predictivity: values per parameter
-      trim: [-0.3, -0.2, -0.1, 0.0, 0.1, 0.2, 0.3]
-      camera_pitch: [15, 19.15, 23]
-    search:                      # optimize
-      space: {trim: [-0.3, 0.3], camera_pitch: [12, 26]}
-      objective: prpv            # prpv (θ* = argmin PRPV, the thesis) | ppv | mix | plv (argmax PLV, eq. 3.6.2)
-      trials: 60
-      sampler: tpe               # tpe | gp | random (plv: tpe | random)
-      family: false              # plv only: search families p(θ) (a uniform range per parameter), not instances
-    plv: {}                      # objective plv: PLV settings (PLVConfig fields, e.g. ladder, seeds, train: {...})
-    n_boot: 300
-    pod_seconds: 10
-    seed: 0
-    truth: {}                    # the target's known θ, to mark on plots only (never used by a sweep or search)
+:class:`ExperimentConfig` is that file; every field is optional and is also a command-line option, generated
+from the field (its docstring is its ``--help``), with sections flattened: ``search`` (optimize: ``--param``,
+``--trials``, …), ``plan`` (``--width``, ``--budget``, …), ``robot_options`` (``--robot-cwd``, …). What neither
+the command line nor the file gives takes the command's default (:data:`COMMAND_DEFAULTS`, worded for
+``--help`` by :func:`default_help`); a recorded target's map, length, agents and episodes come before it.
+Unknown keys and bad values are errors naming the field and file. Relative working directories in the file
+are taken from its folder; ``NAME=COMMAND`` strings run where proxybench runs. docs/targets.md shows the
+file with every field (tests/test_config_options.py holds it to this model).
 """
 
 from __future__ import annotations
@@ -52,17 +17,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from proxybench.dtps.robot_options import DtpsRobotOptions
 from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP, proxy_params
+from proxybench.experiments.study import Cli, ConfigError, StudyConfig
 from proxybench.protocol.options import RobotNodeOptions
-from proxybench.targets.manifest import TargetError, format_errors
 from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
-from proxybench.untrusted import UntrustedInputError, inside, load_yaml_file, problems
+from proxybench.untrusted import problems
 
-__all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "SearchConfig", "load_config",
-           "resolve"]
+__all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "PlanConfig", "SearchConfig",
+           "default_help", "load_config", "param_name", "resolve"]
 
 FULL_AGENTS = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
                "pure-pursuit-fast", "vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",
@@ -82,19 +47,39 @@ COMMAND_DEFAULTS: dict[tuple[str, bool], dict[str, Any]] = {
                           "pod_seconds": 0.0, "trials": 60},
     ("optimize", True): {"agents": QUICK_AGENTS[:8], "episodes": 2, "seconds": 12.0, "n_boot": 100,
                          "pod_seconds": 0.0, "trials": 20},
-    # plan: ``episodes`` is the pilot's size per agent
+    # plan: ``episodes`` is the pilot's size per agent; ``reps`` and ``budget`` are plan's own
     ("plan", False): {"agents": QUICK_AGENTS, "episodes": 3, "seconds": 20.0, "n_boot": 300,
-                      "pod_seconds": 0.0, "trials": 0},
+                      "pod_seconds": 0.0, "trials": 0, "reps": 400, "budget": 20},
     ("plan", True): {"agents": QUICK_AGENTS[:6], "episodes": 3, "seconds": 8.0, "n_boot": 100,
-                     "pod_seconds": 0.0, "trials": 0},
+                     "pod_seconds": 0.0, "trials": 0, "reps": 150, "budget": 4},
 }
 
 
-class ConfigError(TargetError):
-    """An experiment that cannot run as given; the message names the field (and file) at fault."""
+def default_help(command: str) -> dict[str, str]:
+    """How ``--help`` words the defaults that are settled only when the command runs (by ``--quick`` and by
+    the target: a recorded target fixes the map and episode length and offers its agents and episodes)."""
+    full, quick = COMMAND_DEFAULTS[(command, False)], COMMAND_DEFAULTS[(command, True)]
+
+    def both(key: str, fmt=lambda v: f"{v:g}") -> str:
+        return f"{fmt(full[key])}; --quick {fmt(quick[key])}"
+
+    def agents(v: tuple[str, ...]) -> str:
+        return f"{len(v)} zoo agents"
+
+    recorded = "a recorded target's (it fixes it), else "
+    out = {"agents": f"the target's, else {both('agents', agents)}",
+           "map": recorded + "loop_3x3", "episodes": f"a recorded target's (all of them), else {both('episodes')}",
+           "seconds": recorded + both("seconds"), "n_boot": both("n_boot"), "pod_seconds": both("pod_seconds"),
+           "search.trials": f"{both('trials')}; objective plv: 12, --quick 4",
+           "search.study_name": "proxybench-proxy; objective plv: proxybench-plv"}
+    if command == "plan":
+        out |= {"plan.reps": both("reps"), "plan.budget": both("budget"), "sweep": "none (no candidates)",
+                "episodes": f"a recorded target's (all of them), else {both('episodes')}; at least 2"}
+    return out
 
 
-def _param_name(name: str) -> str:
+def param_name(name: str) -> str:
+    """``name`` if it is a domain parameter, else a ValueError with the likely meant one."""
     from proxybench.domain.params import DomainParams, unknown_parameter
 
     if name not in DomainParams.model_fields:
@@ -102,20 +87,25 @@ def _param_name(name: str) -> str:
     return name
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class SearchConfig(_Strict):
+class SearchConfig(StudyConfig):
     """What ``optimize`` searches and how."""
 
-    space: dict[str, tuple[float, float]] = Field(default_factory=lambda: dict(DEFAULT_SEARCH))
+    space: Annotated[dict[str, tuple[float, float]], Cli("--param", metavar="NAME=LOW:HIGH", sep=":")] = Field(
+        default_factory=lambda: dict(DEFAULT_SEARCH))
+    """a parameter to search and its range"""
     objective: Literal["prpv", "ppv", "mix", "plv"] = "prpv"
+    """prpv (the thesis' θ* = argmin PRPV) | ppv | mix (PRPV/K(K−1) + PPV/m) | plv (argmax PLV, eq. 3.6.2: trains a
+    behaviour-cloning agent per trial; needs the learning extra)"""
     trials: int | None = Field(None, ge=1, le=100_000)
+    """trials of the search"""
     sampler: Literal["tpe", "gp", "random"] = "tpe"
+    """Optuna's sampler (objective plv: tpe or random)"""
     storage: str | None = None
-    study_name: str = "proxybench-proxy"  # objective plv: "proxybench-plv" unless given
-    family: bool = False  # objective plv: each trial proposes a family p(θ), a uniform range per parameter
+    """SQLite file or SQLAlchemy URL of the study (PostgreSQL to share it); resumes a stored study"""
+    study_name: str = "proxybench-proxy"
+    """name of the study in the storage (objective plv: proxybench-plv unless given)"""
+    family: bool = False
+    """objective plv: search families p(θ) (a uniform range per parameter) instead of instances θ"""
 
     @model_validator(mode="after")
     def _family_is_plv(self) -> SearchConfig:
@@ -129,34 +119,93 @@ class SearchConfig(_Strict):
         if not v:
             raise ValueError("give at least one parameter to search")
         for name, (lo, hi) in v.items():
-            _param_name(name)
+            param_name(name)
             if not lo < hi:
                 raise ValueError(f"{name} needs low < high, got [{lo}, {hi}]")
         return v
 
 
-class ExperimentConfig(_Strict):
+class PlanConfig(StudyConfig):
+    """What ``plan`` aims for, and the budget of ``plan --sequential``."""
+
+    width: float | None = Field(None, ge=0.0, allow_inf_nan=False)
+    """PRPV order-range width to reach"""
+    p_correct: float | None = Field(None, gt=0.0, lt=1.0)
+    """probability of picking the pilot's best candidate θ to reach (with candidates: --sweep)"""
+    confidence: float = Field(0.8, gt=0.0, lt=1.0)
+    """probability of reaching the width"""
+    power: float = Field(0.8, gt=0.0, lt=1.0)
+    """probability of settling a pair (per-pair needs)"""
+    tolerance: Annotated[dict[str, float], Cli("--tolerance", default="AIDO's semiorder tolerances scaled to the "
+                                               "episode length")] = Field(default_factory=dict)
+    """ε of a metric: pairs within it are ties (NAME=0: strict order)"""
+    range_level: Annotated[float, Cli("--range")] = Field(0.8, gt=0.0, lt=1.0)
+    """central share of the pilot's posterior that the episode ranges span"""
+    pilot_as_truth: bool = False
+    """take the pilot's means and spreads as the truth (the former planner; ranges then collapse to points)"""
+    max_episodes: int = Field(320, ge=2, le=100_000)
+    """largest n per agent considered"""
+    reps: int | None = Field(None, ge=20, le=100_000)
+    """simulated experiments per n"""
+    sequential: bool = False
+    """then run more target episodes where they settle most (live targets)"""
+    budget: int | None = Field(None, ge=1, le=100_000)
+    """target episodes the sequential allocation may run"""
+    batch: int = Field(2, ge=1, le=1000)
+    """episodes per round of the sequential allocation (e.g. the workers)"""
+
+
+class ExperimentConfig(StudyConfig):
     """The experiment file (see the module docstring); ``None`` means the command's default."""
 
     target: str = "reality"
-    target_params: dict[str, Any] = Field(default_factory=dict)
+    """reality (the simulated reality model) | DIR (a recorded target) | robot:CMD (a robot node) |
+    dtps:HOST[:PORT]/PATH (a DTPS robot)"""
+    target_params: Annotated[dict[str, Any], Cli("--target-param")] = Field(default_factory=dict)
+    """the reality model's θ, overridden (reality only)"""
     robot_nodes: int = Field(1, ge=1, le=64)
-    robot_options: RobotNodeOptions | None = None
-    dtps_options: DtpsRobotOptions | None = None
-    agents: list[str | AgentEntry] | None = Field(None, min_length=1)
+    """processes of a robot node at once (robot:CMD only; 1 for a physical robot)"""
+    robot_options: Annotated[RobotNodeOptions | None, Cli(prefix="robot-")] = None
+    """how to start and talk to the robot node (robot:CMD only)"""
+    dtps_options: Annotated[DtpsRobotOptions | None, Cli("--dtps-option", metavar="KEY=VALUE", prefix="dtps-")] = None
+    """how to drive a DTPS robot (dtps:HOST[:PORT]/PATH only; docs/dtps.md)"""
+    agents: Annotated[list[str | AgentEntry] | None, Cli("--agent", metavar="AGENT")] = Field(None, min_length=1)
+    """zoo name, NAME=COMMAND (node), NAME=sdk:COMMAND (duckietown-sdk program), checkpoint X.pt, or agent package
+    .zip/.tar.gz"""
     map: str | None = None
+    """map name or file"""
     episodes: int | None = Field(None, ge=1, le=10_000)
+    """episodes per agent (a recorded target: how many of its episodes)"""
     seconds: float | None = Field(None, gt=0.0, le=3600.0)
-    metrics: tuple[str, ...] = ("driven_lanedir_consec", "survival_time")
-    image_size: tuple[int, int] = (160, 120)
-    proxy: dict[str, Any] = Field(default_factory=dict)
+    """episode length [s]"""
+    metrics: Annotated[tuple[str, ...], Cli("--metric")] = ("driven_lanedir_consec", "survival_time")
+    """task metric"""
+    image_size: Annotated[tuple[int, int], Cli(metavar="WIDTHxHEIGHT", sep="x")] = (160, 120)
+    """camera image [px]"""
+    proxy: Annotated[dict[str, Any], Cli("--proxy-param")] = Field(default_factory=dict)
+    """θ every proxy has, on top of the nominal calibration"""
     sweep: dict[str, tuple[float, ...]] = Field(default_factory=lambda: dict(DEFAULT_SWEEP))
-    search: SearchConfig = Field(default_factory=SearchConfig)
+    """predictivity: values of a parameter to sweep (plan: candidate θ to pick among)"""
+    search: Annotated[SearchConfig, Cli(prefix="")] = Field(default_factory=SearchConfig)
+    """optimize: what to search and how"""
+    plan: Annotated[PlanConfig, Cli(prefix="")] = Field(default_factory=PlanConfig)
+    """plan: what to aim for, and the sequential budget"""
     n_boot: int | None = Field(None, ge=10, le=100_000)
+    """bootstrap resamples (intervals, noise floor)"""
     pod_seconds: float | None = Field(None, ge=0.0, le=600.0)
+    """POD rollout [s], 0: none"""
     seed: int = Field(0, ge=0, le=100_000)
+    """experiment seed (episodes, resampling, sampler)"""
     truth: dict[str, Annotated[float, Field(allow_inf_nan=False)]] = Field(default_factory=dict)
-    plv: dict[str, Any] = Field(default_factory=dict)  # PLVConfig fields for objective plv, checked when used
+    """the target's known θ, marked on plots and printed beside results only (never used by a sweep or search)"""
+    plv: dict[str, Any] = Field(default_factory=dict)
+    """objective plv: PLV settings (PLVConfig fields, e.g. ladder, seeds, train: {...}), checked when used"""
+
+    @classmethod
+    def prepare(cls, data: dict[str, Any], folder: Path | None) -> dict[str, Any]:
+        """The robot's working directory and the DTPS robot's files: a file's inside its ``folder``, the command
+        line's from where the command runs."""
+        return robot_cwd_from(data, folder, DTPS_FILES)
 
     @model_validator(mode="before")
     @classmethod
@@ -205,7 +254,7 @@ class ExperimentConfig(_Strict):
         if not v:
             raise ValueError("give at least one parameter to sweep")
         for name, values in v.items():
-            _param_name(name)
+            param_name(name)
             if not values:
                 raise ValueError(f"{name}: give at least one value")
             if len(set(values)) != len(values):
@@ -216,7 +265,7 @@ class ExperimentConfig(_Strict):
     @classmethod
     def _truth(cls, v: dict[str, float]) -> dict[str, float]:
         for name in v:
-            _param_name(name)
+            param_name(name)
         return v
 
     @field_validator("image_size")
@@ -235,6 +284,31 @@ class ExperimentConfig(_Strict):
         return self
 
 
+#: the files a DTPS robot's options name (a section's keys that are paths)
+DTPS_FILES = ("start_poses", "reset_input")
+
+
+def robot_cwd_from(data: dict[str, Any], folder: Path | None, dtps_files: tuple[str, ...] = ()) -> dict[str, Any]:
+    """``data`` with ``robot_options.cwd`` (and the DTPS robot's ``dtps_files``) resolved: a file's paths inside its
+    ``folder`` (:func:`proxybench.untrusted.inside`), the command line's (``folder`` None) from where the command
+    runs; a working directory must be a folder."""
+    from proxybench.untrusted import inside
+
+    for section, keys in (("robot_options", ("cwd",)), ("dtps_options", dtps_files)):
+        options = data.get(section)
+        for key in keys:
+            value = options.get(key) if isinstance(options, dict) else None
+            if not isinstance(value, str) or not value:
+                continue
+            path = inside(folder, value, field=f"{section}.{key}") if folder is not None else \
+                Path(value).expanduser().resolve()
+            if key == "cwd" and not path.is_dir():
+                raise ConfigError(f"{section}.{key}: {value!r} is not a directory")
+            options = {**options, key: str(path)}
+            data = {**data, section: options}
+    return data
+
+
 def _entry_problem(err: Any) -> str:
     """``.field: message`` of one error of an agent entry (an unknown key with its likely meaning)."""
     loc = "".join(f".{p}" for p in err["loc"])
@@ -248,46 +322,11 @@ def _entry_problem(err: Any) -> str:
     return f"{loc}: {msg}"
 
 
-def _robot_cwd_from(data: dict[str, Any], base: Path) -> dict[str, Any]:
-    """The file's ``robot_options.cwd`` and ``dtps_options``' files: each inside the file's folder ``base``, named
-    relative to it."""
-    for section, keys in (("robot_options", ("cwd",)), ("dtps_options", ("start_poses", "reset_input"))):
-        options = data.get(section)
-        for key in keys:
-            value = options.get(key) if isinstance(options, dict) else None
-            if isinstance(value, str) and value:
-                options = {**options, key: str(inside(base, value, field=f"{section}.{key}"))}
-                data = {**data, section: options}
-    return data
-
-
 def load_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> ExperimentConfig:
     """The experiment file at ``path`` (or none), with ``overrides`` (the command line) on top."""
-    data: dict[str, Any] = {}
-    origin = "command line"
-    if path is not None:
-        path = Path(path)
-        origin = str(path)
-        try:  # bounded: size, nesting, UTF-8 (a folder or a binary file is an error, not a traceback)
-            loaded = load_yaml_file(path, max_bytes=1 << 20, max_depth=32)
-        except UntrustedInputError as exc:
-            raise ConfigError(str(exc)) from None
-        if loaded is not None and not isinstance(loaded, dict):
-            raise ConfigError(f"{path}: expected a mapping of fields, got {type(loaded).__name__}")
-        try:
-            data = _robot_cwd_from(loaded or {}, path.parent)
-        except UntrustedInputError as exc:
-            raise ConfigError(f"{path}: {exc}") from None
     over = dict(overrides or {})
-    for section in ("search", "robot_options", "dtps_options"):  # a command-line option changes one field of the file's
-        if section in over:
-            data[section] = {**(data.get(section) or {}), **over.pop(section)}
-    data.update(over)
     context = {"base_dir": Path(path).parent.resolve()} if path is not None and "agents" not in over else None
-    try:
-        return ExperimentConfig.model_validate(data, context=context)
-    except ValidationError as exc:
-        raise ConfigError(format_errors(exc, origin, ExperimentConfig)) from None
+    return ExperimentConfig.load(path, over, context=context)
 
 
 @dataclass

@@ -9,8 +9,9 @@ the expert must label afterwards), which is why the generalised PLV weighs them 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
+from proxybench.experiments.plv_config import DaggerConfig
 from proxybench.learning.agent import torch_policy
 from proxybench.learning.dataset import Dataset
 from proxybench.learning.domains import Domain
@@ -20,20 +21,6 @@ from proxybench.runner.collect import CollectConfig, collect
 from proxybench.runner.plants import PlantPool
 
 __all__ = ["DaggerConfig", "dagger"]
-
-
-@dataclass(frozen=True)
-class DaggerConfig:
-    """``rounds`` of on-policy collection; in round r the expert's command is executed with probability
-    ``beta · beta_decay^r`` (β = 0: the learner always drives)."""
-
-    rounds: int = 2
-    beta: float = 0.0
-    beta_decay: float = 0.5
-
-    def __post_init__(self) -> None:
-        if self.rounds < 1:
-            raise ValueError(f"DAgger needs at least one round, got {self.rounds}")
 
 
 def dagger(

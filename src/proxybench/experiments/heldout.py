@@ -32,129 +32,20 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from proxybench.experiments.config import ConfigError, _param_name
+from proxybench.experiments.config import ConfigError
+from proxybench.experiments.heldout_config import DEFAULTS, Criteria, HeldOutConfig, load_heldout_config
 from proxybench.experiments.proxies import proxy_params
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.spec import Target, TargetRun
-from proxybench.tasks.metrics import METRICS as TASK_METRICS
-from proxybench.untrusted import UntrustedInputError, load_yaml_file
 from proxybench.usefulness.heldout_scoring import Grid
 
 __all__ = ["Case", "CaseRun", "Criteria", "HeldOutConfig", "HeldOutRun", "cases_for", "load_heldout_config",
            "run_heldout", "write_criteria"]
 
 Progress = Callable[[str, int, int], None]
-
-_FULL_AGENTS = ("straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
-                "vision", "vision-fast", "vision-slow", "vision-pitch25", "vision-twitchy")
-_QUICK_AGENTS = ("straight", "pid", "pid-twitchy", "pure-pursuit", "vision", "vision-fast", "vision-pitch25",
-                 "vision-slow")
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class Criteria(_Strict):
-    """When a metric's pick counts as a hit; fixed before anything runs.
-
-    ``reference``: ``order`` (the best available θ, see heldout_scoring) or ``truth`` (the grid θ nearest the
-    hidden truth); ``tolerance_steps``: how many grid steps (along any axis) the pick may be from it.
-    ``primary`` is the one the report's verdicts use; every combination is tabled.
-    """
-
-    primary_reference: str = Field("order", pattern="^(order|truth)$")
-    primary_tolerance_steps: int = Field(1, ge=0, le=10)
-    tolerances: tuple[int, ...] = (0, 1)
-    level: float = Field(0.95, gt=0.5, lt=1.0)
-
-
-class HeldOutConfig(_Strict):
-    """The experiment file of ``proxybench heldout`` (every field has a default; ``--quick`` smaller ones)."""
-
-    targets: int | None = Field(None, ge=1, le=1000)
-    family_seed: int = Field(20_250, ge=0, description="seed of the held-out family: only the targets read it")
-    negative_case: bool = True
-    agents: list[str] | None = Field(None, min_length=2)
-    map: str = "loop_3x3"
-    episodes: int | None = Field(None, ge=1, le=1000)
-    reference_episodes: int | None = Field(None, ge=2, le=1000)
-    seconds: float | None = Field(None, gt=0.0, le=3600.0)
-    tasks: dict[str, tuple[str, ...]] = Field(default_factory=lambda: {
-        "distance+lane_score": ("driven_lanedir_consec", "lane_score"),
-        "distance+survival (thesis)": ("driven_lanedir_consec", "survival_time")})
-    primary_task: str = "distance+lane_score"
-    grid: dict[str, tuple[float, ...]] | None = None
-    image_size: tuple[int, int] = (160, 120)
-    criteria: Criteria = Field(default_factory=Criteria)
-    n_boot: int | None = Field(None, ge=10, le=100_000)
-    agent_boot: int = Field(200, ge=10, le=100_000)
-    reference_boot: int = Field(50, ge=0, le=10_000)
-    seed: int = Field(0, ge=0, le=100_000)
-
-    @field_validator("tasks")
-    @classmethod
-    def _tasks(cls, v: dict[str, tuple[str, ...]]) -> dict[str, tuple[str, ...]]:
-        if not v:
-            raise ValueError("give at least one task")
-        for name, metrics in v.items():
-            for m in metrics:
-                if m not in TASK_METRICS:
-                    raise ValueError(f"task {name!r}: unknown metric {m!r}; known: {', '.join(TASK_METRICS)}")
-            if not metrics or len(set(metrics)) != len(metrics):
-                raise ValueError(f"task {name!r}: give distinct metrics")
-        return v
-
-    @field_validator("grid")
-    @classmethod
-    def _grid(cls, v: dict[str, tuple[float, ...]] | None) -> dict[str, tuple[float, ...]] | None:
-        for name, values in (v or {}).items():
-            _param_name(name)
-            if len(values) < 2 or len(set(values)) != len(values):
-                raise ValueError(f"grid {name}: give at least two distinct values")
-        return v
-
-
-#: defaults per mode: (targets, agents, episodes, reference episodes, seconds, grid, bootstrap)
-DEFAULTS: dict[bool, dict[str, Any]] = {
-    False: {"targets": 12, "agents": _FULL_AGENTS, "episodes": 3, "reference_episodes": 8, "seconds": 20.0,
-            "grid": {"trim": (-0.2, -0.1, 0.0, 0.1, 0.2), "camera_pitch": (15.15, 17.15, 19.15, 21.15, 23.15)},
-            "n_boot": 100},
-    True: {"targets": 3, "agents": _QUICK_AGENTS, "episodes": 2, "reference_episodes": 4, "seconds": 12.0,
-           "grid": {"trim": (-0.2, 0.0, 0.2), "camera_pitch": (15.15, 19.15, 23.15)}, "n_boot": 50},
-}
-
-
-def load_heldout_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> HeldOutConfig:
-    """The experiment file at ``path`` (or none) with ``overrides`` on top; errors name the field."""
-
-    from proxybench.targets.manifest import format_errors
-
-    data: dict[str, Any] = {}
-    origin = "command line"
-    if path is not None:
-        origin = str(path)
-        try:  # bounded: size, nesting, UTF-8 (a folder or a binary file is an error, not a traceback)
-            loaded = load_yaml_file(path, max_bytes=1 << 20, max_depth=32)
-        except UntrustedInputError as exc:
-            raise ConfigError(str(exc)) from None
-        if loaded is not None and not isinstance(loaded, dict):
-            raise ConfigError(f"{path}: expected a mapping of fields, got {type(loaded).__name__}")
-        data = loaded or {}
-    data.update(overrides or {})
-    try:
-        cfg = HeldOutConfig.model_validate(data)
-    except ValidationError as exc:
-        raise ConfigError(format_errors(exc, origin, HeldOutConfig)) from None
-    if cfg.primary_task not in cfg.tasks:
-        raise ConfigError(f"{origin}: primary_task: {cfg.primary_task!r} is not one of the tasks "
-                          f"({', '.join(cfg.tasks)})")
-    return cfg
-
 
 @dataclass
 class Case:

@@ -36,7 +36,8 @@ from proxybench.tasks.metrics import METRICS
 from proxybench.usefulness.metrics import Estimate, PairedResults, dominance, ppv_value, prpv_value
 from proxybench.usefulness.noise import compare_paired, noise_floor, paired_prpv_samples
 
-__all__ = ["OBJECTIVES", "OptimizeResult", "TiedSet", "optimize_proxy", "plot_optimization", "tied_set"]
+__all__ = ["OBJECTIVES", "OptimizeResult", "TiedSet", "optimize_proxy", "plot_optimization", "tied_set",
+           "write_optimization"]
 
 
 @dataclass(frozen=True)
@@ -273,3 +274,22 @@ def plot_optimization(res: OptimizeResult, out: str | Path) -> list[Path]:
         fig.savefig(paths[-1].with_suffix(".svg"))
         plt.close(fig)
     return paths
+
+
+def write_optimization(res: OptimizeResult, out: str | Path, wall_s: float) -> list[Path]:
+    """The plots, ``trials.json`` and ``summary.json`` (θ*, the recovered θ beside the truth, the noise floor)."""
+    import json
+
+    out = Path(out)
+    paths = plot_optimization(res, out)
+    nf = res.noise_floor
+    summary = {"target": res.target.statement if res.target else None, "recovered": res.recovered,
+               "best_params": res.best_params, "best_value": res.best_value, "truth": res.truth,
+               "noise_floor_prpv": [nf.value, nf.low, nf.high] if nf else None, "wall_s": round(wall_s, 1),
+               "tied": None if res.tied is None else {"trials": list(res.tied.trials), "separated": res.tied.separated,
+                                                      "spread": {k: dict(zip(("median", "min", "max"), v, strict=True))
+                                                                 for k, v in res.tied.spread.items()}},
+               "experiment": res.experiment.to_dict() if res.experiment else None}
+    (out / "trials.json").write_text(json.dumps(res.trials, indent=1))
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    return [*paths, out / "trials.json", out / "summary.json"]

@@ -29,7 +29,7 @@ from proxybench.experiments.config import ConfigError, ExperimentConfig
 from proxybench.experiments.proxies import param_label
 
 __all__ = ["PLV_TRIALS", "PLVOptimizeResult", "plot_plv_search", "plv_search_settings", "run_plv_search",
-           "torch_available"]
+           "torch_available", "write_plv_search"]
 
 #: trials of the PLV search when the experiment does not say (full, --quick): each costs a pre-training per
 #: seed and a few fine-tuning runs
@@ -220,3 +220,13 @@ def plot_plv_search(res: PLVOptimizeResult, out: str | Path) -> list[Path]:
     fig.savefig(path.with_suffix(".svg"))
     plt.close(fig)
     return [path]
+
+
+def write_plv_search(res: PLVOptimizeResult, out: str | Path, wall_s: float) -> list[Path]:
+    """The plot, ``trials.json`` and ``summary.json`` of a PLV search."""
+    out = Path(out)
+    paths = plot_plv_search(res, out)
+    (out / "trials.json").write_text(json.dumps(res.trials, indent=1, default=str))
+    (out / "summary.json").write_text(json.dumps({**res.summary(), "wall_s": round(wall_s, 1)}, indent=1,
+                                                 default=str))
+    return [*paths, out / "trials.json", out / "summary.json"]

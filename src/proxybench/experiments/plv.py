@@ -26,129 +26,25 @@ import hashlib
 import json
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from proxybench.experiments.dagger import DaggerConfig, dagger
+from proxybench.experiments.dagger import dagger
+from proxybench.experiments.plv_config import THESIS_PROXIES, PLVConfig
 from proxybench.learning.dataset import Dataset
 from proxybench.learning.domains import Domain, parse_domain
-from proxybench.learning.model import ModelConfig, configure_threads, default_device
+from proxybench.learning.model import configure_threads, default_device
 from proxybench.learning.training import TrainConfig, build_model, save_checkpoint, train
-from proxybench.runner.collect import CollectConfig, collect
+from proxybench.runner.collect import collect
 from proxybench.runner.plants import PlantPool
-from proxybench.runner.policy_eval import EvalConfig, evaluate_expert, evaluate_policy
-from proxybench.usefulness.plv import DataCost, ladder_done
+from proxybench.runner.policy_eval import evaluate_expert, evaluate_policy
+from proxybench.usefulness.plv import ladder_done
 
 __all__ = ["THESIS_PROXIES", "PLVConfig", "PLVResult", "Workspace", "fitted_reference", "proxy_arm", "run_plv",
            "target_arm", "target_domain", "target_label"]
-
-#: the thesis' proxies (camera pitch 3°, 19°, 35°) and a domain-randomised family
-THESIS_PROXIES: dict[str, str] = {
-    "pitch 3°": "proxy:camera_pitch=3",
-    "pitch 19°": "proxy:camera_pitch=19",
-    "pitch 35°": "proxy:camera_pitch=35",
-    "randomized": "randomized",
-}
-_CACHE_FORMAT = 2  # 2: one pre-training per seed
-_NESTED = {"model": ModelConfig, "train": TrainConfig, "pretrain": TrainConfig, "finetune": TrainConfig,
-           "collect": CollectConfig, "eval": EvalConfig, "dagger": DaggerConfig}
-
-
-@dataclass
-class PLVConfig:
-    """Every knob of the experiment; ``quick()`` is the few-minutes version for tests and first tries."""
-
-    width: int = 64
-    height: int = 48
-    # target samples (cost units with DAgger): the thesis' 250 … 9,000, plus 50 and 100 to resolve small needs
-    ladder: tuple[int, ...] = (50, 100, 250, 500, 1000, 2000, 4000, 9000)
-    # seeds: target-data subset, initialisation and minibatch order; for a proxy, also its pre-training. 15: the
-    # fitted curves' bootstrap intervals hold the true PLV in about 9 of 10 simulated experiments (docs/learning.md)
-    seeds: tuple[int, ...] = tuple(range(15))
-    proxies: dict[str, str] = field(default_factory=lambda: dict(THESIS_PROXIES))
-    proxy_samples: int = 20_000
-    tolerance: float = 0.05  # reach the converged target-only score less 5 % of it, and stay there
-    confirm: int = 2  # rungs after the first one at or above P that must stay above it (the ladder's end counts)
-    stop_when_reached: bool = True  # stop a proxy's ladder once it has settled above P (else run it all)
-    replicates: int = 4000  # bootstrap replicates over seeds for the intervals
-    model: ModelConfig = field(default_factory=ModelConfig)
-    # target-only, from scratch: 10 epochs, at least 100 and at most 1,000 steps of 64 (fits 45 min on 2 cores)
-    train: TrainConfig = field(default_factory=lambda: TrainConfig(epochs=10.0, min_steps=100, max_steps=1000))
-    pretrain: TrainConfig = field(default_factory=lambda: TrainConfig(epochs=3.0, min_steps=100, max_steps=1000))
-    finetune: TrainConfig = field(default_factory=lambda: TrainConfig(epochs=10.0, min_steps=100, max_steps=1000,
-                                                                      lr=3e-4))
-    collect: CollectConfig = field(default_factory=lambda: CollectConfig(samples=1))  # samples set per use
-    eval: EvalConfig = field(default_factory=lambda: EvalConfig(episodes=10, seconds=30.0))
-    use_dagger: bool = False  # spend on_fraction of each rung on on-policy (DAgger) target samples
-    on_fraction: float = 0.5
-    dagger: DaggerConfig = field(default_factory=DaggerConfig)
-    eta_on: float = 1.0  # cost of one on-policy target sample
-    eta_off: float = 1.0  # cost of one off-policy (expert-driven) target sample
-    seed: int = 0
-    # the target: "reality" (the reality model) or "robot:COMMAND" (a robot node: target samples are collected on
-    # it, the expert reading the true lane pose it serves, and every network is scored on it)
-    target: str = "reality"
-
-    def __post_init__(self) -> None:
-        self.model = replace(self.model, width=self.width, height=self.height)
-        if sorted(self.ladder) != list(self.ladder) or not self.ladder or self.ladder[0] < 1:
-            raise ValueError(f"the ladder must be increasing positive sample counts, got {self.ladder}")
-        if not 0.0 <= self.on_fraction <= 1.0:
-            raise ValueError(f"on_fraction must be in [0, 1], got {self.on_fraction}")
-        if not self.seeds or len(set(self.seeds)) != len(self.seeds):
-            raise ValueError(f"seeds must be distinct and at least one, got {self.seeds}")
-        if self.confirm < 0:
-            raise ValueError(f"confirm must be >= 0, got {self.confirm}")
-        if self.target != "reality" and not self.target.startswith("robot:"):
-            raise ValueError(f"target must be 'reality' or 'robot:COMMAND', got {self.target!r}")
-
-    @classmethod
-    def quick(cls) -> PLVConfig:
-        """40×30 frames, three seeds, a short ladder and short training: minutes on two cores."""
-        return cls(width=40, height=30, ladder=(150, 400, 1000, 2500), seeds=(0, 1, 2), proxy_samples=4000,
-                   replicates=2000,
-                   train=TrainConfig(epochs=10.0, min_steps=60, max_steps=400),
-                   pretrain=TrainConfig(epochs=4.0, min_steps=60, max_steps=300),
-                   finetune=TrainConfig(epochs=10.0, min_steps=60, max_steps=400, lr=3e-4),
-                   eval=EvalConfig(episodes=4, seconds=15.0))
-
-    def split(self, n: int) -> DataCost:
-        """How a rung of ``n`` target samples is collected: off-policy (expert) and on-policy (DAgger)."""
-        on = round(n * self.on_fraction) if self.use_dagger else 0
-        return DataCost(n - on, on)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any], base: PLVConfig | None = None) -> PLVConfig:
-        """A config from JSON-like data; keys not given keep ``base``'s values; unknown keys are errors."""
-        cur = (base or cls()).to_dict()
-        known = {f.name for f in fields(cls)}
-        for k, v in d.items():
-            if k not in known:
-                raise ValueError(f"unknown PLV setting {k!r}; known: {', '.join(sorted(known))}")
-            cur[k] = {**cur[k], **v} if k in _NESTED else v
-        for k, typ in _NESTED.items():
-            cur[k] = typ(**{**cur[k], **({"channels": tuple(cur[k]["channels"]), "hidden": tuple(cur[k]["hidden"])}
-                                         if k == "model" else {})})
-        cur["ladder"], cur["seeds"] = tuple(cur["ladder"]), tuple(cur["seeds"])
-        return cls(**cur)
-
-    def work_key(self) -> str:
-        """Hash of what a training run's result depends on (not the ladder, seeds, proxy list or tolerance)."""
-        d = self.to_dict()
-        for k in ("ladder", "seeds", "proxies", "tolerance", "confirm", "stop_when_reached", "eta_on", "eta_off",
-                  "replicates"):
-            d.pop(k)
-        d["cache_format"] = _CACHE_FORMAT
-        if d["target"] == "reality":  # the key the reality model's runs had before targets were configurable
-            d.pop("target")
-        return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:12]
-
 
 @dataclass
 class PLVResult:

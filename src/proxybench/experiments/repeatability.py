@@ -21,11 +21,13 @@ Targets, all three kinds (and every result says which):
   (cached and resumable, like every episode).
 - :func:`recorded_study`: trajectories recorded in real labs, ``LAB/ROBOT/run.csv`` (or Parquet).
 - :func:`robot_study`: robot nodes on the robot protocol, one command per robot.
+
+:class:`RepeatabilityConfig` (:mod:`.repeatability_config`) holds a study's settings (``proxybench
+repeatability``'s options are generated from it) and :func:`run_repeatability` runs the study it names.
 """
 
 from __future__ import annotations
 
-import re
 import tempfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -38,6 +40,7 @@ import numpy as np
 from proxybench.domain.kinds import DomainKind
 from proxybench.domain.params import DomainParams
 from proxybench.domain.reality import hardware_variation, reality_params
+from proxybench.experiments.repeatability_config import DESIGNS, Design, RepeatabilityConfig
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import DEFAULT_FRAME_RATE, AgentSpec, DomainSpec, Job
 from proxybench.runner.starts import start_pose
@@ -48,52 +51,9 @@ from proxybench.tasks.trajectory import Termination, Trajectory
 if TYPE_CHECKING:
     from proxybench.protocol.options import RobotNodeOptions
 
-__all__ = ["DESIGNS", "THESIS_FIGURES", "Design", "DesignResult", "RepeatabilityResult", "lab_variation",
-           "recorded_study", "repeatability_study", "robot_study"]
+__all__ = ["DESIGNS", "THESIS_FIGURES", "Design", "DesignResult", "RepeatabilityConfig", "RepeatabilityResult",
+           "lab_variation", "recorded_study", "repeatability_study", "robot_study", "run_repeatability"]
 
-
-@dataclass(frozen=True)
-class Design:
-    """``labs`` × ``robots`` per lab × ``runs`` per robot."""
-
-    labs: int = 1
-    robots: int = 1
-    runs: int = 9
-
-    def __post_init__(self) -> None:
-        for name in ("labs", "robots", "runs"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"design: {name} must be >= 1, got {getattr(self, name)}")
-        if self.total < 2:
-            raise ValueError(f"design {self.label}: repeatability needs at least 2 runs")
-
-    @property
-    def total(self) -> int:
-        return self.labs * self.robots * self.runs
-
-    @property
-    def label(self) -> str:
-        return f"{self.labs}×{self.robots}×{self.runs}"
-
-    @property
-    def group(self) -> str | None:
-        """What the within/between split is over: robots (inside labs) or labs; None for one robot."""
-        return "lab" if self.labs > 1 else "robot" if self.robots > 1 else None
-
-    @classmethod
-    def parse(cls, text: str) -> tuple[str, Design]:
-        """A named design (``repeatability``, ``inter-robot``, ``inter-lab``) or ``LABSxROBOTSxRUNS``."""
-        if text in DESIGNS:
-            return text, DESIGNS[text]
-        m = re.fullmatch(r"\s*(\d+)\s*[x×]\s*(\d+)\s*[x×]\s*(\d+)\s*", text)
-        if not m:
-            raise ValueError(f"unknown design {text!r}: use {', '.join(DESIGNS)} or LABSxROBOTSxRUNS (e.g. 1x3x3)")
-        d = cls(*(int(g) for g in m.groups()))
-        return d.label, d
-
-
-DESIGNS: dict[str, Design] = {"repeatability": Design(1, 1, 9), "inter-robot": Design(1, 3, 3),
-                              "inter-lab": Design(2, 1, 6)}
 
 #: thesis §5.4 (real Duckiebots in the ETHZ and TTIC Autolabs): AVG / STD of MPD [cm] and MOD [deg]
 THESIS_FIGURES: dict[str, dict[str, float]] = {
@@ -314,3 +274,18 @@ def robot_study(agent: str, commands: Mapping[str, str], runs: int = 3, seconds:
     notes = {label: "; ".join(f"{n}: {c}" for n, c in commands.items())}
     return RepeatabilityResult({label: DesignResult(d, trajs, labels, _figures(trajs, labels, d))}, "robot node",
                                notes)
+
+
+def run_repeatability(cfg: RepeatabilityConfig,
+                      progress: Callable[[str, int, int], None] | None = None) -> RepeatabilityResult:
+    """The study ``cfg`` names: its recorded runs, its robot nodes, or its designs on the reality model."""
+    if cfg.recorded:
+        return recorded_study(cfg.recorded, cfg.map)
+    if cfg.robots:
+        return robot_study(cfg.agent, dict(cfg.robots), cfg.runs or 3, cfg.seconds, cfg.map, cfg.seed,
+                           progress=progress, options=cfg.robot_options)
+    designs = dict(Design.parse(d) for d in cfg.designs) if cfg.designs else None
+    if cfg.runs is not None:
+        designs = {k: Design(d.labs, d.robots, cfg.runs) for k, d in (designs or DESIGNS).items()}
+    return repeatability_study(cfg.agent, designs, cfg.seconds, cfg.map, cfg.seed,
+                               placement=(cfg.placement_cm / 100.0, cfg.placement_deg), progress=progress)

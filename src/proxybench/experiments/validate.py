@@ -38,7 +38,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from proxybench.experiments.agent_args import AgentArgError, parse_agents
-from proxybench.experiments.config import ConfigError, _param_name
+from proxybench.experiments.config import ConfigError, param_name
 from proxybench.experiments.proxies import proxy_params
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
@@ -136,14 +136,14 @@ class ValidateConfig(BaseModel):
     @classmethod
     def _names(cls, v: dict | None) -> dict | None:
         for name in v or {}:
-            _param_name(name)
+            param_name(name)
         return v
 
 
 def _draw_name(family: str, name: str) -> None:
     """A target parameter the family knows: proxybench's θ for held-out targets, gym's names for gym's."""
     if family != "gym":
-        _param_name(name)
+        param_name(name)
         return
     from proxybench.gym.params import PARAMS
 

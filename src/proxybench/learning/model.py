@@ -16,42 +16,16 @@ from __future__ import annotations
 
 import itertools
 import os
-from dataclasses import asdict, dataclass
-from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
+from proxybench.learning.configs import ModelConfig
+
 __all__ = ["ModelConfig", "PilotNet", "configure_threads", "default_device", "to_input"]
 
 _VW_SCALE = (0.35, 3.0)  # typical magnitudes of v [m/s] and ω [rad/s], so both outputs are O(1)
-
-
-@dataclass(frozen=True)
-class ModelConfig:
-    """Architecture and input of the network; stored in every checkpoint's JSON."""
-
-    width: int = 80  # input image width [px]
-    height: int = 60  # input image height [px]
-    channels: tuple[int, ...] = (24, 36, 48, 64, 64)  # the five convolutions (PilotNet's numbers)
-    hidden: tuple[int, ...] = (100, 50, 10)  # fully connected layers
-    output: str = "wheels"  # "wheels": PWM (left, right); "vw": (v, ω) then nominal PWM
-
-    def __post_init__(self) -> None:
-        if self.output not in ("wheels", "vw"):
-            raise ValueError(f"output must be 'wheels' or 'vw', got {self.output!r}")
-        if len(self.channels) != 5:
-            raise ValueError(f"PilotNet has five convolutions, got channels={self.channels}")
-        if self.width < 16 or self.height < 12:
-            raise ValueError(f"input {self.width}×{self.height} is too small (at least 16×12)")
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> ModelConfig:
-        return cls(**{**d, "channels": tuple(d["channels"]), "hidden": tuple(d["hidden"])})
 
 
 class PilotNet(nn.Module):

@@ -25,6 +25,7 @@ import torch
 from torch import nn
 
 from proxybench import __version__
+from proxybench.learning.configs import TrainConfig
 from proxybench.learning.dataset import Dataset
 from proxybench.learning.model import ModelConfig, PilotNet, default_device, to_input
 
@@ -32,25 +33,6 @@ __all__ = ["CHECKPOINT_FORMAT", "TrainConfig", "TrainResult", "build_model", "da
            "save_checkpoint", "train"]
 
 CHECKPOINT_FORMAT = "proxybench-bc-checkpoint"
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Optimiser and schedule. Steps = clamp(ceil(epochs · n / batch_size), min_steps, max_steps)."""
-
-    epochs: float = 15.0
-    min_steps: int = 150
-    max_steps: int = 2000
-    batch_size: int = 64
-    lr: float = 1e-3  # Adam; decays by cosine to lr_final_fraction · lr
-    lr_final_fraction: float = 0.05
-    weight_decay: float = 0.0
-    seed: int = 0
-    log_every: int = 25  # steps between recorded losses
-
-    def steps_for(self, n: int) -> int:
-        """Gradient steps used for a data set of ``n`` samples."""
-        return int(min(self.max_steps, max(self.min_steps, math.ceil(self.epochs * n / self.batch_size))))
 
 
 @dataclass

@@ -10,22 +10,16 @@
 - :mod:`.wire`, :mod:`.robot_wire` (bytes and messages) and :mod:`.jpeg` (the camera codec) are the shared
   layers.
 
-See docs/protocol.md (agents) and docs/robot-protocol.md (robots).
+See docs/protocol.md (agents) and docs/robot-protocol.md (robots). The names below load on first use
+(:mod:`proxybench.lazy`), so :mod:`.options` alone is light.
 """
 
-from proxybench.protocol import jpeg, wire
-from proxybench.protocol.failures import (
-    REASONS,
-    ROBOT_REASONS,
-    AgentFailure,
-    NodeFailure,
-    ProtocolUsageError,
-    RobotFailure,
-)
-from proxybench.protocol.node import serve
-from proxybench.protocol.process import AgentProcess
-from proxybench.protocol.remote import RemoteAgent
-from proxybench.protocol.robot_process import RemoteRobot, RobotProcess
+from proxybench.lazy import lazy_exports
+
+_FROM = {"failures": ("REASONS", "ROBOT_REASONS", "AgentFailure", "NodeFailure", "ProtocolUsageError", "RobotFailure"),
+         "node": ("serve",), "process": ("AgentProcess",), "remote": ("RemoteAgent",),
+         "robot_process": ("RemoteRobot", "RobotProcess")}
+__getattr__ = lazy_exports(__name__, {n: f"{__name__}.{m}" for m, names in _FROM.items() for n in names})
 
 __all__ = [
     "REASONS", "ROBOT_REASONS", "AgentFailure", "AgentProcess", "NodeFailure", "ProtocolUsageError", "RemoteAgent",

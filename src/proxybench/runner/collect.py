@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from typing import Any
 
 import numpy as np
@@ -36,6 +36,7 @@ from proxybench.domain.episode_end import ended
 from proxybench.domain.lane_pose import LP
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator, StartDistribution, start_pose
+from proxybench.learning.configs import CollectConfig
 from proxybench.learning.dataset import ARRAYS, Dataset
 from proxybench.learning.domains import Domain
 from proxybench.learning.expert import expert_actions
@@ -46,27 +47,6 @@ __all__ = ["CollectConfig", "Policy", "collect", "episode_seed_for", "lane_rows"
 
 #: a batched learner: camera frames (N, H, W, 3) uint8 → wheel PWM (N, 2)
 Policy = Callable[[np.ndarray], np.ndarray]
-
-
-@dataclass(frozen=True)
-class CollectConfig:
-    """How data is recorded. Seeds: episode e of a collection with ``seed`` s uses seed (s, e)."""
-
-    samples: int
-    robots: int = 32
-    episode_frames: int = 75  # 5 s at 15 Hz: short episodes, many different starts
-    start_lateral: float = 0.08  # [m] start offset bound (evaluation uses 0.04)
-    start_heading: float = 0.5  # [rad] start heading error bound (evaluation uses 0.35)
-    noise_std: float = 0.15  # [PWM] std of the noise added to the executed expert command
-    noise_corr: float = 0.85  # frame-to-frame correlation of that noise (AR(1)); drifts, not jitter
-    map: str = "loop_3x3"
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if self.samples < 1 or self.robots < 1 or self.episode_frames < 1:
-            raise ValueError("samples, robots and episode_frames must be positive")
-        if not 0.0 <= self.noise_corr < 1.0:
-            raise ValueError(f"noise_corr must be in [0, 1), got {self.noise_corr}")
 
 
 def episode_seed_for(seed: int, episode: int) -> int:

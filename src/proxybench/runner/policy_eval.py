@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from proxybench.domain.simulator import Simulator
+from proxybench.learning.configs import EvalConfig
 from proxybench.learning.domains import Domain
 from proxybench.learning.expert import expert_actions
 from proxybench.runner.collect import Policy, lane_rows, robot_spec
@@ -35,17 +36,6 @@ from proxybench.runner.rollout import BatchPolicy, rollout
 from proxybench.tasks.metrics import METRICS
 
 __all__ = ["EvalConfig", "EvalResult", "evaluate_expert", "evaluate_policy"]
-
-
-@dataclass(frozen=True)
-class EvalConfig:
-    """Evaluation episodes: episode e uses simulator seed ``seed + e`` (never a data-collection seed)."""
-
-    episodes: int = 6
-    seconds: float = 30.0
-    map: str = "loop_3x3"
-    seed: int = 100_000
-    metric: str = "lane_score"
 
 
 @dataclass

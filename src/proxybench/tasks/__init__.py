@@ -1,5 +1,11 @@
-"""Tasks: trajectories, metrics, scoring and benchmark files (knows nothing of how a run was made)."""
+"""Tasks: trajectories, metrics, scoring and benchmark files (knows nothing of how a run was made).
 
-from proxybench.tasks.trajectory import Termination, Trajectory, TrajectoryError
+The names below load on first use (:mod:`proxybench.lazy`).
+"""
+
+from proxybench.lazy import lazy_exports
+
+__getattr__ = lazy_exports(__name__, {n: "proxybench.tasks.trajectory" for n in ("Termination", "Trajectory",
+                                                                                 "TrajectoryError")})
 
 __all__ = ["Termination", "Trajectory", "TrajectoryError"]
