@@ -40,6 +40,7 @@ import dataclasses
 import functools
 import inspect
 import math
+import types
 import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -338,6 +339,8 @@ def _option(path: tuple[str, ...], field: Any, name: str, command_default: str |
         kind = _Kind(int, lambda n: list(range(n)), {"min": 1, "max": 100_000, "metavar": "N"})
     elif seq is not None:
         kind = _tuple_kind(tp, seq[0], sep, name, hint) if seq[1] else _list_kind(seq[0], sep, name, hint)
+    elif typing.get_origin(tp) in (typing.Union, types.UnionType):  # e.g. a count or ids: the model reads the text
+        kind = _Kind(str, _yaml, {"metavar": hint.metavar})
     elif typing.get_origin(tp) in (dict, Mapping) or dataclasses.is_dataclass(tp) or \
             (isinstance(tp, type) and issubclass(tp, BaseModel)):
         kind = _mapping_kind(tp, sep, name, hint)

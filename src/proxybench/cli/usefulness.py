@@ -63,12 +63,79 @@ def predictivity(
                   highlight=False)
 
 
+@app.command("score-proxy")
+@experiment_options("predictivity", exclude=("search", "plan", "sweep", "pod_seconds"))
+def score_proxy(
+    cfg: ExperimentConfig,
+    param: list[str] = typer.Option([], "--param", metavar="NAME=VALUE",
+                                    help="the θ to score, on top of the nominal calibration (repeat for more "
+                                         "parameters; names: proxybench params)"),
+    vs_param: list[str] = typer.Option([], "--vs-param", metavar="NAME=VALUE",
+                                       help="the θ to compare it with on the same episodes (default: the nominal "
+                                            "calibration, i.e. changing nothing)"),
+    quick: bool = typer.Option(False, "--quick", help="the live target's quick episodes (12 agents × 3 × 20 s)"),
+    out: Path = typer.Option(Path("out/score"), help="score.json and the episode cache (OUT/runs)"),
+    backend: BackendOption = "local",
+    workers: WorkersOption = None,
+) -> None:
+    """Score one θ against a target (PRPV, PPV, SRCC with intervals) and compare it with another θ, paired.
+
+    Both θ replay the same target episodes, so ΔPRPV has a paired interval; the nominal calibration, the
+    no-simulator baselines and the target's noise floor are shown beside them. Split a recording with
+    --episodes (e.g. fit θ with `optimize --episodes 0-4`, score it here with --episodes 5-9).
+    """
+    import json
+
+    from proxybench.cli.config_options import key_values
+    from proxybench.experiments.score import score_proxy as run_score
+
+    theta, versus = key_values(param, "--param"), key_values(vs_param, "--vs-param")
+    t0 = time.perf_counter()
+    res = run_study(backend, workers, lambda be, progress: run_score(cfg, theta, out / "runs", versus=versus,
+                                                                     backend=be, progress=progress, quick=quick))
+    wall = time.perf_counter() - t0
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "score.json").write_text(json.dumps(res.to_dict(), indent=1, default=float))
+    console.print(f"[bold]target:[/bold] {escape(res.target.info.statement)}", highlight=False)
+    exp = res.experiment
+    table = Table(title=escape(f"θ against the target: {len(exp.agents)} agents × {exp.episode_count} episodes × "
+                               f"{exp.seconds:g} s; 95 % intervals; {wall:.0f} s"))
+    for col in ("θ", "PRPV [order range]", "PPV (mean/agent)", "Pearson r", "Spearman ρ", "Kendall τ"):
+        table.add_column(escape(col), justify="left" if col == "θ" else "right")
+    rows = [(res.scored.label, res.scored.figures), (res.versus.label, res.versus.figures),
+            *((k, u) for k, u in res.baselines.items() if k not in (res.scored.label, res.versus.label))]
+    for label, u in rows:
+        table.add_row(escape(label), _ci(u["prpv"], ".1f"), _ci(u["ppv"], ".2f"),
+                      *(f"{u[k].value:.2f}" for k in ("pearson", "spearman", "kendall")))
+    table.add_row("target noise floor", _ci(res.noise, ".1f"), "", "", "", "")
+    console.print(table)
+    for c in (res.comparison, res.versus_nominal):
+        if c is None:
+            continue
+        d = c.delta
+        verdict = (f"{c.a} orders the agents more like the target" if c.a_lower else
+                   f"{c.b} orders the agents more like the target" if c.separated else
+                   "the episodes cannot tell them apart (the interval holds 0)")
+        console.print(f"• ΔPRPV ({c.a}) − ({c.b}) = {d.value:+.1f} [{d.low:+.1f}, {d.high:+.1f}] (paired, "
+                      f"{exp.episode_count} episodes per agent): {verdict}", highlight=False, markup=False)
+    console.print(f"wrote {out / 'score.json'}", highlight=False, markup=False)
+
+
+def _ci(e, fmt: str) -> str:
+    """``value [low, high]`` as a table cell (no brackets where the interval is undefined)."""
+    import math
+
+    if not (math.isfinite(e.low) and math.isfinite(e.high)):
+        return f"{e.value:{fmt}}"
+    return escape(f"{e.value:{fmt}} [{e.low:{fmt}}, {e.high:{fmt}}]")
+
+
 def _print_table(res, wall: float) -> None:
     import numpy as np
 
     exp = res.experiment
     title = (f"usefulness of proxy instances — target: {res.target.info.label}; {len(exp.agents)} agents × "
-             f"{exp.episodes} episodes × {exp.seconds:g} s; {wall:.0f} s")
+             f"{exp.episode_count} episodes × {exp.seconds:g} s; {wall:.0f} s")
     table = Table(title=title)
     for col in ("parameter", "value", "PRPV [order range]", "Δ vs best [paired CI]", "PPV (mean/agent)", "Pearson r",
                 "Spearman ρ", "Kendall τ", "POD"):
@@ -147,7 +214,7 @@ def optimize(
     assert exp is not None and res.target is not None
     console.print(f"[bold]target:[/bold] {res.target.statement}", highlight=False)
     table = Table(title=f"proxy optimisation: {len(res.trials)} trials, objective {exp.search.objective}, "
-                        f"{len(exp.agents)} agents × {exp.episodes} episodes × {exp.seconds:g} s, {wall:.0f} s "
+                        f"{len(exp.agents)} agents × {exp.episode_count} episodes × {exp.seconds:g} s, {wall:.0f} s "
                         f"(target: {res.target.label})")
     tied = res.tied
     recovered = "recovered (best decile)" if tied is None else f"recovered (median of {len(tied.trials)} tied)"

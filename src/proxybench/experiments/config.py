@@ -23,6 +23,7 @@ from proxybench.dtps.robot_options import DtpsRobotOptions
 from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP, proxy_params
 from proxybench.experiments.study import Cli, ConfigError, StudyConfig
 from proxybench.protocol.options import RobotNodeOptions
+from proxybench.targets.base import Episodes, episode_count, parse_episodes
 from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
 from proxybench.untrusted import problems
 
@@ -174,8 +175,9 @@ class ExperimentConfig(StudyConfig):
     .zip/.tar.gz"""
     map: str | None = None
     """map name or file"""
-    episodes: int | None = Field(None, ge=1, le=10_000)
-    """episodes per agent (a recorded target: how many of its episodes)"""
+    episodes: Annotated[int | tuple[int, ...] | None, Cli(metavar="N|IDS")] = None
+    """episodes per agent: a count N (ids 0 … N−1) or ids such as 0-4,7 (a fit / held-out split of one target; a
+    single id is 7-7)"""
     seconds: float | None = Field(None, gt=0.0, le=3600.0)
     """episode length [s]"""
     metrics: Annotated[tuple[str, ...], Cli("--metric")] = ("driven_lanedir_consec", "survival_time")
@@ -231,6 +233,16 @@ class ExperimentConfig(StudyConfig):
         if problems:
             raise ValueError("\n".join(problems))
         return {**data, "agents": out}
+
+    @field_validator("episodes", mode="before")
+    @classmethod
+    def _episodes(cls, v: Any) -> Any:
+        if v is None:
+            return v
+        value = parse_episodes(v)
+        if isinstance(value, int) and not 1 <= value <= 10_000:
+            raise ValueError(f"a count within 1…10000, got {value}")
+        return value
 
     @field_validator("metrics")
     @classmethod
@@ -337,7 +349,7 @@ class Experiment:
     target_text: str
     agents: list[Any]  # runner AgentSpecs
     map: str
-    episodes: int
+    episodes: Episodes  # a count, or the ids of a split
     seconds: float
     metrics: tuple[str, ...]
     image_size: tuple[int, int]
@@ -354,10 +366,17 @@ class Experiment:
     def agent_labels(self) -> list[str]:
         return [a.label for a in self.agents]
 
+    @property
+    def episode_count(self) -> int:
+        """Episodes per agent (of a count or a split)."""
+        return episode_count(self.episodes)
+
     def to_dict(self) -> dict[str, Any]:
         return {"command": self.command, "target": self.target_text, "agents": self.agent_labels,
                 "agent_commands": {a.label: a.command for a in self.agents if a.command},
-                "map": self.map, "episodes": self.episodes, "seconds": self.seconds, "metrics": list(self.metrics),
+                "map": self.map, "seconds": self.seconds,
+                "episodes": self.episodes if isinstance(self.episodes, int) else list(self.episodes),
+                "metrics": list(self.metrics),
                 "image_size": list(self.image_size), "proxy": self.proxy,
                 "sweep": {k: list(v) for k, v in self.sweep.items()}, "search": self.search.model_dump(),
                 "trials": self.trials, "n_boot": self.n_boot, "pod_seconds": self.pod_seconds, "seed": self.seed,
@@ -383,7 +402,7 @@ def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize", 
     if target.fixed_seconds is not None and cfg.seconds is not None and abs(cfg.seconds - target.fixed_seconds) > 1e-9:
         raise ConfigError(f"seconds: the target's episodes last {target.fixed_seconds:g} s, the experiment asks for "
                           f"{cfg.seconds:g} s (proxies replay the target's episodes)")
-    if target.n_episodes is not None and cfg.episodes is not None and cfg.episodes > target.n_episodes:
+    if target.n_episodes is not None and isinstance(cfg.episodes, int) and cfg.episodes > target.n_episodes:
         raise ConfigError(f"episodes: {cfg.episodes} asked, the target has {target.n_episodes} per agent")
     names = cfg.agents or target.fixed_agents or list(d["agents"])
     try:

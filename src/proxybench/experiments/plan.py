@@ -51,8 +51,8 @@ def run_plan(cfg: ExperimentConfig, out: str | Path, backend: Backend | None = N
     out, backend, p = Path(out), backend or InlineBackend(), cfg.plan
     defaults = COMMAND_DEFAULTS[("plan", quick)]
     exp, target = resolve(cfg, "plan", quick=quick, work_dir=out / "agents")
-    if exp.episodes < 2:
-        raise ConfigError(f"episodes: the pilot needs at least 2 episodes per agent, got {exp.episodes}")
+    if exp.episode_count < 2:
+        raise ConfigError(f"episodes: the pilot needs at least 2 episodes per agent, got {exp.episode_count}")
     tol = tolerances(exp.metrics, exp.seconds, p.tolerance)
     run_kw = dict(map_name=exp.map, seconds=exp.seconds, seed=exp.seed, metrics=exp.metrics,
                   image_size=exp.image_size, run_dir=out / "runs", backend=backend, progress=progress)
@@ -60,6 +60,8 @@ def run_plan(cfg: ExperimentConfig, out: str | Path, backend: Backend | None = N
     if p.sequential:
         from proxybench.experiments.sequential import run_sequential
 
+        if not isinstance(exp.episodes, int):
+            raise ConfigError("episodes: the sequential plan's pilot is a count (it adds the next ids), got ids")
         seq = run_sequential(target, exp.agents, pilot=exp.episodes, budget=p.budget or defaults["budget"],
                              batch=p.batch, tolerances=tol, **run_kw)
         tgt = seq.run

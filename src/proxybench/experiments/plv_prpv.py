@@ -178,6 +178,7 @@ def run_plv_prpv(cfg: ExperimentConfig, out: str | Path, *, quick: bool = False,
                                                    and c.plv_high >= plv_best.plv_low)
         or (c.plv_high is not None and plv_best.plv_low is None)]
     return ChoiceResult(rows, labels[best], [labels[j] for j in plausible], plv_best.label if plv_best else None,
-                        plv_tied, tgt.info.statement, exp.agent_labels, exp.episodes, len(plv_cfg.seeds), reference,
+                        plv_tied, tgt.info.statement, exp.agent_labels, exp.episode_count, len(plv_cfg.seeds),
+                        reference,
                         t_cost, {"expert": expert, "map": exp.map, "seconds": exp.seconds,
                                  "metrics": list(exp.metrics), "plv_config": plv_cfg.to_dict()})

@@ -18,8 +18,8 @@ from proxybench.domain.params import DomainParams
 from proxybench.runner.backends import Backend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
 
-__all__ = ["Episodes", "Progress", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "by_agent", "episode_ids",
-           "episode_seed", "live_run"]
+__all__ = ["Episodes", "Progress", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "by_agent", "episode_count",
+           "episode_ids", "episode_seed", "id_ranges", "live_run", "parse_episodes"]
 
 Progress = Callable[[str, int, int], None]
 
@@ -110,6 +110,61 @@ Episodes = int | Sequence[int]
 def episode_ids(episodes: Episodes) -> list[int]:
     """The ids ``episodes`` names: 0 … n−1 for a count, else the ids as given."""
     return list(range(episodes)) if isinstance(episodes, int) else [int(e) for e in episodes]
+
+
+def episode_count(episodes: Episodes) -> int:
+    """How many episodes per agent ``episodes`` names."""
+    return episodes if isinstance(episodes, int) else len(episodes)
+
+
+def parse_episodes(value: Any) -> Episodes:
+    """A count or the ids of a split, as a user writes them: ``10`` (the first ten), ``"5-9"``, ``"0-4,7"``,
+    ``[0, 2, 4]`` (ids). One id alone is ``"7-7"`` or ``[7]`` (a bare number is a count). A ValueError
+    says what is wrong in the user's words (a fit / held-out split of one recording needs no copies)."""
+    if isinstance(value, bool):
+        raise ValueError(f"a count or ids such as 0-4,7, got {value!r}")
+    if isinstance(value, int):
+        return value
+    if isinstance(value, str):
+        text = value.strip()
+        if text.isdigit():
+            return int(text)
+        ids: list[int] = []
+        for part in (p.strip() for p in text.split(",")):
+            lo, dash, hi = part.partition("-")
+            if not (lo.strip().isdigit() and (not dash or hi.strip().isdigit())):
+                raise ValueError(f"a count or ids such as 0-4,7, got {value!r} (at {part!r})")
+            a, b = int(lo), int(hi) if dash else int(lo)
+            if b < a:
+                raise ValueError(f"the range {part!r} runs backwards")
+            if b - a > 100_000:
+                raise ValueError(f"the range {part!r} holds more than 100,000 episodes")
+            ids.extend(range(a, b + 1))
+        value = ids
+    if isinstance(value, (list, tuple)):
+        if not value:
+            raise ValueError("no episode ids given")
+        if not all(isinstance(e, int) and not isinstance(e, bool) and e >= 0 for e in value):
+            raise ValueError(f"episode ids must be integers >= 0, got {list(value)[:5]!r}")
+        if len(set(value)) != len(value):
+            raise ValueError(f"episode ids repeat: {id_ranges([e for e in set(value) if list(value).count(e) > 1])}")
+        return tuple(value)
+    raise ValueError(f"a count or ids such as 0-4,7, got {type(value).__name__}")
+
+
+def id_ranges(ids: Sequence[int]) -> str:
+    """Episode ids written as ranges: 0-4, 7."""
+    out, run = [], []
+    for e in sorted(ids):
+        if run and e == run[-1] + 1:
+            run.append(e)
+            continue
+        if run:
+            out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+        run = [e]
+    if run:
+        out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+    return ", ".join(out)
 
 
 def live_run(target: Target, dom: DomainSpec, agents: list[AgentSpec], *, map_name: str, seconds: float,

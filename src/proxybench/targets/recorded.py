@@ -34,6 +34,7 @@ import numpy as np
 
 from proxybench.domain.events import Event, Termination
 from proxybench.messages import shown
+from proxybench.targets.base import id_ranges
 from proxybench.targets.manifest import MANIFEST_NAME, TargetError, TargetManifest, load_manifest
 from proxybench.untrusted import UntrustedInputError, inside
 
@@ -121,24 +122,9 @@ class Recording:
             absent = [e for e in episodes if e not in ids]
             if absent:
                 raise TargetError(f"episodes: {', '.join(map(str, absent))} not in the recording at {self.root} (it "
-                                  f"has {_id_ranges(ids)})")
+                                  f"has {id_ranges(ids)})")
             ids = list(episodes)
         return [self.episodes[(a, e)] for a in agents for e in ids]
-
-
-def _id_ranges(ids: Sequence[int]) -> str:
-    """Episode ids written as ranges: 0-4, 7."""
-    out, run = [], []
-    for e in sorted(ids):
-        if run and e == run[-1] + 1:
-            run.append(e)
-            continue
-        if run:
-            out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
-        run = [e]
-    if run:
-        out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
-    return ", ".join(out)
 
 
 def resolve_map(root: Path, name: str) -> str:

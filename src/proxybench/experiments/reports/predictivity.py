@@ -187,7 +187,8 @@ def noise_statement(res: PredictivityResult) -> str:
     within = best["prpv"] <= nf.high
     return (f"Best PRPV {best['prpv']:.1f} [{best['prpv_low']:.1f}, {best['prpv_high']:.1f}] at {where}; the "
             f"target's own noise floor (PRPV of the target against a replicate of itself, "
-            f"{res.experiment.episodes} episodes per agent) is {nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}]: about "
+            f"{res.experiment.episode_count} episodes per agent) is {nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}]: "
+            "about "
             f"{100 * share:.0f}% of the residual gap is sampling noise"
             + (", and the best proxy is within the noise floor (the data cannot tell it from a perfect proxy)."
                if within else "; the rest is a gap no swept θ closed."))
@@ -205,12 +206,12 @@ def episodes_statement(res: PredictivityResult) -> str:
     open_ = [p for p in needs if not p.settled]
     if not open_:
         return (f"Every pair of the {len(res.target.results)} agents is ordered on the target with "
-                f"{res.experiment.episodes} episodes per agent.")
+                f"{res.experiment.episode_count} episodes per agent.")
     finite = sorted(p.episodes for p in open_ if math.isfinite(p.episodes))
     ties = len(open_) - len(finite)
     cheapest = ", ".join(f"{p.a} – {p.b}" for p in open_[:3])
-    return (f"{len(open_)} of {len(needs)} pairs of agents are near ties on the target with {res.experiment.episodes} "
-            f"episodes per agent (their order is open, which widens every PRPV range)"
+    return (f"{len(open_)} of {len(needs)} pairs of agents are near ties on the target with "
+            f"{res.experiment.episode_count} episodes per agent (their order is open, which widens every PRPV range)"
             + (f"; the cheapest to settle ({cheapest}) need about {_span(finite[0], finite[min(2, len(finite) - 1)])}"
                " episodes per agent" if finite else "")
             + (f"; {ties} look like ties within the noise" if ties else "")
@@ -406,7 +407,7 @@ text-align:right}}td:first-child{{text-align:left}}dt{{margin-top:.4em}}details{
 {_target_box(res)}
 <p class="prov">proxybench {__version__}, commit {html.escape(source_commit())}; {time.strftime("%Y-%m-%d %H:%M")};
 method: {html.escape(THESIS)}.</p>
-<p>{k} agents × {exp.episodes} episodes × {exp.seconds:g} s on {html.escape(Path(exp.map).name)}; task metrics
+<p>{k} agents × {exp.episode_count} episodes × {exp.seconds:g} s on {html.escape(Path(exp.map).name)}; task metrics
 {metrics}; each proxy replays every target episode from the same start pose and seed; {exp.n_boot} bootstrap
 resamples (95% intervals){f"; wall time {wall_s:.0f} s" if wall_s else ""}.</p>
 <h2>Findings</h2><p><small>PRPV, PPV, SRCC, POD, noise floor: <a href="#definitions">definitions and
