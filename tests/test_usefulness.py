@@ -147,7 +147,7 @@ def test_experiment_config_names_bad_fields(tmp_path):
         ({"metrics": ["survival"]}, "metrics: Value error, unknown metric 'survival' (did you mean 'survival_time'?)"),
         ({"sweep": {"camera_pich": [1, 2]}}, "unknown domain parameter 'camera_pich' (did you mean 'camera_pitch'?)"),
         ({"episdoes": 3}, "episdoes: unknown key (did you mean 'episodes'?)"),
-        ({"episodes": 0}, "episodes: Input should be greater than or equal to 1"),
+        ({"episodes": 0}, "episodes: a count within 1…10000, got 0"),
         ({"proxy": {"trim": 7}}, "proxy.trim"),
         ({"image_size": [4, 4]}, "image_size"),
     ]
@@ -182,7 +182,7 @@ def test_the_best_prpv_names_every_proxy_that_reaches_it():
             {"parameter": "trim", "value": 0.1, "prpv": 13.0, "prpv_low": 2.0, "prpv_high": 80.0}]
     res = SimpleNamespace(best_row=lambda: rows[0], frame=lambda: pd.DataFrame(rows),
                           noise=SimpleNamespace(value=18.0, low=4.0, high=32.0),
-                          experiment=SimpleNamespace(episodes=3))
+                          experiment=SimpleNamespace(episodes=3, episode_count=3))
     text = noise_statement(res)
     assert text.startswith("Best PRPV 12.0 [0.0, 60.0] at command_delay = 0.05 (equally at blur_time = 0);")
     assert "trim" not in text and "within the noise floor" in text
