@@ -14,22 +14,19 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console, fail, require_extra
-from proxybench.cli.node_options import (
-    RobotCwd,
-    RobotNoReflection,
-    RobotStartTimeout,
-    RobotStepTimeout,
-    RobotTransport,
-    robot_node_options,
-)
+from proxybench.cli.node_options import with_robot_node_options
 from proxybench.cli.options import positive
 from proxybench.cli.progress import status
+
+if TYPE_CHECKING:
+    from proxybench.protocol.options import RobotNodeOptions
 
 server_app = typer.Typer(no_args_is_help=True, help="Administer a challenges server (users, benchmarks, paths).")
 app.add_typer(server_app, name="server")
@@ -98,6 +95,7 @@ def _evaluator_token(settings) -> Path:
 
 
 @app.command()
+@with_robot_node_options()
 def serve(
     host: str = typer.Option("127.0.0.1", help="address to listen on (0.0.0.0 for remote evaluators)"),
     port: int = typer.Option(8000, min=1, max=65535, help="TCP port"),
@@ -112,11 +110,7 @@ def serve(
                                         help="a job lease lapses this long after the last heartbeat"),
     robot_cmd: str | None = typer.Option(None, help="robot node (robot protocol) the local evaluators run target "
                                                     "jobs on [the reality model]"),
-    robot_cwd: RobotCwd = None,
-    robot_transport: RobotTransport = None,
-    robot_start_timeout: RobotStartTimeout = None,
-    robot_step_timeout: RobotStepTimeout = None,
-    robot_no_reflection: RobotNoReflection = False,
+    robot_options: RobotNodeOptions = None,  # the --robot-* options: with_robot_node_options
 ) -> None:
     """Run the challenges server (SQLite in --data-dir unless --database-url), optionally with evaluators.
 
@@ -124,8 +118,6 @@ def serve(
     --robot-cmd started as the --robot-* options say (each evaluator starts its own node).
     """
     require_extra("server")
-    robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
-                                       robot_no_reflection, command=robot_cmd)
     if robot_cmd is not None and not evaluators:
         raise typer.BadParameter("only with --evaluators N (it says where the local evaluators run target jobs; "
                                  "a remote evaluator takes its own --robot-cmd)", param_hint="--robot-cmd")
