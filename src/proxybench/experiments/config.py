@@ -28,7 +28,7 @@ from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
 from proxybench.untrusted import problems
 
 __all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "PlanConfig", "SearchConfig",
-           "default_help", "load_config", "param_name", "resolve"]
+           "default_help", "load_config", "param_name", "resolve", "resolve_run"]
 
 FULL_AGENTS = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
                "pure-pursuit-fast", "vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",
@@ -431,3 +431,17 @@ def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize", 
         pod_seconds=d["pod_seconds"] if cfg.pod_seconds is None else cfg.pod_seconds, seed=cfg.seed,
         truth=dict(cfg.truth))
     return exp, target
+
+
+def resolve_run(cfg: ExperimentConfig | Experiment, command: Literal["predictivity", "optimize"], run_dir: Path, *,
+                quick: bool = False, target=None):
+    """(Experiment, Target) of a study run in ``run_dir``: an experiment file's content resolved by :func:`resolve`
+    (its agents built beside the run, in ``agents/``), or an already resolved :class:`Experiment` with ``target``
+    (or, without one, its target text opened)."""
+    if isinstance(cfg, ExperimentConfig):
+        return resolve(cfg, command, quick=quick, work_dir=run_dir.parent / "agents", target=target)
+    if target is None:
+        from proxybench.targets.spec import open_target
+
+        target = open_target(cfg.target_text)
+    return cfg, target
