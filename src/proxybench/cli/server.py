@@ -13,8 +13,9 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import typer
 from rich.markup import escape
@@ -30,6 +31,8 @@ if TYPE_CHECKING:
 
 server_app = typer.Typer(no_args_is_help=True, help="Administer a challenges server (users, benchmarks, paths).")
 app.add_typer(server_app, name="server")
+
+T = TypeVar("T")
 
 DEFAULT_DATA = Path("proxybench-server")
 ServerOpt = typer.Option(None, "--server", envvar="PROXYBENCH_SERVER", help="server URL [http://127.0.0.1:8000]")
@@ -67,6 +70,17 @@ def _client(server: str | None, token: str | None, token_file: Path | None):
 
 def _fail(exc: Exception) -> typer.Exit:
     return fail(exc, 1)
+
+
+def _ask(server: str | None, token: str | None, token_file: Path | None, call: Callable[[Any], T]) -> T:
+    """``call(client)`` with a client of the server the options name; the server's refusal (or no answer) ends
+    the command with its message (exit 1), never a traceback."""
+    from proxybench.client import ServerError
+
+    try:
+        return call(_client(server, token, token_file))
+    except ServerError as exc:
+        raise _fail(exc) from None
 
 
 def _evaluator_token(settings) -> Path:
@@ -295,12 +309,7 @@ def show_leaderboard(
 ) -> None:
     """Show a benchmark's leaderboard from a challenges server."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
-
-    try:
-        _print_board(_client(server, token, token_file).leaderboard(benchmark, split, limit=limit, offset=offset))
-    except ServerError as exc:
-        raise _fail(exc) from None
+    _print_board(_ask(server, token, token_file, lambda c: c.leaderboard(benchmark, split, limit=limit, offset=offset)))
 
 
 @server_app.command("user-add")
@@ -311,13 +320,8 @@ def user_add(
 ) -> None:
     """Create a user (super-user token needed); prints the new user's token once."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
-
-    try:
-        out = _client(server, token, token_file).post("/users", {"name": name, "role": role,
-                                                                  "daily_limit": daily_limit})
-    except ServerError as exc:
-        raise _fail(exc) from None
+    body = {"name": name, "role": role, "daily_limit": daily_limit}
+    out = _ask(server, token, token_file, lambda c: c.post("/users", body))
     console.print(f"user {out['name']} ({out['role']}) token: [bold]{out['token']}[/bold]")
 
 
@@ -329,7 +333,6 @@ def benchmark_add(
 ) -> None:
     """Upload a benchmark file (a changed file under a known name becomes a new version)."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
     from proxybench.untrusted import UntrustedInputError, read_text_file
 
     try:
@@ -337,10 +340,7 @@ def benchmark_add(
     except UntrustedInputError as exc:
         raise _fail(exc) from None
     body = {"yaml": text, "features": [f for f in features.split(",") if f]}
-    try:
-        out = _client(server, token, token_file).post("/benchmarks", body)
-    except ServerError as exc:
-        raise _fail(exc) from None
+    out = _ask(server, token, token_file, lambda c: c.post("/benchmarks", body))
     console.print(f"benchmark {out['name']} v{out['version']} " + ("stored" if out["created"] else "unchanged"))
 
 
@@ -351,7 +351,6 @@ def path_add(
 ) -> None:
     """Define a benchmark path: steps (benchmarks) and edges with conditions to progress."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
     from proxybench.untrusted import UntrustedInputError, load_yaml_file
 
     try:
@@ -362,10 +361,7 @@ def path_add(
         raise _fail(ValueError(f"{file}: expected a mapping with name, steps, edges"))
     body = {"name": data.get("name"), "description": data.get("description", ""),
             "spec": {"steps": data.get("steps"), "edges": data.get("edges", [])}}
-    try:
-        out = _client(server, token, token_file).post("/paths", body)
-    except ServerError as exc:
-        raise _fail(exc) from None
+    out = _ask(server, token, token_file, lambda c: c.post("/paths", body))
     console.print(f"path {out['name']}: {len(out['spec']['steps'])} steps, {len(out['spec']['edges'])} edges")
 
 
@@ -376,12 +372,7 @@ def token_list(
 ) -> None:
     """List API tokens (yours, or --user's): id, prefix, label, created, revoked. Never their text."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
-
-    try:
-        rows = _client(server, token, token_file).tokens(user)
-    except ServerError as exc:
-        raise _fail(exc) from None
+    rows = _ask(server, token, token_file, lambda c: c.tokens(user))
     table = Table(title=f"API tokens of {user or 'you'}")
     for col in ("id", "user", "prefix", "label", "created (UTC)", "revoked (UTC)"):
         table.add_column(col)
@@ -400,12 +391,7 @@ def token_add(
 ) -> None:
     """Make another token for yourself (one per machine makes revoking one painless)."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
-
-    try:
-        made = _client(server, token, token_file).new_token(label)
-    except ServerError as exc:
-        raise _fail(exc) from None
+    made = _ask(server, token, token_file, lambda c: c.new_token(label))
     if out is not None:
         fd = os.open(out, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
         with os.fdopen(fd, "w") as f:
@@ -422,12 +408,7 @@ def token_revoke(
 ) -> None:
     """Revoke a token for good (yours; super-users: anyone's); its web sessions end with it."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
-
-    try:
-        out = _client(server, token, token_file).revoke_token(token_id)
-    except ServerError as exc:
-        raise _fail(exc) from None
+    out = _ask(server, token, token_file, lambda c: c.revoke_token(token_id))
     console.print(f"token {out['id']} of {out['user']} ({out['prefix']}…) revoked")
 
 
