@@ -49,7 +49,7 @@ def score(
     bad = 0
     for f in files:
         try:
-            traj = _load_any(f, map_name, Trajectory, TrajectoryError)
+            traj = Trajectory.read(f, map_name)
         except (TrajectoryError, FileNotFoundError) as exc:
             err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
             bad += 1
@@ -80,17 +80,6 @@ def _save_table(rows: list[dict], out: Path) -> None:
     else:
         df.to_parquet(tmp, index=False)
     tmp.replace(out)
-
-
-def _load_any(path: Path, map_name: str, Trajectory, TrajectoryError):
-    """A proxybench trajectory file as saved, else a recorded run imported against ``map_name``."""
-    if path.suffix == ".parquet":
-        try:
-            return Trajectory.load(path)
-        except TrajectoryError as exc:
-            if "no proxybench metadata" not in str(exc):
-                raise
-    return Trajectory.from_file(path, map_name)
 
 
 @app.command()
