@@ -39,6 +39,7 @@ from proxybench.domain.apriltags import CODES, FAMILY, ROOF_TAG_BASE, ROOF_TAG_S
 from proxybench.domain.fixed_cameras import FixedCamera
 from proxybench.domain.map_objects import AprilTag
 from proxybench.domain.maps import Map, MapObject
+from proxybench.domain.params import check_image_size
 
 __all__ = ["FORMAT", "CalibrationError", "GroundTag", "Layout", "LayoutError", "Watchtower", "auto_layout",
            "ground_objects", "load_layout", "read_model", "resolve_layout", "robot_names", "write_layout"]
@@ -77,12 +78,7 @@ class Watchtower(BaseModel):
             raise ValueError(f"{v!r}: a watchtower name is letters, digits, '_', '-', '.' (it names a folder)")
         return v
 
-    @field_validator("resolution")
-    @classmethod
-    def _size(cls, v: tuple[int, int]) -> tuple[int, int]:
-        if not (8 <= v[0] <= 4096 and 8 <= v[1] <= 4096):
-            raise ValueError(f"resolution {list(v)} must be within 8..4096 px")
-        return v
+    _size = field_validator("resolution")(check_image_size)
 
     def camera(self) -> FixedCamera:
         """The renderer's camera for this watchtower (where it truly is)."""

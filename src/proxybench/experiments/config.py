@@ -19,6 +19,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
+from proxybench.domain.params import check_image_size
 from proxybench.dtps.robot_options import DtpsRobotOptions
 from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP, proxy_params
 from proxybench.experiments.study import Cli, ConfigError, StudyConfig
@@ -280,12 +281,7 @@ class ExperimentConfig(StudyConfig):
             param_name(name)
         return v
 
-    @field_validator("image_size")
-    @classmethod
-    def _image(cls, v: tuple[int, int]) -> tuple[int, int]:
-        if not (8 <= v[0] <= 4096 and 8 <= v[1] <= 4096):
-            raise ValueError(f"width and height must be within 8…4096 px, got {v[0]}×{v[1]}")
-        return v
+    _image = field_validator("image_size")(check_image_size)
 
     @model_validator(mode="after")
     def _proxy_theta(self) -> ExperimentConfig:
