@@ -136,6 +136,13 @@ class NodeLogic:
             raise ExternalProtocolViolation(problem)
         self.language.push(topic)
 
+    def _on_seed(self, data: Any) -> list[bytes]:
+        """The ``seed`` topic, which both languages open with: kept in ``self.seed``, answered with nothing."""
+        seed = wire.parse_seed(data)
+        self._advance("seed")
+        self.seed = seed
+        return []
+
     # ------------------------------------------------------------------------------------ meta topics
     def _on_meta(self, topic: str, data: Any, start: int) -> list[bytes]:
         out_topic, out = self._meta_answer(topic, data)
@@ -195,12 +202,6 @@ class AgentNode(NodeLogic):
         self.config_target = agent
 
     # ------------------------------------------------------------------------------------ data topics
-    def _on_seed(self, data: Any) -> list[bytes]:
-        seed = wire.parse_seed(data)
-        self._advance("seed")
-        self.seed = seed
-        return []
-
     def _on_episode_start(self, data: Any) -> list[bytes]:
         name, payload = wire.parse_episode_start(data)
         self._advance("episode_start")
