@@ -203,7 +203,7 @@ def test_the_plant_contract_holds_on_a_dtps_robot(tmp_path):
 
 
 class _StallsThenFails(Agent):
-    """Drives forward, thinks for 1.5 s at frame 5 (longer than the watchdog), fails at frame 12."""
+    """Drives forward, thinks for 2.5 s at frame 5 (longer than the watchdog), fails at frame 12."""
 
     name = "staller"
 
@@ -213,7 +213,7 @@ class _StallsThenFails(Agent):
     def act(self, obs):
         self.k += 1
         if self.k == 5:
-            time.sleep(1.5)
+            time.sleep(2.5)  # 2 s past the 0.5 s watchdog: room for a loaded machine
         if self.k == 12:
             raise RuntimeError("gave up")
         return np.array([0.3, 0.3])
@@ -235,7 +235,7 @@ def test_the_robot_hears_zero_when_the_agent_stalls_or_fails(tmp_path):
                                          10.0)
         moving = [i for i, c in enumerate(fake.commands()) if c["left"] != 0.0]
         zeros_between = [c for c in fake.commands()[moving[0]:moving[-1]] if c["left"] == 0.0]
-        assert zeros_between, "the watchdog's (0, 0) during the agent's 1.5 s stall never reached the robot"
+        assert zeros_between, "the watchdog's (0, 0) during the agent's 2.5 s stall never reached the robot"
 
 
 @sdk

@@ -110,8 +110,12 @@ def test_over_fifos_a_node_may_print_to_stdout(solution: Path) -> None:
                      on_stderr=None) as agent:
         assert agent.process._os.transport == "fifos"
         assert list(drive(agent)) == [0.2, 0.25]
+        deadline = time.monotonic() + 10  # the drain reads the node's stderr pipe on its own thread
+        while not any("loading the model" in line for line in agent.process._os.stderr.tail()) \
+                and time.monotonic() < deadline:
+            time.sleep(0.05)
         tail = agent.process._os.stderr.tail()
-    assert any("loading the model" in line for line in tail)  # its stdout went to the stderr drain
+    assert any("loading the model" in line for line in tail), tail  # its stdout went to the stderr drain
 
 
 def test_over_pipes_a_printing_node_fails_with_a_hint(solution: Path) -> None:

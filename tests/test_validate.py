@@ -68,13 +68,13 @@ def test_trajectory_error_holds_a_replay_that_ended_early():
 @pytest.mark.slow
 def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path):
     out = tmp_path / "v"
-    args = ["validate", "--quick", "--targets", "2", "--backend", "inline", "--out", str(out)]
+    args = ["validate", "--quick", "--targets", "3", "--backend", "inline", "--out", str(out)]
     res = CliRunner().invoke(app, args, env={"COLUMNS": "200"})
     assert res.exit_code == 0, res.output
     criteria = json.loads((out / "criteria.json").read_text())
     summary = json.loads((out / "summary.json").read_text())
     assert "draw_seed_sha256" in criteria and "draw_seed" not in json.dumps(criteria["settings"])
-    assert summary["criteria"]["scoring_unchanged"] and summary["targets"] == 2
+    assert summary["criteria"]["scoring_unchanged"] and summary["targets"] == 3 and not summary["interim"]
     methods = summary["methods"]
     assert {"prpv", "nominal", "trajectory", "kendall"} <= set(methods)
     assert methods["nominal"]["prpv_norm"]["vs_nominal"]["mean"] == 0.0
@@ -86,6 +86,19 @@ def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path):
     assert again.exit_code == 0, again.output
     assert json.loads((out / "criteria.json").read_text())["written"] == written  # resumed, criteria kept
     assert "0 episodes run now" in again.output
+    # an interim look: only the finished targets, nothing run, the criteria untouched
+    (out / "targets" / "002.json").unlink()
+    look = CliRunner().invoke(app, [*args, "--interim"], env={"COLUMNS": "200"})
+    assert look.exit_code == 0, look.output
+    assert "INTERIM LOOK, 2 of 3 pre-registered targets" in look.output and "0 episodes run now" in look.output
+    interim = json.loads((out / "summary.json").read_text())
+    assert interim["interim"] and interim["targets"] == 2 and len(interim["truths"]) == 2
+    assert not (out / "targets" / "002.json").exists()
+    assert json.loads((out / "criteria.json").read_text())["written"] == written
+    other = CliRunner().invoke(app, [*args[:3], "4", *args[4:], "--interim"], env={"COLUMNS": "200"})
+    assert other.exit_code == 2 and "other settings (targets differ)" in other.output
+    none = CliRunner().invoke(app, ["validate", "--quick", "--interim", "--out", str(tmp_path / "none")])
+    assert none.exit_code == 2 and "no study to look at" in none.output
 
 
 @pytest.mark.slow

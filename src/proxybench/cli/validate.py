@@ -24,6 +24,9 @@ def validate(
     seed: int = typer.Option(0, min=0, help="the study's seed (agent splits, episode seeds, BC agents)"),
     bc_agents: int | None = typer.Option(None, min=0, max=8, help="behaviour-cloned agents trained for the pool "
                                                                   "(default 2; --quick 0; needs PyTorch)"),
+    interim: bool = typer.Option(False, "--interim", help="run nothing: report the targets finished so far (an "
+                                                          "interim look; give the options the study was started "
+                                                          "with; the decision waits for all targets)"),
 ) -> None:
     """Run the validation study (docs/validate.md): per target, choose θ with one half of the agents on some
     target episodes, judge the choice on the other half on fresh episodes, against the nominal θ and the
@@ -52,7 +55,7 @@ def validate(
             bar.update(tasks[stage], completed=done, total=total)
 
         try:
-            run = run_validate(cfg, out, be, progress, quick=quick)
+            run = run_validate(cfg, out, be, progress, quick=quick, finished_only=interim)
         except ConfigError as exc:
             err_console.print(f"error: {escape(str(exc))}", highlight=False)
             raise typer.Exit(2) from exc

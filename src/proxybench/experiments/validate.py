@@ -256,6 +256,7 @@ class ValidationRun:
     episodes_run: int = 0
     wall_s: float = 0.0
     notes: list[str] = field(default_factory=list)
+    indices: list[int] = field(default_factory=list)  # the target index of each record (an interim look skips some)
 
 
 #: data and training of the study's behaviour-cloned agents: different amounts, so that their quality differs
@@ -418,41 +419,69 @@ def score_target(s: dict[str, Any], k: int, cands: list[dict[str, float]], targe
 
 
 def run_validate(cfg: ValidateConfig, out: str | Path, backend: Backend | None = None,
-                 progress: Progress | None = None, *, quick: bool = False) -> ValidationRun:
-    """Write the criteria, then run (or resume) every target; each finished target lands in ``out/targets/``."""
+                 progress: Progress | None = None, *, quick: bool = False, finished_only: bool = False
+                 ) -> ValidationRun:
+    """Write the criteria, then run (or resume) every target; each finished target lands in ``out/targets/``.
+
+    ``finished_only``: run nothing, gather the targets finished so far (an interim look at a long study; the
+    criteria must exist and be for these settings, and are never rewritten)."""
     t0 = time.perf_counter()
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     s = settings_for(cfg, quick)
+    if finished_only:
+        _check_criteria(s, out)
+    out.mkdir(parents=True, exist_ok=True)
     draw_seed = _draw_seed(cfg, out)
     criteria = write_criteria(s, draw_seed, out)
-    try:
-        specs = parse_agents([*s["agents"], *train_bc_agents(s, out / "agents", progress)], out / "agents")
-    except AgentArgError as exc:
-        raise ConfigError(f"agents: {exc}") from None
+    specs: list[AgentSpec] = []
+    if not finished_only:
+        try:
+            specs = parse_agents([*s["agents"], *train_bc_agents(s, out / "agents", progress)], out / "agents")
+        except AgentArgError as exc:
+            raise ConfigError(f"agents: {exc}") from None
     backend = backend or InlineBackend()
     targets = _family_targets(s, draw_seed, out)
     folder = out / "targets"
     folder.mkdir(exist_ok=True)
     key = hashlib.sha256(json.dumps(s, sort_keys=True).encode()).hexdigest()[:16]
-    records, ran = [], 0
+    records, indices, ran = [], [], 0
     for k, target in enumerate(targets):
         path = folder / f"{k:03d}.json"
         try:
             rec = json.loads(path.read_text())
             if rec.get("settings_key") == key:
                 records.append(rec)
+                indices.append(k)
                 continue
         except (OSError, ValueError):
             pass
+        if finished_only:
+            continue
         rec = run_target(k, target, s, specs, out / "runs", backend, progress)
         rec["settings_key"] = key
         path.write_text(json.dumps(rec, indent=1))
         records.append(rec)
+        indices.append(k)
         ran += rec["episodes_run"]
         if progress:
             progress("targets", k + 1, len(targets))
-    return ValidationRun(s, criteria, records, targets, ran, time.perf_counter() - t0)
+    if finished_only and len(records) < 2:
+        raise ConfigError(f"{out}: {len(records)} target(s) finished; an interim look needs at least 2")
+    return ValidationRun(s, criteria, records, targets, ran, time.perf_counter() - t0, indices=indices)
+
+
+def _check_criteria(s: dict[str, Any], out: Path) -> None:
+    """An interim look reads a study that exists, with these settings (it must not start or redefine one)."""
+    path = out / "criteria.json"
+    try:
+        written = json.loads(path.read_text()).get("settings")
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{path}: no study to look at ({exc.__class__.__name__}); run it first") from None
+    now, written = json.loads(json.dumps(s)), written or {}
+    if written != now:
+        diff = sorted(k for k in set(written) | set(now) if written.get(k) != now.get(k))
+        raise ConfigError(f"{path}: the study was started with other settings ({', '.join(diff)} differ); give the "
+                          "same options as when it was started")
 
 
 # -- the summary -------------------------------------------------------------------------------------------------
@@ -492,7 +521,8 @@ def summarize(run: ValidationRun) -> dict[str, Any]:
     s, recs = run.settings, run.records
     criteria = json.loads(run.criteria_file.read_text())
     methods = [m for m in s["methods"] if any(m in r["picks"] for r in recs)]
-    out: dict[str, Any] = {"family": s["family"], "targets": len(recs), "settings": s, "methods": {},
+    out: dict[str, Any] = {"family": s["family"], "targets": len(recs), "targets_planned": s["targets"],
+                           "interim": len(recs) < s["targets"], "settings": s, "methods": {},
                            "criteria": {"written": criteria["written"], "commit": criteria["commit"],
                                         "commit_now": source_commit(),
                                         "scoring_unchanged": criteria["scoring_sha256"] == scoring_hash(),
@@ -514,8 +544,12 @@ def summarize(run: ValidationRun) -> dict[str, Any]:
     if primary is not None:
         sd = primary["sd"]
         mde = criteria["minimum_detectable_effect"]["d_z"]
+        if out["interim"]:  # what the targets finished so far can detect, not what the full study will
+            mde = minimum_detectable_effect(len(recs), s["alpha"], s["power"])
         out["primary"] = {**primary, "alpha": s["alpha"], "rejected": bool(primary["p_wilcoxon"] < s["alpha"]),
+                          "d_z": mde,
                           "minimum_detectable_difference": float(mde * sd) if np.isfinite(sd) else float("nan")}
-    reveal = [getattr(t, "reveal", dict)() for t in run.targets]
+    indices = run.indices or list(range(len(recs)))
+    reveal = [getattr(run.targets[i], "reveal", dict)() for i in indices]
     out["truths"] = [{k: v for k, v in tr.items() if k in s["grid"] or k in s["draw"]} for tr in reveal]
     return out

@@ -33,12 +33,16 @@ def answer(summary: dict[str, Any]) -> str:
     n, fam = summary["targets"], summary["family"]
     verdict = ("Tuning with PRPV helped on held-out agents" if p["rejected"] else
                "This study does not show that tuning with PRPV helps on held-out agents")
+    if summary.get("interim"):
+        verdict = (f"INTERIM LOOK, {n} of {summary['targets_planned']} pre-registered targets (the decision waits for "
+                   f"all of them): " + ("so far PRPV's pick beats the nominal θ's" if p["rejected"] else
+                                       "so far the data do not show that tuning with PRPV helps on held-out agents"))
     return (f"{verdict}: over {n} {fam} targets, PRPV's pick had a mean regret {p['mean']:+.4f} "
             f"[{p['low']:+.4f}, {p['high']:+.4f}] (PRPV/K(K−1), 95 % bootstrap over targets) relative to the nominal "
             f"θ's; it was better on {p['wins']}, worse on {p['losses']}, equal on {p['ties']} targets; one-sided "
             f"Wilcoxon p = {p['p_wilcoxon']:.3g} (α {p['alpha']}; paired t p = {p['p_t']:.3g}). The smallest mean "
             f"difference this study could detect with 80 % power is about {p['minimum_detectable_difference']:.4f} "
-            f"(d_z {summary['criteria']['minimum_detectable_effect']['d_z']:.2f}).")
+            f"(d_z {p.get('d_z', summary['criteria']['minimum_detectable_effect']['d_z']):.2f}, {n} targets).")
 
 
 def _frame(run: ValidationRun):
