@@ -4,15 +4,17 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from proxybench.domain.maps import Map
-from proxybench.domain.topdown import map_image
-from proxybench.tasks.trajectory import Trajectory
+if TYPE_CHECKING:
+    from proxybench.domain.maps import Map
+    from proxybench.tasks.trajectory import Trajectory
 
-__all__ = ["plot_deviation_curves", "plot_trajectories"]
+__all__ = ["plot_deviation_curves", "plot_trajectories", "pyplot", "save_figure"]
 
 
-def _pyplot():
+def pyplot():
+    """matplotlib's pyplot, drawing off-screen (no display on servers and CI)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -21,10 +23,22 @@ def _pyplot():
     return plt
 
 
+def save_figure(fig, path: Path) -> Path:
+    """PNG at 110 dpi and, beside a PNG, an SVG (reports embed the PNG; the SVG is for papers); the figure is
+    closed."""
+    fig.savefig(path, dpi=110)
+    if path.suffix == ".png":
+        fig.savefig(path.with_suffix(".svg"))
+    pyplot().close(fig)
+    return path
+
+
 def plot_trajectories(m: Map, groups: Mapping[str, Sequence[Trajectory]], path: str | Path,
                       titles: Mapping[str, str] | None = None) -> Path:
     """One panel per group: every trajectory of the group drawn over the top-down map."""
-    plt = _pyplot()
+    from proxybench.domain.topdown import map_image
+
+    plt = pyplot()
     n = len(groups)
     w, h = m.size_m
     fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.4), squeeze=False)
@@ -39,12 +53,7 @@ def plot_trajectories(m: Map, groups: Mapping[str, Sequence[Trajectory]], path: 
         ax.set_xlabel("x [m]")
     axes[0][0].set_ylabel("y [m]")
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    if path.suffix == ".png":
-        fig.savefig(path.with_suffix(".svg"))
-    plt.close(fig)
-    return path
+    return save_figure(fig, Path(path))
 
 
 def plot_deviation_curves(curves: Mapping[str, object], path: str | Path,
@@ -55,7 +64,7 @@ def plot_deviation_curves(curves: Mapping[str, object], path: str | Path,
     """
     import numpy as np
 
-    plt = _pyplot()
+    plt = pyplot()
     n = len(curves)
     fig, axes = plt.subplots(2, n, figsize=(4.2 * n, 5.2), squeeze=False, sharey="row")
     for k, (name, c) in enumerate(curves.items()):
@@ -78,9 +87,4 @@ def plot_deviation_curves(curves: Mapping[str, object], path: str | Path,
     axes[0][0].plot([], [], color="grey", lw=0.5, label="one run")
     axes[0][0].legend(fontsize=7, loc="lower left")
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    if path.suffix == ".png":
-        fig.savefig(path.with_suffix(".svg"))
-    plt.close(fig)
-    return path
+    return save_figure(fig, Path(path))

@@ -21,14 +21,15 @@ import math
 import os
 import re
 import stat
-from collections.abc import Mapping
+from collections import Counter
+from collections.abc import Hashable, Iterable, Mapping
 from pathlib import Path, PurePosixPath
 from typing import Any
 
 import yaml
 
 __all__ = ["UntrustedInputError", "clean_text", "clean_tree", "compose_yaml", "find_non_finite", "inside", "load_yaml",
-           "load_yaml_file", "nesting_depth", "problems", "read_text_file"]
+           "load_yaml_file", "nesting_depth", "problems", "read_text_file", "repeated"]
 
 # NUL (PostgreSQL text cannot hold it) and lone surrogates (not encodable as UTF-8)
 _UNSTORABLE = re.compile("[\x00\ud800-\udfff]")
@@ -70,6 +71,15 @@ def find_non_finite(value: Any, path: str = "") -> str | None:
         if found is not None:
             return found
     return None
+
+
+def repeated(values: Iterable[Hashable]) -> list:
+    """The values given more than once, each once and sorted: a message can name every duplicate at once.
+
+    >>> repeated(["b", "a", "b", "c", "a", "b"])
+    ['a', 'b']
+    """
+    return sorted(v for v, n in Counter(values).items() if n > 1)
 
 
 def nesting_depth(value: Any) -> int:

@@ -39,6 +39,8 @@ from proxybench.domain.apriltags import CODES, FAMILY, ROOF_TAG_BASE, ROOF_TAG_S
 from proxybench.domain.fixed_cameras import FixedCamera
 from proxybench.domain.map_objects import AprilTag
 from proxybench.domain.maps import Map, MapObject
+from proxybench.domain.params import check_image_size
+from proxybench.untrusted import repeated
 
 __all__ = ["FORMAT", "CalibrationError", "GroundTag", "Layout", "LayoutError", "Watchtower", "auto_layout",
            "ground_objects", "load_layout", "read_model", "resolve_layout", "robot_names", "write_layout"]
@@ -77,12 +79,7 @@ class Watchtower(BaseModel):
             raise ValueError(f"{v!r}: a watchtower name is letters, digits, '_', '-', '.' (it names a folder)")
         return v
 
-    @field_validator("resolution")
-    @classmethod
-    def _size(cls, v: tuple[int, int]) -> tuple[int, int]:
-        if not (8 <= v[0] <= 4096 and 8 <= v[1] <= 4096):
-            raise ValueError(f"resolution {list(v)} must be within 8..4096 px")
-        return v
+    _size = field_validator("resolution")(check_image_size)
 
     def camera(self) -> FixedCamera:
         """The renderer's camera for this watchtower (where it truly is)."""
@@ -131,12 +128,11 @@ class Layout(BaseModel):
 
     @model_validator(mode="after")
     def _unique(self) -> Layout:
-        names = [w.name for w in self.watchtowers]
-        dup = sorted({n for n in names if names.count(n) > 1})
+        dup = repeated(w.name for w in self.watchtowers)
         if dup:
             raise ValueError(f"watchtowers: the name(s) {', '.join(dup)} are used twice")
         ids = [t.id for t in self.ground_tags]
-        dup_ids = sorted({i for i in ids if ids.count(i) > 1})
+        dup_ids = repeated(ids)
         if dup_ids:
             raise ValueError(f"ground_tags: tag id(s) {', '.join(map(str, dup_ids))} are placed twice")
         clash = sorted(set(ids) & set(self.robots))

@@ -2,21 +2,16 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.markup import escape
 
 from proxybench.cli.app import agent_app, console, err_console
-from proxybench.cli.node_options import (
-    AGENT_CWD_HELP,
-    NO_REFLECTION_HELP,
-    START_TIMEOUT_HELP,
-    STEP_TIMEOUT_HELP,
-    TRANSPORT_HELP,
-    node_options,
-    remote_agent,
-)
+from proxybench.cli.node_options import remote_agent, with_agent_node_options
+
+if TYPE_CHECKING:
+    from proxybench.protocol.options import NodeOptions
 
 
 @agent_app.command("list")
@@ -56,13 +51,10 @@ def agent_serve(
 
 
 @agent_app.command("check")
+@with_agent_node_options()
 def agent_check(
     command: str = typer.Argument(..., help="the agent node's command, as typed in a shell"),
-    agent_cwd: Path | None = typer.Option(None, "--agent-cwd", help=AGENT_CWD_HELP),
-    transport: str = typer.Option("pipe", "--transport", help=TRANSPORT_HELP),
-    start_timeout: float = typer.Option(30.0, "--start-timeout", help=START_TIMEOUT_HELP),
-    step_timeout: float = typer.Option(5.0, "--step-timeout", help=STEP_TIMEOUT_HELP),
-    no_reflection: bool = typer.Option(False, "--no-reflection", help=NO_REFLECTION_HELP),
+    options: NodeOptions = None,  # the agent node options: with_agent_node_options
     seconds: float = typer.Option(2.0, min=0.1, help="length of the test episode [s] (simulated time)"),
     map_name: str = typer.Option("loop_3x3", "--map", help="map of the test episode"),
     contract: bool = typer.Option(True, "--contract/--no-contract",
@@ -84,7 +76,6 @@ def agent_check(
     from proxybench.protocol import AgentFailure
     from proxybench.runner.episode import play
 
-    options = node_options(agent_cwd, transport, start_timeout, step_timeout, no_reflection)
     t0 = time.perf_counter()
     agent = remote_agent(command, options)
     started = time.perf_counter() - t0

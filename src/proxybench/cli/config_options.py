@@ -53,6 +53,7 @@ from pydantic import BaseModel
 from rich.markup import escape
 
 from proxybench.experiments.study import ConfigError, cli_hint, unwrap_optional
+from proxybench.untrusted import repeated
 
 __all__ = ["StudyOption", "fail", "image_size", "key_values", "mode_defaults", "option_table", "overrides_of",
            "study_option_list", "study_options"]
@@ -435,7 +436,7 @@ def study_options(model: type[BaseModel], *, load: Loader | None = None, exclude
     """
     options = study_option_list(model, exclude=exclude, defaults=defaults)
     names = [n for o in options for n in o.names]
-    clash = sorted({n for n in names if names.count(n) > 1})
+    clash = repeated(names)
     if clash:  # two fields spelt alike: a programming error, caught when the command is defined
         raise ValueError(f"{model.__name__}: options {', '.join(clash)} stand for more than one field")
 

@@ -4,34 +4,26 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.markup import escape
 from rich.progress import BarColumn, TextColumn, TimeRemainingColumn
 
 from proxybench.cli.app import app, console, err_console
-from proxybench.cli.node_options import (
-    AGENT_CWD_HELP,
-    NO_REFLECTION_HELP,
-    START_TIMEOUT_HELP,
-    STEP_TIMEOUT_HELP,
-    TRANSPORT_HELP,
-    RobotCwd,
-    RobotNoReflection,
-    RobotStartTimeout,
-    RobotStepTimeout,
-    RobotTransport,
-    node_options,
-    remote_agent,
-    robot_node_options,
-)
+from proxybench.cli.node_options import remote_agent, with_agent_node_options, with_robot_node_options
 from proxybench.cli.options import positive
 from proxybench.cli.progress import progress_bar
+
+if TYPE_CHECKING:
+    from proxybench.protocol.options import NodeOptions, RobotNodeOptions
 
 _RUN_METRICS = ("survival_time", "driven_lanedir_consec", "deviation_center_line", "in_drivable_lane", "lane_score")
 
 
 @app.command()
+@with_agent_node_options()
+@with_robot_node_options()
 def run(
     map_name: str = typer.Option("loop_3x3", "--map", help="built-in map name or YAML file"),
     seconds: float = typer.Option(60.0, callback=positive, help="episode length [s] (simulated time)"),
@@ -47,16 +39,8 @@ def run(
     robot_cmd: str | None = typer.Option(None, "--robot-cmd",
                                          help="drive a robot node instead of the built-in simulator: any command "
                                               "speaking the robot protocol, e.g. 'proxybench robot serve'"),
-    agent_cwd: Path | None = typer.Option(None, "--agent-cwd", help=AGENT_CWD_HELP),
-    transport: str = typer.Option("pipe", "--transport", help=TRANSPORT_HELP),
-    start_timeout: float = typer.Option(30.0, "--start-timeout", help=START_TIMEOUT_HELP),
-    step_timeout: float = typer.Option(5.0, "--step-timeout", help=STEP_TIMEOUT_HELP),
-    no_reflection: bool = typer.Option(False, "--no-reflection", help=NO_REFLECTION_HELP),
-    robot_cwd: RobotCwd = None,
-    robot_transport: RobotTransport = None,
-    robot_start_timeout: RobotStartTimeout = None,
-    robot_step_timeout: RobotStepTimeout = None,
-    robot_no_reflection: RobotNoReflection = False,
+    options: NodeOptions = None,  # the agent node options: with_agent_node_options
+    robot_options: RobotNodeOptions = None,  # the --robot-* options: with_robot_node_options
     watchtowers: str | None = typer.Option(
         None, "--watchtowers", help="also record a lab's watchtowers into OUT/watchtowers (a log for `proxybench "
                                     "localize`): auto (the layout file beside the map, else one generated to cover "
@@ -81,9 +65,6 @@ def run(
     from proxybench.runner.record import record_run
     from proxybench.tasks.metrics import METRICS
 
-    options = node_options(agent_cwd, transport, start_timeout, step_timeout, no_reflection)
-    robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
-                                       robot_no_reflection, command=robot_cmd)
     try:
         m = load_map_printing_warnings(map_name)
     except (MapError, OSError) as exc:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.markup import escape
@@ -11,17 +12,13 @@ from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
 from proxybench.cli.config_options import study_options
-from proxybench.cli.node_options import (
-    AGENT_CWD_HELP,
-    NO_REFLECTION_HELP,
-    START_TIMEOUT_HELP,
-    STEP_TIMEOUT_HELP,
-    TRANSPORT_HELP,
-    node_options,
-)
+from proxybench.cli.node_options import AGENT_CWD_HELP, with_agent_node_options
 from proxybench.cli.options import positive
 from proxybench.cli.progress import progress_bar, status
 from proxybench.experiments.repeatability_config import RepeatabilityConfig
+
+if TYPE_CHECKING:
+    from proxybench.protocol.options import NodeOptions
 
 _SCORE_METRICS = ("survival_time", "driven_lanedir_consec", "driven_any", "deviation_center_line",
                   "deviation_heading", "in_drivable_lane", "lane_score")
@@ -52,7 +49,7 @@ def score(
     bad = 0
     for f in files:
         try:
-            traj = _load_any(f, map_name, Trajectory, TrajectoryError)
+            traj = Trajectory.read(f, map_name)
         except (TrajectoryError, FileNotFoundError) as exc:
             err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
             bad += 1
@@ -83,17 +80,6 @@ def _save_table(rows: list[dict], out: Path) -> None:
     else:
         df.to_parquet(tmp, index=False)
     tmp.replace(out)
-
-
-def _load_any(path: Path, map_name: str, Trajectory, TrajectoryError):
-    """A proxybench trajectory file as saved, else a recorded run imported against ``map_name``."""
-    if path.suffix == ".parquet":
-        try:
-            return Trajectory.load(path)
-        except TrajectoryError as exc:
-            if "no proxybench metadata" not in str(exc):
-                raise
-    return Trajectory.from_file(path, map_name)
 
 
 @app.command()
@@ -167,6 +153,7 @@ def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:
 
 
 @app.command()
+@with_agent_node_options(AGENT_CWD_HELP + " (of every --agent-cmd)")
 def evaluate(
     benchmark: str = typer.Argument(..., help="benchmark YAML file or built-in name (aido_lf, aido_lfi, thesis_loop)"),
     agent: list[str] = typer.Option([], "--agent", help="zoo agent or NAME=sdk:COMMAND (repeat); default: every "
@@ -178,11 +165,7 @@ def evaluate(
     run_dir: Path | None = typer.Option(None, help="run directory (default: out/evaluate/<benchmark>)"),
     video: bool = typer.Option(False, "--video", help="also record episode 0 of every agent (MP4 + PNG strip)"),
     quick: bool = typer.Option(False, "--quick", help="smoke test: the first 2 episodes, at most 15 s each"),
-    agent_cwd: Path | None = typer.Option(None, "--agent-cwd", help=AGENT_CWD_HELP + " (of every --agent-cmd)"),
-    transport: str = typer.Option("pipe", "--transport", help=TRANSPORT_HELP),
-    start_timeout: float = typer.Option(30.0, "--start-timeout", help=START_TIMEOUT_HELP),
-    step_timeout: float = typer.Option(5.0, "--step-timeout", help=STEP_TIMEOUT_HELP),
-    no_reflection: bool = typer.Option(False, "--no-reflection", help=NO_REFLECTION_HELP),
+    options: NodeOptions = None,  # the agent node options: with_agent_node_options
     watchtowers: str | None = typer.Option(None, "--watchtowers", help="also record a lab's watchtowers in every "
                                            "episode into RUN_DIR/logs/<agent>/<episode> (for `proxybench localize`): "
                                            "auto or a layout file (docs/autolab.md)"),
@@ -209,7 +192,6 @@ def evaluate(
         raise typer.Exit(1) from exc
     if quick:
         bench = _quick(bench)
-    options = node_options(agent_cwd, transport, start_timeout, step_timeout, no_reflection)
     specs = _agent_specs(agent, agent_cmd, options, bench)
     run_dir = run_dir or Path("out/evaluate") / bench.name
     layout = streams = None

@@ -11,18 +11,12 @@ import typer
 from rich.markup import escape
 
 from proxybench.cli.app import app, console, err_console, require_extra
-from proxybench.cli.node_options import (
-    RobotCwd,
-    RobotNoReflection,
-    RobotStartTimeout,
-    RobotStepTimeout,
-    RobotTransport,
-    robot_node_options,
-)
+from proxybench.cli.node_options import with_robot_node_options
 from proxybench.cli.options import positive
 
 if TYPE_CHECKING:
     from proxybench.contract import Lease
+    from proxybench.protocol.options import RobotNodeOptions
 
 KNOWN_FEATURES = ("sim", "target")
 
@@ -71,6 +65,7 @@ def _reporter():
 
 
 @app.command()
+@with_robot_node_options()
 def evaluator(
     server: str | None = typer.Option(None, "--server", envvar="PROXYBENCH_SERVER",
                                       help="challenges server URL [http://127.0.0.1:8000]"),
@@ -100,11 +95,7 @@ def evaluator(
     keep_work: bool = typer.Option(False, help="keep each job's folder after its result is uploaded"),
     robot_cmd: str | None = typer.Option(None, help="robot node (robot protocol) that target jobs run on "
                                                     "[the reality model]"),
-    robot_cwd: RobotCwd = None,
-    robot_transport: RobotTransport = None,
-    robot_start_timeout: RobotStartTimeout = None,
-    robot_step_timeout: RobotStepTimeout = None,
-    robot_no_reflection: RobotNoReflection = False,
+    robot_options: RobotNodeOptions = None,  # the --robot-* options: with_robot_node_options
 ) -> None:
     """Pull jobs from a challenges server and evaluate them, until stopped (SIGTERM / Ctrl-C).
 
@@ -117,9 +108,6 @@ def evaluator(
     """
     require_extra("server", ("httpx",))
     from rich.logging import RichHandler
-
-    robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
-                                       robot_no_reflection, command=robot_cmd)
 
     from proxybench.cli.server import read_token
 

@@ -1,15 +1,20 @@
 """The options that say how to start an agent node (`run`, `evaluate`, `agent check`) or a robot node (`run
 --robot-cmd`, `predictivity` / `optimize` with `--target robot:CMD`, `target record --robot-cmd`).
 
-Typer declares options per command, so each command lists the same five parameters (names from
-:data:`OPTION_NAMES`) and hands them to :func:`node_options`, which validates them with
-:class:`~proxybench.protocol.options.NodeOptions` and names the option at fault. The robot node's five
-are typed once here (``RobotCwd``, …: ``--robot-cwd``, ``--robot-transport``, ``--robot-start-timeout``,
-``--robot-step-timeout``, ``--robot-no-reflection``) and checked by :func:`robot_option_values`.
+Typer declares options per command; rather than each command listing the same five, a command names one
+parameter and a decorator puts the five in its place: :func:`with_agent_node_options` (``--agent-cwd``,
+``--transport``, ``--start-timeout``, ``--step-timeout``, ``--no-reflection``: names in :data:`OPTION_NAMES`)
+hands the command a :class:`~proxybench.protocol.options.NodeOptions` made by :func:`node_options`;
+:func:`with_robot_node_options` (``--robot-cwd``, ``--robot-transport``, ``--robot-start-timeout``,
+``--robot-step-timeout``, ``--robot-no-reflection``) a ``RobotNodeOptions`` made by :func:`robot_node_options`.
+Both validate before the command runs and name the option at fault.
 """
 
 from __future__ import annotations
 
+import functools
+import inspect
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -20,7 +25,7 @@ from proxybench.cli.app import err_console
 
 __all__ = ["OPTION_NAMES", "ROBOT_OPTION_NAMES", "RobotCwd", "RobotNoReflection", "RobotStartTimeout",
            "RobotStepTimeout", "RobotTransport", "node_options", "remote_agent", "robot_node_options",
-           "robot_option_values"]
+           "robot_option_values", "with_agent_node_options", "with_robot_node_options"]
 
 #: NodeOptions field → command-line option
 OPTION_NAMES = {"cwd": "--agent-cwd", "transport": "--transport", "start_timeout": "--start-timeout",
@@ -48,6 +53,70 @@ RobotStepTimeout = Annotated[float | None, typer.Option(
     "--robot-step-timeout", help="seconds for each per-frame exchange with the robot node (default: 10)")]
 RobotNoReflection = Annotated[bool, typer.Option(
     "--robot-no-reflection", help="do not ask the robot node for its protocol description (describe_protocol)")]
+
+
+def _param(name: str, annotation: Any, default: Any) -> inspect.Parameter:
+    return inspect.Parameter(name, inspect.Parameter.POSITIONAL_OR_KEYWORD, default=default, annotation=annotation)
+
+
+_ROBOT_PARAMS = (_param("robot_cwd", RobotCwd, None), _param("robot_transport", RobotTransport, None),
+                 _param("robot_start_timeout", RobotStartTimeout, None),
+                 _param("robot_step_timeout", RobotStepTimeout, None),
+                 _param("robot_no_reflection", RobotNoReflection, False))
+
+
+#: the parameters the decorators below replace (left unresolved: their types are imported for annotations only)
+_PLACEHOLDERS = ("options", "robot_options")
+
+
+def _expand(fn: Callable[..., Any], name: str, params: tuple[inspect.Parameter, ...],
+            build: Callable[[dict[str, Any], dict[str, Any]], Any]) -> Callable[..., Any]:
+    """``fn`` as a command whose parameter ``name`` stands for ``params``, in its place (so ``--help`` keeps the
+    order); ``build(values of params, the command's other values)`` makes what ``fn`` gets as ``name``."""
+    own = [p.replace(annotation=eval(p.annotation, fn.__globals__))
+           if isinstance(p.annotation, str) and p.name not in _PLACEHOLDERS else p
+           for p in inspect.signature(fn).parameters.values() if p.name != name]  # typer needs types, not text
+    at = list(inspect.signature(fn).parameters).index(name)
+    signature = inspect.Signature([*own[:at], *params, *own[at:]])
+
+    @functools.wraps(fn)
+    def command(**kwargs: Any) -> Any:
+        values = {p.name: kwargs.pop(p.name) for p in params}
+        return fn(**kwargs, **{name: build(values, kwargs)})
+
+    del command.__wrapped__  # typer reads the signature below, not the function's
+    command.__signature__ = signature  # type: ignore[attr-defined]
+    command.__annotations__ = {p.name: p.annotation for p in signature.parameters.values()}
+    return command
+
+
+def with_robot_node_options(command: str = "robot_cmd", command_option: str = "--robot-cmd"):
+    """Decorate a command whose parameter ``robot_options`` takes the five ``--robot-*`` options in its place and
+    is handed their ``RobotNodeOptions``; ``command``: the parameter with the robot node's command (the options
+    are an error without it), ``command_option`` its option's name."""
+
+    def build(v: dict[str, Any], others: dict[str, Any]) -> Any:
+        return robot_node_options(v["robot_cwd"], v["robot_transport"], v["robot_start_timeout"],
+                                  v["robot_step_timeout"], v["robot_no_reflection"], command=others[command],
+                                  command_option=command_option)
+
+    return lambda fn: _expand(fn, "robot_options", _ROBOT_PARAMS, build)
+
+
+def with_agent_node_options(cwd_help: str = AGENT_CWD_HELP):
+    """Decorate a command whose parameter ``options`` takes the five agent node options in its place
+    (``--agent-cwd`` says ``cwd_help``) and is handed their ``NodeOptions``."""
+    params = (_param("agent_cwd", Path | None, typer.Option(None, "--agent-cwd", help=cwd_help)),
+              _param("transport", str, typer.Option("pipe", "--transport", help=TRANSPORT_HELP)),
+              _param("start_timeout", float, typer.Option(30.0, "--start-timeout", help=START_TIMEOUT_HELP)),
+              _param("step_timeout", float, typer.Option(5.0, "--step-timeout", help=STEP_TIMEOUT_HELP)),
+              _param("no_reflection", bool, typer.Option(False, "--no-reflection", help=NO_REFLECTION_HELP)))
+
+    def build(v: dict[str, Any], _others: dict[str, Any]) -> Any:
+        return node_options(v["agent_cwd"], v["transport"], v["start_timeout"], v["step_timeout"],
+                            v["no_reflection"])
+
+    return lambda fn: _expand(fn, "options", params, build)
 
 
 def robot_option_values(cwd: Path | None, transport: str | None, start_timeout: float | None,

@@ -10,18 +10,12 @@ import typer
 from rich.markup import escape
 
 from proxybench.cli.app import err_console, robot_app
-from proxybench.cli.node_options import (
-    RobotCwd,
-    RobotNoReflection,
-    RobotStartTimeout,
-    RobotStepTimeout,
-    RobotTransport,
-    robot_node_options,
-)
+from proxybench.cli.node_options import with_robot_node_options
 
 if TYPE_CHECKING:
 
     from proxybench.domain.params import DomainParams
+    from proxybench.protocol.options import RobotNodeOptions
 
 
 def parse_params(items: list[str]) -> DomainParams:
@@ -79,6 +73,7 @@ def robot_serve(
 
 
 @robot_app.command("check")
+@with_robot_node_options(command="command")
 def robot_check(
     command: str = typer.Argument(..., help="the robot node's command, as typed in a shell (e.g. your bridge)"),
     map_name: str = typer.Option("loop_3x3", "--map", help="map the test episodes are driven on (sent by set_map)"),
@@ -89,11 +84,7 @@ def robot_check(
                                              "the robot may start [m] (a robot placed by hand needs more)"),
     heading_tolerance: float = typer.Option(1e-3, min=0.0, help="start pose: heading tolerance [rad]"),
     time_tolerance: float = typer.Option(1e-6, min=0.0, help="how far frame and sample times may be off [s]"),
-    robot_cwd: RobotCwd = None,
-    robot_transport: RobotTransport = None,
-    robot_start_timeout: RobotStartTimeout = None,
-    robot_step_timeout: RobotStepTimeout = None,
-    robot_no_reflection: RobotNoReflection = False,
+    robot_options: RobotNodeOptions = None,  # the --robot-* options: with_robot_node_options
 ) -> None:
     """Run the plant contract on a robot node: what a lab's bridge must do for proxybench to drive it.
 
@@ -106,10 +97,8 @@ def robot_check(
     from proxybench.domain.maps import MapError
     from proxybench.testing import PlantContract
 
-    options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
-                                 robot_no_reflection, command=command)
     try:
-        suite = PlantContract.for_robot_command(command, map_name, options, frame_rate, seconds=seconds,
+        suite = PlantContract.for_robot_command(command, map_name, robot_options, frame_rate, seconds=seconds,
                                                 position_tolerance=position_tolerance,
                                                 heading_tolerance=heading_tolerance, time_tolerance=time_tolerance)
     except (MapError, FileNotFoundError) as exc:

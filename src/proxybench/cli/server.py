@@ -13,26 +13,26 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import typer
 from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console, fail, require_extra
-from proxybench.cli.node_options import (
-    RobotCwd,
-    RobotNoReflection,
-    RobotStartTimeout,
-    RobotStepTimeout,
-    RobotTransport,
-    robot_node_options,
-)
+from proxybench.cli.node_options import with_robot_node_options
 from proxybench.cli.options import positive
 from proxybench.cli.progress import status
 
+if TYPE_CHECKING:
+    from proxybench.protocol.options import RobotNodeOptions
+
 server_app = typer.Typer(no_args_is_help=True, help="Administer a challenges server (users, benchmarks, paths).")
 app.add_typer(server_app, name="server")
+
+T = TypeVar("T")
 
 DEFAULT_DATA = Path("proxybench-server")
 ServerOpt = typer.Option(None, "--server", envvar="PROXYBENCH_SERVER", help="server URL [http://127.0.0.1:8000]")
@@ -72,6 +72,17 @@ def _fail(exc: Exception) -> typer.Exit:
     return fail(exc, 1)
 
 
+def _ask(server: str | None, token: str | None, token_file: Path | None, call: Callable[[Any], T]) -> T:
+    """``call(client)`` with a client of the server the options name; the server's refusal (or no answer) ends
+    the command with its message (exit 1), never a traceback."""
+    from proxybench.client import ServerError
+
+    try:
+        return call(_client(server, token, token_file))
+    except ServerError as exc:
+        raise _fail(exc) from None
+
+
 def _evaluator_token(settings) -> Path:
     """The local evaluators' token file (user ``local-evaluator``, created once)."""
     from sqlalchemy import select
@@ -98,6 +109,7 @@ def _evaluator_token(settings) -> Path:
 
 
 @app.command()
+@with_robot_node_options()
 def serve(
     host: str = typer.Option("127.0.0.1", help="address to listen on (0.0.0.0 for remote evaluators)"),
     port: int = typer.Option(8000, min=1, max=65535, help="TCP port"),
@@ -112,11 +124,7 @@ def serve(
                                         help="a job lease lapses this long after the last heartbeat"),
     robot_cmd: str | None = typer.Option(None, help="robot node (robot protocol) the local evaluators run target "
                                                     "jobs on [the reality model]"),
-    robot_cwd: RobotCwd = None,
-    robot_transport: RobotTransport = None,
-    robot_start_timeout: RobotStartTimeout = None,
-    robot_step_timeout: RobotStepTimeout = None,
-    robot_no_reflection: RobotNoReflection = False,
+    robot_options: RobotNodeOptions = None,  # the --robot-* options: with_robot_node_options
 ) -> None:
     """Run the challenges server (SQLite in --data-dir unless --database-url), optionally with evaluators.
 
@@ -124,8 +132,6 @@ def serve(
     --robot-cmd started as the --robot-* options say (each evaluator starts its own node).
     """
     require_extra("server")
-    robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
-                                       robot_no_reflection, command=robot_cmd)
     if robot_cmd is not None and not evaluators:
         raise typer.BadParameter("only with --evaluators N (it says where the local evaluators run target jobs; "
                                  "a remote evaluator takes its own --robot-cmd)", param_hint="--robot-cmd")
@@ -303,12 +309,7 @@ def show_leaderboard(
 ) -> None:
     """Show a benchmark's leaderboard from a challenges server."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
-
-    try:
-        _print_board(_client(server, token, token_file).leaderboard(benchmark, split, limit=limit, offset=offset))
-    except ServerError as exc:
-        raise _fail(exc) from None
+    _print_board(_ask(server, token, token_file, lambda c: c.leaderboard(benchmark, split, limit=limit, offset=offset)))
 
 
 @server_app.command("user-add")
@@ -319,13 +320,8 @@ def user_add(
 ) -> None:
     """Create a user (super-user token needed); prints the new user's token once."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
-
-    try:
-        out = _client(server, token, token_file).post("/users", {"name": name, "role": role,
-                                                                  "daily_limit": daily_limit})
-    except ServerError as exc:
-        raise _fail(exc) from None
+    body = {"name": name, "role": role, "daily_limit": daily_limit}
+    out = _ask(server, token, token_file, lambda c: c.post("/users", body))
     console.print(f"user {out['name']} ({out['role']}) token: [bold]{out['token']}[/bold]")
 
 
@@ -337,7 +333,6 @@ def benchmark_add(
 ) -> None:
     """Upload a benchmark file (a changed file under a known name becomes a new version)."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
     from proxybench.untrusted import UntrustedInputError, read_text_file
 
     try:
@@ -345,10 +340,7 @@ def benchmark_add(
     except UntrustedInputError as exc:
         raise _fail(exc) from None
     body = {"yaml": text, "features": [f for f in features.split(",") if f]}
-    try:
-        out = _client(server, token, token_file).post("/benchmarks", body)
-    except ServerError as exc:
-        raise _fail(exc) from None
+    out = _ask(server, token, token_file, lambda c: c.post("/benchmarks", body))
     console.print(f"benchmark {out['name']} v{out['version']} " + ("stored" if out["created"] else "unchanged"))
 
 
@@ -359,7 +351,6 @@ def path_add(
 ) -> None:
     """Define a benchmark path: steps (benchmarks) and edges with conditions to progress."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
     from proxybench.untrusted import UntrustedInputError, load_yaml_file
 
     try:
@@ -370,10 +361,7 @@ def path_add(
         raise _fail(ValueError(f"{file}: expected a mapping with name, steps, edges"))
     body = {"name": data.get("name"), "description": data.get("description", ""),
             "spec": {"steps": data.get("steps"), "edges": data.get("edges", [])}}
-    try:
-        out = _client(server, token, token_file).post("/paths", body)
-    except ServerError as exc:
-        raise _fail(exc) from None
+    out = _ask(server, token, token_file, lambda c: c.post("/paths", body))
     console.print(f"path {out['name']}: {len(out['spec']['steps'])} steps, {len(out['spec']['edges'])} edges")
 
 
@@ -384,12 +372,7 @@ def token_list(
 ) -> None:
     """List API tokens (yours, or --user's): id, prefix, label, created, revoked. Never their text."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
-
-    try:
-        rows = _client(server, token, token_file).tokens(user)
-    except ServerError as exc:
-        raise _fail(exc) from None
+    rows = _ask(server, token, token_file, lambda c: c.tokens(user))
     table = Table(title=f"API tokens of {user or 'you'}")
     for col in ("id", "user", "prefix", "label", "created (UTC)", "revoked (UTC)"):
         table.add_column(col)
@@ -408,12 +391,7 @@ def token_add(
 ) -> None:
     """Make another token for yourself (one per machine makes revoking one painless)."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
-
-    try:
-        made = _client(server, token, token_file).new_token(label)
-    except ServerError as exc:
-        raise _fail(exc) from None
+    made = _ask(server, token, token_file, lambda c: c.new_token(label))
     if out is not None:
         fd = os.open(out, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
         with os.fdopen(fd, "w") as f:
@@ -430,12 +408,7 @@ def token_revoke(
 ) -> None:
     """Revoke a token for good (yours; super-users: anyone's); its web sessions end with it."""
     require_extra("server", ("httpx",))
-    from proxybench.client import ServerError
-
-    try:
-        out = _client(server, token, token_file).revoke_token(token_id)
-    except ServerError as exc:
-        raise _fail(exc) from None
+    out = _ask(server, token, token_file, lambda c: c.revoke_token(token_id))
     console.print(f"token {out['id']} of {out['user']} ({out['prefix']}…) revoked")
 
 

@@ -4,22 +4,19 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.table import Table
 
 from proxybench.cli.app import app, console, fail, problem
 from proxybench.cli.dtps_options import DtpsKind, DtpsOption, DtpsReset, dtps_option_values
-from proxybench.cli.node_options import (
-    RobotCwd,
-    RobotNoReflection,
-    RobotStartTimeout,
-    RobotStepTimeout,
-    RobotTransport,
-    robot_node_options,
-)
+from proxybench.cli.node_options import with_robot_node_options
 from proxybench.cli.options import positive
 from proxybench.cli.progress import status
+
+if TYPE_CHECKING:
+    from proxybench.protocol.options import RobotNodeOptions
 
 target_app = typer.Typer(no_args_is_help=True, help="Record a target once (reality model, robot node or DTPS robot), "
                                                     "check recorded targets (your lab's runs).")
@@ -31,17 +28,14 @@ def _fail(message: str, code: int = 2) -> None:
 
 
 @target_app.command("record")
+@with_robot_node_options()
 def record(
     out: Path = typer.Option(..., "--out", help="directory of the recorded target (created; resumed if it exists)"),
     agent: list[str] = typer.Option(..., "--agent", help="zoo name, NAME=COMMAND, checkpoint or package (repeat)"),
     reality: bool = typer.Option(False, "--reality", help="record the reality model (the default target)"),
     robot_cmd: str | None = typer.Option(None, "--robot-cmd", help="record a robot node started with this command"),
     robot_nodes: int = typer.Option(1, min=1, help="robot node processes at once (1 for a physical robot)"),
-    robot_cwd: RobotCwd = None,
-    robot_transport: RobotTransport = None,
-    robot_start_timeout: RobotStartTimeout = None,
-    robot_step_timeout: RobotStepTimeout = None,
-    robot_no_reflection: RobotNoReflection = False,
+    robot_options: RobotNodeOptions = None,  # the --robot-* options: with_robot_node_options
     dtps: str | None = typer.Option(None, "--dtps", help="record the DTPS robot at HOST[:PORT]/PATH (a Duckiebot: "
                                     "mybot.local/mybot; the Duckiematrix: 127.0.0.1:7501/robot/map_0/vehicle_0)"),
     dtps_reset: DtpsReset = None,
@@ -79,8 +73,6 @@ def record(
 
     if sum(map(bool, (reality, robot_cmd, dtps))) > 1:
         _fail("give one of --reality, --robot-cmd, --dtps")
-    robot_options = robot_node_options(robot_cwd, robot_transport, robot_start_timeout, robot_step_timeout,
-                                       robot_no_reflection, command=robot_cmd)
     dtps_given = dtps_option_values(dtps_reset, dtps_kind, dtps_option)
     if dtps_given and not dtps:
         _fail("--dtps-reset, --dtps-kind, --dtps-option: only with --dtps (they say how to drive a DTPS robot)")

@@ -25,8 +25,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 __all__ = [
     "DUCKIEBOT_DISTORTION", "DUCKIEBOT_INTRINSICS", "DUCKIEBOT_RGB", "DUCKIE_RGB", "NOMINAL_CALIBRATION",
-    "DomainParams", "ParamSpace",
-    "ParamSpaceError", "bounds_of", "closest_parameter", "describe_params", "unit_of", "unknown_parameter",
+    "DomainParams", "ParamSpace", "ParamSpaceError", "bounds_of", "check_image_size",
+    "closest_parameter", "describe_params", "unit_of", "unknown_parameter",
 ]
 
 RGB = tuple[float, float, float]
@@ -219,6 +219,15 @@ def bounds_of(name: str) -> tuple[float | None, float | None]:
         lo = getattr(m, "ge", None) if getattr(m, "ge", None) is not None else getattr(m, "gt", lo)
         hi = getattr(m, "le", None) if getattr(m, "le", None) is not None else getattr(m, "lt", hi)
     return lo, hi
+
+
+def check_image_size(size: tuple[int, int]) -> tuple[int, int]:
+    """A camera's (width, height) if θ accepts it (``image_width`` / ``image_height``), else a ValueError saying
+    the bounds: for settings that name an image size before any θ is made (a study's, a watchtower's)."""
+    (w_lo, w_hi), (h_lo, h_hi) = bounds_of("image_width"), bounds_of("image_height")
+    if not (w_lo <= size[0] <= w_hi and h_lo <= size[1] <= h_hi):
+        raise ValueError(f"width and height must be within {w_lo}…{w_hi} px, got {size[0]}×{size[1]}")
+    return size
 
 
 def describe_params() -> list[dict[str, Any]]:

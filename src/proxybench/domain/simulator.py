@@ -251,19 +251,8 @@ class Simulator:
         """
         rng = np.random.default_rng(seed)
         x, y, th = pose if pose is not None else self.sample_start(rng)
-        self.state[i] = 0.0
-        self.state[i, ST.X], self.state[i, ST.Y], self.state[i, ST.THETA] = x, y, math.remainder(th, 2 * math.pi)
-        self.commands[i] = 0.0
-        self.cmd_hist[i] = 0.0
-        self.tick[i] = 0
-        self.applied_tick[i] = -1
-        self.pose_hist[i] = self.state[i, :3]
-        self.seeds[i] = np.uint64(episode_seed(seed))
-        self.frame_index[i] = 0
-        self.routes.reset(i, seed, route)
+        self._place(i, (x, y, th), seed, seed, route)
         self._update_lane(np.array([i]))
-        a = self.arrays
-        self.state[i, ST.OFF_ROAD] = 0.0 if point_on_road(x, y, a.tile_kind, a.curve_corner, a.tile_size) else 1.0
         self._reset_npcs(i, seed)
         self._start_collisions(i)
 
@@ -277,23 +266,30 @@ class Simulator:
         lane = (int(self.lane[i, LP.SEGMENT]) if self.lane[i, LP.VALID] > 0.5 else -1, float(self.lane[i, LP.ALONG]))
         peds = w.peds.pts[w.ped_lo[i]: w.ped_hi[i], 0]  # where the world's pedestrians stand at t = 0
         occupied = [ego[:2], *self.objects.colliders[:, :2], *w.extra_cols[w.extra_lo[i]: w.extra_hi[i], :2], *peds]
-        a = self.arrays
         for j, r in enumerate(rows):
             rng = np.random.default_rng(np.random.SeedSequence([seed & _MASK64, _NPC_STREAM, j]))
             x, y, th = npc_start(self.net, w.robot_specs[r - self.n], rng, ego, lane, np.array(occupied))
             occupied.append((x, y))
-            self._state[r] = 0.0
-            self._state[r, ST.X], self._state[r, ST.Y], self._state[r, ST.THETA] = x, y, math.remainder(th, 2 * math.pi)
-            self._commands[r] = 0.0
-            self.cmd_hist[r] = 0.0
-            self.tick[r] = 0
-            self.applied_tick[r] = -1
-            self.pose_hist[r] = self._state[r, :3]
-            self._seeds[r] = np.uint64(episode_seed(int(rng.integers(2**62))))
-            self._frame_index[r] = 0
-            self.routes.reset(r, int(rng.integers(2**62)), None)
-            self._state[r, ST.OFF_ROAD] = 0.0 if point_on_road(x, y, a.tile_kind, a.curve_corner, a.tile_size) else 1.0
+            self._place(r, (x, y, th), int(rng.integers(2**62)), int(rng.integers(2**62)), None)  # in this order
         self._update_lane(np.array(rows))
+
+    def _place(self, r: int, pose: tuple[float, float, float], seed: int, route_seed: int,
+               route: Sequence[str] | None) -> None:
+        """Row ``r`` (an ego or an NPC robot) standing still at ``pose`` at tick 0, its histories cleared, its
+        noise stream from ``seed`` and its exits from ``route`` and ``route_seed``; its lane pose is the caller's."""
+        x, y, th = pose
+        self._state[r] = 0.0
+        self._state[r, ST.X], self._state[r, ST.Y], self._state[r, ST.THETA] = x, y, math.remainder(th, 2 * math.pi)
+        self._commands[r] = 0.0
+        self.cmd_hist[r] = 0.0
+        self.tick[r] = 0
+        self.applied_tick[r] = -1
+        self.pose_hist[r] = self._state[r, :3]
+        self._seeds[r] = np.uint64(episode_seed(seed))
+        self._frame_index[r] = 0
+        self.routes.reset(r, route_seed, route)
+        a = self.arrays
+        self._state[r, ST.OFF_ROAD] = 0.0 if point_on_road(x, y, a.tile_kind, a.curve_corner, a.tile_size) else 1.0
 
     def _start_collisions(self, i: int) -> None:
         """``collided`` of world i's robots where they stand at the start of its episode."""

@@ -15,9 +15,10 @@ import json
 import os
 import shutil
 import subprocess
-import sys
-from dataclasses import dataclass, field
 from pathlib import Path
+
+from proxybench.venv import VenvStatus, cache_folder, make_venv
+from proxybench.venv import venv_python as _python
 
 __all__ = ["PACKAGES", "DtpsEnvError", "EnvStatus", "check_env", "env_path", "sdk_python", "setup_env"]
 
@@ -38,32 +39,13 @@ class DtpsEnvError(RuntimeError):
     """The SDK environment is missing or broken; the message says how to fix it."""
 
 
-@dataclass
-class EnvStatus:
+class EnvStatus(VenvStatus):
     """What ``proxybench dtps check`` reports: where the environment is, what it holds, what is wrong."""
-
-    path: Path
-    python: Path
-    versions: dict[str, str] = field(default_factory=dict)
-    problems: list[str] = field(default_factory=list)
-
-    @property
-    def ok(self) -> bool:
-        return not self.problems
 
 
 def env_path(path: str | Path | None = None) -> Path:
     """The SDK environment's folder: ``path``, else ``$PROXYBENCH_DTPS_ENV``, else the user's cache folder."""
-    if path is not None:
-        return Path(path).expanduser().resolve()
-    if os.environ.get("PROXYBENCH_DTPS_ENV"):
-        return Path(os.environ["PROXYBENCH_DTPS_ENV"]).expanduser().resolve()
-    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return (cache / "proxybench" / "dtps-env").resolve()
-
-
-def _python(path: Path) -> Path:
-    return path / "bin" / "python"
+    return Path(path if path is not None else cache_folder("PROXYBENCH_DTPS_ENV", "dtps-env")).expanduser().resolve()
 
 
 def sdk_python(path: str | Path | None = None) -> Path:
@@ -106,10 +88,7 @@ def setup_env(path: str | Path | None = None, *, say=print) -> EnvStatus:
     marker = where / _MARKER
     current = json.loads(marker.read_text()).get("packages") if marker.exists() else None
     if current != list(PACKAGES) or not _python(where).exists():
-        if not _python(where).exists():
-            say(f"creating the SDK environment in {where}")
-            where.parent.mkdir(parents=True, exist_ok=True)
-            subprocess.run([sys.executable, "-m", "venv", str(where)], check=True)
+        make_venv(where, say, f"creating the SDK environment in {where}")
         say(f"installing {' '.join(PACKAGES)} (a few minutes)")
         pip = subprocess.run([str(_python(where)), "-m", "pip", "install", "-q", "--disable-pip-version-check",
                               *PACKAGES], capture_output=True, text=True)

@@ -76,19 +76,14 @@ class BridgeLink:
 
     # ------------------------------------------------------------------------------------------ I/O
     def send(self, **message: Any) -> None:
-        data = memoryview(pipe.pack(message))
         deadline = time.monotonic() + 10.0
-        while data:
-            try:
-                data = data[os.write(self._os.in_fd, data):]
-                continue
-            except BlockingIOError:
-                pass
-            except OSError:
-                self._fail("the bridge closed its input")
+
+        def wait() -> None:
             if time.monotonic() > deadline:
                 self._fail("the bridge read nothing for 10 s")
             self._pump(0.005)  # read its output meanwhile: it may be blocked writing to us
+
+        self._os.write(pipe.pack(message), wait, lambda: self._fail("the bridge closed its input"))
 
     def poll(self, deadline: float) -> list[dict[str, Any]]:
         """Events that arrived by ``deadline`` (returns as soon as there is at least one, or at the deadline); what

@@ -19,6 +19,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
+from proxybench.domain.params import check_image_size
 from proxybench.dtps.robot_options import DtpsRobotOptions
 from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP, proxy_params
 from proxybench.experiments.study import Cli, ConfigError, StudyConfig
@@ -28,7 +29,7 @@ from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
 from proxybench.untrusted import problems
 
 __all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "PlanConfig", "SearchConfig",
-           "default_help", "load_config", "param_name", "resolve"]
+           "default_help", "load_config", "param_name", "resolve", "resolve_run"]
 
 FULL_AGENTS = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
                "pure-pursuit-fast", "vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",
@@ -280,12 +281,7 @@ class ExperimentConfig(StudyConfig):
             param_name(name)
         return v
 
-    @field_validator("image_size")
-    @classmethod
-    def _image(cls, v: tuple[int, int]) -> tuple[int, int]:
-        if not (8 <= v[0] <= 4096 and 8 <= v[1] <= 4096):
-            raise ValueError(f"width and height must be within 8…4096 px, got {v[0]}×{v[1]}")
-        return v
+    _image = field_validator("image_size")(check_image_size)
 
     @model_validator(mode="after")
     def _proxy_theta(self) -> ExperimentConfig:
@@ -431,3 +427,17 @@ def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize", 
         pod_seconds=d["pod_seconds"] if cfg.pod_seconds is None else cfg.pod_seconds, seed=cfg.seed,
         truth=dict(cfg.truth))
     return exp, target
+
+
+def resolve_run(cfg: ExperimentConfig | Experiment, command: Literal["predictivity", "optimize"], run_dir: Path, *,
+                quick: bool = False, target=None):
+    """(Experiment, Target) of a study run in ``run_dir``: an experiment file's content resolved by :func:`resolve`
+    (its agents built beside the run, in ``agents/``), or an already resolved :class:`Experiment` with ``target``
+    (or, without one, its target text opened)."""
+    if isinstance(cfg, ExperimentConfig):
+        return resolve(cfg, command, quick=quick, work_dir=run_dir.parent / "agents", target=target)
+    if target is None:
+        from proxybench.targets.spec import open_target
+
+        target = open_target(cfg.target_text)
+    return cfg, target

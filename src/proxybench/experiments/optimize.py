@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from proxybench.domain.params import DomainParams
-from proxybench.experiments.config import OBJECTIVES, Experiment, ExperimentConfig, resolve
+from proxybench.experiments.config import OBJECTIVES, Experiment, ExperimentConfig, resolve_run
 from proxybench.experiments.predictivity import proxy_jobs
 from proxybench.experiments.proxies import param_label, proxy_params
 from proxybench.runner.backends import Backend, InlineBackend
@@ -161,14 +161,7 @@ def optimize_proxy(
     if cfg.search.objective == "plv":
         raise ValueError("search.objective: plv trains a learning agent; run it with proxybench.experiments."
                          "optimize_plv.run_plv_search (or `proxybench optimize --objective plv`)")
-    if isinstance(cfg, ExperimentConfig):
-        exp, target = resolve(cfg, "optimize", quick=quick, work_dir=run_dir.parent / "agents", target=target)
-    else:
-        exp = cfg
-        if target is None:
-            from proxybench.targets.spec import open_target
-
-            target = open_target(exp.target_text)
+    exp, target = resolve_run(cfg, "optimize", run_dir, quick=quick, target=target)
     higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
     tgt = target.run(exp.agents, map_name=exp.map, seconds=exp.seconds, episodes=exp.episodes, seed=exp.seed,
                      metrics=exp.metrics, image_size=exp.image_size, run_dir=run_dir, backend=backend,
@@ -218,11 +211,11 @@ def optimize_proxy(
 
 def plot_optimization(res: OptimizeResult, out: str | Path) -> list[Path]:
     """Optimisation history and parameter importances (PNG + SVG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import optuna
+
+    from proxybench.plots import pyplot, save_figure
+
+    plt = pyplot()
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -260,9 +253,7 @@ def plot_optimization(res: OptimizeResult, out: str | Path) -> list[Path]:
     what = res.target.label if res.target is not None else "the target"
     fig.suptitle(textwrap.shorten(f"proxy optimisation against {what}", 150, placeholder=" …"), fontsize=10)
     paths = [out / "optimization_history.png"]
-    fig.savefig(paths[0], dpi=110)
-    fig.savefig(paths[0].with_suffix(".svg"))
-    plt.close(fig)
+    save_figure(fig, paths[0])
     if len(res.best_params) > 1 and len(res.trials) > 2:
         imp = optuna.importance.get_param_importances(res.study)
         fig, ax = plt.subplots(figsize=(4.5, 0.6 + 0.5 * len(imp)))
@@ -270,9 +261,7 @@ def plot_optimization(res: OptimizeResult, out: str | Path) -> list[Path]:
         ax.set_xlabel("importance (fANOVA)")
         fig.tight_layout()
         paths.append(out / "param_importance.png")
-        fig.savefig(paths[-1], dpi=110)
-        fig.savefig(paths[-1].with_suffix(".svg"))
-        plt.close(fig)
+        save_figure(fig, paths[-1])
     return paths
 
 

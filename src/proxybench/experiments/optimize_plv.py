@@ -149,11 +149,11 @@ def plot_plv_search(res: PLVOptimizeResult, out: str | Path) -> list[Path]:
     zero ("not reached"), not as a number; an interval whose lower end is "not reached" runs down to
     that line and ends in a triangle.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import matplotlib.ticker
+
+    from proxybench.plots import pyplot, save_figure
+
+    plt = pyplot()
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -216,9 +216,7 @@ def plot_plv_search(res: PLVOptimizeResult, out: str | Path) -> list[Path]:
                                   f"{len(res.config.seeds)} seeds, P = {res.reference:.2f}", 150, placeholder=" …"),
                  fontsize=10)
     path = out / "plv_search.png"
-    fig.savefig(path, dpi=110)
-    fig.savefig(path.with_suffix(".svg"))
-    plt.close(fig)
+    save_figure(fig, path)
     return [path]
 
 

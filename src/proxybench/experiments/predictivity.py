@@ -22,7 +22,7 @@ import numpy as np
 from proxybench.domain.kinds import DomainKind
 from proxybench.domain.maps import load_map
 from proxybench.experiments.baselines import NOMINAL, baseline_tables, baselines, diagnose
-from proxybench.experiments.config import Experiment, ExperimentConfig, resolve
+from proxybench.experiments.config import Experiment, ExperimentConfig, resolve_run
 from proxybench.experiments.pod import pod
 from proxybench.experiments.proxies import proxy_params
 from proxybench.runner.backends import Backend, InlineBackend
@@ -116,14 +116,7 @@ def run_predictivity(
     """
     backend = backend or InlineBackend()
     run_dir = Path(run_dir)
-    if isinstance(cfg, ExperimentConfig):
-        exp, target = resolve(cfg, "predictivity", quick=quick, work_dir=run_dir.parent / "agents", target=target)
-    else:
-        exp = cfg
-        if target is None:
-            from proxybench.targets.spec import open_target
-
-            target = open_target(exp.target_text)
+    exp, target = resolve_run(cfg, "predictivity", run_dir, quick=quick, target=target)
     tgt = target.run(exp.agents, map_name=exp.map, seconds=exp.seconds, episodes=exp.episodes, seed=exp.seed,
                      metrics=exp.metrics, image_size=exp.image_size, run_dir=run_dir, backend=backend,
                      progress=progress)

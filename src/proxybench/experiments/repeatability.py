@@ -215,7 +215,7 @@ def recorded_study(paths: Sequence[str | Path], map_name: str = "loop_3x3") -> R
         raise ValueError(f"repeatability needs at least 2 recorded runs, found {len(found)} in {list(map(str, paths))}")
     trajs = []
     for lab, robot, f in found:
-        tr = _load_run(f, map_name, T)
+        tr = T.read(f, map_name)
         tr.meta.update({"lab": lab, "robot": robot, "source": DomainKind.RECORDED, "file": str(f)})
         trajs.append(tr)
     labs = list(dict.fromkeys(lab for lab, _, _ in found))
@@ -227,18 +227,6 @@ def recorded_study(paths: Sequence[str | Path], map_name: str = "loop_3x3") -> R
     notes = {name: f"{len(found)} runs from {len(labs)} lab(s), {len(robots)} robot(s); runs per robot: {per}"}
     designs = {name: DesignResult(d, trajs, labels, _figures(trajs, labels, d))}
     return RepeatabilityResult(designs, DomainKind.RECORDED, notes)
-
-
-def _load_run(path: Path, map_name: str, T) -> Trajectory:
-    if path.suffix == ".parquet":
-        from proxybench.tasks.trajectory import TrajectoryError
-
-        try:
-            return T.load(path)
-        except TrajectoryError as exc:
-            if "no proxybench metadata" not in str(exc):
-                raise
-    return T.from_file(path, map_name)
 
 
 def robot_study(agent: str, commands: Mapping[str, str], runs: int = 3, seconds: float = 30.0,

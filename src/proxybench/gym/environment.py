@@ -13,10 +13,11 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from proxybench.venv import VenvStatus, cache_folder, make_venv, venv_python
 
 __all__ = ["APT_PACKAGES", "GYM_VERSION", "GymEnvironment", "check_environment", "default_path", "setup_environment"]
 
@@ -39,25 +40,15 @@ print(json.dumps(out))
 
 def default_path() -> Path:
     """Where gym's environment lives unless ``--path`` says otherwise."""
-    if os.environ.get("PROXYBENCH_GYM_VENV"):
-        return Path(os.environ["PROXYBENCH_GYM_VENV"])
-    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return cache / "proxybench" / f"gym-duckietown-{GYM_VERSION}"
+    return cache_folder("PROXYBENCH_GYM_VENV", f"gym-duckietown-{GYM_VERSION}")
 
 
 @dataclass
-class GymEnvironment:
-    """What ``check`` found: the folder, its interpreter, the versions it runs, and every problem."""
+class GymEnvironment(VenvStatus):
+    """What ``check`` found: the folder, its interpreter, the versions it runs, every problem, and the Debian
+    packages missing."""
 
-    path: Path
-    python: Path
-    versions: dict[str, str] = field(default_factory=dict)
-    problems: list[str] = field(default_factory=list)
     missing_apt: list[str] = field(default_factory=list)
-
-    @property
-    def ok(self) -> bool:
-        return not self.problems
 
 
 def missing_apt_packages() -> list[str]:
@@ -78,7 +69,7 @@ def check_environment(path: Path | None = None, *, render: bool = True) -> GymEn
     """Check the environment at ``path`` (default :func:`default_path`): Debian packages, interpreter, pins,
     and (``render``) that gym renders one frame headless."""
     path = Path(path or default_path())
-    env = GymEnvironment(path, path / "bin" / "python")
+    env = GymEnvironment(path, venv_python(path))
     env.missing_apt = missing_apt_packages()
     if env.missing_apt:
         env.problems.append(f"Debian packages missing: {' '.join(env.missing_apt)} (install: "
@@ -125,15 +116,12 @@ def setup_environment(path: Path | None = None, *, say: Callable[[str], None] = 
             subprocess.run(cmd, check=True, env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"})
     elif missing:
         say(f"Debian packages missing; as root run: {apt_command(missing)}")
-    python = path / "bin" / "python"
+    python = venv_python(path)
     stamp = path / _STAMP
     if python.exists() and stamp.is_file() and stamp.read_text() == REQUIREMENTS.read_text():
         say(f"gym-duckietown environment in place: {path}")
     else:
-        if not python.exists():
-            say(f"creating a virtual environment at {path}")
-            path.parent.mkdir(parents=True, exist_ok=True)
-            subprocess.run([sys.executable, "-m", "venv", str(path)], check=True)
+        make_venv(path, say, f"creating a virtual environment at {path}")
         say(f"installing gym-duckietown {GYM_VERSION} and its pins into {path} (a few minutes)")
         subprocess.run([str(python), "-m", "pip", "install", "-q", "--disable-pip-version-check", "-r",
                         str(REQUIREMENTS)], check=True)

@@ -136,6 +136,13 @@ class NodeLogic:
             raise ExternalProtocolViolation(problem)
         self.language.push(topic)
 
+    def _on_seed(self, data: Any) -> list[bytes]:
+        """The ``seed`` topic, which both languages open with: kept in ``self.seed``, answered with nothing."""
+        seed = wire.parse_seed(data)
+        self._advance("seed")
+        self.seed = seed
+        return []
+
     # ------------------------------------------------------------------------------------ meta topics
     def _on_meta(self, topic: str, data: Any, start: int) -> list[bytes]:
         out_topic, out = self._meta_answer(topic, data)
@@ -195,12 +202,6 @@ class AgentNode(NodeLogic):
         self.config_target = agent
 
     # ------------------------------------------------------------------------------------ data topics
-    def _on_seed(self, data: Any) -> list[bytes]:
-        seed = wire.parse_seed(data)
-        self._advance("seed")
-        self.seed = seed
-        return []
-
     def _on_episode_start(self, data: Any) -> list[bytes]:
         name, payload = wire.parse_episode_start(data)
         self._advance("episode_start")
@@ -245,37 +246,32 @@ class _NodeIO:
     def __init__(self, data_in: str | int | BinaryIO | None, data_out: str | int | BinaryIO | None):
         self._restore: list[tuple[int, int]] = []
         self._close: list[int] = []
-        self.in_fd, self.in_file = self._open_in(data_in)
-        self.out_fd, self.out_file = self._open_out(data_out)
+        self.in_fd, self.in_file = self._open(data_in, wire.ENV_DATA_IN, 0)
+        self.out_fd, self.out_file = self._open(data_out, wire.ENV_DATA_OUT, 1)
 
-    def _open_in(self, spec: str | int | BinaryIO | None) -> tuple[int, BinaryIO | None]:
-        spec = os.environ.get(wire.ENV_DATA_IN, "/dev/stdin") if spec is None else spec
-        if spec in ("/dev/stdin", 0):
-            return self._steal(0, os.O_RDONLY), None
+    def _open(self, spec: str | int | BinaryIO | None, env: str, std: int) -> tuple[int, BinaryIO | None]:
+        """Stream ``std`` (0: in, 1: out) as given: unset (the environment variable ``env``, else the standard
+        stream, taken over), an fd, a path (out: ``fifo:PATH`` makes the FIFO if needed) or a file object."""
+        name = ("/dev/stdin", "/dev/stdout")[std]
+        spec = os.environ.get(env, name) if spec is None else spec
+        if spec in (name, std):
+            return self._steal(std, (os.O_RDONLY, os.O_WRONLY)[std]), None
         if isinstance(spec, int):
             return spec, None
         if isinstance(spec, str):
-            fd = os.open(spec, os.O_RDONLY)
+            fd = os.open(spec, os.O_RDONLY) if std == 0 else self._open_out_path(spec)
             self._close.append(fd)
             return fd, None
         return -1, spec
 
-    def _open_out(self, spec: str | int | BinaryIO | None) -> tuple[int, BinaryIO | None]:
-        spec = os.environ.get(wire.ENV_DATA_OUT, "/dev/stdout") if spec is None else spec
-        if spec in ("/dev/stdout", 1):
-            return self._steal(1, os.O_WRONLY), None
-        if isinstance(spec, int):
-            return spec, None
-        if isinstance(spec, str):
-            path = spec
-            if spec.startswith("fifo:"):
-                path = spec[len("fifo:"):]
-                if not (os.path.exists(path) and stat.S_ISFIFO(os.stat(path).st_mode)):
-                    os.mkfifo(path)
-            fd = os.open(path, os.O_WRONLY | (0 if spec.startswith("fifo:") else os.O_CREAT | os.O_TRUNC), 0o644)
-            self._close.append(fd)
-            return fd, None
-        return -1, spec
+    @staticmethod
+    def _open_out_path(spec: str) -> int:
+        path = spec
+        if spec.startswith("fifo:"):
+            path = spec[len("fifo:"):]
+            if not (os.path.exists(path) and stat.S_ISFIFO(os.stat(path).st_mode)):
+                os.mkfifo(path)
+        return os.open(path, os.O_WRONLY | (0 if spec.startswith("fifo:") else os.O_CREAT | os.O_TRUNC), 0o644)
 
     def _steal(self, fd: int, mode: int) -> int:
         """A private duplicate of standard fd ``fd``; fd itself now points to /dev/null (in) or stderr (out)."""

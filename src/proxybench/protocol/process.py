@@ -406,19 +406,16 @@ class NodeProcess:
         self._stream.feed_eof()
 
     def _send(self, payload: bytes, deadline: float, reason: str) -> None:
-        view = memoryview(payload)
-        while view:
-            try:
-                view = view[os.write(self._os.in_fd, view):]
-                continue
-            except BlockingIOError:
-                pass
-            except (BrokenPipeError, OSError):
-                self._drain_after_exit()
-                self._fail("exited", "the node closed its input")
+        def wait() -> None:
             self._wait(deadline, reason, write_fd=self._os.in_fd)
             if self._stream.eof:
                 self._fail("exited", "the node ended while a request was being written")
+
+        def closed() -> None:
+            self._drain_after_exit()
+            self._fail("exited", "the node closed its input")
+
+        self._os.write(payload, wait, closed)
 
     # ------------------------------------------------------------------------------- failing
     def _finish_stderr(self) -> list[str]:

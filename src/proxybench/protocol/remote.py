@@ -53,12 +53,3 @@ class RemoteAgent(Agent, NodeSession):
     def act(self, obs: Observation) -> np.ndarray:
         return self.process.step(obs)
 
-    def close(self) -> int | None:
-        """End the node process; its exit status."""
-        return self.process.close()
-
-    def __enter__(self) -> RemoteAgent:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -117,7 +117,7 @@ class RobotNode(NodeLogic):
         elif map_ is not None:
             raise TypeError("RobotNode: give the map to the backend, not to the node")
         self.backend = backend
-        self.default_seed = seed
+        self.seed = seed
         self.quality = quality
         self.robot: robot_wire.SpawnRobotData | None = None
         self.episode_name: str | None = None
@@ -155,12 +155,6 @@ class RobotNode(NodeLogic):
         return self.backend.time()
 
     # ---------------------------------------------------------------------------------- setup topics
-    def _on_seed(self, data: Any) -> list[bytes]:
-        seed = wire.parse_seed(data)
-        self._advance("seed")
-        self.default_seed = seed
-        return []
-
     def _on_clear(self, data: Any) -> list[bytes]:
         if data is not None:
             raise wire.MessageTypeError(f"clear: data must be null, got {type(data).__name__}")
@@ -219,7 +213,7 @@ class RobotNode(NodeLogic):
         if self.robot is None:
             raise ValueError("episode_start: no robot spawned (send spawn_robot after set_map)")
         self._advance("episode_start")
-        seed = options.get("seed", self.default_seed)
+        seed = options.get("seed", self.seed)
         self.backend.reset(int(seed), options.get("pose", self.robot.pose), options.get("route"),
                            self._extra_objects(), camera=self.robot.simulate_camera)
         self.episode_name = name

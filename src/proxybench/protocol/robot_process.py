@@ -13,7 +13,7 @@ import json
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Self, TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -211,12 +211,3 @@ class RemoteRobot(NodeSession):
               ) -> tuple[rw.SimState, rw.RobotStateData, rw.RobotObservationsData | None]:
         return self.process.frame(self.robot_name, t, wheels, until, observe=observe)
 
-    def close(self) -> int | None:
-        """End the node process; its exit status."""
-        return self.process.close()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -1,11 +1,11 @@
 """Caller-side life of a node across episodes, shared by :class:`~.remote.RemoteAgent` and
 :class:`~.robot_process.RemoteRobot`: one ``seed`` per process, episode names, a fresh process after a
-failure, and no second ``describe_protocol`` for a node that failed it once."""
+failure, no second ``describe_protocol`` for a node that failed it once, and closing it (a context manager)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Self
 
 from proxybench.protocol.process import NodeProcess
 
@@ -47,3 +47,13 @@ class NodeSession:
         name = episode if episode is not None else f"episode-{self._episodes}"
         self._episodes += 1
         return name
+
+    def close(self) -> int | None:
+        """End the node process; its exit status."""
+        return self.process.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

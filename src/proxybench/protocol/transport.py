@@ -322,6 +322,21 @@ class Launch:
                 time.sleep(min(left, 0.005))
         return True
 
+    def write(self, data: bytes, wait: Callable[[], None], closed: Callable[[], None]) -> None:
+        """Write all of ``data`` to the process's (non-blocking) input: ``wait()`` while the pipe is full (the caller
+        bounds the time and keeps reading the output, which the process may be blocked writing), ``closed()`` (it
+        must raise) once the process no longer reads."""
+        view = memoryview(data)
+        while view:
+            try:
+                view = view[os.write(self.in_fd, view):]
+                continue
+            except BlockingIOError:
+                pass
+            except OSError:
+                closed()
+            wait()
+
     def close_input(self) -> None:
         if self.in_fd >= 0:
             os.close(self.in_fd)

@@ -21,6 +21,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from proxybench.tasks.scoring import Criterion, compare
+from proxybench.untrusted import repeated
 
 __all__ = ["Condition", "Edge", "PathSpec", "Step"]
 
@@ -85,7 +86,7 @@ class PathSpec(_Strict):
     @model_validator(mode="after")
     def _dag(self) -> PathSpec:
         ids = [s.id for s in self.steps]
-        dup = sorted({i for i in ids if ids.count(i) > 1})
+        dup = repeated(ids)
         if dup:
             raise ValueError(f"step ids must be unique; repeated: {', '.join(dup)}")
         for k, e in enumerate(self.edges):

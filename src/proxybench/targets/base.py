@@ -17,6 +17,7 @@ from proxybench.domain.kinds import DomainKind
 from proxybench.domain.params import DomainParams
 from proxybench.runner.backends import Backend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
+from proxybench.untrusted import repeated
 
 __all__ = ["Episodes", "Progress", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "by_agent", "episode_count",
            "episode_ids", "episode_seed", "id_ranges", "live_run", "parse_episodes"]
@@ -147,7 +148,7 @@ def parse_episodes(value: Any) -> Episodes:
         if not all(isinstance(e, int) and not isinstance(e, bool) and e >= 0 for e in value):
             raise ValueError(f"episode ids must be integers >= 0, got {list(value)[:5]!r}")
         if len(set(value)) != len(value):
-            raise ValueError(f"episode ids repeat: {id_ranges([e for e in set(value) if list(value).count(e) > 1])}")
+            raise ValueError(f"episode ids repeat: {id_ranges(repeated(value))}")
         return tuple(value)
     raise ValueError(f"a count or ids such as 0-4,7, got {type(value).__name__}")
 

@@ -50,6 +50,10 @@ class TrajectoryError(ValueError):
     """A trajectory (or a file claiming to be one) is unusable; the message names the file and column."""
 
 
+class _NotSaved(TrajectoryError):
+    """A Parquet file without the block :meth:`Trajectory.save` writes: a recorded run, for :meth:`~Trajectory.read`."""
+
+
 @dataclass
 class Trajectory:
     """One episode: ``columns`` maps names to equal-length 1-D arrays (see ``_CORE``, ``_OPTIONAL``, lane
@@ -163,7 +167,7 @@ class Trajectory:
             raise TrajectoryError(f"{path}: not a readable Parquet file ({exc})") from exc
         raw = (table.schema.metadata or {}).get(b"proxybench")
         if raw is None:
-            raise TrajectoryError(f"{path}: no proxybench metadata block (import recorded runs with from_file)")
+            raise _NotSaved(f"{path}: no proxybench metadata block (import recorded runs with from_file)")
         block = json.loads(raw)
         cols = {name: table.column(name).to_numpy() for name in table.column_names}
         missing = [c for c in (*_CORE, *LANE_POSE_FIELDS) if c not in cols]
@@ -171,6 +175,17 @@ class Trajectory:
             raise TrajectoryError(f"{path}: missing column(s) {', '.join(missing)}")
         return cls(cols, block.get("meta", {}), _events(block.get("events", []), str(path)),
                    _termination(block.get("termination", Termination.TIMEOUT), str(path)))
+
+    @classmethod
+    def read(cls, path: str | Path, m: Map | str) -> Trajectory:
+        """A file as :meth:`save` wrote it, else a recorded run imported against the map ``m`` (:meth:`from_file`)."""
+        path = Path(path)
+        if path.suffix == ".parquet":
+            try:
+                return cls.load(path)
+            except _NotSaved:
+                pass
+        return cls.from_file(path, m)
 
     @classmethod
     def from_file(cls, path: str | Path, m: Map | str, *, meta: dict[str, Any] | None = None) -> Trajectory:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
+from proxybench.plots import pyplot, save_figure
+
 __all__ = ["pyplot", "save_figure", "source_commit"]
 
 
@@ -21,21 +23,3 @@ def source_commit() -> str:
         return rev.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown (git not available)"
-
-
-def pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def save_figure(fig, path: Path) -> Path:
-    """PNG at 110 dpi and SVG beside it (the reports embed the PNG; the SVG is for papers)."""
-    plt = pyplot()
-    fig.savefig(path, dpi=110)
-    fig.savefig(path.with_suffix(".svg"))
-    plt.close(fig)
-    return path
