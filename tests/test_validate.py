@@ -25,6 +25,15 @@ def _res(means: dict[str, float], n: int = 3) -> dict[str, np.ndarray]:
     return {a: np.array([[m, m]] * n) + np.arange(n)[:, None] * 0.01 for a, m in means.items()}
 
 
+def test_settings_do_not_depend_on_how_proxybench_was_started():
+    import sys
+
+    from proxybench.experiments.validate import ValidateConfig, settings_for
+
+    s = json.dumps(settings_for(ValidateConfig(), False))
+    assert sys.executable not in s and "{python} -m proxybench.protocol vision" in s  # filled in at run time
+
+
 def test_quality_and_regret_measures_by_hand():
     target = _res({"a": 3.0, "b": 2.0, "c": 1.0})
     swapped = _res({"a": 2.0, "b": 3.0, "c": 1.0})

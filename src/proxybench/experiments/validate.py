@@ -57,8 +57,11 @@ Progress = Callable[[str, int, int], None]
 _POOL = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
          "pure-pursuit-fast", "vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",
          "vision-wide", "vision-twitchy")
-#: a camera agent behind the AIDO protocol (its own process per episode), to keep node agents in every pool
-NODE_AGENT = f"vision-node={shlex.quote(sys.executable)} -m proxybench.protocol vision"
+#: a camera agent behind the AIDO protocol (its own process per episode), to keep node agents in every pool;
+#: ``{python}`` is the interpreter running the study, filled in at run time so that the settings (and with them
+#: criteria.json) do not depend on how proxybench was started (``python`` or ``python3`` of the same venv)
+PYTHON = "{python}"
+NODE_AGENT = f"vision-node={PYTHON} -m proxybench.protocol vision"
 _QUICK_POOL = ("straight", "pid", "pid-twitchy", "pure-pursuit", "vision", "vision-fast", "vision-pitch25",
                "vision-slow")
 
@@ -436,7 +439,8 @@ def run_validate(cfg: ValidateConfig, out: str | Path, backend: Backend | None =
     specs: list[AgentSpec] = []
     if not finished_only:
         try:
-            specs = parse_agents([*s["agents"], *train_bc_agents(s, out / "agents", progress)], out / "agents")
+            agents = [a.replace(PYTHON, shlex.quote(sys.executable)) for a in s["agents"]]
+            specs = parse_agents([*agents, *train_bc_agents(s, out / "agents", progress)], out / "agents")
         except AgentArgError as exc:
             raise ConfigError(f"agents: {exc}") from None
     backend = backend or InlineBackend()
