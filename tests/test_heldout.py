@@ -223,3 +223,11 @@ def test_cached_episodes_are_scored_for_metrics_a_later_run_asks_for(tmp_path):
     assert first.ran == 2 and again.ran == 0
     assert all(set(r.scores) >= {"survival_time", "lane_score"} for r in again.results)
     assert [r.scores["survival_time"] for r in again.results] == [r.scores["survival_time"] for r in first.results]
+
+
+def test_heldout_config_refuses_an_image_size_theta_cannot_take():
+    from proxybench.experiments.heldout_config import HeldOutConfig
+
+    with pytest.raises(ConfigError, match="image_size: width and height must be within 8…4096 px, got 4×4"):
+        load_heldout_config(None, {"image_size": [4, 4]})
+    assert HeldOutConfig(image_size=(32, 24)).image_size == (32, 24)

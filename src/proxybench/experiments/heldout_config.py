@@ -11,6 +11,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from proxybench.domain.params import check_image_size
 from proxybench.experiments.config import param_name
 from proxybench.experiments.study import Cli, StudyConfig
 
@@ -76,6 +77,8 @@ class HeldOutConfig(StudyConfig):
     """bootstrap resamples of the reference episodes (stability of the best available θ)"""
     seed: int = Field(0, ge=0, le=100_000)
     """episode and resampling seed"""
+
+    _image = field_validator("image_size")(check_image_size)
 
     @field_validator("tasks")
     @classmethod
