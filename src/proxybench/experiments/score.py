@@ -119,19 +119,17 @@ def score_proxy(cfg: ExperimentConfig, theta: Mapping[str, Any], run_dir: str | 
     proxies = {name: by_agent(js, [next(results) for _ in js], exp.metrics) for name, js in jobs.items()}
     higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
 
-    def scored(key: str, th: Mapping[str, Any]) -> ProxyScore:
-        name = doms[key].name
-        return ProxyScore(name, dict(th), usefulness(PairedResults(proxies[name], tgt.results, higher, exp.metrics),
-                                                     n_boot=exp.n_boot, seed=exp.seed))
+    base = baselines(tgt, proxies[NOMINAL], higher, exp.metrics, n_boot=exp.n_boot, seed=exp.seed)
 
-    a, b = scored("param", theta), scored("vs_param", versus or {})
+    def figures(name: str) -> Usefulness:  # the nominal θ's are the baselines' (same resamples): computed once
+        return base[NOMINAL] if name == NOMINAL else usefulness(
+            PairedResults(proxies[name], tgt.results, higher, exp.metrics), n_boot=exp.n_boot, seed=exp.seed)
+
+    a = ProxyScore(doms["param"].name, dict(theta), figures(doms["param"].name))
+    b = ProxyScore(doms["vs_param"].name, dict(versus or {}), figures(doms["vs_param"].name))
     names = [a.label, b.label] + ([NOMINAL] if NOMINAL not in (a.label, b.label) else [])
     samples = paired_prpv_samples(tgt.results, [proxies[n] for n in names], higher, n_boot=exp.n_boot, seed=exp.seed)
-    points = [a.figures["prpv"].value, b.figures["prpv"].value]
-    if len(names) == 3:
-        points.append(usefulness(PairedResults(proxies[NOMINAL], tgt.results, higher, exp.metrics),
-                                 n_boot=exp.n_boot, seed=exp.seed)["prpv"].value)
+    points = [a.figures["prpv"].value, b.figures["prpv"].value, base[NOMINAL]["prpv"].value][: len(names)]
     vs_nominal = compare_paired(names, points, samples, 0, 2) if len(names) == 3 else None
-    return ScoreResult(exp, tgt, a, b, compare_paired(names, points, samples, 0, 1), vs_nominal,
-                       baselines(tgt, proxies[NOMINAL], higher, exp.metrics, n_boot=exp.n_boot, seed=exp.seed),
+    return ScoreResult(exp, tgt, a, b, compare_paired(names, points, samples, 0, 1), vs_nominal, base,
                        noise_floor(tgt.results, higher, n_boot=exp.n_boot, seed=exp.seed), sweep.ran)
