@@ -29,7 +29,8 @@ def flood(port: int, source: str, count: int, hold: float) -> dict:
     """Open ``count`` sockets from ``source``; what the server did with them (see the module's docstring)."""
     _, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
-    sel = selectors.DefaultSelector()
+    connecting = selectors.DefaultSelector()  # two selectors: a socket the server already answered or closed must
+    sel = selectors.DefaultSelector()  # not come back to the connect loop as if it were still connecting
     pending = {}
     for k in range(count):
         s = socket.socket()
@@ -37,26 +38,32 @@ def flood(port: int, source: str, count: int, hold: float) -> dict:
         s.bind((source, 0))
         s.connect_ex(("127.0.0.1", port))
         pending[s] = k
-        sel.register(s, selectors.EVENT_WRITE)
+        connecting.register(s, selectors.EVENT_WRITE)
     opened, failed = [], 0
     deadline = time.monotonic() + 30  # a loaded machine (CI runs the suite beside this) connects slowly
     while pending and time.monotonic() < deadline:
-        for key, _ in sel.select(0.5):
+        for key, _ in connecting.select(0.5):
             s = key.fileobj
-            sel.unregister(s)
+            connecting.unregister(s)
             k = pending.pop(s)
             if s.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR):
                 failed += 1
                 s.close()
                 continue
-            if k % 2:
-                s.send(HALF_HEADER)
+            try:
+                if k % 2:
+                    s.send(HALF_HEADER)
+            except OSError:  # the server may already have refused it (503 and close)
+                failed += 1
+                s.close()
+                continue
             opened.append(s)
             sel.register(s, selectors.EVENT_READ)
     for s in pending:
         failed += 1
-        sel.unregister(s)
+        connecting.unregister(s)
         s.close()
+    connecting.close()
     t0 = time.monotonic()
     print(json.dumps({"ready": len(opened)}), flush=True)
     refused = closed = 0
