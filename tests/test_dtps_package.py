@@ -17,7 +17,9 @@ import pytest
 
 from proxybench.protocol.package import AgentManifest, PackageError, check_archive
 from support.dtps import sdk
-from support.sandbox import require_safe_sandbox
+from support.sandbox import AGENT_USER_GROUP, require_safe_sandbox
+
+pytestmark = AGENT_USER_GROUP  # its agents and evaluators run as the agent user: one test at a time
 
 AGENTS = Path(__file__).parent / "dtps_agents"
 

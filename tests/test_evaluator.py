@@ -27,7 +27,9 @@ import uvicorn
 
 from proxybench.client import ServerClient, ServerError
 from proxybench.evaluator import Evaluator, EvaluatorConfig
-from support.sandbox import processes_left, require_safe_sandbox
+from support.sandbox import AGENT_USER_GROUP, processes_left, require_safe_sandbox
+
+pytestmark = AGENT_USER_GROUP  # its agents and evaluators run as the agent user: one test at a time
 
 TINY = """\
 name: tiny_eval

@@ -15,9 +15,11 @@ import pytest
 
 from proxybench.protocol import wire
 from proxybench.protocol.package import PackageError, check_archive
-from support.sandbox import require_safe_sandbox
+from support.sandbox import AGENT_USER_GROUP, require_safe_sandbox
 from test_evaluator import Served, evaluator, the_job
 from test_evaluator import served as served_fixture  # noqa: F401 - the fixture, under this name
+
+pytestmark = AGENT_USER_GROUP  # its agents and evaluators run as the agent user: one test at a time
 
 MANIFEST = b"name: mine\nprotocol: aido-z2\ncommand: [python3, agent.py]\n"
 SLOW_NODE = """\

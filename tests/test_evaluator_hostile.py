@@ -36,7 +36,9 @@ pytest.importorskip("fastapi")
 import uvicorn
 
 from proxybench.client import ServerClient
-from support.sandbox import processes_left, require_safe_sandbox
+from support.sandbox import AGENT_USER_GROUP, processes_left, require_safe_sandbox
+
+pytestmark = AGENT_USER_GROUP  # its agents and evaluators run as the agent user: one test at a time
 
 HOSTILE = Path(__file__).with_name("hostile_agents") / "hostile.py"
 TEST_SEED = 738291046

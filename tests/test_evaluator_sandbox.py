@@ -33,7 +33,9 @@ from proxybench.evaluator.sandbox import (
 from proxybench.protocol.package import PackageError, check_archive
 from proxybench.protocol.unpack import extract_archive
 from support.jobs import worker_job
-from support.sandbox import require_safe_sandbox
+from support.sandbox import AGENT_USER_GROUP, require_safe_sandbox
+
+pytestmark = AGENT_USER_GROUP  # its agents and evaluators run as the agent user: one test at a time
 
 MANIFEST = b"name: t\nprotocol: aido-z2\ncommand: [python3, agent.py]\n"
 

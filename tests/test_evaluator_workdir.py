@@ -13,8 +13,10 @@ from pathlib import Path
 import pytest
 
 from proxybench.evaluator import Evaluator, EvaluatorConfig
+from support.sandbox import AGENT_USER_GROUP
 
-pytestmark = pytest.mark.skipif(os.geteuid() != 0, reason="planting another user's files needs root")
+pytestmark = [pytest.mark.skipif(os.geteuid() != 0, reason="planting another user's files needs root"),
+              AGENT_USER_GROUP]  # an evaluator probes the sandbox as the agent user when it starts
 OTHER = pwd.getpwnam("nobody")
 
 

@@ -11,6 +11,9 @@ import sys
 import httpx
 
 from support.live_server import LiveServer
+from support.sandbox import AGENT_USER_GROUP
+
+pytestmark = AGENT_USER_GROUP  # `serve --evaluators 1`: its evaluator probes the sandbox as the agent user
 
 TINY = """\
 name: tiny_e2e

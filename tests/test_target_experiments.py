@@ -12,6 +12,7 @@ from proxybench.cli import app
 from proxybench.runner.jobs import AgentSpec
 from proxybench.targets import RealityTarget, TargetError, check_recording
 from proxybench.targets.record import record_target
+from support.sandbox import AGENT_USER_GROUP
 
 runner = CliRunner()
 TINY = {"episodes": 2, "seconds": 3.0, "n_boot": 30, "pod_seconds": 0.0,
@@ -189,6 +190,7 @@ sys.exit(serve(Forward()))
 """
 
 
+@AGENT_USER_GROUP
 def test_an_agent_package_runs_sandboxed_in_predictivity(tmp_path):
     import io
     import zipfile

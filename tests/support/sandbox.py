@@ -10,7 +10,13 @@ import pytest
 
 from proxybench.evaluator.sandbox import Isolation, detect_isolation
 
-__all__ = ["agent_uid", "processes_left", "processes_of", "require_safe_sandbox"]
+__all__ = ["AGENT_USER_GROUP", "agent_uid", "processes_left", "processes_of", "require_safe_sandbox"]
+
+#: the pytest-xdist group of every test that starts processes as the agent user (a sandboxed agent package, or the
+#: probe every evaluator runs at its start): they run one at a time, in one worker (``--dist loadgroup``), because
+#: a test that checks that no process of the agent user is left, or a hostile agent's ``kill(-1)`` or fork bomb
+#: (limits per user), would meet the agents of a test running beside it
+AGENT_USER_GROUP = pytest.mark.xdist_group("agent-user")
 
 
 def require_safe_sandbox() -> Isolation:
