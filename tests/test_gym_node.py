@@ -109,6 +109,21 @@ def test_an_episode_message_by_message(backend: GymRobot) -> None:
     assert rw.parse_robot_observations(answers[11][0]["data"]).observations.odometry[1] >= 0
 
 
+def test_a_delay_under_one_physics_step_acts_at_once(venv: Path) -> None:
+    """gym's rule (the command stamped nearest to t − delay) gives the command just given; gym-duckietown itself
+    raised IndexError there (the validation study's gym draw reaches 0.02 s; a step is 1/30 s)."""
+    robot = GymRobot(gym_params(["camera_width=64", "camera_height=48", "delay=0.02"]), "loop_3x3", venv)
+    try:
+        dt = 1 / 30
+        answers, code = run(robot, *setup(start_poses("loop_3x3", [3])[0]),
+                            rw.encode_set_robot_commands("ego", 0.0, 0.4, 0.5), rw.encode_step(3 * dt),
+                            rw.encode_get_robot_state("ego", 3 * dt))
+    finally:
+        robot.close()
+    assert code == 0, answers[-1]
+    assert rw.parse_robot_state(answers[-1][0]["data"]).v > 0  # moving after 3 steps (0.15 s of delay: still)
+
+
 @pytest.mark.parametrize(("step", "words"), [
     (rw.encode_step(-1.0), "time cannot go back"),
     (rw.encode_get_robot_state("nobody", 0.0), "unknown robot 'nobody'"),

@@ -122,7 +122,10 @@ class Bridge:
         model = self.dyn.DynamicModelParameters(
             u1=p["u1"], u2=p["u2"], u3=p["u3"], w1=p["w1"], w2=p["w2"], w3=p["w3"], uar=p["uar"], ual=p["ual"],
             war=p["war"] * (1.0 + trim), wal=p["wal"] * (1.0 - trim))
-        factory = self.dyn.ApplyDelay(model, p["delay"], self.dyn.PWMCommands(0, 0)) if p["delay"] > 0 else model
+        # gym's delay applies the command stamped nearest to t − delay; under one physics step that is the command
+        # just given, which gym-duckietown 6.1.34 fails to find (IndexError): the undelayed model is that rule
+        delayed = p["delay"] > env.delta_time + 1e-9
+        factory = self.dyn.ApplyDelay(model, p["delay"], self.dyn.PWMCommands(0, 0)) if delayed else model
         q = env.cartesian_from_weird(env.cur_pos, env.cur_angle)
         v0 = self.gs.geometry.se2_from_linear_angular(self.gs.np.array([0, 0]), 0)
         env.state = factory.initialize(c0=(q, v0), t0=0)
