@@ -74,8 +74,25 @@ def test_trajectory_error_holds_a_replay_that_ended_early():
     assert trajectory_error(short, recorded) == pytest.approx(np.mean(np.clip(recorded[:, 1] - 1.0, 0, None)))
 
 
+def test_the_quick_settings_of_every_family_are_valid():
+    from proxybench.experiments.validate import FAMILIES, ValidateConfig, settings_for
+
+    for family in FAMILIES:
+        s = settings_for(ValidateConfig(family=family), True)  # the draws wider than the grids, known names
+        assert s["quick"] and s["targets"] == 3 and len(s["agents"]) == 8 and s["seconds"] == 6.0, family
+
+
+def _short_quick_episodes(monkeypatch, family: str, seconds: float = 2.0) -> None:
+    """--quick with its episodes cut from 6 s to ``seconds``: what the end-to-end tests check does not depend on
+    their length (the quick settings themselves: the test above), and the study runs a third as long."""
+    from proxybench.experiments.validate import FAMILIES
+
+    monkeypatch.setitem(FAMILIES[family], True, {**FAMILIES[family][True], "seconds": seconds})
+
+
 @pytest.mark.slow
-def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path):
+def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path, monkeypatch):
+    _short_quick_episodes(monkeypatch, "heldout")
     out = tmp_path / "v"
     args = ["validate", "--quick", "--targets", "3", "--backend", "inline", "--out", str(out)]
     res = CliRunner().invoke(app, args, env={"COLUMNS": "200"})
@@ -111,7 +128,7 @@ def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path):
 
 
 @pytest.mark.slow
-def test_validate_gym_family_quick_end_to_end(tmp_path):
+def test_validate_gym_family_quick_end_to_end(tmp_path, monkeypatch):
     """The gym family: gym-duckietown nodes with hidden θ (files of mode 600, only a hash in any report)."""
     import os
     import stat
@@ -124,6 +141,7 @@ def test_validate_gym_family_quick_end_to_end(tmp_path):
         if os.environ.get("PROXYBENCH_REQUIRE_GYM") == "1":
             pytest.fail(why)
         pytest.skip(why)
+    _short_quick_episodes(monkeypatch, "gym")
     out = tmp_path / "g"
     res = CliRunner().invoke(app, ["validate", "--family", "gym", "--quick", "--targets", "2", "--backend", "inline",
                                    "--out", str(out)], env={"COLUMNS": "200"})
