@@ -115,11 +115,13 @@ def test_lockstep_runs_repeat_sample_for_sample():
 
 
 @sdk
-@pytest.mark.parametrize(("how", "timing", "reason"), [
-    ("silent", "lockstep", "init-timeout"), ("crash", "lockstep", "exited"), ("flood", "realtime", "stdout-flood"),
-    ("nan", "lockstep", "bad-commands")])
-def test_misbehaving_sdk_agents_end_as_named_failures(how, timing, reason):
-    traj, _ = _episode(f"python3 misbehave.py {how}", 3.0, timing=timing, start_timeout=15.0, step_timeout=3.0)
+@pytest.mark.parametrize(("how", "timing", "reason", "start_timeout"), [
+    ("silent", "lockstep", "init-timeout", 5.0),  # waited for in full: short (the others must start in time)
+    ("crash", "lockstep", "exited", 15.0), ("flood", "realtime", "stdout-flood", 15.0),
+    ("nan", "lockstep", "bad-commands", 15.0)])
+def test_misbehaving_sdk_agents_end_as_named_failures(how, timing, reason, start_timeout):
+    traj, _ = _episode(f"python3 misbehave.py {how}", 3.0, timing=timing, start_timeout=start_timeout,
+                       step_timeout=3.0)
     assert traj.termination == "agent_failure"
     (event,) = [e for e in traj.events if e.kind == "agent_failure"]
     assert event.reason == reason, event
