@@ -129,6 +129,7 @@ def test_misbehaving_sdk_agents_end_as_named_failures(how, timing, reason, start
         assert event.exit_code == 3 and any("giving up on frame 3" in line for line in event.stderr_tail)
 
 
+@pytest.mark.slow
 @sdk
 def test_an_sdk_agent_is_ranked_by_predictivity(tmp_path):
     out = tmp_path / "p"

@@ -96,6 +96,7 @@ def test_dtps_options_on_the_command_line_are_checked():
 
 
 # ---------------------------------------------------------------------------------- with the SDK
+@pytest.mark.slow
 @sdk
 def test_a_fake_dtps_robot_is_recorded_checked_and_ranked(tmp_path):
     rec, out = tmp_path / "rec", tmp_path / "pred"

@@ -250,6 +250,7 @@ print(json.dumps(poses))
 """
 
 
+@pytest.mark.slow
 def test_a_20_s_episode_through_the_node_is_gym_run_directly(venv: Path) -> None:
     """Same start, commands and seed (with dynamics_rand, the seed draws the trim): poses equal to 1e-6 m."""
     seed, pose = 11, start_poses("loop_3x3", [11])[0]
@@ -316,6 +317,7 @@ def test_every_parameter_is_gyms_own_name_with_gyms_default(venv: Path) -> None:
     assert mine["delay"] == 0.15 and mine["trim"] == 0.0
 
 
+@pytest.mark.slow
 def test_the_gym_node_keeps_the_plant_contract(venv: Path) -> None:
     """proxybench.testing's PlantContract, as on every plant: starts, start pose, stepping at its 30 Hz,
     observations, determinism (a seed again after another one and on a fresh node), clean failure."""

@@ -169,6 +169,7 @@ def test_heldout_quick_runs_end_to_end_with_the_negative_case(tmp_path):
     assert again.exit_code == 0 and "0 episodes simulated" in (out / "report.html").read_text()
 
 
+@pytest.mark.slow
 def test_heldout_with_a_mixed_agent_set_zoo_checkpoint_and_node(tmp_path, checkpoint):
     node = f"pixnode={sys.executable} {Path(__file__).parent / 'protocol_agents' / 'pixel_agent.py'} pixel"
     out = tmp_path / "mixed"

@@ -65,6 +65,7 @@ def test_plv_with_a_robot_node_as_the_target(tmp_path):
     assert '"kind": "robot"' in data  # the target samples came from the node
 
 
+@pytest.mark.slow
 def test_plv_against_a_gym_duckietown_node(tmp_path):
     """The gym node serves its robot's lane pose: the expert reads it; skipped without gym's environment."""
     pytest.importorskip("torch")

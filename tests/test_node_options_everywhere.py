@@ -121,6 +121,7 @@ def test_predictivity_cli_passes_robot_options_to_the_target(tmp_path: Path, bri
     assert wrong.exit_code == 2 and "only a robot node" in wrong.output
 
 
+@pytest.mark.slow
 def test_evaluator_target_jobs_start_the_robot_node_with_its_options(tmp_path: Path, bridge: Path) -> None:
     """`proxybench evaluator --robot-cmd CMD --robot-cwd DIR --robot-transport fifo`: the compliance check and
     the episodes start the node that way (the job's config carries the options to the worker)."""

@@ -93,6 +93,7 @@ def test_killed_sweep_resumes_without_redoing_finished_episodes(tmp_path):
     assert all(r.scores["survival_time"] == 8.0 for r in res.results)
 
 
+@pytest.mark.slow
 def test_local_pool_and_ray_give_the_same_table_as_inline(tmp_path):
     jobs = _jobs()
     inline = run_jobs(jobs, tmp_path / "inline", InlineBackend())

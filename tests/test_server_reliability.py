@@ -6,6 +6,7 @@ from __future__ import annotations
 import threading
 import time
 
+import pytest
 from sqlalchemy import create_engine, text
 
 from proxybench.client import ServerClient, ServerError
@@ -43,6 +44,7 @@ def _evaluator(server: LiveServer, token: str, name: str, stop: threading.Event,
                 errors.append(str(exc))
 
 
+@pytest.mark.slow
 def test_restart_under_load_loses_nothing(tmp_path, database_url):
     data = tmp_path / "data"
     data.mkdir()
