@@ -7,11 +7,11 @@ its debug lines even when they are not logged: an off-road frame costs ~2 ms mor
 in the environment the node gives gym (one BLAS thread). The node: one robot-protocol frame driven by the
 caller (commands, step, sim state, robot state, observations: gym's physics and render in the bridge, the
 frame through the pipe, JPEG encoded and sent), camera on. Both at the same camera size, domain randomisation
-on (gym's default), blocks of frames interleaved so that both meet the same load on a shared machine; the
-overhead is the median over blocks of each node block against the gym block beside it, with a 95 % bootstrap
-interval. Wall steps/s, and CPU ms per step of every process involved (gym alone: its one process; the node:
-caller, node and gym child), which a loaded machine disturbs less. ``--variant NAME=SRC`` adds the node of
-another source tree (e.g. a worktree of the commit before a change), timed in the same rounds.
+on (gym's default), blocks of frames interleaved so that both meet the same load on a shared machine
+(``--blocks`` rounds: a gym block, then a block of each node); steps/s over all blocks, and the overhead with a
+95 % bootstrap interval over rounds. Also the CPU ms per step of every process involved (gym alone: its one
+process; the node: caller, node and gym child), which a loaded machine disturbs less. ``--variant NAME=SRC``
+adds the node of another source tree (e.g. a worktree of the commit before a change), timed in the same rounds.
 Needs ``proxybench gym setup``.
 
     python benchmarks/bench_gym.py [--frames 300] [--blocks 5] [--size 160x120] [--variant before=../old/src]
@@ -83,11 +83,16 @@ def _node_block(robot: RemoteRobot, m, pose, frames: int) -> tuple[float, list[f
     return rate, [1e3 * (b - a) / frames for a, b in zip(c0, _cpu(procs), strict=True)]
 
 
-def _interval(values: list[float], seed: int = 0) -> list[float]:
-    """95 % percentile-bootstrap interval of the median (blocks resampled)."""
+def _overhead(gym: list[float], node: list[float], seed: int = 0) -> tuple[float, list[float]]:
+    """Overhead in % of the node's steps/s over all its blocks against gym's over all of its blocks (each rate
+    the frames over the summed block times), with a 95 % percentile-bootstrap interval that resamples rounds
+    (a gym block and the node blocks beside it together)."""
+    g, n = 1 / np.asarray(gym), 1 / np.asarray(node)  # seconds a frame: equal frames per block, so they add
     rng = np.random.default_rng(seed)
-    meds = np.median(rng.choice(values, size=(2000, len(values))), axis=1)
-    return [round(float(v), 1) for v in np.percentile(meds, [2.5, 97.5])]
+    idx = rng.integers(0, len(g), size=(4000, len(g)))
+    boot = 100 * (n[idx].sum(axis=1) / g[idx].sum(axis=1) - 1)
+    low, high = np.percentile(boot, [2.5, 97.5])
+    return round(float(100 * (n.sum() / g.sum() - 1)), 1), [round(float(low), 1), round(float(high), 1)]
 
 
 def main() -> None:
@@ -137,16 +142,14 @@ def main() -> None:
         for robot in robots.values():
             robot.close()
     alone.wait()
-    g = statistics.median(gym_rates)
-    out = {"size": args.size, "frames_per_block": args.frames, "blocks": args.blocks,
-           "gym_alone_steps_per_s": round(g, 1), "cpu_ms_per_step_gym_alone": round(statistics.median(gym_cpu), 2),
+    out = {"size": args.size, "frames_per_block": args.frames, "rounds": args.blocks,
+           "gym_alone_steps_per_s": round(len(gym_rates) / sum(1 / r for r in gym_rates), 1),
+           "cpu_ms_per_step_gym_alone": round(statistics.median(gym_cpu), 2),
            "gym_blocks": [round(r, 1) for r in gym_rates]}
     for name in variants:
-        # each node block against the gym block beside it
-        paired = [100 * (a / b - 1) for a, b in zip(gym_rates, rates[name], strict=True)]
-        out[name] = {"steps_per_s": round(statistics.median(rates[name]), 1),
-                     "overhead_percent_median_of_pairs": round(statistics.median(paired), 1),
-                     "overhead_percent_95ci": _interval(paired),
+        overhead, interval = _overhead(gym_rates, rates[name])
+        out[name] = {"steps_per_s": round(len(rates[name]) / sum(1 / r for r in rates[name]), 1),
+                     "overhead_percent": overhead, "overhead_percent_95ci": interval,
                      "cpu_ms_per_step_caller_node_gym_child": [round(statistics.median(c), 2)
                                                                for c in zip(*parts[name], strict=True)],
                      "blocks": [round(r, 1) for r in rates[name]]}
