@@ -1,10 +1,10 @@
 """Steps per second of gym-duckietown behind the robot protocol against gym-duckietown alone.
 
 Gym alone: ``Simulator.step`` (physics, render of the camera frame, gym's done check) in gym's own
-interpreter, nothing else, as the node runs gym (pyglet's GL error checks off; ``--debug-gl`` keeps gym's
-default), from the same start pose and seed with the same command as the node (gym's ``_valid_pose`` formats
-its debug lines even when they are not logged: an off-road frame costs ~2 ms more, so both must drive alike),
-in the environment the node gives gym (one BLAS thread). The node: one robot-protocol frame driven by the
+interpreter, nothing else, as the node runs gym (pyglet's GL error checks off, one BLAS thread, Mesa's
+rasteriser in gym's thread; ``--gym-defaults`` runs it as gym does by default), from the same start pose and
+seed with the same command as the node (gym's ``_valid_pose`` formats its debug lines even when they are not
+logged: an off-road frame costs ~2 ms more, so both must drive alike). The node: one robot-protocol frame driven by the
 caller (commands, step, sim state, robot state, observations: gym's physics and render in the bridge, the
 frame through the pipe, JPEG encoded and sent), camera on. Both at the same camera size, domain randomisation
 on (gym's default), blocks of frames interleaved so that both meet the same load on a shared machine
@@ -100,8 +100,9 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--blocks", type=int, default=5)
     ap.add_argument("--size", default="160x120")
-    ap.add_argument("--debug-gl", action="store_true",
-                    help="gym alone with pyglet's GL error checks (gym's default; the node turns them off)")
+    ap.add_argument("--gym-defaults", action="store_true",
+                    help="gym alone as gym runs by default: pyglet's GL error checks on, the inherited environment "
+                         "(Mesa's and OpenBLAS's thread pools), where the node turns those off")
     ap.add_argument("--variant", action="append", default=[], metavar="NAME=SRC",
                     help="also time the node of another source tree (its src/ folder), blocks interleaved")
     args = ap.parse_args()
@@ -111,9 +112,9 @@ def main() -> None:
         sys.exit("gym-duckietown's environment is not ready: " + "; ".join(env.problems))
     m = load_map("loop_3x3")
     pose = start_poses("loop_3x3", [3])[0]
-    script = _ALONE.replace("COMMAND", repr(list(COMMAND))).replace("DEBUG_GL", str(args.debug_gl))
+    script = _ALONE.replace("COMMAND", repr(list(COMMAND))).replace("DEBUG_GL", str(args.gym_defaults))
     alone = subprocess.Popen([str(env.python), "-c", script, str(w), str(h), str(args.frames), str(args.blocks),
-                              *map(str, pose)], env=bridge_environment(),
+                              *map(str, pose)], env=None if args.gym_defaults else bridge_environment(),
                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     while alone.stdout.readline().strip() != "ready":  # gym prints notices of its own first
         pass
