@@ -1,17 +1,20 @@
 """Steps per second of gym-duckietown behind the robot protocol against gym-duckietown alone.
 
 Gym alone: ``Simulator.step`` (physics, render of the camera frame, gym's done check) in gym's own
-interpreter, nothing else, from the same start pose and seed with the same command as the node (gym's
-``_valid_pose`` formats its debug lines even when they are not logged: an off-road frame costs ~2 ms more, so
-both must drive alike), in the environment the node gives gym (one BLAS thread). The node: one robot-protocol
-frame driven by the caller (commands, step, sim state, robot state, observations: gym's physics and render in
-the bridge, the frame through the pipe, JPEG encoded and sent), camera on. Both at the same camera size,
-domain randomisation on (gym's default), blocks of frames interleaved so that both meet the same load on a
-shared machine; medians of the blocks. Wall steps/s, and CPU ms per step of every process involved (gym
-alone: its one process; the node: caller, node and gym child), which a loaded machine disturbs less.
+interpreter, nothing else, as the node runs gym (pyglet's GL error checks off, one BLAS thread, Mesa's
+rasteriser in gym's thread; ``--gym-defaults`` runs it as gym does by default), from the same start pose and
+seed with the same command as the node (gym's ``_valid_pose`` formats its debug lines even when they are not
+logged: an off-road frame costs ~2 ms more, so both must drive alike). The node: one robot-protocol frame driven by the
+caller (commands, step, sim state, robot state, observations: gym's physics and render in the bridge, the
+frame through the pipe, JPEG encoded and sent), camera on. Both at the same camera size, domain randomisation
+on (gym's default), blocks of frames interleaved so that both meet the same load on a shared machine
+(``--blocks`` rounds: a gym block, then a block of each node); steps/s over all blocks, and the overhead with a
+95 % bootstrap interval over rounds. Also the CPU ms per step of every process involved (gym alone: its one
+process; the node: caller, node and gym child), which a loaded machine disturbs less. ``--variant NAME=SRC``
+adds the node of another source tree (e.g. a worktree of the commit before a change), timed in the same rounds.
 Needs ``proxybench gym setup``.
 
-    python benchmarks/bench_gym.py [--frames 300] [--blocks 5] [--size 160x120]
+    python benchmarks/bench_gym.py [--frames 300] [--blocks 5] [--size 160x120] [--variant before=../old/src]
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ _ALONE = """
 import json, sys, time
 import numpy as np, pyglet
 pyglet.options["headless"] = True
+pyglet.options["debug_gl"] = DEBUG_GL
 import logging; logging.disable(logging.CRITICAL)
 from gym_duckietown.simulator import Simulator, geometry
 from duckietown_world.world_duckietown.pwm_dynamics import get_DB18_nominal
@@ -61,10 +65,34 @@ for _ in range(blocks):
 COMMAND = (0.3, 0.32)
 
 
-def _cpu(procs: list[psutil.Process]) -> float:
-    """CPU seconds (user + system) of this process (the caller) and ``procs`` so far."""
-    own = time.process_time()
-    return own + sum(sum(p.cpu_times()[:2]) for p in procs)
+def _cpu(procs: list[psutil.Process]) -> list[float]:
+    """CPU seconds (user + system) so far of this process (the caller) and of each of ``procs``."""
+    return [time.process_time(), *(sum(p.cpu_times()[:2]) for p in procs)]
+
+
+def _node_block(robot: RemoteRobot, m, pose, frames: int) -> tuple[float, list[float]]:
+    """Steps/s of one block of ``frames`` robot-protocol frames, and CPU ms per step of caller, node, gym child."""
+    info = robot.start_episode(m, 3, pose=pose, seconds=frames / 30 + 1, camera=True)
+    dt = 1 / info.frame_rate
+    procs = [psutil.Process(robot.process.pid)]
+    procs += procs[0].children(recursive=True)  # the node and its gym child
+    c0, t0 = _cpu(procs), time.perf_counter()
+    for k in range(frames):
+        robot.frame(k * dt, np.array(COMMAND), (k + 1) * dt, observe=True)
+    rate = frames / (time.perf_counter() - t0)
+    return rate, [1e3 * (b - a) / frames for a, b in zip(c0, _cpu(procs), strict=True)]
+
+
+def _overhead(gym: list[float], node: list[float], seed: int = 0) -> tuple[float, list[float]]:
+    """Overhead in % of the node's steps/s over all its blocks against gym's over all of its blocks (each rate
+    the frames over the summed block times), with a 95 % percentile-bootstrap interval that resamples rounds
+    (a gym block and the node blocks beside it together)."""
+    g, n = 1 / np.asarray(gym), 1 / np.asarray(node)  # seconds a frame: equal frames per block, so they add
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(g), size=(4000, len(g)))
+    boot = 100 * (n[idx].sum(axis=1) / g[idx].sum(axis=1) - 1)
+    low, high = np.percentile(boot, [2.5, 97.5])
+    return round(float(100 * (n.sum() / g.sum() - 1)), 1), [round(float(low), 1), round(float(high), 1)]
 
 
 def main() -> None:
@@ -72,6 +100,11 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--blocks", type=int, default=5)
     ap.add_argument("--size", default="160x120")
+    ap.add_argument("--gym-defaults", action="store_true",
+                    help="gym alone as gym runs by default: pyglet's GL error checks on, the inherited environment "
+                         "(Mesa's and OpenBLAS's thread pools), where the node turns those off")
+    ap.add_argument("--variant", action="append", default=[], metavar="NAME=SRC",
+                    help="also time the node of another source tree (its src/ folder), blocks interleaved")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))
     env = check_environment(render=False)
@@ -79,16 +112,21 @@ def main() -> None:
         sys.exit("gym-duckietown's environment is not ready: " + "; ".join(env.problems))
     m = load_map("loop_3x3")
     pose = start_poses("loop_3x3", [3])[0]
-    script = _ALONE.replace("COMMAND", repr(list(COMMAND)))
+    script = _ALONE.replace("COMMAND", repr(list(COMMAND))).replace("DEBUG_GL", str(args.gym_defaults))
     alone = subprocess.Popen([str(env.python), "-c", script, str(w), str(h), str(args.frames), str(args.blocks),
-                              *map(str, pose)], env=bridge_environment(),
+                              *map(str, pose)], env=None if args.gym_defaults else bridge_environment(),
                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     while alone.stdout.readline().strip() != "ready":  # gym prints notices of its own first
         pass
     cmd = [sys.executable, "-m", "proxybench.cli", "gym", "serve", "--param", f"camera_width={w}",
            "--param", f"camera_height={h}"]
-    gym_rates, node_rates, gym_cpu, node_cpu = [], [], [], []
-    with RemoteRobot(cmd, init_timeout=300, step_timeout=60) as robot:
+    variants = {"node": None, **dict(v.split("=", 1) for v in args.variant)}
+    robots = {name: RemoteRobot(cmd, init_timeout=300, step_timeout=60,
+                                env={"PYTHONPATH": src} if src else None) for name, src in variants.items()}
+    gym_rates, gym_cpu = [], []
+    rates: dict[str, list[float]] = {name: [] for name in variants}
+    parts: dict[str, list[list[float]]] = {name: [] for name in variants}
+    try:
         for _ in range(args.blocks):
             alone.stdin.write("go\n")
             alone.stdin.flush()
@@ -97,24 +135,26 @@ def main() -> None:
                 line = alone.stdout.readline()
             gym_rates.append(float(line.split()[1]))
             gym_cpu.append(float(line.split()[2]))
-            info = robot.start_episode(m, 3, pose=pose, seconds=args.frames / 30 + 1, camera=True)
-            dt = 1 / info.frame_rate
-            procs = [psutil.Process(robot.process.pid)]
-            procs += procs[0].children(recursive=True)  # the node and its gym child
-            c0, t0 = _cpu(procs), time.perf_counter()
-            for k in range(args.frames):
-                robot.frame(k * dt, np.array(COMMAND), (k + 1) * dt, observe=True)
-            node_rates.append(args.frames / (time.perf_counter() - t0))
-            node_cpu.append(1e3 * (_cpu(procs) - c0) / args.frames)
+            for name, robot in robots.items():
+                rate, used = _node_block(robot, m, pose, args.frames)
+                rates[name].append(rate)
+                parts[name].append(used)
+    finally:
+        for robot in robots.values():
+            robot.close()
     alone.wait()
-    g, n = statistics.median(gym_rates), statistics.median(node_rates)
-    print(json.dumps({"size": args.size, "frames_per_block": args.frames, "blocks": args.blocks,
-                      "gym_alone_steps_per_s": round(g, 1), "node_steps_per_s": round(n, 1),
-                      "overhead_percent": round(100 * (g / n - 1), 1),
-                      "cpu_ms_per_step_gym_alone": round(statistics.median(gym_cpu), 2),
-                      "cpu_ms_per_step_node_all_processes": round(statistics.median(node_cpu), 2),
-                      "gym_blocks": [round(r, 1) for r in gym_rates],
-                      "node_blocks": [round(r, 1) for r in node_rates]}))
+    out = {"size": args.size, "frames_per_block": args.frames, "rounds": args.blocks,
+           "gym_alone_steps_per_s": round(len(gym_rates) / sum(1 / r for r in gym_rates), 1),
+           "cpu_ms_per_step_gym_alone": round(statistics.median(gym_cpu), 2),
+           "gym_blocks": [round(r, 1) for r in gym_rates]}
+    for name in variants:
+        overhead, interval = _overhead(gym_rates, rates[name])
+        out[name] = {"steps_per_s": round(len(rates[name]) / sum(1 / r for r in rates[name]), 1),
+                     "overhead_percent": overhead, "overhead_percent_95ci": interval,
+                     "cpu_ms_per_step_caller_node_gym_child": [round(statistics.median(c), 2)
+                                                               for c in zip(*parts[name], strict=True)],
+                     "blocks": [round(r, 1) for r in rates[name]]}
+    print(json.dumps(out))
 
 
 if __name__ == "__main__":

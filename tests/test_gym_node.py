@@ -180,6 +180,30 @@ def test_the_same_seed_gives_the_same_frames_whatever_came_before(backend: GymRo
     assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
 
 
+def test_a_request_between_steps_puts_back_the_periods_computed_ahead(backend: GymRobot) -> None:
+    """The bridge computes periods before their commands come; a probe or a camera request between two steps
+    must see the state the caller knows, and the episode must go on as if it had not been asked."""
+    backend.set_map(map_yaml(LOOP))
+    pose = start_poses("loop_3x3", [6])[0]
+    pwm = [np.array([0.2 + 0.05 * k, 0.5 - 0.04 * k]) for k in range(8)]
+
+    def episode(interrupt: bool) -> list[tuple[float, ...]]:
+        backend.reset(6, pose, None, ())
+        poses = []
+        for k, cmd in enumerate(pwm):
+            backend.step_frame(cmd)
+            poses.append(backend.state().pose)
+            if interrupt and k in (2, 5):
+                seen = backend.probe()  # gym's own pose: the committed period's, not one computed ahead
+                x, y = seen["cur_pos"][0], seen["grid"][1] * seen["tile_size"] - seen["cur_pos"][2]
+                assert (x, y) == pytest.approx(poses[-1][:2], abs=1e-9)
+                backend.camera()
+        return poses
+
+    interrupted, plain = np.array(episode(True)), np.array(episode(False))
+    assert np.abs(interrupted - plain).max() < 1e-12 and np.ptp(plain[:, 0]) > 1e-4  # it moved, identically
+
+
 # ------------------------------------------------------------------------------------- frame conversion
 @pytest.mark.parametrize("name", ["loop_3x3", "zigzag", "udem1", "ETHZ_autolab_technical_track", "4way"])
 def test_the_start_pose_lands_where_gym_sees_it_on_several_maps(backend: GymRobot, venv: Path, name: str) -> None:

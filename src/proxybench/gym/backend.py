@@ -18,7 +18,7 @@ import os
 import struct
 import subprocess
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -59,12 +59,18 @@ def resolve_map(name: str, venv: Path | None = None) -> Map:
 
 
 def bridge_environment() -> dict[str, str]:
-    """The environment gym's process runs in: ours, with one BLAS thread unless the caller chose otherwise.
-    gym's DB18 model inverts a 2×2 matrix at every physics step; OpenBLAS's thread pool made that ~4 ms of
-    spinning CPU per step on a busy 2-core machine (same result either way: a 2×2 solve is not split)."""
+    """The environment gym's process runs in: ours, with one BLAS thread and Mesa's rasteriser in gym's own
+    thread, unless the caller chose otherwise. gym's DB18 model inverts a 2×2 matrix at every physics step;
+    OpenBLAS's thread pool made that ~4 ms of spinning CPU per step on a busy 2-core machine. llvmpipe's
+    rasteriser threads (one per core by default) cost more than they save on gym's frames: gym alone made
+    175 steps/s with them and 198 without at 160×120, 34.5 and 37.7 at 640×480 (2 cores beside a nice-10
+    neighbour, blocks interleaved), and without them the node's own processes keep the other core. Neither
+    changes a number or a pixel (checked: the bridge's frames with 0 and 2 rasteriser threads, domain
+    randomisation on and off, are equal)."""
     env = dict(os.environ)
     for key in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env.setdefault(key, "1")
+    env.setdefault("LP_NUM_THREADS", "0")
     return env
 
 
@@ -92,6 +98,7 @@ class GymRobot:
         self._maps[text] = (m, LaneNetwork(m))
         self.proc = subprocess.Popen([str(python), "-u", str(BRIDGE)], stdin=subprocess.PIPE,
                                      stdout=subprocess.PIPE, stderr=stderr, env=bridge_environment())
+        _widen(self.proc.stdout.fileno())  # room for the frames the bridge pushes ahead
         hello = self._call({"op": "init", "params": _plain(params), "map": text})
         self.version = hello["version"]
         self.physics_rate = float(hello["frame_rate"])
@@ -101,26 +108,45 @@ class GymRobot:
         self.encoder_resolution = ENCODER_RESOLUTION
         self._text = text
         self._sent = text
+        self._seq = 0  # pushes of the bridge's stream read since its last answer
         self._state: dict[str, Any] = {}
         self._end: Event | None = None
 
     # ------------------------------------------------------------------------------------- the pipe
     def _call(self, msg: dict[str, Any], blob: bool = False) -> Any:
+        """Send ``msg`` and return its answer, skipping the stream's pushes the bridge sent before it read it."""
+        self._send(msg)
+        reply, payload = self._receive()
+        while "seq" in reply:
+            reply, payload = self._receive()
+        self._seq = 0  # a stream goes on after any answer, numbered from 1 again
+        return (reply, payload) if blob else reply
+
+    def _send(self, msg: dict[str, Any]) -> None:
         data = json.dumps(msg).encode()
         try:
             self.proc.stdin.write(struct.pack(">I", len(data)) + data)
             self.proc.stdin.flush()
+        except OSError as exc:
+            self._failed(exc)
+
+    def _receive(self) -> tuple[dict[str, Any], bytes]:
+        """The bridge's next message (an answer or a push) and its blob; an error it reports raises."""
+        try:
             head = self._read(4)
             (n,) = struct.unpack(">I", head)
             reply = json.loads(self._read(n))
             payload = self._read(reply["blob"]) if "blob" in reply else b""
         except (OSError, struct.error, ValueError) as exc:
-            code = self.proc.poll()
-            raise GymBridgeError(f"the gym-duckietown process failed ({type(exc).__name__}: {exc}; exit status "
-                                 f"{code}); its messages are above on stderr") from None
+            self._failed(exc)
         if not reply.get("ok"):
             raise GymBridgeError(f"gym-duckietown: {reply.get('error')}\n{reply.get('trace', '')}".rstrip())
-        return (reply, payload) if blob else reply
+        return reply, payload
+
+    def _failed(self, exc: Exception) -> NoReturn:
+        code = self.proc.poll()
+        raise GymBridgeError(f"the gym-duckietown process failed ({type(exc).__name__}: {exc}; exit status "
+                             f"{code}); its messages are above on stderr") from None
 
     def _read(self, n: int) -> bytes:
         buf = self.proc.stdout.read(n)
@@ -151,6 +177,7 @@ class GymRobot:
             self.proc.stdin.close()
         except OSError:
             pass
+        self.proc.stdout.close()  # a push the bridge is writing now fails, and it reads the quit
 
     # ------------------------------------------------------------------------------- RobotBackend
     def set_map(self, text: str) -> None:
@@ -175,18 +202,26 @@ class GymRobot:
         self._state = self._call({"op": "reset", "seed": int(seed), "pose": [float(v) for v in pose],
                                   "objects": extra})
         self._end = None
-        self._render = camera  # then each step brings its frame back in the same exchange
         self._frame: tuple[float, np.ndarray] | None = None
+        self._call({"op": "stream", "render": camera})  # gym now computes periods ahead, pushing them with frames
 
     def step_frame(self, pwm: np.ndarray) -> FrameStep:
-        reply, blob = self._call({"op": "step", "pwm": [float(pwm[0]), float(pwm[1])], "render": self._render},
-                                 blob=True)
+        """The command goes to the bridge without a round trip; the period it belongs to was (usually) pushed
+        already, computed before the command came, which gym's delay allows (see the bridge's ``depth``)."""
+        action = [min(max(float(v), -1.0), 1.0) for v in pwm[:2]]
+        self._send({"op": "commit", "pwm": action})
+        self._seq += 1
+        reply, blob = self._receive()
+        if reply.get("seq") != self._seq:
+            raise GymBridgeError(f"gym-duckietown's bridge pushed period {reply.get('seq')}, expected {self._seq}")
         self._state = reply
         if blob:
             self._frame = (reply["t"], self._image(blob))
         if self._end is None and "end" in reply:
             self._end = Event.from_dict({"t": float(reply["t"]), **reply["end"]})
-        return FrameStep(np.asarray(reply["trace"], dtype=np.float64).reshape(-1, 8))
+        trace = np.asarray(reply["trace"], dtype=np.float64).reshape(-1, 8)
+        trace[:, 6:8] = action  # the command of this period (NaN where it was computed before it came)
+        return FrameStep(trace)
 
     def time(self) -> float:
         return float(self._state["t"])
@@ -235,6 +270,18 @@ class GymRobot:
     def top_view(self, px_per_tile: int) -> np.ndarray:
         m, _net = self._maps[self._text]
         return top_down(m, np.array([self._state["motion"][:3]]), px_per_tile)
+
+
+def _widen(fd: int, size: int = 1 << 20) -> None:
+    """Make the pipe at ``fd`` hold ``size`` bytes where the system allows (Linux: up to
+    /proc/sys/fs/pipe-max-size); elsewhere, or refused, it keeps its size and the bridge looks ahead less."""
+    try:
+        import fcntl
+
+        limit = int(Path("/proc/sys/fs/pipe-max-size").read_text())
+        fcntl.fcntl(fd, 1031, min(size, limit))  # F_SETPIPE_SZ
+    except (ImportError, OSError, ValueError):
+        pass
 
 
 def _plain(params: GymParams) -> dict[str, Any]:

@@ -15,10 +15,15 @@ round-trip exactly. Requests (``op``):
 - ``step``: ``pwm`` → ``frame_skip`` physics updates of gym (``update_physics``), a trace row after each,
   and gym's own episode end (``_compute_done_reward``); with ``render``, the new camera frame too (the order
   of gym's own ``step``: physics, then ``render_obs``);
+- ``stream``: ``render`` → ``ok``; from then on, until the next ``reset`` or ``set_map``, the bridge *pushes*
+  the camera periods ahead of their commands, ``{"ok": true, "seq": k, ...}`` as ``step`` answers them (the
+  commands NaN in the trace), as many as gym's command delay allows (see :meth:`Bridge.depth`);
+- ``commit``: ``pwm`` → no answer: the command of the oldest period not yet committed, written where the stand-in
+  stood (a period that could not be computed ahead is computed now and pushed). The parent reads one push per
+  command, so its reading never waits on a round trip, and gym works while the caller's agent decides. Any other
+  request first puts the state back to the last committed period; the stream goes on after the answer with its
+  pushes numbered from 1 again (those sent before the answer are stale: the parent skips them);
 - ``camera`` → gym's rendered observation (``render_obs``) for now; ``probe`` → gym's own pose and tile;
-
-After answering a step, the bridge computes the next period ahead (:meth:`Bridge.ahead`), so that gym works while
-the caller's agent decides; any request but the next step first puts that back.
 - ``quit``.
 
 Every answer is ``{"ok": true, ...}`` or ``{"ok": false, "error": text}``. Poses go back in the map frame by
@@ -28,21 +33,51 @@ gym's own ``cartesian_from_weird`` (x, H·tile − z, angle).
 import json
 import math
 import os
+import select
 import struct
 import sys
 import traceback
 
 _OUT = sys.stdout.buffer
-_IN = sys.stdin.buffer
 sys.stdout = sys.stderr  # whatever gym prints must not reach the pipe
+#: the most camera periods computed ahead of their commands (fewer where gym's delay or the pipe allows fewer)
+MAX_AHEAD = 3
+F_GETPIPE_SZ = 1032
 
 
-def _read():
-    head = _IN.read(4)
-    if len(head) < 4:
-        return None
-    (n,) = struct.unpack(">I", head)
-    return json.loads(_IN.read(n))
+class _Requests:
+    """Requests from fd 0, unbuffered by Python, so that :meth:`waiting` sees a request already read."""
+
+    def __init__(self):
+        self.buf = bytearray()
+
+    def _message(self):
+        if len(self.buf) < 4:
+            return None
+        (n,) = struct.unpack(">I", self.buf[:4])
+        if len(self.buf) < 4 + n:
+            return None
+        msg = json.loads(bytes(self.buf[4:4 + n]))
+        del self.buf[:4 + n]
+        return msg
+
+    def waiting(self):
+        """Is a request there to read (without blocking)?"""
+        return len(self.buf) >= 4 or bool(select.select([0], [], [], 0)[0])
+
+    def read(self):
+        """The next request (blocking), None at EOF."""
+        while True:
+            msg = self._message()
+            if msg is not None:
+                return msg
+            data = os.read(0, 1 << 16)
+            if not data:
+                return None
+            self.buf += data
+
+
+_IN = _Requests()
 
 
 def _write(msg, blob=b""):
@@ -60,6 +95,7 @@ class Bridge:
         import pyglet
 
         pyglet.options["headless"] = True  # EGL through Mesa: no X server
+        pyglet.options["debug_gl"] = False  # pyglet asks glGetError after each of ~280 GL calls a frame otherwise
         import logging
 
         import yaml
@@ -75,7 +111,9 @@ class Bridge:
         ctor.setdefault("max_steps", 10**9)  # none given: the caller's episode length is the only limit
         self.env = gs.Simulator(map_name="small_loop", **ctor)
         self._map_key = None
-        self._ahead = None  # (state before, answer, frame) of the next period, computed before its command came
+        self._queue = []  # periods computed ahead of their commands: (state before, first command stamp, stamp after)
+        self._stream = None  # the render flag while streaming, else None
+        self._seq = 0  # pushes sent in this stream
         self.set_map(map_text, ())
         self.reset(0, [0.0, 0.0, 0.0], [])  # a first episode: the first one after gym's constructor renders apart
         self.camera()
@@ -150,21 +188,13 @@ class Bridge:
         return {"motion": self._motion(), "t": self.ticks * self.dt}
 
     def step(self, pwm, render=False):
-        """One camera period with ``pwm``: (answer, frame bytes or b""), from the step computed ahead when
-        that one is valid (see :meth:`ahead`)."""
-        np = self.gs.np
-        action = np.clip(np.array(pwm, dtype=float), -1, 1)
-        ahead, self._ahead = self._ahead, None
-        if ahead is not None:
-            saved, out, frame = ahead
-            if np.isfinite(out["motion"]).all() and np.isfinite(self.env.cur_pos).all():
-                self._command(action)  # the command was not used yet: write it where the stand-in stands
-                for row in out["trace"]:
-                    row[6:8] = [float(action[0]), float(action[1])]
-                return out, frame if render else b""
-            self._restore(saved)  # the stand-in was used (a delay too short): step again for real
-        out = self._physics(action)
+        """One camera period with ``pwm``, computed now: (answer, frame bytes or b"")."""
+        out = self._physics(self._action(pwm))
         return out, self.camera() if render else b""
+
+    def _action(self, pwm):
+        np = self.gs.np
+        return np.clip(np.array(pwm, dtype=float), -1, 1)
 
     def _physics(self, action):
         env = self.env
@@ -175,26 +205,68 @@ class Bridge:
             m = self._motion()
             rows.append([self.ticks * self.dt, *m[:5], float(action[0]), float(action[1])])
         done = env._compute_done_reward()
-        out = self.state()
-        out["trace"] = rows
+        out = {"motion": m, "t": self.ticks * self.dt, "trace": rows}  # the state after the last update
         if done.done:
             out["end"] = self._why(done.done_code)
         return out
 
     # ----------------------------------------------------------------------------- stepping ahead
-    def ahead(self, render):
-        """Compute the next camera period now, while the caller decides its command. Exact when gym's command
-        delay is longer than the period: the command being decided acts only later, so the motion, the frame
-        and the episode's end of the next period do not depend on it. It goes in as NaN, and is written in
-        when it comes (a NaN that reached the motion shows in the pose: that step is undone and done again)."""
-        env = self.env
-        if not (self.p["delay"] >= (env.frame_skip + 0.5) * env.delta_time + 1e-9
-                and all(getattr(o, "static", True) for o in env.objects)):
-            return
-        saved = self._save()
+    def depth(self):
+        """How many periods may be computed before their commands: exact while gym's command delay is longer
+        than them (a command acts only ``delay`` later, and gym takes the command stamped nearest to t − delay),
+        objects are static, and the pipe holds the frames; 0 turns look-ahead off."""
+        env, dt = self.env, self.env.delta_time
+        if not all(getattr(o, "static", True) for o in env.objects):
+            return 0
+        by_delay = int((self.p["delay"] - 0.5 * dt - 1e-9) // (env.frame_skip * dt))
+        frame = env.camera_width * env.camera_height * 3 if self._stream else 0
+        try:
+            import fcntl
+
+            pipe = fcntl.fcntl(_OUT.fileno(), F_GETPIPE_SZ)
+        except OSError:
+            pipe = 1 << 16
+        return max(0, min(MAX_AHEAD, by_delay, max(1, pipe // (frame + 4096))))
+
+    def start_stream(self, render):
+        self.undo_ahead()
+        self._stream = bool(render)
+        self._limit = self.depth()
+
+    def can_advance(self):
+        return self._stream is not None and len(self._queue) < self._limit
+
+    def advance(self):
+        """Compute the next period ahead with NaN commands: (answer, frame) to push, or None when the stand-in
+        reached the motion (then that period waits for its command)."""
+        st = self.env.state
+        saved, first = self._save(), st.t
         nan = self.gs.np.full(2, float("nan"))
         out = self._physics(nan)
-        self._ahead = (saved, out, self.camera() if render else b"")
+        if not (self.gs.np.isfinite(out["motion"]).all() and self.gs.np.isfinite(self.env.cur_pos).all()):
+            self._restore(saved)
+            self._limit = len(self._queue)  # not further until a command comes
+            return None
+        self._queue.append((saved, first, self.env.state.t))
+        return self._push(out, self.camera() if self._stream else b"")
+
+    def commit(self, pwm):
+        """The command of the oldest uncommitted period: written in, or that period computed now. Returns what
+        to push (a period computed now), else None."""
+        action = self._action(pwm)
+        if not self._queue:
+            self._limit = self.depth()
+            return self._push(self._physics(action), self.camera() if self._stream else b"")
+        _saved, first, after = self._queue.pop(0)
+        states = [self.env.state] + [q[0][0] for q in self._queue]
+        for st in states:  # each state holds its own copy of the command history
+            self._command(st, first, after, action)
+        self.env.last_action, self.env.wheelVels = action, action * self.env.robot_speed
+        return None
+
+    def _push(self, out, frame):
+        self._seq += 1
+        return {"ok": True, **out, "seq": self._seq}, frame
 
     def _save(self):
         env = self.env
@@ -212,21 +284,21 @@ class Bridge:
          self.ticks) = rest
 
     def undo_ahead(self):
-        """Back to the state the caller knows (before anything but the next step)."""
-        ahead, self._ahead = self._ahead, None
-        if ahead is not None:
-            self._restore(ahead[0])
+        """Back to the last committed period (before any request but a commit); a stream goes on after the
+        answer, its pushes numbered from 1 again."""
+        if self._queue:
+            self._restore(self._queue[0][0])
+        self._queue.clear()
+        self._seq = 0
 
-    def _command(self, action):
-        """Put ``action`` where the NaN stand-in went: gym's command history (the delay reads it later) and
-        what gym reports of the last action."""
-        env, np = self.env, self.gs.np
-        cmds = env.state.commands
-        for k, c in enumerate(cmds):
-            if not np.isfinite(c.motor_left):
-                cmds[k] = type(c)(motor_left=action[0], motor_right=action[1])
-        env.last_action = action
-        env.wheelVels = action * env.robot_speed
+    @staticmethod
+    def _command(st, first, after, action):
+        """Put ``action`` where the NaN stand-in went in ``st``'s command history: the entries stamped in
+        [first, after) (a state without a delay has no history: nothing to write)."""
+        stamps, cmds = getattr(st, "timestamps", ()), getattr(st, "commands", ())
+        for k, t in enumerate(stamps):
+            if first - 1e-9 <= t < after - 1e-9 and cmds[k].motor_left != cmds[k].motor_left:  # NaN
+                cmds[k] = type(cmds[k])(motor_left=action[0], motor_right=action[1])
 
     def _why(self, code):
         env, gs = self.env, self.gs
@@ -267,38 +339,68 @@ def _version():
         return "unknown"
 
 
+def _answer(bridge, req):
+    """The answer to one request (a ``commit`` has none of its own: None, or the period it computed now)."""
+    op = req["op"]
+    if op == "commit":
+        return bridge.commit(req["pwm"])
+    if bridge is not None:
+        bridge.undo_ahead()
+    if op == "stream":
+        bridge.start_stream(req.get("render", False))
+        return {"ok": True}, b""
+    if op == "set_map":
+        bridge._stream = None  # a new episode streams when the parent asks
+        bridge.set_map(req["map"], ())
+        return {"ok": True}, b""
+    if op == "reset":
+        bridge._stream = None
+        return {"ok": True, **bridge.reset(req["seed"], req["pose"], req.get("objects") or [])}, b""
+    if op == "step":
+        out, frame = bridge.step(req["pwm"], req.get("render", False))
+        return {"ok": True, **out}, frame
+    if op == "probe":
+        return {"ok": True, **bridge.probe()}, b""
+    if op == "camera":
+        return {"ok": True}, bridge.camera()
+    return {"ok": False, "error": f"unknown op {op!r}"}, b""
+
+
 def main():
+    try:
+        return _serve()
+    except BrokenPipeError:  # the parent closed our pipe (it quit, or died): nothing left to answer
+        os.dup2(os.open(os.devnull, os.O_WRONLY), _OUT.fileno())
+        return 0
+
+
+def _serve():
     bridge = None
     while True:
-        req = _read()
-        if req is None or req.get("op") == "quit":
-            return 0
         try:
-            op = req["op"]
-            if bridge is not None and op != "step":
-                bridge.undo_ahead()
-            if op == "init":
+            if bridge is not None and bridge.can_advance() and not _IN.waiting():
+                pushed = bridge.advance()  # gym works ahead while the caller decides
+                if pushed is not None:
+                    _write(*pushed)
+                continue
+            req = _IN.read()
+            if req is None or req.get("op") == "quit":
+                return 0
+            if req.get("op") == "init":
                 bridge = Bridge(req["params"], req["map"])
                 env = bridge.env
                 _write({"ok": True, "version": _version(), "frame_rate": env.frame_rate,
                         "frame_skip": env.frame_skip, "camera": [env.camera_width, env.camera_height],
                         "pid": os.getpid()})
-            elif op == "set_map":
-                bridge.set_map(req["map"], ())
-                _write({"ok": True})
-            elif op == "reset":
-                _write({"ok": True, **bridge.reset(req["seed"], req["pose"], req.get("objects") or [])})
-            elif op == "step":
-                out, frame = bridge.step(req["pwm"], req.get("render", False))
-                _write({"ok": True, **out}, frame)
-                bridge.ahead(req.get("render", False))
-            elif op == "probe":
-                _write({"ok": True, **bridge.probe()})
-            elif op == "camera":
-                _write({"ok": True}, bridge.camera())
-            else:
-                _write({"ok": False, "error": f"unknown op {op!r}"})
+                continue
+            answer = _answer(bridge, req)
+            if answer is not None:
+                _write(*answer)
+        except BrokenPipeError:
+            raise
         except Exception as exc:
+            if bridge is not None:
+                bridge._stream = None  # a failed stream is over: the parent reads this answer instead of a push
             _write({"ok": False, "error": f"{type(exc).__name__}: {exc}", "trace": traceback.format_exc()})
 
 
