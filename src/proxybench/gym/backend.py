@@ -279,8 +279,8 @@ def _widen(fd: int, size: int = 1 << 20) -> None:
         import fcntl
 
         limit = int(Path("/proc/sys/fs/pipe-max-size").read_text())
-        fcntl.fcntl(fd, 1031, min(size, limit))  # F_SETPIPE_SZ
-    except (ImportError, OSError, ValueError):
+        fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, min(size, limit))
+    except (ImportError, AttributeError, OSError, ValueError):
         pass
 
 

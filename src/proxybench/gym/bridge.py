@@ -12,12 +12,12 @@ round-trip exactly. Requests (``op``):
 - ``reset``: ``seed``, ``pose`` (x, y, θ in the map frame), ``objects`` (parked robots and duckies, map
   frame) → gym's reset (domain randomisation drawn from ``seed``), then the robot placed at ``pose`` and
   its DB18 dynamics built as gym's reset builds them, with the given trim, delay and coefficients;
-- ``step``: ``pwm`` → ``frame_skip`` physics updates of gym (``update_physics``), a trace row after each,
-  and gym's own episode end (``_compute_done_reward``); with ``render``, the new camera frame too (the order
-  of gym's own ``step``: physics, then ``render_obs``);
 - ``stream``: ``render`` → ``ok``; from then on, until the next ``reset`` or ``set_map``, the bridge *pushes*
-  the camera periods ahead of their commands, ``{"ok": true, "seq": k, ...}`` as ``step`` answers them (the
-  commands NaN in the trace), as many as gym's command delay allows (see :meth:`Bridge.depth`);
+  camera periods, ``{"ok": true, "seq": k, "t", "motion", "trace", ["end"]}`` and, with ``render``, the frame:
+  each period is ``frame_skip`` physics updates of gym (``update_physics``), a trace row after each, gym's own
+  episode end (``_compute_done_reward``), then ``render_obs`` (the order of gym's own ``step``); as many
+  periods ahead of their commands as gym's command delay allows (see :meth:`Bridge.depth`), the commands NaN
+  in their trace;
 - ``commit``: ``pwm`` → no answer: the command of the oldest period not yet committed, written where the stand-in
   stood (a period that could not be computed ahead is computed now and pushed). The parent reads one push per
   command, so its reading never waits on a round trip, and gym works while the caller's agent decides. Any other
@@ -42,7 +42,6 @@ _OUT = sys.stdout.buffer
 sys.stdout = sys.stderr  # whatever gym prints must not reach the pipe
 #: the most camera periods computed ahead of their commands (fewer where gym's delay or the pipe allows fewer)
 MAX_AHEAD = 3
-F_GETPIPE_SZ = 1032
 
 
 class _Requests:
@@ -113,6 +112,7 @@ class Bridge:
         self._map_key = None
         self._queue = []  # periods computed ahead of their commands: (state before, first command stamp, stamp after)
         self._stream = None  # the render flag while streaming, else None
+        self._depth = self._limit = 0  # periods that may be ahead: by gym's delay and the pipe; now
         self._seq = 0  # pushes sent in this stream
         self.set_map(map_text, ())
         self.reset(0, [0.0, 0.0, 0.0], [])  # a first episode: the first one after gym's constructor renders apart
@@ -187,11 +187,6 @@ class Bridge:
     def state(self):
         return {"motion": self._motion(), "t": self.ticks * self.dt}
 
-    def step(self, pwm, render=False):
-        """One camera period with ``pwm``, computed now: (answer, frame bytes or b"")."""
-        out = self._physics(self._action(pwm))
-        return out, self.camera() if render else b""
-
     def _action(self, pwm):
         np = self.gs.np
         return np.clip(np.array(pwm, dtype=float), -1, 1)
@@ -223,15 +218,18 @@ class Bridge:
         try:
             import fcntl
 
-            pipe = fcntl.fcntl(_OUT.fileno(), F_GETPIPE_SZ)
-        except OSError:
+            pipe = fcntl.fcntl(_OUT.fileno(), fcntl.F_GETPIPE_SZ)
+        except (ImportError, AttributeError, OSError):  # not Linux, or not a pipe: the default size
             pipe = 1 << 16
         return max(0, min(MAX_AHEAD, by_delay, max(1, pipe // (frame + 4096))))
 
     def start_stream(self, render):
         self.undo_ahead()
         self._stream = bool(render)
-        self._limit = self.depth()
+        self._depth = self._limit = self.depth()
+
+    def end_stream(self):
+        self._stream = None
 
     def can_advance(self):
         return self._stream is not None and len(self._queue) < self._limit
@@ -255,7 +253,7 @@ class Bridge:
         to push (a period computed now), else None."""
         action = self._action(pwm)
         if not self._queue:
-            self._limit = self.depth()
+            self._limit = self._depth  # a stand-in that reached the motion stopped the look-ahead until now
             return self._push(self._physics(action), self.camera() if self._stream else b"")
         _saved, first, after = self._queue.pop(0)
         states = [self.env.state] + [q[0][0] for q in self._queue]
@@ -350,15 +348,12 @@ def _answer(bridge, req):
         bridge.start_stream(req.get("render", False))
         return {"ok": True}, b""
     if op == "set_map":
-        bridge._stream = None  # a new episode streams when the parent asks
+        bridge.end_stream()  # a new episode streams when the parent asks
         bridge.set_map(req["map"], ())
         return {"ok": True}, b""
     if op == "reset":
-        bridge._stream = None
+        bridge.end_stream()
         return {"ok": True, **bridge.reset(req["seed"], req["pose"], req.get("objects") or [])}, b""
-    if op == "step":
-        out, frame = bridge.step(req["pwm"], req.get("render", False))
-        return {"ok": True, **out}, frame
     if op == "probe":
         return {"ok": True, **bridge.probe()}, b""
     if op == "camera":
@@ -400,7 +395,7 @@ def _serve():
             raise
         except Exception as exc:
             if bridge is not None:
-                bridge._stream = None  # a failed stream is over: the parent reads this answer instead of a push
+                bridge.end_stream()  # a failed stream is over: the parent reads this answer instead of a push
             _write({"ok": False, "error": f"{type(exc).__name__}: {exc}", "trace": traceback.format_exc()})
 
 
