@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 
 from proxybench.agents import make_agent
 from proxybench.cli import app
-from proxybench.domain.maps import load_map
+from proxybench.domain.maps import MapObject, load_map
 from proxybench.gym.backend import GymRobot, resolve_map
 from proxybench.gym.environment import check_environment, default_path
 from proxybench.gym.params import gym_params
@@ -202,6 +202,34 @@ def test_a_request_between_steps_puts_back_the_periods_computed_ahead(backend: G
 
     interrupted, plain = np.array(episode(True)), np.array(episode(False))
     assert np.abs(interrupted - plain).max() < 1e-12 and np.ptp(plain[:, 0]) > 1e-4  # it moved, identically
+
+
+def test_the_end_and_its_reason_do_not_depend_on_requests_between_steps(backend: GymRobot) -> None:
+    """The bridge finds why gym ended an episode once, where the end begins (its collision test is costly), and
+    keeps it while gym goes on saying done; periods put back around the end must leave no stale reason."""
+    backend.set_map(map_yaml(LOOP))
+    pose = start_poses("loop_3x3", [6])[0]
+
+    def episode(asked_after: tuple[int, ...]) -> tuple[float, str, str]:
+        backend.reset(6, pose, None, ())
+        for k in range(75):
+            backend.step_frame(np.array([0.9, 0.1]))  # a hard right turn: off the road within the 2.5 s
+            if k in asked_after:
+                backend.probe()
+        end = backend.ending()
+        assert end is not None, "the robot should have left the road"
+        return end.t, end.kind, end.message
+
+    plain = episode(())
+    assert plain[1] == "off_road"
+    x, y, th = pose  # an episode between them that ends otherwise: into a duckie
+    backend.reset(6, pose, None, (MapObject("duckie", x + 0.25 * math.cos(th), y + 0.25 * math.sin(th)),))
+    for _ in range(60):
+        backend.step_frame(np.array([0.6, 0.6]))
+    assert backend.ending() is not None and backend.ending().kind == "collision"
+    k_end = round(plain[0] / backend.frame_dt) - 1  # the step whose period ended it
+    for asked in ((k_end - 2,), (k_end - 1,), (k_end,), (k_end + 1, k_end + 3)):
+        assert episode(asked) == plain, asked
 
 
 # ------------------------------------------------------------------------------------- frame conversion
