@@ -120,6 +120,7 @@ def write_validation_report(run: ValidationRun, summary: dict[str, Any], out: st
     check = ("the scoring code is the one criteria.json hashed" if crit["scoring_unchanged"] else
              "WARNING: the scoring code differs from the one criteria.json hashed")
     s = run.settings
+    bc = s.get("bc_agents", 0)  # checkpoints the study trains: agents too, though not named in the settings
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>proxybench validate</title>
 <style>body{{font-family:sans-serif;max-width:1150px;margin:2em auto;line-height:1.4;padding:0 1em}}
 table{{border-collapse:collapse;font-size:13px}}td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}
@@ -130,7 +131,8 @@ td:first-child{{text-align:left}}</style></head><body>
 no real robot was involved.</div>
 <p><b>{html.escape(answer(summary))}</b></p>
 <p>Criteria written {html.escape(crit['written'])} at commit {html.escape(crit['commit'])} (now
-{html.escape(crit['commit_now'])}); {check}. Per target: {len(s['agents'])} agents split into tuning (A) and
+{html.escape(crit['commit_now'])}); {check}. Per target: {len(s['agents']) + bc} agents ({len(s['agents'])} named,
+{bc} behaviour-cloned checkpoints) split into tuning (A) and
 held-out (B) sets; {s['episodes_tune']} tuning and {s['episodes_eval']} fresh evaluation episodes of
 {s['seconds']:g} s; candidates: the grid {html.escape(json.dumps(s['grid']))} and the nominal θ.</p>
 <h2>Every method against the nominal θ</h2>{_table(summary)}{_img(files['forest'])}
