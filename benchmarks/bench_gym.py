@@ -70,38 +70,17 @@ def _cpu(procs: list[psutil.Process]) -> list[float]:
     return [time.process_time(), *(sum(p.cpu_times()[:2]) for p in procs)]
 
 
-def _node_block(robot: RemoteRobot, m, pose, frames: int, pin: bool = False) -> tuple[float, list[float]]:
+def _node_block(robot: RemoteRobot, m, pose, frames: int) -> tuple[float, list[float]]:
     """Steps/s of one block of ``frames`` robot-protocol frames, and CPU ms per step of caller, node, gym child."""
     info = robot.start_episode(m, 3, pose=pose, seconds=frames / 30 + 1, camera=True)
     dt = 1 / info.frame_rate
     procs = [psutil.Process(robot.process.pid)]
     procs += procs[0].children(recursive=True)  # the node and its gym child
-    caller, everywhere = psutil.Process(), psutil.Process().cpu_affinity()
-    if pin:
-        _pin_node(procs)
-        caller.cpu_affinity(_cpus()[0])
     c0, t0 = _cpu(procs), time.perf_counter()
     for k in range(frames):
         robot.frame(k * dt, np.array(COMMAND), (k + 1) * dt, observe=True)
     rate = frames / (time.perf_counter() - t0)
-    caller.cpu_affinity(everywhere)  # the other variants' blocks run unpinned
     return rate, [1e3 * (b - a) / frames for a, b in zip(c0, _cpu(procs), strict=True)]
-
-
-def _cpus() -> tuple[list[int], list[int]]:
-    """(the CPUs for the caller and the nodes, the CPU for gym's processes): the last CPU is gym's."""
-    cpus = sorted(range(psutil.cpu_count()))
-    if len(cpus) < 2:
-        sys.exit("--pin needs at least 2 CPUs")
-    return cpus[:-1], cpus[-1:]
-
-
-def _pin_node(procs: list[psutil.Process]) -> None:
-    """The node (``procs[0]``) on the caller's CPUs, its gym child (the rest) on gym's CPU."""
-    rest, last = _cpus()
-    procs[0].cpu_affinity(rest)
-    for child in procs[1:]:
-        child.cpu_affinity(last)
 
 
 def _overhead(gym: list[float], node: list[float], seed: int = 0) -> tuple[float, list[float]]:
@@ -125,8 +104,8 @@ def main() -> None:
                     help="gym alone as gym runs by default: pyglet's GL error checks on, the inherited environment "
                          "(Mesa's and OpenBLAS's thread pools), where the node turns those off")
     ap.add_argument("--pin", action="store_true",
-                    help="also time 'node-pinned', blocks interleaved: the node beside the caller, its gym child "
-                         "alone on the last CPU (does keeping their wake-ups off gym's core close the gap?)")
+                    help="also time 'node-pinned' (`gym serve --cpus LAST`: gym's process on the last CPU, the node "
+                         "on the others), blocks interleaved")
     ap.add_argument("--variant", action="append", default=[], metavar="NAME=SRC",
                     help="also time the node of another source tree (its src/ folder), blocks interleaved")
     args = ap.parse_args()
@@ -147,7 +126,8 @@ def main() -> None:
     variants = {"node": None, **dict(v.split("=", 1) for v in args.variant)}
     if args.pin:
         variants["node-pinned"] = None
-    robots = {name: RemoteRobot(cmd, init_timeout=300, step_timeout=60,
+    pinned = ["--cpus", str(max(psutil.Process().cpu_affinity()))]
+    robots = {name: RemoteRobot(cmd + pinned if name == "node-pinned" else cmd, init_timeout=300, step_timeout=60,
                                 env={"PYTHONPATH": src} if src else None) for name, src in variants.items()}
     gym_rates, gym_cpu = [], []
     rates: dict[str, list[float]] = {name: [] for name in variants}
@@ -162,7 +142,7 @@ def main() -> None:
             gym_rates.append(float(line.split()[1]))
             gym_cpu.append(float(line.split()[2]))
             for name, robot in robots.items():
-                rate, used = _node_block(robot, m, pose, args.frames, pin=name == "node-pinned")
+                rate, used = _node_block(robot, m, pose, args.frames)
                 rates[name].append(rate)
                 parts[name].append(used)
     finally:

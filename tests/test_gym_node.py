@@ -263,6 +263,19 @@ def robot(venv: Path):
         yield r
 
 
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="--cpus needs a CPU for gym and one for the node")
+def test_cpus_put_gyms_process_on_them_and_the_node_on_the_others(venv: Path) -> None:
+    import psutil
+
+    last = max(os.sched_getaffinity(0))
+    with RemoteRobot([*SERVE, "--cpus", str(last)], init_timeout=120, step_timeout=30) as r:
+        traj = run_episode_on_robot(r, make_agent("pid"), seed=5, seconds=1.0, map_="loop_3x3", camera=False)
+        node = psutil.Process(r.process.pid)
+        (gym,) = node.children()
+        assert gym.cpu_affinity() == [last] and last not in node.cpu_affinity() and node.cpu_affinity()
+    assert traj.termination == "timeout"
+
+
 @pytest.mark.parametrize("agent", ["pid", "vision", "node"])
 def test_one_short_episode_per_agent_kind(robot: RemoteRobot, agent: str) -> None:
     a = RemoteAgent([sys.executable, "-m", "proxybench.protocol", "vision"]) if agent == "node" else make_agent(agent)

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 from typer.testing import CliRunner
 
 from proxybench.cli import app
+from proxybench.gym.cpus import CpuError, check_cpus, parse_cpus
 from proxybench.gym.params import DEFAULTS, GymParamError, gym_params, parse_param_items
 from proxybench.targets.manifest import SimulatorInfo
 
@@ -60,6 +63,25 @@ def test_the_cli_refuses_bad_parameters_before_starting_gym() -> None:
     assert res.exit_code == 2 and "did you mean 'trim'" in res.output
     res = CliRunner().invoke(app, ["gym", "params"])
     assert res.exit_code == 0 and "cam_fov_y" in res.output and "not taken:" in res.output
+
+
+def test_cpus_are_read_as_taskset_takes_them_and_checked_against_this_machine() -> None:
+    assert parse_cpus("3") == [3] and parse_cpus("2,3") == [2, 3] and parse_cpus("0-2, 5") == [0, 1, 2, 5]
+    for bad, words in (("x", "'x' is not a CPU number"), ("3-1", "'3-1' is not"), ("-1", "'-1' is not"), ("", "'' is not a CPU number")):
+        with pytest.raises(CpuError, match=words):
+            parse_cpus(bad)
+    mine = sorted(os.sched_getaffinity(0))
+    with pytest.raises(CpuError, match="CPU 4096 is not available here"):
+        check_cpus([4096])
+    with pytest.raises(CpuError, match="leaves no CPU for the node itself"):
+        check_cpus(mine)
+
+
+def test_the_cli_refuses_bad_cpus_before_starting_gym() -> None:
+    res = CliRunner().invoke(app, ["gym", "serve", "--cpus", "4096", "--path", "/nonexistent"])
+    assert res.exit_code == 2 and "--cpus: CPU 4096 is not available here" in res.output
+    res = CliRunner().invoke(app, ["gym", "serve", "--cpus", "one", "--path", "/nonexistent"])
+    assert res.exit_code == 2 and "'one' is not a CPU number" in res.output
 
 
 def test_check_says_what_is_missing(tmp_path) -> None:

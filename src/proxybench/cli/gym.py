@@ -87,6 +87,9 @@ def gym_serve(
     secret: bool = typer.Option(False, "--secret", help="hide θ (from --param-file): the node reports only its hash"),
     seed: int = typer.Option(0, min=0, help="episode seed when neither `seed` nor episode_start gives one"),
     name: str = typer.Option("gym", help="node name in timing information"),
+    cpus: str | None = typer.Option(None, "--cpus", help="run gym's process on these CPUs (e.g. 1 or 2-3) and "
+                                    "this node on the others: keeps most of gym's speed beside busy work; "
+                                    "give each node its own"),
     path: Path | None = _PATH,
 ) -> None:
     """Serve gym-duckietown as a robot node on stdin/stdout (or $AIDONODE_DATA_IN/_OUT).
@@ -96,15 +99,23 @@ def gym_serve(
     """
     from proxybench.domain.maps import MapError
     from proxybench.gym.backend import GymBridgeError, GymRobot
+    from proxybench.gym.cpus import CpuError, check_cpus, parse_cpus, pin_node
     from proxybench.gym.params import GymParamError, gym_params
     from proxybench.protocol.robot_node import RobotNode, serve_robot
 
     try:
         params = gym_params(param, param_file, secret)
+        gym_cpus = check_cpus(parse_cpus(cpus)) if cpus is not None else None
         backend = GymRobot(params, map_name, path)
-    except (GymParamError, GymBridgeError, MapError, ValueError) as exc:
+        if gym_cpus is not None:
+            try:
+                pin_node(backend.proc.pid, gym_cpus)
+            except CpuError:
+                backend.close()
+                raise
+    except (GymParamError, CpuError, GymBridgeError, MapError, ValueError) as exc:
         err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(2 if isinstance(exc, GymParamError) else 1) from None
+        raise typer.Exit(2 if isinstance(exc, GymParamError | CpuError) else 1) from None
     print(f"[{name}] serving a SIMULATED robot (gym-duckietown {backend.version}, {backend.width}x{backend.height} "
           f"at {1 / backend.frame_dt:g} Hz{', parameters hidden' if secret else ''}) on the robot protocol",
           file=sys.stderr, flush=True)
