@@ -67,7 +67,9 @@ def test_the_cli_refuses_bad_parameters_before_starting_gym() -> None:
 
 def test_cpus_are_read_as_taskset_takes_them_and_checked_against_this_machine() -> None:
     assert parse_cpus("3") == [3] and parse_cpus("2,3") == [2, 3] and parse_cpus("0-2, 5") == [0, 1, 2, 5]
-    for bad, words in (("x", "'x' is not a CPU number"), ("3-1", "'3-1' is not"), ("-1", "'-1' is not"), ("", "'' is not a CPU number")):
+    bad_values = (("x", "'x' is not a CPU number"), ("3-1", "'3-1' is not"), ("-1", "'-1' is not"),
+                  ("", "'' is not a CPU number"))
+    for bad, words in bad_values:
         with pytest.raises(CpuError, match=words):
             parse_cpus(bad)
     mine = sorted(os.sched_getaffinity(0))
