@@ -8,8 +8,9 @@ logged: an off-road frame costs ~2 ms more, so both must drive alike). The node:
 caller (commands, step, sim state, robot state, observations: gym's physics and render in the bridge, the
 frame through the pipe, JPEG encoded and sent), camera on. Both at the same camera size, domain randomisation
 on (gym's default), blocks of frames interleaved so that both meet the same load on a shared machine
-(``--blocks`` rounds: a gym block, then a block of each node); steps/s over all blocks, and the overhead with a
-95 % bootstrap interval over rounds. Also the CPU ms per step of every process involved (gym alone: its one
+(``--blocks`` rounds: a gym block, then a block of each node, after ``--warmup`` untimed rounds, so that
+one-off costs, such as a first episode's loading, count in neither); steps/s over all blocks, and the overhead
+with a 95 % bootstrap interval over rounds. Also the CPU ms per step of every process involved (gym alone: its one
 process; the node: caller, node and gym child), which a loaded machine disturbs less. ``--variant NAME=SRC``
 adds the node of another source tree (e.g. a worktree of the commit before a change), timed in the same rounds.
 Needs ``proxybench gym setup``.
@@ -99,6 +100,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--blocks", type=int, default=5)
+    ap.add_argument("--warmup", type=int, default=1, help="untimed rounds first (default 1)")
     ap.add_argument("--size", default="160x120")
     ap.add_argument("--gym-defaults", action="store_true",
                     help="gym alone as gym runs by default: pyglet's GL error checks on, the inherited environment "
@@ -116,7 +118,8 @@ def main() -> None:
     m = load_map("loop_3x3")
     pose = start_poses("loop_3x3", [3])[0]
     script = _ALONE.replace("COMMAND", repr(list(COMMAND))).replace("DEBUG_GL", str(args.gym_defaults))
-    alone = subprocess.Popen([str(env.python), "-c", script, str(w), str(h), str(args.frames), str(args.blocks),
+    alone = subprocess.Popen([str(env.python), "-c", script, str(w), str(h), str(args.frames),
+                              str(args.warmup + args.blocks),
                               *map(str, pose)], env=None if args.gym_defaults else bridge_environment(),
                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     while alone.stdout.readline().strip() != "ready":  # gym prints notices of its own first
@@ -133,7 +136,7 @@ def main() -> None:
     rates: dict[str, list[float]] = {name: [] for name in variants}
     parts: dict[str, list[list[float]]] = {name: [] for name in variants}
     try:
-        for _ in range(args.blocks):
+        for _ in range(args.warmup + args.blocks):
             alone.stdin.write("go\n")
             alone.stdin.flush()
             line = alone.stdout.readline()
@@ -149,10 +152,16 @@ def main() -> None:
         for robot in robots.values():
             robot.close()
     alone.wait()
+    if args.warmup:  # the untimed rounds' figures, kept apart
+        first = {"gym": gym_rates[:args.warmup], **{name: rates[name][:args.warmup] for name in variants}}
+        gym_rates, gym_cpu = gym_rates[args.warmup:], gym_cpu[args.warmup:]
+        rates = {name: r[args.warmup:] for name, r in rates.items()}
+        parts = {name: p[args.warmup:] for name, p in parts.items()}
     out = {"size": args.size, "frames_per_block": args.frames, "rounds": args.blocks,
            "gym_alone_steps_per_s": round(len(gym_rates) / sum(1 / r for r in gym_rates), 1),
            "cpu_ms_per_step_gym_alone": round(statistics.median(gym_cpu), 2),
-           "gym_blocks": [round(r, 1) for r in gym_rates]}
+           "gym_blocks": [round(r, 1) for r in gym_rates],
+           "warmup_steps_per_s": {k: [round(r, 1) for r in v] for k, v in first.items()} if args.warmup else None}
     for name in variants:
         overhead, interval = _overhead(gym_rates, rates[name])
         out[name] = {"steps_per_s": round(len(rates[name]) / sum(1 / r for r in rates[name]), 1),

@@ -10,6 +10,7 @@ import math
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cbor2
@@ -178,6 +179,42 @@ def test_the_same_seed_gives_the_same_frames_whatever_came_before(backend: GymRo
     episode(5, other)
     b = episode(4, first)
     assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+
+
+def test_frames_through_the_shared_file_are_the_pipes_and_stay_put(backend: GymRobot, venv: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """gym's process writes a stream's frames into a shared file whose slots the look-ahead keeps rewriting; each
+    frame the node hands out must be the very pixels the pipe carries, and stay so while later frames come."""
+    assert backend._slots is not None, "Linux has memfd: the shared file should be in use"
+    send = backend._send
+
+    def slow_send(msg: dict) -> None:  # the node late to read a period: gym's process writes the next ones meanwhile
+        send(msg)
+        if msg["op"] == "commit":
+            time.sleep(0.03)
+
+    monkeypatch.setattr(backend, "_send", slow_send)
+    piped = GymRobot(gym_params(["camera_width=64", "camera_height=48"]), "loop_3x3", venv, shared_frames=False)
+    pose = start_poses("loop_3x3", [7])[0]
+
+    def episode(robot: GymRobot) -> list[np.ndarray]:
+        robot.set_map(map_yaml(LOOP))
+        robot.reset(7, pose, None, ())
+        frames = []
+        for k in range(12):
+            robot.step_frame(np.array([0.5 + 0.03 * k, 0.35]))
+            frames.append(robot.camera())  # no copy: a frame must not change after it was handed out
+            if k == 5:
+                robot.probe()  # the pushes computed ahead are dropped, their slots written again
+        return frames
+
+    try:
+        shared, pipe = episode(backend), episode(piped)
+    finally:
+        piped.close()
+    assert piped._slots is None
+    assert all(np.array_equal(a, b) for a, b in zip(shared, pipe, strict=True))
+    assert not np.array_equal(shared[0], shared[-1])  # the view moved
 
 
 def test_a_request_between_steps_puts_back_the_periods_computed_ahead(backend: GymRobot) -> None:

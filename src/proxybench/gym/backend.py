@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import mmap
 import os
 import struct
 import subprocess
@@ -86,7 +87,7 @@ class GymRobot:
     :func:`~proxybench.gym.environment.default_path`) on ``map_`` (see :func:`resolve_map`)."""
 
     def __init__(self, params: GymParams, map_: str = "loop_3x3", venv: Path | None = None,
-                 stderr: Any = None):
+                 stderr: Any = None, shared_frames: bool = True):
         self.params = params
         venv = Path(venv or default_path())
         python = venv / "bin" / "python"
@@ -96,10 +97,20 @@ class GymRobot:
         self._maps: dict[str, tuple[Map, LaneNetwork]] = {}
         text = _map_text(m)
         self._maps[text] = (m, LaneNetwork(m))
-        self.proc = subprocess.Popen([str(python), "-u", str(BRIDGE)], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=stderr, env=bridge_environment())
-        _widen(self.proc.stdout.fileno())  # room for the frames the bridge pushes ahead
-        hello = self._call({"op": "init", "params": _plain(params), "map": text})
+        fd = _frame_file() if shared_frames else None
+        try:
+            self.proc = subprocess.Popen([str(python), "-u", str(BRIDGE)], stdin=subprocess.PIPE,
+                                         stdout=subprocess.PIPE, stderr=stderr, env=bridge_environment(),
+                                         pass_fds=() if fd is None else (fd,))
+            _widen(self.proc.stdout.fileno())  # room for the frames the bridge pushes ahead
+            self._send({"op": "init", "params": _plain(params), "map": text, "frames_fd": fd})
+            _warm(*self._maps[text])  # while gym starts (seconds): else the first episode pays it, ~1 s
+            hello, _blob = self._receive()
+            #: the frames gym's process pushes, when it writes them into the shared file (else through the pipe)
+            self._slots = _frames(fd, hello.get("slots", 0), hello["camera"]) if fd is not None else None
+        finally:
+            if fd is not None:
+                os.close(fd)  # the map (and gym's process) keep the file
         self.version = hello["version"]
         self.physics_rate = float(hello["frame_rate"])
         self.frame_skip = int(hello["frame_skip"])
@@ -215,7 +226,9 @@ class GymRobot:
         if reply.get("seq") != self._seq:
             raise GymBridgeError(f"gym-duckietown's bridge pushed period {reply.get('seq')}, expected {self._seq}")
         self._state = reply
-        if blob:
+        if "slot" in reply and self._slots is not None:
+            self._frame = (reply["t"], self._slots[reply["slot"]].copy())  # gym rewrites the slot later
+        elif blob:
             self._frame = (reply["t"], self._image(blob))
         if self._end is None and "end" in reply:
             self._end = Event.from_dict({"t": float(reply["t"]), **reply["end"]})
@@ -270,6 +283,31 @@ class GymRobot:
     def top_view(self, px_per_tile: int) -> np.ndarray:
         m, _net = self._maps[self._text]
         return top_down(m, np.array([self._state["motion"][:3]]), px_per_tile)
+
+
+def _frame_file() -> int | None:
+    """An anonymous shared file for the frames (Linux's memfd), or None where there is none (then the pipe)."""
+    try:
+        return os.memfd_create("proxybench-gym-frames")
+    except (AttributeError, OSError):
+        return None
+
+
+def _frames(fd: int, slots: int, camera: list[int]) -> np.ndarray | None:
+    """The shared frame file that gym's process sized: ``slots`` read-only frames (H, W, 3), or None (it has none)."""
+    if slots <= 0:
+        return None
+    width, height = camera
+    size = slots * height * width * 3
+    if os.fstat(fd).st_size < size:
+        raise GymBridgeError(f"gym's process sized the shared frame file {os.fstat(fd).st_size} bytes, not {size}")
+    return np.frombuffer(mmap.mmap(fd, size, prot=mmap.PROT_READ), dtype=np.uint8).reshape(slots, height, width, 3)
+
+
+def _warm(m: Map, net: LaneNetwork) -> None:
+    """Load what the node's first frame would otherwise load: the lane pose's compiled code (Numba's cache,
+    ~0.6 s of CPU on a 2-core machine, spread over the first episode's frames otherwise)."""
+    lane_pose(net, *start_pose(m, 0, net=net), WHEEL_DISTANCE)
 
 
 def _widen(fd: int, size: int = 1 << 20) -> None:

@@ -4,10 +4,13 @@ Run by gym-duckietown's own interpreter (its venv: numpy 1.23, pyglet 1.5), neve
 and it imports nothing of proxybench (whose numpy differs). It reads requests on stdin and writes answers on
 stdout, each one message: a 4-byte big-endian length, that many bytes of JSON, then, when the JSON has
 ``"blob": N``, N raw bytes (a camera frame, H×W×3 uint8, C order). Floats travel as JSON numbers, which
-round-trip exactly. Requests (``op``):
+round-trip exactly. A pushed frame goes instead, where the parent gave a shared file (``frames_fd``), into
+slot ``"slot": i`` of it (frame ``i`` at byte ``i·H·W·3``): the frames of a stream then cost gym's process
+one copy, not three and a pipe's worth of system calls. Requests (``op``):
 
-- ``init``: ``params`` (gym's names, already checked by the parent), ``map`` (YAML text) → the simulator
-  built, gym's version, rates and camera size;
+- ``init``: ``params`` (gym's names, already checked by the parent), ``map`` (YAML text), optionally
+  ``frames_fd`` (an inherited file descriptor, sized here) → the simulator built, gym's version, rates,
+  camera size and ``slots`` (the frames the shared file holds, 0 without one);
 - ``set_map``: ``map`` (YAML text) → the map interpreted by gym (``Simulator._interpret_map``);
 - ``reset``: ``seed``, ``pose`` (x, y, θ in the map frame), ``objects`` (parked robots and duckies, map
   frame) → gym's reset (domain randomisation drawn from ``seed``), then the robot placed at ``pose`` and
@@ -42,6 +45,8 @@ _OUT = sys.stdout.buffer
 sys.stdout = sys.stderr  # whatever gym prints must not reach the pipe
 #: the most camera periods computed ahead of their commands (fewer where gym's delay or the pipe allows fewer)
 MAX_AHEAD = 3
+#: slots of the shared frame file: a push may be read while the look-ahead writes the periods after it
+SLOTS = MAX_AHEAD + 2
 
 
 class _Requests:
@@ -90,7 +95,7 @@ def _write(msg, blob=b""):
 class Bridge:
     """One gym-duckietown ``Simulator`` driven one camera period at a time."""
 
-    def __init__(self, params, map_text):
+    def __init__(self, params, map_text, frames_fd=None):
         import pyglet
 
         pyglet.options["headless"] = True  # EGL through Mesa: no X server
@@ -114,9 +119,23 @@ class Bridge:
         self._stream = None  # the render flag while streaming, else None
         self._depth = self._limit = 0  # periods that may be ahead: by gym's delay and the pipe; now
         self._seq = 0  # pushes sent in this stream
+        self._slots, self._pushed = self._share(frames_fd), 0
         self.set_map(map_text, ())
         self.reset(0, [0.0, 0.0, 0.0], [])  # a first episode: the first one after gym's constructor renders apart
         self.camera()
+
+    def _share(self, fd):
+        """The shared frame file as SLOTS arrays of one frame each, or None (no file: frames in the pipe)."""
+        if fd is None:
+            return None
+        import mmap
+
+        shape = (SLOTS, self.env.camera_height, self.env.camera_width, 3)
+        size = shape[0] * shape[1] * shape[2] * 3
+        os.ftruncate(fd, size)
+        self._mmap = mmap.mmap(fd, size)
+        os.close(fd)
+        return self.gs.np.frombuffer(self._mmap, dtype=self.gs.np.uint8).reshape(shape)
 
     # ------------------------------------------------------------------------------------------ map
     def set_map(self, text, objects):
@@ -224,7 +243,7 @@ class Bridge:
         if not all(getattr(o, "static", True) for o in env.objects):
             return 0
         by_delay = int((self.p["delay"] - 0.5 * dt - 1e-9) // (env.frame_skip * dt))
-        frame = env.camera_width * env.camera_height * 3 if self._stream else 0
+        frame = env.camera_width * env.camera_height * 3 if self._stream and self._slots is None else 0
         try:
             import fcntl
 
@@ -256,7 +275,7 @@ class Bridge:
             self._limit = len(self._queue)  # not further until a command comes
             return None
         self._queue.append((saved, first, self.env.state.t))
-        return self._push(out, self.camera() if self._stream else b"")
+        return self._push(out)
 
     def commit(self, pwm):
         """The command of the oldest uncommitted period: written in, or that period computed now. Returns what
@@ -264,7 +283,7 @@ class Bridge:
         action = self._action(pwm)
         if not self._queue:
             self._limit = self._depth  # a stand-in that reached the motion stopped the look-ahead until now
-            return self._push(self._physics(action), self.camera() if self._stream else b"")
+            return self._push(self._physics(action))
         _saved, first, after = self._queue.pop(0)
         states = [self.env.state] + [q[0][0] for q in self._queue]
         for st in states:  # each state holds its own copy of the command history
@@ -272,9 +291,17 @@ class Bridge:
         self.env.last_action, self.env.wheelVels = action, action * self.env.robot_speed
         return None
 
-    def _push(self, out, frame):
+    def _push(self, out):
+        """A period to push: its answer and, streaming with the camera, its frame (as a blob, or in a slot)."""
         self._seq += 1
-        return {"ok": True, **out, "seq": self._seq}, frame
+        msg, frame = {"ok": True, **out, "seq": self._seq}, b""
+        if self._stream and self._slots is not None:
+            msg["slot"] = self._pushed % SLOTS  # never reset: a slot is rewritten only SLOTS pushes later
+            self._pushed += 1
+            self._slots[msg["slot"]] = self.env.render_obs()
+        elif self._stream:
+            frame = self.camera()
+        return msg, frame
 
     def _save(self):
         env = self.env
@@ -394,11 +421,11 @@ def _serve():
             if req is None or req.get("op") == "quit":
                 return 0
             if req.get("op") == "init":
-                bridge = Bridge(req["params"], req["map"])
+                bridge = Bridge(req["params"], req["map"], req.get("frames_fd"))
                 env = bridge.env
                 _write({"ok": True, "version": _version(), "frame_rate": env.frame_rate,
                         "frame_skip": env.frame_skip, "camera": [env.camera_width, env.camera_height],
-                        "pid": os.getpid()})
+                        "pid": os.getpid(), "slots": 0 if bridge._slots is None else SLOTS})
                 continue
             answer = _answer(bridge, req)
             if answer is not None:
