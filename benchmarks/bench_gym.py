@@ -1,21 +1,25 @@
 """Steps per second of gym-duckietown behind the robot protocol against gym-duckietown alone.
 
-Gym alone: ``Simulator.step`` (physics, render of the camera frame, gym's done check) in gym's own
-interpreter, nothing else, as the node runs gym (pyglet's GL error checks off, one BLAS thread, Mesa's
-rasteriser in gym's thread; ``--gym-defaults`` runs it as gym does by default), from the same start pose and
-seed with the same command as the node (gym's ``_valid_pose`` formats its debug lines even when they are not
-logged: an off-road frame costs ~2 ms more, so both must drive alike). The node: one robot-protocol frame driven by the
-caller (commands, step, sim state, robot state, observations: gym's physics and render in the bridge, the
-frame through the pipe, JPEG encoded and sent), camera on. Both at the same camera size, domain randomisation
-on (gym's default), blocks of frames interleaved so that both meet the same load on a shared machine
-(``--blocks`` rounds: a gym block, then a block of each node, after ``--warmup`` untimed rounds, so that
-one-off costs, such as a first episode's loading, count in neither); steps/s over all blocks, and the overhead
-with a 95 % bootstrap interval over rounds. Also the CPU ms per step of every process involved (gym alone: its one
-process; the node: caller, node and gym child), which a loaded machine disturbs less. ``--variant NAME=SRC``
-adds the node of another source tree (e.g. a worktree of the commit before a change), timed in the same rounds.
-Needs ``proxybench gym setup``.
+Gym alone: ``Simulator.step`` (physics, render of the camera frame, gym's done check) in gym's own interpreter, nothing
+else, as the node runs gym (pyglet's GL error checks off, one BLAS thread, Mesa's rasteriser in gym's thread;
+``--gym-defaults`` runs it as gym does by default), from the same start pose and seed with the same command as
+the node (gym's ``_valid_pose`` formats its debug lines even when they are not logged: an off-road frame costs
+~2 ms more, so both must drive alike). The node: one robot-protocol frame driven by the caller (commands,
+step, sim state, robot state, observations: gym's physics and render in the bridge, the frame through a
+shared file, JPEG encoded and sent), camera on. Both at the same camera size, domain randomisation on (gym's
+default), blocks of frames interleaved so that both meet the same load on a shared machine (``--blocks``
+rounds: a gym block, then a block of each node, after ``--warmup`` untimed rounds, so that one-off costs, such
+as a first episode's loading, count in neither; their figures are printed apart); steps/s over all blocks, and
+the overhead with a 95 % bootstrap interval over rounds. Short blocks, many rounds (the defaults: 150 rounds
+of 30 frames, ~1 s a round): a shared host's speed swings by a third within seconds, which 300-frame blocks
+(~1.5 s each) pair badly, so the same code read +7 % and +21 % an hour apart; with 30 frames the robot also
+stays on the road (it leaves it at frame 79). Also the CPU ms per step of every process involved (gym alone:
+its one process; the node: caller, node and gym child), which a loaded machine disturbs less. ``--variant
+NAME=SRC`` adds the node of another source tree (e.g. a worktree of the commit before a change), timed in the
+same rounds. Needs ``proxybench gym setup``.
 
-    python benchmarks/bench_gym.py [--frames 300] [--blocks 5] [--size 160x120] [--variant before=../old/src]
+    python benchmarks/bench_gym.py [--frames 30] [--blocks 150] [--warmup 3] [--size 160x120] [--pin]
+                                   [--variant before=../old/src]
 """
 
 from __future__ import annotations
@@ -98,9 +102,9 @@ def _overhead(gym: list[float], node: list[float], seed: int = 0) -> tuple[float
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--blocks", type=int, default=5)
-    ap.add_argument("--warmup", type=int, default=1, help="untimed rounds first (default 1)")
+    ap.add_argument("--frames", type=int, default=30, help="frames a block (default 30)")
+    ap.add_argument("--blocks", type=int, default=150, help="timed rounds (default 150)")
+    ap.add_argument("--warmup", type=int, default=3, help="untimed rounds first (default 3)")
     ap.add_argument("--size", default="160x120")
     ap.add_argument("--gym-defaults", action="store_true",
                     help="gym alone as gym runs by default: pyglet's GL error checks on, the inherited environment "
