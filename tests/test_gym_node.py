@@ -313,6 +313,26 @@ def test_cpus_put_gyms_process_on_them_and_the_node_on_the_others(venv: Path) ->
     assert traj.termination == "timeout"
 
 
+def test_cpus_auto_gives_each_node_a_cpu_of_its_own(venv: Path, tmp_path: Path) -> None:
+    import psutil
+
+    mine = sorted(os.sched_getaffinity(0))
+    if len(mine) < 2:
+        pytest.skip("one CPU: --cpus auto leaves gym unpinned")
+    env = {"TMPDIR": str(tmp_path)}  # its own lock folder: nodes of someone else's on this machine do not count
+    with (RemoteRobot([*SERVE, "--cpus", "auto"], init_timeout=120, step_timeout=30, env=env) as a,
+          RemoteRobot([*SERVE, "--cpus", "auto"], init_timeout=120, step_timeout=30, env=env) as b):
+        gyms = []
+        for r in (a, b):
+            run_episode_on_robot(r, make_agent("pid"), seed=5, seconds=0.5, map_="loop_3x3", camera=False)
+            node = psutil.Process(r.process.pid)
+            (gym,) = node.children()
+            (cpu,) = gym.cpu_affinity()
+            assert cpu not in node.cpu_affinity() and node.cpu_affinity()
+            gyms.append(cpu)
+    assert gyms == [mine[-1], mine[-2]]  # the last free CPU first, each held by one node
+
+
 @pytest.mark.parametrize("agent", ["pid", "vision", "node"])
 def test_one_short_episode_per_agent_kind(robot: RemoteRobot, agent: str) -> None:
     a = RemoteAgent([sys.executable, "-m", "proxybench.protocol", "vision"]) if agent == "node" else make_agent(agent)

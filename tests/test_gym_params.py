@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
 from proxybench.cli import app
-from proxybench.gym.cpus import CpuError, check_cpus, parse_cpus
+from proxybench.gym.cpus import CpuError, check_cpus, claim_cpu, parse_cpus
 from proxybench.gym.params import DEFAULTS, GymParamError, gym_params, parse_param_items
 from proxybench.targets.manifest import SimulatorInfo
 
@@ -77,6 +78,37 @@ def test_cpus_are_read_as_taskset_takes_them_and_checked_against_this_machine() 
         check_cpus([4096])
     with pytest.raises(CpuError, match="leaves no CPU for the node itself"):
         check_cpus(mine)
+
+
+def test_cpus_auto_claims_the_last_free_cpu_until_released(tmp_path: Path) -> None:
+    mine = sorted(os.sched_getaffinity(0))
+    if len(mine) < 2:
+        assert claim_cpu(tmp_path) is None, "one CPU: none to give gym alone"
+        return
+    claims = [claim_cpu(tmp_path) for _ in mine[1:]] + [claim_cpu(tmp_path)]  # each leaves the node another CPU
+    assert [c.cpu for c in claims] == mine[::-1]
+    assert claim_cpu(tmp_path) is None  # every CPU held
+    claims[1].release()
+    again = claim_cpu(tmp_path)
+    assert again is not None and again.cpu == mine[-2]
+    for c in (*claims, again):
+        c.release()
+
+
+def test_cpus_auto_trusts_no_planted_folder_or_lock_file(tmp_path: Path) -> None:
+    mine = sorted(os.sched_getaffinity(0))
+    (tmp_path / "real").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "real")
+    assert claim_cpu(tmp_path / "link") is None  # a symlink where the folder should be: not ours
+    if len(mine) < 2:
+        return
+    victim = tmp_path / "victim"
+    victim.write_text("keep")
+    (tmp_path / "locks").mkdir()
+    (tmp_path / "locks" / f"cpu{mine[-1]}.lock").symlink_to(victim)
+    claim = claim_cpu(tmp_path / "locks")
+    assert claim is not None and claim.cpu == mine[-2] and victim.read_text() == "keep"
+    claim.release()
 
 
 def test_the_cli_refuses_bad_cpus_before_starting_gym() -> None:

@@ -89,7 +89,7 @@ def gym_serve(
     name: str = typer.Option("gym", help="node name in timing information"),
     cpus: str | None = typer.Option(None, "--cpus", help="run gym's process on these CPUs (e.g. 1 or 2-3) and "
                                     "this node on the others: keeps most of gym's speed beside busy work; "
-                                    "give each node its own"),
+                                    "give each node its own, or say auto (a CPU no other auto node holds)"),
     path: Path | None = _PATH,
 ) -> None:
     """Serve gym-duckietown as a robot node on stdin/stdout (or $AIDONODE_DATA_IN/_OUT).
@@ -99,13 +99,16 @@ def gym_serve(
     """
     from proxybench.domain.maps import MapError
     from proxybench.gym.backend import GymBridgeError, GymRobot
-    from proxybench.gym.cpus import CpuError, check_cpus, parse_cpus, pin_node
+    from proxybench.gym.cpus import CpuError, choose_cpus, pin_node
     from proxybench.gym.params import GymParamError, gym_params
     from proxybench.protocol.robot_node import RobotNode, serve_robot
 
     try:
         params = gym_params(param, param_file, secret)
-        gym_cpus = check_cpus(parse_cpus(cpus)) if cpus is not None else None
+        gym_cpus, _claim = choose_cpus(cpus)  # a claim is held while this function runs: the node's life
+        if cpus is not None and gym_cpus is None:
+            print(f"[{name}] --cpus auto: no CPU free (one CPU here, or each held by another node): gym's "
+                  "process runs where the scheduler puts it", file=sys.stderr, flush=True)
         backend = GymRobot(params, map_name, path)
         if gym_cpus is not None:
             try:
@@ -117,10 +120,15 @@ def gym_serve(
         err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
         raise typer.Exit(2 if isinstance(exc, GymParamError | CpuError) else 1) from None
     print(f"[{name}] serving a SIMULATED robot (gym-duckietown {backend.version}, {backend.width}x{backend.height} "
-          f"at {1 / backend.frame_dt:g} Hz{', parameters hidden' if secret else ''}) on the robot protocol",
+          f"at {1 / backend.frame_dt:g} Hz{', parameters hidden' if secret else ''}"
+          f"{f', its process on CPU {_cpu_list(gym_cpus)}' if gym_cpus else ''}) on the robot protocol",
           file=sys.stderr, flush=True)
     try:
         code = serve_robot(RobotNode(backend, seed=seed, node_name=name), exit_on_abort=False)
     finally:
         backend.close()
     raise typer.Exit(code)
+
+
+def _cpu_list(cpus: list[int]) -> str:
+    return ",".join(map(str, cpus))

@@ -4,15 +4,20 @@ The node, its caller and gym's process wake each other every frame. Beside other
 often runs gym's process on the same core as them, or as the neighbour, and the node loses a third of gym's
 speed; gym's process on a CPU of its own, the node on the others, keeps most of it
 (``benchmarks/bench_gym.py --pin``; docs/targets.md has the figures). Opt-in: two nodes on one machine need
-different CPUs, which only the user knows.
+different CPUs. ``--cpus auto`` finds one: the last CPU that no other ``auto`` node of this user holds, held by
+a lock file per CPU for the node's life (the kernel drops the lock when the process ends, however it ends).
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
+import stat
+import tempfile
 from collections.abc import Iterable
+from pathlib import Path
 
-__all__ = ["CpuError", "check_cpus", "parse_cpus", "pin_node"]
+__all__ = ["CpuClaim", "CpuError", "check_cpus", "choose_cpus", "claim_cpu", "parse_cpus", "pin_node"]
 
 
 class CpuError(ValueError):
@@ -32,6 +37,59 @@ def parse_cpus(text: str) -> list[int]:
             raise CpuError(f"--cpus {text!r}: {part.strip()!r} is not a CPU number or a range like 2-3")
         cpus.update(range(first, last + 1))
     return sorted(cpus)
+
+
+class CpuClaim:
+    """A CPU held for one node's gym process until :meth:`release` (or the process's end)."""
+
+    def __init__(self, cpu: int, fd: int):
+        self.cpu, self._fd = cpu, fd
+
+    def release(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)  # closing the file drops its lock
+            self._fd = -1
+
+
+def lock_dir() -> Path:
+    """Where ``--cpus auto`` keeps its lock files: one folder per user in the temporary folder."""
+    return Path(tempfile.gettempdir()) / f"proxybench-gym-cpus-{os.getuid()}"
+
+
+def claim_cpu(folder: Path | None = None) -> CpuClaim | None:
+    """The last CPU this process may use that no other claim holds, leaving the node at least one other; None
+    where there is one CPU only, or every one is held (then gym runs where the scheduler puts it)."""
+    allowed = sorted(os.sched_getaffinity(0))
+    if len(allowed) < 2:
+        return None
+    folder = folder or lock_dir()
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    info = folder.lstat()
+    if not stat.S_ISDIR(info.st_mode) or info.st_uid != os.getuid():  # another user's folder: not trusted
+        return None
+    for cpu in reversed(allowed):
+        try:
+            fd = os.open(folder / f"cpu{cpu}.lock", os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            continue
+        return CpuClaim(cpu, fd)
+    return None
+
+
+def choose_cpus(text: str | None) -> tuple[list[int] | None, CpuClaim | None]:
+    """What ``--cpus TEXT`` asks for: nothing (None), a checked list, or for ``auto`` a claimed CPU (the claim,
+    to keep while gym runs; no CPUs and no claim where none is free)."""
+    if text is None:
+        return None, None
+    if text.strip() == "auto":
+        claim = claim_cpu()
+        return ([claim.cpu] if claim is not None else None), claim
+    return check_cpus(parse_cpus(text)), None
 
 
 def _ranges(cpus: Iterable[int]) -> str:
