@@ -99,7 +99,7 @@ def gym_serve(
     """
     from proxybench.domain.maps import MapError
     from proxybench.gym.backend import GymBridgeError, GymRobot
-    from proxybench.gym.cpus import CpuError, choose_cpus, pin_node
+    from proxybench.gym.cpus import CpuError, choose_cpus, cpu_list, pin_node
     from proxybench.gym.params import GymParamError, gym_params
     from proxybench.protocol.robot_node import RobotNode, serve_robot
 
@@ -121,14 +121,10 @@ def gym_serve(
         raise typer.Exit(2 if isinstance(exc, GymParamError | CpuError) else 1) from None
     print(f"[{name}] serving a SIMULATED robot (gym-duckietown {backend.version}, {backend.width}x{backend.height} "
           f"at {1 / backend.frame_dt:g} Hz{', parameters hidden' if secret else ''}"
-          f"{f', its process on CPU {_cpu_list(gym_cpus)}' if gym_cpus else ''}) on the robot protocol",
+          f"{f', its process on CPU {cpu_list(gym_cpus)}' if gym_cpus else ''}) on the robot protocol",
           file=sys.stderr, flush=True)
     try:
         code = serve_robot(RobotNode(backend, seed=seed, node_name=name), exit_on_abort=False)
     finally:
         backend.close()
     raise typer.Exit(code)
-
-
-def _cpu_list(cpus: list[int]) -> str:
-    return ",".join(map(str, cpus))

@@ -17,7 +17,8 @@ import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
-__all__ = ["CpuClaim", "CpuError", "check_cpus", "choose_cpus", "claim_cpu", "parse_cpus", "pin_node"]
+__all__ = ["CpuClaim", "CpuError", "check_cpus", "choose_cpus", "claim_cpu", "cpu_list", "lock_dir", "parse_cpus",
+           "pin_node"]
 
 
 class CpuError(ValueError):
@@ -92,7 +93,8 @@ def choose_cpus(text: str | None) -> tuple[list[int] | None, CpuClaim | None]:
     return check_cpus(parse_cpus(text)), None
 
 
-def _ranges(cpus: Iterable[int]) -> str:
+def cpu_list(cpus: Iterable[int]) -> str:
+    """CPU numbers as a comma-separated list, in order (as messages and taskset show them)."""
     return ",".join(str(c) for c in sorted(cpus))
 
 
@@ -101,11 +103,11 @@ def check_cpus(cpus: list[int]) -> list[int]:
     allowed = os.sched_getaffinity(0)
     missing = sorted(set(cpus) - allowed)
     if missing:
-        raise CpuError(f"--cpus: CPU {_ranges(missing)} is not available here (this process may use CPUs "
-                       f"{_ranges(allowed)})")
+        raise CpuError(f"--cpus: CPU {cpu_list(missing)} is not available here (this process may use CPUs "
+                       f"{cpu_list(allowed)})")
     if not allowed - set(cpus):
-        raise CpuError(f"--cpus {_ranges(cpus)}: that leaves no CPU for the node itself (it may use CPUs "
-                       f"{_ranges(allowed)}); give gym fewer")
+        raise CpuError(f"--cpus {cpu_list(cpus)}: that leaves no CPU for the node itself (it may use CPUs "
+                       f"{cpu_list(allowed)}); give gym fewer")
     return cpus
 
 
@@ -116,4 +118,4 @@ def pin_node(gym_pid: int, cpus: list[int]) -> None:
         os.sched_setaffinity(gym_pid, cpus)
         os.sched_setaffinity(0, os.sched_getaffinity(0) - set(cpus))
     except OSError as exc:
-        raise CpuError(f"--cpus {_ranges(cpus)}: {exc.strerror or exc}") from None
+        raise CpuError(f"--cpus {cpu_list(cpus)}: {exc.strerror or exc}") from None
