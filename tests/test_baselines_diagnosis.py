@@ -48,8 +48,8 @@ def test_start_direction_around_the_map_centre():
 
 def test_the_report_of_a_recorded_target_shows_baselines_and_the_per_pair_table(tmp_path):
     from proxybench.experiments.config import ExperimentConfig
-    from proxybench.experiments.predictivity import run_predictivity
-    from proxybench.experiments.reports.predictivity import findings, write_report
+    from proxybench.experiments.predictivity.report import findings, write_report
+    from proxybench.experiments.predictivity.run import run_predictivity
 
     root = tmp_path / "lab"
     y = 0.585 * 0.5 - 0.22 * 0.585

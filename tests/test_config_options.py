@@ -191,7 +191,7 @@ def test_a_bad_command_line_value_names_its_option(tmp_path):
 
 
 def test_plv_settings_merge_the_quick_mode_the_file_and_the_command_line(tmp_path):
-    from proxybench.experiments.plv_config import PLVConfig
+    from proxybench.experiments.plv.config import PLVConfig
 
     f = tmp_path / "plv.json"
     f.write_text('{"ladder": [10, 20], "train": {"max_steps": 7}}')

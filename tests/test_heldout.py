@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from proxybench.cli import app
 from proxybench.experiments.config import ConfigError
-from proxybench.experiments.heldout import load_heldout_config
+from proxybench.experiments.heldout.run import load_heldout_config
 from proxybench.runner.jobs import AgentSpec
 from proxybench.targets.heldout import FAMILY_PARAMS, HeldOutTarget, draw_heldout, heldout_targets
 from proxybench.usefulness.agent_sets import leave_one_out, order_structure, sensitivity
@@ -195,8 +195,8 @@ def test_heldout_cli_rejects_bad_options(tmp_path):
 
 def test_predictivity_with_a_mixed_agent_set_reports_agent_set_sensitivity(tmp_path, checkpoint):
     from proxybench.experiments.config import ExperimentConfig
-    from proxybench.experiments.predictivity import run_predictivity
-    from proxybench.experiments.reports.predictivity import findings, write_report
+    from proxybench.experiments.predictivity.report import findings, write_report
+    from proxybench.experiments.predictivity.run import run_predictivity
 
     cfg = ExperimentConfig(agents=["straight", "pid", "vision", str(checkpoint)], episodes=2, seconds=2.0,
                            metrics=("driven_lanedir_consec", "survival_time"), sweep={"trim": (-0.3, 0.0)}, n_boot=10,
@@ -227,7 +227,7 @@ def test_cached_episodes_are_scored_for_metrics_a_later_run_asks_for(tmp_path):
 
 
 def test_heldout_config_refuses_an_image_size_theta_cannot_take():
-    from proxybench.experiments.heldout_config import HeldOutConfig
+    from proxybench.experiments.heldout.config import HeldOutConfig
 
     with pytest.raises(ConfigError, match="image_size: width and height must be within 8…4096 px, got 4×4"):
         load_heldout_config(None, {"image_size": [4, 4]})

@@ -101,7 +101,7 @@ class _ScriptedWork:
     ({1: 5, 2: 5, 4: 5, 8: 5, 16: 5}, 0.0, 2, [1, 2, 4, 8, 16]),    # never: the whole ladder
 ])
 def test_a_proxy_ladder_stops_only_once_the_score_has_stayed_above(scores, zero_shot, confirm, rungs):
-    from proxybench.experiments.plv import _ladder
+    from proxybench.experiments.plv.run import _ladder
 
     work = _ScriptedWork((1, 2, 4, 8, 16), confirm, scores)
     rows = _ladder(work, "p", make=None, tcfg=None, reference=10.0, zero_shot=zero_shot)
@@ -109,7 +109,7 @@ def test_a_proxy_ladder_stops_only_once_the_score_has_stayed_above(scores, zero_
 
 
 def _tiny():
-    from proxybench.experiments.plv import PLVConfig
+    from proxybench.experiments.plv.run import PLVConfig
 
     return PLVConfig.from_dict({"width": 32, "height": 24, "ladder": [40, 80], "seeds": [0, 1], "proxy_samples": 80,
                                 "model": {"channels": [8, 8, 8, 8, 8], "hidden": [16]},
@@ -121,7 +121,7 @@ def _tiny():
 
 def test_plv_objective_scores_proxies_against_one_cached_target_curve(tmp_path):
     """argmax PLV (thesis eq. 3.6.2) needs PLV as a function of θ: a tiny run, θ given as values and as a family."""
-    from proxybench.experiments.plv_objective import PLVObjective, objective_value
+    from proxybench.experiments.plv.objective import PLVObjective, objective_value
 
     objective = PLVObjective(_tiny(), tmp_path)
     trial = objective({"camera_pitch": 30.0})
@@ -141,7 +141,7 @@ def test_plv_objective_scores_proxies_against_one_cached_target_curve(tmp_path):
 
 
 def test_optimize_plv_searches_instances_and_families_and_resumes(tmp_path):
-    from proxybench.experiments.plv_objective import PLVSearch, optimize_plv
+    from proxybench.experiments.plv.objective import PLVSearch, optimize_plv
 
     with pytest.raises(ValueError, match="lo < hi"):
         PLVSearch({"camera_pitch": (30.0, 10.0)})

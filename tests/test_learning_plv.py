@@ -7,8 +7,8 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from proxybench.experiments.plv import PLVConfig, PLVResult
-from proxybench.experiments.reports.plv import figure_3_6, figure_plv, findings, score_range, summarize, table_rows
+from proxybench.experiments.plv.report import figure_3_6, figure_plv, findings, score_range, summarize, table_rows
+from proxybench.experiments.plv.run import PLVConfig, PLVResult
 from proxybench.usefulness.plv import DataCost, first_reaching, mean_ci, plv, reference_score
 
 

@@ -40,7 +40,7 @@ def test_collection_and_evaluation_on_a_robot_node_go_through_the_engine():
 
 def _tiny(node: str, proxies: dict[str, str]):
     """A PLV run of networks with a few hundred weights against ``node``: minutes, not hours."""
-    from proxybench.experiments.plv import PLVConfig
+    from proxybench.experiments.plv.run import PLVConfig
 
     return PLVConfig.from_dict({"width": 32, "height": 24, "ladder": [30, 60], "seeds": [0, 1], "proxy_samples": 60,
                                 "proxies": proxies, "target": f"robot:{node}",
@@ -53,8 +53,8 @@ def _tiny(node: str, proxies: dict[str, str]):
 
 def test_plv_with_a_robot_node_as_the_target(tmp_path):
     pytest.importorskip("torch")
-    from proxybench.experiments.plv import run_plv
-    from proxybench.experiments.reports.plv import summarize
+    from proxybench.experiments.plv.report import summarize
+    from proxybench.experiments.plv.run import run_plv
 
     cfg = _tiny(NODE, {"pitch 30°": "proxy:camera_pitch=30"})
     res = run_plv(cfg, tmp_path)
@@ -74,7 +74,7 @@ def test_plv_against_a_gym_duckietown_node(tmp_path):
     env = check_environment(render=False)
     if not env.ok:
         pytest.skip("gym-duckietown's environment is not ready (`proxybench gym setup`): " + "; ".join(env.problems))
-    from proxybench.experiments.plv import run_plv
+    from proxybench.experiments.plv.run import run_plv
 
     gym = f"{sys.executable} -m proxybench.cli gym serve --param camera_width=64 --param camera_height=48"
     cfg = _tiny(gym, {"nominal": "proxy"})

@@ -8,7 +8,7 @@ import torch
 
 from proxybench.agents.simple import StraightAgent
 from proxybench.domain.simulator import Simulator
-from proxybench.experiments.dagger import DaggerConfig, dagger
+from proxybench.experiments.plv.dagger import DaggerConfig, dagger
 from proxybench.learning import is_checkpoint
 from proxybench.learning.agent import BCAgent, make_bc_agent, torch_policy
 from proxybench.learning.domains import proxy_domain, reality_domain

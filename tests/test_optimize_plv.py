@@ -96,7 +96,7 @@ def test_bad_plv_settings_and_family_without_plv(tmp_path: Path) -> None:
 
 
 def test_without_pytorch_the_plv_objective_says_which_extra(tmp_path: Path, monkeypatch) -> None:
-    import proxybench.experiments.optimize_plv as optimize_plv
+    import proxybench.experiments.optimize.plv_search as optimize_plv
 
     monkeypatch.setattr(optimize_plv, "torch_available", lambda: False)
     res = runner.invoke(app, ["optimize", "--objective", "plv", "--out", str(tmp_path / "o")], env=ENV)
@@ -105,7 +105,7 @@ def test_without_pytorch_the_plv_objective_says_which_extra(tmp_path: Path, monk
 
 def test_the_prpv_optimiser_refuses_the_plv_objective(tmp_path: Path) -> None:
     from proxybench.experiments.config import ExperimentConfig, SearchConfig
-    from proxybench.experiments.optimize import optimize_proxy
+    from proxybench.experiments.optimize.run import optimize_proxy
 
     with pytest.raises(ValueError, match="run_plv_search"):
         optimize_proxy(ExperimentConfig(search=SearchConfig(objective="plv")), tmp_path / "runs")

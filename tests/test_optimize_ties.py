@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from proxybench.experiments.optimize import tied_set
+from proxybench.experiments.optimize.run import tied_set
 
 
 def _target(seed: int = 0) -> dict[str, np.ndarray]:

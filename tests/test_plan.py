@@ -91,7 +91,7 @@ def test_next_agents_spend_episodes_on_the_near_tie():
 
 
 def test_sequential_loop_runs_the_chosen_agents_on_a_live_target(tmp_path):
-    from proxybench.experiments.sequential import run_sequential
+    from proxybench.experiments.plan.sequential import run_sequential
     from proxybench.runner.jobs import AgentSpec
     from proxybench.targets import RealityTarget
 

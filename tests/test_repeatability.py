@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from proxybench.cli import app
 from proxybench.domain.reality import reality_params
-from proxybench.experiments.repeatability import (
+from proxybench.experiments.repeatability.run import (
     DESIGNS,
     Design,
     recorded_study,

@@ -9,7 +9,7 @@ from proxybench.agents.simple import StraightAgent
 from proxybench.domain.episode_end import end_event, ended
 from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
-from proxybench.experiments.pod import pod
+from proxybench.experiments.predictivity.pod import pod
 from proxybench.runner.episode import SimPlant, run_episodes
 from proxybench.runner.rollout import AgentPolicy, BatchPolicy, OpenLoopPolicy, rollout
 

@@ -47,7 +47,7 @@ def _score(rec, out, *args):
 
 
 def test_score_proxy_on_a_split_matches_predictivity_and_compares_paired(recording, tmp_path):
-    from proxybench.experiments.predictivity import run_predictivity
+    from proxybench.experiments.predictivity.run import run_predictivity
 
     res = _score(recording, tmp_path / "s", "--episodes", "2-3", "--param", "trim=0.25")
     assert res.exit_code == 0, res.output

@@ -76,7 +76,7 @@ def test_round_trip_recorded_reality_model_gives_the_live_figures(tmp_path):
 
 def test_predictivity_against_a_lab_csv_recording_replays_its_starts(tmp_path):
     from proxybench.experiments.config import ExperimentConfig
-    from proxybench.experiments.predictivity import run_predictivity
+    from proxybench.experiments.predictivity.run import run_predictivity
 
     root = tmp_path / "lab"
     y = 0.585 * 0.5 - 0.22 * 0.585
@@ -124,7 +124,7 @@ def test_a_recorded_target_with_agents_proxybench_cannot_run_says_how_to_name_th
 
 def test_optimize_against_a_recorded_target_reads_it_once(tmp_path):
     from proxybench.experiments.config import ExperimentConfig, SearchConfig
-    from proxybench.experiments.optimize import optimize_proxy
+    from proxybench.experiments.optimize.run import optimize_proxy
 
     rec = tmp_path / "rec"
     record_target(rec, RealityTarget(), [AgentSpec("straight"), AgentSpec("pid")], episodes=1, seconds=2.0)
@@ -196,7 +196,7 @@ def test_an_agent_package_runs_sandboxed_in_predictivity(tmp_path):
     import zipfile
 
     from proxybench.experiments.config import ExperimentConfig
-    from proxybench.experiments.predictivity import run_predictivity
+    from proxybench.experiments.predictivity.run import run_predictivity
     from support.sandbox import require_safe_sandbox
 
     require_safe_sandbox()

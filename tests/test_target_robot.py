@@ -8,8 +8,8 @@ import sys
 import pytest
 
 from proxybench.experiments.config import ExperimentConfig, SearchConfig
-from proxybench.experiments.optimize import optimize_proxy
-from proxybench.experiments.predictivity import run_predictivity
+from proxybench.experiments.optimize.run import optimize_proxy
+from proxybench.experiments.predictivity.run import run_predictivity
 from proxybench.runner.jobs import AgentSpec
 from proxybench.targets import TargetError, open_target
 from proxybench.targets.record import record_target

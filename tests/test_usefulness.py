@@ -93,8 +93,8 @@ def test_paired_results_must_match():
 
 def test_predictivity_experiment_end_to_end_on_a_tiny_config(tmp_path):
     from proxybench.experiments.config import ExperimentConfig
-    from proxybench.experiments.predictivity import run_predictivity
-    from proxybench.experiments.reports.predictivity import write_report
+    from proxybench.experiments.predictivity.report import write_report
+    from proxybench.experiments.predictivity.run import run_predictivity
 
     cfg = ExperimentConfig(agents=["straight", "pid", "vision"], episodes=2, seconds=3.0,
                            sweep={"trim": (-0.3, 0.0), "camera_pitch": (15.0, 19.15)}, n_boot=10, pod_seconds=1.0)
@@ -120,7 +120,7 @@ def test_predictivity_experiment_end_to_end_on_a_tiny_config(tmp_path):
 
 def test_optimizer_runs_trials_into_a_sqlite_study_and_resumes(tmp_path):
     from proxybench.experiments.config import ExperimentConfig, SearchConfig
-    from proxybench.experiments.optimize import optimize_proxy, plot_optimization
+    from proxybench.experiments.optimize.run import optimize_proxy, plot_optimization
 
     cfg = ExperimentConfig(agents=["straight", "pid"], episodes=1, seconds=2.0, n_boot=10,
                            search=SearchConfig(space={"trim": (-0.3, 0.3)}, trials=3, sampler="random",
@@ -161,7 +161,7 @@ def test_experiment_config_names_bad_fields(tmp_path):
 
 
 def test_best_decile_is_the_mean_of_the_best_trials():
-    from proxybench.experiments.optimize import best_decile
+    from proxybench.experiments.optimize.run import best_decile
 
     trials = [{"value": float(v), "x": float(v)} for v in range(30)]  # value = x: best are x = 0, 1, 2
     assert best_decile(trials, ["x"]) == {"x": 1.0}
@@ -175,7 +175,7 @@ def test_the_best_prpv_names_every_proxy_that_reaches_it():
 
     import pandas as pd
 
-    from proxybench.experiments.reports.predictivity import noise_statement
+    from proxybench.experiments.predictivity.report import noise_statement
 
     rows = [{"parameter": "command_delay", "value": 0.05, "prpv": 12.0, "prpv_low": 0.0, "prpv_high": 60.0},
             {"parameter": "blur_time", "value": 0.0, "prpv": 12.0, "prpv_low": 4.0, "prpv_high": 64.0},

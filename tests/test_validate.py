@@ -28,7 +28,7 @@ def _res(means: dict[str, float], n: int = 3) -> dict[str, np.ndarray]:
 def test_settings_do_not_depend_on_how_proxybench_was_started():
     import sys
 
-    from proxybench.experiments.validate import ValidateConfig, settings_for
+    from proxybench.experiments.validate.run import ValidateConfig, settings_for
 
     s = json.dumps(settings_for(ValidateConfig(), False))
     assert sys.executable not in s and "{python} -m proxybench.protocol vision" in s  # filled in at run time
@@ -75,7 +75,7 @@ def test_trajectory_error_holds_a_replay_that_ended_early():
 
 
 def test_the_quick_settings_of_every_family_are_valid():
-    from proxybench.experiments.validate import FAMILIES, ValidateConfig, settings_for
+    from proxybench.experiments.validate.run import FAMILIES, ValidateConfig, settings_for
 
     for family in FAMILIES:
         s = settings_for(ValidateConfig(family=family), True)  # the draws wider than the grids, known names
@@ -85,7 +85,7 @@ def test_the_quick_settings_of_every_family_are_valid():
 def _short_quick_episodes(monkeypatch, family: str, seconds: float = 2.0) -> None:
     """--quick with its episodes cut from 6 s to ``seconds``: what the end-to-end tests check does not depend on
     their length (the quick settings themselves: the test above), and the study runs a third as long."""
-    from proxybench.experiments.validate import FAMILIES
+    from proxybench.experiments.validate.run import FAMILIES
 
     monkeypatch.setitem(FAMILIES[family], True, {**FAMILIES[family][True], "seconds": seconds})
 

@@ -15,7 +15,7 @@ from proxybench.cli.config_options import study_options
 from proxybench.cli.node_options import AGENT_CWD_HELP, with_agent_node_options
 from proxybench.cli.options import positive
 from proxybench.cli.progress import progress_bar, status
-from proxybench.experiments.repeatability_config import RepeatabilityConfig
+from proxybench.experiments.repeatability.config import RepeatabilityConfig
 
 if TYPE_CHECKING:
     from proxybench.protocol.options import NodeOptions
@@ -95,8 +95,8 @@ def repeatability(
     mean heading error [deg]; STD is the run-to-run standard deviation along the route. The target is the
     reality model (simulated stand-ins for Duckiebots) unless --recorded or --robot-cmd is given.
     """
-    from proxybench.experiments.repeatability import run_repeatability
-    from proxybench.experiments.reports.repeatability import design_rows, thesis_text, write_report
+    from proxybench.experiments.repeatability.report import design_rows, thesis_text, write_report
+    from proxybench.experiments.repeatability.run import run_repeatability
 
     what, step = ("driving robot nodes", "run {k}/{t}") if cfg.robots else ("running", "{t} runs side by side")
     try:

@@ -1,6 +1,6 @@
 """`proxybench heldout`: how often each usefulness metric picks the best available proxy θ on held-out targets.
 
-Its options are generated from :class:`~proxybench.experiments.heldout.HeldOutConfig` (``--config FILE`` for
+Its options are generated from :class:`~proxybench.experiments.heldout.run.HeldOutConfig` (``--config FILE`` for
 all of them at once).
 """
 
@@ -15,7 +15,7 @@ from rich.table import Table
 from proxybench.cli.app import app, console
 from proxybench.cli.config_options import study_options
 from proxybench.cli.studies import BackendOption, WorkersOption, run_study
-from proxybench.experiments.heldout_config import HeldOutConfig, default_help
+from proxybench.experiments.heldout.config import HeldOutConfig, default_help
 
 
 @app.command()
@@ -35,9 +35,9 @@ def heldout(
     OUT/criteria.json before any episode runs; hit rates come with Wilson intervals. Episodes are cached
     in OUT/runs, so an interrupted run resumes.
     """
-    from proxybench.experiments.heldout import run_heldout
-    from proxybench.experiments.heldout_analysis import score_heldout
-    from proxybench.experiments.reports.heldout import findings, write_heldout_report
+    from proxybench.experiments.heldout.analysis import score_heldout
+    from proxybench.experiments.heldout.report import findings, write_heldout_report
+    from proxybench.experiments.heldout.run import run_heldout
 
     t0 = time.perf_counter()
     run = run_study(backend, workers, lambda be, progress: run_heldout(cfg, out, be, progress, quick=quick))

@@ -23,7 +23,7 @@ from proxybench.cli.progress import stage_bars, stage_progress
 from proxybench.cli.studies import BackendOption, WorkersOption, run_study
 from proxybench.cli.usefulness import experiment_options
 from proxybench.experiments.config import ExperimentConfig
-from proxybench.experiments.plv_config import PLVConfig
+from proxybench.experiments.plv.config import PLVConfig
 
 learn_app = typer.Typer(no_args_is_help=True, help="Behaviour cloning: datasets, training, fine-tuning, evaluation.")
 app.add_typer(learn_app, name="learn")
@@ -64,8 +64,8 @@ def plv(
     fitted learning curves (a continuous crossing of P) with bootstrap intervals over seeds; the ladder rule is
     shown beside it. Work is cached in OUT/cache, so an interrupted run resumes.
     """
-    from proxybench.experiments.plv import run_plv
-    from proxybench.experiments.reports.plv import findings, summarize, table_rows, write_report
+    from proxybench.experiments.plv.report import findings, summarize, table_rows, write_report
+    from proxybench.experiments.plv.run import run_plv
     from proxybench.protocol import RobotFailure
 
     t0 = time.perf_counter()
@@ -209,9 +209,9 @@ def plv_vs_prpv(
     lowest, and PLV of a network pre-trained on it (fitted curves) with its interval; then both picks and their
     tied sets (docs/learning.md). Work is cached in OUT, so an interrupted run resumes.
     """
-    from proxybench.experiments.optimize_plv import torch_available
-    from proxybench.experiments.plv_prpv import run_plv_prpv
-    from proxybench.experiments.reports.plv_prpv import table_rows, write_choice
+    from proxybench.experiments.optimize.plv_search import torch_available
+    from proxybench.experiments.plv_prpv.report import table_rows, write_choice
+    from proxybench.experiments.plv_prpv.run import run_plv_prpv
     from proxybench.protocol import RobotFailure
 
     if not torch_available():

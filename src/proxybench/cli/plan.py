@@ -4,7 +4,7 @@ Runs (or reads) a pilot on any target, optionally replays it in candidate proxie
 prints what n episodes per agent would give: PRPV's order-range width, the chance of picking the right θ,
 the near-tied pairs and the agents to run next. ``--sequential`` spends a budget of target episodes on a
 live target where they settle most (docs/usefulness.md, "How many episodes?"). The study is
-:mod:`proxybench.experiments.plan`; its options are generated from the experiment file's fields.
+:mod:`proxybench.experiments.plan.run`; its options are generated from the experiment file's fields.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def plan(
     experiments with n episodes per agent are simulated in worlds drawn from it (docs/usefulness.md); --sweep
     gives candidate θ to pick among. Episodes are cached in OUT/runs: `predictivity --out OUT` re-uses them.
     """
-    from proxybench.experiments.plan import run_plan, write_plan
+    from proxybench.experiments.plan.run import run_plan, write_plan
 
     res = run_study(backend, workers, lambda be, progress: run_plan(cfg, out, be, progress, quick=quick))
     _print_plan(res.plan, res.target, res.sequential, res.wall_s)

@@ -47,8 +47,8 @@ def predictivity(
     Proxies replay each target episode from its start pose and seed. Episodes are cached in OUT/runs, so
     an interrupted run resumes where it stopped; a recorded target costs no simulation.
     """
-    from proxybench.experiments.predictivity import run_predictivity
-    from proxybench.experiments.reports.predictivity import findings, write_report
+    from proxybench.experiments.predictivity.report import findings, write_report
+    from proxybench.experiments.predictivity.run import run_predictivity
 
     t0 = time.perf_counter()
     res = run_study(backend, workers, lambda be, progress: run_predictivity(cfg, out / "runs", be, progress,
@@ -87,7 +87,7 @@ def score_proxy(
     import json
 
     from proxybench.cli.config_options import key_values
-    from proxybench.experiments.score import score_proxy as run_score
+    from proxybench.experiments.score.run import score_proxy as run_score
 
     theta, versus = key_values(param, "--param"), key_values(vs_param, "--vs-param")
     t0 = time.perf_counter()
@@ -176,7 +176,7 @@ def optimize(
     With --objective plv: the proxy (θ, or with --family p(θ)) that saves a learning agent the most target
     samples, against the reality model; PLV settings in the experiment file's `plv:` (docs/learning.md).
     """
-    from proxybench.experiments.optimize import optimize_proxy, write_optimization
+    from proxybench.experiments.optimize.run import optimize_proxy, write_optimization
     from proxybench.runner.backends import make_backend
     from proxybench.targets.manifest import TargetError
 
@@ -241,8 +241,8 @@ def optimize(
 def _optimize_plv(cfg: ExperimentConfig, out: Path, quick: bool) -> None:
     """`optimize --objective plv`: argmax PLV over the search space, its table, plot, trials and summary."""
     from proxybench.experiments.config import ConfigError
-    from proxybench.experiments.optimize_plv import plv_search_settings, run_plv_search, torch_available
-    from proxybench.experiments.optimize_plv import write_plv_search as write
+    from proxybench.experiments.optimize.plv_search import plv_search_settings, run_plv_search, torch_available
+    from proxybench.experiments.optimize.plv_search import write_plv_search as write
 
     if not torch_available():
         err_console.print("[red]✗[/red] --objective plv trains a behaviour-cloning network and needs PyTorch, the "

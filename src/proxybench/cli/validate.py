@@ -33,8 +33,8 @@ def validate(
     oracle θ. criteria.json is written before the first episode; every episode is cached, so an interrupted
     study resumes. Writes report.html, summary.json, targets.csv and figures to --out."""
     from proxybench.experiments.config import ConfigError
-    from proxybench.experiments.reports.validate import answer, write_validation_report
-    from proxybench.experiments.validate import ValidateConfig, run_validate, summarize
+    from proxybench.experiments.validate.report import answer, write_validation_report
+    from proxybench.experiments.validate.run import ValidateConfig, run_validate, summarize
     from proxybench.runner.backends import make_backend
 
     try:

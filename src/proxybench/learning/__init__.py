@@ -7,7 +7,7 @@
 Collecting data and scoring a network drive robots, so they live with the runner
 (:mod:`proxybench.runner.collect`, :mod:`proxybench.runner.policy_eval`); the PLV arithmetic and its intervals
 are measures (:mod:`proxybench.usefulness.plv`, :mod:`proxybench.usefulness.plv_intervals`); the PLV experiment,
-DAgger and argmax-PLV are studies (:mod:`proxybench.experiments.plv`, ``dagger``, ``plv_objective``).
+DAgger and argmax-PLV are studies (:mod:`proxybench.experiments.plv.run`, ``dagger``, ``plv_objective``).
 
 Module names differ from the functions exported here (``train``), so
 ``from proxybench.learning import train`` is always the function, whatever was imported before.

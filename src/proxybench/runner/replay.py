@@ -1,10 +1,10 @@
 """Open-loop replays: recorded wheel commands played again in other domains, frame by frame.
 
 Trajectory matching (the system-identification route: which θ reproduces a target's recorded runs under the
-same commands?, :mod:`proxybench.experiments.validate`) replays each recorded run's commands from its start
+same commands?, :mod:`proxybench.experiments.validate.run`) replays each recorded run's commands from its start
 (:func:`replay_runs`).
 
-POD (:mod:`proxybench.experiments.pod`) compares what two domains' cameras show under one command sequence;
+POD (:mod:`proxybench.experiments.predictivity.pod`) compares what two domains' cameras show under one command sequence;
 the commands themselves come from an agent driving one of them (:func:`agent_commands`). Both are episodes
 of the one engine (:func:`~proxybench.runner.rollout.rollout`): the domains are one batch of the simulator,
 so their frames are rendered in one call and the engine's ending rule applies.

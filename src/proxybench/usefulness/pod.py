@@ -1,7 +1,7 @@
 """POD, the naive usefulness measure: how different do the observations look?
 
 The same open-loop command sequence is played from the same start in the proxy and in the target
-(:mod:`proxybench.experiments.pod` asks the runner for the frames); POD is the mean absolute difference of
+(:mod:`proxybench.experiments.predictivity.pod` asks the runner for the frames); POD is the mean absolute difference of
 the two camera streams, per pixel and channel, in [0, 1] (0: identical frames), over the frames before
 either robot's episode ended (where the two streams still show comparable scenes). It ignores what matters
 for a task, which is why the thesis argues for PRPV.

@@ -4,7 +4,7 @@ After a pilot, each round runs ``batch`` episodes of the agents whose next episo
 number of settled pairs (:func:`~proxybench.usefulness.plan.next_agents`), and the loop stops when every pair
 of agents is *settled* — ordered, or tied within the task's tolerance ε
 (:mod:`~proxybench.usefulness.indifference`) — or the budget is spent. The same loop serves a live target
-(:mod:`proxybench.experiments.sequential` runs the episodes through the runner) and the simulation that checks
+(:mod:`proxybench.experiments.plan.sequential` runs the episodes through the runner) and the simulation that checks
 its error rate (:mod:`proxybench.usefulness.stopping_check`): only ``fetch`` differs.
 
 Looking at the data again and again and stopping when a test passes inflates its error rate. So the loop

@@ -1,0 +1,1 @@
+"""The heldout study: its config, run, measures' glue and report side by side."""

@@ -1,0 +1,184 @@
+"""The two uses of a simulator, side by side on one target: argmin PRPV (to predict) against argmax PLV (to teach).
+
+Thesis §3.6 names two objectives for choosing a proxy θ: θ* = argmin PRPV(θ) when the simulator is to *rank
+agents* as the target would (eq. 3.6.1), and p(θ)* = argmax PLV(θ) when it is to *pre-train* a learning agent
+(eq. 3.6.2). Do they pick the same θ? For every candidate θ (the experiment's sweep points, each the nominal
+calibration with one parameter changed):
+
+- PRPV of the agents' replays against the target, with its order range, and the paired difference to the
+  lowest candidate (the same resampled episodes): the candidates the data cannot tell from the lowest are
+  PRPV's tied set (:func:`~proxybench.usefulness.noise.lowest_claim`);
+- PLV of a behaviour-cloning agent pre-trained on the candidate and fine-tuned on target samples (fitted
+  learning curves, bootstrap interval over seeds: :class:`~proxybench.experiments.plv.objective.PLVObjective`);
+  the candidates whose interval reaches the best one's are PLV's tied set.
+
+The two picks differ *for sure* only when the tied sets are disjoint. The target is the same for both: the
+reality model, or a robot node (``robot:COMMAND``; PLV then collects its target samples on the node).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from proxybench.experiments.config import ConfigError, ExperimentConfig, resolve
+from proxybench.experiments.predictivity.run import proxy_jobs
+from proxybench.experiments.proxies import NOMINAL, proxy_params
+from proxybench.runner.backends import Backend, InlineBackend
+from proxybench.runner.jobs import DomainSpec
+from proxybench.runner.sweep import run_jobs
+from proxybench.targets.base import by_agent
+from proxybench.tasks.metrics import METRICS
+from proxybench.usefulness.intervals import usefulness
+from proxybench.usefulness.metrics import PairedResults
+from proxybench.usefulness.noise import compare_paired, lowest_claim, paired_prpv_samples
+
+__all__ = ["DEFAULT_CANDIDATES", "Candidate", "ChoiceResult", "candidates_of", "run_plv_prpv"]
+
+#: when the experiment sweeps nothing: camera pitch below, at and above the nominal calibration
+DEFAULT_CANDIDATES = {"camera_pitch": (12.0, 19.15, 26.0)}
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass
+class Candidate:
+    """One θ and what each objective says of it."""
+
+    label: str
+    theta: dict[str, float]
+    prpv: float = float("nan")
+    prpv_low: float = float("nan")  # order range
+    prpv_high: float = float("nan")
+    delta: tuple[float, float, float] = (0.0, 0.0, 0.0)  # PRPV − lowest PRPV [paired 95 % interval]
+    plv: float | None = None
+    plv_low: float | None = None
+    plv_high: float | None = None
+    plv_label: str = ""
+    reached: float = 0.0
+    zero_shot: float = float("nan")
+
+
+@dataclass
+class ChoiceResult:
+    """Every candidate, each objective's pick and tied set, and whether the two uses of the simulator differ."""
+
+    candidates: list[Candidate]
+    prpv_pick: str
+    prpv_tied: list[str]
+    plv_pick: str | None
+    plv_tied: list[str]
+    target: str
+    agents: list[str]
+    episodes: int
+    plv_seeds: int
+    reference: float
+    target_samples: float | None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def same(self) -> bool:
+        return self.plv_pick == self.prpv_pick
+
+    @property
+    def resolved(self) -> bool:
+        """The picks differ and no candidate is in both tied sets: the two uses choose different θ for sure."""
+        return not self.same and not set(self.prpv_tied) & set(self.plv_tied)
+
+    def verdict(self) -> str:
+        if self.plv_pick is None:
+            return "PLV picks nothing: no candidate reaches the reference score P"
+        if self.same:
+            others = sorted((set(self.prpv_tied) | set(self.plv_tied)) - {self.prpv_pick})
+            return f"both pick {self.prpv_pick}" + (f" (not separated from {', '.join(others)})" if others else "")
+        if self.resolved:
+            return (f"they differ: argmin PRPV {self.prpv_pick}, argmax PLV {self.plv_pick}, and the tied sets do "
+                    "not overlap")
+        both = ", ".join(sorted(set(self.prpv_tied) & set(self.plv_tied)))
+        return (f"argmin PRPV {self.prpv_pick}, argmax PLV {self.plv_pick}, but the data cannot tell them apart: "
+                f"{both} {'is' if ', ' not in both else 'are'} in both tied sets")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**{k: v for k, v in asdict(self).items() if k != "candidates"},
+                "candidates": [asdict(c) for c in self.candidates], "same": self.same, "resolved": self.resolved,
+                "verdict": self.verdict()}
+
+
+def candidates_of(sweep: dict[str, tuple[float, ...]], fixed: dict[str, Any]) -> list[tuple[str, dict[str, float]]]:
+    """(label, θ changes) per sweep point, one parameter changed at a time; equal θ (the nominal value of several
+    parameters) once."""
+    out: dict[str, tuple[str, dict[str, float]]] = {}
+    for name, values in sweep.items():
+        for v in values:
+            theta = {name: float(v)}
+            key = "nominal" if np.isclose(float(v), float(NOMINAL.get(name, np.nan))) else f"{name}={v:g}"
+            out.setdefault(key, (key, theta))
+    return list(out.values())
+
+
+def run_plv_prpv(cfg: ExperimentConfig, out: str | Path, *, quick: bool = False, backend: Backend | None = None,
+                 progress: Progress | None = None) -> ChoiceResult:
+    """PRPV and PLV of every candidate θ on the experiment's target; both picks with their tied sets."""
+    from proxybench.experiments.optimize.plv_search import plv_search_settings
+    from proxybench.experiments.plv.objective import PLVObjective, instance_domain
+
+    if cfg.target != "reality" and not cfg.target.startswith("robot:"):
+        raise ConfigError(f"target: PLV collects target samples and scores networks on the target, so it needs a live "
+                          f"one (reality, or robot:COMMAND), not {cfg.target!r}")
+    if cfg.target_params:
+        raise ConfigError("target_params: PLV's reality model is the calibrated one; drop target_params")
+    out, backend = Path(out), backend or InlineBackend()
+    exp, target = resolve(cfg, "predictivity", quick=quick, work_dir=out / "agents")
+    sweep = dict(cfg.sweep) if "sweep" in cfg.model_fields_set else dict(DEFAULT_CANDIDATES)
+    cands = candidates_of(sweep, exp.proxy)
+    # predicting: the agents on the target, replayed in every candidate
+    tgt = target.run(exp.agents, map_name=exp.map, seconds=exp.seconds, episodes=exp.episodes, seed=exp.seed,
+                     metrics=exp.metrics, image_size=exp.image_size, run_dir=out / "runs", backend=backend,
+                     progress=progress)
+    higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
+    proxies = {}
+    for label, theta in cands:
+        dom = DomainSpec(label, proxy_params(exp.image_size, exp.proxy, **theta))
+        jobs = proxy_jobs(exp, tgt, dom)
+        proxies[label] = by_agent(jobs, run_jobs(jobs, out / "runs", backend).results, exp.metrics)
+    rows = [Candidate(label, theta) for label, theta in cands]
+    for c in rows:
+        e = usefulness(PairedResults(proxies[c.label], tgt.results, higher, exp.metrics), n_boot=exp.n_boot,
+                       seed=exp.seed)["prpv"]
+        c.prpv, c.prpv_low, c.prpv_high = e.value, e.low, e.high
+    labels = [c.label for c in rows]
+    samples = paired_prpv_samples(tgt.results, [proxies[lb] for lb in labels], higher, n_boot=exp.n_boot,
+                                  seed=exp.seed)
+    best, _, plausible = lowest_claim(labels, [c.prpv for c in rows], samples)
+    for j, c in enumerate(rows):
+        d = compare_paired(labels, [r.prpv for r in rows], samples, j, best).delta
+        c.delta = (d.value, d.low, d.high)
+    # teaching: a network pre-trained on each candidate, fine-tuned on target samples
+    plv_cfg, _, _ = plv_search_settings(cfg.model_copy(update={"target": "reality"}), quick=quick)
+    plv_cfg = type(plv_cfg).from_dict({"target": cfg.target}, plv_cfg)
+    objective = PLVObjective(plv_cfg, out / "plv", progress)
+    try:
+        for k, c in enumerate(rows):
+            trial = objective(instance_domain({**exp.proxy, **c.theta}, plv_cfg.width, plv_cfg.height))
+            c.plv, c.plv_low, c.plv_high = trial.plv.value, trial.interval.low, trial.interval.high
+            c.plv_label, c.reached, c.zero_shot = trial.interval.label(), trial.reached_share, trial.zero_shot
+            if progress:
+                progress("PLV candidates", k + 1, len(rows))
+        _, expert, reference = objective.target()
+        t_cost = trial.plv.target_cost
+    finally:
+        objective.close()
+    reached = [c for c in rows if c.plv is not None]
+    plv_best = max(reached, key=lambda c: c.plv) if reached else None
+    plv_tied = [] if plv_best is None else [
+        c.label for c in rows if c is plv_best or (c.plv_high is not None and plv_best.plv_low is not None
+                                                   and c.plv_high >= plv_best.plv_low)
+        or (c.plv_high is not None and plv_best.plv_low is None)]
+    return ChoiceResult(rows, labels[best], [labels[j] for j in plausible], plv_best.label if plv_best else None,
+                        plv_tied, tgt.info.statement, exp.agent_labels, exp.episode_count, len(plv_cfg.seeds),
+                        reference,
+                        t_cost, {"expert": expert, "map": exp.map, "seconds": exp.seconds,
+                                 "metrics": list(exp.metrics), "plv_config": plv_cfg.to_dict()})

@@ -1,0 +1,1 @@
+"""The repeatability study: its config, run, measures' glue and report side by side."""

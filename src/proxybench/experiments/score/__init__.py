@@ -1,0 +1,1 @@
+"""The score study: its config, run, measures' glue and report side by side."""
