@@ -155,20 +155,25 @@ def test_two_fields_spelt_alike_are_refused_when_the_command_is_defined():
 
 
 def test_the_experiment_commands_offer_every_field_of_their_config():
-    from proxybench.cli import evaluate, heldout, learning, plan, usefulness
+    from proxybench.cli.studies import study_command
     from proxybench.experiments.config import ExperimentConfig
+    from proxybench.experiments.study import study
+
+    def table(name: str) -> dict[str, str]:
+        return option_table(study_command(study(name)))
 
     fields = set(ExperimentConfig.model_fields) - {"search", "plan", "robot_options"}
-    for command, excluded in ((usefulness.predictivity, {"plv"}), (usefulness.optimize, {"sweep", "pod_seconds"}),
-                              (plan.plan, {"n_boot", "pod_seconds", "truth", "plv"})):
-        table = option_table(command)
-        assert fields - excluded <= set(table), command.__name__
-    assert option_table(usefulness.optimize)["search.space"] == "--param"
-    assert option_table(usefulness.predictivity)["robot_options.reflection"] == "--robot-reflection"
-    assert option_table(plan.plan)["plan.width"] == "--width"
-    assert option_table(heldout.heldout)["agents"] == "--agent"
-    assert option_table(learning.plv)["use_dagger"] == "--dagger"
-    assert option_table(evaluate.repeatability)["robots"] == "--robot-cmd"
+    for command, excluded in (("predictivity", {"plv"}), ("optimize", {"sweep", "pod_seconds"}),
+                              ("plan", {"n_boot", "pod_seconds", "truth", "plv"})):
+        assert fields - excluded <= set(table(command)), command
+    assert table("optimize")["search.space"] == "--param"
+    assert table("predictivity")["robot_options.reflection"] == "--robot-reflection"
+    assert table("plan")["plan.width"] == "--width"
+    assert table("heldout")["agents"] == "--agent"
+    assert table("plv")["use_dagger"] == "--dagger"
+    assert table("repeatability")["robots"] == "--robot-cmd"
+    assert table("score-proxy")["param"] == "--param" and table("score-proxy")["vs_param"] == "--vs-param"
+    assert table("validate")["agents"] == "--agent" and table("validate")["interim"] == "--interim"
 
 
 def test_optimize_help_does_not_promise_defaults_a_recorded_target_overrides():

@@ -30,7 +30,7 @@ def test_settings_do_not_depend_on_how_proxybench_was_started():
 
     from proxybench.experiments.validate.run import ValidateConfig, settings_for
 
-    s = json.dumps(settings_for(ValidateConfig(), False))
+    s = settings_for(ValidateConfig(), False).model_dump_json()
     assert sys.executable not in s and "{python} -m proxybench.protocol vision" in s  # filled in at run time
 
 
@@ -79,7 +79,7 @@ def test_the_quick_settings_of_every_family_are_valid():
 
     for family in FAMILIES:
         s = settings_for(ValidateConfig(family=family), True)  # the draws wider than the grids, known names
-        assert s["quick"] and s["targets"] == 3 and len(s["agents"]) == 8 and s["seconds"] == 6.0, family
+        assert s.quick and s.targets == 3 and len(s.agents) == 8 and s.seconds == 6.0, family
 
 
 def _short_quick_episodes(monkeypatch, family: str, seconds: float = 2.0) -> None:
@@ -87,7 +87,9 @@ def _short_quick_episodes(monkeypatch, family: str, seconds: float = 2.0) -> Non
     their length (the quick settings themselves: the test above), and the study runs a third as long."""
     from proxybench.experiments.validate.run import FAMILIES
 
-    monkeypatch.setitem(FAMILIES[family], True, {**FAMILIES[family][True], "seconds": seconds})
+    modes = FAMILIES[family]
+    monkeypatch.setitem(FAMILIES, family, modes.model_copy(update={"quick": modes.quick.model_copy(
+        update={"seconds": seconds})}))
 
 
 @pytest.mark.slow

@@ -8,19 +8,18 @@ from proxybench.cli import (  # noqa: F401 - importing registers the commands
     evaluate,
     evaluator,
     gym,
-    heldout,
     learning,
     maps,
     params,
-    plan,
     robot,
     sandbox,
     server,
     targets,
-    usefulness,
-    validate,
 )
 from proxybench.cli.app import app
+from proxybench.cli.studies import add_study_commands
+
+add_study_commands(app)  # one command per registered study
 
 __all__ = ["app", "main"]
 

@@ -52,7 +52,8 @@ import typer
 from pydantic import BaseModel
 from rich.markup import escape
 
-from proxybench.experiments.study import ConfigError, cli_hint, unwrap_optional
+from proxybench.experiments.study import ConfigError, cli_hint, mode_defaults, unwrap_optional
+from proxybench.experiments.study import fmt_default as _fmt
 from proxybench.untrusted import repeated
 
 __all__ = ["StudyOption", "fail", "image_size", "key_values", "mode_defaults", "option_table", "overrides_of",
@@ -87,35 +88,6 @@ class StudyOption:
 
 def _text(doc: str | None) -> str:
     return " ".join((doc or "").split())
-
-
-def _fmt(value: Any, sep: str = ",") -> str:
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        value = dataclasses.asdict(value)
-    if isinstance(value, bool):
-        return "on" if value else "off"
-    if isinstance(value, float):
-        return f"{value:g}"
-    if isinstance(value, list | tuple):
-        return sep.join(_fmt(v) for v in value) if value else "none"
-    if isinstance(value, Mapping):
-        return "; ".join(f"{k}={_fmt(v, sep)}" for k, v in value.items()) if value else "none"
-    return str(value)
-
-
-def mode_defaults(full: Mapping[str, Any], quick: Mapping[str, Any]) -> dict[str, str]:
-    """How ``--help`` words the defaults of a study whose ``--quick`` mode has others (``full`` and ``quick``: the
-    two configs' fields); of a section, only the keys that differ are said for ``--quick``."""
-    out = {}
-    for key, value in full.items():
-        other = quick.get(key, value)
-        if other == value:
-            out[key] = _fmt(value)
-            continue
-        if isinstance(value, Mapping) and isinstance(other, Mapping):
-            other = {k: v for k, v in other.items() if value.get(k) != v}
-        out[key] = f"{_fmt(value)}; --quick {_fmt(other)}"
-    return out
 
 
 def _default_text(field: Any, sep: str, command_default: str | None) -> str:

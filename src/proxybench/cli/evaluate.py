@@ -11,11 +11,9 @@ from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
-from proxybench.cli.config_options import study_options
 from proxybench.cli.node_options import AGENT_CWD_HELP, with_agent_node_options
 from proxybench.cli.options import positive
 from proxybench.cli.progress import progress_bar, status
-from proxybench.experiments.repeatability.config import RepeatabilityConfig
 
 if TYPE_CHECKING:
     from proxybench.protocol.options import NodeOptions
@@ -82,46 +80,6 @@ def _save_table(rows: list[dict], out: Path) -> None:
     tmp.replace(out)
 
 
-@app.command()
-@study_options(RepeatabilityConfig, defaults={"designs": "the thesis' three, 1×1×9, 1×3×3, 2×1×6",
-                                              "runs": "each design's; robot nodes: 3"})
-def repeatability(
-    cfg: RepeatabilityConfig,
-    out: Path = typer.Option(Path("out/repeatability"), help="folder for the tables and the plots"),
-) -> None:
-    """MPD / MOD of one agent, thesis §5.4: one robot, robots, labs (figs. 5.8–5.10).
-
-    MPD is the mean signed lateral offset from the lane centre along the route [cm] (+ = left), MOD the
-    mean heading error [deg]; STD is the run-to-run standard deviation along the route. The target is the
-    reality model (simulated stand-ins for Duckiebots) unless --recorded or --robot-cmd is given.
-    """
-    from proxybench.experiments.repeatability.report import design_rows, thesis_text, write_report
-    from proxybench.experiments.repeatability.run import run_repeatability
-
-    what, step = ("driving robot nodes", "run {k}/{t}") if cfg.robots else ("running", "{t} runs side by side")
-    try:
-        with status(what) as spinner:
-            res = run_repeatability(cfg, progress=lambda n, k, t: spinner.update(f"{n}: " + step.format(k=k, t=t)))
-    except (ValueError, FileNotFoundError) as exc:
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(2) from exc
-    table = Table(title=escape(f"repeatability of {cfg.agent} ({res.source}; {cfg.seconds:g} s runs): MPD [cm] (+ = "
-                               "left of the lane centre), MOD [deg]; STD = run-to-run"))
-    for col in ("design", "labs×robots×runs", "AVG MPD", "STD MPD", "AVG MOD", "STD MOD", "within / between STD MPD",
-                "ended early", "route (m)", "thesis (real robots): MPD ± STD, MOD ± STD"):
-        table.add_column(col, justify="left" if col == "design" else "right")
-    for (name, r), f in zip(res.designs.items(), design_rows(res), strict=True):
-        split = f"{f['MPD_within_std_cm']:.2f} / {f['MPD_between_std_cm']:.2f}" if "MPD_within_std_cm" in f else "–"
-        table.add_row(name, r.design.label, f"{f['MPD_cm']:+.2f}", f"{f['MPD_std_cm']:.2f}", f"{f['MOD_deg']:+.2f}",
-                      f"{f['MOD_std_deg']:.2f}", split, f"{r.early}/{len(r.runs)}", f"{f['route_m']:.1f}",
-                      thesis_text(name))
-    console.print(table)
-    for name, note in res.notes.items():
-        console.print(f"{name}: {note}", highlight=False)
-    files = write_report(res, cfg, out)
-    console.print(f"wrote {', '.join(map(str, files))} (+ .svg)", highlight=False)
-
-
 def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:
     """--agent and --agent-cmd, else the benchmark file's ``agents:``, else every zoo agent."""
     from proxybench.agents import ZOO
@@ -180,9 +138,9 @@ def evaluate(
     """
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 
-    from proxybench.agents import ZOO
     from proxybench.runner.backends import make_backend
     from proxybench.runner.evaluate import evaluate_benchmark
+    from proxybench.runner.jobs import is_privileged
     from proxybench.tasks.benchmark import Benchmark, BenchmarkError
 
     try:
@@ -211,7 +169,7 @@ def evaluate(
         task = bar.add_task("episodes", total=None)
         try:
             ev = evaluate_benchmark(bench, specs, run_dir, be, domain=domain,
-                                    privileged=lambda s: s.command is None and ZOO[s.name].privileged,
+                                    privileged=is_privileged,
                                     progress=lambda d, t: bar.update(task, completed=d, total=t), streams=streams)
         except BenchmarkError as exc:
             err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)

@@ -14,16 +14,10 @@ from pathlib import Path
 import typer
 from rich.markup import escape
 from rich.progress import Progress
-from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console
-from proxybench.cli.config_options import mode_defaults, study_options
 from proxybench.cli.options import non_negative, positive
-from proxybench.cli.progress import stage_bars, stage_progress
-from proxybench.cli.studies import BackendOption, WorkersOption, run_study
-from proxybench.cli.usefulness import experiment_options
-from proxybench.experiments.config import ExperimentConfig
-from proxybench.experiments.plv.config import PLVConfig
+from proxybench.cli.progress import stage_bars
 
 learn_app = typer.Typer(no_args_is_help=True, help="Behaviour cloning: datasets, training, fine-tuning, evaluation.")
 app.add_typer(learn_app, name="learn")
@@ -36,60 +30,6 @@ def _bars() -> Progress:
 def _fail(msg: str, code: int = 2) -> typer.Exit:
     err_console.print(f"[red]error:[/red] {escape(str(msg))}", highlight=False)
     return typer.Exit(code)
-
-
-def _load_plv(path: Path | None, overrides: dict, own: dict) -> PLVConfig:
-    """The file and the options over ``PLVConfig()``, or with ``--quick`` over ``PLVConfig.quick()``."""
-    base = PLVConfig.quick() if own["quick"] else PLVConfig()
-    return PLVConfig.load(path, overrides, base=base.to_dict())
-
-
-def _plv_defaults() -> dict[str, str]:
-    full, quick = PLVConfig(), PLVConfig.quick()
-    return mode_defaults(full.to_dict(), quick.to_dict()) | {"seeds": f"{len(full.seeds)}; --quick {len(quick.seeds)}"}
-
-
-@app.command()
-@study_options(PLVConfig, load=_load_plv, defaults=_plv_defaults(),
-               config_help="YAML or JSON file of PLVConfig fields (sections: train: {max_steps: 100}, eval, ...)")
-def plv(
-    cfg: PLVConfig,
-    quick: bool = typer.Option(False, "--quick", help="40×30 frames, short ladder, 3 seeds (minutes)"),
-    out: Path = typer.Option(Path("out/plv"), help="report folder (figure, tables, report.html) and cache"),
-) -> None:
-    """How many target samples does pre-training on a proxy save a behaviour-cloning agent? (Table 3.1, Fig. 3.6)
-
-    The target is the reality model, a *simulated* stand-in for a real Duckiebot, or a robot node (--target);
-    the proxies are the simulator with camera pitch 3°, 19°, 35° and a domain-randomised family. PLV comes from
-    fitted learning curves (a continuous crossing of P) with bootstrap intervals over seeds; the ladder rule is
-    shown beside it. Work is cached in OUT/cache, so an interrupted run resumes.
-    """
-    from proxybench.experiments.plv.report import findings, summarize, table_rows, write_report
-    from proxybench.experiments.plv.run import run_plv
-    from proxybench.protocol import RobotFailure
-
-    t0 = time.perf_counter()
-    with _bars() as bar:
-        try:
-            res = run_plv(cfg, out, stage_progress(bar))
-        except (RuntimeError, RobotFailure) as exc:  # a robot node that fails or serves no lane pose
-            raise _fail(f"{cfg.target}: {exc}") from exc
-    files = write_report(res, out)
-    s = summarize(res)
-    wall = time.perf_counter() - t0
-    note = f", {res.cached} units from the cache" if res.cached else ""
-    rows = table_rows(res, s)
-    table = Table(title=f"Table 3.1 — PLV of proxies (target: {s.target_label}) — {len(cfg.seeds)} seeds, fitted "
-                        f"curves, 95 % bootstrap intervals over seeds — {wall:.0f} s{note}")
-    for col in rows[0]:
-        table.add_column(col, justify="left" if col == "domain" else "right")
-    for r in rows:
-        table.add_row(*(escape(str(v)) for v in r.values()))  # "[not reached, 900]" is not markup
-    console.print(table)
-    for line in findings(res, s):
-        console.print(f"• {escape(line)}", highlight=False)
-    console.print(f"wrote {files['html']}, {files['fig3_6']} and {files['fig_plv']} (+ .svg), {files['table']}, "
-                  f"{files['runs']}", highlight=False)
 
 
 @learn_app.command("dataset")
@@ -106,8 +46,8 @@ def learn_dataset(
     seed: int = typer.Option(0, min=0),
 ) -> None:
     """Let the privileged expert drive DOMAIN (with recovery noise) and record camera frames + its commands."""
+    from proxybench.learning.collection import CollectConfig, collect
     from proxybench.learning.domains import parse_domain
-    from proxybench.runner.collect import CollectConfig, collect
 
     try:
         dom = parse_domain(domain, width, height)
@@ -176,7 +116,7 @@ def learn_evaluate(
     """Lane score of a checkpoint over evaluation episodes (all episodes in one batched simulator)."""
     from proxybench.learning.agent import BCAgent
     from proxybench.learning.domains import parse_domain
-    from proxybench.runner.policy_eval import EvalConfig, evaluate_expert, evaluate_policy
+    from proxybench.learning.evaluation import EvalConfig, evaluate_expert, evaluate_policy
 
     try:
         agent = BCAgent(checkpoint)
@@ -191,50 +131,3 @@ def learn_evaluate(
     console.print(f"{agent.name} in {dom.name} ({what}): lane score {res.mean:.2f} over {episodes} × {seconds:g} s "
                   f"(per episode {', '.join(f'{x:.1f}' for x in res.scores)}; expert {expert.mean:.2f})",
                   highlight=False)
-
-
-@app.command("plv-vs-prpv")
-@experiment_options("predictivity", exclude=("search", "plan", "pod_seconds", "truth", "dtps_options"),
-                    defaults={"sweep": "camera_pitch=12,19.15,26 (one parameter changed at a time)"})
-def plv_vs_prpv(
-    cfg: ExperimentConfig,
-    quick: bool = typer.Option(False, "--quick", help="the quick predictivity defaults and PLVConfig.quick()"),
-    out: Path = typer.Option(Path("out/plv-vs-prpv"), help="folder for choice.json/.csv/.png and the caches"),
-    backend: BackendOption = "local",
-    workers: WorkersOption = None,
-) -> None:
-    """Do the two uses of a simulator pick the same θ? argmin PRPV (predict) and argmax PLV (teach) on one target.
-
-    For every candidate θ: PRPV of the agents' replays with its order range and the paired difference to the
-    lowest, and PLV of a network pre-trained on it (fitted curves) with its interval; then both picks and their
-    tied sets (docs/learning.md). Work is cached in OUT, so an interrupted run resumes.
-    """
-    from proxybench.experiments.optimize.plv_search import torch_available
-    from proxybench.experiments.plv_prpv.report import table_rows, write_choice
-    from proxybench.experiments.plv_prpv.run import run_plv_prpv
-    from proxybench.protocol import RobotFailure
-
-    if not torch_available():
-        raise _fail("PLV needs PyTorch: pip install -e '.[learning]'")
-    t0 = time.perf_counter()
-    try:
-        res = run_study(backend, workers, lambda be, progress: run_plv_prpv(cfg, out, quick=quick, backend=be,
-                                                                           progress=progress))
-    except (RuntimeError, RobotFailure) as exc:
-        raise _fail(str(exc)) from exc
-    wall = time.perf_counter() - t0
-    files = write_choice(res, out, wall)
-    rows = table_rows(res)
-    table = Table(title=f"predict (argmin PRPV) vs teach (argmax PLV) — {len(res.agents)} agents × {res.episodes} "
-                        f"episodes; PLV over {res.plv_seeds} seeds; {wall:.0f} s")
-    for col in rows[0]:
-        table.add_column(escape(col), justify="left" if col == "candidate θ" else "right")
-    for r in rows:
-        table.add_row(*(escape(str(v)) for v in r.values()))
-    console.print(f"[bold]target:[/bold] {escape(res.target)}", highlight=False)
-    console.print(table)
-    console.print(f"• argmin PRPV: {res.prpv_pick} (not separated from it: {', '.join(res.prpv_tied)}); argmax PLV: "
-                  f"{res.plv_pick or 'none'} (intervals reaching it: {', '.join(res.plv_tied) or '–'})",
-                  highlight=False, markup=False)
-    console.print(f"• {res.verdict()}", highlight=False, markup=False)
-    console.print(f"wrote {files['json']}, {files['csv']}, {files['png']} (+ .svg)", highlight=False)

@@ -15,21 +15,21 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from proxybench.domain.params import check_image_size
 from proxybench.dtps.robot_options import DtpsRobotOptions
 from proxybench.experiments.proxies import DEFAULT_SEARCH, DEFAULT_SWEEP, proxy_params
-from proxybench.experiments.study import Cli, ConfigError, StudyConfig
+from proxybench.experiments.study import Cli, ConfigError, Study, StudyConfig
 from proxybench.protocol.options import RobotNodeOptions
 from proxybench.targets.base import Episodes, episode_count, parse_episodes
 from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
 from proxybench.untrusted import problems
 
-__all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "PlanConfig", "SearchConfig",
-           "default_help", "load_config", "param_name", "resolve", "resolve_run"]
+__all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "ExperimentStudy", "PlanConfig",
+           "SearchConfig", "default_help", "load_config", "param_name", "resolve", "resolve_run"]
 
 FULL_AGENTS = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
                "pure-pursuit-fast", "vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",
@@ -330,11 +330,13 @@ def _entry_problem(err: Any) -> str:
     return f"{loc}: {msg}"
 
 
-def load_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> ExperimentConfig:
-    """The experiment file at ``path`` (or none), with ``overrides`` (the command line) on top."""
+def load_config(path: str | Path | None, overrides: dict[str, Any] | None = None,
+                model: type[ExperimentConfig] | None = None) -> ExperimentConfig:
+    """The experiment file at ``path`` (or none), with ``overrides`` (the command line) on top (``model``: a
+    study's extension of the file, :class:`ExperimentConfig` by default)."""
     over = dict(overrides or {})
     context = {"base_dir": Path(path).parent.resolve()} if path is not None and "agents" not in over else None
-    return ExperimentConfig.load(path, over, context=context)
+    return (model or ExperimentConfig).load(path, over, context=context)
 
 
 @dataclass
@@ -441,3 +443,20 @@ def resolve_run(cfg: ExperimentConfig | Experiment, command: Literal["predictivi
 
         target = open_target(cfg.target_text)
     return cfg, target
+
+
+class ExperimentStudy(Study[ExperimentConfig, Any]):
+    """A study of the experiment file (predictivity, score-proxy, optimize, plan, plv-vs-prpv): its fields as
+    options, less ``exclude``; defaults worded as :func:`default_help` words ``command``'s (``extra_defaults``
+    beside)."""
+
+    command: ClassVar[Literal["predictivity", "optimize", "plan"]] = "predictivity"
+    config: ClassVar[type[ExperimentConfig]] = ExperimentConfig
+    config_help = "experiment file (YAML; every field: docs/targets.md)"
+    extra_defaults: ClassVar[dict[str, str]] = {}
+
+    def help_defaults(self) -> dict[str, str]:
+        return default_help(self.command) | self.extra_defaults
+
+    def load(self, path: Path | None, overrides: dict[str, Any], *, quick: bool = False) -> ExperimentConfig:
+        return load_config(path, overrides, self.config)

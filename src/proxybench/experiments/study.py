@@ -1,4 +1,11 @@
-"""The one base of every study's config: strict, frozen, documented field by field, loadable from YAML.
+"""A study, registered: :class:`Study` (name, config model, ``run`` → typed result, ``write_report``) and the one
+base of every study's config, :class:`StudyConfig`: strict, frozen, documented field by field, loadable from YAML.
+
+Every ``proxybench`` study command is generated from a registered :class:`Study` (:mod:`proxybench.cli.studies`):
+its options from the config model, plus ``--quick``, ``--out``, ``--backend``, ``--workers`` and ``--config``
+once for all. :func:`studies` lists the registered ones: the built-in families' (one folder each under
+``experiments/``) and any a package declares in the ``proxybench.studies`` entry-point group (``name =
+"module:StudyClass"``), as agent kinds are found.
 
 A study's settings are a :class:`StudyConfig`: unknown keys and bad values are errors naming the field and
 the file; each field's docstring (units, meaning) is its documentation *and* its ``--help`` text, since
@@ -23,17 +30,34 @@ proxybench.experiments.study.ConfigError: command line: secconds: unknown key (d
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import types
 import typing
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Self
+from typing import Any, ClassVar, Generic, Self, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from proxybench.targets.manifest import TargetError, format_errors
 
-__all__ = ["Cli", "ConfigError", "StudyConfig", "cli_hint", "is_section", "unwrap_optional"]
+__all__ = [
+    "Cli",
+    "ConfigError",
+    "Progress",
+    "Study",
+    "StudyConfig",
+    "cli_hint",
+    "fmt_default",
+    "is_section",
+    "mode_defaults",
+    "register",
+    "studies",
+    "study",
+    "unwrap_optional",
+]
 
 #: deepest nesting and largest size of a study file (a config is a handful of levels; this bounds hostile input)
 MAX_DEPTH = 32
@@ -150,3 +174,127 @@ class StudyConfig(BaseModel):
             return cls.model_validate(data, context=context)
         except ValidationError as exc:
             raise ConfigError(format_errors(exc, "command line" if path is None else str(path), cls)) from None
+
+
+def fmt_default(value: Any, sep: str = ",") -> str:
+    """A default as ``--help`` words it: ``on``/``off``, ``1,2``, ``a=1; b=2``, ``none``."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        value = dataclasses.asdict(value)
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, list | tuple):
+        return sep.join(fmt_default(v) for v in value) if value else "none"
+    if isinstance(value, Mapping):
+        return "; ".join(f"{k}={fmt_default(v, sep)}" for k, v in value.items()) if value else "none"
+    return str(value)
+
+
+def mode_defaults(full: Mapping[str, Any], quick: Mapping[str, Any]) -> dict[str, str]:
+    """How ``--help`` words the defaults of a study whose ``--quick`` mode has others (``full`` and ``quick``: the
+    two configs' fields); of a section, only the keys that differ are said for ``--quick``."""
+    out = {}
+    for key, value in full.items():
+        other = quick.get(key, value)
+        if other == value:
+            out[key] = fmt_default(value)
+            continue
+        if isinstance(value, Mapping) and isinstance(other, Mapping):
+            other = {k: v for k, v in other.items() if value.get(k) != v}
+        out[key] = f"{fmt_default(value)}; --quick {fmt_default(other)}"
+    return out
+
+
+# -- the registered study -----------------------------------------------------------------------------------------
+
+C = TypeVar("C", bound=StudyConfig)
+R = TypeVar("R")
+#: a study's progress: ``progress(stage, done, total)``, a bar per stage on a terminal
+Progress = Callable[[str, int, int], None]
+
+
+class Study(ABC, Generic[C, R]):
+    """One study: what its command is called, its settings, how it runs and how its result is reported.
+
+    Subclass it in the study's folder, set the class attributes, implement :meth:`run` and :meth:`write_report`,
+    and decorate the class with :func:`register`. The module holding the class must import nothing heavy at
+    module level (the CLI builds every study's options at start): import the simulator, the runner and the
+    report inside the methods. ``run`` returns a typed result (a dataclass or a model, never a dict read by
+    key); ``write_report`` and ``show`` read that result only and run no episodes.
+    """
+
+    #: the command's name (``proxybench NAME``)
+    name: ClassVar[str]
+    #: the config model: every field a generated option
+    config: ClassVar[type[StudyConfig]]
+    #: the command's ``--help``: a first line, then a paragraph
+    help: ClassVar[str]
+    #: what ``--quick`` does (its ``--help``)
+    quick_help: ClassVar[str] = "a small, fast version of the study"
+    #: the default ``--out`` folder and what it holds
+    out: ClassVar[str]
+    out_help: ClassVar[str] = "report folder and episode cache (OUT/runs)"
+    #: dotted config fields without an option
+    exclude: ClassVar[tuple[str, ...]] = ()
+    #: ``--config``'s help
+    config_help: ClassVar[str] = "settings file (YAML or JSON) with any of the options below by their field names"
+
+    def help_defaults(self) -> dict[str, str]:
+        """Dotted field → how ``--help`` words a default settled only when the study runs (by ``--quick``)."""
+        return {}
+
+    def load(self, path: Path | None, overrides: dict[str, Any], *, quick: bool = False) -> C:
+        """The config of file ``path`` with the command line's ``overrides`` on top (``quick``: its quick mode's
+        defaults below both, where the study has them); problems are :class:`ConfigError`."""
+        return typing.cast(C, self.config.load(path, overrides))
+
+    @abstractmethod
+    def run(self, config: C, out: Path, backend: Any, progress: Progress, *, quick: bool = False) -> R:
+        """Run (or resume) the study into ``out`` with the runner's ``backend``; its typed result."""
+
+    @abstractmethod
+    def write_report(self, result: R, out: Path, *, wall: float = 0.0) -> list[Path]:
+        """The report's files in ``out`` (tables, figures, HTML), from ``result`` alone (``wall``: seconds run)."""
+
+    def show(self, result: R, console: Any, *, wall: float = 0.0) -> None:
+        """What the terminal shows once the study ran (a rich ``console``): by default nothing."""
+
+    def example(self) -> R | None:
+        """A small canned result, for the contract's check that the report is written from a result alone (None:
+        the study has none)."""
+        return None
+
+
+_REGISTRY: dict[str, Study[Any, Any]] = {}
+#: the built-in study families, one folder each (their ``study`` module registers them)
+BUILTIN = ("predictivity", "score", "optimize", "plan", "heldout", "repeatability", "plv", "plv_prpv", "validate")
+GROUP = "proxybench.studies"
+
+
+def register(cls: type[Study[Any, Any]]) -> type[Study[Any, Any]]:
+    """Class decorator: register a study under its ``name`` (a second study of that name is an error)."""
+    old = _REGISTRY.get(cls.name)
+    if old is not None and type(old).__qualname__ != cls.__qualname__:
+        raise ValueError(f"study {cls.name!r} is registered twice ({type(old).__module__} and {cls.__module__})")
+    _REGISTRY[cls.name] = cls()
+    return cls
+
+
+def studies() -> dict[str, Study[Any, Any]]:
+    """Every registered study by name: the built-in families and the ``proxybench.studies`` entry points."""
+    from importlib.metadata import entry_points
+
+    for family in BUILTIN:
+        importlib.import_module(f"proxybench.experiments.{family}.study")
+    for ep in entry_points(group=GROUP):
+        ep.load()
+    return dict(_REGISTRY)
+
+
+def study(name: str) -> Study[Any, Any]:
+    """The registered study ``name``; an unknown name is a ConfigError listing the known ones."""
+    found = studies()
+    if name not in found:
+        raise ConfigError(f"no study {name!r}; registered: {', '.join(sorted(found))}")
+    return found[name]

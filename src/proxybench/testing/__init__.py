@@ -1,5 +1,6 @@
 """Contract suites for agents and plants, importable by users (as Optuna's storage test suite is).
 
+``StudyContract`` checks a registered study (config, command, report from a canned result);
 ``AgentContract`` checks an agent (zoo name, checkpoint, node command, any factory of
 :class:`~proxybench.agents.base.Agent`); ``PlantContract`` a plant of the episode engine (the simulator, a
 robot node, your robot's bridge). Each check returns a typed :class:`CheckResult`; ``check_all()`` raises
@@ -26,6 +27,7 @@ from proxybench.testing.results import (
     parametrize_checks,
 )
 from proxybench.testing.streams import StreamSpec
+from proxybench.testing.study import StudyContract
 
 __all__ = ["AgentContract", "CheckFailed", "CheckResult", "Contract", "ContractReport", "ContractViolation",
-           "PlantContract", "Play", "StreamSpec", "parametrize_checks"]
+           "PlantContract", "Play", "StreamSpec", "StudyContract", "parametrize_checks"]

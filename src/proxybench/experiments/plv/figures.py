@@ -10,7 +10,7 @@ import numpy as np
 from proxybench.experiments.reporting import pyplot, save_figure
 
 if TYPE_CHECKING:
-    from proxybench.experiments.plv.report import Summary
+    from proxybench.experiments.plv.measures import Summary
     from proxybench.experiments.plv.run import PLVResult
 
 __all__ = ["figure_3_6", "figure_plv", "score_range"]

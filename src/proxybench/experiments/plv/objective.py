@@ -112,7 +112,7 @@ class PLVObjective:
         return d.name, d
 
     def __call__(self, proxy: str | Domain | Mapping[str, Any], family: bool = False) -> PLVTrial:
-        from proxybench.experiments.plv.report import summarize
+        from proxybench.experiments.plv.measures import summarize
 
         runs, expert, reference = self.target()
         name, spec = self.domain(proxy, family)

@@ -85,6 +85,7 @@ class RepeatabilityResult:
     designs: dict[str, DesignResult]
     source: str
     notes: dict[str, str] = field(default_factory=dict)
+    config: RepeatabilityConfig | None = None  # the study's settings (its report names the agent and length)
 
     @property
     def runs(self) -> dict[str, list[Trajectory]]:

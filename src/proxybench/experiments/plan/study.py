@@ -1,36 +1,25 @@
-"""`proxybench plan`: how many target episodes per agent, and which agents need them (sample-size planning).
-
-Runs (or reads) a pilot on any target, optionally replays it in candidate proxies (``--sweep``), and
-prints what n episodes per agent would give: PRPV's order-range width, the chance of picking the right θ,
-the near-tied pairs and the agents to run next. ``--sequential`` spends a budget of target episodes on a
-live target where they settle most (docs/usefulness.md, "How many episodes?"). The study is
-:mod:`proxybench.experiments.plan.run`; its options are generated from the experiment file's fields.
-"""
+"""``proxybench plan``, registered: how many target episodes per agent, and which agents need them."""
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-import typer
-from rich.table import Table
+from proxybench.experiments.config import ExperimentConfig, ExperimentStudy
+from proxybench.experiments.study import Progress, register
 
-from proxybench.cli.app import app, console
-from proxybench.cli.studies import BackendOption, WorkersOption, run_study
-from proxybench.cli.usefulness import experiment_options
-from proxybench.experiments.config import ExperimentConfig
+if TYPE_CHECKING:
+    from proxybench.experiments.plan.run import PlanResult
+
+__all__ = ["PlanStudy"]
 
 
-@app.command()
-@experiment_options("plan", exclude=("search", "plv", "n_boot", "pod_seconds", "truth"))
-def plan(
-    cfg: ExperimentConfig,
-    quick: bool = typer.Option(False, "--quick", help="6 agents × 3 pilot episodes × 8 s; --sequential: budget 4"),
-    out: Path = typer.Option(Path("out/plan"), help="folder for plan.json, tables, plan.png and the episode cache"),
-    backend: BackendOption = "local",
-    workers: WorkersOption = None,
-) -> None:
-    """Plan target episodes: n per agent to settle every pair of agents, for a PRPV interval of a given width, or
+@register
+class PlanStudy(ExperimentStudy):
+    name = "plan"
+    command = "plan"
+    help = """Plan target episodes: n per agent to settle every pair of agents, for a PRPV interval of a given width, or
     for a given chance of the right θ.
 
     Pairs within the task's tolerance ε count as ties, so every pair settles with finitely many episodes; the
@@ -38,19 +27,33 @@ def plan(
     experiments with n episodes per agent are simulated in worlds drawn from it (docs/usefulness.md); --sweep
     gives candidate θ to pick among. Episodes are cached in OUT/runs: `predictivity --out OUT` re-uses them.
     """
-    from proxybench.experiments.plan.run import run_plan, write_plan
+    quick_help = "6 agents × 3 pilot episodes × 8 s; --sequential: budget 4"
+    out = "out/plan"
+    out_help = "folder for plan.json, tables, plan.png and the episode cache"
+    exclude = ("search", "plv", "n_boot", "pod_seconds", "truth")
 
-    res = run_study(backend, workers, lambda be, progress: run_plan(cfg, out, be, progress, quick=quick))
-    _print_plan(res.plan, res.target, res.sequential, res.wall_s)
-    files = write_plan(res, out)
-    console.print(f"wrote {', '.join(map(str, files))} (+ .svg)", highlight=False)
+    def run(self, config: ExperimentConfig, out: Path, backend: Any, progress: Progress, *,
+            quick: bool = False) -> PlanResult:
+        from proxybench.experiments.plan.run import run_plan
+
+        return run_plan(config, out, backend, progress, quick=quick)
+
+    def write_report(self, result: PlanResult, out: Path, *, wall: float = 0.0) -> list[Path]:
+        from proxybench.experiments.plan.run import write_plan
+
+        return write_plan(result, out)
+
+    def show(self, result: PlanResult, console: Any, *, wall: float = 0.0) -> None:
+        _print_plan(result.plan, result.target, result.sequential, result.wall_s, console)
 
 
 def _n(x: float) -> str:
     return f"{x:,.0f}" if math.isfinite(x) else "> 100,000"
 
 
-def _print_plan(p, tgt, seq, wall: float) -> None:
+def _print_plan(p: Any, tgt: Any, seq: Any, wall: float, console: Any) -> None:
+    from rich.table import Table
+
     console.print(f"[bold]target:[/bold] {tgt.info.statement}", highlight=False)
     pilot = ", ".join(f"{a} {n}" for a, n in p.pilot_episodes.items())
     what = "pilot episodes" if seq is None else "target episodes (pilot + sequential)"

@@ -1,0 +1,72 @@
+"""``proxybench repeatability``, registered: MPD / MOD of one agent over one robot, robots and labs (thesis §5.4)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from proxybench.experiments.repeatability.config import RepeatabilityConfig
+from proxybench.experiments.study import ConfigError, Progress, Study, register
+
+if TYPE_CHECKING:
+    from proxybench.experiments.repeatability.run import RepeatabilityResult
+
+__all__ = ["RepeatabilityStudy"]
+
+
+@register
+class RepeatabilityStudy(Study[RepeatabilityConfig, "RepeatabilityResult"]):
+    name = "repeatability"
+    config = RepeatabilityConfig
+    help = """MPD / MOD of one agent, thesis §5.4: one robot, robots, labs (figs. 5.8–5.10).
+
+    MPD is the mean signed lateral offset from the lane centre along the route [cm] (+ = left), MOD the
+    mean heading error [deg]; STD is the run-to-run standard deviation along the route. The target is the
+    reality model (simulated stand-ins for Duckiebots) unless --recorded or --robot-cmd is given.
+    """
+    quick_help = "the same designs (the study is small; kept for a uniform command line)"
+    out = "out/repeatability"
+    out_help = "folder for the tables and the plots"
+
+    def help_defaults(self) -> dict[str, str]:
+        return {"designs": "the thesis' three, 1×1×9, 1×3×3, 2×1×6", "runs": "each design's; robot nodes: 3"}
+
+    def run(self, config: RepeatabilityConfig, out: Path, backend: Any, progress: Progress, *,
+            quick: bool = False) -> RepeatabilityResult:
+        from proxybench.experiments.repeatability.run import run_repeatability
+
+        try:
+            res = run_repeatability(config, progress=progress)
+        except FileNotFoundError as exc:
+            raise ConfigError(str(exc)) from None
+        return dataclasses.replace(res, config=config)
+
+    def write_report(self, result: RepeatabilityResult, out: Path, *, wall: float = 0.0) -> list[Path]:
+        from proxybench.experiments.repeatability.report import write_report
+
+        assert result.config is not None
+        return write_report(result, result.config, out)
+
+    def show(self, result: RepeatabilityResult, console: Any, *, wall: float = 0.0) -> None:
+        from rich.markup import escape
+        from rich.table import Table
+
+        from proxybench.experiments.repeatability.report import design_rows, thesis_text
+
+        res, cfg = result, result.config
+        assert cfg is not None
+        table = Table(title=escape(f"repeatability of {cfg.agent} ({res.source}; {cfg.seconds:g} s runs): MPD [cm] "
+                                   "(+ = left of the lane centre), MOD [deg]; STD = run-to-run"))
+        for col in ("design", "labs×robots×runs", "AVG MPD", "STD MPD", "AVG MOD", "STD MOD",
+                    "within / between STD MPD", "ended early", "route (m)",
+                    "thesis (real robots): MPD ± STD, MOD ± STD"):
+            table.add_column(col, justify="left" if col == "design" else "right")
+        for (name, r), f in zip(res.designs.items(), design_rows(res), strict=True):
+            split = f"{f['MPD_within_std_cm']:.2f} / {f['MPD_between_std_cm']:.2f}" if "MPD_within_std_cm" in f else "–"
+            table.add_row(name, r.design.label, f"{f['MPD_cm']:+.2f}", f"{f['MPD_std_cm']:.2f}", f"{f['MOD_deg']:+.2f}",
+                          f"{f['MOD_std_deg']:.2f}", split, f"{r.early}/{len(r.runs)}", f"{f['route_m']:.1f}",
+                          thesis_text(name))
+        console.print(table)
+        for name, note in res.notes.items():
+            console.print(f"{name}: {note}", highlight=False)

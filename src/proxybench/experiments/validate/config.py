@@ -1,0 +1,249 @@
+"""The validation study's settings: :class:`ValidateConfig` (what a user sets: options and ``--config FILE``), the
+families' typed defaults (:data:`FAMILIES`, a full and a quick mode each) and :class:`ValidateSettings`, every
+choice made (the config over its family's defaults), frozen: what ``criteria.json`` pre-registers and every step
+of the run reads. Light: importable without the simulator (the CLI builds its options from it).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from proxybench.experiments.config import ConfigError, param_name
+from proxybench.experiments.study import Cli, StudyConfig
+from proxybench.usefulness.validation import METHODS as _METHODS
+
+__all__ = ["FAMILIES", "NODE_AGENT", "PYTHON", "FamilyDefaults", "FamilyModes", "ValidateConfig", "ValidateSettings",
+           "settings_for"]
+
+#: the 16 zoo agents of distinct behaviour (the "-stop" variants equal their base on maps without stop lines)
+_POOL = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
+         "pure-pursuit-fast", "vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",
+         "vision-wide", "vision-twitchy")
+#: a camera agent behind the AIDO protocol (its own process per episode), to keep node agents in every pool;
+#: ``{python}`` is the interpreter running the study, filled in at run time so that the settings (and with them
+#: criteria.json) do not depend on how proxybench was started (``python`` or ``python3`` of the same venv)
+PYTHON = "{python}"
+NODE_AGENT = f"vision-node={PYTHON} -m proxybench.protocol vision"
+_QUICK_POOL = ("straight", "pid", "pid-twitchy", "pure-pursuit", "vision", "vision-fast", "vision-pitch25",
+               "vision-slow")
+#: the study's task metrics and selection methods (names of :mod:`proxybench.tasks.metrics`,
+#: :data:`proxybench.usefulness.validation.METHODS`), checked when the config is validated
+_METRICS = ("driven_lanedir_consec", "lane_score")
+
+
+class FamilyDefaults(BaseModel):
+    """What a family's study takes where the config is silent (one per mode)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    targets: int
+    """targets drawn"""
+    agents: tuple[str, ...]
+    """the agent pool, split per target into tuning and held-out agents"""
+    bc_agents: int = 0
+    """behaviour-cloned agents trained for the pool"""
+    episodes_tune: int
+    """target episodes per tuning agent (E1)"""
+    episodes_eval: int
+    """fresh target episodes per held-out agent (E2)"""
+    seconds: float
+    """episode length [s]"""
+    grid: dict[str, tuple[float, ...]]
+    """the candidate θ: a grid over the search space"""
+    draw: dict[str, tuple[float, float]]
+    """the targets' θ ranges (the family's own parameter names), wider than the grid and off-centre"""
+    maps: tuple[str, ...]
+    """maps, one per target in turn"""
+    robot_nodes: int = 1
+    """processes of a robot-node target at once"""
+
+
+class FamilyModes(BaseModel):
+    """A family's defaults, full and ``--quick``."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    full: FamilyDefaults
+    quick: FamilyDefaults
+
+    def mode(self, quick: bool) -> FamilyDefaults:
+        return self.quick if quick else self.full
+
+
+_HELDOUT_GRID = {"trim": (-0.2, 0.0, 0.2), "camera_pitch": (15.15, 19.15, 23.15)}
+_GYM_GRID = {"trim": (-0.2, 0.0, 0.2), "command_delay": (0.05, 0.15, 0.25)}
+_HELDOUT = FamilyModes(
+    full=FamilyDefaults(targets=40, agents=(*_POOL, NODE_AGENT), bc_agents=2, episodes_tune=3, episodes_eval=3,
+                        seconds=15.0, grid=_HELDOUT_GRID,
+                        draw={"trim": (-0.15, 0.35), "camera_pitch": (13.15, 27.15), "gain": (0.85, 1.15),
+                              "command_delay": (0.02, 0.2), "blur_time": (0.0, 0.1), "camera_height": (0.1, 0.116)},
+                        maps=("loop_3x3",)),
+    quick=FamilyDefaults(targets=3, agents=_QUICK_POOL, episodes_tune=2, episodes_eval=2, seconds=6.0,
+                         grid=_HELDOUT_GRID, draw={"trim": (-0.15, 0.35), "camera_pitch": (13.15, 27.15)},
+                         maps=("loop_3x3",)))
+#: per family: targets, pool, episodes (E1, E2), seconds, search grid, target θ ranges (wider than the grid and
+#: off-centre), maps; full and quick
+FAMILIES: dict[str, FamilyModes] = {
+    "heldout": _HELDOUT,
+    "gym": FamilyModes(
+        full=_HELDOUT.full.model_copy(update={
+            "grid": _GYM_GRID, "maps": ("loop_3x3", "zigzag"), "robot_nodes": 2,
+            "draw": {"trim": (-0.15, 0.35), "delay": (0.02, 0.3), "cam_angle": (13.15, 27.15),
+                     "cam_height": (0.1, 0.116)}}),
+        quick=_HELDOUT.quick.model_copy(update={
+            "grid": _GYM_GRID, "robot_nodes": 2, "draw": {"trim": (-0.15, 0.35), "delay": (0.02, 0.3)}})),
+}
+#: the family's parameter names for the target draw, when they are not proxybench's (gym's own names)
+_GYM_TO_PROXY = {"delay": "command_delay", "cam_angle": "camera_pitch", "cam_height": "camera_height"}
+
+
+class ValidateConfig(StudyConfig):
+    """The study's settings; every field left unset takes the family's default (``--quick``: smaller ones)."""
+
+    family: Literal["heldout", "gym"] = "heldout"
+    """target family: heldout (built-in structural stand-ins) | gym (gym-duckietown nodes, after `proxybench gym
+    setup`)"""
+    targets: int | None = Field(None, ge=2, le=1000)
+    """targets drawn from the family"""
+    agents: Annotated[tuple[str, ...] | None, Cli("--agent", metavar="AGENT")] = Field(None, min_length=4)
+    """the agent pool: zoo names, NAME=COMMAND nodes, checkpoints (split per target into tuning and held-out)"""
+    tuning_share: float = Field(0.5, gt=0.0, lt=1.0)
+    """share of the pool that tunes θ (the rest judges it)"""
+    episodes_tune: int | None = Field(None, ge=1, le=100)
+    """target episodes per tuning agent (E1)"""
+    episodes_eval: int | None = Field(None, ge=1, le=100)
+    """fresh target episodes per held-out agent (E2)"""
+    seconds: float | None = Field(None, gt=0.0, le=600.0)
+    """episode length [s]"""
+    maps: Annotated[tuple[str, ...] | None, Cli("--map")] = None
+    """maps, one per target in turn"""
+    grid: dict[str, tuple[float, ...]] | None = None
+    """the candidate θ: values per parameter (their grid; the nominal calibration is added)"""
+    draw: dict[str, tuple[float, float]] | None = None
+    """the targets' θ ranges LOW,HIGH (gym: gym's names), wider than the grid"""
+    metrics: Annotated[tuple[str, ...], Cli("--metric")] = _METRICS
+    """task metrics"""
+    tolerances: dict[str, float] | None = None
+    """ε per metric: differences within it are ties (default: AIDO's, scaled to the episode length)"""
+    methods: Annotated[tuple[str, ...], Cli("--method")] = _METHODS
+    """the selection methods compared (nominal, the baseline, is required)"""
+    top_k: int = Field(3, ge=1, le=20)
+    """k of the top-k regret"""
+    alpha: float = Field(0.05, gt=0.0, lt=0.5)
+    """the primary test's level"""
+    power: float = Field(0.8, gt=0.5, lt=1.0)
+    """the power of the minimum detectable effect"""
+    image_size: Annotated[tuple[int, int], Cli(metavar="WIDTHxHEIGHT", sep="x")] = (160, 120)
+    """camera image [px]"""
+    n_boot: int = Field(100, ge=10, le=10_000)
+    """bootstrap resamples of the probabilistic methods"""
+    seed: int = Field(0, ge=0, le=100_000)
+    """the study's seed (agent splits, episode seeds, BC agents)"""
+    draw_seed: int | None = Field(None, ge=0)
+    """the targets' θ seed (default: drawn at run time and kept out of criteria.json)"""
+    bc_agents: int | None = Field(None, ge=0, le=8)
+    """behaviour-cloned agents trained for the pool (needs PyTorch)"""
+    interim: bool = False
+    """run nothing: report the targets finished so far (an interim look; give the settings the study was started
+    with; the decision waits for all targets)"""
+
+    @field_validator("metrics")
+    @classmethod
+    def _metrics(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        from proxybench.tasks.metrics import METRICS
+
+        unknown = [m for m in v if m not in METRICS]
+        if unknown or not v:
+            raise ValueError(f"unknown metric(s) {unknown}; known: {', '.join(METRICS)}")
+        return v
+
+    @field_validator("methods")
+    @classmethod
+    def _methods(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        unknown = [m for m in v if m not in _METHODS]
+        if unknown or "nominal" not in v:
+            raise ValueError(f"{unknown or 'nominal is missing'}; known: {', '.join(_METHODS)} (nominal, the baseline "
+                             "every method is compared with, is required)")
+        return v
+
+    @field_validator("grid")
+    @classmethod
+    def _names(cls, v: dict | None) -> dict | None:
+        for name in v or {}:
+            param_name(name)
+        return v
+
+
+class ValidateSettings(BaseModel):
+    """Every choice of a validation study (the config, then its family's defaults); the draw seed is not among them.
+
+    Its JSON (``model_dump(mode="json")``, fields in this order) is what ``criteria.json`` pre-registers and what a
+    finished target's ``settings_key`` hashes, so a field added here changes every key: add one only with a new
+    study."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    family: str
+    quick: bool
+    targets: int
+    agents: tuple[str, ...]
+    tuning_share: float
+    episodes_tune: int
+    episodes_eval: int
+    seconds: float
+    maps: tuple[str, ...]
+    grid: dict[str, tuple[float, ...]]
+    draw: dict[str, tuple[float, ...]]
+    metrics: tuple[str, ...]
+    tolerances: dict[str, float]
+    methods: tuple[str, ...]
+    top_k: int
+    alpha: float
+    power: float
+    image_size: tuple[int, int]
+    n_boot: int
+    seed: int
+    bc_agents: int
+    robot_nodes: int
+
+    def proxy_draw(self) -> dict[str, tuple[float, ...]]:
+        """The targets' θ ranges under proxybench's names (gym's renamed)."""
+        return {_GYM_TO_PROXY.get(k, k) if self.family == "gym" else k: v for k, v in self.draw.items()}
+
+
+def _draw_name(family: str, name: str) -> None:
+    """A target parameter the family knows: proxybench's θ for held-out targets, gym's names for gym's."""
+    if family != "gym":
+        param_name(name)
+        return
+    from proxybench.gym.params import PARAMS
+
+    if name not in PARAMS:
+        raise ConfigError(f"draw: {name!r} is not a gym-duckietown parameter; `proxybench gym params` lists them")
+
+
+def settings_for(cfg: ValidateConfig, quick: bool) -> ValidateSettings:
+    """Every choice made (the config, then the family's defaults); the draw seed is not among them."""
+    d = FAMILIES[cfg.family].mode(quick)
+    seconds = cfg.seconds or d.seconds
+    scale = seconds / 60.0  # AIDO's lane-following tolerances are for 60 s episodes
+    tolerances = {"driven_lanedir_consec": 0.62 * scale, "survival_time": 2.0 * scale, "lane_score": 2.0 * scale,
+                  **(cfg.tolerances or {})}
+    s = ValidateSettings(
+        family=cfg.family, quick=quick, targets=cfg.targets or d.targets, agents=cfg.agents or d.agents,
+        tuning_share=cfg.tuning_share, episodes_tune=cfg.episodes_tune or d.episodes_tune,
+        episodes_eval=cfg.episodes_eval or d.episodes_eval, seconds=seconds, maps=cfg.maps or d.maps,
+        grid=cfg.grid or d.grid, draw=cfg.draw or d.draw, metrics=cfg.metrics,
+        tolerances={m: tolerances.get(m, 0.0) for m in cfg.metrics}, methods=cfg.methods, top_k=cfg.top_k,
+        alpha=cfg.alpha, power=cfg.power, image_size=cfg.image_size, n_boot=cfg.n_boot, seed=cfg.seed,
+        bc_agents=d.bc_agents if cfg.bc_agents is None else cfg.bc_agents, robot_nodes=d.robot_nodes)
+    for name in s.draw:
+        _draw_name(cfg.family, name)
+    draw = s.proxy_draw()
+    outside = [k for k in s.grid if k in draw and not (min(draw[k]) < min(s.grid[k]) or max(draw[k]) > max(s.grid[k]))]
+    if outside:
+        raise ConfigError(f"draw: {', '.join(outside)} must be drawn wider than the grid searches it, so that the "
+                          "nominal calibration can lose")
+    return s

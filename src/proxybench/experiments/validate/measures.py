@@ -1,0 +1,166 @@
+"""The validation study's typed records and summary: what one target gave (:class:`TargetRecord`, a file in
+``targets/`` each) and what the study concludes (:class:`ValidationSummary`, ``summary.json``): per method, the
+regrets over targets paired against the nominal θ, hit rates, and the pre-registered primary test. Glue only: the
+measures are :mod:`proxybench.usefulness.validation`'s; the report reads these models and nothing else.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+__all__ = ["QUALITIES", "HitRate", "MeasureSummary", "MethodSummary", "Pick", "Primary", "Quality", "TargetRecord",
+           "ValidationSummary", "oracle_steps", "regrets"]
+
+QUALITIES = ("prpv_norm", "kendall_gap", "top1_regret", "topk_regret")
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Quality(_Model):
+    """How well one candidate θ orders the held-out agents on fresh target episodes (lower is better)."""
+
+    prpv_norm: float
+    kendall_gap: float
+    top1_regret: float
+    topk_regret: float
+
+
+class Pick(_Model):
+    """A method's pick: the candidate's index and how many candidates tied with it (broken at random)."""
+
+    index: int
+    ties: int
+
+
+class TargetRecord(_Model):
+    """One target of the study: the candidates, each method's pick from the tuning agents, every candidate's
+    quality on the held-out agents, and what ran (``targets/NNN.json``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    candidates: list[dict[str, float]]
+    nominal_index: int
+    quality: list[Quality]
+    picks: dict[str, Pick]
+    scores: dict[str, list[float]]
+    target: str = ""
+    map: str = ""
+    tuning_agents: list[str] = []
+    heldout_agents: list[str] = []
+    seed: int = 0
+    episodes_run: int = 0
+    settings_key: str = ""
+
+    def values(self, measure: str) -> np.ndarray:
+        """Every candidate's quality in ``measure`` (one of :data:`QUALITIES`)."""
+        return np.array([getattr(q, measure) for q in self.quality], float)
+
+
+def regrets(rec: TargetRecord, method: str, measure: str = "prpv_norm") -> float:
+    """The regret of ``method``'s pick on one target: its quality minus the oracle's (the lowest in hindsight)."""
+    if method not in rec.picks:
+        return float("nan")
+    values = rec.values(measure)
+    return float(values[rec.picks[method].index] - np.nanmin(values))
+
+
+def oracle_steps(rec: TargetRecord, index: int, grid: dict[str, tuple[float, ...]]) -> int:
+    """Grid steps (the largest along any axis) from candidate ``index`` to the nearest oracle candidate."""
+    values = rec.values("prpv_norm")
+    oracles = np.flatnonzero(np.isclose(values, np.nanmin(values)))
+    pos = {n: {round(v, 9): i for i, v in enumerate(vals)} for n, vals in grid.items()}
+
+    def where(c: int) -> list[float]:
+        theta = rec.candidates[c]
+        return [pos[n].get(round(theta[n], 9), np.searchsorted(vals, theta[n]) - 0.5) for n, vals in grid.items()]
+
+    here = np.array(where(index), float)
+    return int(min(np.max(np.abs(here - np.array(where(o), float))) for o in oracles))
+
+
+class Comparison(_Model):
+    """A paired comparison of regrets over targets (:class:`proxybench.usefulness.validation.Comparison`)."""
+
+    a: str
+    b: str
+    n: int
+    mean: float
+    low: float
+    high: float
+    wins: int
+    losses: int
+    ties: int
+    p_wilcoxon: float
+    p_t: float
+    sd: float
+
+
+class MeasureSummary(_Model):
+    """One quality measure of a method: its mean regret and its paired comparison with the nominal θ."""
+
+    mean_regret: float
+    vs_nominal: Comparison
+
+
+class HitRate(_Model):
+    """Targets where the pick lies within one grid step of an oracle θ, with a Wilson interval."""
+
+    hits: int
+    targets: int
+    low: float
+    high: float
+
+
+class MethodSummary(_Model):
+    """A method over all targets: each quality measure, its hit rate and its mean number of tied candidates."""
+
+    prpv_norm: MeasureSummary
+    kendall_gap: MeasureSummary
+    top1_regret: MeasureSummary
+    topk_regret: MeasureSummary
+    hit_rate: HitRate
+    ties: float
+
+
+class CriteriaCheck(_Model):
+    """What criteria.json pre-registered, and whether the code that scored is the code it hashed."""
+
+    written: str
+    commit: str
+    commit_now: str
+    scoring_unchanged: bool
+    minimum_detectable_effect: dict[str, Any]
+
+    @property
+    def d_z(self) -> float:
+        return float(self.minimum_detectable_effect["d_z"])
+
+
+class Primary(Comparison):
+    """The pre-registered test: PRPV's regret against the nominal θ's, at ``alpha``."""
+
+    alpha: float
+    rejected: bool
+    d_z: float
+    minimum_detectable_difference: float
+
+
+class ValidationSummary(_Model):
+    """``summary.json``: the study's conclusion, per method, with the primary test (absent when PRPV picked on no
+    target) and the targets' revealed θ."""
+
+    family: str
+    targets: int
+    targets_planned: int
+    interim: bool
+    settings: dict[str, Any]
+    methods: dict[str, MethodSummary]
+    criteria: CriteriaCheck
+    primary: Primary | None = None
+    truths: list[dict[str, float]] = []
+    wall_s: float = 0.0
