@@ -36,13 +36,19 @@ class SimPlant:
     are driven by the zoo agents their specs name (``runner.npcs``). ``image_filter`` transforms each
     camera frame before a driver sees it (e.g. the JPEG round trip, so that in-process and remote agents
     see the same pixels); without one, :meth:`frames` is the renderer's (N, H, W, 3) array.
+
+    ``trace=False``: no physics-rate record, so no trajectories: a continuing stream whose robots restart apart
+    (:meth:`restart`, under :class:`~proxybench.runner.autoreset.AutoResetPlant`), whose frames the engine counts
+    past any episode's length.
     """
 
-    def __init__(self, sim: Simulator, image_filter: Callable[[np.ndarray], np.ndarray] | None = None):
+    def __init__(self, sim: Simulator, image_filter: Callable[[np.ndarray], np.ndarray] | None = None, *,
+                 trace: bool = True):
         self.sim = sim
         self.n = sim.n
         self.map = sim.map
         self.image_filter = image_filter
+        self.traced = trace
         self.drivers: NpcDrivers | None = None
 
     @property
@@ -55,8 +61,9 @@ class SimPlant:
         sim, n = self.sim, self.n
         steps = max(1, round(seconds / sim.frame_dt))
         self.camera = camera
-        self.trace = np.zeros((n, steps, sim.substeps, len(TRACE_FIELDS)))
-        self.lanes = np.full((2, n, steps), -1, dtype=np.int64)  # per frame: pinned lane, lane chosen ahead
+        if self.traced:
+            self.trace = np.zeros((n, steps, sim.substeps, len(TRACE_FIELDS)))
+            self.lanes = np.full((2, n, steps), -1, dtype=np.int64)  # per frame: pinned lane, lane chosen ahead
         for i in range(n):
             sim.reset(i, int(seeds[i]), poses[i], routes[i])
         self.start = sim.state.copy()
@@ -64,6 +71,17 @@ class SimPlant:
         if self.drivers is not None:
             self.drivers.reset(seeds)
         return steps
+
+    def set_params(self, i: int, params: DomainParams) -> None:
+        """θ of robot ``i``'s next episode (a domain family's draw), before :meth:`begin` or :meth:`restart`."""
+        self.sim.set_params(i, params)
+
+    def restart(self, i: int, seed: int, pose: tuple[float, float, float] | None = None) -> None:
+        """Start robot ``i``'s next episode now, from ``seed`` (and ``pose``), while the others go on: for a
+        plant built with ``trace=False`` and no NPC robots (whose drivers restart with every world at once)."""
+        if self.traced or self.drivers is not None:
+            raise ValueError("only a SimPlant(trace=False) without NPC robots restarts one robot mid-stream")
+        self.sim.reset(i, seed, pose)
 
     def frames(self, alive: np.ndarray) -> Any:
         npc_cams = self.drivers.wants_camera(alive) if self.drivers is not None else None
@@ -99,8 +117,11 @@ class SimPlant:
 
     def advance(self, commands: np.ndarray, alive: np.ndarray, k: int) -> list[tuple[int, Event, bool]]:
         sim, drivers = self.sim, self.drivers
-        self.lanes[:, :, k] = sim.routes.pin[: self.n], sim.routes.next[: self.n]  # the egos' rows (NPCs follow)
-        sim.step(commands, self.trace[:, k], None if drivers is None else drivers.act(alive))
+        trace = None
+        if self.traced:
+            self.lanes[:, :, k] = sim.routes.pin[: self.n], sim.routes.next[: self.n]  # the egos' rows (NPCs follow)
+            trace = self.trace[:, k]
+        sim.step(commands, trace, None if drivers is None else drivers.act(alive))
         out = [(w, event, False) for w, event in (drivers.events() if drivers is not None else ()) if alive[w]]
         for i in np.flatnonzero(alive & ended(sim)):
             out.append((int(i), end_event(sim, int(i)), True))

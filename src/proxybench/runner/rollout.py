@@ -29,12 +29,13 @@ import numpy as np
 
 from proxybench import __version__
 from proxybench.agents.base import Agent, Observation
+from proxybench.domain.lane_pose import LP
 from proxybench.domain.maps import Map
 from proxybench.domain.routes import given_route_samples
 from proxybench.tasks.trajectory import Event, Termination, Trajectory
 
 __all__ = ["AgentPolicy", "BatchPolicy", "FrameHook", "OpenLoopPolicy", "Plant", "Policy", "PrivilegedAgentError",
-           "failure_event", "rollout"]
+           "ResettingPlant", "failure_event", "lane_rows", "rollout", "stream"]
 
 #: a frame hook: ``(k, images, alive, plant)``; ``images`` is what the robots saw (None without cameras),
 #: ``alive`` (N,) which robots' episodes are still running
@@ -226,28 +227,94 @@ def rollout(
         termination[i], frames[i], alive[i] = Termination.AGENT_FAILURE, 0, False
     k = 0
     while k < steps and alive.any():
-        t0 = time.perf_counter()
-        images = plant.frames(alive)
-        if on_frame is not None:
-            on_frame(k, images, alive, plant)
-        t1 = time.perf_counter()
-        commands, failed = policy.act(plant, images, alive)
-        t2 = time.perf_counter()
-        for i, exc in failed.items():
-            events[i].append(failure_event(plant.time(i), exc))
-            termination[i], frames[i], alive[i] = Termination.AGENT_FAILURE, k, False
-        commands[~alive] = 0.0
-        for i, event, final in plant.advance(commands, alive, k) if alive.any() else ():
+        failed, happened, dt_plant, dt_agent = _frame(plant, policy, k, alive, on_frame)
+        for i, (t, exc) in failed.items():
+            events[i].append(failure_event(t, exc))
+            termination[i], frames[i] = Termination.AGENT_FAILURE, k
+        for i, event, final in happened:
             events[i].append(event)
             if final:
                 termination[i], frames[i], alive[i] = Termination(event.kind), k + 1, False
-        t_plant += (t1 - t0) + (time.perf_counter() - t2)
-        t_agent += t2 - t1
+        t_plant += dt_plant
+        t_agent += dt_agent
         k += 1
     plant.end()
     timing = {"sim_s": t_plant / n, "agent_s": t_agent / n}
     return [_trajectory(plant, policy, i, int(seeds[i]), seconds, frames[i], termination[i], events[i], metas[i],
                         routes[i], None if i in at_start else timing) for i in range(n)]
+
+
+def _frame(plant: Plant, policy: Policy, k: int, alive: np.ndarray, on_frame: FrameHook | None, *,
+           advance_all: bool = False,
+           ) -> tuple[dict[int, tuple[float, BaseException]], list[tuple[int, Event, bool]], float, float]:
+    """One frame of the engine: the plant's frames, the frame hook, the policy's commands, the plant advanced.
+
+    A robot whose driver fails leaves ``alive`` (in place) before the plant advances, and keeps still. Returns the
+    failures (robot → (time, exception)), the plant's events (robot, event, ends it), and the seconds spent in the
+    plant and in the policy. The plant is not asked to advance once no robot is alive, unless ``advance_all`` (an
+    auto-resetting plant restarts the robots whose drivers failed).
+    """
+    t0 = time.perf_counter()
+    images = plant.frames(alive)
+    if on_frame is not None:
+        on_frame(k, images, alive, plant)
+    t1 = time.perf_counter()
+    commands, failed = policy.act(plant, images, alive)
+    t2 = time.perf_counter()
+    failures = {i: (plant.time(i), exc) for i, exc in failed.items()}
+    for i in failures:
+        alive[i] = False
+    commands[~alive] = 0.0
+    happened = plant.advance(commands, alive, k) if advance_all or alive.any() else []
+    return failures, happened, (t1 - t0) + (time.perf_counter() - t2), t2 - t1
+
+
+class ResettingPlant(Plant, Protocol):
+    """A plant that never ends: a robot whose episode ends (its driver failed, the plant's own ending rule, its
+    frames spent) starts its next episode at once (:class:`~proxybench.runner.autoreset.AutoResetPlant`)."""
+
+    def open(self, camera: bool, privileged: Sequence[bool]) -> list[int]:
+        """Start every robot's first episode; their seeds."""
+
+
+def stream(plant: ResettingPlant, policy: Policy, until: Callable[[], bool], *, camera: bool = True,
+           on_frame: FrameHook | None = None) -> int:
+    """The engine's loop without an end, for a plant that resets each robot whose episode ended (the continuing
+    stream of behaviour-cloning data collection: Gymnasium's and Brax's auto-reset): frames until ``until()``
+    says enough (asked before each frame); how many frames that was.
+
+    Per frame exactly what :func:`rollout` does (:func:`_frame`); a driver's failure ends its robot's episode
+    (the plant restarts it; nothing is recorded, no trajectory is assembled: what the robots did is the
+    policy's and the frame hook's to keep). A driver that fails to start is raised.
+    """
+    if len(policy.names) != plant.n:
+        raise ValueError(f"{len(policy.names)} drivers for a plant of {plant.n} robots")
+    seeds = plant.open(camera, policy.privileged)
+    try:
+        failed = policy.reset(seeds)
+        if failed:
+            raise next(iter(failed.values()))
+        k = 0
+        while not until():
+            _frame(plant, policy, k, np.ones(plant.n, dtype=bool), on_frame, advance_all=True)
+            k += 1
+        return k
+    finally:
+        plant.end()
+
+
+def lane_rows(plant: Plant) -> np.ndarray:
+    """(N, LP.N) true lane-pose rows of a plant's robots, what a privileged batched policy reads (the expert): the
+    simulator's array, or what a robot node serves (a row that is not valid where it serves none)."""
+    sim = getattr(plant, "sim", None)
+    if sim is not None:
+        return sim.lane[: plant.n]
+    rows = np.zeros((plant.n, LP.N))
+    for i in range(plant.n):
+        lp = plant.observation(i, None, True).lane_pose
+        if lp is not None:
+            rows[i] = lp.to_row()
+    return rows
 
 
 def _trajectory(plant: Plant, policy: Policy, i: int, seed: int, seconds: float, frames: int,
