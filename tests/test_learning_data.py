@@ -11,10 +11,10 @@ from proxybench.agents import make_agent
 from proxybench.agents.base import Observation
 from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.simulator import Simulator
+from proxybench.learning.collection import CollectConfig, collect
 from proxybench.learning.dataset import Dataset, DatasetError
 from proxybench.learning.domains import parse_domain, proxy_domain, randomized_domain, reality_domain
 from proxybench.learning.expert import expert_actions, vw_to_wheels, wheels_to_vw
-from proxybench.runner.collect import CollectConfig, collect
 
 W, H = 32, 24
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from proxybench.domain.params import DomainParams
+from proxybench.learning.collection import CollectConfig, collect
 from proxybench.learning.domains import Domain, parse_domain
-from proxybench.runner.collect import CollectConfig, collect
+from proxybench.learning.evaluation import EvalConfig, evaluate_expert, evaluate_policy
 from proxybench.runner.plants import PlantPool
-from proxybench.runner.policy_eval import EvalConfig, evaluate_expert, evaluate_policy
 
 NODE = f"{sys.executable} -m proxybench robot serve --param image_width=32 --param image_height=24"
 

@@ -11,12 +11,12 @@ from proxybench.domain.simulator import Simulator
 from proxybench.experiments.plv.dagger import DaggerConfig, dagger
 from proxybench.learning import is_checkpoint
 from proxybench.learning.agent import BCAgent, make_bc_agent, torch_policy
+from proxybench.learning.collection import CollectConfig, collect
 from proxybench.learning.domains import proxy_domain, reality_domain
+from proxybench.learning.evaluation import EvalConfig, evaluate_expert, evaluate_policy
 from proxybench.learning.model import ModelConfig
 from proxybench.learning.training import TrainConfig, build_model, dataset_loss, load_checkpoint, save_checkpoint, train
-from proxybench.runner.collect import CollectConfig, collect
 from proxybench.runner.episode import run_episode
-from proxybench.runner.policy_eval import EvalConfig, evaluate_expert, evaluate_policy
 from proxybench.tasks.metrics import METRICS
 
 W, H = 32, 24

@@ -2,12 +2,15 @@
 
 - ``domains``: where data comes from (a proxy θ, a randomised family Θ, the reality model, a robot node);
 - ``expert``, ``dataset``: the vectorised privileged expert; NPZ shards + JSON of frames and commands;
+- ``collection``, ``evaluation``: recording data (``collect``: the expert/learner mix, a batched policy, on the
+  runner's auto-resetting plant) and scoring a network or the expert (``evaluate_policy``, ``evaluate_expert``);
 - ``model``, ``training``, ``agent``: a PilotNet-style CNN, training / fine-tuning / checkpoints, ``BCAgent``.
 
-Collecting data and scoring a network drive robots, so they live with the runner
-(:mod:`proxybench.runner.collect`, :mod:`proxybench.runner.policy_eval`); the PLV arithmetic and its intervals
-are measures (:mod:`proxybench.usefulness.plv`, :mod:`proxybench.usefulness.plv_intervals`); the PLV experiment,
-DAgger and argmax-PLV are studies (:mod:`proxybench.experiments.plv.run`, ``dagger``, ``plv_objective``).
+Learning sits above the runner: it asks the runner's episode engine to drive robots (``runner.rollout.stream``
+on a ``runner.autoreset.AutoResetPlant``; ``runner.policy_eval.score_episodes``), and the runner knows nothing of
+it. The PLV arithmetic and its intervals are measures (:mod:`proxybench.usefulness.plv`,
+:mod:`proxybench.usefulness.plv_intervals`); the PLV experiment, DAgger and argmax-PLV are studies
+(:mod:`proxybench.experiments.plv.run`, ``dagger``, ``objective``).
 
 Module names differ from the functions exported here (``train``), so
 ``from proxybench.learning import train`` is always the function, whatever was imported before.
@@ -29,13 +32,16 @@ from typing import Any
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 __all__ = [
-    "CHECKPOINTS", "BCAgent", "CheckpointKind", "Dataset", "Domain", "ModelConfig", "PilotNet", "TrainConfig",
-    "build_model", "expert_actions", "is_checkpoint", "load_checkpoint", "make_bc_agent", "parse_domain",
-    "proxy_domain", "randomized_domain", "reality_domain", "robot_domain", "save_checkpoint", "train",
+    "CHECKPOINTS", "BCAgent", "CheckpointKind", "CollectConfig", "Dataset", "Domain", "EvalConfig", "ModelConfig",
+    "PilotNet", "TrainConfig", "build_model", "collect", "evaluate_expert", "evaluate_policy", "expert_actions",
+    "is_checkpoint", "load_checkpoint", "make_bc_agent", "parse_domain", "proxy_domain", "randomized_domain",
+    "reality_domain", "robot_domain", "save_checkpoint", "train",
 ]
 
 _WHERE = {
     "BCAgent": "agent", "make_bc_agent": "agent",
+    "collect": "collection", "evaluate_expert": "evaluation", "evaluate_policy": "evaluation",
+    "CollectConfig": "configs", "EvalConfig": "configs",
     "Dataset": "dataset",
     "Domain": "domains", "parse_domain": "domains", "proxy_domain": "domains", "randomized_domain": "domains",
     "reality_domain": "domains", "robot_domain": "domains",

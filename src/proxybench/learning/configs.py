@@ -1,8 +1,8 @@
 """The settings of behaviour cloning and of its data collection and scoring: plain data.
 
 :class:`ModelConfig` (the network), :class:`TrainConfig` (optimiser and schedule), :class:`CollectConfig` (how
-the expert records data, :mod:`proxybench.runner.collect`) and :class:`EvalConfig` (evaluation episodes,
-:mod:`proxybench.runner.policy_eval`) live here, apart from the code that uses them, so that a study's config
+the expert records data, :mod:`proxybench.learning.collection`) and :class:`EvalConfig` (evaluation episodes,
+:mod:`proxybench.learning.evaluation`) live here, apart from the code that uses them, so that a study's config
 (the PLV experiment's) and the command line generated from it need neither PyTorch nor the simulator.
 """
 

@@ -1,41 +1,35 @@
-"""Score a batched policy in a domain: all episodes side by side in one simulator, one network call per frame.
+"""Score a batched policy: all episodes side by side in one simulator, one policy call per frame.
 
-The episode engine (``runner.rollout``) on a :class:`~proxybench.runner.episode.SimPlant` with a
-:class:`~proxybench.runner.rollout.BatchPolicy`: each robot of the batch runs exactly the episode
-``run_episode`` would run for the same seed: it starts from the evaluation start distribution, sees a
-frame every 1/frame_rate s (the rendered pixels, no JPEG round trip), and stops when it leaves the road
-or hits an object of the map. Its physics-rate trajectory is then scored by the same task metric code as
-every other run (by default the thesis' lane score: episode time, −1 per second with one wheel out of the
-lane, −2 per second with both out). One network call serves the whole batch.
+The episode engine (``runner.rollout``) on a :class:`~proxybench.runner.episode.SimPlant` with a batched policy
+(:class:`~proxybench.runner.rollout.BatchPolicy`): each robot of the batch runs exactly the episode
+``run_episode`` would run for the same seed: it starts from the evaluation start distribution, sees a frame
+every 1/frame_rate s (the rendered pixels, no JPEG round trip), and stops when it leaves the road or hits an
+object of the map. Its physics-rate trajectory is then scored by the same task metric code as every other run
+(e.g. the thesis' lane score: episode time, −1 per second with one wheel out of the lane, −2 per second with
+both out). On a robot node's plant the same engine plays the episodes one after another, from the starts those
+seeds draw.
 
-On a robot node (``Domain.kind == "robot"``) the same engine drives the node's :class:`RobotPlant`, one
-episode at a time from the starts those seeds draw; the network sees the node's frames brought to its size,
-the expert reads the true lane pose the node serves.
-
-The PLV experiment caches these scores itself (per rung, next to the checkpoint), so they do not go
-through the runner's job cache.
+What the policy is (a network brought to its input size: :func:`frames_policy`; the BC expert) and which θ each
+episode has is the caller's (``proxybench.learning.evaluation``).
 """
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from proxybench.domain.maps import Map
+from proxybench.domain.params import DomainParams
 from proxybench.domain.simulator import Simulator
-from proxybench.learning.configs import EvalConfig
-from proxybench.learning.domains import Domain
-from proxybench.learning.expert import expert_actions
-from proxybench.runner.collect import Policy, lane_rows, robot_spec
 from proxybench.runner.episode import SimPlant
-from proxybench.runner.plants import PlantPool, fit_frames
-from proxybench.runner.rollout import BatchPolicy, rollout
+from proxybench.runner.plants import fit_frames
+from proxybench.runner.rollout import BatchPolicy, Plant, Policy, rollout
 from proxybench.tasks.metrics import METRICS
 
-__all__ = ["EvalConfig", "EvalResult", "evaluate_expert", "evaluate_policy"]
+__all__ = ["EvalResult", "frames_policy", "score_episodes"]
 
 
 @dataclass
@@ -50,41 +44,30 @@ class EvalResult:
         return float(np.mean(self.scores))
 
 
-def evaluate_policy(policy: Policy, domain: Domain, cfg: EvalConfig | None = None,
-                    pool: PlantPool | None = None) -> EvalResult:
-    """Run ``cfg.episodes`` episodes of ``policy`` in ``domain`` at once; score each with ``cfg.metric``. A robot
-    domain's node comes from ``pool`` (kept running there), else is started for this call."""
-    cfg = cfg or EvalConfig()
-    size = domain.image_size
-
-    def drive(images: Any, plant: Any) -> np.ndarray:
+def frames_policy(fn: Callable[[np.ndarray], np.ndarray], size: tuple[int, int], n: int,
+                  name: str = "network") -> BatchPolicy:
+    """A batched ``fn(frames (N, H, W, 3) uint8) -> wheel PWM (N, 2)`` as the engine's policy, the frames brought
+    to its (width, height) ``size`` where the plant's differ (a robot's camera)."""
+    def drive(images: Any, plant: Plant) -> np.ndarray:
         if isinstance(images, np.ndarray) and images.shape[1:3] == (size[1], size[0]):
-            return policy(images)
-        return policy(fit_frames(np.stack([np.asarray(f) for f in images]), size))
+            return fn(images)
+        return fn(fit_frames(np.stack([np.asarray(f) for f in images]), size))
 
-    return _evaluate(lambda n: BatchPolicy(drive, n, "network"), domain, cfg, render=True, pool=pool)
-
-
-def evaluate_expert(domain: Domain, cfg: EvalConfig | None = None, pool: PlantPool | None = None) -> EvalResult:
-    """The privileged expert (pure pursuit on the true pose) on the same episodes: the teacher's own score."""
-    cfg = cfg or EvalConfig()
-    return _evaluate(lambda n: BatchPolicy(lambda images, plant: expert_actions(lane_rows(plant)), n, "expert",
-                                           privileged=True), domain, cfg, render=False, pool=pool)
+    return BatchPolicy(drive, n, name)
 
 
-def _evaluate(make: Callable[[int], BatchPolicy], domain: Domain, cfg: EvalConfig, render: bool,
-              pool: PlantPool | None) -> EvalResult:
-    """The engine's rollout on a simulator of ``cfg.episodes`` robots, each with its own draw of θ — or, on a robot
-    node, on its plant one episode after another."""
-    seeds = [cfg.seed + e for e in range(cfg.episodes)]
-    meta = {"domain": domain.name, "domain_kind": domain.kind}
-    if domain.kind == "robot":
-        with contextlib.ExitStack() as stack:
-            plant = (pool or stack.enter_context(PlantPool())).robot(robot_spec(domain), cfg.map)
-            trajs = [rollout(plant, make(1), [s], cfg.seconds, camera=render, metas=[meta])[0] for s in seeds]
+def score_episodes(make: Callable[[int], Policy], seeds: Sequence[int], seconds: float, metric: str, *,
+                   map_: Map | str, thetas: Sequence[DomainParams] | None = None, plant: Plant | None = None,
+                   render: bool = True, meta: dict[str, Any] | None = None) -> EvalResult:
+    """Episode e of ``seconds`` from ``seeds[e]``, driven by ``make(n)`` (a policy of n robots), scored by the
+    task metric ``metric``: on a simulator of ``map_`` whose robot e has θ ``thetas[e]``, all at once — or, given
+    ``plant`` (a robot node's), on it one after another. ``render``: camera frames for the policy."""
+    if plant is not None:
+        trajs = [rollout(plant, make(1), [s], seconds, camera=render, metas=[meta])[0] for s in seeds]
     else:
-        thetas = [domain.sample(np.random.default_rng(s)) for s in seeds]
-        sim = Simulator(cfg.map, thetas, render=render)
-        trajs = rollout(SimPlant(sim), make(sim.n), seeds, cfg.seconds, camera=render, metas=[meta] * sim.n)
-    metric = METRICS[cfg.metric]
-    return EvalResult([metric(t) for t in trajs], [t.termination for t in trajs])
+        if thetas is None or len(thetas) != len(seeds):
+            raise ValueError("a simulated evaluation needs one θ per seed")
+        sim = Simulator(map_, list(thetas), render=render)
+        trajs = rollout(SimPlant(sim), make(sim.n), seeds, seconds, camera=render, metas=[meta] * sim.n)
+    score = METRICS[metric]
+    return EvalResult([score(t) for t in trajs], [t.termination for t in trajs])

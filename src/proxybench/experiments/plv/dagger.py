@@ -13,11 +13,11 @@ from dataclasses import replace
 
 from proxybench.experiments.plv.config import DaggerConfig
 from proxybench.learning.agent import torch_policy
+from proxybench.learning.collection import CollectConfig, collect
 from proxybench.learning.dataset import Dataset
 from proxybench.learning.domains import Domain
 from proxybench.learning.model import PilotNet
 from proxybench.learning.training import TrainConfig, TrainResult, train
-from proxybench.runner.collect import CollectConfig, collect
 from proxybench.runner.plants import PlantPool
 
 __all__ = ["DaggerConfig", "dagger"]

@@ -34,13 +34,13 @@ import numpy as np
 
 from proxybench.experiments.plv.config import THESIS_PROXIES, PLVConfig
 from proxybench.experiments.plv.dagger import dagger
+from proxybench.learning.collection import collect
 from proxybench.learning.dataset import Dataset
 from proxybench.learning.domains import Domain, parse_domain
+from proxybench.learning.evaluation import evaluate_expert, evaluate_policy
 from proxybench.learning.model import configure_threads, default_device
 from proxybench.learning.training import TrainConfig, build_model, save_checkpoint, train
-from proxybench.runner.collect import collect
 from proxybench.runner.plants import PlantPool
-from proxybench.runner.policy_eval import evaluate_expert, evaluate_policy
 from proxybench.usefulness.plv import ladder_done
 
 __all__ = ["THESIS_PROXIES", "PLVConfig", "PLVResult", "Workspace", "fitted_reference", "proxy_arm", "run_plv",
