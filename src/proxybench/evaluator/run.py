@@ -61,6 +61,18 @@ def _log_to(path: Path) -> logging.Handler:
     return handler
 
 
+def _admitted(bench, spec):
+    """``spec``, unless ``bench`` is camera-only and the agent reads the true lane pose
+    (:func:`~proxybench.runner.jobs.is_privileged`: a zoo agent's flag, an SDK program's ``privileged`` option; a
+    checkpoint or an AIDO node is camera-only until its handshake says otherwise, which the episodes enforce)."""
+    from proxybench.runner.jobs import is_privileged
+
+    if bench.camera_only and is_privileged(spec):
+        raise SubmissionFault(f"agent {spec.name!r} is privileged (reads the true lane pose); benchmark "
+                              f"{bench.name!r} admits camera-only agents")
+    return spec
+
+
 class _Job:
     """One job's work; fills :attr:`outcome` as it goes, so a fault still reports what was done."""
 
@@ -105,11 +117,8 @@ class _Job:
             if name not in ZOO:
                 raise HostFault(f"built-in agent {name!r} is unknown to this evaluator (proxybench "
                                 f"{self.job.evaluator.version}); a newer evaluator can run it")
-            if bench.camera_only and ZOO[name].privileged:
-                raise SubmissionFault(f"agent {name!r} is privileged (reads the true lane pose); benchmark "
-                                      f"{bench.name!r} admits camera-only agents")
             log.info("agent: built-in %r (in-process)", name)
-            return AgentSpec(name)
+            return _admitted(bench, AgentSpec(name))
         isolation = self.job.isolation
         if not isolation.usable:  # checked before unpacking: nothing of the stranger's is touched
             raise HostFault(isolation.problem)
@@ -128,7 +137,7 @@ class _Job:
         log.log(logging.WARNING if self.unsafe else logging.INFO,
                 "agent: package %r (%s), command %s, transport %s; sandbox: %s", manifest.name,
                 (sub.archive_sha256 or "")[:12], manifest.command, manifest.transport, isolation.note)
-        return spec
+        return _admitted(bench, spec)
 
     def agent_contract(self, bench, spec) -> None:
         """The agent checker on the job's agent before its episodes (``proxybench.testing.AgentContract`` on a second
@@ -175,13 +184,12 @@ class _Job:
         Every kind goes through the runner (:func:`~proxybench.runner.evaluate.evaluate_benchmark`): the same
         jobs, starts, routes and trajectory files; a robot node is a :class:`~proxybench.runner.jobs.DomainSpec`.
         """
-        from proxybench.agents.zoo import ZOO
         from proxybench.domain.events import Termination
         from proxybench.protocol.failures import AgentFailure
         from proxybench.runner.backends import InlineBackend
         from proxybench.runner.episode import PrivilegedAgentError
         from proxybench.runner.evaluate import evaluate_benchmark
-        from proxybench.runner.jobs import DomainSpec
+        from proxybench.runner.jobs import DomainSpec, is_privileged
         from proxybench.tasks.benchmark import BenchmarkError
 
         self.phase = split
@@ -190,16 +198,15 @@ class _Job:
             f"domain {bench.domain.named or 'of the benchmark'}"
         log.info("%s: %d episodes of %g s on %s, in %s", split, len(bench.episode_specs()), bench.duration,
                  bench.map, where)
-        privileged = lambda s: s.command is None and ZOO[s.name].privileged  # noqa: E731
         domain: str | DomainSpec | None = "reality" if target else None
         if robot:
-            if privileged(spec) and not self.ground_truth:
+            if is_privileged(spec) and not self.ground_truth:
                 raise HostFault(f"the target robot cannot run this job: robot node {robot!r} reports no true lane "
                                 f"pose, which the privileged agent {spec.name!r} needs")
             domain = DomainSpec.robot(robot, frame_rate=bench.frame_rate, options=self.robot_options())
         try:
             ev = evaluate_benchmark(bench, [spec], self.dir / "runs" / split, InlineBackend(), domain=domain,
-                                    privileged=privileged, progress=self.progress)
+                                    privileged=is_privileged, progress=self.progress)
         except AgentFailure as exc:  # the node could not even be started or handshaken
             self.check_sandbox([exc.stderr_tail])
             raise SubmissionFault(f"agent node failed in the {split} episodes: {exc}") from None
