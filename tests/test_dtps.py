@@ -19,7 +19,7 @@ from proxybench.dtps.env import sdk_python
 from proxybench.dtps.maplayer import map_layers
 from proxybench.dtps.options import SdkOptions, parse_sdk
 from proxybench.experiments.agent_args import AgentArgError, parse_agent
-from proxybench.runner.jobs import AgentSpec, is_privileged
+from proxybench.runner.jobs import AgentSpec, NodeAgent, SdkProgram, is_privileged
 from proxybench.tasks.agent_entries import AgentEntry
 from support.dtps import sdk
 
@@ -29,23 +29,23 @@ AGENTS = Path(__file__).parent / "dtps_agents"
 # -------------------------------------------------------------------------------- without the SDK
 def test_agent_arguments_name_sdk_programs_and_their_modifiers():
     spec = parse_agent("mine=sdk[lockstep]:python3 agent.py --fast")
-    assert (spec.name, spec.command, spec.protocol) == ("mine", "python3 agent.py --fast", "sdk")
+    assert spec == SdkProgram("mine", "python3 agent.py --fast", (("timing", "lockstep"),))
     assert spec.node_options() == SdkOptions(timing="lockstep")
-    assert parse_agent("node=python3 node.py").protocol == "aido"
+    assert parse_agent("node=python3 node.py") == NodeAgent("node", "python3 node.py")
     assert is_privileged(parse_agent("p=sdk[privileged]:python3 a.py"))
     with pytest.raises(AgentArgError, match="unknown sdk modifier 'fast'"):
         parse_agent("mine=sdk[fast]:python3 a.py")
     with pytest.raises(AgentArgError, match="no command"):
         parse_agent("mine=sdk:")
     # the protocol is part of a job's key: the same command as an AIDO node is another agent
-    assert AgentSpec.sdk("a", "python3 a.py").key_data() != AgentSpec("a", "python3 a.py").key_data()
+    assert AgentSpec.sdk("a", "python3 a.py").key_data() != AgentSpec.node("a", "python3 a.py").key_data()
     assert parse_sdk("python3 sdk.py") is None
 
 
 def test_benchmark_entries_take_sdk_programs_and_refuse_mixed_options():
     entry = AgentEntry(name="mine", sdk="python3 a.py", timing="lockstep", step_timeout=2)
     spec = parse_agent(entry)
-    assert spec.protocol == "sdk" and spec.node_options() == SdkOptions(timing="lockstep", step_timeout=2)
+    assert isinstance(spec, SdkProgram) and spec.node_options() == SdkOptions(timing="lockstep", step_timeout=2)
     for bad, match in (({"sdk": "a", "command": "b"}, "not both"), ({"sdk": "a", "transport": "fifo"}, "transport"),
                        ({"command": "a", "timing": "lockstep"}, "timing")):
         with pytest.raises(ValueError, match=match):

@@ -54,6 +54,7 @@ def test_an_sdk_package_drives_from_its_sandbox_and_reaches_only_its_robot(tmp_p
     from proxybench.domain.simulator import Simulator
     from proxybench.evaluator import sandbox as sb
     from proxybench.runner.episode import run_episode
+    from proxybench.runner.jobs import SdkProgram
     from proxybench.runner.outcomes import camera_filter, make_agent_for
 
     isolation = require_safe_sandbox()
@@ -68,7 +69,7 @@ def test_an_sdk_package_drives_from_its_sandbox_and_reaches_only_its_robot(tmp_p
         manifest = AgentManifest(name="sdk-pkg", protocol="duckietown-sdk", timing="lockstep", start_timeout=90,
                                  command=["python3", "sandboxed.py", str(host.getsockname()[1])])
         spec = sb.package_spec(manifest, package, sb.Limits(), isolation)
-        assert spec.protocol == "sdk" and dict(spec.options)["own_netns"] is True
+        assert isinstance(spec, SdkProgram) and dict(spec.options)["own_netns"] is True
         agent = make_agent_for(spec)
         try:
             sim = Simulator("loop_3x3", DomainParams(image_width=160, image_height=120))

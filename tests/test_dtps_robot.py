@@ -23,7 +23,7 @@ import pytest
 
 from proxybench.agents.base import Agent
 from proxybench.dtps.robot_options import DtpsRobotOptions, load_start_poses, parse_address
-from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
+from proxybench.runner.jobs import AgentSpec, DomainSpec, DtpsLink, Job
 from proxybench.targets.manifest import TargetError, TargetManifest
 from proxybench.targets.spec import open_target
 from support.dtps import FakeRobot, sdk
@@ -58,7 +58,8 @@ def test_dtps_addresses_options_and_start_pose_files(tmp_path):
 def test_a_dtps_robot_is_a_robot_domain_keyed_by_what_changes_its_episodes():
     addr = parse_address("dtps:bot.local/bot")
     d = DomainSpec.dtps(addr, frame_rate=15, options=DtpsRobotOptions(reset="teleport"))
-    assert (d.kind, d.link, d.command, d.nodes) == ("robot", "dtps", "bot.local:11911/bot", 1)
+    assert (d.kind, d.link, d.command, d.nodes) == ("robot", DtpsLink(addr, (("reset", "teleport"),)),
+                                                    "bot.local:11911/bot", 1)
     key = Job(AgentSpec("pid"), d, "loop_3x3", 0, 0, 5.0).key
 
     def key_with(**options):
@@ -69,7 +70,7 @@ def test_a_dtps_robot_is_a_robot_domain_keyed_by_what_changes_its_episodes():
     assert key_with(reset="prompt") != key and key_with(reset="teleport", pose="/loc/bot") != key
     node = DomainSpec.robot("bot.local:11911/bot", frame_rate=15)  # the same text as a robot node's command
     assert Job(AgentSpec("pid"), node, "loop_3x3", 0, 0, 5.0).key != key
-    with pytest.raises(ValueError, match="link"):
+    with pytest.raises(TypeError, match="a simulated domain, not link"):  # a link makes a robot domain
         DomainSpec("x", kind="simulation", link="dtps")
 
 

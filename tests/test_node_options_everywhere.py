@@ -73,11 +73,11 @@ def test_robot_domain_carries_its_options_and_only_cwd_is_in_the_key() -> None:
     slow = DomainSpec.robot("bridge", frame_rate=15, options=RobotNodeOptions(step_timeout=30, transport="fifo"))
     moved = DomainSpec.robot("bridge", frame_rate=15, options=RobotNodeOptions(cwd="/opt/bridge"))
     faster = DomainSpec.robot("bridge", frame_rate=30)
-    assert slow.node_options().step_timeout == 30.0 and plain.node_options().start_timeout == 120.0
+    assert slow.link.node_options().step_timeout == 30.0 and plain.link.node_options().start_timeout == 120.0
     assert plain.canonical() == slow.canonical() != moved.canonical()  # cached episodes survive a new timeout
-    assert plain.canonical() == DomainSpec("robot:bridge", kind="robot", command="bridge").canonical()
+    assert plain.canonical() == json.dumps({"command": "bridge", "kind": "robot", "params": {}})  # as before links
     assert faster.canonical() != plain.canonical() and faster.frame_rate == 30.0  # asked to step at another rate
-    with pytest.raises(ValueError, match="only for kind='robot'"):
+    with pytest.raises(TypeError, match="a simulated domain, not options"):
         DomainSpec("s", options=(("transport", "fifo"),))
 
 
@@ -98,7 +98,7 @@ def test_experiment_file_robot_options(tmp_path: Path, bridge: Path) -> None:
     cfg = load_config(exp, {"robot_options": {"step_timeout": 3.0}})  # the command line changes one field
     assert cfg.robot_options == RobotNodeOptions(cwd=str(bridge), transport="fifo", start_timeout=60, step_timeout=3)
     _, target = resolve(cfg, "predictivity", quick=True, work_dir=tmp_path / "agents")
-    assert target.domain().node_options() == cfg.robot_options
+    assert target.domain().link.node_options() == cfg.robot_options
     assert target.info().details["options"]["cwd"] == str(bridge)  # in every report's details
     exp.write_text("robot_options: {transprot: fifo, step_timeout: -1}\n")
     with pytest.raises(ConfigError) as info:
@@ -178,7 +178,7 @@ agents:
     cfg = load_config(exp)
     specs = parse_agents(cfg.agents)
     assert [s.label for s in specs] == ["pid", "vision", "quick", "lf"]
-    assert specs[1] == AgentSpec("vision") and specs[2] == AgentSpec("quick", "python3 agent.py")
+    assert specs[1] == AgentSpec("vision") and specs[2] == AgentSpec.node("quick", "python3 agent.py")
     options = specs[3].node_options()
     assert (options.cwd, options.transport, options.step_timeout, options.reflection) == (str(sub), "fifo", 2.0,
                                                                                           False)

@@ -220,7 +220,7 @@ def test_agent_spec_carries_options_and_old_job_keys_stay(solution: Path) -> Non
     spec = AgentSpec.node("mine", f"{PY} solution.py", NodeOptions(cwd=str(solution), reflection=False,
                                                                   step_timeout=2.0))
     assert hash(spec) and spec.node_options().step_timeout == 2.0
-    assert Job(spec, job.domain, job.map, 0, 0, 1.0).key != Job(AgentSpec("mine", f"{PY} solution.py"), job.domain,
+    assert Job(spec, job.domain, job.map, 0, 0, 1.0).key != Job(AgentSpec.node("mine", f"{PY} solution.py"), job.domain,
                                                                  job.map, 0, 0, 1.0).key
     agent = make_agent_for(spec)
     try:

@@ -13,7 +13,7 @@ import pytest
 
 from proxybench.domain.params import DomainParams
 from proxybench.runner.backends import LocalBackend
-from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
+from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, ProtocolLink, RobotDomain
 from proxybench.runner.robot_jobs import robot_slot
 from proxybench.runner.sweep import run_jobs
 from proxybench.tasks.trajectory import Trajectory
@@ -33,20 +33,23 @@ def _jobs(domain: DomainSpec, agents=("pid", "vision"), episodes=2, seconds=3.0)
 
 
 def test_spec_rejects_what_a_robot_domain_cannot_be():
-    with pytest.raises(ValueError, match="needs command"):
-        DomainSpec("r", kind="robot")
-    with pytest.raises(ValueError, match="takes no params"):
-        DomainSpec("r", DomainParams(trim=0.1), kind="robot", command="x")
-    with pytest.raises(ValueError, match="only for kind='robot'"):
+    with pytest.raises(ValueError, match=r"command \(the robot node to start\) must be a non-empty string"):
+        DomainSpec.robot(" ", frame_rate=15)
+    with pytest.raises(ValueError, match=r"a robot is DomainSpec\.robot"):
+        DomainSpec("r", DomainParams(trim=0.1), kind="robot")
+    with pytest.raises(TypeError, match="unexpected keyword argument 'params'"):  # θ is the robot's own
+        RobotDomain("r", ProtocolLink("x"), params=DomainParams(trim=0.1))
+    with pytest.raises(TypeError, match="a simulated domain, not command"):
         DomainSpec("s", command="x")
     with pytest.raises(ValueError, match="kind must be one of"):
         DomainSpec("s", kind="real")
     with pytest.raises(ValueError, match="nodes must be"):
-        DomainSpec("r", kind="robot", command="x", nodes=0)
+        DomainSpec.robot("x", frame_rate=15, nodes=0)
+    assert DomainSpec.robot("x", frame_rate=15).params is None
 
 
 def test_the_command_is_part_of_the_key_and_simulated_keys_did_not_change():
-    a, b = DomainSpec("r", kind="robot", command="bridge --robot 1"), DomainSpec("r", kind="robot", command="bridge")
+    a, b = (DomainSpec.robot(cmd, frame_rate=15, name="r") for cmd in ("bridge --robot 1", "bridge"))
     job = _jobs(a)[0]
     assert job.key != Job(job.agent, b, job.map, job.episode, job.seed, job.duration, job.pose,
                           metrics=job.metrics).key
@@ -57,7 +60,7 @@ def test_the_command_is_part_of_the_key_and_simulated_keys_did_not_change():
 
 def test_robot_domain_equals_the_in_process_run_and_resumes_from_the_cache(tmp_path):
     sim = run_jobs(_jobs(DomainSpec("small", DomainParams(**SMALL))), tmp_path / "sim")
-    robot_dom = DomainSpec("robot", kind="robot", command=SERVE)
+    robot_dom = DomainSpec.robot(SERVE, frame_rate=15, name="robot")
     got = run_jobs(_jobs(robot_dom), tmp_path / "robot", batch_size=3)  # two node processes, one after another
     assert got.ran == 4 and got.cached == 0
     for r, ref in zip(got.results, sim.results, strict=True):
@@ -75,7 +78,7 @@ def test_robot_domain_equals_the_in_process_run_and_resumes_from_the_cache(tmp_p
 
 
 def test_a_robot_that_fails_is_each_jobs_result_and_is_retried_next_time(tmp_path):
-    dom = DomainSpec("broken", kind="robot", command="/nonexistent/robot-bridge")
+    dom = DomainSpec.robot("/nonexistent/robot-bridge", frame_rate=15, name="broken")
     jobs = _jobs(dom, agents=("straight",), episodes=3, seconds=0.5)
     res = run_jobs(jobs, tmp_path)
     assert [r.termination for r in res.results] == ["robot_failure"] * 3
@@ -88,7 +91,7 @@ def test_a_robot_that_fails_is_each_jobs_result_and_is_retried_next_time(tmp_pat
 def test_a_robot_crashing_mid_batch_costs_one_episode_and_is_restarted(tmp_path):
     # the misbehaving robot crashes at its first get_robot_state: every episode fails, the node is restarted
     # once after the first failure, and after two failures in a row the batch gives up
-    dom = DomainSpec("crashy", kind="robot", command=MISBEHAVE + " crash get_robot_state")
+    dom = DomainSpec.robot(MISBEHAVE + " crash get_robot_state", frame_rate=15, name="crashy")
     res = run_jobs(_jobs(dom, agents=("straight",), episodes=3, seconds=0.2), tmp_path)
     terms = [r.termination for r in res.results]
     assert terms == ["robot_failure"] * 3
@@ -97,7 +100,7 @@ def test_a_robot_crashing_mid_batch_costs_one_episode_and_is_restarted(tmp_path)
 
 
 def test_privileged_agent_on_a_robot_without_ground_truth_is_refused_not_crashed(tmp_path):
-    dom = DomainSpec("no-truth", kind="robot", command=MISBEHAVE + " none never")
+    dom = DomainSpec.robot(MISBEHAVE + " none never", frame_rate=15, name="no-truth")
     res = run_jobs(_jobs(dom, agents=("pid", "straight"), episodes=1, seconds=0.4), tmp_path)
     pid, straight = res.results
     assert pid.termination == "agent_failure" and "reports no true lane pose" in pid.message
@@ -105,7 +108,7 @@ def test_privileged_agent_on_a_robot_without_ground_truth_is_refused_not_crashed
 
 
 def test_robot_jobs_run_on_a_process_pool_one_node_at_a_time(tmp_path):
-    dom = DomainSpec("robot", kind="robot", command=SERVE)
+    dom = DomainSpec.robot(SERVE, frame_rate=15, name="robot")
     backend = LocalBackend(2)
     try:
         res = run_jobs(_jobs(dom, agents=("pid", "straight"), seconds=1.0), tmp_path, backend)

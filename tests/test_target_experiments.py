@@ -119,7 +119,7 @@ def test_a_recorded_target_with_agents_proxybench_cannot_run_says_how_to_name_th
     with pytest.raises(TargetError, match=r"agents: the target's agent 'my-agent' is not a zoo agent.*--agent"):
         resolve(ExperimentConfig(target=str(root)), "predictivity")
     exp, _ = resolve(ExperimentConfig(target=str(root), agents=["my-agent=python3 agent.py"]), "predictivity")
-    assert exp.agents == [AgentSpec("my-agent", "python3 agent.py")]
+    assert exp.agents == [AgentSpec.node("my-agent", "python3 agent.py")]
 
 
 def test_optimize_against_a_recorded_target_reads_it_once(tmp_path):

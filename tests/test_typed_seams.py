@@ -16,7 +16,19 @@ from proxybench.domain.kinds import ROBOT_NODE, DomainKind, robot_node_kind
 from proxybench.domain.maps import load_map
 from proxybench.domain.params import DomainParams
 from proxybench.evaluator.job import WorkerJob
-from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
+from proxybench.runner.jobs import (
+    AgentSpec,
+    DomainSpec,
+    DtpsLink,
+    InProcessAgent,
+    Job,
+    JobResult,
+    NodeAgent,
+    ProtocolLink,
+    RobotDomain,
+    SdkProgram,
+    SimDomain,
+)
 from proxybench.targets.manifest import SOURCE_KINDS, SOURCES, TargetManifest, source_of
 from proxybench.targets.robot import RobotTarget
 from proxybench.targets.spec import RealityTarget
@@ -111,7 +123,8 @@ def test_one_domain_kind_vocabulary_with_the_strings_files_hold():
     spec = DomainSpec("r", kind="reality-model")  # a string from a file or an old caller: held as the member
     assert spec.kind is DomainKind.REALITY_MODEL and '"kind": "reality-model"' in spec.canonical()
     assert DomainSpec.robot("bridge", frame_rate=15.0).kind is DomainKind.ROBOT
-    with pytest.raises(ValueError, match="kind must be one of simulation, reality-model, robot, got 'recorded'"):
+    with pytest.raises(ValueError, match=r"kind must be one of simulation, reality-model \(a simulated domain\), got "
+                                         r"'recorded'"):
         DomainSpec("x", kind=DomainKind.RECORDED)  # a recording is read, never run
     assert robot_node_kind("simulation") == "robot-node/simulation"
 
@@ -145,7 +158,7 @@ def test_theta_crosses_the_job_seam_typed_and_keys_stay_as_they_were():
     assert json.loads(DomainSpec.robot("bridge", frame_rate=15.0).canonical())["params"] == {}
     with pytest.raises(TypeError, match="params must be a DomainParams, got dict"):
         DomainSpec("x", {"trim": 0.1})
-    with pytest.raises(ValueError, match="a robot domain takes no params"):
+    with pytest.raises(TypeError, match="a simulated domain, not command"):  # a robot's θ is its own
         DomainSpec("r", theta, kind="robot", command="bridge")
 
 
@@ -158,6 +171,62 @@ def test_domain_specs_hash_by_value_in_sets_and_job_keys():
     assert job.key == Job(AgentSpec("pid"), b, "loop_3x3", 0, 1, 2.0).key != \
         Job(AgentSpec("pid"), c, "loop_3x3", 0, 1, 2.0).key
     assert pickle.loads(pickle.dumps(job)).domain == a  # what a process pool carries
+
+
+# -- AgentSpec / DomainSpec: tagged unions -------------------------------------------------------------------
+
+def _specs():
+    from proxybench.dtps.options import SdkOptions
+    from proxybench.dtps.robot_options import DtpsRobotOptions, parse_address
+    from proxybench.protocol.options import NodeOptions, RobotNodeOptions
+
+    agents = [AgentSpec("pid"), AgentSpec.node("n", "python3 n.py", NodeOptions(cwd="/tmp", step_timeout=2.0)),
+              AgentSpec.sdk("s", "python3 s.py", SdkOptions(timing="lockstep", privileged=True))]
+    domains = [DomainSpec("p", DomainParams(trim=0.1)), DomainSpec("r", DomainParams(trim=0.05), "reality-model"),
+               DomainSpec.robot("bridge", frame_rate=30, nodes=2, options=RobotNodeOptions(cwd="/opt/b")),
+               DomainSpec.dtps(parse_address("dtps:bot.local/bot"), frame_rate=15,
+                               options=DtpsRobotOptions(reset="teleport", pose_tolerance=(0.1, 0.3)))]
+    return agents, domains
+
+
+def test_each_flavour_holds_only_what_it_needs():
+    agents, domains = _specs()
+    assert [type(a) for a in agents] == [InProcessAgent, NodeAgent, SdkProgram]  # AgentSpec(name): in-process
+    assert [type(d) for d in domains] == [SimDomain, SimDomain, RobotDomain, RobotDomain]
+    assert all(isinstance(a, AgentSpec) for a in agents) and all(isinstance(d, DomainSpec) for d in domains)
+    assert agents[0].command is None and not hasattr(agents[0], "options")
+    assert AgentSpec.node("a", "x") != AgentSpec.sdk("a", "x")  # the same command speaking another protocol
+    robot, dtps = domains[2:]
+    assert (robot.kind, robot.params, robot.nodes, robot.link) == ("robot", None, 2,
+                                                                  ProtocolLink("bridge", (("cwd", "/opt/b"),), 2))
+    assert isinstance(dtps.link, DtpsLink) and dtps.nodes == 1 and dtps.command == "bot.local:11911/bot"
+    with pytest.raises(ValueError, match="command must be a non-empty string"):
+        AgentSpec.node("a", " ")
+    with pytest.raises(TypeError, match="positional argument"):
+        AgentSpec("a", "python3 a.py")  # a node is AgentSpec.node(NAME, COMMAND)
+
+
+def test_specs_keep_the_key_data_they_had_as_one_class_of_flags():
+    agents, domains = _specs()
+    assert [a.key_data() for a in agents] == [
+        {"name": "pid", "command": None},
+        {"name": "n", "command": "python3 n.py", "options": {"cwd": "/tmp", "step_timeout": 2.0}},
+        {"name": "s", "command": "python3 s.py", "options": {"privileged": True, "timing": "lockstep"},
+         "protocol": "sdk"}]
+    assert [json.loads(d.canonical()) for d in domains[2:]] == [
+        {"params": {}, "kind": "robot", "command": "bridge", "cwd": "/opt/b", "frame_rate": 30.0},
+        {"params": {}, "kind": "robot", "command": "bot.local:11911/bot", "link": "dtps",
+         "dtps": {"reset": "teleport"}}]
+
+
+def test_specs_round_trip_through_pickle_and_json():
+    agents, domains = _specs()
+    for spec in agents:
+        assert pickle.loads(pickle.dumps(spec)) == spec == AgentSpec.from_dict(json.loads(json.dumps(spec.to_dict())))
+    for spec in domains:
+        assert pickle.loads(pickle.dumps(spec)) == spec == DomainSpec.from_dict(json.loads(json.dumps(spec.to_dict())))
+    job = Job(agents[2], domains[3], "loop_3x3", 0, 1, 2.0)
+    assert pickle.loads(pickle.dumps(job)).key == job.key
 
 
 # -- the evaluator's lease -----------------------------------------------------------------------------------

@@ -159,11 +159,12 @@ def _agent(agent_name: str, agent_cmd: str | None, options):
             raise typer.Exit(2) from exc
     from proxybench.dtps.env import DtpsEnvError
     from proxybench.experiments.agent_args import AgentArgError, parse_agent
+    from proxybench.runner.jobs import SdkProgram
     from proxybench.runner.outcomes import make_agent_for
 
     try:
         spec = parse_agent(agent_name)
-        if spec.protocol != "sdk":
+        if not isinstance(spec, SdkProgram):
             raise AgentArgError(f"--agent {agent_name!r}: an AIDO agent node goes in --agent-cmd; --agent takes a zoo "
                                 f"name or NAME=sdk:COMMAND")
         return make_agent_for(spec)

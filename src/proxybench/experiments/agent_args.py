@@ -105,7 +105,7 @@ def _node_or_sdk(name: str, command: str) -> AgentSpec:
     except ValueError as exc:
         raise AgentArgError(f"agent {name!r}: {exc}") from None
     if sdk is None:
-        return AgentSpec(name, command)
+        return AgentSpec.node(name, command)
     return AgentSpec.sdk(name, sdk[0], SdkOptions(**sdk[1]))
 
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from proxybench import __version__
 from proxybench.domain.events import Termination
@@ -22,6 +22,7 @@ from proxybench.domain.params import DomainParams
 
 if TYPE_CHECKING:
     from proxybench.domain.npcs import Traffic
+    from proxybench.dtps.robot_options import DtpsAddress
     from proxybench.runner.streams import StreamSpec
 
 #: bump when what an episode produces changes without a change of its inputs (it is part of every job key)
@@ -30,56 +31,145 @@ ENGINE_VERSION = 6  # 2: camera agents see JPEG-decoded frames, as over the AIDO
 # 5: the vision agents' lane fit is compiled (closed-form least squares, equal to lstsq within 1e-9, so their
 # trajectories can differ in the last bits); 6: floor tags and NPC robots' roof tags drawn as AprilTag 36h11 patterns
 
-__all__ = ["DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "Job", "JobResult", "batch_group",
+__all__ = ["DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "DtpsLink", "InProcessAgent", "Job",
+           "JobResult", "NodeAgent", "ProtocolLink", "RobotDomain", "SdkProgram", "SimDomain", "batch_group",
            "is_privileged"]
 
 
-@dataclass(frozen=True)
+_OPTION_PAIRS = tuple[tuple[str, Any], ...]
+
+
+def _pairs(options: Any) -> _OPTION_PAIRS:
+    """Options (a pydantic options model, or None for the defaults) as the sorted non-default pairs a spec keeps."""
+    return options.items() if options is not None else ()
+
+
+def _nonblank(owner: str, what: str, value: Any) -> None:
+    if not (isinstance(value, str) and value.strip()):
+        raise ValueError(f"{owner}: {what} must be a non-empty string, got {value!r}")
+
+
 class AgentSpec:
-    """A zoo agent by ``name``, or an external node started with ``command`` (any language; a string may use
-    shell syntax) and ``options``: the non-default fields of :class:`~proxybench.protocol.options.NodeOptions`
-    (working directory, transport, timeouts, reflection) as sorted pairs, so the spec stays hashable.
-    ``protocol``: ``"aido"`` (an AIDO agent node) or ``"sdk"`` (a duckietown-sdk program driving a virtual
-    DB21J over DTPS, :mod:`proxybench.dtps`; its options are :class:`~proxybench.dtps.options.SdkOptions`)."""
+    """What agent a job plays, one of three flavours (a tagged union: each holds only what it needs):
 
+    - :class:`InProcessAgent` (``name``): made in the worker's process from its name: a zoo agent, or what a
+      registered agent kind claims (a behaviour-cloning checkpoint ``X.pt``, :mod:`proxybench.agents.kinds`);
+    - :class:`NodeAgent` (``name``, ``command``, ``options``): an AIDO agent node started with ``command`` (any
+      language; a string may use shell syntax); ``options``: the non-default fields of
+      :class:`~proxybench.protocol.options.NodeOptions` (working directory, transport, timeouts, reflection) as
+      sorted pairs, so the spec stays hashable;
+    - :class:`SdkProgram` (``name``, ``command``, ``options``): a duckietown-sdk program driving a virtual DB21J
+      over DTPS (:mod:`proxybench.dtps`); its options are :class:`~proxybench.dtps.options.SdkOptions`.
+
+    ``AgentSpec(name)`` builds an :class:`InProcessAgent` (as ``Path(…)`` builds a ``PosixPath``);
+    :meth:`node` and :meth:`sdk` build the others from their options models. Every flavour has ``name``,
+    ``label`` and ``command`` (None in-process); :meth:`to_dict` / :meth:`from_dict` are its JSON form.
+    """
+
+    TAG: ClassVar[str]
     name: str
-    command: str | None = None
-    options: tuple[tuple[str, Any], ...] = ()
-    protocol: str = "aido"
+    command: str | None
 
-    @classmethod
-    def node(cls, name: str, command: str, options: Any = None) -> AgentSpec:
+    def __new__(cls, *args: Any, **kwargs: Any):
+        return object.__new__(InProcessAgent if cls is AgentSpec else cls)  # its __init__ takes the arguments
+
+    @staticmethod
+    def node(name: str, command: str, options: Any = None) -> NodeAgent:
         """A node agent; ``options``: a ``NodeOptions`` (or None for the defaults)."""
-        return cls(name, command, options.items() if options is not None else ())
+        return NodeAgent(name, command, _pairs(options))
 
-    @classmethod
-    def sdk(cls, name: str, command: str, options: Any = None) -> AgentSpec:
+    @staticmethod
+    def sdk(name: str, command: str, options: Any = None) -> SdkProgram:
         """A duckietown-sdk agent program; ``options``: an ``SdkOptions`` (or None for the defaults)."""
-        return cls(name, command, options.items() if options is not None else (), "sdk")
+        return SdkProgram(name, command, _pairs(options))
 
     @property
     def label(self) -> str:
         return self.name
 
-    def node_options(self):
-        """The ``NodeOptions`` of a node agent (``SdkOptions`` of an SDK agent)."""
-        if self.protocol == "sdk":
-            from proxybench.dtps.options import SdkOptions
+    def key_data(self) -> dict[str, Any]:
+        """What identifies the agent in a job's hash: its name and command (None in-process), its options and
+        protocol only when set (the keys this spec had as one class of flags, kept byte for byte)."""
+        raise NotImplementedError
 
-            return SdkOptions(**dict(self.options))
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON data, ``type`` naming the flavour (:meth:`from_dict` reads it back)."""
+        out: dict[str, Any] = {"type": self.TAG}
+        for f in fields(self):  # type: ignore[arg-type]
+            value = getattr(self, f.name)
+            out[f.name] = dict(value) if f.name == "options" else value
+        return out
+
+    @staticmethod
+    def from_dict(data: dict[str, Any]) -> AgentSpec:
+        flavours = {c.TAG: c for c in (InProcessAgent, NodeAgent, SdkProgram)}
+        data = dict(data)
+        tag = data.pop("type", None)
+        if tag not in flavours:
+            raise ValueError(f"agent spec: type must be one of {', '.join(flavours)}, got {tag!r}")
+        if "options" in data:
+            data["options"] = tuple(sorted(data["options"].items()))
+        return flavours[tag](**data)
+
+
+@dataclass(frozen=True)
+class InProcessAgent(AgentSpec):
+    """An agent made in the worker's process from its name: a zoo agent or a checkpoint (see :class:`AgentSpec`)."""
+
+    TAG: ClassVar[str] = "in-process"
+    name: str
+    command: ClassVar[None] = None  # no process of its own
+
+    def key_data(self) -> dict[str, Any]:
+        return {"name": self.name, "command": None}
+
+
+@dataclass(frozen=True)
+class _Process(AgentSpec):
+    """An agent in a process of its own, started with ``command``: what node agents and SDK programs share."""
+
+    name: str
+    command: str
+    options: _OPTION_PAIRS = ()
+
+    def __post_init__(self) -> None:
+        _nonblank(f"agent {self.name!r}", "command", self.command)
+
+    def key_data(self) -> dict[str, Any]:
+        data: dict[str, Any] = {"name": self.name, "command": self.command}
+        if self.options:
+            data["options"] = dict(self.options)
+        return data
+
+
+@dataclass(frozen=True)
+class NodeAgent(_Process):
+    """An AIDO agent node started with ``command`` (see :class:`AgentSpec`)."""
+
+    TAG: ClassVar[str] = "node"
+
+    def node_options(self):
+        """Its :class:`~proxybench.protocol.options.NodeOptions`."""
         from proxybench.protocol.options import NodeOptions
 
         return NodeOptions(**dict(self.options))
 
+
+@dataclass(frozen=True)
+class SdkProgram(_Process):
+    """A duckietown-sdk program driving a virtual robot over DTPS (see :class:`AgentSpec`): started like a node
+    agent, but speaking DTPS, with ``SdkOptions``."""
+
+    TAG: ClassVar[str] = "sdk"
+
+    def node_options(self):
+        """Its :class:`~proxybench.dtps.options.SdkOptions`."""
+        from proxybench.dtps.options import SdkOptions
+
+        return SdkOptions(**dict(self.options))
+
     def key_data(self) -> dict[str, Any]:
-        """What identifies the agent in a job's hash (options and protocol only when set, so older keys stay
-        valid)."""
-        data: dict[str, Any] = {"name": self.name, "command": self.command}
-        if self.options:
-            data["options"] = dict(self.options)
-        if self.protocol != "aido":
-            data["protocol"] = self.protocol
-        return data
+        return {**super().key_data(), "protocol": "sdk"}
 
 
 #: [Hz] the camera rate of :class:`~proxybench.domain.params.DomainParams` when nobody sets one
@@ -87,84 +177,101 @@ DEFAULT_FRAME_RATE = 15.0
 #: what a job's domain can be: a proxy instance S_θ, the built-in reality model, or a robot node (the robot
 #: protocol); a recording (``DomainKind.RECORDED``) is read, never run
 DOMAIN_KINDS = (DomainKind.SIMULATION, DomainKind.REALITY_MODEL, DomainKind.ROBOT)
+#: the kinds of a :class:`SimDomain`
+SIM_KINDS = (DomainKind.SIMULATION, DomainKind.REALITY_MODEL)
 
 
-@dataclass(frozen=True)
 class DomainSpec:
-    """A domain instance: a label, its parameters θ (a :class:`DomainParams`) and what kind of domain it is.
+    """A domain instance a job runs in, one of two flavours (a tagged union: each holds only what it needs):
 
-    ``kind`` is "simulation" for proxy instances, "reality-model" for the built-in stand-in target, and
-    "robot" for a robot node started with ``command`` (docs/robot-protocol.md: a physical robot's bridge,
-    another simulator, or ``proxybench robot serve``). A simulated domain without ``params`` has the default
-    θ. A robot is what it is: its θ is not ours to set, so ``params`` stays None, and its episodes are cached
-    by *what was asked* (the command string, map, episode, agent), not by what the robot is: after changing
-    the robot (recalibration, new firmware), use a fresh run directory or delete its cached episodes.
-    ``nodes``: how many processes of ``command`` may run at once on this machine (one per busy worker, up to
-    this; not part of any key): keep 1 for a bridge to one physical robot, raise it for a simulator node.
-    ``options``: how to start and talk to the node, the non-default fields of
-    :class:`~proxybench.protocol.options.RobotNodeOptions` (working directory, transport, timeouts,
-    reflection) as sorted pairs; of them only ``cwd`` is part of the key (it changes what the command runs; a
-    timeout or the transport does not change an episode). ``frame_rate`` [Hz]: what a robot node is asked to
-    step at (the benchmark's or the proxies' rate; a node that says its own rate is stepped at that); part of
-    the key when it is not the default 15 Hz. ``link``: how the robot is reached:
-    ``protocol`` (a robot node process, above) or ``dtps`` (a DTPS robot, :meth:`dtps`: ``command`` is then its
-    address ``HOST:PORT/PATH`` and ``options`` a :class:`~proxybench.dtps.robot_options.DtpsRobotOptions`).
+    - :class:`SimDomain` (``name``, ``params``, ``kind``): our simulator with parameters θ (a
+      :class:`DomainParams`; None: the default θ), ``kind`` "simulation" for proxy instances or "reality-model"
+      for the built-in stand-in target;
+    - :class:`RobotDomain` (``name``, ``link``, ``frame_rate``): a robot, reached by its ``link``: a
+      :class:`ProtocolLink` (a robot node process started with a command, docs/robot-protocol.md: a physical
+      robot's bridge, another simulator, ``proxybench robot serve``) or a :class:`DtpsLink` (a DTPS robot at an
+      address). ``frame_rate`` [Hz]: what the robot is asked to step at (the benchmark's or the proxies' rate; a
+      node that says its own rate is stepped at that). Its kind is "robot" and its θ is not ours to set
+      (``params`` None); its episodes are cached by *what was asked* (command or address, map, episode, agent),
+      not by what the robot is: after changing the robot (recalibration, new firmware), use a fresh run
+      directory or delete its cached episodes.
+
+    ``DomainSpec(name, params, kind)`` builds a :class:`SimDomain` (as ``Path(…)`` builds a ``PosixPath``);
+    :meth:`robot` and :meth:`dtps` build robot domains. Every flavour has ``name``, ``kind``, ``params`` and
+    :meth:`canonical` (what identifies it in a job's key); :meth:`to_dict` / :meth:`from_dict` are its JSON form.
     """
 
     name: str
-    params: DomainParams | None = None
-    kind: DomainKind = DomainKind.SIMULATION
-    command: str | None = None
-    nodes: int = 1
-    options: tuple[tuple[str, Any], ...] = ()
-    frame_rate: float = DEFAULT_FRAME_RATE
-    link: str = "protocol"
+    kind: DomainKind
+    params: DomainParams | None
 
-    @classmethod
-    def robot(cls, command: str, *, frame_rate: float, name: str | None = None, nodes: int = 1,
-              options: Any = None) -> DomainSpec:
-        """A robot domain stepped at ``frame_rate`` [Hz]; ``options``: a ``RobotNodeOptions`` (or None for the
-        defaults)."""
-        return cls(name or f"robot:{command}", kind=DomainKind.ROBOT, command=command, nodes=nodes,
-                   options=options.items() if options is not None else (), frame_rate=float(frame_rate))
+    def __new__(cls, *args: Any, **kwargs: Any):
+        extra = set(kwargs) - {"name", "params", "kind"} if cls is DomainSpec else ()
+        if extra:
+            raise TypeError(f"DomainSpec(name, params, kind) is a simulated domain, not {', '.join(sorted(extra))}: "
+                            f"a robot is DomainSpec.robot(COMMAND, frame_rate=…) or DomainSpec.dtps(ADDRESS, "
+                            f"frame_rate=…)")
+        return object.__new__(SimDomain if cls is DomainSpec else cls)  # its __init__ takes the arguments
 
-    @classmethod
-    def dtps(cls, address: Any, *, frame_rate: float, options: Any = None) -> DomainSpec:
+    @staticmethod
+    def robot(command: str, *, frame_rate: float, name: str | None = None, nodes: int = 1,
+              options: Any = None) -> RobotDomain:
+        """A robot node started with ``command``, stepped at ``frame_rate`` [Hz]; ``options``: a
+        ``RobotNodeOptions`` (or None for the defaults); ``nodes``: see :class:`ProtocolLink`."""
+        return RobotDomain(name or f"robot:{command}", ProtocolLink(command, _pairs(options), nodes),
+                           float(frame_rate))
+
+    @staticmethod
+    def dtps(address: Any, *, frame_rate: float, options: Any = None) -> RobotDomain:
         """The DTPS robot at ``address`` (a ``DtpsAddress``) stepped at ``frame_rate`` [Hz]; ``options``: a
         ``DtpsRobotOptions`` (or None for the defaults). One robot: one episode at a time."""
-        return cls(f"dtps:{address}", kind="robot", command=str(address), nodes=1,
-                   options=options.items() if options is not None else (), frame_rate=float(frame_rate), link="dtps")
+        return RobotDomain(f"dtps:{address}", DtpsLink(address, _pairs(options)), float(frame_rate))
 
-    def node_options(self):
-        """The ``RobotNodeOptions`` of a robot domain (``DtpsRobotOptions`` of a DTPS robot)."""
-        if self.link == "dtps":
-            from proxybench.dtps.robot_options import DtpsRobotOptions
+    def canonical(self) -> str:
+        """What identifies the domain in a job's key, as JSON: θ (``{}`` for a robot) and the kind; a robot's
+        command or address, working directory, rate and DTPS settings where they are set (the keys this spec
+        had as one class of flags, kept byte for byte)."""
+        raise NotImplementedError
 
-            return DtpsRobotOptions(**dict(self.options))
-        from proxybench.protocol.options import RobotNodeOptions
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON data, ``type`` naming the flavour (:meth:`from_dict` reads it back)."""
+        raise NotImplementedError
 
-        return RobotNodeOptions(**dict(self.options))
+    @staticmethod
+    def from_dict(data: dict[str, Any]) -> DomainSpec:
+        data = dict(data)
+        tag = data.pop("type", None)
+        if tag == "simulated":
+            params = data.pop("params", None)
+            return SimDomain(params=None if params is None else DomainParams.model_validate(params), **data)
+        if tag == "robot":
+            link = dict(data.pop("link"))
+            how = link.pop("type", None)
+            options = tuple(sorted((k, tuple(v) if isinstance(v, list) else v)
+                                   for k, v in link.pop("options", {}).items()))
+            if how == "protocol":
+                return RobotDomain(link=ProtocolLink(options=options, **link), **data)
+            if how == "dtps":
+                return RobotDomain(link=DtpsLink(link["address"], options), **data)
+            raise ValueError(f"robot domain: link type must be protocol or dtps, got {how!r}")
+        raise ValueError(f"domain spec: type must be simulated or robot, got {tag!r}")
+
+
+@dataclass(frozen=True)
+class SimDomain(DomainSpec):
+    """Our simulator with parameters θ, as a proxy instance or as the reality model (see :class:`DomainSpec`)."""
+
+    name: str
+    params: DomainParams | None = None  # None: the default θ (held as DomainParams() once built)
+    kind: DomainKind = DomainKind.SIMULATION
 
     def __post_init__(self) -> None:
-        if self.kind not in DOMAIN_KINDS:
-            raise ValueError(f"DomainSpec {self.name!r}: kind must be one of {', '.join(DOMAIN_KINDS)}, got "
-                             f"{str(self.kind)!r}")
+        if self.kind not in SIM_KINDS:
+            hint = (": a robot is DomainSpec.robot(COMMAND, frame_rate=…) or DomainSpec.dtps(…)"
+                    if self.kind == DomainKind.ROBOT else "")
+            raise ValueError(f"DomainSpec {self.name!r}: kind must be one of {', '.join(SIM_KINDS)} (a simulated "
+                             f"domain), got {str(self.kind)!r}{hint}")
         object.__setattr__(self, "kind", DomainKind(self.kind))  # a member, given its string or itself
-        if self.link not in ("protocol", "dtps") or (self.link == "dtps" and self.kind is not DomainKind.ROBOT):
-            raise ValueError(f"DomainSpec {self.name!r}: link must be 'protocol', or 'dtps' for a robot domain, got "
-                             f"{self.link!r} ({self.kind})")
-        if self.kind is DomainKind.ROBOT:
-            if not (isinstance(self.command, str) and self.command.strip()):
-                raise ValueError(f"DomainSpec {self.name!r}: a robot domain needs command= (the robot node to start)")
-            if self.params is not None:
-                raise ValueError(f"DomainSpec {self.name!r}: a robot domain takes no params (the robot's θ is its "
-                                 f"own; pass settings in its command)")
-            if not (isinstance(self.nodes, int) and self.nodes >= 1):
-                raise ValueError(f"DomainSpec {self.name!r}: nodes must be a positive integer, got {self.nodes!r}")
-            return
-        if self.command is not None or self.options:
-            raise ValueError(f"DomainSpec {self.name!r}: command= and options= are only for kind='robot', not "
-                             f"{self.kind!r}")
         if self.params is None:
             object.__setattr__(self, "params", DomainParams())
         elif not isinstance(self.params, DomainParams):  # θ crosses the job seam validated, once
@@ -172,21 +279,116 @@ class DomainSpec:
                             f"{type(self.params).__name__} (build one with DomainParams.model_validate)")
 
     def canonical(self) -> str:
-        """What identifies the domain in a job's key: θ as JSON (``{}`` for a robot), the kind, and a robot's
-        command, working directory and rate where they are set (so older keys stay valid)."""
-        params = self.params.model_dump(mode="json") if self.params is not None else {}
-        doc: dict[str, Any] = {"params": params, "kind": self.kind}
-        if self.command is not None:  # absent otherwise, so simulated domains keep their keys
-            doc["command"] = self.command
+        return json.dumps({"params": self.params.model_dump(mode="json"), "kind": self.kind}, sort_keys=True)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"type": "simulated", "name": self.name, "kind": str(self.kind),
+                "params": self.params.model_dump(mode="json")}
+
+
+@dataclass(frozen=True)
+class ProtocolLink:
+    """A robot node process started with ``command``, spoken to over the robot protocol. ``options``: how to
+    start and talk to it, the non-default fields of :class:`~proxybench.protocol.options.RobotNodeOptions`
+    (working directory, transport, timeouts, reflection) as sorted pairs; of them only ``cwd`` is part of the key
+    (it changes what the command runs; a timeout or the transport does not change an episode). ``nodes``: how
+    many processes of ``command`` may run at once on this machine (one per busy worker, up to this; not part of
+    any key): keep 1 for a bridge to one physical robot, raise it for a simulator node."""
+
+    command: str
+    options: _OPTION_PAIRS = ()
+    nodes: int = 1
+
+    def __post_init__(self) -> None:
+        _nonblank("robot node", "command (the robot node to start)", self.command)
+        if not (isinstance(self.nodes, int) and self.nodes >= 1):
+            raise ValueError(f"robot node {self.command!r}: nodes must be a positive integer, got {self.nodes!r}")
+
+    def node_options(self):
+        """Its :class:`~proxybench.protocol.options.RobotNodeOptions`."""
+        from proxybench.protocol.options import RobotNodeOptions
+
+        return RobotNodeOptions(**dict(self.options))
+
+    def key_data(self) -> dict[str, Any]:
+        data: dict[str, Any] = {"command": self.command}
         cwd = dict(self.options).get("cwd")
         if cwd is not None:  # absent otherwise, so robot domains without one keep their keys
-            doc["cwd"] = cwd
-        if self.kind is DomainKind.ROBOT and self.frame_rate != DEFAULT_FRAME_RATE:  # likewise
+            data["cwd"] = cwd
+        return data
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"type": "protocol", "command": self.command, "options": dict(self.options), "nodes": self.nodes}
+
+
+@dataclass(frozen=True)
+class DtpsLink:
+    """A DTPS robot at ``address`` (a ``DtpsAddress``; its text ``[dtps:]HOST[:PORT]/PATH`` is read into one).
+    ``options``: the non-default fields of :class:`~proxybench.dtps.robot_options.DtpsRobotOptions` as sorted
+    pairs; what changes its episodes (topics, how episodes start) is part of the key. One robot: one episode at a
+    time (``nodes`` is 1)."""
+
+    address: DtpsAddress
+    options: _OPTION_PAIRS = ()
+    nodes: ClassVar[int] = 1
+
+    def __post_init__(self) -> None:
+        if isinstance(self.address, str):
+            from proxybench.dtps.robot_options import parse_address
+
+            object.__setattr__(self, "address", parse_address(self.address))
+
+    @property
+    def command(self) -> str:
+        """The address as text, ``HOST:PORT/PATH``: what was asked, as a node's command is."""
+        return str(self.address)
+
+    def node_options(self):
+        """Its :class:`~proxybench.dtps.robot_options.DtpsRobotOptions`."""
+        from proxybench.dtps.robot_options import DtpsRobotOptions
+
+        return DtpsRobotOptions(**dict(self.options))
+
+    def key_data(self) -> dict[str, Any]:
+        return {"command": self.command, "link": "dtps", "dtps": self.node_options().key_data()}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"type": "dtps", "address": self.command, "options": dict(self.options)}
+
+
+@dataclass(frozen=True)
+class RobotDomain(DomainSpec):
+    """A robot reached by its ``link``, stepped at ``frame_rate`` [Hz] (see :class:`DomainSpec`)."""
+
+    name: str
+    link: ProtocolLink | DtpsLink
+    frame_rate: float = DEFAULT_FRAME_RATE
+    kind: ClassVar[DomainKind] = DomainKind.ROBOT
+    params: ClassVar[None] = None  # the robot's θ is its own
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.link, ProtocolLink | DtpsLink):
+            raise TypeError(f"DomainSpec {self.name!r}: link must be a ProtocolLink or a DtpsLink, got "
+                            f"{type(self.link).__name__}")
+
+    @property
+    def command(self) -> str:
+        """What was asked: the node's command, or the DTPS robot's address."""
+        return self.link.command
+
+    @property
+    def nodes(self) -> int:
+        """How many episodes may run on it at once (:class:`ProtocolLink`'s ``nodes``; 1 for a DTPS robot)."""
+        return self.link.nodes
+
+    def canonical(self) -> str:
+        doc: dict[str, Any] = {"params": {}, "kind": self.kind, **self.link.key_data()}
+        if self.frame_rate != DEFAULT_FRAME_RATE:  # absent otherwise, so robots at the default rate keep their keys
             doc["frame_rate"] = self.frame_rate
-        if self.link != "protocol":  # likewise; what changes a DTPS robot's episodes is part of its key
-            doc["link"] = self.link
-            doc["dtps"] = self.node_options().key_data()
         return json.dumps(doc, sort_keys=True)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"type": "robot", "name": self.name, "frame_rate": self.frame_rate, "link": self.link.to_dict()}
 
 
 @dataclass(frozen=True)
@@ -260,7 +462,7 @@ def _agent_id(spec: AgentSpec) -> dict[str, Any]:
     from proxybench.agents.zoo import ZOO
 
     out = spec.key_data()
-    if spec.command is None and spec.name not in ZOO:
+    if isinstance(spec, InProcessAgent) and spec.name not in ZOO:
         for kind_name, kind in kinds():
             if kind.claims(spec.name):
                 out[kind_name] = kind.identity(spec.name)  # "checkpoint": as before, so cached keys stay valid
@@ -282,9 +484,9 @@ def batch_group(job: Job) -> tuple:
     agent groups only with itself. Jobs on one robot domain share a node process whatever their agent, map
     or length (one after another).
     """
-    if job.domain.kind is DomainKind.ROBOT:
+    if isinstance(job.domain, RobotDomain):
         return (DomainKind.ROBOT, job.domain.canonical())
-    who = job.agent if job.agent.command else ("in-process", is_privileged(job.agent))
+    who = ("in-process", is_privileged(job.agent)) if isinstance(job.agent, InProcessAgent) else job.agent
     return (who, job.domain.canonical(), job.map, job.duration, job.camera_only, job.metrics, job.npcs, job.streams)
 
 
@@ -293,6 +495,6 @@ def is_privileged(spec: AgentSpec) -> bool:
     agent's ``privileged`` option; False for node agents and checkpoints (camera only)."""
     from proxybench.agents.zoo import ZOO
 
-    if spec.protocol == "sdk":
+    if isinstance(spec, SdkProgram):
         return bool(dict(spec.options).get("privileged", False))
-    return bool(spec.command is None and spec.name in ZOO and ZOO[spec.name].privileged)
+    return isinstance(spec, InProcessAgent) and spec.name in ZOO and bool(ZOO[spec.name].privileged)

@@ -10,26 +10,30 @@ import time
 from pathlib import Path
 
 from proxybench.domain.events import Termination
-from proxybench.runner.jobs import AgentSpec, Job, JobResult
+from proxybench.runner.jobs import AgentSpec, InProcessAgent, Job, JobResult, NodeAgent, SdkProgram
 
 __all__ = ["all_metrics", "camera_filter", "make_agent_for", "refused", "result_of"]
 
 
 def make_agent_for(spec: AgentSpec):
-    """The agent a spec names: a zoo agent in-process, a node process behind the protocol, or an SDK program."""
-    if spec.command and spec.protocol == "sdk":
-        from proxybench.dtps.agent import SdkAgent
+    """The agent a spec names: a zoo agent or checkpoint in-process, a node process behind the protocol, or an
+    SDK program."""
+    match spec:
+        case SdkProgram():
+            from proxybench.dtps.agent import SdkAgent
 
-        return SdkAgent(spec.command, name=spec.name, options=spec.node_options())
-    if spec.command:
-        from proxybench.protocol import RemoteAgent
+            return SdkAgent(spec.command, name=spec.name, options=spec.node_options())
+        case NodeAgent():
+            from proxybench.protocol import RemoteAgent
 
-        agent = RemoteAgent(spec.command, **spec.node_options().process_kwargs())
-        agent.name = spec.name
-        return agent
-    from proxybench.agents import make_agent
+            agent = RemoteAgent(spec.command, **spec.node_options().process_kwargs())
+            agent.name = spec.name
+            return agent
+        case InProcessAgent():
+            from proxybench.agents import make_agent
 
-    return make_agent(spec.name)
+            return make_agent(spec.name)
+    raise TypeError(f"not an agent spec: {spec!r}")
 
 
 def camera_filter():

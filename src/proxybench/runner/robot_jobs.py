@@ -1,10 +1,10 @@
 """How a worker runs the jobs of a robot domain: one node process per batch, episodes one after another.
 
-A robot domain (``DomainSpec(kind="robot", command=CMD)``) is a robot node reached through the robot
+A robot domain (``DomainSpec.robot(CMD, …)``, a ``RobotDomain``) is a robot node reached through the robot
 protocol (docs/robot-protocol.md): a physical robot's bridge, another simulator, ``proxybench robot serve``.
 Its jobs produce the same ``JobResult`` and trajectory files as simulated ones, through the same cache.
 The node is started once per batch and reused across its episodes; after a failure the next episode
-starts a fresh process. At most ``DomainSpec.nodes`` processes of one command run at once on a machine
+starts a fresh process. At most ``ProtocolLink.nodes`` processes of one command run at once on a machine
 (a lock file per slot in the temp directory), across workers and sweeps, so that a bridge to one
 physical robot is never started twice.
 """

@@ -94,7 +94,7 @@ def run_jobs(
 
     Jobs that can share a simulator run in batches of up to ``batch_size`` robots (smaller towards the
     end, so that no worker waits long for the last one); jobs on one robot domain run one after another on
-    one node process per batch, at most ``DomainSpec.nodes`` such processes at once (``runner.robot_jobs``).
+    one node process per batch, at most ``ProtocolLink.nodes`` such processes at once (``runner.robot_jobs``).
     ``progress(done, total, result)`` is called once at the start (result None) and after each job.
     """
     backend = backend or InlineBackend()

@@ -2,7 +2,7 @@
 
 CMD starts a process that speaks the robot protocol (docs/robot-protocol.md): a physical Duckiebot's
 bridge, another simulator, or ``proxybench robot serve``. Its episodes run through the runner as a robot
-domain (``DomainSpec(kind="robot")``), one after another on one node process, cached in the experiment's
+domain (``DomainSpec.robot``), one after another on one node process, cached in the experiment's
 run directory like every other episode: a sweep or an optimisation runs the target's episodes once and
 re-uses them for every θ, and an interrupted run resumes. proxybench cannot see a robot's θ nor tell a
 real robot from a simulator except by what the node says of itself, and reports it that way.

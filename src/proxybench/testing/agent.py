@@ -156,10 +156,11 @@ class AgentContract(Contract):
 
     @classmethod
     def for_spec(cls, spec: Any, **kwargs: Any) -> AgentContract:
-        """The agent a runner :class:`~proxybench.runner.jobs.AgentSpec` names (zoo, checkpoint or node)."""
+        """The agent a runner :class:`~proxybench.runner.jobs.AgentSpec` names (zoo, checkpoint, node or SDK
+        program)."""
         from proxybench.runner.outcomes import make_agent_for
 
-        what = f"agent node {spec.name!r}" if spec.command else f"agent {spec.name!r}"
+        what = f"agent {spec.name!r}" if spec.command is None else f"agent node {spec.name!r}"
         return cls(lambda: make_agent_for(spec), name=what, **kwargs)
 
     # -- playing ------------------------------------------------------------------------------------
