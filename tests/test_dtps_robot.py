@@ -91,8 +91,8 @@ def test_a_dtps_target_says_which_robot_and_what_it_was_told():
 
 def test_dtps_options_on_the_command_line_are_checked():
     run = subprocess.run([sys.executable, "-m", "proxybench", "target", "record", "--out", "x", "--agent", "pid",
-                          "--dtps", "bot.local/bot", "--dtps-option", "watchdg=1"], capture_output=True, text=True,
-                         timeout=120)
+                          "--target", "dtps:bot.local/bot", "--dtps-option", "watchdg=1"], capture_output=True,
+                         text=True, timeout=120)
     assert run.returncode == 2 and "unknown option 'watchdg'" in run.stderr + run.stdout
 
 
@@ -102,8 +102,9 @@ def test_dtps_options_on_the_command_line_are_checked():
 def test_a_fake_dtps_robot_is_recorded_checked_and_ranked(tmp_path):
     rec, out = tmp_path / "rec", tmp_path / "pred"
     with FakeRobot(tmp_path, START) as robot:
-        run = subprocess.run([sys.executable, "-m", "proxybench", "target", "record", "--out", str(rec), "--dtps",
-                              robot.address, "--dtps-reset", "teleport", "--agent", "straight", "--agent", "vision",
+        run = subprocess.run([sys.executable, "-m", "proxybench", "target", "record", "--out", str(rec),
+                              "--target", f"dtps:{robot.address}", "--dtps-reset", "teleport", "--agent", "straight",
+                              "--agent", "vision",
                               "--episodes", "2", "--seconds", "1.5", "--backend", "inline"],
                              capture_output=True, text=True, timeout=400)
         assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]

@@ -395,7 +395,7 @@ def test_a_recording_says_gym_and_keeps_only_the_hash_of_hidden_parameters(venv:
     theta = tmp_path / "theta.yaml"
     theta.write_text("trim: 0.1\ncamera_width: 80\ncamera_height: 60\nnonce: xyzzy\n")
     cmd = f"{sys.executable} -m proxybench.cli gym serve --param-file {theta} --secret"
-    res = CliRunner().invoke(app, ["target", "record", "--robot-cmd", cmd, "--agent", "pid", "--episodes", "1",
+    res = CliRunner().invoke(app, ["target", "record", "--target", f"robot:{cmd}", "--agent", "pid", "--episodes", "1",
                                    "--seconds", "1", "--out", str(tmp_path / "rec")])
     assert res.exit_code == 0, res.output
     manifest = (tmp_path / "rec" / "target.yaml").read_text()

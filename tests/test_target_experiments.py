@@ -52,7 +52,8 @@ def test_round_trip_recorded_reality_model_gives_the_live_figures(tmp_path):
     cfg = tmp_path / "exp.yaml"
     cfg.write_text(yaml.safe_dump(TINY))
     rec = tmp_path / "rec"
-    res = runner.invoke(app, ["target", "record", "--out", str(rec), "--reality", "--episodes", "2", "--seconds", "3",
+    res = runner.invoke(app, ["target", "record", "--out", str(rec), "--target", "reality", "--episodes", "2",
+                              "--seconds", "3",
                               "--backend", "inline", *[x for a in TINY["agents"] for x in ("--agent", a)]])
     assert res.exit_code == 0, res.output
     res = runner.invoke(app, ["target", "check", str(rec)])
@@ -149,9 +150,20 @@ def test_cli_reports_bad_targets_and_configs_by_name(tmp_path):
     assert res.exit_code == 2 and "agents: agent 'nobody' is not a zoo agent" in res.output
     res = runner.invoke(app, ["predictivity", "--sweep", "trim=a,b", "--out", str(tmp_path / "o")])
     assert res.exit_code == 2 and "expected NAME=V1,V2" in res.output
-    res = runner.invoke(app, ["target", "record", "--out", str(tmp_path / "r"), "--agent", "pid", "--reality",
-                              "--robot-cmd", "x"])
-    assert res.exit_code == 2 and "give one of --reality, --robot-cmd, --dtps" in res.output
+    record = ["target", "record", "--out", str(tmp_path / "r"), "--agent", "pid"]
+    res = runner.invoke(app, [*record, "--target", "reality", "--robot-cmd", "x"])  # the old flag beside the new
+    assert res.exit_code == 2 and "give one target: --target reality | robot:CMD" in res.output
+    res = runner.invoke(app, [*record, "--target", "robot:", "--robot-cwd", str(tmp_path)])
+    assert res.exit_code == 2 and "robot: needs the command that starts the robot node" in res.output
+    res = runner.invoke(app, [*record, "--robot-cwd", str(tmp_path)])  # no robot node to start with them
+    assert res.exit_code == 2 and "only with --target robot:CMD" in res.output
+    res = runner.invoke(app, [*record, "--target", str(tmp_path / "none")])
+    assert res.exit_code == 2 and "is not 'reality', 'robot:COMMAND'" in res.output
+    res = runner.invoke(app, [*record, "--dtps-reset", "teleport"])
+    assert res.exit_code == 2 and "only with --target dtps:" in res.output
+    res = runner.invoke(app, [*record, "--dtps", "bot.local/bot", "--dtps-option", "watchdg=1"])  # the old flag
+    assert res.exit_code == 2 and "--dtps is deprecated: say --target dtps:bot.local/bot" in res.output
+    assert "unknown option 'watchdg'" in res.output
 
 
 def test_score_saves_its_table_and_the_table_is_a_metrics_target(tmp_path):

@@ -61,7 +61,7 @@ def test_a_failing_robot_node_is_reported_and_nothing_recorded_is_lost(tmp_path)
 
 
 def test_a_recording_keeps_how_its_robot_node_was_started(tmp_path):
-    """Provenance: `target record --robot-cmd` stores the node's start-up options in target.yaml, `target
+    """Provenance: `target record --target robot:CMD` stores the node's start-up options in target.yaml, `target
     check` shows them, a resume from another working directory is refused, and a typo in them is named."""
     import yaml
     from typer.testing import CliRunner
@@ -73,8 +73,8 @@ def test_a_recording_keeps_how_its_robot_node_was_started(tmp_path):
     node_dir = tmp_path / "bridge"
     node_dir.mkdir()
     rec = tmp_path / "rec"
-    args = ["target", "record", "--out", str(rec), "--robot-cmd", ROBOT, "--agent", "straight", "--episodes", "1",
-            "--seconds", "1", "--image-size", "80x60", "--backend", "inline", "--robot-transport", "fifo",
+    args = ["target", "record", "--out", str(rec), "--target", f"robot:{ROBOT}", "--agent", "straight", "--episodes",
+            "1", "--seconds", "1", "--image-size", "80x60", "--backend", "inline", "--robot-transport", "fifo",
             "--robot-step-timeout", "15", "--robot-no-reflection"]
     res = runner.invoke(app, [*args, "--robot-cwd", str(node_dir)])
     assert res.exit_code == 0, res.output

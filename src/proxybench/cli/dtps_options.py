@@ -1,4 +1,4 @@
-"""How a DTPS robot target is driven, on the command line (``--target dtps:…``, ``target record --dtps …``).
+"""How a DTPS robot target is driven, on the command line (``--target dtps:…`` of the studies and ``target record``).
 
 The options users reach for are flags (``--dtps-reset``, ``--dtps-kind``); every field of
 :class:`~proxybench.dtps.robot_options.DtpsRobotOptions` is settable with ``--dtps-option KEY=VALUE``

@@ -1,5 +1,5 @@
 """The options that say how to start an agent node (`run`, `evaluate`, `agent check`) or a robot node (`run
---robot-cmd`, `predictivity` / `optimize` with `--target robot:CMD`, `target record --robot-cmd`).
+--robot-cmd`, `predictivity` / `optimize` with `--target robot:CMD`, `target record --target robot:CMD`).
 
 Typer declares options per command; rather than each command listing the same five, a command names one
 parameter and a decorator puts the five in its place: :func:`with_agent_node_options` (``--agent-cwd``,

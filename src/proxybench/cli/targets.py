@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shlex
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -28,16 +29,19 @@ def _fail(message: str, code: int = 2) -> None:
 
 
 @target_app.command("record")
-@with_robot_node_options()
+@with_robot_node_options(command="target", command_option="--target robot:CMD")
 def record(
     out: Path = typer.Option(..., "--out", help="directory of the recorded target (created; resumed if it exists)"),
     agent: list[str] = typer.Option(..., "--agent", help="zoo name, NAME=COMMAND, checkpoint or package (repeat)"),
-    reality: bool = typer.Option(False, "--reality", help="record the reality model (the default target)"),
-    robot_cmd: str | None = typer.Option(None, "--robot-cmd", help="record a robot node started with this command"),
+    target: str | None = typer.Option(None, "--target", help="what to record, named as every study names its target: "
+                                      "reality (the simulated reality model; the default) | robot:CMD (a robot node) "
+                                      "| dtps:HOST[:PORT]/PATH (a DTPS robot: a Duckiebot dtps:mybot.local/mybot, the "
+                                      "Duckiematrix dtps:127.0.0.1:7501/robot/map_0/vehicle_0)"),
+    reality: bool = typer.Option(False, "--reality", hidden=True, help="deprecated: --target reality"),
+    robot_cmd: str | None = typer.Option(None, "--robot-cmd", hidden=True, help="deprecated: --target robot:CMD"),
+    dtps: str | None = typer.Option(None, "--dtps", hidden=True, help="deprecated: --target dtps:HOST[:PORT]/PATH"),
     robot_nodes: int = typer.Option(1, min=1, help="robot node processes at once (1 for a physical robot)"),
     robot_options: RobotNodeOptions = None,  # the --robot-* options: with_robot_node_options
-    dtps: str | None = typer.Option(None, "--dtps", help="record the DTPS robot at HOST[:PORT]/PATH (a Duckiebot: "
-                                    "mybot.local/mybot; the Duckiematrix: 127.0.0.1:7501/robot/map_0/vehicle_0)"),
     dtps_reset: DtpsReset = None,
     dtps_kind: DtpsKind = None,
     dtps_option: DtpsOption = [],  # noqa: B006 (typer reads the default, never mutates it)
@@ -57,7 +61,8 @@ def record(
                                            "model only) into DIR/logs/<agent>/<episode>, for `proxybench localize`: "
                                            "auto or a layout file (docs/autolab.md)"),
 ) -> None:
-    """Record agents on a live target into DIR: one trajectory per (agent, episode) plus target.yaml.
+    """Record agents on a live target (--target: reality, robot:CMD or dtps:HOST[:PORT]/PATH) into DIR: one
+    trajectory per (agent, episode) plus target.yaml.
 
     Every finished episode is written at once; run the same command again after an interruption and only
     the missing episodes are recorded. Robot episodes run one after another (a DTPS robot's in real time,
@@ -71,17 +76,16 @@ def record(
     from proxybench.targets.record import record_target
     from proxybench.targets.spec import open_target
 
-    if sum(map(bool, (reality, robot_cmd, dtps))) > 1:
-        _fail("give one of --reality, --robot-cmd, --dtps")
+    text = _target_text(target, reality, robot_cmd, dtps)
     dtps_given = dtps_option_values(dtps_reset, dtps_kind, dtps_option)
-    if dtps_given and not dtps:
-        _fail("--dtps-reset, --dtps-kind, --dtps-option: only with --dtps (they say how to drive a DTPS robot)")
+    if dtps_given and not text.startswith("dtps:"):
+        _fail("--dtps-reset, --dtps-kind, --dtps-option: only with --target dtps:… (they say how to drive a DTPS "
+              "robot)")
     try:
         from proxybench.dtps.robot_options import DtpsRobotOptions
 
-        text = f"robot:{robot_cmd}" if robot_cmd else f"dtps:{dtps}" if dtps else "reality"
-        target = open_target(text, params=key_values(target_param, "--target-param") or None, robot_nodes=robot_nodes,
-                             robot_options=robot_options, dtps_options=DtpsRobotOptions(**dtps_given))
+        live = open_target(text, params=key_values(target_param, "--target-param") or None, robot_nodes=robot_nodes,
+                           robot_options=robot_options, dtps_options=DtpsRobotOptions(**dtps_given))
         specs = parse_agents(agent, out / ".agents")
     except (TargetError, AgentArgError, ValueError) as exc:
         _fail(str(exc))
@@ -100,11 +104,13 @@ def record(
 
         def on_streams(res, folder):
             result_log(res, folder, layout, map_name, seconds, "reality-model")
-    be = make_backend(backend, min(workers or robot_nodes, robot_nodes) if robot_cmd else 1 if dtps else workers)
+    robot = text.startswith("robot:")
+    be = make_backend(backend, min(workers or robot_nodes, robot_nodes) if robot else 1 if text.startswith("dtps:")
+                      else workers)
     t0 = time.perf_counter()
     with status("recording") as spinner:
         try:
-            summary = record_target(out, target, specs, map_name=map_name, seconds=seconds, episodes=episodes,
+            summary = record_target(out, live, specs, map_name=map_name, seconds=seconds, episodes=episodes,
                                     seed=seed, image_size=(size[0], size[1]), description=description, who=who,
                                     where=where, when=when or time.strftime("%Y-%m-%d"), backend=be,
                                     progress=lambda d, t: spinner.update(f"recording: episode {d}/{t}"),
@@ -120,6 +126,21 @@ def record(
     for line in summary.failed:
         problem(line, mark="agent failure recorded:", style="yellow")
     console.print(f"check it with: proxybench target check {out}", highlight=False)
+
+
+def _target_text(target: str | None, reality: bool, robot_cmd: str | None, dtps: str | None) -> str:
+    """The target's text, ``reality`` by default; the flags it replaced (--reality, --robot-cmd, --dtps) still
+    name one, with a notice."""
+    old = [(flag, text) for flag, text in (("--reality", "reality" if reality else None),
+                                           ("--robot-cmd", robot_cmd and f"robot:{robot_cmd}"),
+                                           ("--dtps", dtps and f"dtps:{dtps.removeprefix('dtps:')}")) if text]
+    if not old:
+        return target or "reality"
+    if target is not None or len(old) > 1:
+        _fail("give one target: --target reality | robot:CMD | dtps:HOST[:PORT]/PATH")
+    (flag, text), = old
+    problem(f"{flag} is deprecated: say --target {shlex.quote(text)}", mark="note:", style="yellow")
+    return text
 
 
 @target_app.command("check")
