@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from proxybench.cli import app
 from proxybench.cli.studies import add_study_commands, study_command
-from proxybench.experiments.study import BUILTIN, StudyConfig, Study, register, studies, study
+from proxybench.experiments.study import BUILTIN, Study, StudyConfig, register, studies, study
 from proxybench.testing import StudyContract
 
 ENV = {"COLUMNS": "200", "NO_COLOR": "1"}
@@ -36,13 +36,15 @@ def test_every_registered_study_passes_the_study_contract(name):
 
 def test_the_contract_catches_a_study_that_accepts_unknown_keys_or_has_no_name():
     class Loose(StudyConfig):
-        model_config = {"extra": "ignore", "frozen": True}
+        model_config = {"extra": "ignore", "frozen": True}  # noqa: RUF012 - pydantic's
         n: int = 1
 
     class Bad(Study[Loose, dict]):
+        """h"""
+
         name = "Bad Name"
         config = Loose
-        help, out = "h", "out/bad"
+        out = "out/bad"
 
         def run(self, config, out, backend, progress, *, quick=False):
             return {}
@@ -62,7 +64,7 @@ def test_the_contract_catches_a_study_that_accepts_unknown_keys_or_has_no_name()
 def test_an_unknown_study_name_lists_the_registered_ones():
     from proxybench.experiments.study import ConfigError
 
-    with pytest.raises(ConfigError, match="registered: .*predictivity"):
+    with pytest.raises(ConfigError, match=r"registered: .*predictivity"):
         study("predictivty")
 
 
@@ -77,9 +79,10 @@ def test_a_registered_study_runs_through_its_generated_command(tmp_path):
     """A study of a user's own (as an entry point would register it): options, --config, --quick, the report."""
 
     class Count(Study[_CountConfig, dict]):
+        """Count to a number (a study of a user's own)."""
+
         name = "count-demo"
         config = _CountConfig
-        help = "Count to a number (a study of a user's own)."
         out = str(tmp_path / "default")
 
         def run(self, config, out, backend, progress, *, quick=False):

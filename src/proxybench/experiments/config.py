@@ -13,6 +13,7 @@ file with every field (tests/test_config_options.py holds it to this model).
 from __future__ import annotations
 
 import difflib
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
@@ -450,10 +451,15 @@ class ExperimentStudy(Study[ExperimentConfig, Any]):
     options, less ``exclude``; defaults worded as :func:`default_help` words ``command``'s (``extra_defaults``
     beside)."""
 
-    command: ClassVar[Literal["predictivity", "optimize", "plan"]] = "predictivity"
+    #: whose defaults (:data:`COMMAND_DEFAULTS`) a field left unset takes: the study's own name's by default
+    defaults_of: ClassVar[Literal["predictivity", "optimize", "plan"] | None] = None
     config: ClassVar[type[ExperimentConfig]] = ExperimentConfig
     config_help = "experiment file (YAML; every field: docs/targets.md)"
     extra_defaults: ClassVar[dict[str, str]] = {}
+
+    @property
+    def command(self) -> Literal["predictivity", "optimize", "plan"]:
+        return self.defaults_of or typing.cast(Literal["predictivity", "optimize", "plan"], self.name)
 
     def help_defaults(self) -> dict[str, str]:
         return default_help(self.command) | self.extra_defaults

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import inspect
 import types
 import typing
 from abc import ABC, abstractmethod
@@ -217,28 +218,36 @@ Progress = Callable[[str, int, int], None]
 class Study(ABC, Generic[C, R]):
     """One study: what its command is called, its settings, how it runs and how its result is reported.
 
-    Subclass it in the study's folder, set the class attributes, implement :meth:`run` and :meth:`write_report`,
-    and decorate the class with :func:`register`. The module holding the class must import nothing heavy at
-    module level (the CLI builds every study's options at start): import the simulator, the runner and the
-    report inside the methods. ``run`` returns a typed result (a dataclass or a model, never a dict read by
-    key); ``write_report`` and ``show`` read that result only and run no episodes.
+    Subclass it in the study's folder, write its ``--help`` as the class's docstring, set the class attributes,
+    implement :meth:`run` and :meth:`write_report`, and decorate the class with :func:`register`. The module
+    holding the class must import nothing heavy at module level (the CLI builds every study's options at start):
+    import the simulator, the runner and the report inside the methods. ``run`` returns a typed result (a
+    dataclass or a model, never a dict read by key); ``write_report`` and ``show`` read that result only and run
+    no episodes.
     """
 
     #: the command's name (``proxybench NAME``)
     name: ClassVar[str]
     #: the config model: every field a generated option
     config: ClassVar[type[StudyConfig]]
-    #: the command's ``--help``: a first line, then a paragraph
-    help: ClassVar[str]
     #: what ``--quick`` does (its ``--help``)
     quick_help: ClassVar[str] = "a small, fast version of the study"
-    #: the default ``--out`` folder and what it holds
-    out: ClassVar[str]
+    #: what the ``--out`` folder holds
     out_help: ClassVar[str] = "report folder and episode cache (OUT/runs)"
     #: dotted config fields without an option
     exclude: ClassVar[tuple[str, ...]] = ()
     #: ``--config``'s help
     config_help: ClassVar[str] = "settings file (YAML or JSON) with any of the options below by their field names"
+
+    @property
+    def out(self) -> str:
+        """The default ``--out`` folder: ``out/NAME`` (a class attribute ``out`` overrides it)."""
+        return f"out/{self.name}"
+
+    @property
+    def help(self) -> str:
+        """The command's ``--help``: the study class's own docstring (a first line, then a paragraph)."""
+        return inspect.cleandoc(type(self).__doc__ or "")
 
     def help_defaults(self) -> dict[str, str]:
         """Dotted field → how ``--help`` words a default settled only when the study runs (by ``--quick``)."""

@@ -62,14 +62,14 @@ class StudyContract(Contract):
                 raise CheckFailed(f"load: gave a {type(cfg).__name__}, not its config {st.config.__name__}")
         try:
             st.load(None, {"no_such_field": 1})
-        except Exception as exc:  # noqa: BLE001 - any refusal will do, if it names the key
+        except Exception as exc:  # any refusal will do, if it names the key
             if "no_such_field" not in str(exc):
                 raise CheckFailed(f"an unknown key is refused without naming it: {exc}") from None
         else:
             raise CheckFailed("an unknown key (no_such_field) was accepted")
         try:
             setattr(full, next(iter(st.config.model_fields)), None)
-        except Exception:  # noqa: BLE001 - frozen: any refusal
+        except Exception:  # frozen: any refusal
             pass
         else:
             raise CheckFailed("the config can be changed after it is loaded (it must be frozen)")

@@ -17,18 +17,17 @@ __all__ = ["HeldOutStudy"]
 
 @register
 class HeldOutStudy(Study[HeldOutConfig, "HeldOutResult"]):
-    name = "heldout"
-    config = HeldOutConfig
-    config_help = "experiment file (YAML; fields of HeldOutConfig)"
-    help = """Score PRPV, PPV, SRCC (Pearson), Spearman, Kendall and MMRV on targets they were not tuned on.
+    """Score PRPV, PPV, SRCC (Pearson), Spearman, Kendall and MMRV on targets they were not tuned on.
 
     Held-out targets (simulated, with structural differences the proxies cannot express and a θ drawn from a
     hidden seed) and the standing negative case are run as black boxes; the pass criteria are written to
     OUT/criteria.json before any episode runs; hit rates come with Wilson intervals. Episodes are cached
     in OUT/runs, so an interrupted run resumes.
     """
+
+    name = "heldout"
+    config = HeldOutConfig
     quick_help = "3 held-out targets + the negative case, 8 agents, 3×3 grid, 2 + 4 episodes × 12 s"
-    out = "out/heldout"
     out_help = "report folder (report.html, figures, tables, runs/)"
 
     def help_defaults(self) -> dict[str, str]:

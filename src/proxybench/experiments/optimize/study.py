@@ -18,17 +18,16 @@ __all__ = ["OptimizeStudy"]
 
 @register
 class OptimizeStudy(ExperimentStudy):
-    name = "optimize"
-    command = "optimize"
-    help = """Find the simulator parameters θ* whose agent ranking best matches the target's (Optuna).
+    """Find the simulator parameters θ* whose agent ranking best matches the target's (Optuna).
 
     The target's episodes run (or are read) once; every trial replays them in its proxy. A known truth
     (the reality model's, or --truth) is printed beside what was recovered; the search never sees it.
     With --objective plv: the proxy (θ, or with --family p(θ)) that saves a learning agent the most target
     samples, against the reality model; PLV settings in the experiment file's `plv:` (docs/learning.md).
     """
+
+    name = "optimize"
     quick_help = "8 agents × 2 episodes × 12 s, at most 20 trials (plv: PLVConfig.quick(), 4 trials)"
-    out = "out/optimize"
     out_help = "folder for plots, trials table and episode cache"
     exclude = ("sweep", "pod_seconds", "plan")
 

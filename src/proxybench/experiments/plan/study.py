@@ -17,9 +17,7 @@ __all__ = ["PlanStudy"]
 
 @register
 class PlanStudy(ExperimentStudy):
-    name = "plan"
-    command = "plan"
-    help = """Plan target episodes: n per agent to settle every pair of agents, for a PRPV interval of a given width, or
+    """Plan target episodes: n per agent to settle every pair of agents, for a PRPV interval of a given width, or
     for a given chance of the right θ.
 
     Pairs within the task's tolerance ε count as ties, so every pair settles with finitely many episodes; the
@@ -27,8 +25,9 @@ class PlanStudy(ExperimentStudy):
     experiments with n episodes per agent are simulated in worlds drawn from it (docs/usefulness.md); --sweep
     gives candidate θ to pick among. Episodes are cached in OUT/runs: `predictivity --out OUT` re-uses them.
     """
+
+    name = "plan"
     quick_help = "6 agents × 3 pilot episodes × 8 s; --sequential: budget 4"
-    out = "out/plan"
     out_help = "folder for plan.json, tables, plan.png and the episode cache"
     exclude = ("search", "plv", "n_boot", "pod_seconds", "truth")
 

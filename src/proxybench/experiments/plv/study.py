@@ -16,10 +16,7 @@ __all__ = ["PLVStudy"]
 
 @register
 class PLVStudy(Study[PLVConfig, "PLVResult"]):
-    name = "plv"
-    config = PLVConfig
-    config_help = "YAML or JSON file of PLVConfig fields (sections: train: {max_steps: 100}, eval, ...)"
-    help = """How many target samples does pre-training on a proxy save a behaviour-cloning agent? \
+    """How many target samples does pre-training on a proxy save a behaviour-cloning agent? \
 (Table 3.1, Fig. 3.6)
 
     The target is the reality model, a *simulated* stand-in for a real Duckiebot, or a robot node (--target);
@@ -27,8 +24,11 @@ class PLVStudy(Study[PLVConfig, "PLVResult"]):
     fitted learning curves (a continuous crossing of P) with bootstrap intervals over seeds; the ladder rule is
     shown beside it. Work is cached in OUT/cache, so an interrupted run resumes.
     """
+
+    name = "plv"
+    config = PLVConfig
+    config_help = "YAML or JSON file of PLVConfig fields (sections: train: {max_steps: 100}, eval, ...)"
     quick_help = "40×30 frames, short ladder, 3 seeds (minutes)"
-    out = "out/plv"
     out_help = "report folder (figure, tables, report.html) and cache"
 
     def help_defaults(self) -> dict[str, str]:

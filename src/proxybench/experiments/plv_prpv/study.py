@@ -16,17 +16,17 @@ __all__ = ["PLVvsPRPVStudy"]
 
 @register
 class PLVvsPRPVStudy(ExperimentStudy):
-    name = "plv-vs-prpv"
-    command = "predictivity"
-    help = """Do the two uses of a simulator pick the same θ? argmin PRPV (predict) and argmax PLV (teach) on \
+    """Do the two uses of a simulator pick the same θ? argmin PRPV (predict) and argmax PLV (teach) on \
 one target.
 
     For every candidate θ: PRPV of the agents' replays with its order range and the paired difference to the
     lowest, and PLV of a network pre-trained on it (fitted curves) with its interval; then both picks and their
     tied sets (docs/learning.md). Work is cached in OUT, so an interrupted run resumes.
     """
+
+    name = "plv-vs-prpv"
+    defaults_of = "predictivity"
     quick_help = "the quick predictivity defaults and PLVConfig.quick()"
-    out = "out/plv-vs-prpv"
     out_help = "folder for choice.json/.csv/.png and the caches"
     exclude = ("search", "plan", "pod_seconds", "truth", "dtps_options")
     extra_defaults = {"sweep": "camera_pitch=12,19.15,26 (one parameter changed at a time)"}  # noqa: RUF012

@@ -17,16 +17,15 @@ __all__ = ["PredictivityStudy", "ci"]
 
 @register
 class PredictivityStudy(ExperimentStudy):
-    name = "predictivity"
-    command = "predictivity"
-    help = """Rank agents on a target and on swept simulator instances; PRPV, PPV, SRCC, POD beside \
+    """Rank agents on a target and on swept simulator instances; PRPV, PPV, SRCC, POD beside \
 the target's noise floor.
 
     Proxies replay each target episode from its start pose and seed. Episodes are cached in OUT/runs, so
     an interrupted run resumes where it stopped; a recorded target costs no simulation.
     """
+
+    name = "predictivity"
     quick_help = "12 agents × 3 episodes × 20 s (a minute or two)"
-    out = "out/predictivity"
     out_help = "report folder (figures, tables, report.html) and episode cache (OUT/runs)"
     exclude = ("search", "plan", "plv")
 

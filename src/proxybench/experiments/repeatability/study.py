@@ -17,16 +17,16 @@ __all__ = ["RepeatabilityStudy"]
 
 @register
 class RepeatabilityStudy(Study[RepeatabilityConfig, "RepeatabilityResult"]):
-    name = "repeatability"
-    config = RepeatabilityConfig
-    help = """MPD / MOD of one agent, thesis §5.4: one robot, robots, labs (figs. 5.8–5.10).
+    """MPD / MOD of one agent, thesis §5.4: one robot, robots, labs (figs. 5.8–5.10).
 
     MPD is the mean signed lateral offset from the lane centre along the route [cm] (+ = left), MOD the
     mean heading error [deg]; STD is the run-to-run standard deviation along the route. The target is the
     reality model (simulated stand-ins for Duckiebots) unless --recorded or --robot-cmd is given.
     """
+
+    name = "repeatability"
+    config = RepeatabilityConfig
     quick_help = "the same designs (the study is small; kept for a uniform command line)"
-    out = "out/repeatability"
     out_help = "folder for the tables and the plots"
 
     def help_defaults(self) -> dict[str, str]:

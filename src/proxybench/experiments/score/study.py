@@ -28,15 +28,16 @@ class ScoreConfig(ExperimentConfig):
 
 @register
 class ScoreStudy(ExperimentStudy):
-    name = "score-proxy"
-    command = "predictivity"
-    config = ScoreConfig
-    help = """Score one θ against a target (PRPV, PPV, SRCC with intervals) and compare it with another θ, paired.
+    """Score one θ against a target (PRPV, PPV, SRCC with intervals) and compare it with another θ, paired.
 
     Both θ replay the same target episodes, so ΔPRPV has a paired interval; the nominal calibration, the
     no-simulator baselines and the target's noise floor are shown beside them. Split a recording with
     --episodes (e.g. fit θ with `optimize --episodes 0-4`, score it here with --episodes 5-9).
     """
+
+    name = "score-proxy"
+    defaults_of = "predictivity"
+    config = ScoreConfig
     quick_help = "the live target's quick episodes (12 agents × 3 × 20 s)"
     out = "out/score"
     out_help = "score.json and the episode cache (OUT/runs)"

@@ -6,19 +6,22 @@ measures are :mod:`proxybench.usefulness.validation`'s; the report reads these m
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from proxybench.usefulness.validation import Comparison
+
 __all__ = ["QUALITIES", "HitRate", "MeasureSummary", "MethodSummary", "Pick", "Primary", "Quality", "TargetRecord",
-           "ValidationSummary", "oracle_steps", "regrets"]
+           "ValidationSummary", "oracle_steps", "regrets"]  # Comparison: usefulness.validation's
 
 QUALITIES = ("prpv_norm", "kendall_gap", "top1_regret", "topk_regret")
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, use_attribute_docstrings=True)
 
 
 class Quality(_Model):
@@ -83,23 +86,6 @@ def oracle_steps(rec: TargetRecord, index: int, grid: dict[str, tuple[float, ...
     return int(min(np.max(np.abs(here - np.array(where(o), float))) for o in oracles))
 
 
-class Comparison(_Model):
-    """A paired comparison of regrets over targets (:class:`proxybench.usefulness.validation.Comparison`)."""
-
-    a: str
-    b: str
-    n: int
-    mean: float
-    low: float
-    high: float
-    wins: int
-    losses: int
-    ties: int
-    p_wilcoxon: float
-    p_t: float
-    sd: float
-
-
 class MeasureSummary(_Model):
     """One quality measure of a method: its mean regret and its paired comparison with the nominal θ."""
 
@@ -141,6 +127,7 @@ class CriteriaCheck(_Model):
         return float(self.minimum_detectable_effect["d_z"])
 
 
+@dataclass(frozen=True)
 class Primary(Comparison):
     """The pre-registered test: PRPV's regret against the nominal θ's, at ``alpha``."""
 
@@ -155,12 +142,21 @@ class ValidationSummary(_Model):
     target) and the targets' revealed θ."""
 
     family: str
+    """the target family"""
     targets: int
+    """targets finished (and summarised)"""
     targets_planned: int
+    """targets pre-registered"""
     interim: bool
+    """fewer finished than planned: an interim look, no decision"""
     settings: dict[str, Any]
+    """the study's settings as criteria.json holds them"""
     methods: dict[str, MethodSummary]
+    """per selection method, its regrets against the nominal θ's"""
     criteria: CriteriaCheck
+    """what was pre-registered, checked against the code that scored"""
     primary: Primary | None = None
+    """the pre-registered test (None where PRPV picked on no target)"""
     truths: list[dict[str, float]] = []
+    """each target's θ, revealed after scoring"""
     wall_s: float = 0.0

@@ -414,7 +414,7 @@ def summarize(run: ValidationRun, criteria: dict[str, Any] | None = None) -> Val
             finite = np.asarray(rg, float)[np.isfinite(rg)]
             measures[measure] = MeasureSummary(
                 mean_regret=float(finite.mean()) if finite.size else float("nan"),
-                vs_nominal=compare(method, "nominal", rg, nominal[measure], seed=s.seed).as_dict())
+                vs_nominal=compare(method, "nominal", rg, nominal[measure], seed=s.seed))
         hits = [oracle_steps(r, r.picks[method].index, s.grid) <= 1 for r in recs if method in r.picks]
         lo, hi = wilson(sum(hits), len(hits)) if hits else (float("nan"), float("nan"))
         out[method] = MethodSummary(**measures, hit_rate=HitRate(hits=int(sum(hits)), targets=len(hits), low=lo,
@@ -427,7 +427,7 @@ def summarize(run: ValidationRun, criteria: dict[str, Any] | None = None) -> Val
         mde = check.d_z
         if interim:  # what the targets finished so far can detect, not what the full study will
             mde = minimum_detectable_effect(len(recs), s.alpha, s.power)
-        primary = Primary(**first.model_dump(), alpha=s.alpha, rejected=bool(first.p_wilcoxon < s.alpha), d_z=mde,
+        primary = Primary(**first.as_dict(), alpha=s.alpha, rejected=bool(first.p_wilcoxon < s.alpha), d_z=mde,
                           minimum_detectable_difference=float(mde * first.sd) if np.isfinite(first.sd)
                           else float("nan"))
     indices = run.indices or list(range(len(recs)))

@@ -17,14 +17,14 @@ __all__ = ["ValidateStudy"]
 
 @register
 class ValidateStudy(Study[ValidateConfig, "ValidationResult"]):
-    name = "validate"
-    config = ValidateConfig
-    help = """Run the validation study (docs/validate.md): per target, choose θ with one half of the agents on some
+    """Run the validation study (docs/validate.md): per target, choose θ with one half of the agents on some
     target episodes, judge the choice on the other half on fresh episodes, against the nominal θ and the
     oracle θ. criteria.json is written before the first episode; every episode is cached, so an interrupted
     study resumes. Writes report.html, summary.json, targets.csv and figures to --out."""
+
+    name = "validate"
+    config = ValidateConfig
     quick_help = "3 targets, 8 agents, 2 + 2 episodes of 6 s, a 3×3 grid"
-    out = "out/validate"
     out_help = "folder for criteria.json, the runs and the report"
 
     def help_defaults(self) -> dict[str, str]:
