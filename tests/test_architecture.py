@@ -40,8 +40,9 @@ def _modules() -> dict[str, Path]:
     return {_module_name(p): p for p in SRC.rglob("*.py") if "migrations" not in p.parts}
 
 
-def _imports(path: Path, name: str, known: set[str]) -> set[str]:
-    """The proxybench modules ``path`` imports (resolved to the longest known module), TYPE_CHECKING aside."""
+def _imports(path: Path, name: str, known: set[str], type_only: bool = False) -> set[str]:
+    """The proxybench modules ``path`` imports (resolved to the longest known module), TYPE_CHECKING aside (or,
+    with ``type_only``, included: annotations are dependencies of a reader too)."""
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     out: set[str] = set()
 
@@ -52,7 +53,7 @@ def _imports(path: Path, name: str, known: set[str]) -> set[str]:
 
     def visit(node: ast.AST) -> None:
         for child in ast.iter_child_nodes(node):
-            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test) and not type_only:
                 for sub in child.orelse:
                     visit(sub)
                 continue
@@ -98,13 +99,14 @@ def test_imports_point_down_the_layers(graph):
     assert not up, "imports that point up (or sideways) the layers of docs/DESIGN.md:\n" + "\n".join(up)
 
 
-def test_no_import_cycles(graph):
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan's)."""
     index: dict[str, int] = {}
     low: dict[str, int] = {}
     stack: list[str] = []
     cycles: list[list[str]] = []
 
-    def strong(v: str) -> None:  # Tarjan's strongly connected components
+    def strong(v: str) -> None:
         index[v] = low[v] = len(index)
         stack.append(v)
         for w in graph.get(v, ()):
@@ -126,7 +128,18 @@ def test_no_import_cycles(graph):
     for v in sorted(graph):
         if v not in index:
             strong(v)
-    assert not cycles, f"import cycles: {cycles}"
+    return cycles
+
+
+def test_no_import_cycles(graph):
+    assert not _cycles(graph), f"import cycles: {_cycles(graph)}"
+
+
+def test_no_import_cycles_even_through_annotations():
+    """Issue 33: not even a type-only circle (an ``if TYPE_CHECKING:`` import back): a reader follows those too."""
+    mods = _modules()
+    full = {name: _imports(path, name, set(mods), type_only=True) for name, path in mods.items()}
+    assert not _cycles(full), f"import cycles through annotations: {_cycles(full)}"
 
 
 #: a script gym-duckietown's interpreter runs: the Simulator it builds is gym's, not proxybench's
