@@ -67,7 +67,7 @@ def _admitted(bench, spec):
     checkpoint or an AIDO node is camera-only until its handshake says otherwise, which the episodes enforce)."""
     from proxybench.runner.jobs import is_privileged
 
-    if bench.camera_only and is_privileged(spec):
+    if bench is not None and bench.camera_only and is_privileged(spec):  # None: no benchmark read (a package check)
         raise SubmissionFault(f"agent {spec.name!r} is privileged (reads the true lane pose); benchmark "
                               f"{bench.name!r} admits camera-only agents")
     return spec
