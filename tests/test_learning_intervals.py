@@ -5,7 +5,6 @@ Every expected number here is computed by hand in the comments.
 
 from __future__ import annotations
 
-import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -147,11 +146,11 @@ def test_optimize_plv_searches_instances_and_families_and_resumes(tmp_path):
         PLVSearch({"camera_pitch": (30.0, 10.0)})
     search = PLVSearch({"camera_pitch": (10.0, 30.0)}, trials=2, sampler="random", storage=str(tmp_path / "s.db"))
     res = optimize_plv(search, _tiny(), tmp_path / "work")
-    assert len(res.trials) == 2 and res.best["value"] == max(t["value"] for t in res.trials)
-    assert all(t["proxy"].startswith("proxy:camera_pitch=") and "plv_ci" in t for t in res.trials)
+    assert len(res.trials) == 2 and res.best.value == max(t.value for t in res.trials)
+    assert all(t.proxy.startswith("proxy:camera_pitch=") and t.plv_ci for t in res.trials)
     again = optimize_plv(search, _tiny(), tmp_path / "work")  # the stored study has its trials: none added
-    assert [t["number"] for t in again.trials] == [0, 1]
+    assert [t.number for t in again.trials] == [0, 1]
     fam = optimize_plv(PLVSearch({"camera_pitch": (10.0, 30.0)}, trials=1, family=True, sampler="random"),
                        _tiny(), tmp_path / "work")
-    lo, hi = json.loads(fam.best["proposal"])["camera_pitch"]["uniform"]
-    assert 10.0 <= lo <= hi <= 30.0 and fam.best["proxy"].startswith("family-") and not fam.separated
+    lo, hi = fam.best.proposal["camera_pitch"]["uniform"]
+    assert 10.0 <= lo <= hi <= 30.0 and fam.best.proxy.startswith("family-") and not fam.separated

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from proxybench.experiments.optimize.run import tied_set
+from proxybench.experiments.optimize.run import Trial, tied_set
 
 
 def _target(seed: int = 0) -> dict[str, np.ndarray]:
@@ -20,8 +20,7 @@ def _case(order: list[int]):
     thetas = [0.05 * (i + 1) for i in range(10)] + [0.9, 1.0]
     trials, proxies = [], {}
     for number, j in enumerate(order):
-        trials.append({"number": number, "value": 0.0 if j < 10 else 30.0, "prpv": 0.0 if j < 10 else 30.0,
-                       "trim": thetas[j]})
+        trials.append(Trial(number, 0.0 if j < 10 else 30.0, {"trim": thetas[j]}, prpv=0.0 if j < 10 else 30.0))
         proxies[number] = good if j < 10 else bad
     return trials, proxies, target
 

@@ -46,7 +46,7 @@ def test_hidden_off_centre_trim_is_recovered_from_the_robot_and_from_its_recordi
     record_target(rec, open_target(f"robot:{ROBOT}"), [AgentSpec(a) for a in cfg.agents], episodes=1, seconds=3.0)
     replay = optimize_proxy(cfg.model_copy(update={"target": str(rec)}), tmp_path / "replay")
     assert replay.target_episodes_run == 0 and "robot-node" in replay.target.statement
-    assert [t["value"] for t in replay.trials] == [t["value"] for t in live.trials]  # same figures, no robot
+    assert [t.value for t in replay.trials] == [t.value for t in live.trials]  # same figures, no robot
 
 
 def test_a_failing_robot_node_is_reported_and_nothing_recorded_is_lost(tmp_path):

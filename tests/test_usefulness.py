@@ -127,8 +127,8 @@ def test_optimizer_runs_trials_into_a_sqlite_study_and_resumes(tmp_path):
                                                storage=str(tmp_path / "study.db")))
     res = optimize_proxy(cfg, tmp_path / "runs")
     assert len(res.trials) == 3 and -0.3 <= res.best_params["trim"] <= 0.3
-    assert res.truth == {"trim": 0.0} and res.best_value == min(t["value"] for t in res.trials)
-    assert {"prpv", "ppv"} <= set(res.trials[0])
+    assert res.truth == {"trim": 0.0} and res.best_value == min(t.value for t in res.trials)
+    assert res.trials[0].prpv is not None and res.trials[0].ppv is not None
     assert set(res.recovered) == {"trim"} and set(res.errors()) == {"trim"}
     assert res.noise_floor is not None and res.target is not None and res.target.simulated is True
     again = optimize_proxy(cfg, tmp_path / "runs")  # the study is loaded, not repeated
@@ -161,11 +161,11 @@ def test_experiment_config_names_bad_fields(tmp_path):
 
 
 def test_best_decile_is_the_mean_of_the_best_trials():
-    from proxybench.experiments.optimize.run import best_decile
+    from proxybench.experiments.optimize.run import Trial, best_decile
 
-    trials = [{"value": float(v), "x": float(v)} for v in range(30)]  # value = x: best are x = 0, 1, 2
+    trials = [Trial(v, float(v), {"x": float(v)}) for v in range(30)]  # value = x: best are x = 0, 1, 2
     assert best_decile(trials, ["x"]) == {"x": 1.0}
-    trials = [{"value": float(v), "x": float(v)} for v in range(100)]
+    trials = [Trial(v, float(v), {"x": float(v)}) for v in range(100)]
     assert best_decile(trials, ["x"]) == {"x": 4.5}  # the best 10
 
 

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from proxybench.experiments.config import ConfigError, ExperimentConfig
+from proxybench.experiments.plv.objective import SearchTrial
 from proxybench.experiments.proxies import param_label
 
 __all__ = ["PLV_TRIALS", "PLVOptimizeResult", "plot_plv_search", "plv_search_settings", "run_plv_search",
@@ -62,24 +63,20 @@ class PLVOptimizeResult:
     ignored: list[str] = field(default_factory=list)
 
     @property
-    def trials(self) -> list[dict[str, Any]]:
+    def trials(self) -> list[SearchTrial]:
         return self.search.trials
 
     @property
-    def best(self) -> dict[str, Any]:
+    def best(self) -> SearchTrial:
         return self.search.best
 
     @property
     def reached(self) -> bool:
         """Whether any trial's agent settled above P (else every PLV is "not reached")."""
-        return any(t.get("plv") is not None for t in self.trials)
+        return any(t.plv is not None for t in self.trials)
 
-    def proposal(self, trial: dict[str, Any]) -> dict[str, Any]:
-        """The θ a trial proposed: values, or with a family ``{"uniform": [lo, hi]}`` per parameter."""
-        return json.loads(trial["proposal"])
-
-    def theta_label(self, trial: dict[str, Any], name: str) -> str:
-        v = self.proposal(trial)[name]
+    def theta_label(self, trial: SearchTrial, name: str) -> str:
+        v = trial.proposal[name]
         if self.family:
             lo, hi = v["uniform"]
             return f"U[{lo:.3g}, {hi:.3g}]"
@@ -90,8 +87,8 @@ class PLVOptimizeResult:
         b = self.best
         return {"objective": "plv", "target": "reality model (a simulated stand-in for a real Duckiebot)",
                 "family": self.family, "space": {k: list(v) for k, v in self.space.items()},
-                "best": {"number": b["number"], "proposal": self.proposal(b), "plv": b.get("plv"),
-                         "plv_ci": b.get("plv_ci"), "plv_status": b.get("plv_status")},
+                "best": {"number": b.number, "proposal": b.proposal, "plv": b.plv, "plv_ci": b.plv_ci,
+                         "plv_status": b.plv_status},
                 "separated": self.search.separated, "reached": self.reached, "reference_P": self.reference,
                 "expert_score": self.expert, "target_samples_needed": self.target_cost, "truth": self.truth,
                 "ignored": self.ignored, "plv_config": self.config.to_dict()}
@@ -138,7 +135,7 @@ def run_plv_search(cfg: ExperimentConfig, out: str | Path, progress=None, *, qui
     _, expert, reference = res.objective.target()
     known = {**{k: float(v) for k, v in TRUTH.items() if isinstance(v, int | float)}, **cfg.truth}
     truth = {k: float(known[k]) for k in search.space if k in known}
-    cost = next((t["target_cost"] for t in res.trials if t.get("target_cost") is not None), None)
+    cost = next((t.target_cost for t in res.trials if t.target_cost is not None), None)
     return PLVOptimizeResult(res, dict(search.space), search.family, plv_cfg, reference, expert, cost, truth, ignored)
 
 
@@ -157,54 +154,54 @@ def plot_plv_search(res: PLVOptimizeResult, out: str | Path) -> list[Path]:
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    trials = sorted(res.trials, key=lambda t: t["number"])
-    ok = [t for t in trials if t.get("plv") is not None]
-    missing = [t for t in trials if t.get("plv") is None]
+    trials = sorted(res.trials, key=lambda t: t.number)
+    ok = [t for t in trials if t.plv is not None]
+    missing = [t for t in trials if t.plv is None]
     names = list(res.space)
     fig, axes = plt.subplots(1, 1 + len(names), figsize=(4.6 * (1 + len(names)), 3.8), layout="constrained")
     axes = np.atleast_1d(axes)
-    scale = max([abs(t["plv"]) for t in ok] + [res.target_cost or 1.0, 1.0])
+    scale = max([abs(t.plv or 0.0) for t in ok] + [res.target_cost or 1.0, 1.0])
     floor = -0.08 * scale  # where "not reached" is drawn
 
     def draw(ax, xs_ok, xs_missing, xerr=None) -> None:
         if ok:
-            y = np.array([t["plv"] for t in ok], float)
-            lo = np.array([floor if t.get("plv_low") is None else t["plv_low"] for t in ok], float)
-            hi = np.array([t["plv"] if t.get("plv_high") is None else t["plv_high"] for t in ok], float)
+            y = np.array([t.plv for t in ok], float)
+            lo = np.array([floor if t.plv_low is None else t.plv_low for t in ok], float)
+            hi = np.array([t.plv if t.plv_high is None else t.plv_high for t in ok], float)
             ax.errorbar(xs_ok, y, yerr=[y - lo, hi - y], xerr=xerr, fmt="o", ms=4, capsize=3, color="tab:blue",
                         label="trial: PLV [95 % CI over seeds]")
-            open_low = [x for x, t in zip(xs_ok, ok, strict=True) if t.get("plv_low") is None]
+            open_low = [x for x, t in zip(xs_ok, ok, strict=True) if t.plv_low is None]
             if open_low:  # the interval's lower end is "not reached": the bar runs down to that level
                 ax.plot(open_low, [floor] * len(open_low), "v", color="tab:blue", ms=6,
                         label="interval's lower end: not reached")
         if xs_missing:
             ax.plot(xs_missing, [floor] * len(xs_missing), "x", color="tab:red", ms=8, label="not reached (no PLV)")
-        if xs_missing or any(t.get("plv_low") is None for t in ok):
+        if xs_missing or any(t.plv_low is None for t in ok):
             ax.axhline(floor, color="tab:red", lw=0.6, ls=":")
         best = res.best
-        if best.get("plv") is not None:
-            bx = xs_ok[ok.index(next(t for t in ok if t["number"] == best["number"]))]
-            ax.plot([bx], [best["plv"]], "*", ms=14, color="gold", mec="k",
+        if best.plv is not None:
+            bx = xs_ok[ok.index(next(t for t in ok if t.number == best.number))]
+            ax.plot([bx], [best.plv], "*", ms=14, color="gold", mec="k",
                     label="best" + (" (stands apart)" if res.search.separated else " (ties: intervals overlap)"))
         ax.axhline(0.0, color="0.5", lw=0.8)
         if res.target_cost:
             ax.axhline(res.target_cost, color="0.5", lw=0.8, ls="--", label=f"|D_target| = {res.target_cost:,.0f}")
         ax.set_ylabel("PLV [target samples saved] (↑)")
 
-    draw(axes[0], [t["number"] for t in ok], [t["number"] for t in missing])
+    draw(axes[0], [t.number for t in ok], [t.number for t in missing])
     axes[0].set_xlabel("trial number")
     axes[0].xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
     axes[0].legend(fontsize=7)
     for ax, name in zip(axes[1:], names, strict=True):
         if res.family:
             def centre(t, name=name):
-                lo, hi = res.proposal(t)[name]["uniform"]
+                lo, hi = t.proposal[name]["uniform"]
                 return (lo + hi) / 2, (hi - lo) / 2
             xs = [centre(t) for t in ok]
             draw(ax, [c for c, _ in xs], [centre(t)[0] for t in missing], xerr=[w for _, w in xs])
             ax.set_xlabel(f"{param_label(name)}: family centre ± half-width")
         else:
-            draw(ax, [res.proposal(t)[name] for t in ok], [res.proposal(t)[name] for t in missing])
+            draw(ax, [t.proposal[name] for t in ok], [t.proposal[name] for t in missing])
             ax.set_xlabel(param_label(name))
         if name in res.truth:
             ax.axvline(res.truth[name], color="tab:red", ls="--", lw=1, label="target's known θ (not used)")
@@ -224,7 +221,7 @@ def write_plv_search(res: PLVOptimizeResult, out: str | Path, wall_s: float) -> 
     """The plot, ``trials.json`` and ``summary.json`` of a PLV search."""
     out = Path(out)
     paths = plot_plv_search(res, out)
-    (out / "trials.json").write_text(json.dumps(res.trials, indent=1, default=str))
+    (out / "trials.json").write_text(json.dumps([t.to_dict() for t in res.trials], indent=1, default=str))
     (out / "summary.json").write_text(json.dumps({**res.summary(), "wall_s": round(wall_s, 1)}, indent=1,
                                                  default=str))
     return [*paths, out / "trials.json", out / "summary.json"]

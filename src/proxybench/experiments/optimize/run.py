@@ -36,8 +36,16 @@ from proxybench.tasks.metrics import METRICS
 from proxybench.usefulness.metrics import Estimate, PairedResults, dominance, ppv_value, prpv_value
 from proxybench.usefulness.noise import compare_paired, noise_floor, paired_prpv_samples
 
-__all__ = ["OBJECTIVES", "OptimizeResult", "TiedSet", "optimize_proxy", "plot_optimization", "tied_set",
-           "write_optimization"]
+__all__ = [
+    "OBJECTIVES",
+    "OptimizeResult",
+    "TiedSet",
+    "Trial",
+    "optimize_proxy",
+    "plot_optimization",
+    "tied_set",
+    "write_optimization",
+]
 
 
 @dataclass(frozen=True)
@@ -63,6 +71,28 @@ class TiedSet:
                 f"(`proxybench plan`)")
 
 
+@dataclass(frozen=True)
+class Trial:
+    """One finished trial: its number, its objective's value, the θ it tried and the figures its objective
+    reported beside the value (``prpv``, ``ppv``)."""
+
+    number: int
+    value: float
+    theta: dict[str, float]
+    prpv: float | None = None
+    ppv: float | None = None
+
+    @classmethod
+    def of(cls, trial: Any) -> Trial:
+        """From an Optuna ``FrozenTrial`` (its params are θ, its user attributes the figures)."""
+        attrs = trial.user_attrs
+        return cls(trial.number, float(trial.value), dict(trial.params), attrs.get("prpv"), attrs.get("ppv"))
+
+    def to_dict(self) -> dict[str, Any]:
+        """A row of ``trials.json``: number, value, θ by name, the figures."""
+        return {"number": self.number, "value": self.value, **self.theta, "prpv": self.prpv, "ppv": self.ppv}
+
+
 @dataclass
 class OptimizeResult:
     """θ* and its objective value (the residual gap), the known truth beside it (if any), and the study.
@@ -79,7 +109,7 @@ class OptimizeResult:
     best_value: float
     truth: dict[str, float]
     study: Any
-    trials: list[dict[str, Any]]
+    trials: list[Trial]
     recovered: dict[str, float] = field(default_factory=dict)
     target: TargetInfo | None = None
     experiment: Experiment | None = None
@@ -91,29 +121,28 @@ class OptimizeResult:
         return {k: v - self.truth[k] for k, v in self.recovered.items() if k in self.truth}
 
 
-def best_decile(trials: list[dict[str, Any]], names: list[str]) -> dict[str, float]:
+def best_decile(trials: list[Trial], names: list[str]) -> dict[str, float]:
     """Mean θ of the best tenth of the trials (at least 3, at most all)."""
-    ranked = sorted((t for t in trials if t.get("value") is not None), key=lambda t: t["value"])
+    ranked = sorted(trials, key=lambda t: t.value)
     top = ranked[: max(3, len(ranked) // 10)]
-    return {n: float(np.mean([t[n] for t in top])) for n in names} if top else {}
+    return {n: float(np.mean([t.theta[n] for t in top])) for n in names} if top else {}
 
 
-def tied_set(trials: list[dict[str, Any]], proxies: dict[int, Mapping[str, np.ndarray]],
+def tied_set(trials: list[Trial], proxies: dict[int, Mapping[str, np.ndarray]],
              target: Mapping[str, np.ndarray], higher: tuple[bool, ...], names: list[str], *, n_boot: int,
              seed: int) -> TiedSet:
     """The trials whose PRPV is not separated from the best trial's (paired intervals of ΔPRPV)."""
-    done = sorted((t for t in trials if t.get("prpv") is not None and t["number"] in proxies),
-                  key=lambda t: (t["prpv"], t["number"]))
+    done = sorted((t for t in trials if t.prpv is not None and t.number in proxies), key=lambda t: (t.prpv, t.number))
     if not done:
         return TiedSet((), {}, True)
-    samples = paired_prpv_samples(target, [proxies[t["number"]] for t in done], higher, n_boot=n_boot, seed=seed)
-    labels = [str(t["number"]) for t in done]
-    points = [float(t["prpv"]) for t in done]
+    samples = paired_prpv_samples(target, [proxies[t.number] for t in done], higher, n_boot=n_boot, seed=seed)
+    labels = [str(t.number) for t in done]
+    points = [float(t.prpv or 0.0) for t in done]
     tied = [0] + [j for j in range(1, len(done)) if not compare_paired(labels, points, samples, 0, j).separated]
     members = [done[j] for j in tied]
-    spread = {n: (float(np.median([m[n] for m in members])), float(min(m[n] for m in members)),
-                  float(max(m[n] for m in members))) for n in names}
-    return TiedSet(tuple(int(m["number"]) for m in members), spread, len(members) == 1)
+    spread = {n: (float(np.median([m.theta[n] for m in members])), float(min(m.theta[n] for m in members)),
+                  float(max(m.theta[n] for m in members))) for n in names}
+    return TiedSet(tuple(m.number for m in members), spread, len(members) == 1)
 
 
 def _objective_value(kind: str, proxy: Mapping[str, np.ndarray], target: Mapping[str, np.ndarray],
@@ -194,15 +223,14 @@ def optimize_proxy(
     remaining = exp.trials - len([t for t in study.trials if t.state.is_finished()])
     if remaining > 0:
         study.optimize(objective, n_trials=remaining)
-    trials = [{"number": t.number, "value": t.value, **t.params, **t.user_attrs} for t in study.trials
-              if t.value is not None]
+    trials = [Trial.of(t) for t in study.trials if t.value is not None]
     known = {**tgt.truth, **exp.truth}
     truth = {k: float(known[k]) for k in space if k in known}
     floor = noise_floor(tgt.results, higher, n_boot=exp.n_boot, seed=exp.seed)
     tied = None
     recovered = best_decile(trials, list(space))
     if exp.search.objective == "prpv":  # the trials' proxies again: each from the cache of its episodes
-        proxies = {t["number"]: proxy_of({n: t[n] for n in space}) for t in trials}
+        proxies = {t.number: proxy_of({n: t.theta[n] for n in space}) for t in trials}
         tied = tied_set(trials, proxies, tgt.results, higher, list(space), n_boot=exp.n_boot, seed=exp.seed)
         recovered = {n: med for n, (med, _, _) in tied.spread.items()}
     return OptimizeResult(dict(study.best_params), float(study.best_value), truth, study, trials,
@@ -219,7 +247,7 @@ def plot_optimization(res: OptimizeResult, out: str | Path) -> list[Path]:
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    values = [t["value"] for t in res.trials]
+    values = [t.value for t in res.trials]
     objective = res.experiment.search.objective if res.experiment is not None else "objective"
     ylabel = {"prpv": "PRPV [0, K(K−1)] (↓)", "ppv": "PPV (↓)",
               "mix": "PRPV/K(K−1) + PPV/m (↓)"}.get(objective, "objective (↓)")
@@ -236,7 +264,7 @@ def plot_optimization(res: OptimizeResult, out: str | Path) -> list[Path]:
     axes[0].legend(fontsize=8)
     points = None
     for ax, name in zip(axes[1:], res.best_params, strict=True):
-        points = ax.scatter([t[name] for t in res.trials], values, s=12, c=range(len(values)), cmap="viridis",
+        points = ax.scatter([t.theta[name] for t in res.trials], values, s=12, c=range(len(values)), cmap="viridis",
                             label="trial (colour: trial number)")
         if name in res.truth:
             ax.axvline(res.truth[name], color="tab:red", ls="--", lw=1, label="known truth (not used by the search)")
@@ -279,6 +307,6 @@ def write_optimization(res: OptimizeResult, out: str | Path, wall_s: float) -> l
                                                       "spread": {k: dict(zip(("median", "min", "max"), v, strict=True))
                                                                  for k, v in res.tied.spread.items()}},
                "experiment": res.experiment.to_dict() if res.experiment else None}
-    (out / "trials.json").write_text(json.dumps(res.trials, indent=1))
+    (out / "trials.json").write_text(json.dumps([t.to_dict() for t in res.trials], indent=1))
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     return [*paths, out / "trials.json", out / "summary.json"]

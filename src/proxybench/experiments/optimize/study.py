@@ -89,10 +89,11 @@ def _show_prpv(res: OptimizeResult, console: Any, wall: float) -> None:
     warning = tied.warning() if tied is not None else None
     if warning:
         console.print(f"[yellow]warning:[/yellow] {escape(warning)}", highlight=False)
-    best = next(t for t in res.trials if t["value"] == res.best_value)
+    best = next(t for t in res.trials if t.value == res.best_value)
     nf = res.noise_floor
+    prpv = float("nan") if best.prpv is None else best.prpv
     console.print(f"residual (best objective, the gap no θ in this family closed): {res.best_value:.4f}; its PRPV "
-                  f"{best.get('prpv', float('nan')):.1f} against the target's noise floor "
+                  f"{prpv:.1f} against the target's noise floor "
                   f"{nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}]" if nf else "", highlight=False)
 
 
@@ -114,13 +115,13 @@ def _show_plv(res: PLVOptimizeResult, console: Any, wall: float) -> None:
     names = list(res.space)
     for col in ("trial", *names, "PLV [95% CI]", "settled (share of replicates)", "zero-shot score", ""):
         table.add_column(escape(col), justify="left" if col == "trial" else "right")
-    best = res.best["number"]
-    for t in sorted(res.trials, key=lambda t: -t["value"]):
+    best = res.best.number
+    for t in sorted(res.trials, key=lambda t: -t.value):
         mark = ""
-        if t["number"] == best and res.reached:
+        if t.number == best and res.reached:
             mark = "best" + (", stands apart" if res.search.separated else " (not separated)")
-        table.add_row(str(t["number"]), *(escape(res.theta_label(t, n)) for n in names), escape(str(t["plv_ci"])),
-                      f"{t['reached_share']:.0%}", f"{t['zero_shot']:.2f}", mark)
+        table.add_row(str(t.number), *(escape(res.theta_label(t, n)) for n in names), escape(t.plv_ci),
+                      f"{t.reached_share:.0%}", f"{t.zero_shot:.2f}", mark)
     console.print(table)
     for name, v in res.truth.items():
         console.print(f"• {name}: the target's known value {v:g} (not used by the search)", highlight=False,
@@ -132,9 +133,9 @@ def _show_plv(res: PLVOptimizeResult, console: Any, wall: float) -> None:
                       f"{plv_cfg.ladder[-1]:,}): PLV not reached for all {len(res.trials)} trials", highlight=False,
                       markup=False)
     elif res.search.separated:
-        console.print(f"• best: trial {b['number']} ({theta}), PLV {b['plv_ci']}: its interval lies above every "
+        console.print(f"• best: trial {b.number} ({theta}), PLV {b.plv_ci}: its interval lies above every "
                       "other trial's", highlight=False, markup=False)
     else:
-        console.print(f"• highest PLV: trial {b['number']} ({theta}), PLV {b['plv_ci']}; its interval overlaps "
+        console.print(f"• highest PLV: trial {b.number} ({theta}), PLV {b.plv_ci}; its interval overlaps "
                       "other trials': the seeds cannot tell them apart (more seeds: plv: {seeds: [...]})",
                       highlight=False, markup=False)

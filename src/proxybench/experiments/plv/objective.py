@@ -24,7 +24,7 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -33,8 +33,17 @@ from proxybench.learning.domains import Domain, proxy_domain, randomized_domain
 from proxybench.usefulness.plv import PLVValue
 from proxybench.usefulness.plv_intervals import Interval
 
-__all__ = ["PLVObjective", "PLVSearch", "PLVSearchResult", "PLVTrial", "family_domain", "instance_domain",
-           "objective_value", "optimize_plv"]
+__all__ = [
+    "PLVObjective",
+    "PLVSearch",
+    "PLVSearchResult",
+    "PLVTrial",
+    "SearchTrial",
+    "family_domain",
+    "instance_domain",
+    "objective_value",
+    "optimize_plv",
+]
 
 
 def instance_domain(values: Mapping[str, Any], width: int, height: int) -> Domain:
@@ -159,12 +168,46 @@ class PLVSearch:
             raise ValueError(f"sampler must be tpe or random, got {self.sampler!r}")
 
 
+@dataclass(frozen=True)
+class SearchTrial:
+    """One finished trial of a PLV search: the proxy it proposed and what its :class:`PLVTrial` gave (as the
+    Optuna trial's user attributes keep it, so a resumed search reads the same)."""
+
+    number: int
+    value: float
+    proposal: dict[str, Any]  # θ by name, or with a family {"uniform": [lo, hi]} per parameter
+    proxy: str
+    plv: float | None
+    plv_label: str
+    plv_status: str
+    plv_ci: str
+    plv_low: float | None
+    plv_high: float | None
+    reduction: float | None
+    reached_share: float
+    needed: float | None
+    zero_shot: float
+    target_cost: float | None
+
+    @classmethod
+    def of(cls, trial: Any) -> SearchTrial:
+        """From an Optuna ``FrozenTrial`` whose user attributes :func:`optimize_plv` set."""
+        a = trial.user_attrs
+        named = {f.name for f in fields(cls)} - {"number", "value", "proposal"}
+        return cls(number=trial.number, value=float(trial.value), proposal=json.loads(a["proposal"]),
+                   **{k: a.get(k) for k in named})
+
+    def to_dict(self) -> dict[str, Any]:
+        """A row of ``trials.json`` (the proposal as the JSON text the trial stored)."""
+        return {**asdict(self), "proposal": json.dumps(self.proposal)}
+
+
 @dataclass
 class PLVSearchResult:
     """Every trial's proxy and PLV (with its interval), the best one, and whether its interval stands apart."""
 
-    trials: list[dict[str, Any]]
-    best: dict[str, Any]
+    trials: list[SearchTrial]
+    best: SearchTrial
     separated: bool  # the best trial's lower PLV bound is above every other trial's upper bound
     study: Any = field(repr=False, default=None)
     objective: PLVObjective | None = field(repr=False, default=None)  # its target curve: ``objective.target()``
@@ -217,9 +260,8 @@ def optimize_plv(search: PLVSearch, cfg: PLVConfig, out: str | Path, progress: P
     finally:
         objective.close()
     done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
-    rows = [{"number": t.number, "value": t.value, **t.user_attrs} for t in done]
-    best = max(rows, key=lambda r: r["value"])
-    others = [r["plv_high"] for r in rows if r is not best]
-    separated = bool(others) and best.get("plv_low") is not None and all(h is None or best["plv_low"] > h
-                                                                        for h in others)
+    rows = [SearchTrial.of(t) for t in done]
+    best = max(rows, key=lambda r: r.value)
+    others = [r.plv_high for r in rows if r is not best]
+    separated = bool(others) and best.plv_low is not None and all(h is None or best.plv_low > h for h in others)
     return PLVSearchResult(rows, best, separated, study, objective)
