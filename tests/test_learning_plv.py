@@ -70,22 +70,22 @@ def test_summary_counts_a_rung_only_when_the_score_stays_above_the_reference():
     s = summarize(res)
     assert s.ladder_reference == pytest.approx(0.95 * 20.05) and not s.converged_ok  # 18.05 → 20.05 is > 5 %
     assert s.target_first == DataCost(500) and s.target_needed == DataCost(2000)  # 500 fell below P at 1,000
-    rows = {r["proxy"]: r for r in s.rows}
+    rows = {r.proxy: r for r in s.rows}
     good, flaky, bad, free = rows["good"], rows["flaky"], rows["bad"], rows["free"]
-    assert good["ladder_needed"] == 250 and good["ladder_plv"] == 1750 and good["ladder_reduction_label"] == "88 %"
-    assert flaky["first_reached"] == 0 and flaky["ladder_needed"] == 500  # zero-shot reached P, then fell
-    assert flaky["ladder_plv"] == 1500
-    assert bad["ladder_plv"] is None and bad["ladder_plv_label"] == "not reached"
-    assert bad["ladder_needed_label"] == "not reached" and bad["tried_up_to"] == 2000
-    assert free["ladder_needed"] == 0 and free["ladder_reduction_label"] == "100 %"  # zero-shot, and it stays
+    assert good.ladder_needed == 250 and good.ladder_plv == 1750 and good.ladder_reduction_label == "88 %"
+    assert flaky.first_reached == 0 and flaky.ladder_needed == 500  # zero-shot reached P, then fell
+    assert flaky.ladder_plv == 1500
+    assert bad.ladder_plv is None and bad.ladder_plv_label == "not reached"
+    assert bad.ladder_needed_label == "not reached" and bad.tried_up_to == 2000
+    assert free.ladder_needed == 0 and free.ladder_reduction_label == "100 %"  # zero-shot, and it stays
     # every seed sits 0.05 from its rung's mean, far from P: the bootstrap cannot move any answer
-    assert good["ladder_plv_ci"] == "1,750 [1,750, 1,750]" and bad["ladder_plv_ci"] == "not reached"
-    assert free["ladder_reached_share"] == 1.0 and bad["ladder_reached_share"] == 0.0
+    assert good.ladder_plv_ci == "1,750 [1,750, 1,750]" and bad.ladder_plv_ci == "not reached"
+    assert free.ladder_reached_share == 1.0 and bad.ladder_reached_share == 0.0
     assert s.intervals.target_needed.label() == "2,000 [2,000, 2,000]"
     # the fitted curves: a bad proxy stays far below P (not reached); the others reach it, each with a number
-    assert bad["plv"] is None and bad["status"] == "not reached" and bad["plv_label"] == "not reached"
-    assert good["status"] == "ok" and good["plv"] == pytest.approx(s.target_cost - good["needed"])
-    assert free["needed"] == 0.0 and free["reduction"] == pytest.approx(1.0)  # above P from zero-shot on
+    assert bad.plv is None and bad.status == "not reached" and bad.plv_label == "not reached"
+    assert good.status == "ok" and good.plv == pytest.approx(s.target_cost - good.needed)
+    assert free.needed == 0.0 and free.reduction == pytest.approx(1.0)  # above P from zero-shot on
     text = "\n".join(findings(res, s))
     assert "flaky" in text and "the ladder rule" in text and "Fitted target-only curve" in text
     assert "bad: zero-shot 12.05 [12.00, 12.10]; P not reached" in text and "Spearman" in text
@@ -106,7 +106,7 @@ def test_score_bands_never_leave_the_seeds_range_or_the_possible_scores(tmp_path
     s = summarize(res)
     for curve in s.curves.values():
         for c in curve:
-            assert min(c["scores"]) <= c["low"] <= c["mean"] <= c["high"] <= max(c["scores"])
+            assert min(c.scores) <= c.low <= c.mean <= c.high <= max(c.scores)
     lo, hi = score_range(res)
     assert (lo, hi) == (-10.0, 10.0)
     from proxybench.usefulness.plv import mean_ci

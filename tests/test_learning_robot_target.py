@@ -60,7 +60,7 @@ def test_plv_with_a_robot_node_as_the_target(tmp_path):
     res = run_plv(cfg, tmp_path)
     assert {r["arm"] for r in res.runs} == {"target-only", "pitch 30°"}
     s = summarize(res)
-    assert s.target_label.startswith("robot node") and s.rows[0]["status"] in ("ok", "not reached")
+    assert s.target_label.startswith("robot node") and s.rows[0].status in ("ok", "not reached")
     data = (tmp_path / "cache" / cfg.work_key() / "data" / "target" / "dataset.json").read_text()
     assert '"kind": "robot"' in data  # the target samples came from the node
 

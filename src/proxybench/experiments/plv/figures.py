@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from proxybench.experiments.plv.measures import CurvePoint
 from proxybench.experiments.reporting import pyplot, save_figure
 
 if TYPE_CHECKING:
@@ -39,22 +40,22 @@ def figure_3_6(res: PLVResult, s: Summary, path: Path) -> Path:
     for arm in ["target-only", *res.proxies]:
         curve = list(s.curves.get(arm, []))
         if arm in res.proxies:
-            row = next(r for r in s.rows if r["proxy"] == arm)
-            curve.insert(0, {"cost": 0.0, "mean": row["zero_shot"], "low": row["zero_shot_low"],
-                             "high": row["zero_shot_high"], "scores": row["zero_shot_scores"]})
+            row = next(r for r in s.rows if r.proxy == arm)
+            curve.insert(0, CurvePoint(0.0, 0.0, 0.0, 0.0, row.zero_shot, row.zero_shot_low, row.zero_shot_high,
+                                       row.zero_shot_seeds, row.zero_shot_scores))
         if not curve:
             continue
-        x = [p["cost"] for p in curve]
-        ax.plot(x, [p["mean"] for p in curve], "o", color=color[arm], ms=4, label=arm, zorder=3)
-        ax.fill_between(x, [p["low"] for p in curve], [p["high"] for p in curve], color=color[arm], alpha=0.12,
+        x = [p.cost for p in curve]
+        ax.plot(x, [p.mean for p in curve], "o", color=color[arm], ms=4, label=arm, zorder=3)
+        ax.fill_between(x, [p.low for p in curve], [p.high for p in curve], color=color[arm], alpha=0.12,
                         lw=0)
         for p in curve:
-            ax.plot([p["cost"]] * len(p["scores"]), p["scores"], ".", color=color[arm], ms=3, alpha=0.4, zorder=2)
-            shown += [p["low"], *p["scores"]]
+            ax.plot([p.cost] * len(p.scores), p.scores, ".", color=color[arm], ms=3, alpha=0.4, zorder=2)
+            shown += [p.low, *p.scores]
         if arm in fits:
             grid = np.concatenate([[min(x)], np.geomspace(max(1.0, min(c for c in x if c > 0)), max(x), 200)])
             ax.plot(grid, fits[arm](grid), "-", color=color[arm], lw=2 if arm == "target-only" else 1.3, zorder=3)
-            need = s.target_cost if arm == "target-only" else next(r for r in s.rows if r["proxy"] == arm)["needed"]
+            need = s.target_cost if arm == "target-only" else next(r for r in s.rows if r.proxy == arm).needed
             if need is not None:
                 ax.plot([need], [s.reference], "|", color=color[arm], ms=14, mew=2, zorder=4)
     if s.fitted is not None and s.fitted.reference.low is not None:
@@ -69,7 +70,7 @@ def figure_3_6(res: PLVResult, s: Summary, path: Path) -> Path:
     lin = max(1.0, min(res.config.ladder) / 2)
     ax.set_xscale("symlog", linthresh=lin)
     ax.set_xlim(-0.3 * lin, 1.5 * max(res.config.ladder))
-    rungs = sorted({p["cost"] for c in s.curves.values() for p in c} | {0.0})
+    rungs = sorted({p.cost for c in s.curves.values() for p in c} | {0.0})
     ax.set_xticks(rungs, [f"{x:,.0f}" for x in rungs], fontsize=7)
     ax.minorticks_off()
     bottom = max(lo_possible, min(shown) - 0.05 * (hi_possible - lo_possible))
@@ -88,17 +89,16 @@ def figure_plv(res: PLVResult, s: Summary, path: Path) -> Path:
     """PLV of each proxy with its 95 % interval (fitted curves; the ladder rule's in grey below it); "not reached"
     ends drawn as arrows to the left edge."""
     plt = pyplot()
-    names = [r["proxy"] for r in s.rows]
+    names = [r.proxy for r in s.rows]
     fig, ax = plt.subplots(figsize=(8.5, 0.7 * len(names) + 1.8))
     dt = s.target_cost
-    finite = [v for r in s.rows for v in (r["plv"], r.get("plv_low"), r.get("plv_high"), r.get("ladder_plv_low"),
-                                          r.get("ladder_plv_high")) if v is not None]
+    finite = [v for r in s.rows for v in (*r.band(), *r.band(ladder=True)[:2]) if v is not None]
     scale = dt or max([abs(v) for v in finite] + [1.0])
     left = min([0.0, *finite]) - 0.2 * scale  # "not reached" ends point here
     for k, r in enumerate(s.rows):
         y = len(names) - 1 - k
         for dy, key, col in ((0.0, "", "tab:blue"), (-0.25, "ladder_", "0.55")):
-            lo, hi, est = r.get(f"{key}plv_low"), r.get(f"{key}plv_high"), r.get(f"{key}plv")
+            lo, hi, est = r.band(ladder=bool(key))
             if hi is not None:
                 ax.plot([left if lo is None else lo, hi], [y + dy, y + dy], color=col, lw=2 if not key else 1.2,
                         solid_capstyle="butt")

@@ -14,7 +14,75 @@ from proxybench.usefulness.plv import DataCost, PLVValue, first_reaching, plv, r
 from proxybench.usefulness.plv_curve import CurvePLV, curve_plv
 from proxybench.usefulness.plv_intervals import PLVIntervals, curves_from_runs, mean_band, plv_bootstrap
 
-__all__ = ["Summary", "summarize", "zero_shot_by_seed"]
+__all__ = ["CurvePoint", "ProxyRow", "Summary", "summarize", "zero_shot_by_seed"]
+
+
+@dataclass(frozen=True)
+class CurvePoint:
+    """One rung of an arm's learning curve: samples (``n``; its ``cost`` in target samples, off- and on-policy),
+    the mean score over seeds with its 95 % bootstrap band, and the per-seed scores."""
+
+    n: float
+    cost: float
+    off_policy: float
+    on_policy: float
+    mean: float
+    low: float
+    high: float
+    seeds: int
+    scores: list[float]
+
+
+@dataclass(frozen=True)
+class ProxyRow:
+    """A proxy's line of Table 3.1: its zero-shot score, the target samples it needs and its PLV, from the fitted
+    curves (``needed``, ``plv``, ``reduction``, each with ``_label`` and ``_ci``) and by the ladder rule
+    (``ladder_*``); None where a rule has no number (not reached, or no interval without seeds)."""
+
+    proxy: str
+    spec: Any
+    zero_shot: float
+    zero_shot_low: float
+    zero_shot_high: float
+    zero_shot_seeds: int
+    zero_shot_scores: list[float]
+    in_proxy: float
+    ladder_needed: float | None
+    ladder_needed_label: str
+    first_reached: float | None
+    first_reached_label: str
+    tried_up_to: float
+    ladder_plv: float | None
+    ladder_plv_label: str
+    ladder_reduction: float | None
+    ladder_reduction_label: str
+    ladder_status: str
+    needed: float | None
+    needed_label: str
+    plv: float | None
+    plv_label: str
+    reduction: float | None
+    reduction_label: str
+    status: str
+    ladder_needed_ci: str | None = None
+    ladder_plv_ci: str | None = None
+    ladder_reduction_ci: str | None = None
+    ladder_reached_share: float | None = None
+    ladder_plv_low: float | None = None
+    ladder_plv_high: float | None = None
+    needed_ci: str | None = None
+    plv_ci: str | None = None
+    plv_low: float | None = None
+    plv_high: float | None = None
+    reduction_ci: str | None = None
+    reached_share: float | None = None
+    lack_of_fit_p: float | None = None
+
+    def band(self, ladder: bool = False) -> tuple[float | None, float | None, float | None]:
+        """(low, high, estimate) of PLV: the fitted curves', or the ladder rule's."""
+        if ladder:
+            return self.ladder_plv_low, self.ladder_plv_high, self.ladder_plv
+        return self.plv_low, self.plv_high, self.plv
 
 
 @dataclass
@@ -27,12 +95,12 @@ class Summary:
     ``target_needed``: the ladder rule's (rows: ``ladder_*``).
     """
 
-    curves: dict[str, list[dict[str, Any]]]
+    curves: dict[str, list[CurvePoint]]
     converged: float
     converged_ok: bool
     reference: float
     target_needed: DataCost | None
-    rows: list[dict[str, Any]]
+    rows: list[ProxyRow]
     intervals: PLVIntervals | None = None
     target_first: DataCost | None = None
     fitted: CurvePLV | None = None
@@ -41,28 +109,27 @@ class Summary:
     target_label: str = "reality model, simulated"
 
 
-def _curves(res: PLVResult) -> dict[str, list[dict[str, Any]]]:
-    out: dict[str, list[dict[str, Any]]] = {}
+def _curves(res: PLVResult) -> dict[str, list[CurvePoint]]:
+    out: dict[str, list[CurvePoint]] = {}
     for arm in dict.fromkeys(r["arm"] for r in res.runs):
         rows = [r for r in res.runs if r["arm"] == arm]
         curve = []
         for n in sorted({r["n"] for r in rows}):
             at = sorted((r for r in rows if r["n"] == n), key=lambda r: r["seed"])
             m, lo, hi = mean_band(np.array([r["score"] for r in at]), replicates=res.config.replicates)
-            curve.append({"n": n, "cost": at[0]["cost"], "off_policy": at[0]["off_policy"],
-                          "on_policy": at[0]["on_policy"], "mean": m, "low": lo, "high": hi, "seeds": len(at),
-                          "scores": [r["score"] for r in at]})
+            curve.append(CurvePoint(n, at[0]["cost"], at[0]["off_policy"], at[0]["on_policy"], m, lo, hi, len(at),
+                                    [r["score"] for r in at]))
         out[arm] = curve
     return out
 
 
-def _split_at(curve: list[dict[str, Any]], cost: float | None) -> DataCost | None:
+def _split_at(curve: list[CurvePoint], cost: float | None) -> DataCost | None:
     if cost is None:
         return None
     if cost == 0:
         return DataCost(0)
-    c = next(c for c in curve if c["cost"] == cost)
-    return DataCost(c["off_policy"], c["on_policy"])
+    c = next(c for c in curve if c.cost == cost)
+    return DataCost(c.off_policy, c.on_policy)
 
 
 def zero_shot_by_seed(rec: dict[str, Any]) -> dict[int, float]:
@@ -85,10 +152,10 @@ def summarize(res: PLVResult) -> Summary:
     cfg = res.config
     curves = _curves(res)
     target = curves.get("target-only", [])
-    converged = target[-1]["mean"] if target else float("nan")
+    converged = target[-1].mean if target else float("nan")
     ladder_ref = reference_score(converged, cfg.tolerance)
-    ok = len(target) >= 2 and abs(target[-1]["mean"] - target[-2]["mean"]) <= cfg.tolerance * abs(converged)
-    t_costs, t_means = [c["cost"] for c in target], [c["mean"] for c in target]
+    ok = len(target) >= 2 and abs(target[-1].mean - target[-2].mean) <= cfg.tolerance * abs(converged)
+    t_costs, t_means = [c.cost for c in target], [c.mean for c in target]
     d_target = _split_at(target, settled_rung(t_costs, t_means, ladder_ref, cfg.confirm, through_end=True))
     t_first = _split_at(target, first_reaching(t_costs, t_means, ladder_ref))
     ivs = fitted = None
@@ -104,9 +171,9 @@ def summarize(res: PLVResult) -> Summary:
     for name, rec in res.proxies.items():
         curve = curves.get(name, [])
         zs = zero_shot_by_seed(rec)
-        ns = [0.0, *(c["cost"] for c in curve)]
-        means = [float(np.mean(list(zs.values()))), *(c["mean"] for c in curve)]
-        tried_end = any(c["n"] == cfg.ladder[-1] for c in curve)
+        ns = [0.0, *(c.cost for c in curve)]
+        means = [float(np.mean(list(zs.values()))), *(c.mean for c in curve)]
+        tried_end = any(c.n == cfg.ladder[-1] for c in curve)
         need = _split_at(curve, settled_rung(ns, means, ladder_ref, cfg.confirm, through_end=tried_end))
         first = _split_at(curve, first_reaching(ns, means, ladder_ref))
         value: PLVValue = plv(d_target, need, cfg.eta_on, cfg.eta_off)
@@ -116,7 +183,7 @@ def summarize(res: PLVResult) -> Summary:
         row = {"proxy": name, "spec": rec["spec"], "zero_shot": zm, "zero_shot_low": zlo, "zero_shot_high": zhi,
                "zero_shot_seeds": len(zs), "zero_shot_scores": list(zs.values()), "in_proxy": rec["in_proxy"],
                "ladder_needed": cost, "ladder_needed_label": _label(cost), "first_reached": first_cost,
-               "first_reached_label": _label(first_cost), "tried_up_to": max((c["cost"] for c in curve), default=0),
+               "first_reached_label": _label(first_cost), "tried_up_to": max((c.cost for c in curve), default=0),
                "ladder_plv": value.value, "ladder_plv_label": value.label, "ladder_reduction": value.reduction,
                "ladder_reduction_label": value.reduction_label, "ladder_status": value.status}
         if ivs is not None:
@@ -125,7 +192,7 @@ def summarize(res: PLVResult) -> Summary:
                     "ladder_reached_share": ivs.reached[name], "ladder_plv_low": ivs.plv[name].low,
                     "ladder_plv_high": ivs.plv[name].high}
         row |= _fitted_row(fitted, name, t_cost, value.status if fitted is None else None)
-        rows.append(row)
+        rows.append(ProxyRow(**row))
     return Summary(curves, converged, ok, reference, d_target, rows, ivs, t_first, fitted, t_cost, ladder_ref,
                    target_label(cfg))
 

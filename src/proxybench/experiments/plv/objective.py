@@ -128,10 +128,10 @@ class PLVObjective:
         record, arm = proxy_arm(self.work, name, spec, reference)
         s = summarize(PLVResult(self.cfg, [*runs, *arm], {name: record}, expert))
         row, fitted = s.rows[0], s.fitted
-        value = PLVValue(row["plv"], row["reduction"], row["status"], s.target_cost, row["needed"])
+        value = PLVValue(row.plv, row.reduction, row.status, s.target_cost, row.needed)
         score = objective_value(value, max(float(r["cost"]) for r in runs))
-        return PLVTrial(name, record["domain"], score, value, fitted.plv[name], fitted.reached[name], row["needed"],
-                        row["zero_shot"], arm)
+        return PLVTrial(name, record["domain"], score, value, fitted.plv[name], fitted.reached[name], row.needed,
+                        row.zero_shot, arm)
 
     def close(self) -> None:
         """Stop a robot target's node (if one was started)."""

@@ -13,6 +13,7 @@ import base64
 import html
 import json
 import os
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -46,9 +47,9 @@ def findings(res: PLVResult, s: Summary | None = None) -> list[str]:
     s = s or summarize(res)
     cfg, out = res.config, []
     t = s.curves.get("target-only", [])
-    prev = f"{t[-2]['mean']:.2f} → " if len(t) >= 2 else ""
-    top = f"{t[-1]['mean']:.2f} [{t[-1]['low']:.2f}, {t[-1]['high']:.2f}]" if t else "nan"
-    out.append(f"Target-only training scores {top} with {t[-1]['n'] if t else 0:,} samples "
+    prev = f"{t[-2].mean:.2f} → " if len(t) >= 2 else ""
+    top = f"{t[-1].mean:.2f} [{t[-1].low:.2f}, {t[-1].high:.2f}]" if t else "nan"
+    out.append(f"Target-only training scores {top} with {t[-1].n if t else 0:,} samples "
                f"(mean over {len(cfg.seeds)} seeds [95 % bootstrap band]; the expert itself: {res.expert_score:.2f}); "
                "the curve "
                + ("has converged (last two rungs within the tolerance)." if s.converged_ok else
@@ -56,10 +57,10 @@ def findings(res: PLVResult, s: Summary | None = None) -> list[str]:
                   "tolerance): the reference P, and with it |D_target| and every PLV, would move with a longer "
                   "ladder."))
     if t:
-        peak = max(t, key=lambda c: c["mean"])
-        if peak["mean"] - s.converged > cfg.tolerance * abs(s.converged):
-            out.append(f"The target-only curve is not monotone: it peaks at {peak['mean']:.2f} with {peak['n']:,} "
-                       f"samples and falls to {s.converged:.2f} with {t[-1]['n']:,}. With more data the clone copies "
+        peak = max(t, key=lambda c: c.mean)
+        if peak.mean - s.converged > cfg.tolerance * abs(s.converged):
+            out.append(f"The target-only curve is not monotone: it peaks at {peak.mean:.2f} with {peak.n:,} "
+                       f"samples and falls to {s.converged:.2f} with {t[-1].n:,}. With more data the clone copies "
                        f"the expert more faithfully, and the expert itself scores {res.expert_score:.2f} on the target;"
                        " 'converged' here means the score more data settles toward, not the best score seen. The "
                        "fitted curve (saturating) cannot follow the peak.")
@@ -77,29 +78,29 @@ def findings(res: PLVResult, s: Summary | None = None) -> list[str]:
         out.append(f"Lack of fit (p < 0.01: the fitted curve misses the rung means by more than their seeds' spread) "
                    f"for {', '.join(misfit)}: read those crossing points as approximate.")
     for r in s.rows:
-        zs = _fmt_band(r["zero_shot"], r["zero_shot_low"], r["zero_shot_high"])
-        ladder = f"; the ladder rule: {r.get('ladder_plv_ci', r['ladder_plv_label'])}"
-        if r["status"] == "ok":
-            out.append(f"{r['proxy']}: zero-shot {zs} ({r['zero_shot_seeds']} pre-trained networks); after "
-                       f"pre-training the fitted curve reaches P with {r['needed_ci']} target samples: PLV "
-                       f"{r['plv_ci']} ({r['reduction_label']}), reaching P in {100 * r['reached_share']:.0f} % "
+        zs = _fmt_band(r.zero_shot, r.zero_shot_low, r.zero_shot_high)
+        ladder = f"; the ladder rule: {r.ladder_plv_ci or r.ladder_plv_label}"
+        if r.status == "ok":
+            out.append(f"{r.proxy}: zero-shot {zs} ({r.zero_shot_seeds} pre-trained networks); after "
+                       f"pre-training the fitted curve reaches P with {r.needed_ci} target samples: PLV "
+                       f"{r.plv_ci} ({r.reduction_label}), reaching P in {100 * r.reached_share:.0f} % "
                        f"of bootstrap replicates{ladder}.")
         else:
-            out.append(f"{r['proxy']}: zero-shot {zs}; P {r['status']} by the fitted curve with up to "
-                       f"{r['tried_up_to']:,.0f} target samples after pre-training (no PLV; interval {r['plv_ci']})"
+            out.append(f"{r.proxy}: zero-shot {zs}; P {r.status} by the fitted curve with up to "
+                       f"{r.tried_up_to:,.0f} target samples after pre-training (no PLV; interval {r.plv_ci})"
                        f"{ladder}.")
     lo, hi = THESIS_REDUCTION
-    red = [r["reduction"] for r in s.rows if r["reduction"] is not None]
+    red = [r.reduction for r in s.rows if r.reduction is not None]
     if red:
         agree = sum(lo - 0.005 <= x <= 1.0 for x in red)
-        overlap = sum(1 for r in s.rows if _overlaps(f.reduction[r["proxy"]], lo))
+        overlap = sum(1 for r in s.rows if _overlaps(f.reduction[r.proxy], lo))
         out.append(f"Reductions here: {100 * min(red):.0f}–{100 * max(red):.0f} % (thesis: {100 * lo:.0f}–"
                    f"{100 * hi:.0f} % fewer target samples); {agree} of {len(s.rows)} proxies are at or above the "
                    f"thesis' range, {overlap} of {len(s.rows)} have an interval reaching it.")
     else:
         out.append("No proxy reached the reference score: no reduction to compare with the thesis' 88–97 %.")
-    plvs = [r["plv"] if r["plv"] is not None else -np.inf for r in s.rows]
-    rho = _spearman([r["zero_shot"] for r in s.rows], plvs)
+    plvs = [r.plv if r.plv is not None else -np.inf for r in s.rows]
+    rho = _spearman([r.zero_shot for r in s.rows], plvs)
     rho = None if rho is None else round(rho, 2)  # classify the value the text shows
     if rho is not None:
         verdict = ("a good guide" if rho >= 0.8 else "a partial guide" if rho >= 0.4 else "a poor guide")
@@ -131,15 +132,15 @@ def table_rows(res: PLVResult, s: Summary) -> list[dict[str, Any]]:
              "reaches P (share of replicates)": "–",
              "ladder: samples (reach and stay)": iv.target_needed.label() if iv else "–", "ladder: PLV": "–"}]
     for r in s.rows:
-        rows.append({"domain": r["proxy"],
-                     "zero-shot score [95 % CI]": _fmt_band(r["zero_shot"], r["zero_shot_low"], r["zero_shot_high"]),
-                     "score in own domain": f"{r['in_proxy']:.2f}", column: r.get("needed_ci", r["needed_label"]),
-                     "PLV [95 % CI]": r.get("plv_ci", r["plv_label"]),
-                     "reduction [95 % CI]": r.get("reduction_ci", r["reduction_label"]),
-                     "reaches P (share of replicates)": f"{100 * r['reached_share']:.0f} %" if "reached_share" in r
+        rows.append({"domain": r.proxy,
+                     "zero-shot score [95 % CI]": _fmt_band(r.zero_shot, r.zero_shot_low, r.zero_shot_high),
+                     "score in own domain": f"{r.in_proxy:.2f}", column: r.needed_ci or r.needed_label,
+                     "PLV [95 % CI]": r.plv_ci or r.plv_label,
+                     "reduction [95 % CI]": r.reduction_ci or r.reduction_label,
+                     "reaches P (share of replicates)": f"{100 * r.reached_share:.0f} %" if r.reached_share is not None
                      else "–",
-                     "ladder: samples (reach and stay)": r.get("ladder_needed_ci", r["ladder_needed_label"]),
-                     "ladder: PLV": r.get("ladder_plv_ci", r["ladder_plv_label"])})
+                     "ladder: samples (reach and stay)": r.ladder_needed_ci or r.ladder_needed_label,
+                     "ladder: PLV": r.ladder_plv_ci or r.ladder_plv_label})
     return rows
 
 
@@ -185,7 +186,8 @@ def write_report(res: PLVResult, out: str | Path) -> dict[str, Path]:
     cfg = res.config
     method = METHOD.format(confirm=cfg.confirm, replicates=cfg.replicates)
     blob = {"config": res.config.to_dict(), "summary": {"converged": s.converged, "converged_ok": s.converged_ok,
-            "reference": s.reference, "expert": res.expert_score, "rows": s.rows, "curves": s.curves,
+            "reference": s.reference, "expert": res.expert_score, "rows": [asdict(r) for r in s.rows],
+            "curves": {arm: [asdict(p) for p in c] for arm, c in s.curves.items()},
             "intervals": None if s.intervals is None else s.intervals.to_dict(),
             "fitted": None if s.fitted is None else s.fitted.to_dict(), "target_needed": s.target_cost,
             "ladder_reference": s.ladder_reference, "target": s.target_label, "method": method},
