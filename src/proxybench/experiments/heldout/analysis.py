@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.experiments.heldout.config import HeldOutSettings
 from proxybench.experiments.heldout.run import CaseRun, HeldOutRun
 from proxybench.tasks.metrics import METRICS as TASK_METRICS
 from proxybench.usefulness.agent_sets import argmin_random_ties, order_structure
@@ -90,12 +91,12 @@ class HeldOutResult:
     agent_boot: dict[str, Any]
 
     @property
-    def settings(self) -> dict[str, Any]:
+    def settings(self) -> HeldOutSettings:
         return self.run.settings
 
     def primary(self) -> tuple[str, str, int]:
-        c = self.settings["criteria"]
-        return self.settings["primary_task"], c["primary_reference"], c["primary_tolerance_steps"]
+        c = self.settings.criteria
+        return self.settings.primary_task, c.primary_reference, c.primary_tolerance_steps
 
     def rate(self, task: str, metric: str, reference: str, tolerance: int) -> HitRate:
         return next(r for r in self.rates if (r.task, r.metric, r.reference, r.tolerance)
@@ -133,13 +134,13 @@ def _score_case(cr: CaseRun, k: int, task: str, tmetrics: tuple[str, ...], grid:
                 truth: dict[str, Any]) -> CaseScore:
     cols = [cr.metrics.index(m) for m in tmetrics]
     higher = tuple(TASK_METRICS[m].higher_is_better for m in tmetrics)
-    n_eval = s["episodes"]
+    n_eval = s.episodes
     t_ev, t_ref = _split(cr.target.results, cols, n_eval)
     p_split = [_split(p, cols, n_eval) for p in cr.proxies]
-    ests = [usefulness(PairedResults(ev, t_ev, higher, tmetrics), n_boot=s["n_boot"], seed=s["seed"])
+    ests = [usefulness(PairedResults(ev, t_ev, higher, tmetrics), n_boot=s.n_boot, seed=s.seed)
             for ev, _ in p_split]
     values = _metric_values(ests)
-    rng = np.random.default_rng([s["seed"], k, sum(map(ord, task))])
+    rng = np.random.default_rng([s.seed, k, sum(map(ord, task))])
     picks, ties = {}, {}
     for label, v in values.items():
         picks[label], ties[label] = _pick(v, _direction(label), rng)
@@ -149,11 +150,11 @@ def _score_case(cr: CaseRun, k: int, task: str, tmetrics: tuple[str, ...], grid:
     reference = {"order": best, "truth": grid.nearest(truth) if all(n in truth for n in grid.names) else []}
     hits, chance = {}, {}
     for ref_name, ref in reference.items():
-        for tol in s["criteria"]["tolerances"]:
+        for tol in s.criteria.tolerances:
             chance[(ref_name, tol)] = grid.chance(set(ref), tol) if ref else float("nan")
             for label, pk in picks.items():
                 hits[(label, ref_name, tol)] = bool(ref) and grid.within(pk, ref, tol)
-    samples = paired_prpv_samples(t_ev, [ev for ev, _ in p_split], higher, n_boot=s["n_boot"], seed=s["seed"])
+    samples = paired_prpv_samples(t_ev, [ev for ev, _ in p_split], higher, n_boot=s.n_boot, seed=s.seed)
     labels = [grid.label(i) for i in range(len(grid))]
     pk = picks["PRPV"]
     neigh = [j for j in range(len(grid)) if grid.distance(pk, j) == 1]
@@ -161,11 +162,11 @@ def _score_case(cr: CaseRun, k: int, task: str, tmetrics: tuple[str, ...], grid:
     prpv_iv = (np.array([e["prpv"].low for e in ests]), np.array([e["prpv"].high for e in ests]))
     return CaseScore(
         cr.case.name, cr.case.kind, task, values, prpv_iv, picks, ties, reference, d, resolved,
-        reference_stability([ref for _, ref in p_split], t_ref, higher, best, n_boot=s["reference_boot"],
-                            seed=s["seed"] + k),
-        truth, hits, chance, noise_floor(t_ev, higher, n_boot=s["n_boot"], seed=s["seed"]), comps,
+        reference_stability([ref for _, ref in p_split], t_ref, higher, best, n_boot=s.reference_boot,
+                            seed=s.seed + k),
+        truth, hits, chance, noise_floor(t_ev, higher, n_boot=s.n_boot, seed=s.seed), comps,
         order_structure({a: np.asarray(v)[:, cols] for a, v in cr.target.results.items()}, higher,
-                        _caps(tmetrics, s["seconds"])))
+                        _caps(tmetrics, s.seconds)))
 
 
 def _means_for(cr: CaseRun, cols: list[int], higher: tuple[bool, ...], n_eval: int, agents: list[str]):
@@ -192,25 +193,25 @@ def _agent_analyses(run: HeldOutRun, scores: list[CaseScore]) -> dict[str, Any]:
     """Leave-one-agent-out and bootstrap-over-agents hit rates of PRPV (primary task and tolerance, order
     reference), with the same agent sets in every case so that a set's hit rate is one draw of the population."""
     s = run.settings
-    task = s["primary_task"]
-    tol = s["criteria"]["primary_tolerance_steps"]
-    tmetrics = tuple(s["tasks"][task])
+    task = s.primary_task
+    tol = s.criteria.primary_tolerance_steps
+    tmetrics = tuple(s.tasks[task])
     agents = [a.label for a in run.agents]
     k = len(agents)
     held = [(cr, sc) for cr, sc in zip(run.cases, [x for x in scores if x.task == task], strict=True)]
-    rng = np.random.default_rng([s["seed"], 0xB007])
+    rng = np.random.default_rng([s.seed, 0xB007])
     data = []
     for cr, _ in held:
         cols = [cr.metrics.index(m) for m in tmetrics]
         higher = tuple(TASK_METRICS[m].higher_is_better for m in tmetrics)
-        data.append(_means_for(cr, cols, higher, s["episodes"], agents))
+        data.append(_means_for(cr, cols, higher, s.episodes, agents))
     for (_, sc), dd in zip(held, data, strict=True):
         for drop in range(k):
             idx = np.array([i for i in range(k) if i != drop])
             pick, hit = _subset_hit(run.grid, *dd, idx, tol, rng)
             sc.loo_picks.append(pick)
             sc.loo_hits.append(hit)
-    n_boot = s["agent_boot"]
+    n_boot = s.agent_boot
     kinds = [sc.kind for _, sc in held]
     rates, stays = [], []
     for _ in range(n_boot):
@@ -225,7 +226,7 @@ def _agent_analyses(run: HeldOutRun, scores: list[CaseScore]) -> dict[str, Any]:
                 stays.append(run.grid.distance(pick, sc.picks["PRPV"]) <= tol)
         if hits:
             rates.append(float(np.mean(hits)))
-    q = 100 * (1 - s["criteria"]["level"]) / 2
+    q = 100 * (1 - s.criteria.level) / 2
     rates_a = np.asarray(rates)
     return {"task": task, "tolerance": tol, "n_boot": n_boot, "rates": rates_a,
             "interval": (float(np.percentile(rates_a, q)), float(np.percentile(rates_a, 100 - q))) if rates else
@@ -237,13 +238,13 @@ def score_heldout(run: HeldOutRun) -> HeldOutResult:
     s = run.settings
     truths = [cr.case.reveal() for cr in run.cases]  # only now, after every episode ran
     scores = [_score_case(cr, k, task, tuple(ms), run.grid, s, truths[k])
-              for task, ms in s["tasks"].items() for k, cr in enumerate(run.cases)]
+              for task, ms in s.tasks.items() for k, cr in enumerate(run.cases)]
     rates, comparisons = [], []
-    level = s["criteria"]["level"]
-    for task in s["tasks"]:
+    level = s.criteria.level
+    for task in s.tasks:
         held = [sc for sc in scores if sc.task == task and sc.kind == "held-out"]
         for ref in REFERENCES:
-            for tol in s["criteria"]["tolerances"]:
+            for tol in s.criteria.tolerances:
                 for label in held[0].picks if held else []:
                     hs = [sc.hits[(label, ref, tol)] for sc in held if sc.reference[ref]]
                     lo, hi = wilson(sum(hs), len(hs), level)

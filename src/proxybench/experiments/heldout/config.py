@@ -9,13 +9,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from proxybench.domain.params import check_image_size
 from proxybench.experiments.config import param_name
 from proxybench.experiments.study import Cli, StudyConfig
 
-__all__ = ["DEFAULTS", "Criteria", "HeldOutConfig", "default_help", "load_heldout_config"]
+__all__ = ["DEFAULTS", "Criteria", "HeldOutConfig", "HeldOutSettings", "ModeDefaults", "default_help",
+           "load_heldout_config"]
 
 _FULL_AGENTS = ("straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
                 "vision", "vision-fast", "vision-slow", "vision-pitch25", "vision-twitchy")
@@ -111,13 +112,27 @@ class HeldOutConfig(StudyConfig):
         return self
 
 
-#: defaults per mode: (targets, agents, episodes, reference episodes, seconds, grid, bootstrap)
-DEFAULTS: dict[bool, dict[str, Any]] = {
-    False: {"targets": 12, "agents": _FULL_AGENTS, "episodes": 3, "reference_episodes": 8, "seconds": 20.0,
-            "grid": {"trim": (-0.2, -0.1, 0.0, 0.1, 0.2), "camera_pitch": (15.15, 17.15, 19.15, 21.15, 23.15)},
-            "n_boot": 100},
-    True: {"targets": 3, "agents": _QUICK_AGENTS, "episodes": 2, "reference_episodes": 4, "seconds": 12.0,
-           "grid": {"trim": (-0.2, 0.0, 0.2), "camera_pitch": (15.15, 19.15, 23.15)}, "n_boot": 50},
+class ModeDefaults(BaseModel):
+    """What a field left unset takes, in one mode (full or ``--quick``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    targets: int
+    agents: tuple[str, ...]
+    episodes: int
+    reference_episodes: int
+    seconds: float
+    grid: dict[str, tuple[float, ...]]
+    n_boot: int
+
+
+#: defaults per mode (False: full, True: ``--quick``)
+DEFAULTS: dict[bool, ModeDefaults] = {
+    False: ModeDefaults(targets=12, agents=_FULL_AGENTS, episodes=3, reference_episodes=8, seconds=20.0,
+                        grid={"trim": (-0.2, -0.1, 0.0, 0.1, 0.2),
+                              "camera_pitch": (15.15, 17.15, 19.15, 21.15, 23.15)}, n_boot=100),
+    True: ModeDefaults(targets=3, agents=_QUICK_AGENTS, episodes=2, reference_episodes=4, seconds=12.0,
+                       grid={"trim": (-0.2, 0.0, 0.2), "camera_pitch": (15.15, 19.15, 23.15)}, n_boot=50),
 }
 
 
@@ -128,10 +143,36 @@ def default_help() -> dict[str, str]:
     def grid(g: dict[str, tuple[float, ...]]) -> str:
         return " × ".join(f"{k} {v[0]:g}…{v[-1]:g} in {len(v)}" for k, v in g.items())
 
-    out = {k: f"{full[k]:g}; --quick {quick[k]:g}" for k in ("targets", "episodes", "reference_episodes", "seconds",
-                                                              "n_boot")}
-    return out | {"agents": f"{len(full['agents'])} zoo agents; --quick {len(quick['agents'])}",
-                  "grid": f"{grid(full['grid'])}; --quick {grid(quick['grid'])}"}
+    out = {k: f"{getattr(full, k):g}; --quick {getattr(quick, k):g}"
+           for k in ("targets", "episodes", "reference_episodes", "seconds", "n_boot")}
+    return out | {"agents": f"{len(full.agents)} zoo agents; --quick {len(quick.agents)}",
+                  "grid": f"{grid(full.grid)}; --quick {grid(quick.grid)}"}
+
+
+class HeldOutSettings(BaseModel):
+    """Every choice of a held-out study (the config, then its mode's defaults): what criteria.json pre-registers
+    (``model_dump(mode="json")``, fields in this order) and what the run, the scoring and the report read."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    quick: bool
+    targets: int
+    family_seed_sha256: str
+    negative_case: bool
+    agents: tuple[str, ...]
+    map: str
+    episodes: int
+    reference_episodes: int
+    seconds: float
+    tasks: dict[str, tuple[str, ...]]
+    primary_task: str
+    grid: dict[str, tuple[float, ...]]
+    image_size: tuple[int, int]
+    criteria: Criteria
+    n_boot: int
+    agent_boot: int
+    reference_boot: int
+    seed: int
 
 
 def load_heldout_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> HeldOutConfig:

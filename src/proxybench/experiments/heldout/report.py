@@ -35,9 +35,9 @@ def _rate_text(r) -> str:
 
 def _episodes(res: HeldOutResult) -> dict[str, int]:
     s = res.settings
-    k, n = len(res.run.agents), s["episodes"] + s["reference_episodes"]
+    k, n = len(res.run.agents), s.episodes + s.reference_episodes
     cases = len(res.run.cases)
-    return {"agents": k, "per_agent": n, "eval": s["episodes"], "ref": s["reference_episodes"],
+    return {"agents": k, "per_agent": n, "eval": s.episodes, "ref": s.reference_episodes,
             "target": cases * k * n, "proxy": len(res.run.grid) * k * n, "cases": cases,
             "held_out": sum(cr.case.kind == "held-out" for cr in res.run.cases)}
 
@@ -94,7 +94,7 @@ def fig_hit_rates(res: HeldOutResult, path: Path) -> Path:
     """Hit rate per metric with Wilson intervals and the random-pick rate, per reference and tolerance."""
     plt = pyplot()
     task = res.primary()[0]
-    combos = [(ref, tol) for ref in ("order", "truth") for tol in res.settings["criteria"]["tolerances"]]
+    combos = [(ref, tol) for ref in ("order", "truth") for tol in res.settings.criteria.tolerances]
     fig, axes = plt.subplots(1, len(combos), figsize=(3.6 * len(combos), 3.4), squeeze=False, layout="constrained")
     for ax, (ref, tol) in zip(axes[0], combos, strict=True):
         rs = [r for r in res.rates if (r.task, r.reference, r.tolerance) == (task, ref, tol)]
@@ -232,7 +232,7 @@ def _cases_html(res: HeldOutResult, task: str) -> str:
 
 def _structure_html(res: HeldOutResult) -> str:
     rows = []
-    for task, ms in res.settings["tasks"].items():
+    for task, ms in res.settings.tasks.items():
         st = [sc.structure for sc in res.scores if sc.task == task]
         mean = {k: float(np.mean([x.get(k, np.nan) for x in st])) for k in st[0]}
         caps = "; ".join(f"{ms[int(k.rsplit('_', 1)[1])]}: {mean[k]:.1f} of {len(res.run.agents)} agents always at "
@@ -263,7 +263,7 @@ def write_heldout_report(res: HeldOutResult, out: str | Path) -> dict[str, Path]
     task, ref, tol = res.primary()
     cases = "".join(f"<li><b>{html.escape(cr.case.name)}</b>: {html.escape(cr.case.description)} — "
                     f"{html.escape(cr.target.info.statement)}</li>" for cr in res.run.cases)
-    secondary = "".join(f"<h3>Task {html.escape(t)}</h3>{_rates_html(res, t)}" for t in s["tasks"] if t != task)
+    secondary = "".join(f"<h3>Task {html.escape(t)}</h3>{_rates_html(res, t)}" for t in s.tasks if t != task)
     revealed = _table(["case", "revealed θ and effects"], [
         [cr.case.name, ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in
                                  sorted(cr.case.reveal().items()) if not isinstance(v, tuple))]
@@ -278,14 +278,14 @@ Duckiebot (held-out targets drawn from a hidden seed, and the shipped reality mo
 </div>
 <div class="box" style="background:#eef6ff"><b>Pass criteria, fixed before the run</b> (criteria.json, written
 {html.escape(str(crit_doc.get("written", "?")))}, sha256 {crit_hash}): on task <b>{html.escape(task)}</b>
-({", ".join(map(html.escape, s["tasks"][task]))}), a metric's pick is a hit when it lies within <b>{tol}</b> grid
+({", ".join(map(html.escape, s.tasks[task]))}), a metric's pick is a hit when it lies within <b>{tol}</b> grid
 step(s) of {"a <b>best available θ</b>" if ref == "order" else "the grid θ <b>nearest the hidden truth</b>"}.
 <br><b>Best available θ</b>: {html.escape(crit_doc.get("best_available_definition", ""))}</div>
 <p class="prov">proxybench {__version__}, commit {html.escape(source_commit())}; {time.strftime("%Y-%m-%d %H:%M")};
 method: {html.escape(THESIS)}. {e['cases']} cases ({e['held_out']} held-out); {e['agents']} agents; per case the
 target ran {e['agents']} × {e['per_agent']} episodes ({e['eval']} evaluation + {e['ref']} reference) of
-{s['seconds']:g} s on {html.escape(Path(s['map']).name)}, and each of {len(res.run.grid)} grid proxies
-({html.escape(", ".join(f"{k} ∈ {{{', '.join(f'{v:g}' for v in vs)}}}" for k, vs in s["grid"].items()))})
+{s.seconds:g} s on {html.escape(Path(s.map).name)}, and each of {len(res.run.grid)} grid proxies
+({html.escape(", ".join(f"{k} ∈ {{{', '.join(f'{v:g}' for v in vs)}}}" for k, vs in s.grid.items()))})
 replayed them; {res.run.simulated_episodes} episodes simulated in this run; wall time {res.run.wall_s:.0f} s.</p>
 <h2>Findings</h2><ul>{"".join(f"<li>{html.escape(f)}</li>" for f in findings(res))}</ul>
 <h2>Hit rates (task {html.escape(task)})</h2>{_rates_html(res, task)}{_img(files["fig_hits"], "hit rates")}

@@ -34,7 +34,13 @@ from typing import Any
 import numpy as np
 
 from proxybench.experiments.config import ConfigError
-from proxybench.experiments.heldout.config import DEFAULTS, Criteria, HeldOutConfig, load_heldout_config
+from proxybench.experiments.heldout.config import (
+    DEFAULTS,
+    Criteria,
+    HeldOutConfig,
+    HeldOutSettings,
+    load_heldout_config,
+)
 from proxybench.experiments.proxies import proxy_params
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
@@ -76,7 +82,7 @@ def cases_for(cfg: HeldOutConfig, quick: bool = False) -> list[Case]:
     from proxybench.targets.heldout import heldout_targets
     from proxybench.targets.spec import RealityTarget
 
-    n = cfg.targets or DEFAULTS[quick]["targets"]
+    n = cfg.targets or DEFAULTS[quick].targets
     out = [Case(t.name, "held-out", t, {}, "held-out target (structural differences, θ hidden)")
            for t in heldout_targets(n, cfg.family_seed)]
     if cfg.negative_case:
@@ -101,7 +107,7 @@ class CaseRun:
 class HeldOutRun:
     """Everything the scoring needs: the resolved settings and the runs of every case."""
 
-    settings: dict[str, Any]
+    settings: HeldOutSettings
     grid: Grid
     agents: list[AgentSpec]
     cases: list[CaseRun]
@@ -110,21 +116,20 @@ class HeldOutRun:
     wall_s: float = 0.0
 
 
-def resolve_settings(cfg: HeldOutConfig, quick: bool) -> dict[str, Any]:
+def resolve_settings(cfg: HeldOutConfig, quick: bool) -> HeldOutSettings:
     """Every choice made: the config, then the mode's defaults."""
     d = DEFAULTS[quick]
-    return {"quick": quick, "targets": cfg.targets or d["targets"], "family_seed_sha256":
-            hashlib.sha256(str(cfg.family_seed).encode()).hexdigest()[:12], "negative_case": cfg.negative_case,
-            "agents": list(cfg.agents or d["agents"]), "map": cfg.map, "episodes": cfg.episodes or d["episodes"],
-            "reference_episodes": cfg.reference_episodes or d["reference_episodes"],
-            "seconds": cfg.seconds or d["seconds"], "tasks": {k: list(v) for k, v in cfg.tasks.items()},
-            "primary_task": cfg.primary_task, "grid": {k: list(v) for k, v in (cfg.grid or d["grid"]).items()},
-            "image_size": list(cfg.image_size), "criteria": cfg.criteria.model_dump(),
-            "n_boot": cfg.n_boot or d["n_boot"], "agent_boot": cfg.agent_boot, "reference_boot": cfg.reference_boot,
-            "seed": cfg.seed}
+    return HeldOutSettings(
+        quick=quick, targets=cfg.targets or d.targets,
+        family_seed_sha256=hashlib.sha256(str(cfg.family_seed).encode()).hexdigest()[:12],
+        negative_case=cfg.negative_case, agents=tuple(cfg.agents or d.agents), map=cfg.map,
+        episodes=cfg.episodes or d.episodes, reference_episodes=cfg.reference_episodes or d.reference_episodes,
+        seconds=cfg.seconds or d.seconds, tasks=cfg.tasks, primary_task=cfg.primary_task, grid=cfg.grid or d.grid,
+        image_size=cfg.image_size, criteria=cfg.criteria, n_boot=cfg.n_boot or d.n_boot, agent_boot=cfg.agent_boot,
+        reference_boot=cfg.reference_boot, seed=cfg.seed)
 
 
-def write_criteria(settings: dict[str, Any], out: Path) -> Path:
+def write_criteria(settings: HeldOutSettings, out: Path) -> Path:
     """``criteria.json``: the pass criteria and settings, written before any episode runs (the report quotes
     it with its time and hash, so the criteria cannot have been chosen after seeing the results). A resumed
     run with the same settings keeps the file, and so the time it was first written."""
@@ -133,11 +138,11 @@ def write_criteria(settings: dict[str, Any], out: Path) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "criteria.json"
     try:
-        if json.loads(path.read_text()).get("settings") == json.loads(json.dumps(settings)):
+        if json.loads(path.read_text()).get("settings") == settings.model_dump(mode="json"):
             return path  # the same experiment resumed: the criteria keep the time they were first written
     except (OSError, ValueError):
         pass
-    doc = {"written": time.strftime("%Y-%m-%d %H:%M:%S %z"), "settings": settings,
+    doc = {"written": time.strftime("%Y-%m-%d %H:%M:%S %z"), "settings": settings.model_dump(mode="json"),
            "best_available_definition": (definition or "").split("**Best available θ**", 1)[-1].split(">>>")[0].strip(),
            "hit": "a metric's pick (its best θ on the evaluation episodes, ties broken at random) is a hit when it "
                   "lies within tolerance_steps grid steps (along every axis) of a θ in the reference set"}
@@ -161,20 +166,20 @@ def run_heldout(cfg: HeldOutConfig, out: str | Path, backend: Backend | None = N
     backend = backend or InlineBackend()
     s = resolve_settings(cfg, quick)
     try:
-        agents = parse_agents(s["agents"], out / "agents")
+        agents = parse_agents(s.agents, out / "agents")
     except AgentArgError as exc:
         raise ConfigError(f"agents: {exc}") from None
     criteria_file = write_criteria(s, out)
     cases = cases if cases is not None else cases_for(cfg, quick)
-    grid = Grid.from_dict(s["grid"])
-    metrics = tuple(dict.fromkeys(m for ms in s["tasks"].values() for m in ms))
-    n_eps = s["episodes"] + s["reference_episodes"]
+    grid = Grid.from_dict(s.grid)
+    metrics = tuple(dict.fromkeys(m for ms in s.tasks.values() for m in ms))
+    n_eps = s.episodes + s.reference_episodes
     run_dir = out / "runs"
     specs = {a.label: a for a in agents}
     targets, jobs, ran = [], [], 0
     for k, case in enumerate(cases):
-        tgt = case.target.run(agents, map_name=s["map"], seconds=s["seconds"], episodes=n_eps, seed=s["seed"],
-                              metrics=metrics, image_size=tuple(s["image_size"]), run_dir=run_dir, backend=backend,
+        tgt = case.target.run(agents, map_name=s.map, seconds=s.seconds, episodes=n_eps, seed=s.seed,
+                              metrics=metrics, image_size=tuple(s.image_size), run_dir=run_dir, backend=backend,
                               progress=(lambda _st, d, t, c=case: progress(f"target {c.name}", d, t)) if progress
                               else None)
         ran += tgt.ran
@@ -182,7 +187,7 @@ def run_heldout(cfg: HeldOutConfig, out: str | Path, backend: Backend | None = N
         if progress:
             progress("target episodes (cases)", k + 1, len(cases))
         for g, p in enumerate(grid.points):
-            params = proxy_params(tuple(s["image_size"]), case.proxy, **p)
+            params = proxy_params(tuple(s.image_size), case.proxy, **p)
             jobs.extend(_proxy_jobs(specs, tgt, DomainSpec(grid.label(g), params), metrics))
     keys = [j.key for j in jobs]
     unique = list({k: j for k, j in zip(keys, jobs, strict=True)}.values())  # cases with equal θ share episodes
