@@ -82,13 +82,43 @@ class HitRate:
         return self.hits / self.n if self.n else float("nan")
 
 
+@dataclass(frozen=True)
+class McNemar:
+    """PRPV against another metric on the same held-out targets: the targets only PRPV hit, only the metric hit,
+    and the exact McNemar p-value."""
+
+    task: str
+    reference: str
+    tolerance: int
+    metric: str
+    prpv_only: int
+    metric_only: int
+    p: float
+
+    def key(self) -> tuple[str, str, int, str]:
+        return self.task, self.reference, self.tolerance, self.metric
+
+
+@dataclass(frozen=True)
+class AgentSetAnalysis:
+    """PRPV's hit rate over bootstrap agent sets (the same set in every case): its draws, their interval, and how
+    often the pick stays within ``tolerance`` of the full set's."""
+
+    task: str
+    tolerance: int
+    n_boot: int
+    rates: np.ndarray
+    interval: tuple[float, float]
+    pick_stays: float
+
+
 @dataclass
 class HeldOutResult:
     run: HeldOutRun
     scores: list[CaseScore]
     rates: list[HitRate]
-    comparisons: list[dict[str, Any]]
-    agent_boot: dict[str, Any]
+    comparisons: list[McNemar]
+    agent_boot: AgentSetAnalysis
 
     @property
     def settings(self) -> HeldOutSettings:
@@ -189,7 +219,7 @@ def _subset_hit(grid: Grid, pe, te, pr, tr, idx, tol: int, rng) -> tuple[int, bo
     return pick, grid.within(pick, best, tol)
 
 
-def _agent_analyses(run: HeldOutRun, scores: list[CaseScore]) -> dict[str, Any]:
+def _agent_analyses(run: HeldOutRun, scores: list[CaseScore]) -> AgentSetAnalysis:
     """Leave-one-agent-out and bootstrap-over-agents hit rates of PRPV (primary task and tolerance, order
     reference), with the same agent sets in every case so that a set's hit rate is one draw of the population."""
     s = run.settings
@@ -228,9 +258,9 @@ def _agent_analyses(run: HeldOutRun, scores: list[CaseScore]) -> dict[str, Any]:
             rates.append(float(np.mean(hits)))
     q = 100 * (1 - s.criteria.level) / 2
     rates_a = np.asarray(rates)
-    return {"task": task, "tolerance": tol, "n_boot": n_boot, "rates": rates_a,
-            "interval": (float(np.percentile(rates_a, q)), float(np.percentile(rates_a, 100 - q))) if rates else
-            (float("nan"),) * 2, "pick_stays": float(np.mean(stays)) if stays else float("nan")}
+    interval = (float(np.percentile(rates_a, q)), float(np.percentile(rates_a, 100 - q))) if rates else \
+        (float("nan"), float("nan"))
+    return AgentSetAnalysis(task, tol, n_boot, rates_a, interval, float(np.mean(stays)) if stays else float("nan"))
 
 
 def score_heldout(run: HeldOutRun) -> HeldOutResult:
@@ -256,6 +286,5 @@ def score_heldout(run: HeldOutRun) -> HeldOutResult:
                     for label in held[0].picks:
                         if label != "PRPV":
                             b, c, p = mcnemar_p(base, [sc.hits[(label, ref, tol)] for sc in held])
-                            comparisons.append({"task": task, "reference": ref, "tolerance": tol, "metric": label,
-                                                "prpv_only": b, "metric_only": c, "p": p})
+                            comparisons.append(McNemar(task, ref, tol, label, b, c, p))
     return HeldOutResult(run, scores, rates, comparisons, _agent_analyses(run, scores))

@@ -12,6 +12,7 @@ import hashlib
 import html
 import json
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -55,10 +56,10 @@ def findings(res: HeldOutResult) -> list[str]:
                    "not distinguishable from a random pick" if r.high >= r.chance else "below chance")
         out.append(f"{r.metric}: {_rate_text(r)} (random pick: {_pct(r.chance)}): {verdict}.")
     for c in res.comparisons:
-        if (c["task"], c["reference"], c["tolerance"]) == (task, ref, tol) and c["p"] < 0.05:
-            better = "PRPV" if c["prpv_only"] > c["metric_only"] else c["metric"]
-            out.append(f"PRPV vs {c['metric']}: {better} hits more often (PRPV alone {c['prpv_only']}, "
-                       f"{c['metric']} alone {c['metric_only']}, exact McNemar p = {c['p']:.3f}).")
+        if (c.task, c.reference, c.tolerance) == (task, ref, tol) and c.p < 0.05:
+            better = "PRPV" if c.prpv_only > c.metric_only else c.metric
+            out.append(f"PRPV vs {c.metric}: {better} hits more often (PRPV alone {c.prpv_only}, "
+                       f"{c.metric} alone {c.metric_only}, exact McNemar p = {c.p:.3f}).")
     held = [sc for sc in res.scores if sc.kind == "held-out" and sc.task == task and sc.reference["truth"]]
     if held:
         near = sum(any(res.run.grid.within(b, sc.reference["truth"], tol) for b in sc.reference["order"])
@@ -78,10 +79,10 @@ def findings(res: HeldOutResult) -> list[str]:
                    + ("" if moved is None else (", away from the truth (the optimum moved)" if moved else
                                                 ", within tolerance of the truth (the optimum did not move)")) + ".")
     ab = res.agent_boot
-    if np.isfinite(ab["interval"][0]):
-        out.append(f"Over the agent population ({ab['n_boot']} bootstrap agent sets, the same set in every case): "
-                   f"PRPV's hit rate lies in [{_pct(ab['interval'][0])}, {_pct(ab['interval'][1])}] (95%); its pick "
-                   f"stays within {ab['tolerance']} step(s) of the full set's in {_pct(ab['pick_stays'])} of "
+    if np.isfinite(ab.interval[0]):
+        out.append(f"Over the agent population ({ab.n_boot} bootstrap agent sets, the same set in every case): "
+                   f"PRPV's hit rate lies in [{_pct(ab.interval[0])}, {_pct(ab.interval[1])}] (95%); its pick "
+                   f"stays within {ab.tolerance} step(s) of the full set's in {_pct(ab.pick_stays)} of "
                    "the draws.")
     loo = [h for sc in res.scores if sc.task == task and sc.kind == "held-out" for h in sc.loo_hits]
     if loo:
@@ -181,7 +182,7 @@ def tables(res: HeldOutResult) -> dict[str, Any]:
                            "prpv_low": sc.prpv_interval[0][g], "prpv_high": sc.prpv_interval[1][g],
                            **{lb: v[g] for lb, v in sc.values.items()}})
     return {"rates": rates, "cases": pd.DataFrame(cases), "values": pd.DataFrame(values),
-            "comparisons": pd.DataFrame(res.comparisons)}
+            "comparisons": pd.DataFrame([asdict(c) for c in res.comparisons])}
 
 
 def _img(path: Path, alt: str) -> str:
@@ -199,13 +200,12 @@ def _rates_html(res: HeldOutResult, task: str) -> str:
     neg = {sc.case: sc for sc in res.scores if sc.kind == "negative" and sc.task == task}
     rows = []
     for r in [x for x in res.rates if x.task == task]:
-        cmp = next((c for c in res.comparisons if (c["task"], c["reference"], c["tolerance"], c["metric"])
-                    == (task, r.reference, r.tolerance, r.metric)), None)
+        cmp = next((c for c in res.comparisons if c.key() == (task, r.reference, r.tolerance, r.metric)), None)
         rows.append([r.metric, "best available θ" if r.reference == "order" else "nearest truth", r.tolerance,
                      _rate_text(r), _pct(r.chance),
                      ", ".join(f"{'hit' if sc.hits[(r.metric, r.reference, r.tolerance)] else 'miss'}"
                                for sc in neg.values()) or "—",
-                     "—" if cmp is None else f"{cmp['prpv_only']} / {cmp['metric_only']}, p = {cmp['p']:.2f}"])
+                     "—" if cmp is None else f"{cmp.prpv_only} / {cmp.metric_only}, p = {cmp.p:.2f}"])
     return _table(["metric", "reference", "≤ steps", "hits over held-out targets [95% Wilson]", "random pick",
                    "negative case", "PRPV only / metric only (McNemar)"], rows)
 
