@@ -206,7 +206,7 @@ def test_the_plant_contract_holds_on_a_dtps_robot(tmp_path):
 
 
 class _StallsThenFails(Agent):
-    """Drives forward, thinks for 2.5 s at frame 5 (longer than the watchdog), fails at frame 12."""
+    """Drives forward, thinks for 4 s at frame 5 (longer than the watchdog), fails at frame 12."""
 
     name = "staller"
 
@@ -216,7 +216,8 @@ class _StallsThenFails(Agent):
     def act(self, obs):
         self.k += 1
         if self.k == 5:
-            time.sleep(2.5)  # 2 s past the 0.5 s watchdog: room for a loaded machine
+            time.sleep(4.0)  # 3.5 s past the 0.5 s watchdog: room for a loaded machine (with 2.5 s the zero was
+            # counted by the bridge but not yet delivered in 2 of 3 full-suite runs beside other heavy work)
         if self.k == 12:
             raise RuntimeError("gave up")
         return np.array([0.3, 0.3])
@@ -229,7 +230,7 @@ def test_the_robot_hears_zero_when_the_agent_stalls_or_fails(tmp_path):
 
     with FakeRobot(tmp_path, START) as fake:
         with DtpsRobot(parse_address(fake.address), DtpsRobotOptions(reset="teleport"), 15.0) as robot:
-            traj = run_episode_on_plant(robot.plant("loop_3x3"), _StallsThenFails(), 3, 5.0)
+            traj = run_episode_on_plant(robot.plant("loop_3x3"), _StallsThenFails(), 3, 8.0)
             assert traj.termination == "agent_failure" and "gave up" in traj.events[-1].message
             assert traj.meta["robot"]["watchdogs"] >= 1
             failed_at = time.time()
@@ -238,7 +239,7 @@ def test_the_robot_hears_zero_when_the_agent_stalls_or_fails(tmp_path):
                                          10.0)
         moving = [i for i, c in enumerate(fake.commands()) if c["left"] != 0.0]
         zeros_between = [c for c in fake.commands()[moving[0]:moving[-1]] if c["left"] == 0.0]
-        assert zeros_between, "the watchdog's (0, 0) during the agent's 2.5 s stall never reached the robot"
+        assert zeros_between, "the watchdog's (0, 0) during the agent's 4 s stall never reached the robot"
 
 
 @sdk
