@@ -10,8 +10,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, computed_field
 
+from proxybench.experiments.validate.config import ValidateSettings
 from proxybench.usefulness.validation import Comparison
 
 __all__ = ["QUALITIES", "HitRate", "MeasureSummary", "MethodSummary", "Pick", "Primary", "Quality", "TargetRecord",
@@ -141,16 +142,12 @@ class ValidationSummary(_Model):
     """``summary.json``: the study's conclusion, per method, with the primary test (absent when PRPV picked on no
     target) and the targets' revealed θ."""
 
-    family: str
-    """the target family"""
+    settings: ValidateSettings
+    """the study's settings, as criteria.json pre-registered them"""
     targets: int
     """targets finished (and summarised)"""
-    targets_planned: int
-    """targets pre-registered"""
     interim: bool
     """fewer finished than planned: an interim look, no decision"""
-    settings: dict[str, Any]
-    """the study's settings as criteria.json holds them"""
     methods: dict[str, MethodSummary]
     """per selection method, its regrets against the nominal θ's"""
     criteria: CriteriaCheck
@@ -159,4 +156,16 @@ class ValidationSummary(_Model):
     """the pre-registered test (None where PRPV picked on no target)"""
     truths: list[dict[str, float]] = []
     """each target's θ, revealed after scoring"""
+
+    @computed_field  # type: ignore[prop-decorator]
+    @property
+    def family(self) -> str:
+        """the target family"""
+        return self.settings.family
+
+    @computed_field  # type: ignore[prop-decorator]
+    @property
+    def targets_planned(self) -> int:
+        """targets pre-registered"""
+        return self.settings.targets
     wall_s: float = 0.0

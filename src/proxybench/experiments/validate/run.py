@@ -433,6 +433,5 @@ def summarize(run: ValidationRun, criteria: dict[str, Any] | None = None) -> Val
     indices = run.indices or list(range(len(recs)))
     reveal = [getattr(run.targets[i], "reveal", dict)() for i in indices]
     truths = [{k: v for k, v in tr.items() if k in s.grid or k in s.draw} for tr in reveal]
-    return ValidationSummary(family=s.family, targets=len(recs), targets_planned=s.targets, interim=interim,
-                             settings=s.model_dump(mode="json"), methods=out, criteria=check, primary=primary,
-                             truths=truths, wall_s=run.wall_s)
+    return ValidationSummary(settings=s, targets=len(recs), interim=interim, methods=out, criteria=check,
+                             primary=primary, truths=truths, wall_s=run.wall_s)
