@@ -99,7 +99,7 @@ def test_sequential_loop_runs_the_chosen_agents_on_a_live_target(tmp_path):
     kw = dict(map_name="loop_3x3", seconds=2.0, seed=0, metrics=("driven_lanedir_consec",), image_size=(32, 24),
               run_dir=tmp_path / "runs", pilot=2, budget=2, batch=1)
     res = run_sequential(RealityTarget(), agents, **kw)
-    extra = sum(len(h["agents"]) for h in res.history)
+    extra = sum(len(h.agents) for h in res.history)
     assert sum(res.episodes.values()) == 6 + extra and extra <= 2
     assert all(len(res.results[a]) == res.episodes[a] for a in res.episodes)
     assert {(e.agent, e.episode) for e in res.run.episodes} == {(a, e) for a, n in res.episodes.items()

@@ -73,13 +73,24 @@ def decide(results: Mapping[str, np.ndarray], higher: Sequence[bool], rule: Rule
     return out
 
 
+@dataclass(frozen=True)
+class Batch:
+    """One batch of the sequential rule: the agents run, the episodes spent so far (pilot included), whether it
+    ended in a look at the data, and the pairs still open as of the last look."""
+
+    agents: list[str]
+    episodes: int
+    look: bool
+    open_pairs: int
+
+
 @dataclass
 class StopResult:
     """The episodes after the loop, what each batch did, why it stopped and what it decided per pair."""
 
     results: dict[str, np.ndarray]
     rule: Rule
-    history: list[dict] = field(default_factory=list)  # per batch: agents run, a look or not, pairs open
+    history: list[Batch] = field(default_factory=list)
     stopped: str = "budget"  # "settled" (no open pair left) | "budget"
     spent: int = 0  # episodes run after the pilot
     open_after_pilot: int = 0
@@ -130,8 +141,7 @@ def run_until_settled(results: Mapping[str, np.ndarray], fetch: Fetch, higher: S
         if look:
             nxt += 1
             out.decisions = decide(res, higher, rule)
-        out.history.append({"agents": list(picks), "episodes": pilot + out.spent, "look": look,
-                            "open_pairs": len(out.open_pairs())})  # as of the last look
+        out.history.append(Batch(list(picks), pilot + out.spent, look, len(out.open_pairs())))
         if progress:
             progress(out.spent, budget)
     out.stopped = "budget" if out.open_pairs() else "settled"

@@ -13,7 +13,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -106,7 +106,7 @@ def write_plan(res: PlanResult, out: str | Path) -> list[Path]:
     data = {"target": res.target.info.statement, "wall_s": round(res.wall_s, 1), **p.to_dict()}
     if seq is not None:
         data["sequential"] = {"episodes": seq.episodes, "stopped": seq.stopped, "looks": seq.looks,
-                              "open_after_pilot": seq.open_after_pilot, "rounds": seq.history,
+                              "open_after_pilot": seq.open_after_pilot, "rounds": [asdict(b) for b in seq.history],
                               "decisions": [{"a": a, "b": b, "decision": d} for (a, b), d in seq.decisions.items()]}
     (out / "plan.json").write_text(json.dumps(data, indent=1, default=str))
     pd.DataFrame([r.__dict__ for r in p.rows]).to_csv(out / "plan.csv", index=False)

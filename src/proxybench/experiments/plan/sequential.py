@@ -27,7 +27,7 @@ from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, TargetEpisode, TargetRun, episode_seed
 from proxybench.targets.manifest import TargetError
 from proxybench.tasks.metrics import METRICS
-from proxybench.usefulness.stopping import run_until_settled
+from proxybench.usefulness.stopping import Batch, run_until_settled
 
 __all__ = ["SequentialResult", "run_sequential"]
 
@@ -41,7 +41,7 @@ class SequentialResult:
     metrics: tuple[str, ...]
     higher: tuple[bool, ...]
     run: TargetRun | None = None  # the same as a TargetRun (episodes with seeds and poses): proxies can replay it
-    history: list[dict] = field(default_factory=list)  # per batch: agents run, pairs still open (as of the last look)
+    history: list[Batch] = field(default_factory=list)  # per batch: agents run, pairs still open (as of the last look)
     stopped: str = "budget"  # "settled" (no open pair left) | "budget"
     ran: int = 0  # episodes run now (not from the cache)
     open_after_pilot: int = 0  # target pairs whose order the pilot left open

@@ -61,9 +61,8 @@ def _print_plan(p: Any, tgt: Any, seq: Any, wall: float, console: Any) -> None:
     eps = ", ".join(f"{m} {e:g}" for m, e in zip(p.metrics, p.tolerances, strict=True))
     console.print(f"tolerances ε (pairs within them are ties): {eps}", highlight=False)
     if seq is not None:
-        rounds = ", ".join(f"{'+'.join(h['agents'])}" + (f" → {h['open_pairs']}" if h.get("look") else "")
-                           for h in seq.history)
-        console.print(f"sequential: {sum(len(h['agents']) for h in seq.history)} more episodes "
+        rounds = ", ".join(f"{'+'.join(h.agents)}" + (f" → {h.open_pairs}" if h.look else "") for h in seq.history)
+        console.print(f"sequential: {sum(len(h.agents) for h in seq.history)} more episodes "
                       f"({'every pair settled' if seq.stopped == 'settled' else 'budget spent'}; the level split "
                       f"over {seq.looks} looks); open pairs: {seq.open_after_pilot} after the pilot"
                       + (f", then {rounds}" if rounds else ""), highlight=False)
