@@ -176,11 +176,12 @@ def test_the_best_prpv_names_every_proxy_that_reaches_it():
     import pandas as pd
 
     from proxybench.experiments.predictivity.report import noise_statement
+    from proxybench.experiments.predictivity.run import BestProxy
 
     rows = [{"parameter": "command_delay", "value": 0.05, "prpv": 12.0, "prpv_low": 0.0, "prpv_high": 60.0},
             {"parameter": "blur_time", "value": 0.0, "prpv": 12.0, "prpv_low": 4.0, "prpv_high": 64.0},
             {"parameter": "trim", "value": 0.1, "prpv": 13.0, "prpv_low": 2.0, "prpv_high": 80.0}]
-    res = SimpleNamespace(best_row=lambda: rows[0], frame=lambda: pd.DataFrame(rows),
+    res = SimpleNamespace(best_row=lambda: BestProxy.of({**rows[0], "ppv": 0.0}), frame=lambda: pd.DataFrame(rows),
                           noise=SimpleNamespace(value=18.0, low=4.0, high=32.0),
                           experiment=SimpleNamespace(episodes=3, episode_count=3))
     text = noise_statement(res)

@@ -26,26 +26,22 @@ __all__ = ["baseline_findings", "baselines_html", "diagnosis_csv", "diagnosis_fi
 _SHOWN = 12  # pairs per predictor in the report's table (all of them in the CSV)
 
 
-def _best(res: PredictivityResult) -> dict:
-    return min(res.rows, key=lambda r: r["prpv"])
-
-
 def baseline_findings(res: PredictivityResult) -> list[str]:
     """One line per baseline: its PRPV beside the best proxy's, and whether the best proxy beats it."""
-    best = _best(res)
+    best = res.best_row()
     k = len(res.target.results)
     out = []
     for name, u in res.baselines.items():
         p = u["prpv"]
-        if not (np.isfinite(p.low) and np.isfinite(best["prpv_low"])):
+        if not (np.isfinite(p.low) and np.isfinite(best.prpv.low)):
             span, beaten = "(no range: one episode per agent in it)", "the data cannot say which is lower"
         else:
             span = f"[{p.low:.1f}, {p.high:.1f}]"
-            beaten = ("the best proxy's range lies below it" if best["prpv_high"] < p.low else
-                      "it beats the best proxy: its range lies below" if p.high < best["prpv_low"] else
+            beaten = ("the best proxy's range lies below it" if best.prpv.high < p.low else
+                      "it beats the best proxy: its range lies below" if p.high < best.prpv.low else
                       "the best proxy does not beat it: their ranges overlap")
         out.append(f"baseline {name}: PRPV {p.value:.1f} {span} of {k * (k - 1)} vs the best proxy's "
-                   f"{best['prpv']:.1f} [{best['prpv_low']:.1f}, {best['prpv_high']:.1f}] ({best['domain']}): {beaten}")
+                   f"{best.prpv.value:.1f} [{best.prpv.low:.1f}, {best.prpv.high:.1f}] ({best.domain}): {beaten}")
     if "no simulator: agent classes" in res.baselines:
         out.append(f"the agent-class rule: {CLASS_RULE}")
     return out
@@ -71,11 +67,11 @@ def baselines_html(res: PredictivityResult) -> str:
     """A table of the baselines' figures (same columns as the proxies') and the rule of the class baseline."""
     head = ("baseline", "PRPV [order range]", "PPV (mean per agent) [95% CI]", "Pearson r (SRCC)", "Spearman ρ",
             "Kendall τ")
-    best = _best(res)
-    rows = [f'<tr style="background:#eef6ff"><td>best proxy: {html.escape(best["domain"])}</td><td>{best["prpv"]:.1f} '
-            f'[{best["prpv_low"]:.1f}, {best["prpv_high"]:.1f}]</td><td>{best["ppv"]:.2f} [{best["ppv_low"]:.2f}, '
-            f'{best["ppv_high"]:.2f}]</td><td>{best["pearson"]:.2f}</td><td>{best["spearman"]:.2f}</td>'
-            f'<td>{best["kendall"]:.2f}</td></tr>']
+    best = res.best_row()
+    rows = [f'<tr style="background:#eef6ff"><td>best proxy: {html.escape(best.domain)}</td><td>{best.prpv.value:.1f} '
+            f'[{best.prpv.low:.1f}, {best.prpv.high:.1f}]</td><td>{best.ppv.value:.2f} [{best.ppv.low:.2f}, '
+            f'{best.ppv.high:.2f}]</td><td>{best.pearson:.2f}</td><td>{best.spearman:.2f}</td>'
+            f'<td>{best.kendall:.2f}</td></tr>']
     for name, u in res.baselines.items():
         p, v = u["prpv"], u["ppv"]
         rows.append(f"<tr><td>{html.escape(name)}</td><td>{p.value:.1f} [{p.low:.1f}, {p.high:.1f}]</td>"

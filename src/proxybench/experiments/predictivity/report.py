@@ -174,18 +174,18 @@ def _fmt(v: float) -> str:
 def noise_statement(res: PredictivityResult) -> str:
     """How much of the best proxy's PRPV is what two replicates of the target differ by."""
     best, nf = res.best_row(), res.noise
-    where = f"{best['parameter']} = {_fmt(best['value'])}"
+    where = f"{best.parameter} = {_fmt(best.value)}"
     df = res.frame()
-    equal = [f"{r.parameter} = {_fmt(r.value)}" for r in df[df.prpv == best["prpv"]].itertuples()
-             if (r.parameter, r.value) != (best["parameter"], best["value"])]
+    equal = [f"{r.parameter} = {_fmt(r.value)}" for r in df[df.prpv == best.prpv.value].itertuples()
+             if (r.parameter, r.value) != (best.parameter, best.value)]
     if equal:  # the best value is not one proxy's alone: say so
         where += f" (equally at {', '.join(equal)})"
-    if best["prpv"] <= 0:
+    if best.prpv.value <= 0:
         return (f"The best proxy ({where}) orders the agents exactly as the target (PRPV 0); the target's noise "
                 f"floor is {nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}].")
-    share = min(1.0, nf.value / best["prpv"])
-    within = best["prpv"] <= nf.high
-    return (f"Best PRPV {best['prpv']:.1f} [{best['prpv_low']:.1f}, {best['prpv_high']:.1f}] at {where}; the "
+    share = min(1.0, nf.value / best.prpv.value)
+    within = best.prpv.value <= nf.high
+    return (f"Best PRPV {best.prpv.value:.1f} [{best.prpv.low:.1f}, {best.prpv.high:.1f}] at {where}; the "
             f"target's own noise floor (PRPV of the target against a replicate of itself, "
             f"{res.experiment.episode_count} episodes per agent) is {nf.value:.1f} [{nf.low:.1f}, {nf.high:.1f}]: "
             "about "

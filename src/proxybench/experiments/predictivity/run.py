@@ -52,6 +52,30 @@ class SweepClaim:
     neighbours: tuple[tuple[float, Estimate], ...]  # (neighbour value, ΔPRPV best − neighbour)
 
 
+@dataclass(frozen=True)
+class BestProxy:
+    """The swept proxy of lowest PRPV: where it is (parameter, value, domain) and its figures with intervals."""
+
+    parameter: str
+    value: float
+    domain: str
+    prpv: Estimate
+    ppv: Estimate
+    pearson: float
+    spearman: float
+    kendall: float
+
+    @classmethod
+    def of(cls, row: dict[str, Any]) -> BestProxy:
+        """From a row of the result's table (``usefulness.csv``: a figure and its ``_low`` / ``_high``)."""
+        def est(name: str) -> Estimate:
+            return Estimate(row[name], row.get(f"{name}_low", float("nan")), row.get(f"{name}_high", float("nan")))
+
+        return cls(row["parameter"], row["value"], row.get("domain", ""), est("prpv"), est("ppv"),
+                   row.get("pearson", float("nan")), row.get("spearman", float("nan")),
+                   row.get("kendall", float("nan")))
+
+
 @dataclass
 class PredictivityResult:
     """One row per (swept parameter, value) with the usefulness figures; the target, its noise floor, claims."""
@@ -84,8 +108,9 @@ class PredictivityResult:
     def config(self) -> Experiment:
         return self.experiment
 
-    def best_row(self) -> dict[str, Any]:
-        return min(self.rows, key=lambda r: r["prpv"])
+    def best_row(self) -> BestProxy:
+        """The swept proxy of lowest PRPV (the first of equals), its figures typed."""
+        return BestProxy.of(min(self.rows, key=lambda r: r["prpv"]))
 
 
 def proxy_domains(exp: Experiment) -> list[tuple[str, float, DomainSpec]]:
