@@ -42,6 +42,20 @@ class PlanStudy(ExperimentStudy):
 
         return write_plan(result, out)
 
+    def example(self) -> PlanResult:
+        """A canned result: the plan for five agents from a made-up pilot of three episodes (no episode runs)."""
+        from proxybench.experiments.examples import canned_experiment, canned_target
+        from proxybench.experiments.plan.run import PlanResult, tolerances
+        from proxybench.tasks.metrics import METRICS
+        from proxybench.usefulness.plan import plan
+
+        exp = canned_experiment()
+        tgt = canned_target(exp)
+        higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
+        made = plan(tgt.results, higher, exp.metrics, grid=[3, 10, 30], reps=20, seed=0,
+                    tolerances=tolerances(exp.metrics, exp.seconds, {}))
+        return PlanResult(made, tgt, exp)
+
     def show(self, result: PlanResult, console: Any, *, wall: float = 0.0) -> None:
         _print_plan(result.plan, result.target, result.sequential, result.wall_s, console)
 

@@ -36,7 +36,8 @@ from proxybench.usefulness.intervals import Usefulness, usefulness
 from proxybench.usefulness.metrics import Estimate, PairedResults, agent_means
 from proxybench.usefulness.noise import compare_paired, lowest_claim, noise_floor, paired_prpv_samples, ppv_noise_floor
 
-__all__ = ["PredictivityResult", "SweepClaim", "proxy_domains", "proxy_jobs", "run_predictivity"]
+__all__ = ["PredictivityResult", "SweepClaim", "measure_predictivity", "proxy_domains", "proxy_jobs",
+           "run_predictivity"]
 
 Progress = Callable[[str, int, int], None]
 
@@ -156,9 +157,21 @@ def run_predictivity(
         js.append(job)
         rs.append(r)
     proxies = {name: by_agent(js, rs, exp.metrics) for name, (js, rs) in by_domain.items()}
+    commands = _pod_commands(exp, tgt) if _has_pod(exp, target, tgt) else None
+    from proxybench.autolab.effect import effect_for_target  # a target localised from simulated watchtowers
+
+    return measure_predictivity(exp, tgt, domains, proxies, progress, commands=commands, proxy_episodes=sweep.ran,
+                                localisation=effect_for_target(target, exp.metrics, exp.n_boot, exp.seed))
+
+
+def measure_predictivity(exp: Experiment, tgt: TargetRun, domains: list[tuple[str, float, DomainSpec]],
+                         proxies: dict[str, dict[str, np.ndarray]], progress: Progress | None = None, *,
+                         commands: np.ndarray | None = None, proxy_episodes: int = 0,
+                         localisation: Any = None) -> PredictivityResult:
+    """The study's measures from its tables: the target's and each proxy's per-agent scores (``proxies``: one per
+    swept domain and the nominal θ), POD from the target's ``commands`` where given. Runs no episode."""
     higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
     truth = {**tgt.truth, **exp.truth}
-    commands = _pod_commands(exp, tgt) if _has_pod(exp, target, tgt) else None
     rows, details = [], {}
     for k, (param, value, dom) in enumerate(domains):
         est = usefulness(PairedResults(proxies[dom.name], tgt.results, higher, exp.metrics), n_boot=exp.n_boot,
@@ -185,12 +198,9 @@ def run_predictivity(
     size = load_map(tgt.map).size_m
     diagnosis = diagnose({f"best proxy ({best})": proxies[best], **baseline_tables(tgt, proxies[NOMINAL], higher)},
                          tgt, higher, exp.metrics, size)
-    from proxybench.autolab.effect import effect_for_target  # a target localised from simulated watchtowers
-
-    return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, sweep.ran, details, ppv_floor,
+    return PredictivityResult(rows, exp, tgt, target_scores, floor, claims, proxy_episodes, details, ppv_floor,
                               _agent_sensitivity(exp, domains, proxies, tgt, higher),
-                              order_structure(tgt.results, higher, caps), base, diagnosis,
-                              effect_for_target(target, exp.metrics, exp.n_boot, exp.seed))
+                              order_structure(tgt.results, higher, caps), base, diagnosis, localisation)
 
 
 def _agent_sensitivity(exp: Experiment, domains, proxies, tgt: TargetRun, higher) -> dict[str, Any]:

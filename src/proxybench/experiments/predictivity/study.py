@@ -41,6 +41,16 @@ the target's noise floor.
         files = write_report(result, out, wall)
         return [files["html"], files["fig3_3"], files["fig3_4"], files["csv"]]
 
+    def example(self) -> PredictivityResult:
+        """A canned result: five agents, a three-value trim sweep, made-up scores (no episode runs)."""
+        from proxybench.experiments.examples import canned_experiment, canned_proxies, canned_target
+        from proxybench.experiments.predictivity.run import measure_predictivity, proxy_domains
+
+        exp = canned_experiment()
+        tgt = canned_target(exp)
+        domains = proxy_domains(exp)
+        return measure_predictivity(exp, tgt, domains, canned_proxies(tgt, [d.name for _, _, d in domains]))
+
     def show(self, result: PredictivityResult, console: Any, *, wall: float = 0.0) -> None:
         from proxybench.experiments.predictivity.report import findings
 

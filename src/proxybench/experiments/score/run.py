@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from pydantic import ValidationError
 
 from proxybench.experiments.baselines import NOMINAL, baselines
@@ -32,7 +33,7 @@ from proxybench.usefulness.intervals import Usefulness, usefulness
 from proxybench.usefulness.metrics import Estimate, PairedResults
 from proxybench.usefulness.noise import PairedComparison, compare_paired, noise_floor, paired_prpv_samples
 
-__all__ = ["ProxyScore", "ScoreResult", "score_proxy"]
+__all__ = ["ProxyScore", "ScoreResult", "measure_score", "score_proxy"]
 
 Progress = Callable[[str, int, int], None]
 
@@ -117,6 +118,15 @@ def score_proxy(cfg: ExperimentConfig, theta: Mapping[str, Any], run_dir: str | 
                      progress=(lambda done, total, _r: progress("proxy episodes", done, total)) if progress else None)
     results = iter(sweep.results)
     proxies = {name: by_agent(js, [next(results) for _ in js], exp.metrics) for name, js in jobs.items()}
+    return measure_score(exp, tgt, proxies, doms["param"].name, dict(theta), doms["vs_param"].name, dict(versus or {}),
+                         sweep.ran)
+
+
+def measure_score(exp: Experiment, tgt: TargetRun, proxies: Mapping[str, dict[str, np.ndarray]], scored: str,
+                  theta: dict[str, Any], versus_label: str, versus: dict[str, Any],
+                  proxy_episodes: int = 0) -> ScoreResult:
+    """The figures of θ (``proxies[scored]``) and of the θ it is compared with (``proxies[versus_label]``) against
+    the target, paired, beside the nominal calibration (``proxies[NOMINAL]``) and the baselines. Runs no episode."""
     higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
 
     base = baselines(tgt, proxies[NOMINAL], higher, exp.metrics, n_boot=exp.n_boot, seed=exp.seed)
@@ -125,11 +135,11 @@ def score_proxy(cfg: ExperimentConfig, theta: Mapping[str, Any], run_dir: str | 
         return base[NOMINAL] if name == NOMINAL else usefulness(
             PairedResults(proxies[name], tgt.results, higher, exp.metrics), n_boot=exp.n_boot, seed=exp.seed)
 
-    a = ProxyScore(doms["param"].name, dict(theta), figures(doms["param"].name))
-    b = ProxyScore(doms["vs_param"].name, dict(versus or {}), figures(doms["vs_param"].name))
+    a = ProxyScore(scored, theta, figures(scored))
+    b = ProxyScore(versus_label, versus, figures(versus_label))
     names = [a.label, b.label] + ([NOMINAL] if NOMINAL not in (a.label, b.label) else [])
     samples = paired_prpv_samples(tgt.results, [proxies[n] for n in names], higher, n_boot=exp.n_boot, seed=exp.seed)
     points = [a.figures["prpv"].value, b.figures["prpv"].value, base[NOMINAL]["prpv"].value][: len(names)]
     vs_nominal = compare_paired(names, points, samples, 0, 2) if len(names) == 3 else None
     return ScoreResult(exp, tgt, a, b, compare_paired(names, points, samples, 0, 1), vs_nominal, base,
-                       noise_floor(tgt.results, higher, n_boot=exp.n_boot, seed=exp.seed), sweep.ran)
+                       noise_floor(tgt.results, higher, n_boot=exp.n_boot, seed=exp.seed), proxy_episodes)

@@ -57,6 +57,16 @@ class ScoreStudy(ExperimentStudy):
         path.write_text(json.dumps(result.to_dict(), indent=1, default=float))
         return [path]
 
+    def example(self) -> ScoreResult:
+        """A canned result: trim 0.1 against the nominal θ on made-up scores (no episode runs)."""
+        from proxybench.experiments.baselines import NOMINAL
+        from proxybench.experiments.examples import canned_experiment, canned_proxies, canned_target
+        from proxybench.experiments.score.run import measure_score
+
+        exp = canned_experiment()
+        tgt = canned_target(exp)
+        return measure_score(exp, tgt, canned_proxies(tgt, ["trim=0.1"]), "trim=0.1", {"trim": 0.1}, NOMINAL, {})
+
     def show(self, result: ScoreResult, console: Any, *, wall: float = 0.0) -> None:
         from rich.markup import escape
         from rich.table import Table
