@@ -56,6 +56,34 @@ class OptimizeStudy(ExperimentStudy):
             return write_plv_search(result, out, wall)
         return write_optimization(result, out, wall)
 
+    def example(self) -> OptimizeResult:
+        """A canned result: eight trials over trim on made-up tables, their tied set (nothing runs)."""
+        import optuna
+
+        from proxybench.experiments.examples import canned_experiment, canned_proxies, canned_target
+        from proxybench.experiments.optimize.run import OptimizeResult, Trial, best_decile, tied_set
+        from proxybench.tasks.metrics import METRICS
+        from proxybench.usefulness.noise import noise_floor
+
+        exp = canned_experiment()
+        tgt = canned_target(exp)
+        higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
+        values = [round(-0.3 + 0.075 * k, 3) for k in range(9)]
+        tables = canned_proxies(tgt, [f"trim={v}" for v in values])
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+        study = optuna.create_study(direction="minimize")
+        dist = {"trim": optuna.distributions.FloatDistribution(-0.3, 0.3)}
+        trials, proxies = [], {}
+        for k, v in enumerate(values):
+            prpv = float(abs(v - 0.05) * 40)
+            study.add_trial(optuna.trial.create_trial(params={"trim": v}, distributions=dist, value=prpv))
+            trials.append(Trial(k, prpv, {"trim": v}, prpv=prpv, ppv=0.1 * prpv))
+            proxies[k] = tables[f"trim={v}"]
+        tied = tied_set(trials, proxies, tgt.results, higher, ["trim"], n_boot=exp.n_boot, seed=0)
+        best = min(trials, key=lambda tr: tr.value)
+        return OptimizeResult(dict(best.theta), best.value, {}, study, trials, best_decile(trials, ["trim"]),
+                              tgt.info, exp, noise_floor(tgt.results, higher, n_boot=exp.n_boot, seed=0), 0, tied)
+
     def show(self, result: OptimizeResult | PLVOptimizeResult, console: Any, *, wall: float = 0.0) -> None:
         from proxybench.experiments.optimize.plv_search import PLVOptimizeResult
 

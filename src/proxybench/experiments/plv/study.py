@@ -63,6 +63,27 @@ class PLVStudy(Study[PLVConfig, "PLVResult"]):
         files = write_report(result, out)
         return [files["html"], files["fig3_6"], files["fig_plv"], files["table"], files["runs"]]
 
+    def example(self) -> PLVResult:
+        """A canned result: made-up learning curves of the target and two proxies, two seeds (nothing trains)."""
+        from proxybench.experiments.plv.run import PLVResult
+
+        cfg = PLVConfig(width=32, height=24, ladder=(250, 500, 1000, 2000), seeds=(0, 1),
+                        proxies={"pitch-19": "proxy", "pitch-35": "proxy:camera_pitch=35"})
+
+        def runs(arm: str, curve: list[tuple[int, float]]) -> list[dict[str, Any]]:
+            return [{"arm": arm, "n": n, "seed": s, "off_policy": n, "on_policy": 0, "cost": float(n),
+                     "score": v + 0.1 * s} for n, v in curve for s in (0, 1)]
+
+        def proxy(spec: str, zero_shot: float) -> dict[str, Any]:
+            return {"spec": spec, "zero_shot": zero_shot + 0.05, "in_proxy": 24.0,
+                    "zero_shot_by_seed": {"0": zero_shot, "1": zero_shot + 0.1}}
+
+        return PLVResult(cfg, runs("target-only", [(250, 5.0), (500, 12.0), (1000, 18.0), (2000, 20.0)])
+                         + runs("pitch-19", [(250, 17.0), (500, 19.8), (1000, 19.9), (2000, 20.0)])
+                         + runs("pitch-35", [(250, 3.0), (500, 6.0), (1000, 9.0), (2000, 12.0)]),
+                         {"pitch-19": proxy("proxy", 8.0), "pitch-35": proxy("proxy:camera_pitch=35", 2.0)},
+                         expert_score=21.0)
+
     def show(self, result: PLVResult, console: Any, *, wall: float = 0.0) -> None:
         from rich.markup import escape
         from rich.table import Table

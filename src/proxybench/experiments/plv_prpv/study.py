@@ -50,6 +50,20 @@ one target.
         files = write_choice(result, out, wall)
         return [files["json"], files["csv"], files["png"]]
 
+    def example(self) -> ChoiceResult:
+        """A canned result: three candidate pitches, made-up PRPV and PLV figures (nothing runs or trains)."""
+        from proxybench.experiments.plv_prpv.run import Candidate, ChoiceResult
+
+        cands = [Candidate("camera_pitch=12", {"camera_pitch": 12.0}, 14.0, 8.0, 20.0, (6.0, 1.0, 11.0), 300.0, 100.0,
+                           500.0, "300 [100, 500]", 0.9, 10.0),
+                 Candidate("camera_pitch=19.15", {"camera_pitch": 19.15}, 8.0, 4.0, 12.0, (0.0, 0.0, 0.0), 900.0,
+                           600.0, 1200.0, "900 [600, 1,200]", 1.0, 15.0),
+                 Candidate("camera_pitch=26", {"camera_pitch": 26.0}, 10.0, 6.0, 16.0, (2.0, -1.0, 5.0), None, None,
+                           400.0, "not reached", 0.3, 6.0)]
+        return ChoiceResult(cands, "camera_pitch=19.15", ["camera_pitch=19.15", "camera_pitch=26"],
+                            "camera_pitch=19.15", ["camera_pitch=19.15"], "a canned example: made-up figures",
+                            ["straight", "pid", "vision"], 3, 2, 19.0, 2000.0)
+
     def show(self, result: ChoiceResult, console: Any, *, wall: float = 0.0) -> None:
         from rich.markup import escape
         from rich.table import Table
