@@ -14,6 +14,7 @@ from proxybench.agents.base import Agent, Observation
 from proxybench.agents.simple import RandomAgent, StraightAgent
 from proxybench.domain.params import DomainParams
 from proxybench.testing import AgentContract, CheckResult, ContractViolation, StreamSpec, parametrize_checks
+from support.checkpoints import untrained_checkpoint
 
 STREAM = StreamSpec(params=DomainParams(image_width=80, image_height=60), seconds=1.0)
 PIXEL = Path(__file__).resolve().parent / "protocol_agents" / "pixel_agent.py"
@@ -39,12 +40,7 @@ def test_node_agents_keep_the_contract_and_a_killed_node_is_a_named_failure(mode
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """An untrained behaviour-cloning network (as test_heldout makes one): a real checkpoint agent."""
-    pytest.importorskip("torch")
-    from proxybench.learning.model import ModelConfig
-    from proxybench.learning.training import build_model, save_checkpoint
-
-    model = build_model(ModelConfig(width=32, height=24, channels=(4, 4, 4, 4, 4), hidden=(8,)), device="cpu")
-    return save_checkpoint(tmp_path_factory.mktemp("bc") / "bc.pt", model)
+    return untrained_checkpoint(tmp_path_factory.mktemp("bc"))
 
 
 def test_a_behaviour_cloning_checkpoint_keeps_the_contract(checkpoint: Path) -> None:

@@ -18,6 +18,7 @@ from proxybench.runner.jobs import AgentSpec
 from proxybench.targets.heldout import FAMILY_PARAMS, HeldOutTarget, draw_heldout, heldout_targets
 from proxybench.usefulness.agent_sets import leave_one_out, order_structure, sensitivity
 from proxybench.usefulness.heldout_scoring import Grid, best_available, mcnemar_p, order_disagreement, wilson
+from support.checkpoints import untrained_checkpoint
 
 runner = CliRunner()
 
@@ -123,12 +124,7 @@ def test_config_errors_name_the_field(tmp_path):
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory):
     """An untrained behaviour-cloning network: a real checkpoint agent, driving badly."""
-    pytest.importorskip("torch")
-    from proxybench.learning.model import ModelConfig
-    from proxybench.learning.training import build_model, save_checkpoint
-
-    model = build_model(ModelConfig(width=32, height=24, channels=(4, 4, 4, 4, 4), hidden=(8,)), device="cpu")
-    return save_checkpoint(tmp_path_factory.mktemp("bc") / "bc.pt", model)
+    return untrained_checkpoint(tmp_path_factory.mktemp("bc"))
 
 
 TINY = ["--quick", "--targets", "1", "--episodes", "1", "--reference-episodes", "2", "--seconds", "2", "--grid",

@@ -16,6 +16,7 @@ from proxybench.evaluator.run import _admitted
 from proxybench.runner.evaluate import evaluate_benchmark
 from proxybench.runner.jobs import AgentSpec, is_privileged
 from proxybench.tasks.benchmark import Benchmark
+from support.checkpoints import untrained_checkpoint
 
 runner = CliRunner()
 
@@ -35,12 +36,7 @@ scoring:
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """An untrained behaviour-cloning network: a real checkpoint agent, camera only."""
-    pytest.importorskip("torch")
-    from proxybench.learning.model import ModelConfig
-    from proxybench.learning.training import build_model, save_checkpoint
-
-    model = build_model(ModelConfig(width=32, height=24, channels=(4, 4, 4, 4, 4), hidden=(8,)), device="cpu")
-    return save_checkpoint(tmp_path_factory.mktemp("bc") / "bc.pt", model)
+    return untrained_checkpoint(tmp_path_factory.mktemp("bc"))
 
 
 def test_is_privileged_knows_every_flavour(checkpoint: Path) -> None:
