@@ -22,11 +22,12 @@ import numpy as np
 # importing proxybench.learning first sets OMP_WAIT_POLICY=PASSIVE before PyTorch loads (see its docstring)
 from proxybench.agents.base import Observation
 from proxybench.learning.agent import BCAgent
+from proxybench.learning.collection import collect
+from proxybench.learning.configs import CollectConfig
 from proxybench.learning.dataset import ARRAYS, Dataset
 from proxybench.learning.domains import reality_domain
 from proxybench.learning.model import ModelConfig, configure_threads, default_device
 from proxybench.learning.training import TrainConfig, build_model, train
-from proxybench.runner.collect import CollectConfig, collect
 
 
 def _random_dataset(n: int, w: int, h: int) -> Dataset:
