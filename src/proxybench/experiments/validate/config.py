@@ -185,7 +185,7 @@ class ValidateSettings(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    family: str
+    family: Literal["heldout", "gym"]
     quick: bool
     targets: int
     agents: tuple[str, ...]
