@@ -50,6 +50,18 @@ _BASES = ("road_rgb", "grass_rgb", "floor_rgb", "asphalt_rgb", "outside_rgb")
 _SKY, _HORIZON = 0, 1
 
 
+@nb.njit(cache=True, fastmath=True, error_model="numpy", boundscheck=False, inline="always")
+def _span_ends(x, y, cs, sn, gx_r, gy_r, w):
+    """(X0, Y0, dX, dY): the map point of a straight ground row's first pixel and the step to the next, seen
+    from the pose (x, y) with heading cosine ``cs`` and sine ``sn`` (the row's robot-frame ends ``gx_r``, ``gy_r``)."""
+    du = 1.0 / (w - 1) if w > 1 else 0.0
+    px0 = gx_r[0]
+    py0 = gy_r[0]
+    dpx = (gx_r[w - 1] - px0) * du
+    dpy = (gy_r[w - 1] - py0) * du
+    return x + cs * px0 - sn * py0, y + sn * px0 + cs * py0, cs * dpx - sn * dpy, sn * dpx + cs * dpy
+
+
 @nb.njit(cache=True, fastmath=True, error_model="numpy", boundscheck=False)
 def render_rows(
     lo, hi, out, poses, cam_index, linear, gx, gy, level_map, ground_from, sky_mix, vignette,
@@ -125,15 +137,7 @@ def render_rows(
                 sn = math.sin(pose_n[k, 2])
                 buf = acc if k == 0 else tmp  # sub-frame 0 is drawn in place, later ones are added
                 if is_ground and linear[c]:
-                    du = 1.0 / (w - 1) if w > 1 else 0.0
-                    px0 = gx_r[0]
-                    py0 = gy_r[0]
-                    dpx = (gx_r[w - 1] - px0) * du
-                    dpy = (gy_r[w - 1] - py0) * du
-                    X0 = pose_n[k, 0] + cs * px0 - sn * py0
-                    Y0 = pose_n[k, 1] + sn * px0 + cs * py0
-                    dX = cs * dpx - sn * dpy
-                    dY = sn * dpx + cs * dpy
+                    X0, Y0, dX, dY = _span_ends(pose_n[k, 0], pose_n[k, 1], cs, sn, gx_r, gy_r, w)
                     span_row(buf, True, X0, Y0, dX, dY, lv_r, 0, w, amp, pal, grain_n, inv_ts, tile_kind,
                               tile_affine, tile_base, tex, tex_off, tex_size, n_pal)
                 else:
@@ -154,18 +158,10 @@ def render_rows(
                         acc[u, 1] += tmp[u, 1]
                         acc[u, 2] += tmp[u, 2]
         elif is_ground and linear[c]:
-            du = 1.0 / (w - 1) if w > 1 else 0.0
             for k in range(k_sub):
                 cs = math.cos(pose_n[k, 2])
                 sn = math.sin(pose_n[k, 2])
-                px0 = gx_r[0]
-                py0 = gy_r[0]
-                dpx = (gx_r[w - 1] - px0) * du
-                dpy = (gy_r[w - 1] - py0) * du
-                X0 = pose_n[k, 0] + cs * px0 - sn * py0
-                Y0 = pose_n[k, 1] + sn * px0 + cs * py0
-                dX = cs * dpx - sn * dpy
-                dY = sn * dpx + cs * dpy
+                X0, Y0, dX, dY = _span_ends(pose_n[k, 0], pose_n[k, 1], cs, sn, gx_r, gy_r, w)
                 span_row(acc, k == 0, X0, Y0, dX, dY, lv_r, 0, w, amp, pal, grain_n, inv_ts, tile_kind,
                           tile_affine, tile_base, tex, tex_off, tex_size, n_pal)
         elif is_ground:
