@@ -49,6 +49,22 @@ def _slab(p, d, half):
 
 
 @nb.njit(cache=True, inline="always")
+def _box_sides(p, d, half, ax, ay, t_in, t_out, nx, ny, nz):
+    """A box's pair of sides |p + t·d| <= half (box frame) clipping the ray's span ``t_in .. t_out``: (hit
+    possible, t_in, t_out, nx, ny, nz), the normal ±(ax, ay, 0) (map frame) where the ray enters through them."""
+    ok, t1, t2 = _slab(p, d, half)
+    if not ok:
+        return False, t_in, t_out, nx, ny, nz
+    if t1 > t_in:
+        t_in = t1
+        sg = -1.0 if d > 0.0 else 1.0
+        nx = sg * ax
+        ny = sg * ay
+        nz = 0.0
+    return True, t_in, min(t_out, t2), nx, ny, nz
+
+
+@nb.njit(cache=True, inline="always")
 def _hit_primitive(ox, oy, oz, dx, dy, dz, prim):
     """(t, nx, ny, nz): first hit of the ray O + t D (t > 0) with an upright cylinder or box; t = inf on a miss."""
     inf = np.inf
@@ -75,31 +91,12 @@ def _hit_primitive(ox, oy, oz, dx, dy, dz, prim):
         ly = -s * rx + c * ry
         ldx = c * dx + s * dy
         ldy = -s * dx + c * dy
-        t_in = tz_lo
-        t_out = tz_hi
-        nx = 0.0
-        ny = 0.0
-        nz = nzc
-        ok, t1, t2 = _slab(lx, ldx, prim[5])
+        ok, t_in, t_out, nx, ny, nz = _box_sides(lx, ldx, prim[5], c, s, tz_lo, tz_hi, 0.0, 0.0, nzc)
         if not ok:
             return inf, 0.0, 0.0, 0.0
-        if t1 > t_in:
-            t_in = t1
-            sg = -1.0 if ldx > 0.0 else 1.0
-            nx = sg * c
-            ny = sg * s
-            nz = 0.0
-        t_out = min(t_out, t2)
-        ok, t1, t2 = _slab(ly, ldy, prim[6])
+        ok, t_in, t_out, nx, ny, nz = _box_sides(ly, ldy, prim[6], -s, c, t_in, t_out, nx, ny, nz)
         if not ok:
             return inf, 0.0, 0.0, 0.0
-        if t1 > t_in:
-            t_in = t1
-            sg = -1.0 if ldy > 0.0 else 1.0
-            nx = -sg * s
-            ny = sg * c
-            nz = 0.0
-        t_out = min(t_out, t2)
         if t_in >= t_out or t_in <= 0.0:
             return inf, 0.0, 0.0, 0.0
         return t_in, nx, ny, nz
