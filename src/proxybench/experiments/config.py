@@ -30,7 +30,8 @@ from proxybench.tasks.agent_entries import AgentEntry, resolve_agent_cwd
 from proxybench.untrusted import problems
 
 __all__ = ["COMMAND_DEFAULTS", "ConfigError", "Experiment", "ExperimentConfig", "ExperimentStudy", "PlanConfig",
-           "SearchConfig", "default_help", "load_config", "param_name", "resolve", "resolve_run"]
+           "SearchConfig", "default_help", "load_config", "param_name", "param_values", "resolve",
+           "resolve_run"]
 
 FULL_AGENTS = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
                "pure-pursuit-fast", "vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",
@@ -88,6 +89,14 @@ def param_name(name: str) -> str:
     if name not in DomainParams.model_fields:
         raise ValueError(unknown_parameter(name))
     return name
+
+
+def param_values(v: dict[str, tuple[float, ...]] | None, least: int, label: str = "") -> None:
+    """A ValueError unless every name of ``v`` is a domain parameter with ``least`` or more values, none twice."""
+    for name, values in (v or {}).items():
+        param_name(name)
+        if len(values) < least or len(set(values)) != len(values):
+            raise ValueError(f"{label}{name}: give {least} or more values, none twice, got {list(values)}")
 
 
 class SearchConfig(StudyConfig):
@@ -267,12 +276,7 @@ class ExperimentConfig(StudyConfig):
     def _sweep(cls, v: dict[str, tuple[float, ...]]) -> dict[str, tuple[float, ...]]:
         if not v:
             raise ValueError("give at least one parameter to sweep")
-        for name, values in v.items():
-            param_name(name)
-            if not values:
-                raise ValueError(f"{name}: give at least one value")
-            if len(set(values)) != len(values):
-                raise ValueError(f"{name}: a value is listed twice")
+        param_values(v, 1)
         return v
 
     @field_validator("truth")

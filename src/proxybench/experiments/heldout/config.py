@@ -12,7 +12,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from proxybench.domain.params import check_image_size
-from proxybench.experiments.config import param_name
+from proxybench.experiments.config import param_values
 from proxybench.experiments.study import Cli, StudyConfig
 
 __all__ = ["DEFAULTS", "Criteria", "HeldOutConfig", "HeldOutSettings", "ModeDefaults", "default_help",
@@ -99,10 +99,7 @@ class HeldOutConfig(StudyConfig):
     @field_validator("grid")
     @classmethod
     def _grid(cls, v: dict[str, tuple[float, ...]] | None) -> dict[str, tuple[float, ...]] | None:
-        for name, values in (v or {}).items():
-            param_name(name)
-            if len(values) < 2 or len(set(values)) != len(values):
-                raise ValueError(f"grid {name}: give at least two distinct values")
+        param_values(v, 2, "grid ")
         return v
 
     @model_validator(mode="after")
