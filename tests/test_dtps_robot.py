@@ -228,19 +228,19 @@ def test_the_robot_hears_zero_when_the_agent_stalls_or_fails(tmp_path):
     from proxybench.runner.dtps_plant import DtpsRobot
     from proxybench.runner.robot_episode import run_episode_on_plant
 
-    with FakeRobot(tmp_path, START) as fake:
-        with DtpsRobot(parse_address(fake.address), DtpsRobotOptions(reset="teleport"), 15.0) as robot:
-            traj = run_episode_on_plant(robot.plant("loop_3x3"), _StallsThenFails(), 3, 8.0)
-            assert traj.termination == "agent_failure" and "gave up" in traj.events[-1].message
-            assert traj.meta["robot"]["watchdogs"] >= 1
-            failed_at = time.time()
-            # the end of the episode stops the robot at once, before the bridge is closed
-            assert fake.wait_for_command(lambda c: c["wall"] > failed_at - 0.5 and c["left"] == c["right"] == 0.0,
-                                         10.0)
-            moving = [i for i, c in enumerate(fake.commands()) if c["left"] != 0.0]
-            zeros_between = [c for c in fake.commands()[moving[0]:moving[-1]] if c["left"] == 0.0]
-            assert zeros_between, ("the watchdog's (0, 0) during the agent's 4 s stall never reached the robot: "
-                                   f"{traj.meta['robot']}; link {robot.link.link_events}; heard {fake.commands()}")
+    with (FakeRobot(tmp_path, START) as fake,
+          DtpsRobot(parse_address(fake.address), DtpsRobotOptions(reset="teleport"), 15.0) as robot):
+        traj = run_episode_on_plant(robot.plant("loop_3x3"), _StallsThenFails(), 3, 8.0)
+        assert traj.termination == "agent_failure" and "gave up" in traj.events[-1].message
+        assert traj.meta["robot"]["watchdogs"] >= 1
+        failed_at = time.time()
+        # the end of the episode stops the robot at once, before the bridge is closed
+        assert fake.wait_for_command(lambda c: c["wall"] > failed_at - 0.5 and c["left"] == c["right"] == 0.0,
+                                     10.0)
+        moving = [i for i, c in enumerate(fake.commands()) if c["left"] != 0.0]
+        zeros_between = [c for c in fake.commands()[moving[0]:moving[-1]] if c["left"] == 0.0]
+        assert zeros_between, ("the watchdog's (0, 0) during the agent's 4 s stall never reached the robot: "
+                               f"{traj.meta['robot']}; link {robot.link.link_events}; heard {fake.commands()}")
 
 
 @sdk

@@ -39,6 +39,8 @@ FULL_AGENTS = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggi
 QUICK_AGENTS = ("straight", "bang-bang", "pid", "pid-fast", "pid-twitchy", "pure-pursuit", "vision", "vision-fast",
                 "vision-pitch25", "vision-twitchy", "vision-slow", "pid-sluggish")
 OBJECTIVES = ("prpv", "ppv", "mix", "plv")
+#: the commands whose defaults :data:`COMMAND_DEFAULTS` holds
+Command = Literal["predictivity", "optimize", "plan", "rank"]
 
 #: what a field left unset takes, per command and mode (a recorded target's map, length, agents and
 #: episodes come first)
@@ -56,6 +58,11 @@ COMMAND_DEFAULTS: dict[tuple[str, bool], dict[str, Any]] = {
                       "pod_seconds": 0.0, "trials": 0, "reps": 400, "budget": 20},
     ("plan", True): {"agents": QUICK_AGENTS[:6], "episodes": 3, "seconds": 8.0, "n_boot": 100,
                      "pod_seconds": 0.0, "trials": 0, "reps": 150, "budget": 4},
+    # rank: ``episodes`` are the target's (the sequential mode's pilot), ``proxy_episodes`` the proxy's own per agent
+    ("rank", False): {"agents": QUICK_AGENTS[:8], "episodes": 10, "seconds": 20.0, "n_boot": 0, "pod_seconds": 0.0,
+                      "trials": 0, "proxy_episodes": 100, "budget": 80},
+    ("rank", True): {"agents": QUICK_AGENTS[:4], "episodes": 4, "seconds": 6.0, "n_boot": 0, "pod_seconds": 0.0,
+                     "trials": 0, "proxy_episodes": 16, "budget": 8},
 }
 
 
@@ -386,7 +393,7 @@ class Experiment:
                 "truth": self.truth}
 
 
-def resolve(cfg: ExperimentConfig, command: Literal["predictivity", "optimize", "plan"], *, quick: bool = False,
+def resolve(cfg: ExperimentConfig, command: Command, *, quick: bool = False,
             work_dir: str | Path = "out/agents", target=None):
     """(Experiment, Target): the config's choices, the target's fixed ones, then the command's defaults.
 
@@ -456,14 +463,14 @@ class ExperimentStudy(Study[ExperimentConfig, Any]):
     beside)."""
 
     #: whose defaults (:data:`COMMAND_DEFAULTS`) a field left unset takes: the study's own name's by default
-    defaults_of: ClassVar[Literal["predictivity", "optimize", "plan"] | None] = None
+    defaults_of: ClassVar[Command | None] = None
     config: ClassVar[type[ExperimentConfig]] = ExperimentConfig
     config_help = "experiment file (YAML; every field: docs/targets.md)"
     extra_defaults: ClassVar[dict[str, str]] = {}
 
     @property
-    def command(self) -> Literal["predictivity", "optimize", "plan"]:
-        return self.defaults_of or typing.cast(Literal["predictivity", "optimize", "plan"], self.name)
+    def command(self) -> Command:
+        return self.defaults_of or typing.cast(Command, self.name)
 
     def help_defaults(self) -> dict[str, str]:
         return default_help(self.command) | self.extra_defaults

@@ -12,13 +12,16 @@ nothing is known. Set your own ranges with ``sweep:`` / ``search.space:`` in the
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from proxybench.domain.params import NOMINAL_CALIBRATION, DomainParams, unit_of
+from proxybench.runner.jobs import DomainSpec
 
-__all__ = ["DEFAULT_SEARCH", "DEFAULT_SWEEP", "NOMINAL", "param_label", "proxy_params"]
+__all__ = ["DEFAULT_SEARCH", "DEFAULT_SWEEP", "NOMINAL", "param_label", "proxy_domain", "proxy_params"]
 
 #: the nominal calibration every proxy starts from (see the module docstring)
 NOMINAL: dict[str, Any] = NOMINAL_CALIBRATION
@@ -40,6 +43,20 @@ def proxy_params(image_size: tuple[int, int], fixed: dict[str, Any] | None = Non
     """A proxy instance: the nominal calibration, then ``fixed`` (the experiment's proxy θ), then ``changes``."""
     w, h = image_size
     return DomainParams.model_validate({**NOMINAL, **(fixed or {}), **changes, "image_width": w, "image_height": h})
+
+
+def proxy_domain(image_size: tuple[int, int], fixed: dict[str, Any], theta: Mapping[str, Any], field: str,
+                 nominal_label: str) -> DomainSpec:
+    """θ on top of ``fixed`` (the experiment's proxy θ) and the nominal calibration, named by θ (``nominal_label``
+    when θ is empty); a bad name or value is a ConfigError naming ``field``."""
+    from proxybench.experiments.study import ConfigError
+    from proxybench.untrusted import problems
+
+    try:
+        params = proxy_params(image_size, {**fixed, **theta})
+    except ValidationError as exc:
+        raise ConfigError(problems(exc, field)) from None
+    return DomainSpec(", ".join(f"{k}={v}" for k, v in theta.items()) if theta else nominal_label, params)
 
 
 def param_label(name: str) -> str:

@@ -16,19 +16,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import ValidationError
 
 from proxybench.experiments.baselines import NOMINAL, baselines
 from proxybench.experiments.config import Experiment, ExperimentConfig, resolve
 from proxybench.experiments.predictivity.run import proxy_jobs
-from proxybench.experiments.proxies import proxy_params
+from proxybench.experiments.proxies import proxy_domain, proxy_params
 from proxybench.experiments.study import ConfigError
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import DomainSpec
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, TargetRun, by_agent
 from proxybench.tasks.metrics import METRICS
-from proxybench.untrusted import problems
 from proxybench.usefulness.intervals import Usefulness, usefulness
 from proxybench.usefulness.metrics import Estimate, PairedResults
 from proxybench.usefulness.noise import PairedComparison, compare_paired, noise_floor, paired_prpv_samples
@@ -80,19 +78,6 @@ class ScoreResult:
                 "proxy_episodes_simulated": self.proxy_episodes}
 
 
-def _label(theta: Mapping[str, Any]) -> str:
-    return ", ".join(f"{k}={v}" for k, v in theta.items()) if theta else NOMINAL
-
-
-def _domain(exp: Experiment, theta: Mapping[str, Any], field: str) -> DomainSpec:
-    """θ on top of the experiment's proxy θ and the nominal calibration; a bad name or value names ``field``."""
-    try:
-        params = proxy_params(exp.image_size, {**exp.proxy, **theta})
-    except ValidationError as exc:
-        raise ConfigError(problems(exc, field)) from None
-    return DomainSpec(_label(theta), params)
-
-
 def score_proxy(cfg: ExperimentConfig, theta: Mapping[str, Any], run_dir: str | Path, *,
                 versus: Mapping[str, Any] | None = None, backend: Backend | None = None,
                 progress: Progress | None = None, quick: bool = False, target: Target | None = None) -> ScoreResult:
@@ -103,7 +88,8 @@ def score_proxy(cfg: ExperimentConfig, theta: Mapping[str, Any], run_dir: str | 
     backend = backend or InlineBackend()
     run_dir = Path(run_dir)
     exp, target = resolve(cfg, "predictivity", quick=quick, work_dir=run_dir.parent / "agents", target=target)
-    doms = {"param": _domain(exp, theta, "param"), "vs_param": _domain(exp, versus or {}, "vs_param"),
+    doms = {"param": proxy_domain(exp.image_size, exp.proxy, theta, "param", NOMINAL),
+            "vs_param": proxy_domain(exp.image_size, exp.proxy, versus or {}, "vs_param", NOMINAL),
             NOMINAL: DomainSpec(NOMINAL, proxy_params(exp.image_size, exp.proxy))}
     if doms["param"].params == doms["vs_param"].params:
         raise ConfigError("vs_param: the θ to compare with is the θ scored (give --vs-param NAME=VALUE, or a "
