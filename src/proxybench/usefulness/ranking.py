@@ -319,13 +319,15 @@ def _groups(target: Scores, proxy: Scores | None,
 
 def _differences(target: Scores, proxy: Scores | None, members: list[tuple[str, str]], ids: tuple[int, ...],
                  unl: tuple[int, ...], m: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """(d, d̂, d̂ᵘ): a − b per episode, columns pair-major then metric."""
-    def table(src: Scores, agent: str, keys: tuple[int, ...]) -> np.ndarray:
-        return np.asarray([src[agent][e] for e in keys], dtype=float).reshape(len(keys), m)
+    """(d, d̂, d̂ᵘ): a − b per episode, columns pair-major then metric; each agent's table is built once."""
+    def tables(src: Scores, keys: tuple[int, ...]) -> dict[str, np.ndarray]:
+        agents = {x for pair in members for x in pair}
+        return {a: np.asarray([src[a][e] for e in keys], dtype=float).reshape(len(keys), m) for a in agents}
 
-    d = np.hstack([table(target, a, ids) - table(target, b, ids) for a, b in members])
+    def diff(t: dict[str, np.ndarray]) -> np.ndarray:
+        return np.hstack([t[a] - t[b] for a, b in members])
+
+    d = diff(tables(target, ids))
     if proxy is None or not unl:
         return d, None, None
-    d_hat = np.hstack([table(proxy, a, ids) - table(proxy, b, ids) for a, b in members])
-    d_unl = np.hstack([table(proxy, a, unl) - table(proxy, b, unl) for a, b in members])
-    return d, d_hat, d_unl
+    return d, diff(tables(proxy, ids)), diff(tables(proxy, unl))

@@ -79,7 +79,7 @@ table{{border-collapse:collapse}}tr:nth-child(even){{background:#f4f4f4}}.box{{b
 </head><body><h1>Ranking {len(r.agents)} agents on the target</h1>
 <p class="box"><b>Target:</b> {html.escape(res.target.statement)}<br><b>Guarantee:</b> {html.escape(r.error_control)}
 (α = {r.alpha:g}; {"anytime-valid: it holds whenever the run stopped" if r.sequential else "fixed sample"}).
-<br><b>Proxy:</b> {html.escape(_theta(res))} ({html.escape(res.theta_source)}), as the predictor (PPI++).</p>
+<br><b>Proxy:</b> {html.escape(_theta(res))}, as the predictor (PPI++).</p>
 <p>{r.decided()} of {len(r.pairs)} pair decisions made with the proxy, {r.decided(False)} with the target alone;
 {eps["target"]} target episodes, {eps["proxy_paired"]} paired proxy episodes and {eps["proxy_only"]} proxy-only
 episodes; tolerances ε: {html.escape(", ".join(f"{m} {e:g}" for m, e in zip(r.metrics, res.tolerances,
@@ -98,7 +98,9 @@ def _iv(iv: tuple[float, float]) -> str:
 
 
 def _theta(res: RankResult) -> str:
-    return ", ".join(f"{k}={v}" for k, v in res.theta.items()) or "the nominal calibration"
+    """θ and where it came from (``--param``, an optimize run), or the nominal calibration."""
+    theta = ", ".join(f"{k}={v}" for k, v in res.theta.items())
+    return f"{theta} ({res.theta_source})" if theta else "the nominal calibration"
 
 
 def _stopped(res: RankResult) -> str:
@@ -115,7 +117,7 @@ def show_rank(res: RankResult, console: Any) -> None:
 
     r = res.ranking
     console.print(f"[bold]target:[/bold] {escape(res.target.statement)}", highlight=False)
-    console.print(f"proxy: {escape(_theta(res))} ({escape(res.theta_source)}); α = {r.alpha:g}, "
+    console.print(f"proxy: {escape(_theta(res))}; α = {r.alpha:g}, "
                   f"{escape(r.error_control)}", highlight=False)
     table = Table(title=f"rank-sets ({'anytime-valid' if r.sequential else 'fixed sample'})")
     table.add_column("agent")
