@@ -52,7 +52,8 @@ if TYPE_CHECKING:
     from proxybench.protocol.options import RobotNodeOptions
 
 __all__ = ["DESIGNS", "THESIS_FIGURES", "Design", "DesignResult", "RepeatabilityConfig", "RepeatabilityResult",
-           "lab_variation", "recorded_study", "repeatability_study", "robot_study", "run_repeatability"]
+           "design_figures", "lab_variation", "recorded_study", "repeatability_study", "robot_study",
+           "run_repeatability"]
 
 
 #: thesis §5.4 (real Duckiebots in the ETHZ and TTIC Autolabs): AVG / STD of MPD [cm] and MOD [deg]
@@ -153,7 +154,7 @@ def repeatability_study(
             trajs = _trajectories(jobs, folder, backend, name, progress)
             for tr, (lab, r, i) in zip(trajs, cells, strict=True):
                 tr.meta.update({"design": name, "lab": lab, "robot": r, "run": i})
-            out[name] = DesignResult(d, trajs, labels, _figures(trajs, labels, d))
+            out[name] = DesignResult(d, trajs, labels, design_figures(trajs, labels, d))
     return RepeatabilityResult(out, "reality-model (simulated stand-in for real Duckiebots)")
 
 
@@ -179,7 +180,7 @@ def _trajectories(jobs: list[Job], run_dir: Path, backend: Backend | None, name:
     return [Trajectory.load(r.trajectory) for r in sweep.results]
 
 
-def _figures(trajs: Sequence[Trajectory], labels: Sequence[str], d: Design) -> dict[str, float]:
+def design_figures(trajs: Sequence[Trajectory], labels: Sequence[str], d: Design) -> dict[str, float]:
     """MPD / MOD, split over robots (one lab) or labs (several) when the design has more than one."""
     if d.group is None:
         return repeatability(trajs)
@@ -226,7 +227,7 @@ def recorded_study(paths: Sequence[str | Path], map_name: str = "loop_3x3") -> R
     labels = [f"{lab}/{robot}" for lab, robot, _ in found]
     name = f"recorded {d.label}"
     notes = {name: f"{len(found)} runs from {len(labs)} lab(s), {len(robots)} robot(s); runs per robot: {per}"}
-    designs = {name: DesignResult(d, trajs, labels, _figures(trajs, labels, d))}
+    designs = {name: DesignResult(d, trajs, labels, design_figures(trajs, labels, d))}
     return RepeatabilityResult(designs, DomainKind.RECORDED, notes)
 
 
@@ -261,7 +262,7 @@ def robot_study(agent: str, commands: Mapping[str, str], runs: int = 3, seconds:
                 labels.append(name)
     label = f"robot nodes {d.label}"
     notes = {label: "; ".join(f"{n}: {c}" for n, c in commands.items())}
-    return RepeatabilityResult({label: DesignResult(d, trajs, labels, _figures(trajs, labels, d))}, "robot node",
+    return RepeatabilityResult({label: DesignResult(d, trajs, labels, design_figures(trajs, labels, d))}, "robot node",
                                notes)
 
 
