@@ -7,7 +7,6 @@ a random pick would reach, and only then the cases, their revealed truths and th
 
 from __future__ import annotations
 
-import base64
 import hashlib
 import html
 import json
@@ -21,7 +20,7 @@ import numpy as np
 from proxybench import __version__
 from proxybench.experiments.heldout.analysis import HeldOutResult
 from proxybench.experiments.predictivity.report import THESIS
-from proxybench.experiments.reporting import pyplot, save_figure, source_commit
+from proxybench.experiments.reporting import html_img, html_table, pyplot, save_figure, source_commit
 
 __all__ = ["findings", "write_heldout_report"]
 
@@ -185,17 +184,6 @@ def tables(res: HeldOutResult) -> dict[str, Any]:
             "comparisons": pd.DataFrame([asdict(c) for c in res.comparisons])}
 
 
-def _img(path: Path, alt: str) -> str:
-    data = base64.b64encode(path.read_bytes()).decode()
-    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}" style="max-width:100%">'
-
-
-def _table(head: list[str], rows: list[list[Any]]) -> str:
-    return ("<table><tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in head) + "</tr>"
-            + "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
-            + "</table>")
-
-
 def _rates_html(res: HeldOutResult, task: str) -> str:
     neg = {sc.case: sc for sc in res.scores if sc.kind == "negative" and sc.task == task}
     rows = []
@@ -206,7 +194,7 @@ def _rates_html(res: HeldOutResult, task: str) -> str:
                      ", ".join(f"{'hit' if sc.hits[(r.metric, r.reference, r.tolerance)] else 'miss'}"
                                for sc in neg.values()) or "—",
                      "—" if cmp is None else f"{cmp.prpv_only} / {cmp.metric_only}, p = {cmp.p:.2f}"])
-    return _table(["metric", "reference", "≤ steps", "hits over held-out targets [95% Wilson]", "random pick",
+    return html_table(["metric", "reference", "≤ steps", "hits over held-out targets [95% Wilson]", "random pick",
                    "negative case", "PRPV only / metric only (McNemar)"], rows)
 
 
@@ -225,7 +213,7 @@ def _cases_html(res: HeldOutResult, task: str) -> str:
                      f"{'separated' if sc.prpv_separated else 'not separated'} from its neighbours)",
                      f"{sc.noise.value:.1f} [{sc.noise.low:.1f}, {sc.noise.high:.1f}]", others,
                      f"{sum(p != pk for p in sc.loo_picks)}/{len(sc.loo_picks)}"])
-    return _table(["case", "kind", "revealed truth", "nearest grid θ", "best available θ", "D min / resolved",
+    return html_table(["case", "kind", "revealed truth", "nearest grid θ", "best available θ", "D min / resolved",
                    "reference stable", "PRPV pick (value [order range])", "noise floor", "other metrics' picks",
                    "agents whose removal moves PRPV's pick"], rows)
 
@@ -240,7 +228,7 @@ def _structure_html(res: HeldOutResult) -> str:
                          for k in mean if k.startswith("agents_at_cap"))
         rows.append([task, f"{mean['pairs']:.0f}", f"{mean['both_agree']:.1f}", f"{mean['decided_by_one_metric']:.1f}",
                      f"{mean['incomparable']:.1f}", f"{mean['equal']:.1f}", caps or "—"])
-    return _table(["task", "agent pairs", "both metrics agree", "one metric ties, the other decides",
+    return html_table(["task", "agent pairs", "both metrics agree", "one metric ties, the other decides",
                    "incomparable (metrics disagree)", "equal", "saturation"], rows)
 
 
@@ -264,7 +252,7 @@ def write_heldout_report(res: HeldOutResult, out: str | Path) -> dict[str, Path]
     cases = "".join(f"<li><b>{html.escape(cr.case.name)}</b>: {html.escape(cr.case.description)} — "
                     f"{html.escape(cr.target.info.statement)}</li>" for cr in res.run.cases)
     secondary = "".join(f"<h3>Task {html.escape(t)}</h3>{_rates_html(res, t)}" for t in s.tasks if t != task)
-    revealed = _table(["case", "revealed θ and effects"], [
+    revealed = html_table(["case", "revealed θ and effects"], [
         [cr.case.name, ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in
                                  sorted(cr.case.reveal().items()) if not isinstance(v, tuple))]
         for cr in res.run.cases])
@@ -288,8 +276,8 @@ target ran {e['agents']} × {e['per_agent']} episodes ({e['eval']} evaluation + 
 ({html.escape(", ".join(f"{k} ∈ {{{', '.join(f'{v:g}' for v in vs)}}}" for k, vs in s.grid.items()))})
 replayed them; {res.run.simulated_episodes} episodes simulated in this run; wall time {res.run.wall_s:.0f} s.</p>
 <h2>Findings</h2><ul>{"".join(f"<li>{html.escape(f)}</li>" for f in findings(res))}</ul>
-<h2>Hit rates (task {html.escape(task)})</h2>{_rates_html(res, task)}{_img(files["fig_hits"], "hit rates")}
-<h2>Cases</h2>{_cases_html(res, task)}{_img(files["fig_maps"], "PRPV maps")}
+<h2>Hit rates (task {html.escape(task)})</h2>{_rates_html(res, task)}{html_img(files["fig_hits"], "hit rates")}
+<h2>Cases</h2>{_cases_html(res, task)}{html_img(files["fig_maps"], "PRPV maps")}
 <h2>Does the task's order use both metrics?</h2><p>Agent pairs on the target's episodes (mean over cases):</p>
 {_structure_html(res)}
 <h2>Other tasks</h2>{secondary or "<p>none</p>"}
