@@ -7,7 +7,6 @@ claims "lowest at X" only where paired intervals separate X from its neighbours.
 
 from __future__ import annotations
 
-import base64
 import html
 import json
 import time
@@ -26,7 +25,7 @@ from proxybench.experiments.predictivity.diagnosis import (
 )
 from proxybench.experiments.predictivity.run import PredictivityResult
 from proxybench.experiments.proxies import param_label
-from proxybench.experiments.reporting import pyplot, save_figure, source_commit
+from proxybench.experiments.reporting import html_img, pyplot, save_figure, source_commit
 
 __all__ = ["DEFINITIONS", "THESIS", "agent_set_findings", "episodes_statement", "findings", "noise_statement",
            "plot_plan", "ppv_agent_frame", "pyplot", "save_figure", "source_commit", "write_report"]
@@ -317,11 +316,6 @@ def ppv_agent_frame(res: PredictivityResult):
     return pd.DataFrame(rows, columns=["domain", "agent", "ppv", "ppv_low", "ppv_high", "method"])
 
 
-def _img(path: Path, alt: str) -> str:
-    data = base64.b64encode(path.read_bytes()).decode()
-    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}" style="max-width:100%">'
-
-
 def _target_box(res: PredictivityResult) -> str:
     info = res.target.info
     colour, tag = {True: ("#fff4e5", "SIMULATED TARGET"), False: ("#e8f5e9", "REAL ROBOTS (declared by the recording)"),
@@ -365,7 +359,7 @@ def _diagnosis_section(res: PredictivityResult, files: dict[str, Path]) -> str:
     return (f"<h2>Which pairs of agents each predictor orders differently from the target</h2>"
             f"<p>Start directions: whether an episode's start faces clockwise or counter-clockwise around the map's "
             f"centre; a pair listed under one of them is ordered differently there.</p>{diagnosis_html(res)}"
-            f"{_img(files['pairs'], 'per-pair disagreements')}")
+            f"{html_img(files['pairs'], 'per-pair disagreements')}")
 
 
 def write_report(res: PredictivityResult, out: str | Path, wall_s: float | None = None) -> dict[str, Path]:
@@ -420,8 +414,8 @@ notes, …)</summary>
 <details><summary>PPV of each agent (thesis eq. 3.4.1) in each proxy, with 95% BCa intervals</summary>
 {per_agent.round(4).to_html(index=False, border=0)}</details>
 <h2>Figure 3.3: usefulness metrics against proxy {html.escape(_main_parameter(res))}</h2>
-{_img(files["fig3_3"], "figure 3.3")}
-<h2>Figure 3.4: PRPV for each swept parameter</h2>{_img(files["fig3_4"], "figure 3.4")}
+{html_img(files["fig3_3"], "figure 3.3")}
+<h2>Figure 3.4: PRPV for each swept parameter</h2>{html_img(files["fig3_4"], "figure 3.4")}
 {_diagnosis_section(res, files)}
 <h2 id="definitions">What the figures mean</h2><dl>{defs}</dl>
 <h2>Agents on the target (mean over episodes)</h2><table><tr><th>agent</th>
