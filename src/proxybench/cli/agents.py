@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 import typer
 from rich.markup import escape
 
-from proxybench.cli.app import agent_app, console, err_console
+from proxybench.cli.app import agent_app, console, fail
 from proxybench.cli.node_options import remote_agent, with_agent_node_options
 
 if TYPE_CHECKING:
@@ -45,8 +45,7 @@ def agent_serve(
     try:
         agent = load_agent(name)
     except (KeyError, ImportError, AttributeError) as exc:
-        err_console.print(f"[red]error:[/red] cannot load agent {name!r}: {escape(str(exc))}", highlight=False)
-        raise typer.Exit(2) from exc
+        raise fail(f"cannot load agent {name!r}: {exc}", 2) from exc
     raise typer.Exit(serve(agent, node_name=node_name))
 
 
@@ -104,9 +103,7 @@ def agent_check(
         code = agent.close()
     failure = traj.failure.message if traj.failure is not None else None
     if failure is not None or isinstance(proc.failure, AgentFailure):
-        err_console.print(f"[red]✗[/red] the agent failed after {len(times)} frames: {escape(str(failure))}",
-                          highlight=False)
-        raise typer.Exit(1)
+        raise fail(f"the agent failed after {len(times)} frames: {failure}", mark="✗")
     ms = np.array(times) * 1000
     cmd = np.array(commands)
     console.print(f"[green]✓[/green] {len(times)} frames (160x120 JPEG, {seconds:g} s simulated): exchange median "

@@ -33,9 +33,10 @@ def problem(text: object, *, mark: str = "✗", style: str = "red") -> None:
         err_console.print(Text.assemble((mark, style), " ", line), highlight=False)
 
 
-def fail(text: object, code: int = 2) -> typer.Exit:
-    """:func:`problem`, then the exit to raise: ``raise fail(exc)``."""
-    problem(text)
+def fail(text: object, code: int = 1, *, mark: str = "error:") -> typer.Exit:
+    """The command line's one error exit: ``text`` (naming the value at fault) as :func:`problem` prints it,
+    after ``mark``, then the exit to raise, with ``code``: ``raise fail(exc)``, ``raise fail(msg, 2, mark="✗")``."""
+    problem(text, mark=mark)
     return typer.Exit(code)
 
 
@@ -49,6 +50,5 @@ def require_extra(extra: str, modules: tuple[str, ...] = SERVER_MODULES) -> None
 
     missing = [m for m in modules if find_spec(m) is None]
     if missing:
-        err_console.print(f"[red]✗[/red] this command needs the '{extra}' extra (missing: {', '.join(missing)}): "
-                          f"pip install -e '.\\[{extra}]'", highlight=False)
-        raise typer.Exit(2)
+        raise fail(f"this command needs the '{extra}' extra (missing: {', '.join(missing)}): "
+                   f"pip install -e '.[{extra}]'", 2, mark="✗")

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.markup import escape
 
-from proxybench.cli.app import app, console, err_console
+from proxybench.cli.app import app, console, fail
 
 
 @app.command()
@@ -44,8 +44,7 @@ def localize(
     from proxybench.domain.maps import MapError
 
     if detector not in ("apriltag", "aruco") or solver not in ("gtsam", "scipy"):
-        err_console.print("[red]error:[/red] --detector is apriltag or aruco, --solver gtsam or scipy", highlight=False)
-        raise typer.Exit(2)
+        raise fail("--detector is apriltag or aruco, --solver gtsam or scipy", 2)
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 
     from proxybench.cli.progress import progress_bar
@@ -67,9 +66,7 @@ def localize(
                                     detector=detector, solver=solver, workers=workers, decimate=decimate,
                                     progress=tick)
     except (LayoutError, MapError, ImportError) as exc:
-        for line in str(exc).splitlines():
-            err_console.print(f"[red]✗[/red] {escape(line)}", highlight=False)
-        raise typer.Exit(1) from None
+        raise fail(exc, mark="✗") from None
     for path, verdict, loc in summary.runs:
         tracks = ", ".join(f"{r} {t.t.size} samples" for r, t in loc.robots.items()) or "no robot seen"
         mark = "[green]✓[/green]" if verdict.valid else "[yellow]invalid[/yellow]"

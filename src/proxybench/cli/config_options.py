@@ -52,11 +52,12 @@ import typer
 from pydantic import BaseModel
 from rich.markup import escape
 
+from proxybench.cli.app import fail
 from proxybench.experiments.study import ConfigError, cli_hint, mode_defaults, unwrap_optional
 from proxybench.experiments.study import fmt_default as _fmt
 from proxybench.untrusted import repeated
 
-__all__ = ["StudyOption", "fail", "image_size", "key_values", "mode_defaults", "option_table", "overrides_of",
+__all__ = ["StudyOption", "image_size", "key_values", "mode_defaults", "option_table", "overrides_of",
            "study_option_list", "study_options"]
 
 Loader = Callable[[Path | None, dict[str, Any], dict[str, Any]], Any]
@@ -391,13 +392,6 @@ def _name_options(message: str, options: list[StudyOption]) -> str:
     return "\n".join(lines)
 
 
-def fail(exc: Exception, options: list[StudyOption] | None = None) -> typing.NoReturn:
-    """Print a study's problem, one ``✗`` line each (naming options where the command line is at fault); exit 2."""
-    from proxybench.cli.app import fail as exit_with
-
-    raise exit_with(_name_options(str(exc), options or []))
-
-
 def study_options(model: type[BaseModel], *, load: Loader | None = None, exclude: tuple[str, ...] = (),
                   defaults: Mapping[str, str] | None = None, config_help: str = CONFIG_HELP):
     """Decorate a command taking ``cfg: model`` (and its own options) with ``--config`` and the model's options.
@@ -425,8 +419,8 @@ def study_options(model: type[BaseModel], *, load: Loader | None = None, exclude
             given = {o.param: kwargs.pop(o.param) for o in options}
             try:
                 cfg = (load or (lambda p, over, _own: model.load(p, over)))(path, overrides_of(options, given), kwargs)
-            except ConfigError as exc:
-                fail(exc, options)
+            except ConfigError as exc:  # one ✗ line a problem, naming options where the command line is at fault
+                raise fail(_name_options(str(exc), options), 2, mark="✗") from None
             return fn(cfg=cfg, **kwargs)
 
         del command.__wrapped__  # typer reads the signature below, not the function's

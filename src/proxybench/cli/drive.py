@@ -10,7 +10,7 @@ import typer
 from rich.markup import escape
 from rich.progress import BarColumn, TextColumn, TimeRemainingColumn
 
-from proxybench.cli.app import app, console, err_console
+from proxybench.cli.app import app, console, err_console, fail
 from proxybench.cli.node_options import remote_agent, with_agent_node_options, with_robot_node_options
 from proxybench.cli.options import positive
 from proxybench.cli.progress import progress_bar
@@ -68,32 +68,24 @@ def run(
     try:
         m = load_map_printing_warnings(map_name)
     except (MapError, OSError) as exc:
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(1) from exc
+        raise fail(exc) from exc
     if not m.drivable_tiles():
-        err_console.print(f"[red]error:[/red] map {escape(m.name)!r} has no drivable tile: nothing to drive on",
-                          highlight=False)
-        raise typer.Exit(1)
+        raise fail(f"map {m.name!r} has no drivable tile: nothing to drive on")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        err_console.print(f"[red]error:[/red] --out: cannot create the folder {escape(str(out))}: "
-                          f"{escape(exc.strerror or str(exc))}", highlight=False)
-        raise typer.Exit(1) from exc
+        raise fail(f"--out: cannot create the folder {out}: {exc.strerror or exc}") from exc
     layout = streams = None
     if watchtowers is not None:
         from proxybench.autolab.cli_support import layout_streams
         from proxybench.autolab.watchtowers import LayoutError
 
         if robot_cmd is not None:
-            err_console.print("[red]error:[/red] --watchtowers are simulated: they need the built-in simulator, not "
-                              "--robot-cmd", highlight=False)
-            raise typer.Exit(2)
+            raise fail("--watchtowers are simulated: they need the built-in simulator, not --robot-cmd", 2)
         try:
             layout, streams, _ = layout_streams(watchtowers, m)
         except LayoutError as exc:
-            err_console.print(f"[red]error:[/red] --watchtowers: {escape(str(exc))}", highlight=False)
-            raise typer.Exit(1) from exc
+            raise fail(f"--watchtowers: {exc}") from exc
     if robot_cmd is not None:  # the robot decides its camera; it is asked to step at the default rate
         domain = DomainSpec.robot(robot_cmd, frame_rate=DEFAULT_FRAME_RATE, options=robot_options)
         seconds_label, frames = f"{seconds:g} s on robot node", None  # the robot says its rate when it starts
@@ -115,8 +107,7 @@ def run(
                 err_console.print(f"    {line}", highlight=False, markup=False)
             raise typer.Exit(1) from exc
         except ValueError as exc:  # e.g. a privileged agent on a robot without ground truth
-            err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-            raise typer.Exit(1) from exc
+            raise fail(exc) from exc
         finally:
             getattr(agent, "close", lambda: None)()
     traj = rec.trajectory
@@ -155,8 +146,7 @@ def _agent(agent_name: str, agent_cmd: str | None, options):
         try:
             return make_agent(agent_name)
         except KeyError as exc:
-            err_console.print(f"[red]error:[/red] {escape(str(exc.args[0]))}", highlight=False)
-            raise typer.Exit(2) from exc
+            raise fail(exc.args[0], 2) from exc
     from proxybench.dtps.env import DtpsEnvError
     from proxybench.experiments.agent_args import AgentArgError, parse_agent
     from proxybench.runner.jobs import SdkProgram
@@ -169,5 +159,4 @@ def _agent(agent_name: str, agent_cmd: str | None, options):
                                 f"name or NAME=sdk:COMMAND")
         return make_agent_for(spec)
     except (AgentArgError, DtpsEnvError) as exc:
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(2) from exc
+        raise fail(exc, 2) from exc

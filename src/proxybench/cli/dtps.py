@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.markup import escape
 
-from proxybench.cli.app import app, console, err_console
+from proxybench.cli.app import app, console, err_console, fail
 from proxybench.cli.options import positive
 
 dtps_app = typer.Typer(no_args_is_help=True, help="duckietown-sdk agents and DTPS robots (docs/dtps.md).")
@@ -36,8 +36,7 @@ def setup(path: Path | None = PathOpt) -> None:
     try:
         status = setup_env(path, say=lambda line: console.print(escape(line), highlight=False))
     except DtpsEnvError as exc:
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(1) from exc
+        raise fail(exc) from exc
     _show(status)
     if not status.ok:
         raise typer.Exit(1)
@@ -92,8 +91,7 @@ def serve(
                           params=DomainParams(image_width=width, image_height=height), on_episode=said,
                           on_ready=ready)
     except (DtpsEnvError, BridgeError, MapError, OSError) as exc:
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(1) from exc
+        raise fail(exc) from exc
     except KeyboardInterrupt:
         raise typer.Exit(0) from None
     console.print(f"wrote {len(files)} episodes to {escape(str(out))}", highlight=False)

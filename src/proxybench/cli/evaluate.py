@@ -10,7 +10,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from proxybench.cli.app import app, console, err_console
+from proxybench.cli.app import app, console, err_console, fail
 from proxybench.cli.node_options import AGENT_CWD_HELP, with_agent_node_options
 from proxybench.cli.options import positive
 from proxybench.cli.progress import progress_bar, status
@@ -146,8 +146,7 @@ def evaluate(
     try:
         bench = Benchmark.load(benchmark)
     except BenchmarkError as exc:
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(1) from exc
+        raise fail(exc) from exc
     if quick:
         bench = _quick(bench)
     specs = _agent_specs(agent, agent_cmd, options, bench)
@@ -161,8 +160,7 @@ def evaluate(
         try:
             layout, streams, _ = layout_streams(watchtowers, load_map(bench.map))
         except (LayoutError, MapError) as exc:
-            err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-            raise typer.Exit(2) from exc
+            raise fail(exc, 2) from exc
     be = make_backend(backend, workers)
     with progress_bar(TextColumn(f"[bold]{bench.name}[/bold] episodes"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), console=console, transient=True) as bar:
@@ -172,8 +170,7 @@ def evaluate(
                                     privileged=is_privileged,
                                     progress=lambda d, t: bar.update(task, completed=d, total=t), streams=streams)
         except BenchmarkError as exc:
-            err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-            raise typer.Exit(2) from exc
+            raise fail(exc, 2) from exc
         finally:
             be.close()
     _print_leaderboard(ev, run_dir)

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 from rich.markup import escape
 
-from proxybench.cli.app import app, console, err_console, require_extra
+from proxybench.cli.app import app, console, err_console, fail, require_extra
 from proxybench.cli.node_options import with_robot_node_options
 from proxybench.cli.options import positive
 
@@ -143,13 +143,11 @@ def evaluator(
     try:
         ev = Evaluator(server or "http://127.0.0.1:8000", secret, config, _reporter())
     except RuntimeError as exc:
-        err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(2) from None
+        raise fail(exc, 2, mark="✗") from None
     ev.install_signal_handlers()
     try:
         done = ev.run(once=once)
     except ServerError as exc:
-        err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(2) from None
+        raise fail(exc, 2, mark="✗") from None
     if ev.stop_reason:
         console.print(f"evaluator {name!r} stopped ({ev.stop_reason}) after {done} job(s)")

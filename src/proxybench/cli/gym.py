@@ -7,9 +7,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import typer
-from rich.markup import escape
 
-from proxybench.cli.app import console, err_console, gym_app
+from proxybench.cli.app import console, fail, gym_app
 
 if TYPE_CHECKING:
     from proxybench.gym.environment import GymEnvironment
@@ -24,9 +23,7 @@ def _report(env: GymEnvironment) -> None:
         console.print(f"✓ gym-duckietown ready at {env.path}" + (f" ({versions})" if versions else ""),
                       highlight=False)
         return
-    for problem in env.problems:
-        err_console.print(f"[red]✗[/red] {escape(problem)}", highlight=False)
-    raise typer.Exit(1)
+    raise fail("\n".join(env.problems), mark="✗")
 
 
 @gym_app.command("setup")
@@ -40,9 +37,7 @@ def gym_setup(path: Path | None = _PATH) -> None:
     try:
         env = setup_environment(path, say=lambda s: console.print(s, highlight=False))
     except subprocess.CalledProcessError as exc:
-        err_console.print(f"[red]✗[/red] {escape(' '.join(map(str, exc.cmd)))} failed (exit status "
-                          f"{exc.returncode})", highlight=False)
-        raise typer.Exit(1) from None
+        raise fail(f"{' '.join(map(str, exc.cmd))} failed (exit status {exc.returncode})", mark="✗") from None
     _report(env)
 
 
@@ -71,8 +66,7 @@ def gym_params_cmd(
     try:
         p = gym_params(param, param_file)
     except GymParamError as exc:
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(2) from None
+        raise fail(exc, 2) from None
     changed = {k: list(v) if isinstance(v, tuple) else v for k, v in p.changed.items()}
     console.print(json.dumps({"changed": changed, "sha256": p.sha256}, indent=2), highlight=False, markup=False)
 
@@ -117,8 +111,7 @@ def gym_serve(
                 backend.close()
                 raise
     except (GymParamError, CpuError, GymBridgeError, MapError, ValueError) as exc:
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(2 if isinstance(exc, GymParamError | CpuError) else 1) from None
+        raise fail(exc, 2 if isinstance(exc, GymParamError | CpuError) else 1) from None
     print(f"[{name}] serving a SIMULATED robot (gym-duckietown {backend.version}, {backend.width}x{backend.height} "
           f"at {1 / backend.frame_dt:g} Hz{', parameters hidden' if secret else ''}"
           f"{f', its process on CPU {cpu_list(gym_cpus)}' if gym_cpus else ''}) on the robot protocol",

@@ -12,10 +12,9 @@ from dataclasses import asdict
 from pathlib import Path
 
 import typer
-from rich.markup import escape
 from rich.progress import Progress
 
-from proxybench.cli.app import app, console, err_console
+from proxybench.cli.app import app, console, fail
 from proxybench.cli.options import non_negative, positive
 from proxybench.cli.progress import stage_bars
 
@@ -25,11 +24,6 @@ app.add_typer(learn_app, name="learn")
 
 def _bars() -> Progress:
     return stage_bars(elapsed=True)
-
-
-def _fail(msg: str, code: int = 2) -> typer.Exit:
-    err_console.print(f"[red]error:[/red] {escape(str(msg))}", highlight=False)
-    return typer.Exit(code)
 
 
 @learn_app.command("dataset")
@@ -53,7 +47,7 @@ def learn_dataset(
         dom = parse_domain(domain, width, height)
         cfg = CollectConfig(samples=samples, robots=robots, noise_std=noise, map=map_name, seed=seed)
     except ValueError as exc:
-        raise _fail(str(exc)) from exc
+        raise fail(exc, 2) from exc
     t0 = time.perf_counter()
     with _bars() as bar:
         task = bar.add_task(f"expert driving {dom.name}", total=samples)
@@ -92,7 +86,7 @@ def learn_train(
             w, h = ds.image_size
             model, prior = build_model(ModelConfig(width=w, height=h, output=output), seed), {}
     except (DatasetError, FileNotFoundError, ValueError) as exc:
-        raise _fail(str(exc)) from exc
+        raise fail(exc, 2) from exc
     cfg = TrainConfig(epochs=epochs, max_steps=max_steps, lr=lr or (3e-4 if init else 1e-3), seed=seed)
     with _bars() as bar:
         task = bar.add_task("fine-tuning" if init else "training", total=cfg.steps_for(len(ds)))
@@ -123,7 +117,7 @@ def learn_evaluate(
         cfg = agent.model.cfg
         dom = parse_domain(domain, cfg.width, cfg.height)
     except (FileNotFoundError, ValueError) as exc:
-        raise _fail(str(exc)) from exc
+        raise fail(exc, 2) from exc
     ecfg = EvalConfig(episodes=episodes, seconds=seconds, map=map_name)
     res = evaluate_policy(agent.policy, dom, ecfg)
     expert = evaluate_expert(dom, ecfg)

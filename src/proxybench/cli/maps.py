@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import typer
 from rich.markup import escape
 
-from proxybench.cli.app import console, err_console, map_app
+from proxybench.cli.app import console, err_console, fail, map_app
 
 if TYPE_CHECKING:
     from proxybench.domain.maps import Map
@@ -73,16 +73,13 @@ def map_show(
     try:
         m = load_map_printing_warnings(file)
     except (MapError, OSError) as exc:
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(1) from exc
+        raise fail(exc) from exc
     path = output or Path(f"{m.name}.png")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         path = save_map_plot(m, path)
     except (OSError, ValueError) as exc:  # a folder in the way, no permission, an image format matplotlib lacks
-        err_console.print(f"[red]error:[/red] --output: cannot write {escape(str(path))}: "
-                          f"{escape(getattr(exc, 'strerror', None) or str(exc))}", highlight=False)
-        raise typer.Exit(1) from exc
+        raise fail(f"--output: cannot write {path}: {getattr(exc, 'strerror', None) or exc}") from exc
     console.print(f"wrote {escape(str(path))}", highlight=False)
 
 

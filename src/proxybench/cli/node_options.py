@@ -19,9 +19,8 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from rich.markup import escape
 
-from proxybench.cli.app import err_console
+from proxybench.cli.app import err_console, problem
 
 __all__ = ["OPTION_NAMES", "ROBOT_OPTION_NAMES", "RobotCwd", "RobotNoReflection", "RobotStartTimeout",
            "RobotStepTimeout", "RobotTransport", "node_options", "remote_agent", "robot_node_options",
@@ -185,8 +184,7 @@ def remote_agent(cmd: str, options):
     try:
         agent = RemoteAgent(cmd, **options.process_kwargs())
     except AgentFailure as exc:
-        err_console.print(f"[red]error:[/red] agent node {escape(repr(cmd))} failed to start: "
-                          f"{exc.reason}: {escape(exc.detail)}", highlight=False)
+        problem(f"agent node {cmd!r} failed to start: {exc.reason}: {exc.detail}", mark="error:")
         if exc.exit_code is not None:
             err_console.print(f"    exit code {exc.exit_code}", highlight=False)
         for line in exc.stderr_tail[-10:]:

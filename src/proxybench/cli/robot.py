@@ -7,9 +7,8 @@ import sys
 from typing import TYPE_CHECKING
 
 import typer
-from rich.markup import escape
 
-from proxybench.cli.app import err_console, robot_app
+from proxybench.cli.app import fail, robot_app
 from proxybench.cli.node_options import with_robot_node_options
 
 if TYPE_CHECKING:
@@ -65,8 +64,7 @@ def robot_serve(
     try:
         node = RobotNode(SimRobot(params, map_name), seed=seed, node_name=name)
     except (MapError, ValueError) as exc:
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(1) from exc
+        raise fail(exc) from exc
     print(f"[{name}] serving a SIMULATED robot (proxybench simulator, {params.image_width}x{params.image_height} "
           f"at {params.frame_rate:g} Hz) on the robot protocol", file=sys.stderr, flush=True)
     raise typer.Exit(serve_robot(node, exit_on_abort=False))
@@ -102,7 +100,6 @@ def robot_check(
                                                 position_tolerance=position_tolerance,
                                                 heading_tolerance=heading_tolerance, time_tolerance=time_tolerance)
     except (MapError, FileNotFoundError) as exc:
-        err_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(2) from exc
+        raise fail(exc, 2) from exc
     if not print_report(suite.run()):
         raise typer.Exit(1)

@@ -8,7 +8,7 @@ import subprocess
 
 import typer
 
-from proxybench.cli.app import app, console, err_console
+from proxybench.cli.app import app, console, fail
 
 sandbox_app = typer.Typer(no_args_is_help=True, help="The sandbox that evaluators run agent packages in.")
 app.add_typer(sandbox_app, name="sandbox")
@@ -50,13 +50,11 @@ def setup(agent_user: str = AgentUserOpt) -> None:
     from proxybench.evaluator.sandbox import detect_isolation
 
     if os.geteuid() != 0:
-        err_console.print("[red]✗[/red] run this as root: it creates a system user, and evaluators that run agent "
-                          "packages must run as root too (they drop to that user for the agents only)")
-        raise typer.Exit(2)
+        raise fail("run this as root: it creates a system user, and evaluators that run agent packages must run "
+                   "as root too (they drop to that user for the agents only)", 2, mark="✗")
     if shutil.which("bwrap") is None:
-        err_console.print("[red]✗[/red] bubblewrap is not installed: apt-get install bubblewrap "
-                          "(dnf install bubblewrap on Fedora)")
-        raise typer.Exit(1)
+        raise fail("bubblewrap is not installed: apt-get install bubblewrap (dnf install bubblewrap on Fedora)",
+                   mark="✗")
     import pwd
 
     try:
@@ -71,8 +69,7 @@ def setup(agent_user: str = AgentUserOpt) -> None:
                "--shell", "/usr/sbin/nologin", "--comment", "proxybench agent sandbox", agent_user]
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode != 0:
-            err_console.print(f"[red]✗[/red] {' '.join(cmd)} failed: {done.stderr.strip()}", highlight=False)
-            raise typer.Exit(1)
+            raise fail(f"{' '.join(cmd)} failed: {done.stderr.strip()}", mark="✗")
         console.print(f"created the system user {agent_user!r}", highlight=False)
     isolation = detect_isolation(agent_user)
     _show(isolation)

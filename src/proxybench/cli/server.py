@@ -49,13 +49,11 @@ def read_token(token: str | None, token_file: Path | None, default_file: Path | 
     from proxybench.client import TokenError, load_token
 
     if token is not None:
-        err_console.print(f"[red]✗[/red] {NO_ARGV_TOKEN}", highlight=False)
-        raise typer.Exit(2)
+        raise fail(NO_ARGV_TOKEN, 2, mark="✗")
     try:
         value, where = load_token(token_file, default_file)
     except TokenError as exc:
-        err_console.print(f"[red]✗[/red] {escape(str(exc))}", highlight=False)
-        raise typer.Exit(2) from None
+        raise fail(exc, 2, mark="✗") from None
     if "warning" in where:
         err_console.print(f"[yellow]![/yellow] token file {escape(where)}", highlight=False)
     return value
@@ -68,10 +66,6 @@ def _client(server: str | None, token: str | None, token_file: Path | None):
     return ServerClient(server or "http://127.0.0.1:8000", value, retry_for=10.0)
 
 
-def _fail(exc: Exception) -> typer.Exit:
-    return fail(exc, 1)
-
-
 def _ask(server: str | None, token: str | None, token_file: Path | None, call: Callable[[Any], T]) -> T:
     """``call(client)`` with a client of the server the options name; the server's refusal (or no answer) ends
     the command with its message (exit 1), never a traceback."""
@@ -80,7 +74,7 @@ def _ask(server: str | None, token: str | None, token_file: Path | None, call: C
     try:
         return call(_client(server, token, token_file))
     except ServerError as exc:
-        raise _fail(exc) from None
+        raise fail(exc, mark="✗") from None
 
 
 def _evaluator_token(settings) -> Path:
@@ -235,7 +229,7 @@ def submit(
     from proxybench.client import ServerError
 
     if (benchmark is None) == (path is None):
-        raise _fail(ValueError("pass exactly one of --benchmark or --path"))
+        raise fail("pass exactly one of --benchmark or --path", mark="✗")
     client = _client(server, token, token_file)
     archive = Path(agent)
     try:
@@ -256,7 +250,7 @@ def submit(
             if any(j["status"] != "success" for j in sub["jobs"]):
                 raise typer.Exit(1)
     except ServerError as exc:
-        raise _fail(exc) from None
+        raise fail(exc, mark="✗") from None
 
 
 def _wait(client, sid: int, timeout: float) -> dict:
@@ -268,7 +262,7 @@ def _wait(client, sid: int, timeout: float) -> dict:
             if not open_jobs:
                 return sub
             if time.monotonic() > deadline:
-                raise _fail(TimeoutError(f"submission {sid}: {len(open_jobs)} job(s) still open after {timeout:g} s"))
+                raise fail(f"submission {sid}: {len(open_jobs)} job(s) still open after {timeout:g} s", mark="✗")
             spinner.update("waiting for evaluation… " + ", ".join(f"job {j['id']}: {j['status']}" for j in open_jobs))
             time.sleep(1.0)
 
@@ -338,7 +332,7 @@ def benchmark_add(
     try:
         text = read_text_file(file)
     except UntrustedInputError as exc:
-        raise _fail(exc) from None
+        raise fail(exc, mark="✗") from None
     body = {"yaml": text, "features": [f for f in features.split(",") if f]}
     out = _ask(server, token, token_file, lambda c: c.post("/benchmarks", body))
     console.print(f"benchmark {out['name']} v{out['version']} " + ("stored" if out["created"] else "unchanged"))
@@ -356,9 +350,9 @@ def path_add(
     try:
         data = load_yaml_file(file, max_depth=32)
     except UntrustedInputError as exc:
-        raise _fail(exc) from None
+        raise fail(exc, mark="✗") from None
     if not isinstance(data, dict):
-        raise _fail(ValueError(f"{file}: expected a mapping with name, steps, edges"))
+        raise fail(f"{file}: expected a mapping with name, steps, edges", mark="✗")
     body = {"name": data.get("name"), "description": data.get("description", ""),
             "spec": {"steps": data.get("steps"), "edges": data.get("edges", [])}}
     out = _ask(server, token, token_file, lambda c: c.post("/paths", body))

@@ -13,8 +13,8 @@ from typing import Annotated, Any, TypeVar
 
 import typer
 
-from proxybench.cli.app import app, console
-from proxybench.cli.config_options import fail, study_options
+from proxybench.cli.app import app, console, fail
+from proxybench.cli.config_options import study_options
 from proxybench.cli.progress import stage_bars, stage_progress
 from proxybench.experiments.study import Study, studies
 
@@ -37,7 +37,7 @@ def run_study(backend: str, workers: int | None, run: Callable[[Any, Callable[[s
         try:
             return run(be, stage_progress(bar))
         except (TargetError, ValueError) as exc:
-            fail(exc)
+            raise fail(exc, 2, mark="✗") from None
         finally:
             be.close()
 

@@ -24,10 +24,6 @@ target_app = typer.Typer(no_args_is_help=True, help="Record a target once (reali
 app.add_typer(target_app, name="target")
 
 
-def _fail(message: str, code: int = 2) -> None:
-    raise fail(message, code)
-
-
 @target_app.command("record")
 @with_robot_node_options(command="target", command_option="--target robot:CMD")
 def record(
@@ -79,8 +75,8 @@ def record(
     text = _target_text(target, reality, robot_cmd, dtps)
     dtps_given = dtps_option_values(dtps_reset, dtps_kind, dtps_option)
     if dtps_given and not text.startswith("dtps:"):
-        _fail("--dtps-reset, --dtps-kind, --dtps-option: only with --target dtps:… (they say how to drive a DTPS "
-              "robot)")
+        raise fail("--dtps-reset, --dtps-kind, --dtps-option: only with --target dtps:… (they say how to drive a "
+                   "DTPS robot)", 2, mark="✗")
     try:
         from proxybench.dtps.robot_options import DtpsRobotOptions
 
@@ -88,7 +84,7 @@ def record(
                            robot_options=robot_options, dtps_options=DtpsRobotOptions(**dtps_given))
         specs = parse_agents(agent, out / ".agents")
     except (TargetError, AgentArgError, ValueError) as exc:
-        _fail(str(exc))
+        raise fail(exc, 2, mark="✗") from None
     size = parse_size(image_size)
     assert size is not None
     streams = on_streams = None
@@ -100,7 +96,7 @@ def record(
         try:
             layout, streams, _ = layout_streams(watchtowers, load_map(map_name))
         except (LayoutError, MapError) as exc:
-            _fail(str(exc))
+            raise fail(exc, 2, mark="✗") from None
 
         def on_streams(res, folder):
             result_log(res, folder, layout, map_name, seconds, "reality-model")
@@ -116,7 +112,7 @@ def record(
                                     progress=lambda d, t: spinner.update(f"recording: episode {d}/{t}"),
                                     streams=streams, on_streams=on_streams)
         except TargetError as exc:
-            _fail(str(exc))
+            raise fail(exc, 2, mark="✗") from None
         finally:
             be.close()
     m = summary.manifest
@@ -137,7 +133,7 @@ def _target_text(target: str | None, reality: bool, robot_cmd: str | None, dtps:
     if not old:
         return target or "reality"
     if target is not None or len(old) > 1:
-        _fail("give one target: --target reality | robot:CMD | dtps:HOST[:PORT]/PATH")
+        raise fail("give one target: --target reality | robot:CMD | dtps:HOST[:PORT]/PATH", 2, mark="✗")
     (flag, text), = old
     problem(f"{flag} is deprecated: say --target {shlex.quote(text)}", mark="note:", style="yellow")
     return text
@@ -158,8 +154,7 @@ def check(
 
     report = check_recording(root, tuple(metric) or None)
     if not report.ok:
-        problem(f"{root}: {len(report.problems)} problem(s)")
-        _fail("\n".join(report.problems), code=1)
+        raise fail("\n".join([f"{root}: {len(report.problems)} problem(s)", *report.problems]), mark="✗")
     m = report.manifest
     assert m is not None
     console.print(f"[green]✓[/green] {report.root}: {RecordedTarget(report.root).info().statement}", highlight=False)
