@@ -71,6 +71,7 @@ class RankResult:
     stopped: str = "fixed"  # fixed | settled (every pair decided) | budget
     notes: list[str] = field(default_factory=list)
     wall_s: float = 0.0
+    target_table: Table = field(default_factory=dict, repr=False)  # agent → episode id → scores (what was decided on)
 
     def to_dict(self) -> dict[str, Any]:
         """rank.json: the level, the error control in words, every pair with and without the proxy, the episodes."""
@@ -167,7 +168,7 @@ def run_rank(cfg: RankConfig, out: str | Path, backend: Backend | None = None, p
         steps, stopped = [], "fixed"
     return RankResult(ranking, exp, target.info(), theta, source, tol, {a: len(v) for a, v in tgt_scores.items()},
                       sum(len(v) for v in paired.values()), sum(len(v) for v in proxy_only.values()), steps, stopped,
-                      notes, time.perf_counter() - t0)
+                      notes, time.perf_counter() - t0, tgt_scores)
 
 
 def _bar(progress: Progress | None, what: str):
