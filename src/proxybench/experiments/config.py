@@ -13,6 +13,7 @@ file with every field (tests/test_config_options.py holds it to this model).
 from __future__ import annotations
 
 import difflib
+import importlib
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -468,6 +469,18 @@ class ExperimentStudy(Study[ExperimentConfig, Any]):
     config_help = "experiment file (YAML; every field: docs/targets.md)"
     extra_defaults: ClassVar[dict[str, str]] = {}
 
+    #: ``module:function`` of the study's run, called (config, out, backend, progress, quick=) when the study does
+    #: not write its own ``run``; and of its report, called (result, out): imported on use, so a command's
+    #: ``--help`` does not load the runner
+    runs: ClassVar[str | None] = None
+    reports: ClassVar[str | None] = None
+
+    def run(self, config: ExperimentConfig, out: Path, backend: Any, progress: Any, *, quick: bool = False) -> Any:
+        return _function(self.runs, f"{self.name}.runs")(config, out, backend, progress, quick=quick)
+
+    def write_report(self, result: Any, out: Path, *, wall: float = 0.0) -> list[Path]:
+        return _function(self.reports, f"{self.name}.reports")(result, out)
+
     @property
     def command(self) -> Command:
         return self.defaults_of or typing.cast(Command, self.name)
@@ -477,3 +490,11 @@ class ExperimentStudy(Study[ExperimentConfig, Any]):
 
     def load(self, path: Path | None, overrides: dict[str, Any], *, quick: bool = False) -> ExperimentConfig:
         return load_config(path, overrides, self.config)
+
+
+def _function(spec: str | None, what: str) -> Any:
+    """The function ``module:name`` names (a study that names none must write the method itself)."""
+    if spec is None:
+        raise NotImplementedError(f"{what}: the study names no function and does not override the method")
+    module, _, name = spec.partition(":")
+    return getattr(importlib.import_module(module), name)

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from proxybench.experiments.config import ExperimentConfig, ExperimentStudy
-from proxybench.experiments.study import Progress, register
+from proxybench.experiments.config import ExperimentStudy
+from proxybench.experiments.study import register
 
 if TYPE_CHECKING:
     from proxybench.experiments.plan.run import PlanResult
@@ -30,17 +29,8 @@ class PlanStudy(ExperimentStudy):
     quick_help = "6 agents × 3 pilot episodes × 8 s; --sequential: budget 4"
     out_help = "folder for plan.json, tables, plan.png and the episode cache"
     exclude = ("search", "plv", "n_boot", "pod_seconds", "truth")
-
-    def run(self, config: ExperimentConfig, out: Path, backend: Any, progress: Progress, *,
-            quick: bool = False) -> PlanResult:
-        from proxybench.experiments.plan.run import run_plan
-
-        return run_plan(config, out, backend, progress, quick=quick)
-
-    def write_report(self, result: PlanResult, out: Path, *, wall: float = 0.0) -> list[Path]:
-        from proxybench.experiments.plan.run import write_plan
-
-        return write_plan(result, out)
+    runs = "proxybench.experiments.plan.run:run_plan"
+    reports = "proxybench.experiments.plan.run:write_plan"
 
     def example(self) -> PlanResult:
         """A canned result: the plan for five agents from a made-up pilot of three episodes (no episode runs)."""

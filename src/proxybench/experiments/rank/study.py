@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from proxybench.experiments.config import ExperimentStudy
 from proxybench.experiments.rank.config import RankConfig
-from proxybench.experiments.study import Progress, register
+from proxybench.experiments.study import register
 
 if TYPE_CHECKING:
     from proxybench.experiments.rank.run import RankResult
@@ -32,19 +31,10 @@ class RankStudy(ExperimentStudy):
     quick_help = "4 agents × 4 episodes × 6 s, 16 proxy-only episodes each; --sequential: budget 8"
     out_help = "folder for rank.json, rank.html, pairs.csv and the episode cache (OUT/runs)"
     exclude = ("search", "plan", "sweep", "pod_seconds", "n_boot", "truth", "plv")
+    runs = "proxybench.experiments.rank.run:run_rank"
+    reports = "proxybench.experiments.rank.report:write_rank"
     extra_defaults = {"param": "the nominal calibration", "proxy_episodes": "100; --quick 16",  # noqa: RUF012
                       "budget": "80; --quick 8", "episodes": "a recorded target's (all of them), else 10; --quick 4"}
-
-    def run(self, config: RankConfig, out: Path, backend: Any, progress: Progress, *,
-            quick: bool = False) -> RankResult:
-        from proxybench.experiments.rank.run import run_rank
-
-        return run_rank(config, out, backend, progress, quick=quick)
-
-    def write_report(self, result: RankResult, out: Path, *, wall: float = 0.0) -> list[Path]:
-        from proxybench.experiments.rank.report import write_rank
-
-        return write_rank(result, out)
 
     def example(self) -> RankResult:
         """A canned result: five agents' made-up scores, a proxy that tracks them (nothing runs)."""
