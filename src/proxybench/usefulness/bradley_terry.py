@@ -240,11 +240,11 @@ def fit_bradley_terry(outcomes: Outcomes, *, alpha: float = ALPHA, resamples: in
     n_ep = len(outcomes.episodes)
     notes: list[str] = []
     unscored = [outcomes.agents[i] for i in np.flatnonzero(per_agent == 0)]
-    if unscored:
+    if len(outcomes.agents) < 2:
+        notes.append("one agent: nothing to compare")
+    elif unscored:
         notes.append(f"{len(unscored)} agent(s) share no episode with another agent: no score")
     if len(fitted) < 2:
-        if len(outcomes.agents) < 2:
-            notes.append("one agent: nothing to compare")
         scores = tuple(AgentScore(a, None, None, None, 0) for a in outcomes.agents)
         return BTResult(scores, False, None, n_ep, 0, level, alpha, tuple(notes))
     sub = wins[:, fitted][:, :, fitted]  # (E, k, k)
