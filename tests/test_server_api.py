@@ -110,6 +110,68 @@ def test_leaderboard_ranks_by_semiorder(api):
     assert [r["label"] for r in rows] == ["fast", "mid", "slow"]
 
 
+def episodes_report(lanedir: list[float], seeds=(11, 12, 13, 14, 15)) -> dict:
+    """A per-episode report as the evaluator uploads it: episode index, seed, per-episode scores."""
+    return {"episodes": [{"episode": k, "seed": seed, "termination": "timeout",
+                          "scores": {"driven_lanedir_consec": v, "survival_time": 60.0, "deviation_center_line": 0.1,
+                                     "in_drivable_lane": 0.0}}
+                         for k, (seed, v) in enumerate(zip(seeds, lanedir, strict=True))]}
+
+
+def test_leaderboard_has_bradley_terry_scores_from_the_per_episode_reports(api, monkeypatch):
+    """Each row's BT score and 95 % interval, and the board's provisional flag and fragility, from the results'
+    per-episode reports (episodes paired by index and seed), computed when the board is built, not on reads; a
+    result without a report, or with a malformed one, has no score and breaks nothing."""
+    from proxybench.server import leaderboards
+
+    calls = []
+    real = leaderboards.board_bradley_terry
+    monkeypatch.setattr(leaderboards, "board_bradley_terry", lambda *a: calls.append(1) or real(*a))
+    runs = {"fast": [9.0, 9.5, 8.8, 9.1, 9.9], "mid": [5.0, 5.5, 9.0, 5.2, 4.9], "slow": [2.0, 2.5, 1.0, 2.2, 1.9],
+            "no report": None, "garbage": "bad"}
+    sids = {}
+    for label, lanedir in runs.items():
+        sids[label] = api.submit(api.dev, label=label).json()["id"]
+        report = (episodes_report(lanedir) if isinstance(lanedir, list) else
+                  {} if lanedir is None else {"episodes": [1, {"episode": 0}, {"episode": 1, "scores": {"x": "y"}}]})
+        med = sorted(lanedir)[2] if isinstance(lanedir, list) else 0.5
+        assert api.finish(api.lease().json(), scores={**SCORES, "driven_lanedir_consec_median": med},
+                          public_report=report).status_code == 201
+    board = api.c.get("/api/v1/leaderboards/aido_lf", headers=api.dev).json()
+    built = len(calls)
+    for _ in range(3):
+        assert api.c.get("/api/v1/leaderboards/aido_lf", headers=api.dev).json() == board
+    assert len(calls) == built  # once per change: reads reuse the built board
+    bt = board["bt"]
+    assert bt["method"] == "bradley-terry" and bt["episodes"] == 5 and bt["resamples"] == 200
+    assert bt["compared_on"][:2] == ["driven_lanedir_consec", "survival_time"]
+    assert bt["leader"] == sids["fast"] and bt["fragility"]["text"] == str(bt["fragility"]["episodes"] or "")
+    rows = {r["label"]: r for r in board["rows"]}
+    assert rows["no report"]["bt"] is None and rows["garbage"]["bt"] is None
+    fast, mid, slow = (rows[k]["bt"] for k in ("fast", "mid", "slow"))
+    assert fast["score"] > mid["score"] > slow["score"]
+    assert all(b["lo"] <= b["score"] <= b["hi"] for b in (fast, mid, slow))
+    assert bt["provisional"] == (mid["hi"] >= fast["lo"]) and fast["contender"]
+    # fast beat mid in 4 of 5 episodes (episode 2 ties within 0.62 m): the lead rests on a few episodes
+    assert 1 <= bt["fragility"]["episodes"] <= 4
+    hidden = api.c.get("/api/v1/leaderboards/aido_lf?split=hidden", headers=api.admin).json()
+    assert hidden["bt"] is None and all(r["bt"] is None for r in hidden["rows"])  # no hidden reports uploaded
+    schema = api.c.get("/api/v1/openapi.json").json()["components"]["schemas"]
+    assert "bt" in schema["LeaderboardOut"]["properties"] and "BTScoreOut" in schema
+
+
+def test_a_board_too_large_for_bradley_terry_says_so(api, monkeypatch):
+    from proxybench.server import leaderboards
+
+    monkeypatch.setattr(leaderboards, "BT_MAX_AGENTS", 1)
+    for label, lanedir in (("a", [1.0] * 5), ("b", [2.0] * 5)):
+        api.submit(api.dev, label=label)
+        assert api.finish(api.lease().json(), public_report=episodes_report(lanedir)).status_code == 201
+    board = api.c.get("/api/v1/leaderboards/aido_lf", headers=api.dev).json()
+    assert board["bt"]["provisional"] is None and "at most 1" in board["bt"]["notes"][0]
+    assert all(r["bt"] is None for r in board["rows"])
+
+
 def test_lapsed_lease_is_requeued_then_given_up(tmp_path, database_url):
     api = Api(tmp_path, database_url, lease_seconds=0.2, max_attempts=2)
     api.submit(api.dev)

@@ -87,6 +87,32 @@ def test_sign_in_and_see_the_leaderboard_ranking(server, page):
     assert page.url.startswith(url + "/login")
 
 
+def test_the_leaderboard_shows_bradley_terry_scores_with_intervals(server, page):
+    """Beside the semiorder: each row's BT score and its 95 % interval as the API has them, the "provisional" mark
+    on the leader when its interval overlaps the runner-up's, and the board's fragility."""
+    url, demo, app = server
+    sign_in(page, url, demo, "alice", "/leaderboards/aido_lf")
+    with TestClient(app) as client:
+        board = client.get("/api/v1/leaderboards/aido_lf",
+                           headers={"Authorization": f"Bearer {demo.tokens['alice']}"}).json()
+    bt = board["bt"]
+    assert bt["episodes"] == 5 and bt["resamples"] == 200 and bt["fragility"] is not None
+    head = page.locator("[data-testid=leaderboard] thead [data-testid=bt-head]")
+    assert " ".join(head.inner_text().split()) == "BT score [95 % interval]"
+    cells = page.locator("[data-testid=leaderboard] tbody [data-testid=bt]")
+    assert cells.count() == len(board["rows"]) == 4
+    for k, r in enumerate(board["rows"]):
+        s = r["bt"]
+        text = " ".join(cells.nth(k).inner_text().replace("provisional", "").split())
+        assert text == f"{s['score']:.2f} [{s['lo']:.2f}, {s['hi']:.2f}]"
+        marked = cells.nth(k).locator("[data-testid=provisional]").count() == 1
+        assert marked == (bt["provisional"] and r["submission_id"] == bt["leader"])
+    assert page.locator("[data-testid=leaderboard] [data-testid=provisional]").count() == int(bt["provisional"])
+    summary = page.locator("[data-testid=bt-summary]")
+    assert summary.is_visible() and page.inner_text("[data-testid=fragility]") == bt["fragility"]["text"]
+    assert ("provisional" in summary.inner_text()) == bt["provisional"]
+
+
 def test_submission_page_shows_metrics_and_plot(server, page):
     url, demo, app = server
     sid = demo.submissions["vision v2"]

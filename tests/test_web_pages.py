@@ -278,6 +278,47 @@ def test_missing_values_are_a_dash_that_says_why(tmp_path):
     assert 'title="not computed: no episode gave a finite value (NaN); it ranks worst">—' in board
 
 
+def test_leaderboard_shows_bradley_terry_scores_or_says_why_not(site, tmp_path, monkeypatch):
+    """The BT column (score, interval, the leader's "provisional" mark) and the board's summary with its fragility;
+    a board too large for Bradley–Terry, and one without per-episode reports, render with a dash and a reason."""
+    client, demo = site
+    html = get(site, "alice", "/leaderboards/aido_lf").text
+    api = client.get("/api/v1/leaderboards/aido_lf", headers={"Authorization": f"Bearer {demo.tokens['alice']}"}).json()
+    rows = _cells(html, "leaderboard")
+    for cells, r in zip(rows, api["rows"], strict=True):
+        shown = cells[11].removeprefix("provisional").strip()
+        assert shown == f"{r['bt']['score']:.2f}[{r['bt']['lo']:.2f}, {r['bt']['hi']:.2f}]"
+    assert f'data-testid="fragility">{api["bt"]["fragility"]["text"]}<' in html
+    assert 'data-testid="bt-head"' in html and "BT score" in html
+
+    from proxybench.server import leaderboards
+
+    monkeypatch.setattr(leaderboards, "BT_MAX_AGENTS", 1)
+    app = create_app(Settings(data_dir=tmp_path / "data"))
+    fresh = TestClient(app)
+    admin = {"Authorization": f"Bearer {app.state.admin_token}"}
+    tokens = {n: fresh.post("/api/v1/users", headers=admin, json={"name": n, "role": r}).json()["token"]
+              for n, r in (("gina", "developer"), ("lab", "evaluator"))}
+    ev = {"Authorization": f"Bearer {tokens['lab']}"}
+    for label, v in (("one", 1.0), ("two", 2.0)):
+        fresh.post("/api/v1/submissions", headers={"Authorization": f"Bearer {tokens['gina']}"},
+                   json={"label": label, "agent": "vision", "benchmark": "thesis_loop"})
+        job = fresh.post("/api/v1/jobs/lease", headers=ev, json={"evaluator": "lab", "features": ["sim"]}).json()
+        report = {"episodes": [{"episode": k, "seed": k, "scores": {"distance": v + k, "survival_time": 10.0}}
+                               for k in range(3)]}
+        scores = {"distance_mean": v + 1, "survival_time_mean": 10.0}
+        assert fresh.post(f"/api/v1/jobs/{job['job_id']}/result", headers=ev,
+                          json={"lease_id": job["lease_id"], "evaluator": "lab", "status": "success",
+                                "public_scores": scores, "public_report": report,
+                                "hidden_scores": scores}).status_code == 201
+    site2 = (fresh, DemoData(tokens={"gina": tokens["gina"], "admin": app.state.admin_token}))
+    big = get(site2, "gina", "/leaderboards/thesis_loop").text
+    assert "Bradley–Terry scores are computed for boards of at most 1" in big
+    assert big.count('title="no Bradley–Terry score: no per-episode report') == 2
+    hidden = get(site2, "admin", "/leaderboards/thesis_loop?split=hidden").text  # no hidden reports: no summary
+    assert 'data-testid="bt-summary"' not in hidden and hidden.count('data-testid="bt"') == 2
+
+
 def test_labels_and_names_are_escaped(site):
     client, demo = site
     r = client.post("/api/v1/submissions", headers={"Authorization": f"Bearer {demo.tokens['alice']}"},

@@ -14,6 +14,15 @@ does not wait for it); a reader that finds a small board (at most ``SYNC_BUILD_R
 builds it on the spot, so a read after a result always shows it. A large board is rebuilt at most once
 per ``max(MIN_INTERVAL_S, 8 × its build time)`` however fast results arrive, and readers get the
 previous build meanwhile, marked ``"stale": true``. Each server process keeps (and builds) its own copy.
+
+Beside the semiorder each board carries Bradley–Terry scores with 95 % intervals
+(:mod:`proxybench.usefulness.bradley_terry`), built with the rest of the board: the results store aggregates only,
+so the per-episode values come from each result's report (``public_report`` / ``hidden_report`` ``episodes``:
+episode index, seed and per-episode scores, as the evaluator uploads them). Submissions are compared in every episode
+(same index and seed) on the board's criteria in order, per episode, with their tolerances — the semiorder applied
+episode by episode. ``bt`` on the board says whether first place is provisional and how many episodes it rests on;
+``bt`` on a row is its score. A result without a per-episode report has no score (``null``). The bootstrap's cost
+grows with the cube of the agents: large boards get fewer resamples, and none above :data:`BT_MAX_AGENTS`.
 """
 
 from __future__ import annotations
@@ -34,15 +43,19 @@ from sqlalchemy.orm import Session, sessionmaker
 from proxybench.server.benchmarks import benchmark_of
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import BenchmarkVersion, Result, Submission, User
-from proxybench.tasks.scoring import leaderboard
+from proxybench.tasks.aggregate import STATS
+from proxybench.tasks.scoring import Criterion, leaderboard
 
-__all__ = ["MIN_INTERVAL_S", "SYNC_BUILD_ROWS", "Board", "BoardCache", "build_board", "resolve_version"]
+__all__ = ["BT_MAX_AGENTS", "MIN_INTERVAL_S", "SYNC_BUILD_ROWS", "Board", "BoardCache", "board_bradley_terry",
+           "build_board", "resolve_version"]
 
 log = logging.getLogger("proxybench.server")
 SYNC_BUILD_ROWS = 100  # boards of at most this many rows are always built before they are served
 MIN_INTERVAL_S = 1.0  # the shortest pause between background rebuilds of one large board [s]
 INTERVAL_FACTOR = 8  # ... and at least this many times its build time: rebuilding takes ≤ 1/8 of a core
 SPLITS = ("public", "hidden")
+BT_MAX_AGENTS = 300  # boards with more scored submissions get no Bradley–Terry scores (a fit costs agents³)
+MAX_REPORT_EPISODES = 10_000  # per-episode rows read from one result's report at most
 
 
 _BV = BenchmarkVersion.__table__  # plain columns: no ORM annotations to adapt per execution
@@ -74,31 +87,94 @@ class Entries:
     """What a board is built from: the newest success of each active submission, and how far it has read
     (the highest result id, and how many submissions were retired then: a retirement means reading all)."""
 
-    by_submission: dict[int, tuple] = field(default_factory=dict)  # sid -> (rid, at, scores, label, agent, user)
+    # sid -> (rid, at, scores, label, agent, user, per-episode values: {(episode, seed): (one per criterion)})
+    by_submission: dict[int, tuple] = field(default_factory=dict)
     last_result: int = 0
     retired: int = -1
 
 
-def _read_entries(session: Session, bench_id: int, split: str, since: Entries | None) -> Entries:
+def episode_metric(criterion: str) -> str:
+    """The per-episode metric a criterion aggregates: ``survival_time_median`` → ``survival_time``."""
+    base, _, stat = criterion.rpartition("_")
+    return base if base and stat in STATS else criterion
+
+
+def _episode_values(report: Any, metrics: tuple[str, ...]) -> dict[tuple[str, str], tuple[float, ...]]:
+    """{(episode, seed): the criteria's per-episode values} from an uploaded report (untrusted: anything malformed is
+    left out; a missing or non-numeric value is NaN, which Bradley–Terry skips)."""
+    rows = report.get("episodes") if isinstance(report, dict) else None
+    if not isinstance(rows, list):
+        return {}
+    out: dict[tuple[str, str], tuple[float, ...]] = {}
+    for row in rows[:MAX_REPORT_EPISODES]:
+        if not isinstance(row, dict) or not isinstance(row.get("scores"), dict) or row.get("episode") is None:
+            continue
+        values = tuple(_nan_if_none(_number(row["scores"].get(m))) for m in metrics)
+        if any(v == v for v in values):  # an episode with none of the criteria's values tells nothing
+            out[(str(row["episode"]), str(row.get("seed")))] = values
+    return out
+
+
+def _number(v: Any) -> float | None:
+    return float(v) if isinstance(v, int | float) and not isinstance(v, bool) else None
+
+
+def _read_entries(session: Session, bench_id: int, split: str, since: Entries | None,
+                  metrics: tuple[str, ...] = ()) -> Entries:
     """The board's entries: only results newer than ``since`` when no submission was retired since."""
     retired = session.scalar(select(func.count(Submission.id)).where(Submission.status != "active")) or 0
     if since is None or since.retired != retired:
         since = Entries(retired=retired)
     out = Entries(dict(since.by_submission), since.last_result, retired)
     score_col = Result.public_scores if split == "public" else Result.hidden_scores
+    report_col = Result.public_report if split == "public" else Result.hidden_report
     rows = session.execute(
         select(Result.id, Result.created_at, score_col, Submission.id, Submission.label, Submission.agent_name,
-               Submission.manifest, User.name)
+               Submission.manifest, User.name, report_col)
         .join(Submission, Result.submission_id == Submission.id).join(User, Submission.user_id == User.id)
         .where(Result.benchmark_id == bench_id, Result.status == "success", Submission.status == "active",
                Result.id > since.last_result)
         .order_by(Result.id)
     ).all()
-    for rid, at, scores, sid, label, agent, manifest, user in rows:  # the latest success per submission wins
+    for rid, at, scores, sid, label, agent, manifest, user, report in rows:  # the latest success per submission wins
         out.by_submission[sid] = (rid, at, scores or {}, label, agent or (manifest or {}).get("name", "archive"),
-                                  user)
+                                  user, _episode_values(report, metrics))
         out.last_result = max(out.last_result, rid)
     return out
+
+
+def _bt_effort(agents: int) -> tuple[int, int]:
+    """(bootstrap resamples, fragility cap) for a board of this many agents: a fit costs about agents³, so larger
+    boards get fewer (a board of ≤ 50 the module's defaults: 200 resamples, 50 removals)."""
+    if agents <= 50:
+        return 200, 50
+    return (100, 20) if agents <= 150 else (50, 10)
+
+
+def board_bradley_terry(criteria: list[Criterion], episodes: dict[int, dict[tuple[str, str], tuple[float, ...]]]
+                        ) -> tuple[dict[str, Any] | None, dict[int, dict[str, Any]]]:
+    """(the board's Bradley–Terry summary, each submission's score) from per-episode values; (None, {}) when no
+    submission has any, or the board is too large (a note says so)."""
+    from proxybench.usefulness.bradley_terry import EpisodeScores, bradley_terry_lexicographic
+
+    sids = sorted(sid for sid, per in episodes.items() if per)  # a fixed order: incremental = full build
+    if not sids:
+        return None, {}
+    compared_on = [episode_metric(c.metric) for c in criteria]
+    if len(sids) > BT_MAX_AGENTS:
+        return {"method": "bradley-terry", "episodes": None, "resamples": 0, "level": None, "alpha": None,
+                "leader": None, "provisional": None, "fragility": None, "compared_on": compared_on,
+                "notes": [f"{len(sids)} submissions: Bradley–Terry scores are computed for boards of at most "
+                          f"{BT_MAX_AGENTS}"]}, {}
+    per_metric = [EpisodeScores({sid: {e: v[k] for e, v in episodes[sid].items()} for sid in sids},
+                                c.higher_is_better, c.tolerance) for k, c in enumerate(criteria)]
+    resamples, cap = _bt_effort(len(sids))
+    result = bradley_terry_lexicographic(per_metric, resamples=resamples, fragility_cap=cap)
+    summary = {**result.to_json(), "compared_on": compared_on}
+    by = result.by_agent()
+    scores = {sid: {"score": by[sid].score, "lo": by[sid].lo, "hi": by[sid].hi, "contender": by[sid].contender}
+              for sid in sids if by[sid].score is not None}
+    return summary, scores
 
 
 def build_board(session: Session, bench_id: int, split: str,
@@ -114,23 +190,24 @@ def build_board(session: Session, bench_id: int, split: str,
         raise ServiceError(404, f"no benchmark version {bench_id}")
     board_version = row.board_version
     criteria = benchmark_of(row).criteria()
-    entries = _read_entries(session, bench_id, split, since)
+    entries = _read_entries(session, bench_id, split, since, tuple(episode_metric(c.metric) for c in criteria))
     # a metric the evaluator could not compute arrives as null: NaN ranks it worst, as in proxybench evaluate
     scores = {sid: {c.metric: _nan_if_none(e[2].get(c.metric)) for c in criteria}
               for sid, e in entries.by_submission.items() if e[2]}
     ranks = leaderboard(scores, criteria) if scores else []
+    bt, bt_rows = board_bradley_terry(criteria, {sid: entries.by_submission[sid][6] for sid in scores})
     rows = []
     for rank in ranks:
-        rid, at, _, label, agent, user = entries.by_submission[rank.agent]
+        rid, at, _, label, agent, user, _ = entries.by_submission[rank.agent]
         rows.append({"rank": rank.rank, "submission_id": rank.agent, "label": label, "user": user, "agent": agent,
                      "copeland": rank.copeland, "wins": rank.wins, "losses": rank.losses,
                      "scores": {c.metric: _json_number(scores[rank.agent].get(c.metric)) for c in criteria},
-                     "result_id": rid, "at": at})
+                     "bt": bt_rows.get(rank.agent), "result_id": rid, "at": at})
     return board_version, {
         "benchmark": row.name, "version": row.version, "split": split,
         "criteria": [{"metric": c.metric, "higher_is_better": c.higher_is_better, "tolerance": c.tolerance}
                      for c in criteria],
-        "rows": rows}, entries
+        "bt": bt, "rows": rows}, entries
 
 
 def _nan_if_none(v: Any) -> float:

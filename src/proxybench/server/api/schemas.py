@@ -25,6 +25,9 @@ from proxybench.untrusted import clean_tree
 __all__ = [
     "ArtifactRef",
     "ArtifactStored",
+    "BTBoardOut",
+    "BTFragilityOut",
+    "BTScoreOut",
     "BenchmarkOut",
     "BenchmarkUpload",
     "CriterionOut",
@@ -169,6 +172,39 @@ class CriterionOut(_Out):
     tolerance: float
 
 
+class BTScoreOut(_Out):
+    """A submission's Bradley–Terry score: log-strength, mean 0 over the board (exp(a − b) is the odds that a beats
+    b in an episode), with its bootstrap interval over episodes."""
+
+    score: float
+    lo: float | None
+    hi: float | None
+    contender: bool = Field(description="its interval reaches the leader's: it could be first")
+
+
+class BTFragilityOut(_Out):
+    episodes: int | None = Field(description="fewest episodes whose removal changes first place (greedy); "
+                                 "null: more than ``cap``")
+    cap: int
+    text: str = Field(description='"3", or "> 50" when the search stopped at its cap')
+
+
+class BTBoardOut(_Out):
+    """Bradley–Terry scores of a board: submissions compared episode by episode (same index and seed) on the
+    criteria in order, with their tolerances; intervals by bootstrap over episodes."""
+
+    method: str = "bradley-terry"
+    episodes: int | None = None
+    resamples: int | None = None
+    level: float | None = None
+    alpha: float | None = None
+    leader: int | None = Field(None, description="the submission with the highest score")
+    provisional: bool | None = Field(None, description="the leader's interval overlaps the runner-up's")
+    fragility: BTFragilityOut | None = None
+    compared_on: list[str] = Field(default_factory=list, description="the per-episode metrics, in order")
+    notes: list[str] = Field(default_factory=list)
+
+
 class LeaderboardRow(_Out):
     rank: int
     submission_id: int
@@ -179,6 +215,7 @@ class LeaderboardRow(_Out):
     wins: int
     losses: int
     scores: dict[str, Score]
+    bt: BTScoreOut | None = Field(None, description="null: no per-episode report, or no episode shared with others")
     result_id: int
     at: float
 
@@ -188,6 +225,7 @@ class LeaderboardOut(_Out):
     version: int
     split: str
     criteria: list[CriterionOut]
+    bt: BTBoardOut | None = Field(None, description="null: no result on the board has a per-episode report")
     rows: list[LeaderboardRow]
     total: int = Field(description="rows on the whole board (``rows`` is the page asked for)")
     offset: int = 0

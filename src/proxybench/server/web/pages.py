@@ -21,7 +21,7 @@ from proxybench.server.leaderboards import leaderboard_rows
 from proxybench.server.models import JOB_STATUSES, BenchmarkVersion, Job, Result
 from proxybench.server.security import close_web_session, csrf_token, open_web_session, token_row
 from proxybench.server.web.common import render, safe_next
-from proxybench.server.web.scores import board_cells, board_columns, metric_column
+from proxybench.server.web.scores import board_cells, board_columns, bt_cell, metric_column
 from proxybench.server.web.svg import path_dag
 
 router = APIRouter(include_in_schema=False)
@@ -52,11 +52,13 @@ def ranked_rows(session: Session, board: dict[str, Any], rows: list[dict[str, An
     """(criterion columns, rows with their cells: value, interval, episode count) for a leaderboard table."""
     columns = board_columns(board["criteria"])
     details = result_scores(session, rows, board["split"])
+    bt = board.get("bt") or {}
     out = []
     for r in rows:
         full = details.get(r["result_id"], {})
         episodes = full.get("episodes")
         out.append({**r, "cells": board_cells(r["scores"], columns, full),
+                    "bt": bt_cell(r.get("bt"), r["submission_id"] == bt.get("leader"), bool(bt.get("provisional"))),
                     "episodes": int(episodes) if isinstance(episodes, int | float) and episodes == episodes else None})
     return columns, out
 

@@ -31,11 +31,12 @@ from markupsafe import Markup, escape
 from proxybench.tasks.aggregate import STATS
 from proxybench.tasks.metrics import METRICS, Metric
 
-__all__ = ["CI_LEVEL", "EPISODE_NAN", "NOT_COMPUTED", "NOT_REPORTED", "BoardColumn", "Column", "ScoreRow",
-           "board_cells", "board_columns", "column_of", "criterion_column", "episode_counts", "fmt_value",
-           "metric_column", "score_rows", "value_cell"]
+__all__ = ["BT_DECIMALS", "CI_LEVEL", "EPISODE_NAN", "NOT_COMPUTED", "NOT_REPORTED", "BoardColumn", "Column",
+           "ScoreRow", "board_cells", "board_columns", "bt_cell", "column_of", "criterion_column", "episode_counts",
+           "fmt_value", "metric_column", "score_rows", "value_cell"]
 
 CI_LEVEL = "95 %"  # aggregate()'s default level, which evaluators use
+BT_DECIMALS = 2  # Bradley–Terry log-strengths: a difference of 0.01 is a 0.25 % change in the odds of winning
 #: why a value is missing, by where it is missing
 NOT_COMPUTED = "not computed: no episode gave a finite value (NaN); it ranks worst"
 NOT_REPORTED = "not in this result (the evaluator did not report it)"
@@ -274,3 +275,19 @@ def board_cells(scores: Mapping[str, Any], columns: Sequence[BoardColumn],
                       if lo is not None and hi is not None else None,
                       "n": None if n is None else int(n)})
     return cells
+
+
+def bt_cell(bt: Mapping[str, Any] | None, leader: bool = False, provisional: bool = False) -> dict[str, Any] | None:
+    """A row's Bradley–Terry cell: the score and its interval as text, whether it could be first, and whether it
+    carries the "provisional" mark (the leader's, when its interval overlaps the runner-up's); None without a score.
+
+    >>> bt_cell({"score": 1.276, "lo": 0.873, "hi": 1.827, "contender": True}, leader=True, provisional=True)
+    {'value': '1.28', 'interval': '[0.87, 1.83]', 'contender': True, 'provisional': True}
+    """
+    if not bt or _number(bt.get("score")) is None:
+        return None
+    lo, hi = _number(bt.get("lo")), _number(bt.get("hi"))
+    return {"value": fmt_value(bt["score"], BT_DECIMALS),
+            "interval": f"[{fmt_value(lo, BT_DECIMALS)}, {fmt_value(hi, BT_DECIMALS)}]"
+            if lo is not None and hi is not None else None,
+            "contender": bool(bt.get("contender")), "provisional": leader and provisional}
