@@ -43,8 +43,8 @@ from sqlalchemy.orm import Session, sessionmaker
 from proxybench.server.benchmarks import benchmark_of
 from proxybench.server.errors import ServiceError
 from proxybench.server.models import BenchmarkVersion, Result, Submission, User
-from proxybench.tasks.aggregate import STATS
 from proxybench.tasks.scoring import Criterion, leaderboard
+from proxybench.usefulness.bradley_terry import episode_metric
 
 __all__ = ["BT_MAX_AGENTS", "MIN_INTERVAL_S", "SYNC_BUILD_ROWS", "Board", "BoardCache", "board_bradley_terry",
            "build_board", "resolve_version"]
@@ -91,12 +91,6 @@ class Entries:
     by_submission: dict[int, tuple] = field(default_factory=dict)
     last_result: int = 0
     retired: int = -1
-
-
-def episode_metric(criterion: str) -> str:
-    """The per-episode metric a criterion aggregates: ``survival_time_median`` → ``survival_time``."""
-    base, _, stat = criterion.rpartition("_")
-    return base if base and stat in STATS else criterion
 
 
 def _episode_values(report: Any, metrics: tuple[str, ...]) -> dict[tuple[str, str], tuple[float, ...]]:

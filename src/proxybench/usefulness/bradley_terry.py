@@ -14,7 +14,9 @@ not a tie decides.
   chain starts with that rate between every pair: about one drawn virtual episode per pair at alpha = 0.25), so an
   agent that wins every comparison keeps a finite score and agents that never met are still placed (near 0).
 - **Intervals** are percentile bootstraps over episode ids (seeded): resampling whole episodes keeps all the pairs
-  of an episode together, so their correlation is in the interval.
+  of an episode together, so their correlation is in the interval. Each is widened, where narrower, to the model's
+  own (Wald) interval: with a perfect record or a handful of episodes every resample has the same outcomes and the
+  bootstrap alone would claim certainty.
 - **Provisional** when the leader's interval overlaps the runner-up's: first place is not settled.
 - **Fragility**: the fewest episodes whose removal changes first place, searched greedily (remove the episode where
   the leader did best against the runner-up, refit, repeat) up to a cap; "> N" when the cap is reached. Greedy gives
@@ -26,7 +28,7 @@ not a tie decides.
 >>> [s.agent for s in r.scores], r.scores[0].score > r.scores[1].score > r.scores[2].score
 (['a', 'b', 'c'], True)
 >>> r.provisional, str(r.fragility)
-(False, '3')
+(True, '3')
 """
 
 from __future__ import annotations
@@ -38,9 +40,11 @@ from typing import Any
 
 import numpy as np
 
+from proxybench.tasks.aggregate import STATS
+
 __all__ = ["ALPHA", "FRAGILITY_CAP", "LEVEL", "RESAMPLES", "AgentScore", "BTResult", "EpisodeScores", "Fragility",
-           "Outcomes", "bradley_terry", "bradley_terry_lexicographic", "fit_bradley_terry", "fit_strengths",
-           "lexicographic_outcomes", "pairwise_outcomes"]
+           "Outcomes", "bradley_terry", "bradley_terry_lexicographic", "episode_metric", "fit_bradley_terry",
+           "fit_strengths", "lexicographic_outcomes", "pairwise_outcomes"]
 
 ALPHA = 0.25  # choix's regularisation: ≈ one drawn virtual episode per pair; keeps a perfect record finite
 RESAMPLES = 200  # bootstrap resamples over episode ids
@@ -143,6 +147,17 @@ class BTResult:
                 "fragility": None if self.fragility is None else
                 {"episodes": self.fragility.removals, "cap": self.fragility.cap, "text": str(self.fragility)},
                 "notes": list(self.notes)}
+
+
+def episode_metric(criterion: str) -> str:
+    """The per-episode metric a benchmark criterion aggregates (``survival_time_median`` → ``survival_time``): what
+    a board's Bradley–Terry scores compare episode by episode.
+
+    >>> episode_metric("driven_lanedir_consec_median"), episode_metric("distance")
+    ('driven_lanedir_consec', 'distance')
+    """
+    base, _, stat = criterion.rpartition("_")
+    return base if base and stat in STATS else criterion
 
 
 def _sorted_ids(ids: Sequence[Hashable]) -> tuple[Hashable, ...]:
@@ -263,7 +278,9 @@ def fit_bradley_terry(outcomes: Outcomes, *, alpha: float = ALPHA, resamples: in
         for r in range(resamples):
             boot[r] = fit_strengths((draws[r] @ flat).reshape(k, k), alpha, initial=point, tol=1e-4)
         q = (1 - level) / 2
-        lo, hi = np.quantile(boot, q, axis=0), np.quantile(boot, 1 - q, axis=0)
+        wald = _wald_halfwidth(point, compared[np.ix_(fitted, fitted)], level)
+        lo = np.minimum(np.quantile(boot, q, axis=0), point - wald)
+        hi = np.maximum(np.quantile(boot, 1 - q, axis=0), point + wald)
     order = sorted(range(k), key=lambda i: -point[i])
     lead = order[0]
     top_shared = point[order[0]] - point[order[1]] <= _TOP_TIE
@@ -280,6 +297,20 @@ def fit_bradley_terry(outcomes: Outcomes, *, alpha: float = ALPHA, resamples: in
               for i in order]
     scored += [AgentScore(a, None, None, None, 0) for a in unscored]
     return BTResult(tuple(scored), provisional, fragility, n_ep, resamples if n_ep else 0, level, alpha, tuple(notes))
+
+
+def _wald_halfwidth(point: np.ndarray, compared: np.ndarray, level: float) -> np.ndarray:
+    """Half-widths of the model's own (Wald) intervals: the inverse Fisher information of the centred log-strengths,
+    n_ij p_ij (1 − p_ij) per pair (a graph Laplacian; its pseudo-inverse is the covariance under the mean-0
+    constraint). The bootstrap alone sees no spread when every resample has the same outcomes (a perfect record, a
+    handful of episodes) and would then claim certainty; the interval reported is the hull of both."""
+    from statistics import NormalDist
+
+    p = 1.0 / (1.0 + np.exp(point[None, :] - point[:, None]))
+    w = compared * p * (1.0 - p)
+    laplacian = np.diag(w.sum(axis=1)) - w
+    var = np.clip(np.diag(np.linalg.pinv(laplacian, hermitian=True)), 0.0, None)
+    return NormalDist().inv_cdf(0.5 + level / 2) * np.sqrt(var)
 
 
 def _fragility(wins: np.ndarray, point: np.ndarray, alpha: float, cap: int, episodes: tuple[Hashable, ...],
