@@ -115,6 +115,11 @@ def test_evaluate_prints_a_leaderboard_and_resumes(tmp_path):
     board = json.loads((tmp_path / "run" / "leaderboard.json").read_text())
     assert [r["agent"] for r in board] == ["pid", "straight"]
     assert "4 run, 0 cached" in res.output
+    # beside the semiorder: Bradley–Terry scores with intervals over the 2 paired episodes, and their summary
+    bt = json.loads((tmp_path / "run" / "bradley_terry.json").read_text())
+    assert "BT score [95%]" in res.output and "Bradley–Terry from the 2 paired episodes" in res.output
+    assert bt["episodes"] == 2 and bt["leader"] == "pid" and bt["fragility"]["text"]
+    assert board[0]["bt"]["lo"] <= board[0]["bt"]["score"] <= board[0]["bt"]["hi"]
     again = runner.invoke(app, args)
     assert "0 run, 4 cached" in again.output
 

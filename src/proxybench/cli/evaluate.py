@@ -237,6 +237,38 @@ def _collisions(results) -> dict[str, tuple[int, int, dict[str, int]]]:
     return out
 
 
+def _bradley_terry(ev):
+    """Bradley–Terry scores of the evaluated agents: compared episode by episode (same start and seed) on the
+    benchmark's criteria in order, with their tolerances (the semiorder per episode); NaN episodes skipped."""
+    import math
+
+    from proxybench.usefulness.bradley_terry import EpisodeScores, bradley_terry_lexicographic, episode_metric
+
+    per = []
+    for c in ev.benchmark.criteria():
+        metric = episode_metric(c.metric)
+        values: dict = {}
+        for r in ev.sweep.results:
+            values.setdefault(r.agent, {})[(r.episode, r.seed)] = r.scores.get(metric, math.nan)
+        per.append(EpisodeScores(values, c.higher_is_better, c.tolerance))
+    return bradley_terry_lexicographic(per)
+
+
+def _bt_lines(bt) -> str:
+    """What the Bradley–Terry scores say about first place, in words, under the table."""
+    text = (f"BT score: Bradley–Terry from the {bt.episodes} paired episodes ({bt.level:.0%} intervals, "
+            f"{bt.resamples} bootstrap resamples of episodes).")
+    if bt.leader is not None:
+        text += (" First place is provisional: the leader's interval overlaps the runner-up's." if bt.provisional
+                 else " First place is settled: the leader's interval clears the runner-up's.")
+    f = bt.fragility
+    if f is not None and f.removals is None:
+        text += f" Fragility {f}: first place survives the removal of {f.cap} episode{'' if f.cap == 1 else 's'}."
+    elif f is not None:
+        text += f" Fragility {f}: removing {f} episode{'' if f.removals == 1 else 's'} changes first place (greedy)."
+    return " ".join([text, *(f"{n}." for n in bt.notes)])
+
+
 def _print_leaderboard(ev, run_dir: Path) -> None:
 
     from proxybench.tasks.trajectory import Termination
@@ -244,6 +276,8 @@ def _print_leaderboard(ev, run_dir: Path) -> None:
     bench = ev.benchmark
     agg = ev.aggregates.set_index("agent")
     cols = [c.metric for c in bench.criteria()]
+    bt = _bradley_terry(ev)
+    scores = bt.by_agent()
     table = Table(title=f"{bench.name}: {len(bench.episode_specs())} episodes × {bench.duration:g} s "
                         f"(simulated; {ev.sweep.ran} run, {ev.sweep.cached} cached)")
     table.add_column("rank", justify="right")
@@ -251,6 +285,7 @@ def _print_leaderboard(ev, run_dir: Path) -> None:
     for c in bench.criteria():
         table.add_column(f"{c.metric} {'↑' if c.higher_is_better else '↓'} ±{c.tolerance:g}", justify="right")
     table.add_column("W/L/T", justify="right")
+    table.add_column(f"BT score [{bt.level:.0%}]", justify="right")
     table.add_column("collisions", justify="right")
     crashes = _collisions(ev.sweep.results)
     rows = []
@@ -261,11 +296,17 @@ def _print_leaderboard(ev, run_dir: Path) -> None:
         vals = [float(agg.loc[r.agent, c]) for c in cols]
         hit, total, what = crashes.get(str(r.agent), (0, 0, {}))
         with_ = ", ".join(f"{k} {n}" for k, n in sorted(what.items()))
-        table.add_row(shown, str(r.agent), *(f"{v:.3f}" for v in vals), f"{r.wins}/{r.losses}/{r.ties}",
+        s = scores.get(r.agent)
+        cell = "—" if s is None else s.text() + (" provisional" if bt.provisional and r.agent == bt.leader else "")
+        table.add_row(shown, str(r.agent), *(f"{v:.3f}" for v in vals), f"{r.wins}/{r.losses}/{r.ties}", cell,
                       f"{hit}/{total}" + (f" ({with_})" if with_ else ""))
         rows.append({"rank": r.rank, "agent": r.agent, **dict(zip(cols, vals, strict=True)),
-                     "wins": r.wins, "losses": r.losses, "ties": r.ties, "collisions": hit, "collided_with": what})
+                     "wins": r.wins, "losses": r.losses, "ties": r.ties,
+                     "bt": None if s is None or s.score is None else
+                     {"score": s.score, "lo": s.lo, "hi": s.hi, "contender": s.contender},
+                     "collisions": hit, "collided_with": what})
     console.print(table)
+    console.print(_bt_lines(bt), highlight=False)
     for name, why in ev.refused.items():
         console.print(f"[yellow]not admitted:[/yellow] {escape(str(name))}: {escape(str(why))}", highlight=False)
     failures = [r for r in ev.sweep.results if r.termination is Termination.AGENT_FAILURE]
@@ -273,5 +314,7 @@ def _print_leaderboard(ev, run_dir: Path) -> None:
         console.print(f"[red]agent failure[/red] {r.agent} episode {r.episode}: {escape(str(r.message))}",
                       highlight=False)
     (run_dir / "leaderboard.json").write_text(json.dumps(rows, indent=1, default=str))
+    (run_dir / "bradley_terry.json").write_text(json.dumps(bt.to_json(), indent=1, default=str))
     ev.aggregates.to_csv(run_dir / "aggregates.csv", index=False)
-    console.print(f"wrote {run_dir / 'leaderboard.json'}, {run_dir / 'aggregates.csv'}, {run_dir / 'results.parquet'}")
+    console.print(f"wrote {run_dir / 'leaderboard.json'}, {run_dir / 'bradley_terry.json'}, "
+                  f"{run_dir / 'aggregates.csv'}, {run_dir / 'results.parquet'}")
