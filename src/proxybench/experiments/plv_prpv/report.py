@@ -12,10 +12,6 @@ from proxybench.experiments.reporting import pyplot, save_figure
 __all__ = ["plot_choice", "table_rows", "write_choice"]
 
 
-def _num(x: float | None, fmt: str = "{:,.0f}") -> str:
-    return "not reached" if x is None else fmt.format(x)
-
-
 def table_rows(res: ChoiceResult) -> list[dict[str, Any]]:
     """One row per candidate θ: PRPV with its order range and paired Δ, PLV with its interval, which picks it."""
     out = []
