@@ -172,3 +172,33 @@ def test_rank_runs_against_gym_duckietown(tmp_path):
     assert res.exit_code == 0, res.output
     data = json.loads((tmp_path / "r" / "rank.json").read_text())
     assert "gym" in data["target"]["statement"].lower() and len(data["pairs"]) == 2
+
+
+def test_rank_check_judges_decisions_with_further_episodes_and_tries_an_adversarial_proxy(tmp_path):
+    res = runner.invoke(app, ["rank-check", "--quick", "--backend", "inline", "--out", str(tmp_path / "c")])
+    assert res.exit_code == 0, res.output
+    summary = json.loads((tmp_path / "c" / "summary.json").read_text())
+    assert summary["targets"] == 2 and summary["pairs"] == 2 * 3 * 2  # 3 agents: 3 pairs × 2 metrics
+    for key in ("wrong_with", "wrong_alone", "wrong_bad", "anytime_wrong_with", "anytime_wrong_bad"):
+        assert 0 <= summary[f"targets_{key}"]["count"] <= 2
+    assert "SIMULATED" in summary["statement"] and "held-out" in res.output
+
+
+def test_an_inverted_proxy_orders_the_agents_backwards():
+    from proxybench.usefulness.ranking_check import inverted
+
+    proxy = {"a": {0: [3.0], 1: [3.2]}, "b": {0: [2.0], 1: [2.1]}, "c": {0: [1.0], 1: [0.9]}}
+    bad = inverted(proxy)
+    assert [float(bad[x][0][0]) for x in "abc"] == [1.0, 2.0, 3.0]
+
+
+def test_a_decision_is_contradicted_only_when_the_truths_interval_excludes_it():
+    from proxybench.usefulness.ranking_check import contradicted
+
+    rng = np.random.default_rng(0)
+    truth = {"a": {e: [v] for e, v in enumerate(rng.normal(1.0, 0.1, 60))},
+             "b": {e: [v] for e, v in enumerate(rng.normal(0.0, 0.1, 60))}}
+    right, wrong, unsure = (PairDecision("a", "b", "m", d, 0, (0, 0), 5, 0) for d in ("a>b", "b>a", "undecided"))
+    tie = PairDecision("a", "b", "m", "tie", 0, (0, 0), 5, 0)
+    assert contradicted([right, unsure], truth, ["m"], [0.1], [True]) == 0
+    assert contradicted([wrong, tie], truth, ["m"], [0.1], [True]) == 2

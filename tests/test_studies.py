@@ -22,7 +22,7 @@ ALL = sorted(studies())
 
 def test_every_builtin_family_registers_its_studies_and_each_is_a_command():
     assert {"predictivity", "score-proxy", "optimize", "plan", "heldout", "repeatability", "plv", "plv-vs-prpv",
-            "validate", "rank"} <= set(ALL) and len(BUILTIN) == 10
+            "validate", "rank", "rank-check"} <= set(ALL) and len(BUILTIN) == 11
     commands = {c.name for c in app.registered_commands}
     assert set(ALL) <= commands
 

@@ -278,7 +278,7 @@ class Study(ABC, Generic[C, R]):
 _REGISTRY: dict[str, Study[Any, Any]] = {}
 #: the built-in study families, one folder each (their ``study`` module registers them)
 BUILTIN = ("predictivity", "score", "optimize", "plan", "heldout", "repeatability", "plv", "plv_prpv", "validate",
-           "rank")
+           "rank", "rank_check")
 GROUP = "proxybench.studies"
 
 

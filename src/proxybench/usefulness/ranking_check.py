@@ -10,20 +10,25 @@ start is, shared by every agent on that episode) and on the proxy Ŷ = μ'_k + �
 :func:`coverage` runs many worlds and counts those with *any* wrong decision: in the fixed mode after n
 episodes; in the anytime mode at *any* episode count 2 … n (a person may stop whenever), which is stricter
 than any stopping rule. Its share must stay at most α (its Clopper–Pearson interval is reported).
+
+On real targets, where the truth is only more episodes: :func:`contradicted` counts the decisions that many
+further episodes contradict, and :func:`inverted` turns a real proxy adversarial (it orders the agents backwards).
 """
 
 from __future__ import annotations
 
 import itertools
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 from scipy import stats
 
-from proxybench.usefulness.ranking import anytime_path, fixed_interval
+from proxybench.usefulness.ranking import PairDecision, Scores, anytime_path, fixed_interval
 
-__all__ = ["Coverage", "World", "coverage", "draw_world"]
+__all__ = ["Coverage", "World", "contradicted", "coverage", "draw_world", "inverted"]
 
 ProxyKind = Literal["good", "bad", "none"]
 
@@ -142,3 +147,35 @@ def _first_all(decided: np.ndarray) -> float:
     """The first episode count at which every pair is decided (inf if none)."""
     done = np.flatnonzero(decided.all(axis=1))
     return float(done[0] + 1) if len(done) else float("inf")
+
+
+def contradicted(pairs: Sequence[PairDecision], truth: Scores, metrics: Sequence[str], tolerances: Sequence[float],
+                 higher: Sequence[bool], level: float = 0.95) -> int:
+    """How many decisions the ``truth`` episodes (many more, other ids) contradict: their own ``level`` interval
+    for the mean of a − b (normal, Welch's spread) lies wholly where the decision says it is not. A lower bound on
+    the wrong decisions: a truth of finitely many episodes is itself unsure."""
+    z = stats.norm.ppf(0.5 + level / 2)
+    out = 0
+    for p in pairs:
+        m = list(metrics).index(p.metric)
+        a = np.asarray([v[m] for v in truth[p.a].values()], float)
+        b = np.asarray([v[m] for v in truth[p.b].values()], float)
+        a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+        if len(a) < 2 or len(b) < 2:
+            continue
+        diff, se = a.mean() - b.mean(), math.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b))
+        lo, hi = diff - z * se, diff + z * se
+        if not higher[m]:
+            lo, hi = -hi, -lo
+        eps = tolerances[m]
+        out += bool({"a>b": hi <= eps, "b>a": lo >= -eps, "tie": lo > eps or hi < -eps}.get(p.decision, False))
+    return out
+
+
+def inverted(proxy: Scores, metric: int = 0, higher: bool = True) -> dict[str, dict[int, np.ndarray]]:
+    """An adversarial proxy from a real one: each agent gets the episodes of the agent at the mirrored place of the
+    proxy's own order on ``metric`` (the best gets the worst's), so the proxy orders the agents backwards."""
+    means = {a: np.nanmean([v[metric] for v in eps.values()]) for a, eps in proxy.items()}
+    order = sorted(proxy, key=lambda a: means[a], reverse=higher)
+    mirror = dict(zip(order, reversed(order), strict=True))
+    return {a: {e: np.asarray(v, float) for e, v in proxy[mirror[a]].items()} for a in proxy}

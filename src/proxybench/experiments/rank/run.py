@@ -72,6 +72,7 @@ class RankResult:
     notes: list[str] = field(default_factory=list)
     wall_s: float = 0.0
     target_table: Table = field(default_factory=dict, repr=False)  # agent → episode id → scores (what was decided on)
+    proxy_table: Table = field(default_factory=dict, repr=False)  # the proxy's, paired ids and its own (ids ≥ 100,000)
 
     def to_dict(self) -> dict[str, Any]:
         """rank.json: the level, the error control in words, every pair with and without the proxy, the episodes."""
@@ -168,7 +169,7 @@ def run_rank(cfg: RankConfig, out: str | Path, backend: Backend | None = None, p
         steps, stopped = [], "fixed"
     return RankResult(ranking, exp, target.info(), theta, source, tol, {a: len(v) for a, v in tgt_scores.items()},
                       sum(len(v) for v in paired.values()), sum(len(v) for v in proxy_only.values()), steps, stopped,
-                      notes, time.perf_counter() - t0, tgt_scores)
+                      notes, time.perf_counter() - t0, tgt_scores, _merge(paired, proxy_only))
 
 
 def _bar(progress: Progress | None, what: str):
