@@ -202,3 +202,13 @@ def test_a_decision_is_contradicted_only_when_the_truths_interval_excludes_it():
     tie = PairDecision("a", "b", "m", "tie", 0, (0, 0), 5, 0)
     assert contradicted([right, unsure], truth, ["m"], [0.1], [True]) == 0
     assert contradicted([wrong, tie], truth, ["m"], [0.1], [True]) == 2
+
+
+def test_the_sequential_mode_runs_live_episodes_where_pairs_are_open(tmp_path):
+    res = _rank("--quick", "--sequential", "--budget", "3", "--out", str(tmp_path / "s"))
+    assert res.exit_code == 0, res.output
+    data = json.loads((tmp_path / "s" / "rank.json").read_text())
+    assert data["sequential"] and data["target"]["kind"] == "reality-model" and len(data["steps"]) <= 3
+    assert data["episodes"]["target"] == 4 * 4 + len(data["steps"])
+    for step in data["steps"]:  # each chosen agent was in an open pair and ran its next episode id
+        assert step["open_pairs"] > 0 and step["episode"] >= 4
