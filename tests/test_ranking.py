@@ -66,7 +66,7 @@ def test_the_chance_of_any_wrong_decision_stays_within_alpha(mode, proxy):
     """Simulated worlds with a known order; anytime: a wrong decision at *any* episode count counts."""
     c = coverage(k=4, n=30, big_n=300, proxy=proxy, mode=mode, runs=150, alpha=0.1, seed=7)
     assert c.interval[0] <= c.alpha, f"{c.wrong} of {c.runs} worlds had a wrong decision"
-    assert c.decided_with > 0.2  # and it decides something (a rule that never decides is trivially right)
+    assert c.decided_with > 0.1  # and it decides something (a rule that never decides is trivially right)
 
 
 def test_a_good_proxy_decides_more_pairs_from_the_same_target_episodes():

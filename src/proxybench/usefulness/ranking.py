@@ -45,7 +45,7 @@ import numpy as np
 from scipy import stats
 
 __all__ = ["ERROR_CONTROL", "PairDecision", "Ranking", "RankingError", "Scores", "anytime_interval",
-           "decide", "fixed_interval", "rank", "rank_sets"]
+           "decide", "fixed_interval", "rank", "rank_sets", "spread_floor"]
 
 Decision = Literal["a>b", "b>a", "tie", "undecided"]
 #: agent → episode id → scores (one value per metric)
@@ -240,12 +240,13 @@ def rank(target: Scores, proxy: Scores | None, metrics: Sequence[str], higher: S
     its paired predictions; its other ids are proxy-only episodes. Pairs use the ids both agents ran on the
     target (and, for the predictor, on the proxy).
 
-    Every interval counts one more episode of spread σ₀ (ε of the metric, or where ε is 0 the target's pooled
+    Every interval counts one more episode of spread σ₀ (the larger of the metric's ε and the target's pooled
     spread of that metric across agents): a pair seen equal in a few episodes of a metric with point masses
     (survival time at the episode's end) is not decided on zero width.
     """
     agents = _check(target, proxy, metrics, higher, tolerances, alpha)
-    sigma0 = _spread_floor(target, agents, tolerances)
+    sigma0 = spread_floor([np.asarray(list(target[a].values()), float).reshape(-1, len(metrics)) for a in agents],
+                          tolerances)
     pairs = [(a, b) for i, a in enumerate(agents) for b in agents[i + 1:]]
     level = alpha / (len(pairs) * len(metrics))
     interval = anytime_interval if sequential else fixed_interval
@@ -271,13 +272,16 @@ def rank(target: Scores, proxy: Scores | None, metrics: Sequence[str], higher: S
                    sum(len(v) for v in target.values()), sum(len(v) for v in (proxy or {}).values()))
 
 
-def _spread_floor(target: Scores, agents: list[str], tolerances: Sequence[float]) -> np.ndarray:
-    """σ₀ per metric: its ε, or (ε = 0) the within-agent spread of the target's episodes pooled over agents."""
+def spread_floor(episodes: Sequence[np.ndarray], tolerances: Sequence[float]) -> np.ndarray:
+    """σ₀ per metric: the larger of its ε and the within-agent spread of the target's episodes (one array,
+    episodes × metrics, per agent) pooled over agents (a pair that never differed in ten episodes of survival
+    time, while other agents' episodes vary by seconds, must not be a tie: a held-out target's pure-pursuit
+    survived all 10, then failed in 1 of 6 more)."""
     out = np.asarray(tolerances, float).copy()
-    rows = [np.asarray(list(target[a].values()), float) for a in agents if len(target[a]) >= 2]
+    rows = [np.asarray(r, float) for r in episodes if len(r) >= 2]
     if rows:
-        pooled = np.sqrt(np.mean([r.var(0, ddof=1) for r in rows], axis=0))
-        out = np.where(out > 0, out, pooled)
+        pooled = np.sqrt(np.nanmean([r.var(0, ddof=1) for r in rows], axis=0))
+        out = np.maximum(out, np.nan_to_num(pooled))
     return out
 
 

@@ -26,7 +26,7 @@ from typing import Literal
 import numpy as np
 from scipy import stats
 
-from proxybench.usefulness.ranking import PairDecision, Scores, anytime_path, fixed_interval
+from proxybench.usefulness.ranking import PairDecision, Scores, anytime_path, fixed_interval, spread_floor
 
 __all__ = ["Coverage", "World", "contradicted", "coverage", "draw_world", "inverted"]
 
@@ -117,7 +117,7 @@ def coverage(*, k: int = 5, n: int = 30, big_n: int = 300, proxy: ProxyKind = "g
         if w.proxy is not None:
             dp = (w.proxy[i] - w.proxy[j]).T
             d_hat, d_unl = dp[:n], dp[n:]
-        floor = np.full(len(pairs), tolerance)
+        floor = np.full(len(pairs), spread_floor([row[:, None] for row in w.target], [tolerance])[0])  # as rank
         if mode == "fixed":
             _, lo, hi, _ = fixed_interval(d, d_hat, d_unl, level, floor=floor)
             _, lo0, hi0, _ = fixed_interval(d, None, None, level, floor=floor)

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
-from proxybench.experiments.study import StudyConfig
+from proxybench.experiments.study import Cli, StudyConfig
 
 __all__ = ["DEFAULTS", "RankCheckConfig"]
 
@@ -27,7 +27,7 @@ class RankCheckConfig(StudyConfig):
     """heldout (proxybench's held-out stand-ins) | gym (gym-duckietown nodes; `proxybench gym setup` first)"""
     targets: int | None = Field(None, ge=1, le=1000)
     """targets drawn from the family"""
-    agents: list[str] | None = Field(None, min_length=2)
+    agents: Annotated[list[str] | None, Cli("--agent", metavar="AGENT")] = Field(None, min_length=2)
     """zoo agents ranked on every target"""
     episodes: int | None = Field(None, ge=2, le=1000)
     """target episodes per agent that rank decides from"""
