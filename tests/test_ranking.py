@@ -126,12 +126,13 @@ def test_rank_on_a_recording_of_eight_agents_writes_every_pair_with_and_without_
     (["--agent", "pid"], "agents: ranking needs at least 2, got 1 (pid)"),
     (["--alpha", "1.5"], "alpha"),
     (["--metric", "survival_tme"], "unknown metric 'survival_tme'"),
-    (["--episodes", "0-9"], "episode"),
+    (["--episodes", "0-9"], "episodes: 4, 5, 6, 7, 8, 9 not in the recording"),
 ])
 def test_bad_input_to_rank_is_a_one_line_error(recording, tmp_path, args, says):
     res = _rank("--target", str(recording), "--out", str(tmp_path / "r"), *args)
     assert res.exit_code != 0
     assert says in res.output and "Traceback" not in res.output
+    assert "proxy" not in res.output  # refused before any proxy episode ran
     assert len([ln for ln in res.output.splitlines() if "error" in ln.lower()]) <= 2, res.output
 
 

@@ -151,17 +151,20 @@ def run_rank(cfg: RankConfig, out: str | Path, backend: Backend | None = None, p
     run_dir = out / "runs"
     run_kw = dict(map_name=exp.map, seconds=exp.seconds, seed=exp.seed, metrics=exp.metrics,
                   image_size=exp.image_size, run_dir=run_dir, backend=backend)
+    notes = _notes(target, n_only)
+    # the target's episodes first: a recording that lacks them fails before any proxy episode runs
+    if cfg.sequential:
+        live = _Sequential(target, exp, dom, run_kw, run_dir, backend, progress)
+        live.pilot()
+    else:
+        tgt = target.run(exp.agents, episodes=exp.episodes, progress=progress, **run_kw)
     only_jobs = _proxy_only_jobs(exp, dom, n_only)
     only = run_jobs(only_jobs, run_dir, backend, progress=_bar(progress, "proxy-only episodes")).results
     proxy_only = scores_of_jobs(only_jobs, only, exp.metrics)
-    notes = _notes(target, n_only)
     if cfg.sequential:
-        live = _Sequential(target, exp, dom, run_kw, run_dir, backend, progress)
-        budget = cfg.budget or defaults["budget"]
-        ranking, steps, stopped = live.run(proxy_only, tol, cfg.alpha, budget)
+        ranking, steps, stopped = live.run(proxy_only, tol, cfg.alpha, cfg.budget or defaults["budget"])
         tgt_scores, paired = live.target, live.paired
     else:
-        tgt = target.run(exp.agents, episodes=exp.episodes, progress=progress, **run_kw)
         jobs = proxy_jobs(exp, tgt, dom)
         res = run_jobs(jobs, run_dir, backend, progress=_bar(progress, "proxy episodes")).results
         tgt_scores, paired = scores_of_target(tgt), scores_of_jobs(jobs, res, exp.metrics)
@@ -212,10 +215,14 @@ class _Sequential:
         for a, eps in scores_of_jobs(jobs, res, self.exp.metrics).items():
             self.paired[a].update(eps)
 
+    def pilot(self) -> None:
+        """The pilot: ``--episodes`` per agent, and the proxy's replays of them."""
+        self._add(self.target_.run(self.exp.agents, episodes=self.exp.episodes, progress=self.progress, **self.run_kw))
+
     def run(self, proxy_only: Table, tol: tuple[float, ...], alpha: float,
             budget: int) -> tuple[Ranking, list[Step], str]:
+        """After :meth:`pilot`: one episode at a time until every pair is decided or ``budget`` is spent."""
         exp, pilot = self.exp, int(self.exp.episodes)  # type: ignore[arg-type]
-        self._add(self.target_.run(exp.agents, episodes=pilot, progress=self.progress, **self.run_kw))
         horizon = pilot + budget / len(exp.agents)
         steps: list[Step] = []
         limit = self.target_.n_episodes
