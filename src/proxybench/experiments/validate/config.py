@@ -147,7 +147,10 @@ class ValidateConfig(StudyConfig):
     """behaviour-cloned agents trained for the pool (needs PyTorch)"""
     interim: bool = False
     """run nothing: report the targets finished so far (an interim look; give the settings the study was started
-    with; the decision waits for all targets)"""
+    with; it shows no target's θ, and the decision waits for all targets)"""
+    new_study: bool = False
+    """start a new study in a folder that holds one: the old study (criteria, look log, secret, targets, runs,
+    report) is moved to OUT/superseded-TIME/ first (without it, other settings on such a folder are refused)"""
 
     @field_validator("metrics")
     @classmethod

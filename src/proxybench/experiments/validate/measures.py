@@ -115,17 +115,20 @@ class MethodSummary(_Model):
 
 
 class CriteriaCheck(_Model):
-    """What criteria.json pre-registered, and whether the code that scored is the code it hashed."""
+    """What criteria.json pre-registered, and what the checks of the pre-registration found."""
 
     written: str
     commit: str
     commit_now: str
     scoring_unchanged: bool
     minimum_detectable_effect: dict[str, Any]
+    problems: list[str] = []
+    """what the checks found: the look log's chain broken, a record or the criteria edited, the scoring code
+    changed, the criteria newer than cached episodes (empty: the pre-registration holds)"""
 
     @property
-    def d_z(self) -> float:
-        return float(self.minimum_detectable_effect["d_z"])
+    def intact(self) -> bool:
+        return not self.problems
 
 
 @dataclass(frozen=True)
@@ -155,7 +158,7 @@ class ValidationSummary(_Model):
     primary: Primary | None = None
     """the pre-registered test (None where PRPV picked on no target)"""
     truths: list[dict[str, float]] = []
-    """each target's θ, revealed after scoring"""
+    """each target's θ, revealed after scoring, in the final report only (empty at an interim look)"""
 
     @computed_field  # type: ignore[prop-decorator]
     @property

@@ -28,8 +28,12 @@ _LABELS = {"prpv_norm": "PRPV/K(K−1) regret", "kendall_gap": "1 − Kendall τ
 def answer(summary: ValidationSummary) -> str:
     """The primary result in one sentence, as criteria.json decided it would be read."""
     p = summary.primary
+    problems = summary.criteria.problems
+    failed = (f"PRE-REGISTRATION CHECK FAILED ({len(problems)} problem{'s' if len(problems) > 1 else ''}: "
+              f"{problems[0]}{'; …' if len(problems) > 1 else ''}); read nothing below as the registered "
+              "study's result. ") if problems else ""
     if p is None:
-        return "The primary comparison (PRPV against the nominal θ) was not run."
+        return failed + "The primary comparison (PRPV against the nominal θ) was not run."
     n, fam = summary.targets, summary.family
     verdict = ("Tuning with PRPV helped on held-out agents" if p.rejected else
                "This study does not show that tuning with PRPV helps on held-out agents")
@@ -37,7 +41,7 @@ def answer(summary: ValidationSummary) -> str:
         verdict = (f"INTERIM LOOK, {n} of {summary.targets_planned} pre-registered targets (the decision waits for "
                    f"all of them): " + ("so far PRPV's pick beats the nominal θ's" if p.rejected else
                                        "so far the data do not show that tuning with PRPV helps on held-out agents"))
-    return (f"{verdict}: over {n} {fam} targets, PRPV's pick had a mean regret {p.mean:+.4f} "
+    return (f"{failed}{verdict}: over {n} {fam} targets, PRPV's pick had a mean regret {p.mean:+.4f} "
             f"[{p.low:+.4f}, {p.high:+.4f}] (PRPV/K(K−1), 95 % bootstrap over targets) relative to the nominal "
             f"θ's; it was better on {p.wins}, worse on {p.losses}, equal on {p.ties} targets; one-sided "
             f"Wilcoxon p = {p.p_wilcoxon:.3g} (α {p.alpha}; paired t p = {p.p_t:.3g}). The smallest mean "
@@ -119,6 +123,20 @@ def write_validation_report(run: ValidationRun, summary: ValidationSummary, out:
     crit = summary.criteria
     check = ("the scoring code is the one criteria.json hashed" if crit.scoring_unchanged else
              "WARNING: the scoring code differs from the one criteria.json hashed")
+    if crit.problems:
+        items = "".join(f"<li>{html.escape(p)}</li>" for p in crit.problems)
+        banner = ('<div style="background:#fdd;border:3px solid #c00;padding:.6em 1em"><b>PRE-REGISTRATION CHECK '
+                  f"FAILED.</b> Read nothing below as the registered study's result:<ul>{items}</ul></div>")
+    else:
+        banner = ('<p>Pre-registration checked: criteria.json as registered, looks.jsonl\'s chain intact, every '
+                  "target record as logged, the scoring code as hashed, no cached episode older than the "
+                  "criteria.</p>")
+    if summary.interim:
+        reveal = ("<h2>The targets' θ</h2><p>Hidden until the final report: an interim look shows no target's "
+                  "θ.</p>")
+    else:
+        reveal = ("<h2>The targets' θ (revealed after scoring)</h2>"
+                  f"<pre>{html.escape(json.dumps(summary.truths, indent=1))}</pre>")
     s = run.settings
     bc = s.bc_agents  # checkpoints the study trains: agents too, though not named in the settings
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>proxybench validate</title>
@@ -126,8 +144,10 @@ def write_validation_report(run: ValidationRun, summary: ValidationSummary, out:
 table{{border-collapse:collapse;font-size:13px}}td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}}
 td:first-child{{text-align:left}}</style></head><body>
 <h1>Does tuning help, on agents it was not tuned on?</h1>
+{banner}
 <div style="background:#fff4e5;border:1px solid #ccc;padding:.6em 1em"><b>SIMULATED TARGETS.</b> Family
-{html.escape(s.family)}: {summary.targets} targets drawn from a hidden seed (revealed below, after scoring);
+{html.escape(s.family)}: {summary.targets} targets drawn from a hidden seed (revealed below, after scoring, in the final
+report only);
 no real robot was involved.</div>
 <p><b>{html.escape(answer(summary))}</b></p>
 <p>Criteria written {html.escape(crit.written)} at commit {html.escape(crit.commit)} (now
@@ -138,7 +158,7 @@ held-out (B) sets; {s.episodes_tune} tuning and {s.episodes_eval} fresh evaluati
 nominal θ.</p>
 <h2>Every method against the nominal θ</h2>{_table(summary)}{_img(files['forest'])}
 <h2>Regret per target</h2>{_img(files['strip'])}
-<h2>The targets' θ (revealed after scoring)</h2><pre>{html.escape(json.dumps(summary.truths, indent=1))}</pre>
+{reveal}
 <details><summary>settings</summary><pre>{html.escape(json.dumps(s.model_dump(mode='json'), indent=1))}</pre></details>
 </body></html>"""
     files["html"].write_text(page)

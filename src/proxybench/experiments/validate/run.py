@@ -14,18 +14,18 @@ keeping the nominal calibration is a real competitor that can lose:
    oracle θ (the best candidate for B on E2 in hindsight), paired against the nominal θ's.
 
 ``criteria.json`` — the endpoints, the test, the minimum detectable effect, the commit and a hash of the
-scoring code — is written before the first episode; the report checks the code it scores with against it.
-Every episode goes through the runner's cache, and each finished target is written to ``targets/``, so an
-interrupted study resumes.
+scoring code — is written before the first episode and never rewritten; every finished target and every look
+goes into the hash-chained ``looks.jsonl``, and the report checks both, and the code it scores with
+(:mod:`~proxybench.experiments.validate.registration`). Every episode goes through the runner's cache, and each
+finished target is written to ``targets/``, so an interrupted study resumes. The scoring itself is
+:mod:`~proxybench.experiments.validate.scoring`.
 """
 
 from __future__ import annotations
 
 import hashlib
-import inspect
 import itertools
 import json
-import secrets
 import shlex
 import sys
 import time
@@ -39,32 +39,16 @@ import numpy as np
 from proxybench.experiments.agent_args import AgentArgError, parse_agents
 from proxybench.experiments.config import ConfigError
 from proxybench.experiments.proxies import proxy_params
+from proxybench.experiments.validate import registration
 from proxybench.experiments.validate.config import FAMILIES, PYTHON, ValidateConfig, ValidateSettings, settings_for
-from proxybench.experiments.validate.measures import (
-    QUALITIES,
-    CriteriaCheck,
-    HitRate,
-    MeasureSummary,
-    MethodSummary,
-    Pick,
-    Primary,
-    Quality,
-    TargetRecord,
-    ValidationSummary,
-    oracle_steps,
-    regrets,
-)
+from proxybench.experiments.validate.measures import QUALITIES, TargetRecord, ValidationSummary, regrets
+from proxybench.experiments.validate.scoring import score_target, summarize
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.replay import replay_runs
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, TargetRun, by_agent
-from proxybench.tasks.metrics import METRICS as TASK_METRICS
 from proxybench.usefulness import validation
-from proxybench.usefulness.validation import METHODS, minimum_detectable_effect, pick, quality, selection_scores
-
-#: the files whose code scores the study (hashed into criteria.json)
-SCORING_FILES = (validation.__file__,)
 
 __all__ = [
     "FAMILIES",
@@ -80,68 +64,6 @@ __all__ = [
 
 Progress = Callable[[str, int, int], None]
 
-# -- criteria, written before the first episode -------------------------------------------------------------------
-
-def _draw_seed(cfg: ValidateConfig, out: Path) -> int:
-    """The seed of the targets' θ: the config's, else one drawn now and kept in ``out/secret/`` (mode 600)."""
-    if cfg.draw_seed is not None:
-        return cfg.draw_seed
-    path = out / "secret" / "draw_seed"
-    if path.exists():
-        return int(path.read_text())
-    path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
-    seed = secrets.randbits(48)
-    path.write_text(str(seed))
-    path.chmod(0o600)
-    return seed
-
-
-def scoring_hash() -> dict[str, str]:
-    """sha256 of the code that scores the study (its measures and this module's scoring), per file."""
-    sources = {Path(f).name: Path(f).read_bytes() for f in SCORING_FILES}
-    sources["validate.py:score_target"] = inspect.getsource(score_target).encode()
-    return {k: hashlib.sha256(v).hexdigest() for k, v in sources.items()}
-
-
-def write_criteria(s: ValidateSettings, draw_seed: int, out: Path) -> Path:
-    """``criteria.json``: endpoints, test, minimum detectable effect, commit and scoring-code hash, the settings,
-    and only a hash of the draw seed. Kept when a resumed study has the same settings."""
-    from proxybench.experiments.reporting import source_commit
-
-    path = out / "criteria.json"
-    seed_hash = hashlib.sha256(str(draw_seed).encode()).hexdigest()
-    try:
-        old = json.loads(path.read_text())
-        if old.get("settings") == s.model_dump(mode="json") and old.get("draw_seed_sha256") == seed_hash:
-            return path
-    except (OSError, ValueError):
-        pass
-    n = s.targets
-    doc = {
-        "written": time.strftime("%Y-%m-%d %H:%M:%S %z"), "commit": source_commit(), "scoring_sha256": scoring_hash(),
-        "draw_seed_sha256": seed_hash, "settings": s.model_dump(mode="json"),
-        "unit": "the target (each with its own episode seeds and tuning/held-out split of the agents)",
-        "primary_endpoint": "regret of the picked θ on the held-out agents B over fresh target episodes E2: "
-                            "PRPV/K(K−1) of the pick minus that of the oracle θ (the candidate lowest on it in "
-                            "hindsight)",
-        "secondary_endpoints": ["regret in 1 − Kendall τ_b (first metric)", "regret of picking the top agent (first "
-                                "metric, its unit)", f"regret of picking the top {s.top_k}", "hit rate: the pick "
-                                "within one grid step of the oracle, beside the nominal pick's"],
-        "primary_comparison": "PRPV's regret minus the nominal θ's, per target",
-        "test": f"one-sided Wilcoxon signed-rank test of the paired differences (H1: PRPV's regret is lower), "
-                f"alpha {s.alpha}; a one-sided paired t-test and a percentile bootstrap interval of the mean "
-                "difference beside it; every other method against the nominal θ the same way (secondary, no "
-                "multiplicity correction: read them as descriptive)",
-        "minimum_detectable_effect": {"d_z": minimum_detectable_effect(n, s.alpha, s.power), "targets": n,
-                                      "power": s.power, "meaning": "mean paired difference in standard deviations "
-                                      "of the differences a one-sided paired t-test detects with that power"},
-        "decision": "tuning helps on held-out agents if the primary test rejects at alpha; otherwise the study does "
-                    "not show it (an effect below the minimum detectable one may exist)",
-    }
-    path.write_text(json.dumps(doc, indent=1))
-    return path
-
-
 # -- running ------------------------------------------------------------------------------------------------------
 
 @dataclass
@@ -156,6 +78,9 @@ class ValidationRun:
     wall_s: float = 0.0
     notes: list[str] = field(default_factory=list)
     indices: list[int] = field(default_factory=list)  # the target index of each record (an interim look skips some)
+    #: what the pre-registration's checks found (empty: it holds; registration.check_registration)
+    problems: list[str] = field(default_factory=list)
+    scoring_unchanged: bool = True
 
 
 @dataclass
@@ -164,6 +89,7 @@ class ValidationResult:
 
     run: ValidationRun
     summary: ValidationSummary
+    look_sha256: str = ""  # the look's line in looks.jsonl
 
 
 #: data and training of the study's behaviour-cloned agents: different amounts, so that their quality differs
@@ -296,48 +222,19 @@ def _trajectory_errors(cands: list[dict[str, float]], t_a: TargetRun, s: Validat
     return out
 
 
-def score_target(s: ValidateSettings, k: int, cands: list[dict[str, float]], target_a, target_b, prox_a: list,
-                 prox_b: list, traj_err: list[float] | None) -> TargetRecord:
-    """Each method's pick from the tuning agents, and the quality of every candidate on the held-out agents."""
-    higher = tuple(TASK_METRICS[m].higher_is_better for m in s.metrics)
-    qualities = [Quality(**quality(p, target_b, higher, k=s.top_k).as_dict()) for p in prox_b]
-    nominal = proxy_params(tuple(s.image_size))
-    nominal_index = next(c for c, theta in enumerate(cands)
-                         if all(abs(theta[n] - float(getattr(nominal, n))) < 1e-9 for n in theta))
-    tol = [s.tolerances[m] for m in s.metrics]
-    picks, scores = {}, {}
-    for method in s.methods:
-        if method == "nominal":
-            values = np.array([0.0 if c == nominal_index else 1.0 for c in range(len(cands))])
-        elif method == "trajectory":
-            values = np.asarray(traj_err if traj_err is not None else [np.nan] * len(cands), float)
-        else:
-            values = selection_scores(method, prox_a, target_a, higher, tolerances=tol, n_boot=s.n_boot,
-                                      seed=s.seed + k)
-        if not np.isfinite(values).any():
-            continue
-        index, ties = pick(np.where(np.isfinite(values), values, np.inf),
-                           np.random.default_rng([s.seed, k, METHODS.index(method)]))
-        picks[method] = Pick(index=index, ties=ties)
-        scores[method] = [float(v) for v in values]
-    return TargetRecord(candidates=cands, nominal_index=nominal_index, quality=qualities, picks=picks, scores=scores)
-
-
 def run_validate(cfg: ValidateConfig, out: str | Path, backend: Backend | None = None,
                  progress: Progress | None = None, *, quick: bool = False, finished_only: bool = False
                  ) -> ValidationRun:
-    """Write the criteria, then run (or resume) every target; each finished target lands in ``out/targets/``.
+    """Register the study (or resume it: same settings, its secret there), then run every target not finished;
+    each finished target lands in ``out/targets/`` and is logged in ``looks.jsonl``. The pre-registration's
+    checks end up in the run's ``problems``.
 
     ``finished_only``: run nothing, gather the targets finished so far (an interim look at a long study; the
-    criteria must exist and be for these settings, and are never rewritten)."""
+    criteria must exist and be for these settings)."""
     t0 = time.perf_counter()
     out = Path(out)
     s = settings_for(cfg, quick)
-    if finished_only:
-        _check_criteria(s, out)
-    out.mkdir(parents=True, exist_ok=True)
-    draw_seed = _draw_seed(cfg, out)
-    criteria = write_criteria(s, draw_seed, out)
+    criteria, draw_seed, notes = registration.open_study(cfg, s, out, interim=finished_only)
     specs: list[AgentSpec] = []
     if not finished_only:
         try:
@@ -350,88 +247,39 @@ def run_validate(cfg: ValidateConfig, out: str | Path, backend: Backend | None =
     folder = out / "targets"
     folder.mkdir(exist_ok=True)
     key = hashlib.sha256(json.dumps(s.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()[:16]
-    records, indices, ran = [], [], 0
+    logged = registration.logged_records(registration.read_looks(out)[0])
+    records, indices, used, problems, ran = [], [], {}, [], 0
     for k, target in enumerate(targets):
         path = folder / f"{k:03d}.json"
         try:
-            rec = TargetRecord.model_validate_json(path.read_text())
-            if rec.settings_key == key:
+            data = path.read_bytes()
+            rec = TargetRecord.model_validate_json(data)
+        except (OSError, ValueError):  # none yet, or damaged: run it (again)
+            rec = None
+        if rec is not None and rec.settings_key == key:
+            if logged.get(k) == hashlib.sha256(data).hexdigest():
                 records.append(rec)
                 indices.append(k)
+                used[k] = data
                 continue
-        except (OSError, ValueError):  # none yet, or another version's: run it (again)
-            pass
+            if k in logged or finished_only:  # edited after it was logged, or never logged: not trusted
+                problems.append(f"{path.relative_to(out)} is not the record looks.jsonl holds for target {k}"
+                                f"{' (edited after it was scored)' if k in logged else ''}: "
+                                f"{'left out of this look' if finished_only else 'scored again'}")
         if finished_only:
             continue
         rec = run_target(k, target, s, specs, out / "runs", backend, progress).model_copy(update={"settings_key": key})
-        path.write_text(json.dumps(rec.model_dump(), indent=1))
+        data = json.dumps(rec.model_dump(), indent=1).encode()
+        path.write_bytes(data)
+        registration.record_target(out, k, data, len(records) + 1)
         records.append(rec)
         indices.append(k)
+        used[k] = data
         ran += rec.episodes_run
         if progress:
             progress("targets", k + 1, len(targets))
     if finished_only and len(records) < 2:
         raise ConfigError(f"{out}: {len(records)} target(s) finished; an interim look needs at least 2")
-    return ValidationRun(s, criteria, records, targets, ran, time.perf_counter() - t0, indices=indices)
-
-
-def _check_criteria(s: ValidateSettings, out: Path) -> None:
-    """An interim look reads a study that exists, with these settings (it must not start or redefine one)."""
-    path = out / "criteria.json"
-    try:
-        written = json.loads(path.read_text()).get("settings")
-    except (OSError, ValueError) as exc:
-        raise ConfigError(f"{path}: no study to look at ({exc.__class__.__name__}); run it first") from None
-    now, written = s.model_dump(mode="json"), written or {}
-    if written != now:
-        diff = sorted(k for k in set(written) | set(now) if written.get(k) != now.get(k))
-        raise ConfigError(f"{path}: the study was started with other settings ({', '.join(diff)} differ); give the "
-                          "same options as when it was started")
-
-
-# -- the summary -------------------------------------------------------------------------------------------------
-
-def summarize(run: ValidationRun, criteria: dict[str, Any] | None = None) -> ValidationSummary:
-    """summary.json: per method, the regrets over targets (primary and secondary), each paired against the nominal
-    θ, hit rates beside the nominal pick's; the criteria (``run.criteria_file``'s unless given) with their commit
-    and scoring hash checked against this code."""
-    from proxybench.experiments.reporting import source_commit
-    from proxybench.usefulness.heldout_scoring import wilson
-    from proxybench.usefulness.validation import compare
-
-    s, recs = run.settings, run.records
-    criteria = criteria if criteria is not None else json.loads(run.criteria_file.read_text())
-    check = CriteriaCheck(written=criteria["written"], commit=criteria["commit"], commit_now=source_commit(),
-                          scoring_unchanged=criteria["scoring_sha256"] == scoring_hash(),
-                          minimum_detectable_effect=criteria["minimum_detectable_effect"])
-    methods = [m for m in s.methods if any(m in r.picks for r in recs)]
-    nominal = {m: [regrets(r, "nominal", m) for r in recs] for m in QUALITIES}
-    out: dict[str, MethodSummary] = {}
-    for method in methods:
-        measures = {}
-        for measure in QUALITIES:
-            rg = [regrets(r, method, measure) for r in recs]
-            finite = np.asarray(rg, float)[np.isfinite(rg)]
-            measures[measure] = MeasureSummary(
-                mean_regret=float(finite.mean()) if finite.size else float("nan"),
-                vs_nominal=compare(method, "nominal", rg, nominal[measure], seed=s.seed))
-        hits = [oracle_steps(r, r.picks[method].index, s.grid) <= 1 for r in recs if method in r.picks]
-        lo, hi = wilson(sum(hits), len(hits)) if hits else (float("nan"), float("nan"))
-        out[method] = MethodSummary(**measures, hit_rate=HitRate(hits=int(sum(hits)), targets=len(hits), low=lo,
-                                                                 high=hi),
-                                    ties=float(np.mean([r.picks[method].ties for r in recs if method in r.picks])))
-    interim = len(recs) < s.targets
-    primary = None
-    if "prpv" in out:
-        first = out["prpv"].prpv_norm.vs_nominal
-        mde = check.d_z
-        if interim:  # what the targets finished so far can detect, not what the full study will
-            mde = minimum_detectable_effect(len(recs), s.alpha, s.power)
-        primary = Primary(**first.as_dict(), alpha=s.alpha, rejected=bool(first.p_wilcoxon < s.alpha), d_z=mde,
-                          minimum_detectable_difference=float(mde * first.sd) if np.isfinite(first.sd)
-                          else float("nan"))
-    indices = run.indices or list(range(len(recs)))
-    reveal = [getattr(run.targets[i], "reveal", dict)() for i in indices]
-    truths = [{k: v for k, v in tr.items() if k in s.grid or k in s.draw} for tr in reveal]
-    return ValidationSummary(settings=s, targets=len(recs), interim=interim, methods=out, criteria=check,
-                             primary=primary, truths=truths, wall_s=run.wall_s)
+    found, unchanged = registration.check_registration(out, s, criteria, used)
+    return ValidationRun(s, out / registration.CRITERIA, records, targets, ran, time.perf_counter() - t0,
+                         notes=notes, indices=indices, problems=[*problems, *found], scoring_unchanged=unchanged)

@@ -19,8 +19,11 @@ __all__ = ["ValidateStudy"]
 class ValidateStudy(Study[ValidateConfig, "ValidationResult"]):
     """Run the validation study (docs/validate.md): per target, choose θ with one half of the agents on some
     target episodes, judge the choice on the other half on fresh episodes, against the nominal θ and the
-    oracle θ. criteria.json is written before the first episode; every episode is cached, so an interrupted
-    study resumes. Writes report.html, summary.json, targets.csv and figures to --out."""
+    oracle θ. criteria.json is written before the first episode and never rewritten (other settings on the
+    folder are refused); every finished target and every look is logged in the hash-chained looks.jsonl, which
+    each report checks (a failed check: the report says so first, and the command exits 1); every episode is
+    cached, so an interrupted study resumes. Writes report.html, summary.json, targets.csv and figures to
+    --out."""
 
     name = "validate"
     config = ValidateConfig
@@ -39,10 +42,12 @@ class ValidateStudy(Study[ValidateConfig, "ValidationResult"]):
 
     def run(self, config: ValidateConfig, out: Path, backend: Any, progress: Progress, *,
             quick: bool = False) -> ValidationResult:
+        from proxybench.experiments.validate.registration import append_look
         from proxybench.experiments.validate.run import ValidationResult, run_validate, summarize
 
         run = run_validate(config, out, backend, progress, quick=quick, finished_only=config.interim)
-        return ValidationResult(run, summarize(run))
+        summary = summarize(run)
+        return ValidationResult(run, summary, append_look(Path(out), summary))
 
     def write_report(self, result: ValidationResult, out: Path, *, wall: float = 0.0) -> list[Path]:
         from proxybench.experiments.validate.report import write_validation_report
@@ -54,6 +59,7 @@ class ValidateStudy(Study[ValidateConfig, "ValidationResult"]):
         """Two targets, two candidates each (the nominal θ and trim 0.2), every method picking, no episode run."""
         from proxybench.experiments.validate.config import settings_for
         from proxybench.experiments.validate.measures import Pick, Quality, TargetRecord
+        from proxybench.experiments.validate.registration import scoring_hash
         from proxybench.experiments.validate.run import ValidationResult, ValidationRun, summarize
 
         s = settings_for(ValidateConfig(methods=("prpv", "kendall", "nominal")), True)
@@ -63,7 +69,7 @@ class ValidateStudy(Study[ValidateConfig, "ValidationResult"]):
             Quality(prpv_norm=0.1, kendall_gap=0.1, top1_regret=0.0, topk_regret=0.0)],
             picks={"prpv": Pick(index=1, ties=1), "kendall": Pick(index=k, ties=1), "nominal": Pick(index=0, ties=1)},
             scores={}, target=f"target-{k}", map="loop_3x3") for k in range(2)]
-        criteria = {"written": "2026-01-01 00:00:00 +0000", "commit": "example", "scoring_sha256": {},
+        criteria = {"written": "2026-01-01 00:00:00 +0000", "commit": "example", "scoring_sha256": scoring_hash(),
                     "minimum_detectable_effect": {"d_z": 2.0, "targets": 2, "power": 0.8}}
         run = ValidationRun(s, Path("criteria.json"), records, [None, None], 0, 0.0)
         return ValidationResult(run, summarize(run, criteria))
@@ -71,5 +77,15 @@ class ValidateStudy(Study[ValidateConfig, "ValidationResult"]):
     def show(self, result: ValidationResult, console: Any, *, wall: float = 0.0) -> None:
         from proxybench.experiments.validate.report import answer
 
+        for note in result.run.notes:
+            console.print(note, highlight=False, markup=False)
         console.print(answer(result.summary), highlight=False, markup=False)
         console.print(f"{result.run.episodes_run} episodes run now; wall {wall:.0f} s", highlight=False, markup=False)
+        if result.look_sha256:
+            console.print(f"this look is line sha256 {result.look_sha256} of looks.jsonl", highlight=False,
+                          markup=False)
+        problems = result.summary.criteria.problems
+        for p in problems:
+            console.print(f"PRE-REGISTRATION CHECK FAILED: {p}", style="bold red", highlight=False, markup=False)
+        if problems:
+            raise SystemExit(1)  # the report is written, and says so first
