@@ -30,7 +30,7 @@ import shlex
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +42,7 @@ from proxybench.experiments.proxies import proxy_params
 from proxybench.experiments.validate import registration
 from proxybench.experiments.validate.config import FAMILIES, PYTHON, ValidateConfig, ValidateSettings, settings_for
 from proxybench.experiments.validate.measures import QUALITIES, TargetRecord, ValidationSummary, regrets
-from proxybench.experiments.validate.scoring import score_target, summarize
+from proxybench.experiments.validate.scoring import ValidationRun, score_target, summarize
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.replay import replay_runs
@@ -65,23 +65,6 @@ __all__ = [
 Progress = Callable[[str, int, int], None]
 
 # -- running ------------------------------------------------------------------------------------------------------
-
-@dataclass
-class ValidationRun:
-    """The settings, the criteria file and one record per target (picks, qualities of every candidate)."""
-
-    settings: ValidateSettings
-    criteria_file: Path
-    records: list[TargetRecord]
-    targets: list[Any]
-    episodes_run: int = 0
-    wall_s: float = 0.0
-    notes: list[str] = field(default_factory=list)
-    indices: list[int] = field(default_factory=list)  # the target index of each record (an interim look skips some)
-    #: what the pre-registration's checks found (empty: it holds; registration.check_registration)
-    problems: list[str] = field(default_factory=list)
-    scoring_unchanged: bool = True
-
 
 @dataclass
 class ValidationResult:
@@ -262,10 +245,11 @@ def run_validate(cfg: ValidateConfig, out: str | Path, backend: Backend | None =
                 indices.append(k)
                 used[k] = data
                 continue
-            if k in logged or finished_only:  # edited after it was logged, or never logged: not trusted
-                problems.append(f"{path.relative_to(out)} is not the record looks.jsonl holds for target {k}"
-                                f"{' (edited after it was scored)' if k in logged else ''}: "
-                                f"{'left out of this look' if finished_only else 'scored again'}")
+            # not the record the log holds: edited after it was scored (a problem), or not logged (yet: a look taken
+            # while the study runs may read a record before its line); never trusted
+            if k in logged:
+                problems.append(f"{path.relative_to(out)} is not the record looks.jsonl holds for target {k} (edited "
+                                f"after it was scored): {'left out of this look' if finished_only else 'scored again'}")
         if finished_only:
             continue
         rec = run_target(k, target, s, specs, out / "runs", backend, progress).model_copy(update={"settings_key": key})

@@ -8,7 +8,9 @@ and the report out of it.
 from __future__ import annotations
 
 import json
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -31,10 +33,24 @@ from proxybench.experiments.validate.measures import (
 from proxybench.tasks.metrics import METRICS as TASK_METRICS
 from proxybench.usefulness.validation import METHODS, minimum_detectable_effect, pick, quality, selection_scores
 
-if TYPE_CHECKING:
-    from proxybench.experiments.validate.run import ValidationRun
+__all__ = ["ValidationRun", "score_target", "summarize"]
 
-__all__ = ["score_target", "summarize"]
+
+@dataclass
+class ValidationRun:
+    """The settings, the criteria file and one record per target (picks, qualities of every candidate)."""
+
+    settings: ValidateSettings
+    criteria_file: Path
+    records: list[TargetRecord]
+    targets: list[Any]
+    episodes_run: int = 0
+    wall_s: float = 0.0
+    notes: list[str] = field(default_factory=list)
+    indices: list[int] = field(default_factory=list)  # the target index of each record (an interim look skips some)
+    #: what the pre-registration's checks found (empty: it holds; registration.check_registration)
+    problems: list[str] = field(default_factory=list)
+    scoring_unchanged: bool = True
 
 
 def score_target(s: ValidateSettings, k: int, cands: list[dict[str, float]], target_a, target_b, prox_a: list,
