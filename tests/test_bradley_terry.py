@@ -143,3 +143,41 @@ def test_seeded_and_checked():
     with pytest.raises(ValueError, match="no metric"):
         lexicographic_outcomes([])
     assert bradley_terry(values).scores[0].text().count("[") == 1
+
+
+# ---------------------------------------------------------------- PPI++ scores with a proxy as the predictor
+def _ppi_world(rng, n=30, big_n=300, k=4, proxy_noise=0.3):
+    strength = np.linspace(0.0, 1.0, k)
+    start = rng.normal(size=(n + big_n, k))
+    target = {f"a{i}": {e: strength[i] + 0.8 * start[e, i] + rng.normal() for e in range(n)} for i in range(k)}
+    proxy = {f"a{i}": {(e if e < n else 100_000 + e): strength[i] + 0.8 * start[e, i] + proxy_noise * rng.normal()
+                       for e in range(n + big_n)} for i in range(k)}
+    return target, proxy
+
+
+def test_ppi_scores_cover_the_truth_and_a_good_proxy_narrows_them():
+    from proxybench.usefulness.bradley_terry import ppi_bradley_terry
+
+    rng = np.random.default_rng(1)
+    big, _ = _ppi_world(rng, n=5000, big_n=0)
+    truth = np.array([s.score for s in ppi_bradley_terry(big, None, True, 0.1)[0][1:]])
+    covered, alone_covered, ratio, runs = np.zeros(3), np.zeros(3), [], 60
+    for _ in range(runs):
+        target, proxy = _ppi_world(rng)
+        with_, lam = ppi_bradley_terry(target, proxy, True, 0.1)
+        alone, lam0 = ppi_bradley_terry(target, None, True, 0.1)
+        assert 0.0 < lam <= 1.0 and lam0 == 0.0
+        covered += [s.lo <= v <= s.hi for s, v in zip(with_[1:], truth, strict=True)]
+        alone_covered += [s.lo <= v <= s.hi for s, v in zip(alone[1:], truth, strict=True)]
+        ratio.append(np.mean([(b.hi - b.lo) / (a.hi - a.lo) for a, b in zip(with_[1:], alone[1:], strict=True)]))
+    assert (covered / runs >= 0.85).all() and (alone_covered / runs >= 0.85).all()
+    assert np.mean(ratio) > 1.05  # narrower with the proxy (1.12 in 200 worlds)
+
+
+def test_ppi_scores_of_a_perfect_record_are_finite_and_unsure():
+    from proxybench.usefulness.bradley_terry import ppi_bradley_terry
+
+    target = {"a": {e: 0.0 for e in range(4)}, "b": {e: 1.0 for e in range(4)}}
+    scores, _ = ppi_bradley_terry(target, None, True, 0.1)
+    b = scores[1]
+    assert b.agent == "b" and 0 < b.score < 10 and b.hi - b.lo > 1.0

@@ -118,6 +118,9 @@ def test_rank_on_a_recording_of_eight_agents_writes_every_pair_with_and_without_
                                 "proxy_only": 48}
     assert data["target"]["kind"] == "recorded" and any("start distribution" in n for n in data["notes"])
     assert set(data["rank_sets"]["survival_time"]) == set(EIGHT)
+    bt = data["bradley_terry"]["driven_lanedir_consec"]
+    assert bt["reference"] == EIGHT[0] and len(bt["with_proxy"]) == len(bt["target_only"]) == 8
+    assert 0.0 <= bt["weight"] <= 1.0 and all(lo <= s <= hi for _, s, lo, hi in bt["with_proxy"])
     html = (tmp_path / "r" / "rank.html").read_text()
     assert "rank-sets" in html and "data:image/png;base64" in html
 

@@ -42,9 +42,26 @@ import numpy as np
 
 from proxybench.tasks.aggregate import STATS
 
-__all__ = ["ALPHA", "FRAGILITY_CAP", "LEVEL", "RESAMPLES", "AgentScore", "BTResult", "EpisodeScores", "Fragility",
-           "Outcomes", "bradley_terry", "bradley_terry_lexicographic", "episode_metric", "fit_bradley_terry",
-           "fit_strengths", "lexicographic_outcomes", "pairwise_outcomes"]
+__all__ = [
+    "ALPHA",
+    "FRAGILITY_CAP",
+    "LEVEL",
+    "RESAMPLES",
+    "AgentScore",
+    "BTResult",
+    "EpisodeScores",
+    "Fragility",
+    "Outcomes",
+    "RelativeScore",
+    "bradley_terry",
+    "bradley_terry_lexicographic",
+    "episode_metric",
+    "fit_bradley_terry",
+    "fit_strengths",
+    "lexicographic_outcomes",
+    "pairwise_outcomes",
+    "ppi_bradley_terry",
+]
 
 ALPHA = 0.25  # choix's regularisation: ≈ one drawn virtual episode per pair; keeps a perfect record finite
 RESAMPLES = 200  # bootstrap resamples over episode ids
@@ -353,3 +370,153 @@ def bradley_terry(values: Mapping[Hashable, Mapping[Hashable, float]], higher_is
     """:func:`fit_bradley_terry` on one metric's per-episode values (agent → {episode id → value}); ``kwargs``:
     alpha, resamples, level, seed, fragility_cap."""
     return fit_bradley_terry(pairwise_outcomes(values, higher_is_better, tolerance), **kwargs)
+
+
+@dataclass(frozen=True)
+class RelativeScore:
+    """An agent's Bradley–Terry log-odds of beating the reference agent in an episode, with its interval."""
+
+    agent: Hashable
+    score: float
+    lo: float
+    hi: float
+
+
+def ppi_bradley_terry(target: Mapping[Hashable, Mapping[Hashable, float]],
+                      proxy: Mapping[Hashable, Mapping[Hashable, float]] | None, higher_is_better: bool = True,
+                      tolerance: float = 0.0, level: float = LEVEL) -> tuple[tuple[RelativeScore, ...], float]:
+    """Bradley–Terry scores from the target's paired episodes with a proxy's as the predictor, and the weight λ
+    the proxy got (AutoEval Done Right, Boyeau et al. 2025: PPI++ on the logistic regression of who beats whom).
+
+    Each compared pair in a target episode is an observation (x = +1 for a, −1 for b; the first agent is the
+    reference, its column left out) with outcome o (1, ½ for a tie, 0); the proxy's outcome in the same episode
+    is its prediction ô, its outcomes in its own episodes (ids the target lacks) the unlabeled observations. The
+    M-estimator, its λ and the sandwich interval (summed per episode: an episode's pairs share its start) are
+    PPI++'s (Angelopoulos, Duchi & Zrnic 2023), written here because ``ppi_py.ppi_logistic_ci`` compiles with
+    Numba on every new process (14–21 s); x takes one value per pair, so every sum runs over pairs. No proxy:
+    λ = 0, the maximum-likelihood fit. Scores are relative to the first agent (0); intervals are per agent."""
+    from scipy import stats as st
+
+    t = pairwise_outcomes(target, higher_is_better, tolerance)
+    agents, k = t.agents, len(t.agents)
+    i, j, xp = _pair_rows(k)
+    o = t.table[:, i, j]  # target episodes × pairs (NaN: not compared)
+    o_hat = np.full(o.shape, np.nan)
+    u = np.empty((0, len(i)))
+    if proxy is not None:
+        p = pairwise_outcomes({a: proxy.get(a, {}) for a in agents}, higher_is_better, tolerance)
+        at = {e: n for n, e in enumerate(p.episodes)}
+        have = [n for n, e in enumerate(t.episodes) if e in at]
+        o_hat[have] = p.table[[at[t.episodes[n]] for n in have]][:, i, j]
+        u = p.table[[n for n, e in enumerate(p.episodes) if e not in set(t.episodes)]][:, i, j]
+    fit = _PPILogistic(xp, o, o_hat, u)
+    lam = fit.weight() if fit.usable else 0.0
+    theta = fit.solve(lam)
+    half = st.norm.ppf(0.5 + level / 2) * np.sqrt(np.maximum(np.diag(fit.cov(theta, lam)), 0.0))
+    out = [RelativeScore(agents[0], 0.0, 0.0, 0.0)]
+    out += [RelativeScore(a, float(theta[n]), float(theta[n] - half[n]), float(theta[n] + half[n]))
+            for n, a in enumerate(agents[1:])]
+    return tuple(out), float(lam)
+
+
+def _pair_rows(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(i, j, x) of every pair i < j: x the covariates of "i against j", agent 0 the reference (its column left
+    out)."""
+    i, j = np.triu_indices(k, 1)
+    x = np.zeros((len(i), k))
+    x[np.arange(len(i)), i], x[np.arange(len(i)), j] = 1.0, -1.0
+    return i, j, x[:, 1:]
+
+
+def _sigmoid(z: np.ndarray) -> np.ndarray:
+    return 0.5 * (1.0 + np.tanh(0.5 * z))
+
+
+class _PPILogistic:
+    """PPI++ for the pairwise logistic model on episode × pair tables: ``o`` the target's outcomes, ``o_hat`` the
+    proxy's on the same episodes, ``u`` the proxy's on its own (NaN: not compared)."""
+
+    def __init__(self, xp: np.ndarray, o: np.ndarray, o_hat: np.ndarray, u: np.ndarray, ridge: float = 1e-3):
+        self.xp, self.ridge = xp, ridge
+        seen = ~np.isnan(o)
+        self.usable = bool(len(u) >= 2 and not np.isnan(o_hat[seen]).any() and (~np.isnan(u)).sum() >= 2)
+        self.o, self.o_hat = np.where(seen, o, np.nan), np.where(seen, o_hat, np.nan)
+        self.u = u
+        self.n, self.big_n = seen.sum() + len(xp), (~np.isnan(u)).sum()
+        # per pair: observations and Σ outcomes, with one virtual tie (choix's regularisation, as the boards'):
+        # a perfect record keeps a finite score
+        self.n_p, self.o_p = seen.sum(0) + 1.0, np.nansum(self.o, 0) + 0.5
+        self.h_p = np.nansum(self.o_hat, 0) if self.usable else np.zeros(len(xp))
+        self.m_p = (~np.isnan(u)).sum(0) if self.usable else np.zeros(len(xp))
+        self.u_p = np.nansum(u, 0) if self.usable else np.zeros(len(xp))
+
+    def _s(self, theta: np.ndarray) -> np.ndarray:
+        return _sigmoid(self.xp @ theta)
+
+    def _hessian(self, s: np.ndarray, lam: float) -> np.ndarray:
+        big_n = max(self.big_n, 1)
+        d = s * (1 - s) * ((1 - lam) * self.n_p / self.n + lam * self.m_p / big_n)
+        return (self.xp * d[:, None]).T @ self.xp + self.ridge * np.eye(self.xp.shape[1])
+
+    def solve(self, lam: float) -> np.ndarray:
+        """argmin of mean ℓ(θ; o) − λ mean ℓ(θ; ô) + λ mean_u ℓ(θ; ô_u) (+ a tiny ridge: a perfect record stays
+        finite), by Newton's method (convex for λ ∈ [0, 1])."""
+        theta, big_n = np.zeros(self.xp.shape[1]), max(self.big_n, 1)
+        for _ in range(100):
+            s = self._s(theta)
+            r = ((1 - lam) * self.n_p * s - self.o_p + lam * self.h_p) / self.n
+            r = r + lam * (self.m_p * s - self.u_p) / big_n
+            step = np.linalg.solve(self._hessian(s, lam), self.xp.T @ r + self.ridge * theta)
+            theta -= step
+            if np.abs(step).max() < 1e-10:
+                break
+        return theta
+
+    def _residuals(self, s: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
+        """Per episode × pair: the labeled gradient's scalar (s − o) − λ(s − ô), and the unlabeled one's s − ô_u
+        (0 where not compared)."""
+        lab = np.nan_to_num((s - self.o) - lam * (s - np.nan_to_num(self.o_hat)))
+        unl = np.nan_to_num(s - self.u) if self.usable else np.zeros((0, len(s)))
+        return lab, unl
+
+    def cov(self, theta: np.ndarray, lam: float) -> np.ndarray:
+        """The sandwich H⁻¹(V_l + λ²V_u)H⁻¹, each V from the gradients summed per episode; its diagonal at least
+        the model's own H⁻¹/n at λ = 0 (a perfect record has no spread to estimate V from, and would claim
+        certainty: the boards' intervals are widened the same way)."""
+        s = self._s(theta)
+        lab, unl = self._residuals(s, lam)
+        inv = np.linalg.pinv(self._hessian(s, lam) - self.ridge * np.eye(len(theta)))
+        v = _episode_var(lab @ self.xp) / self.n**2
+        if self.usable and lam:
+            v = v + lam**2 * _episode_var(unl @ self.xp) / self.big_n**2
+        out = inv @ v @ inv
+        model = np.linalg.pinv(self._hessian(s, 0.0) - self.ridge * np.eye(len(theta))) / self.n
+        idx = np.diag_indices(len(theta))
+        out[idx] = np.maximum(out[idx], model[idx])
+        return out
+
+    def _rows(self, r: np.ndarray) -> np.ndarray:
+        """Per-observation gradients r·x of an episode × pair table of residuals (NaN: no observation)."""
+        e, pair = np.nonzero(~np.isnan(r))
+        return r[e, pair][:, None] * self.xp[pair]
+
+    def weight(self) -> float:
+        """PPI++'s λ for the whole vector at the λ = 1 fit: tr(H⁻¹(C + Cᵀ)H⁻¹) / (2(1 + n/N) tr(H⁻¹V̂H⁻¹)), clipped
+        to [0, 1]; C the covariance of the per-observation gradients with o and with ô, V̂ that of the ô-gradients
+        (labeled and unlabeled)."""
+        s = self._s(self.solve(1.0))
+        g, g_hat, g_u = self._rows(s - self.o), self._rows(s - self.o_hat), self._rows(s - self.u)
+        inv = np.linalg.pinv(self._hessian(s, 0.0) - self.ridge * np.eye(self.xp.shape[1]))
+        gc, ghc = g - g.mean(0), g_hat - g_hat.mean(0)
+        cross = (gc.T @ ghc + ghc.T @ gc) / len(g)
+        allh = np.concatenate([g_hat, g_u])
+        var = np.cov(allh.T).reshape(len(cross), len(cross))
+        den = 2 * (1 + self.n / self.big_n) * np.trace(inv @ var @ inv)
+        return float(np.clip(np.trace(inv @ cross @ inv) / den, 0.0, 1.0)) if den > 0 else 0.0
+
+
+def _episode_var(g: np.ndarray) -> np.ndarray:
+    """Σ over episodes of (G_e − Ḡ)(G_e − Ḡ)ᵀ · E/(E − 1), G_e an episode's gradient (its pairs summed)."""
+    e = len(g)
+    centred = g - g.mean(0)
+    return centred.T @ centred * e / max(e - 1, 1)

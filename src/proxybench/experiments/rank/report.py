@@ -86,11 +86,26 @@ episodes; tolerances ε: {html.escape(", ".join(f"{m} {e:g}" for m, e in zip(r.m
                                                                              strict=True)))}.
 {html.escape(_stopped(res))}</p>
 <h2>Rank-sets</h2>{html_img(png, "rank-sets")}{html_table(["agent", *r.metrics], sets)}
+{_bt_html(res)}
 <h2>Pairs</h2>{html_table(["pair (a – b)", "metric", "decision", "a − b", "interval", "target episodes",
                            "proxy weight λ", "target alone", "interval (target alone)"], rows)}
 <ul>{notes}</ul>
 <p style="color:#666">proxybench {__version__}, commit {html.escape(source_commit())};
 {time.strftime("%Y-%m-%d %H:%M")}; {res.wall_s:.0f} s.</p></body></html>"""
+
+
+def _bt_html(res: RankResult) -> str:
+    """One table per metric: Bradley–Terry scores (log-odds of beating the first agent in an episode) with the
+    proxy as predictor and from the target alone."""
+    parts = []
+    for metric, (with_, lam, alone) in res.bradley_terry.items():
+        rows = [[w.agent, f"{w.score:+.2f} [{w.lo:+.2f}, {w.hi:+.2f}]", f"{a.score:+.2f} [{a.lo:+.2f}, {a.hi:+.2f}]"]
+                for w, a in zip(with_, alone, strict=True)]
+        ref = html.escape(str(with_[0].agent))
+        parts.append(f"<h3>{html.escape(metric)}: Bradley–Terry score, log-odds of beating {ref} in an episode "
+                     f"(95 %, per agent; proxy weight λ = {lam:.2f})</h3>"
+                     + html_table(["agent", "with the proxy (PPI++)", "target alone"], rows))
+    return "<h2>Scores</h2>" + "".join(parts) if parts else ""
 
 
 def _iv(iv: tuple[float, float]) -> str:
@@ -137,7 +152,7 @@ def show_rank(res: RankResult, console: Any) -> None:
 def canned_rank() -> RankResult:
     """Five agents' made-up target scores (12 episodes) and a proxy that tracks them, ranked (no episode runs)."""
     from proxybench.experiments.examples import canned_experiment, canned_target
-    from proxybench.experiments.rank.run import PROXY_ONLY_FROM, measure_rank, scores_of_target
+    from proxybench.experiments.rank.run import PROXY_ONLY_FROM, bradley_terry_of, measure_rank, scores_of_target
 
     exp = canned_experiment(12)
     tgt = canned_target(exp)
@@ -149,4 +164,5 @@ def canned_rank() -> RankResult:
     tol = (0.2, 0.66)
     ranking = measure_rank(exp, target, proxy, tol, 0.05)
     return RankResult(ranking, exp, tgt.info, {}, "the nominal calibration", tol, {a: 12 for a in target},
-                      12 * len(target), 60 * len(target))
+                      12 * len(target), 60 * len(target), target_table=target, proxy_table=proxy,
+                      bradley_terry=bradley_terry_of(exp, target, proxy, tol))

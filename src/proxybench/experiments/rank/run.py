@@ -73,6 +73,8 @@ class RankResult:
     wall_s: float = 0.0
     target_table: Table = field(default_factory=dict, repr=False)  # agent → episode id → scores (what was decided on)
     proxy_table: Table = field(default_factory=dict, repr=False)  # the proxy's, paired ids and its own (ids ≥ 100,000)
+    #: metric → Bradley–Terry scores relative to the first agent: (with the proxy as predictor, its λ), target alone
+    bradley_terry: dict[str, tuple[tuple[Any, ...], float, tuple[Any, ...]]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """rank.json: the level, the error control in words, every pair with and without the proxy, the episodes."""
@@ -89,6 +91,10 @@ class RankResult:
                 "episodes": {"target": sum(self.target_episodes.values()), "target_per_agent": self.target_episodes,
                              "proxy_paired": self.proxy_paired, "proxy_only": self.proxy_only},
                 "stopped": self.stopped, "steps": [s.__dict__ for s in self.steps], "notes": self.notes,
+                "bradley_terry": {m: {"reference": with_[0].agent, "weight": lam,
+                                      "with_proxy": [[x.agent, x.score, x.lo, x.hi] for x in with_],
+                                      "target_only": [[x.agent, x.score, x.lo, x.hi] for x in alone]}
+                                  for m, (with_, lam, alone) in self.bradley_terry.items()},
                 "wall_s": round(self.wall_s, 1)}
 
 
@@ -170,9 +176,28 @@ def run_rank(cfg: RankConfig, out: str | Path, backend: Backend | None = None, p
         tgt_scores, paired = scores_of_target(tgt), scores_of_jobs(jobs, res, exp.metrics)
         ranking = measure_rank(exp, tgt_scores, _merge(paired, proxy_only) if n_only else None, tol, cfg.alpha)
         steps, stopped = [], "fixed"
+    proxy = _merge(paired, proxy_only)
     return RankResult(ranking, exp, target.info(), theta, source, tol, {a: len(v) for a, v in tgt_scores.items()},
                       sum(len(v) for v in paired.values()), sum(len(v) for v in proxy_only.values()), steps, stopped,
-                      notes, time.perf_counter() - t0, tgt_scores, _merge(paired, proxy_only))
+                      notes, time.perf_counter() - t0, tgt_scores, proxy,
+                      bradley_terry_of(exp, tgt_scores, proxy if n_only else None, tol))
+
+
+def bradley_terry_of(exp: Experiment, target: Table, proxy: Table | None,
+                     tolerances: tuple[float, ...]) -> dict[str, tuple[tuple[Any, ...], float, tuple[Any, ...]]]:
+    """Per metric: Bradley–Terry scores with the proxy as predictor (PPI++; its λ) and from the target alone."""
+    from proxybench.usefulness.bradley_terry import ppi_bradley_terry
+
+    out = {}
+    for m, name in enumerate(exp.metrics):
+        def column(t: Table) -> dict[str, dict[int, float]]:
+            return {a: {e: float(v[m]) for e, v in eps.items()} for a, eps in t.items()}  # noqa: B023
+
+        higher, eps = METRICS[name].higher_is_better, tolerances[m]
+        with_, lam = ppi_bradley_terry(column(target), column(proxy) if proxy else None, higher, eps)
+        alone, _ = ppi_bradley_terry(column(target), None, higher, eps)
+        out[name] = (with_, lam, alone)
+    return out
 
 
 def _bar(progress: Progress | None, what: str):
