@@ -309,7 +309,9 @@ class Client:
     """A DTPS robot (role ``client``): its sensors forwarded, the latest wheel command published.
 
     The publisher re-sends the command in force whenever it (re)connects, so after a lost connection the
-    robot hears the current command (after a stop or the watchdog: (0, 0)) as soon as it is back. On exit
+    robot hears the current command (after a stop or the watchdog: (0, 0)) as soon as it is back; a stop whose
+    publish failed (a link slow beyond 2 s on a loaded machine) is sent first even when a newer command came
+    meanwhile, so the robot never misses a stop. On exit
     (``op: quit``, end of input, SIGTERM) the bridge publishes (0, 0) and waits up to ``--stop-grace`` s for
     it to be delivered, reconnecting meanwhile, and says whether it was (``ev: stopped``).
     """
@@ -362,18 +364,23 @@ class Client:
         from dtps_http import RawData
 
         backoff = 0.1
+        stop_unsure = False  # a (0, 0) whose publish failed: the robot may not have heard the stop
         while True:
             try:
                 async with _within(5.0, self._topic(self.ctx, self.args.pwm).publisher_context()) as pub:
                     self.out.send(ev="link", state="ok", detail="publisher connected")
                     backoff = 0.1
+                    if stop_unsure and self.latest != (0.0, 0.0):  # a stop is never dropped: it goes first
+                        await self._publish(pub, RawData, (0.0, 0.0))
+                    stop_unsure = False
                     self.dirty.set()  # the robot hears the command in force at once
                     while True:
                         await self.dirty.wait()
                         self.dirty.clear()
                         left, right = self.latest
-                        await asyncio.wait_for(pub.publish(RawData.cbor_from_native_object(
-                            {"header": _header(), "left": left, "right": right})), 2.0)
+                        stop_unsure = (left, right) == (0.0, 0.0)
+                        await self._publish(pub, RawData, (left, right))
+                        stop_unsure = False
                         if (left, right) == (0.0, 0.0) and self.latest == (0.0, 0.0):
                             self.zero_delivered.set()
             except asyncio.CancelledError:
@@ -382,6 +389,13 @@ class Client:
                 self.out.send(ev="link", state="lost", detail=f"{type(exc).__name__}: {exc}"[:300])
                 await asyncio.sleep(backoff)
                 backoff = min(2.0, backoff * 2)
+
+    @staticmethod
+    async def _publish(pub, raw_data, command: tuple[float, float]) -> None:
+        """One wheel command, answered within 2 s or the link counts as lost."""
+        left, right = command
+        await asyncio.wait_for(pub.publish(raw_data.cbor_from_native_object(
+            {"header": _header(), "left": left, "right": right})), 2.0)
 
     def command(self, left: float, right: float) -> None:
         """The command in force from now on (only the latest matters)."""
