@@ -34,6 +34,7 @@ from proxybench.runner.starts import start_poses
 from proxybench.runner.sweep import run_jobs
 from proxybench.targets.base import Target, TargetInfo, TargetRun, episode_seed
 from proxybench.tasks.metrics import METRICS
+from proxybench.usefulness.bradley_terry import RelativeScore
 from proxybench.usefulness.indifference import semiorder_tolerances
 from proxybench.usefulness.ranking import Ranking, RankingError, rank
 
@@ -43,6 +44,8 @@ Progress = Callable[[str, int, int], None]
 #: the first id of the proxy's own episodes (no target episode has an id this large)
 PROXY_ONLY_FROM = 100_000
 Table = dict[str, dict[int, np.ndarray]]
+#: a metric's Bradley–Terry scores: with the proxy as predictor, the proxy's weight λ, from the target alone
+BTScores = tuple[tuple[RelativeScore, ...], float, tuple[RelativeScore, ...]]
 
 
 @dataclass(frozen=True)
@@ -74,7 +77,7 @@ class RankResult:
     target_table: Table = field(default_factory=dict, repr=False)  # agent → episode id → scores (what was decided on)
     proxy_table: Table = field(default_factory=dict, repr=False)  # the proxy's, paired ids and its own (ids ≥ 100,000)
     #: metric → Bradley–Terry scores relative to the first agent: (with the proxy as predictor, its λ), target alone
-    bradley_terry: dict[str, tuple[tuple[Any, ...], float, tuple[Any, ...]]] = field(default_factory=dict)
+    bradley_terry: dict[str, BTScores] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """rank.json: the level, the error control in words, every pair with and without the proxy, the episodes."""
@@ -184,7 +187,7 @@ def run_rank(cfg: RankConfig, out: str | Path, backend: Backend | None = None, p
 
 
 def bradley_terry_of(exp: Experiment, target: Table, proxy: Table | None,
-                     tolerances: tuple[float, ...]) -> dict[str, tuple[tuple[Any, ...], float, tuple[Any, ...]]]:
+                     tolerances: tuple[float, ...]) -> dict[str, BTScores]:
     """Per metric: Bradley–Terry scores with the proxy as predictor (PPI++; its λ) and from the target alone."""
     from proxybench.usefulness.bradley_terry import ppi_bradley_terry
 
