@@ -251,6 +251,7 @@ class BoardCache:
         self._building: set[tuple[int, str]] = set()
         self._pending: set[tuple[int, str]] = set()
         self._again: set[tuple[int, str]] = set()
+        self._asked: dict[tuple[int, str], float] = {}  # when a rebuild was last asked for, per board
         self._background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="board-builder")
 
     def close(self) -> None:
@@ -259,13 +260,13 @@ class BoardCache:
     # -- building ------------------------------------------------------------------------------------
 
     def _build(self, key: tuple[int, str]) -> Board:
-        t0 = time.perf_counter()
+        start = time.time()  # built_at − build_seconds: what :meth:`request` compares with when it asked
         previous = self._boards.get(key)
         with self.sessions() as session:
             version, data, entries = build_board(session, *key, since=previous.entries if previous else None)
-        seconds = time.perf_counter() - t0
-        digest = hashlib.sha256(f"{key}{version}{time.time()}".encode()).hexdigest()[:20]
-        board = Board(key[0], key[1], version, data, time.time(), seconds, etag=f'"{digest}"', entries=entries)
+        now = time.time()
+        digest = hashlib.sha256(f"{key}{version}{now}".encode()).hexdigest()[:20]
+        board = Board(key[0], key[1], version, data, now, now - start, etag=f'"{digest}"', entries=entries)
         with self._lock:
             old = self._boards.get(key)
             if old is None or old.board_version <= version:
@@ -297,8 +298,11 @@ class BoardCache:
                 self.request(key)  # changes arrived while it was being built
 
     def request(self, key: tuple[int, str]) -> None:
-        """Ask for a rebuild in the background (coalesced; no sooner than the board's interval)."""
+        """Ask for a rebuild in the background (coalesced; no sooner than the board's interval; skipped when a
+        build that began after the latest request has run meanwhile, e.g. a reader's)."""
+        asked = time.time()
         with self._lock:
+            self._asked[key] = asked  # a request coalesced into a pending one still moves the time it must cover
             if key in self._building:
                 self._again.add(key)
                 return
@@ -306,13 +310,16 @@ class BoardCache:
                 return
             self._pending.add(key)
         board = self._boards.get(key)
-        delay = 0.0 if board is None else max(0.0, board.built_at + interval(board) - time.time())
+        delay = 0.0 if board is None else max(0.0, board.built_at + interval(board) - asked)
 
         def run() -> None:
             if delay:
                 time.sleep(delay)
             with self._lock:
                 self._pending.discard(key)
+                latest, since = self._boards.get(key), self._asked.get(key, 0.0)
+            if latest is not None and latest.built_at - latest.build_seconds >= since:
+                return  # a build that began after the last change holds it already
             try:
                 self._build_once(key, wait=False)
             except Exception as exc:  # a failed rebuild leaves the old board; the next change asks again
