@@ -5,12 +5,18 @@ from __future__ import annotations
 import os
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from support.postgres import PostgresServer
 from support.scheduling import (  # noqa: F401 - hooks: how pytest-xdist shares the tests out
     pytest_collection_modifyitems,
     pytest_xdist_node_collection_finished,
 )
+
+# Property tests hold on a busy machine (CI shares it with studies; users train networks beside it): no per-example
+# deadline and no health check on how fast examples are generated. What they test is correctness, never speed.
+settings.register_profile("proxybench", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("proxybench")
 
 # Programs the tests start as separate processes (agent and robot nodes, AIDO's own code, hostile agents):
 # never import them into the test process (``--doctest-modules`` would), where their module-level code
