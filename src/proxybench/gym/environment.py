@@ -79,8 +79,12 @@ def check_environment(path: Path | None = None, *, render: bool = True) -> GymEn
                             + (f" --path {path}" if path != default_path() else "") + ")")
         return env
     stamp = path / _STAMP
-    if not stamp.is_file() or stamp.read_text() != REQUIREMENTS.read_text():
-        env.problems.append(f"{path} was not installed from this proxybench's pins (run: proxybench gym setup)")
+    if not stamp.is_file():  # the stamp is written last: a setup still running, or one that was interrupted
+        env.problems.append(f"{path} is not finished: `proxybench gym setup` has not completed there (still "
+                            "running, or interrupted: run it again)")
+    elif stamp.read_text() != REQUIREMENTS.read_text():
+        env.problems.append(f"{path} was installed from other pins than this proxybench's (another version of "
+                            "proxybench; run: proxybench gym setup, which rebuilds it)")
     if render and not env.missing_apt:
         _probe(env)
     return env
