@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 from proxybench.agents.base import Agent
 from proxybench.agents.calibration import CALIBRATION_DRIVES
+from proxybench.agents.independent import INDEPENDENT
 from proxybench.agents.pid import LanePIDAgent, PIDGains
 from proxybench.agents.pursuit import PurePursuitAgent
 from proxybench.agents.simple import BangBangAgent, RandomAgent, StraightAgent
@@ -75,6 +76,7 @@ ZOO: dict[str, ZooEntry] = {
                "vision assuming a 90° vertical field of view (true 75°)"),
         _entry("vision-twitchy", lambda: _named(LaneVisionAgent(k_lateral=20.0, k_heading=8.0, smoothing=0.0),
                                                 "vision-twitchy"), "vision with high gains and no smoothing"),
+        *(_entry(*spec) for spec in INDEPENDENT),
         *(_entry(*spec) for spec in CALIBRATION_DRIVES),
     ]
 }

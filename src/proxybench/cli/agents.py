@@ -16,16 +16,17 @@ if TYPE_CHECKING:
 
 @agent_app.command("list")
 def agent_list() -> None:
-    """The zoo: name, whether it reads privileged ground truth, what it does."""
+    """The zoo: name, family (agents of one concept), whether it reads privileged ground truth, what it does."""
     from rich.table import Table
 
     from proxybench.agents import ZOO
+    from proxybench.agents.families import ZOO_FAMILIES
 
-    table = Table(title=f"{len(ZOO)} built-in agents")
-    for col in ("name", "needs", "description"):
+    table = Table(title=f"{len(ZOO)} built-in agents in {len(set(ZOO_FAMILIES.values()))} families")
+    for col in ("name", "family", "needs", "description"):
         table.add_column(col)
     for e in ZOO.values():
-        table.add_row(e.name, "true lane pose" if e.privileged else "camera only", e.description)
+        table.add_row(e.name, ZOO_FAMILIES[e.name], "true lane pose" if e.privileged else "camera only", e.description)
     console.print(table)
 
 
