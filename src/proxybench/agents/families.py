@@ -22,12 +22,14 @@ import re
 from collections.abc import Iterable, Mapping
 from types import MappingProxyType
 
+from proxybench.agents.calibration import CALIBRATION_DRIVES
+
 __all__ = ["DEFAULT_FAMILY", "FAMILY_CONCEPTS", "ZOO_FAMILIES", "family_map", "family_of", "pool_families",
            "split_family_prefix"]
 
 #: each family: the concept its members share (and whether they read the true lane pose or only the camera)
 FAMILY_CONCEPTS: Mapping[str, str] = MappingProxyType({
-    "trivial": "no feedback worth the name: random or open-loop commands",
+    "trivial": "no feedback worth the name: random or open-loop commands (the calibration drives too)",
     "switching": "on/off steering on the sign of the true lane error",
     "pid": "PID on the true lane pose (agents/pid.py)",
     "pursuit": "pure pursuit of a look-ahead point on the true lane centre (agents/pursuit.py)",
@@ -46,6 +48,7 @@ FAMILY_CONCEPTS: Mapping[str, str] = MappingProxyType({
 #: the family of every zoo agent
 ZOO_FAMILIES: Mapping[str, str] = MappingProxyType({
     "random": "trivial", "straight": "trivial", "bang-bang": "switching",
+    **{name: "trivial" for name, _factory, _description in CALIBRATION_DRIVES},
     **{n: "pid" for n in ("pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pid-stop")},
     **{n: "pursuit" for n in ("pure-pursuit", "pure-pursuit-fast", "pure-pursuit-stop")},
     **{n: "vision" for n in ("vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",

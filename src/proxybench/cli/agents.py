@@ -20,13 +20,13 @@ def agent_list() -> None:
     from rich.table import Table
 
     from proxybench.agents import ZOO
-    from proxybench.agents.families import ZOO_FAMILIES
+    from proxybench.agents.families import family_of
 
-    table = Table(title=f"{len(ZOO)} built-in agents in {len(set(ZOO_FAMILIES.values()))} families")
+    table = Table(title=f"{len(ZOO)} built-in agents in {len({family_of(n) for n in ZOO})} families")
     for col in ("name", "family", "needs", "description"):
         table.add_column(col)
     for e in ZOO.values():
-        table.add_row(e.name, ZOO_FAMILIES[e.name], "true lane pose" if e.privileged else "camera only", e.description)
+        table.add_row(e.name, family_of(e.name), "true lane pose" if e.privileged else "camera only", e.description)
     console.print(table)
 
 
