@@ -179,3 +179,22 @@ def test_dtps_serve_records_episodes_ended_by_the_agents_reset(tmp_path):
     ended = [t for t in trajs if t.termination == "reset"]
     assert ended, [t.termination for t in trajs]
     assert ended[0].meta["served"]["stats"]["resets"] >= 1 and ended[0].duration < 30.0
+
+
+# ------------------------------------------------------------------ agents you start yourself (issue 39 item 5)
+def test_dtps_python_without_the_environment_names_the_setup_command(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "proxybench", "dtps", "python", "--path", str(tmp_path / "none"),
+                          "agent.py"], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 1
+    assert f"proxybench dtps setup --path {tmp_path / 'none'}" in run.stderr
+
+
+@sdk
+def test_dtps_python_runs_code_with_the_sdk_interpreter_and_passes_its_exit_status():
+    """docs/dtps.md §3: a plain `python3 agent.py` lacks duckietown-sdk; `proxybench dtps python` has it, hands
+    everything after its own options to python unchanged (-c included), and exits as the script does."""
+    code = "import sys, duckietown.sdk; print(sys.executable); print(sys.argv[1:]); sys.exit(3)"
+    run = subprocess.run([sys.executable, "-m", "proxybench", "dtps", "python", "-c", code, "--help", "-x"],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 3, run.stderr[-2000:]
+    assert run.stdout.splitlines() == [str(sdk_python()), "['--help', '-x']"]

@@ -1,7 +1,10 @@
-"""`proxybench dtps setup|check|serve`: duckietown-sdk agents and DTPS robots (docs/dtps.md)."""
+"""`proxybench dtps setup|check|serve|python`: duckietown-sdk agents and DTPS robots (docs/dtps.md)."""
 
 from __future__ import annotations
 
+import os
+import shlex
+import sys
 from pathlib import Path
 
 import typer
@@ -53,6 +56,33 @@ def check(path: Path | None = PathOpt) -> None:
         raise typer.Exit(1)
 
 
+@dtps_app.command(
+    "python", context_settings={"allow_extra_args": True, "ignore_unknown_options": True,
+                                "allow_interspersed_args": False},
+    options_metavar="[--path DIR] [SCRIPT | -c CODE | -m MODULE] [ARGS]...")
+def python_cmd(ctx: typer.Context, path: Path | None = PathOpt) -> None:
+    """Run python with the SDK environment's interpreter: `proxybench dtps python agent.py ARGS...` (what an
+    agent for `dtps serve` is started with; its own `python3` lacks duckietown-sdk). Everything after the
+    first argument that is not --path goes to python unchanged; the interpreter replaces this process, so
+    signals and the exit status are the script's own."""
+    from proxybench.dtps.env import DtpsEnvError, sdk_environ, sdk_python
+
+    try:
+        interpreter = sdk_python(path)
+    except DtpsEnvError as exc:
+        raise fail(exc) from exc
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execve(interpreter, [str(interpreter), *ctx.args], sdk_environ(interpreter))
+
+
+def agent_command(path: Path | None = None) -> str:
+    """The exact shell command that starts ``agent.py`` with the SDK environment's interpreter (banner, docs)."""
+    from proxybench.dtps.env import sdk_python
+
+    return f"{shlex.quote(str(sdk_python(path)))} agent.py"
+
+
 @dtps_app.command("serve")
 def serve(
     map_name: str = typer.Option("loop_3x3", "--map", help="built-in map name or YAML file"),
@@ -82,6 +112,9 @@ def serve(
 
     def ready(url: str) -> None:
         console.print(f"serving a SIMULATED DB21J at {escape(url)} (start the agent now; Ctrl-C to stop)",
+                      highlight=False)
+        console.print(f"  start an agent with the SDK environment's interpreter: {escape(agent_command())}\n"
+                      f"  (or: proxybench dtps python agent.py; a plain python3 lacks duckietown-sdk)",
                       highlight=False)
 
     console.print(f"starting a virtual DB21J on port {port} ...", highlight=False)

@@ -20,7 +20,8 @@ from pathlib import Path
 from proxybench.venv import VenvStatus, cache_folder, make_venv
 from proxybench.venv import venv_python as _python
 
-__all__ = ["PACKAGES", "DtpsEnvError", "EnvStatus", "check_env", "env_path", "sdk_python", "setup_env"]
+__all__ = ["PACKAGES", "DtpsEnvError", "EnvStatus", "check_env", "env_path", "sdk_environ", "sdk_python",
+           "setup_env"]
 
 #: the released versions this integration was built and tested against (dtps-http is imported by the SDK
 #: without being declared, so it is named here)
@@ -53,9 +54,21 @@ def sdk_python(path: str | Path | None = None) -> Path:
     where = env_path(path)
     py = _python(where)
     if not (py.exists() and (where / _MARKER).exists()):
-        raise DtpsEnvError(f"the duckietown-sdk environment is not set up at {where}: run `proxybench dtps setup`"
-                           f"{'' if path is None else f' --path {where}'}")
+        raise DtpsEnvError(f"the duckietown-sdk environment is not set up at {where}: run `proxybench dtps setup"
+                           f"{'' if path is None else f' --path {where}'}`")
     return py
+
+
+def sdk_environ(python: Path, base: dict[str, str] | None = None) -> dict[str, str]:
+    """``base`` (default: this process's environment) as an activated SDK environment has it: its ``bin`` first
+    on ``PATH`` (a script's own ``python3`` subprocesses get the SDK too) and ``VIRTUAL_ENV`` set; proxybench's
+    own ``PYTHONHOME`` / ``PYTHONPATH`` dropped, which would mix the two environments' packages."""
+    env = dict(os.environ if base is None else base)
+    for key in ("PYTHONHOME", "PYTHONPATH", "__PYVENV_LAUNCHER__"):
+        env.pop(key, None)
+    env["VIRTUAL_ENV"] = str(python.parent.parent)
+    env["PATH"] = str(python.parent) + os.pathsep + env.get("PATH", "/usr/bin:/bin")
+    return env
 
 
 def turbojpeg_found() -> bool:
