@@ -151,6 +151,10 @@ class ValidateConfig(StudyConfig):
     new_study: bool = False
     """start a new study in a folder that holds one: the old study (criteria, look log, secret, targets, runs,
     report) is moved to OUT/superseded-TIME/ first (without it, other settings on such a folder are refused)"""
+    target: Annotated[str | None, Cli(metavar="DIR|robot:CMD|dtps:HOST/PATH")] = None
+    """the study on your own target instead of a family: a recording DIR, robot:CMD, dtps:HOST[:PORT]/PATH or
+    reality; every agent runs on it once, then many random agent × episode splits (docs/validate.md, "On your own
+    target")"""
 
     @field_validator("metrics")
     @classmethod

@@ -10,13 +10,14 @@ from proxybench.experiments.study import Progress, Study, register
 from proxybench.experiments.validate.config import ValidateConfig
 
 if TYPE_CHECKING:
+    from proxybench.experiments.validate.own_target import OwnTargetResult
     from proxybench.experiments.validate.run import ValidationResult
 
 __all__ = ["ValidateStudy"]
 
 
 @register
-class ValidateStudy(Study[ValidateConfig, "ValidationResult"]):
+class ValidateStudy(Study[ValidateConfig, "ValidationResult | OwnTargetResult"]):
     """Run the validation study (docs/validate.md): per target, choose θ with one half of the agents on some
     target episodes, judge the choice on the other half on fresh episodes, against the nominal θ and the
     oracle θ. criteria.json is written before the first episode and never rewritten (other settings on the
@@ -41,7 +42,11 @@ class ValidateStudy(Study[ValidateConfig, "ValidationResult"]):
             "tolerances": "AIDO's, scaled to the episode length"}
 
     def run(self, config: ValidateConfig, out: Path, backend: Any, progress: Progress, *,
-            quick: bool = False) -> ValidationResult:
+            quick: bool = False) -> ValidationResult | OwnTargetResult:
+        if config.target:  # the design on the user's own target (own_target.py)
+            from proxybench.experiments.validate.own_target import run_own_target
+
+            return run_own_target(config, out, backend, progress, quick=quick)
         from proxybench.experiments.validate.registration import append_look
         from proxybench.experiments.validate.run import ValidationResult, run_validate, summarize
 
@@ -49,7 +54,11 @@ class ValidateStudy(Study[ValidateConfig, "ValidationResult"]):
         summary = summarize(run)
         return ValidationResult(run, summary, append_look(Path(out), summary))
 
-    def write_report(self, result: ValidationResult, out: Path, *, wall: float = 0.0) -> list[Path]:
+    def write_report(self, result: ValidationResult | OwnTargetResult, out: Path, *, wall: float = 0.0) -> list[Path]:
+        from proxybench.experiments.validate.own_target import OwnTargetResult, write_own_target_report
+
+        if isinstance(result, OwnTargetResult):
+            return write_own_target_report(result, out, wall=wall)
         from proxybench.experiments.validate.report import write_validation_report
 
         summary = result.summary.model_copy(update={"wall_s": round(wall, 1)})
@@ -74,7 +83,12 @@ class ValidateStudy(Study[ValidateConfig, "ValidationResult"]):
         run = ValidationRun(s, Path("criteria.json"), records, [None, None], 0, 0.0)
         return ValidationResult(run, summarize(run, criteria))
 
-    def show(self, result: ValidationResult, console: Any, *, wall: float = 0.0) -> None:
+    def show(self, result: ValidationResult | OwnTargetResult, console: Any, *, wall: float = 0.0) -> None:
+        from proxybench.experiments.validate.own_target import OwnTargetResult, show_own_target
+
+        if isinstance(result, OwnTargetResult):
+            show_own_target(result, console, wall=wall)
+            return
         from proxybench.experiments.validate.report import answer
 
         for note in result.run.notes:
