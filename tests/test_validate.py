@@ -67,6 +67,24 @@ def test_paired_comparison_and_minimum_detectable_effect():
     assert minimum_detectable_effect(10) > minimum_detectable_effect(40)
 
 
+def test_the_margin_test_and_the_size_it_needs():
+    from proxybench.usefulness.validation import margin_test, targets_needed
+
+    assert targets_needed(0.02, 0.10) == 156  # the review's estimate: ~155
+    assert targets_needed(0.04, 0.10) < targets_needed(0.02, 0.10) < targets_needed(0.02, 0.15)
+    rng = np.random.default_rng(0)
+    close = margin_test("prpv", "cal", rng.normal(0.1, 0.03, 200), np.full(200, 0.1), 0.02)
+    assert close.noninferior and not close.superior and close.upper < 0.02
+    better = margin_test("prpv", "cal", np.full(50, 0.05) + rng.normal(0, 0.01, 50), np.full(50, 0.1), 0.02)
+    assert better.superior and better.noninferior
+    worse = margin_test("prpv", "cal", np.full(50, 0.2), np.full(50, 0.1) + rng.normal(0, 0.01, 50), 0.02)
+    assert not worse.noninferior and worse.mean > 0.09
+    same = margin_test("prpv", "cal", [0.1, 0.2], [0.1, 0.2], 0.02, fallback_sd=0.1)
+    assert same.upper > 0.02 and not same.noninferior  # no spread: the assumed SD, not a zero-width interval
+    missing = margin_test("prpv", "cal", [0.1, 0.2, 0.3], [np.nan, 0.2, 0.3], 0.02)
+    assert missing.n == 2
+
+
 def test_trajectory_error_holds_a_replay_that_ended_early():
     recorded = np.column_stack([np.linspace(0, 2, 21), np.linspace(0, 2, 21), np.zeros(21)])
     assert trajectory_error(recorded, recorded) == 0.0
@@ -80,6 +98,107 @@ def test_the_quick_settings_of_every_family_are_valid():
     for family in FAMILIES:
         s = settings_for(ValidateConfig(family=family), True)  # the draws wider than the grids, known names
         assert s.quick and s.targets == 3 and len(s.agents) == 8 and s.seconds == 6.0, family
+
+
+def test_the_nominal_is_the_centre_candidate_of_every_family_and_an_off_centre_grid_is_refused():
+    from proxybench.experiments.config import ConfigError
+    from proxybench.experiments.proxies import proxy_params
+    from proxybench.experiments.validate.run import FAMILIES, ValidateConfig, _candidates, settings_for
+
+    for family in FAMILIES:
+        for quick in (True, False):
+            s = settings_for(ValidateConfig(family=family), quick)
+            cands = _candidates(s)
+            nominal = proxy_params(tuple(s.image_size))
+            centre = cands[len(cands) // 2]
+            assert len(cands) == 9 and centre == {n: float(getattr(nominal, n)) for n in s.grid}, (family, quick)
+            assert cands.count(centre) == 1
+    assert settings_for(ValidateConfig(family="gym"), False).grid["command_delay"] == (0.0, 0.10, 0.20)
+    with pytest.raises(ConfigError, match=r"grid: command_delay's centre is 0.15, the nominal θ's is 0.1"):
+        settings_for(ValidateConfig(family="gym", grid={"trim": (-0.2, 0.0, 0.2),
+                                                         "command_delay": (0.05, 0.15, 0.25)}), True)
+    with pytest.raises(ConfigError, match="grid: trim has 2 values and so no centre"):
+        settings_for(ValidateConfig(grid={"trim": (-0.1, 0.1)}), True)
+
+
+def test_the_criteria_plan_each_stratum_for_the_margin():
+    from proxybench.experiments.validate.run import ValidateConfig, settings_for
+
+    s = settings_for(ValidateConfig(family="gym"), False)
+    plan = s.primary
+    assert plan.comparisons == ("calibration", "trajectory_fit") and plan.margin == 0.02 and plan.assumed_sd == 0.1
+    assert set(plan.strata) == {"near", "far"}
+    near, far = plan.strata["near"], plan.strata["far"]
+    # uniform draw: trim in [-0.15, 0.35] (0.2 of 0.5 inside |trim| <= 0.1), delay in [0.02, 0.3] (0.18 of 0.28)
+    assert near.share == pytest.approx(0.4 * 0.18 / 0.28, abs=1e-6) and near.share + far.share == pytest.approx(1)
+    assert near.needed == far.needed == 156  # one-sided t, α 0.05, 80 %: 0.02 at SD 0.10
+    assert near.planned == pytest.approx(40 * near.share, abs=1e-3) and near.mde > far.mde > 0.02
+
+
+def _drive(trim: float, delay: float, step_time: float = 0.0) -> tuple[np.ndarray, ...]:
+    """(t, x, y, θ) of the DB18 dynamic model driving PWM 0.4 from ``step_time``, acting ``delay`` later."""
+    dt, n = 1 / 60, 181
+    t = np.arange(n) * dt
+    x, y, th, v, w = np.zeros(n), np.zeros(n), np.zeros(n), 0.0, 0.0
+    for k in range(1, n):
+        u = 0.4 if t[k - 1] >= step_time + delay - 1e-9 else 0.0
+        v, w = v + dt * (-5 * v + 1.5 * 2 * u), w + dt * (-4 * w + 15 * 2 * trim * u)
+        th[k] = th[k - 1] + w * dt
+        x[k], y[k] = x[k - 1] + v * np.cos(th[k - 1]) * dt, y[k - 1] + v * np.sin(th[k - 1]) * dt
+    return t, x, y, th
+
+
+def test_the_calibration_method_recovers_trim_and_delay_and_keeps_the_rest_nominal():
+    from proxybench.experiments.validate.run import ValidateConfig, calibrated_theta, settings_for
+    from proxybench.usefulness.calibration import curvature_per_trim
+
+    per = curvature_per_trim(kinematic=False)
+    gym = settings_for(ValidateConfig(family="gym"), True)
+    pick = calibrated_theta(gym, [_drive(0.12, 0.0)] * 2, [_drive(0.0, 0.18, 1.0)[:3]] * 2, per_trim=per,
+                            step_time=1.0)
+    assert pick.theta["trim"] == pytest.approx(0.12, abs=0.01)
+    assert pick.theta["command_delay"] == pytest.approx(0.18, abs=0.02)
+    far = calibrated_theta(gym, [_drive(-0.3, 0.0)], [_drive(0.0, 0.1, 1.0)[:3]], per_trim=per, step_time=1.0)
+    assert far.estimate["trim"] == pytest.approx(-0.3, abs=0.01) and far.theta["trim"] == -0.15  # clipped to the draw
+    heldout = settings_for(ValidateConfig(), True)  # trim × camera pitch: a drive cannot see the camera
+    pick = calibrated_theta(heldout, [_drive(0.2, 0.0)], [_drive(0.0, 0.1, 1.0)[:3]], per_trim=per, step_time=1.0)
+    assert pick.theta["camera_pitch"] == 19.15 and pick.theta["trim"] == pytest.approx(0.2, abs=0.01)
+    assert set(pick.theta) == set(heldout.grid)
+
+
+def test_a_target_without_poses_makes_calibration_not_applicable_with_its_reason():
+    from proxybench.experiments.validate.run import (
+        ValidateConfig,
+        ValidationRun,
+        _calibration,
+        calibrated_theta,
+        score_target,
+        settings_for,
+        summarize,
+    )
+
+    s = settings_for(ValidateConfig(methods=("prpv", "calibration", "nominal")), True)
+    none = calibrated_theta(s, [], [], per_trim=12.5, step_time=1.0)
+    assert none.theta is None and "carry no pose" in none.reason
+
+    class Recording:  # a recorded target: its agents are fixed, the drives are not among them
+        fixed_agents = ("pid", "vision")
+
+    rec_pick, ran = _calibration(Recording(), s, {}, lambda _n: None)
+    assert rec_pick.theta is None and ran == 0 and "recording" in rec_pick.reason
+    from proxybench.experiments.validate.run import _candidates
+
+    cands = _candidates(s)
+    target = _res({"a": 3.0, "b": 2.0, "c": 1.0})
+    proxies = [_res({"a": 3.0 - 0.1 * c, "b": 2.0, "c": 1.0 + 0.3 * c}) for c in range(len(cands))]
+    record = score_target(s, 0, cands, target, target, proxies, proxies, None, {"calibration": none})
+    assert "calibration" not in record.picks and record.not_applicable["calibration"] == none.reason
+    criteria = {"written": "2026-01-01 00:00:00 +0000", "commit": "test", "minimum_detectable_effect": {}}
+    summary = summarize(ValidationRun(s, None, [record, record], [None, None]), criteria)
+    cal = summary.methods["calibration"]
+    assert cal.not_applicable == 2 and cal.reasons == [none.reason]
+    assert [t.n for t in summary.primary_tests] == [0]  # an interim look (2 of 3): one pooled test, nothing in it
+    assert summary.primary_tests[0].stratum == "all" and summary.primary_tests[0].not_applicable == 2
 
 
 def _short_quick_episodes(monkeypatch, family: str, seconds: float = 2.0) -> None:
@@ -106,8 +225,26 @@ def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path, m
     methods = summary["methods"]
     assert {"prpv", "nominal", "trajectory", "kendall"} <= set(methods)
     assert methods["nominal"]["prpv_norm"]["vs_nominal"]["mean"] == 0.0
-    assert all(m["prpv_norm"]["mean_regret"] >= 0 for m in methods.values())  # nobody beats the oracle
+    # no grid method beats the grid's oracle (a continuous pick may)
+    assert all(m["prpv_norm"]["mean_regret"] >= 0 for k, m in methods.items() if k not in ("calibration",
+                                                                                          "trajectory_fit"))
     assert "primary" in summary and "tuning with prpv" in res.output.lower()
+    # the primary comparison: PRPV against each calibration, per pre-declared stratum (assigned at the reveal)
+    tests = {(t["b"], t["stratum"]): t for t in summary["primary_tests"]}
+    assert set(tests) == {(b, st) for b in ("calibration", "trajectory_fit") for st in ("near", "far")}
+    assert sorted(summary["strata"]) == sorted(st for st in summary["strata"] if st in ("near", "far"))
+    assert len(summary["strata"]) == 3
+    for (b, st), t in tests.items():
+        assert t["n"] + t["not_applicable"] == summary["strata"].count(st), (b, st)
+        assert t["noninferior"] == bool(t["upper"] < t["margin"]) and t["superior"] == bool(t["upper"] < 0)
+    assert ("stratum" in res.output) and ("PRPV − calibration" in res.output or "PRPV against calibration" in
+                                          res.output)
+    assert {"calibration", "trajectory_fit"} <= set(methods)
+    records = [json.loads(p.read_text()) for p in sorted((out / "targets").glob("*.json"))]
+    assert all(r["grid_size"] == 9 and len(r["candidates"]) >= 9 for r in records)
+    assert all("calibration" in r["picks"] and set(r["estimates"]["calibration"]) == {"trim", "command_delay"}
+               for r in records)
+    assert all(r["episodes_run"] > 0 for r in records)
     assert (out / "report.html").exists() and (out / "targets.csv").exists()
     written = (out / "criteria.json").read_bytes()
     again = CliRunner().invoke(app, args, env={"COLUMNS": "200"})
@@ -121,6 +258,7 @@ def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path, m
     assert "INTERIM LOOK, 2 of 3 pre-registered targets" in look.output and "0 episodes run now" in look.output
     interim = json.loads((out / "summary.json").read_text())
     assert interim["interim"] and interim["targets"] == 2 and interim["truths"] == []
+    assert interim["strata"] == [] and {t["stratum"] for t in interim["primary_tests"]} == {"all"}
     assert not (out / "targets" / "002.json").exists()
     assert (out / "criteria.json").read_bytes() == written
     other = CliRunner().invoke(app, [*args[:3], "4", *args[4:], "--interim"], env={"COLUMNS": "200"})

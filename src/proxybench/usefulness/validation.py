@@ -43,15 +43,18 @@ from proxybench.usefulness.metrics import (
     resampled_means,
 )
 
-__all__ = ["METHODS", "Comparison", "Quality", "compare", "minimum_detectable_effect", "pick", "quality",
-           "selection_scores", "trajectory_error"]
+__all__ = ["CONTINUOUS", "METHODS", "Comparison", "Margin", "Quality", "compare", "margin_test",
+           "minimum_detectable_effect", "pick", "quality", "selection_scores", "targets_needed", "trajectory_error"]
 
 Results = Mapping[str, np.ndarray]
 
-#: the ways of choosing θ from the tuning agents; "trajectory" (trajectory matching) and "nominal" are scored by
-#: the study itself (replays of the target's commands; no target data)
+#: the ways of choosing θ from the tuning agents; "trajectory" (trajectory matching on the grid), "trajectory_fit"
+#: (trajectory matching over continuous θ), "calibration" (scripted drives on the target, no simulator) and
+#: "nominal" are scored by the study itself (replays of the target's commands; drives; no target data)
 METHODS = ("prpv", "eps_prpv", "prob_prpv", "ppv", "pearson", "spearman", "kendall", "mmrv", "trajectory",
-           "nominal")
+           "trajectory_fit", "calibration", "nominal")
+#: the methods whose pick is a continuous θ, not a grid candidate (judged like one: replayed on the held-out agents)
+CONTINUOUS = ("trajectory_fit", "calibration")
 
 
 @dataclass(frozen=True)
@@ -214,6 +217,69 @@ def minimum_detectable_effect(n: int, alpha: float = 0.05, power: float = 0.8) -
         return math.inf
     crit = t.ppf(1 - alpha, n - 1)
     return float(brentq(lambda dz: nct.sf(crit, n - 1, dz * math.sqrt(n)) - power, 1e-6, 50.0))
+
+
+def targets_needed(margin: float, sd: float, alpha: float = 0.05, power: float = 0.8, *, most: int = 100_000
+                   ) -> int:
+    """The fewest targets for which a one-sided paired t-test at ``alpha`` shows a difference of ``margin`` with
+    probability ``power``, at a standard deviation ``sd`` of the paired differences (noncentral t): the size a
+    non-inferiority test needs when the true difference is 0."""
+    if margin <= 0 or sd <= 0:
+        raise ValueError(f"margin and sd must be > 0, got margin={margin}, sd={sd}")
+    dz = margin / sd
+    lo, hi = 2, 2
+    while minimum_detectable_effect(hi, alpha, power) > dz:
+        if hi >= most:
+            return most
+        lo, hi = hi, min(most, hi * 2)
+    while lo < hi:  # the MDE falls with n: the first n whose MDE is within dz
+        mid = (lo + hi) // 2
+        lo, hi = (mid + 1, hi) if minimum_detectable_effect(mid, alpha, power) > dz else (lo, mid)
+    return lo
+
+
+@dataclass(frozen=True)
+class Margin:
+    """A non-inferiority and superiority test of a − b (lower is better) over targets, against ``margin``: the
+    upper bound of the one-sided (1 − α) t interval of the mean difference."""
+
+    a: str
+    b: str
+    n: int
+    mean: float
+    sd: float
+    upper: float  # one-sided (1 − α) upper bound of the mean difference
+    margin: float
+    alpha: float
+    noninferior: bool  # upper < margin: a is no worse than b by the margin
+    superior: bool  # upper < 0: a is better than b
+    mde: float  # the difference (in the measure's unit, at the observed SD) n targets detect with ``power``
+    power: float
+
+    def as_dict(self) -> dict[str, float | int | str | bool]:
+        return asdict(self)
+
+
+def margin_test(a: str, b: str, values_a: Sequence[float], values_b: Sequence[float], margin: float, *,
+                alpha: float = 0.05, power: float = 0.8, fallback_sd: float | None = None) -> Margin:
+    """Non-inferiority (upper bound < ``margin``) and superiority (upper bound < 0) of a − b, paired over targets;
+    targets where either is missing (not applicable) are left out. Fewer than two targets: no test (NaN). Where
+    every difference is the same (no spread: two methods that picked alike on a few targets) the bound uses
+    ``fallback_sd`` (the SD the power computation assumed), never a zero-width interval."""
+    from scipy.stats import t
+
+    d = np.asarray(values_a, float) - np.asarray(values_b, float)
+    d = d[np.isfinite(d)]
+    n = len(d)
+    if n < 2:
+        nan = float("nan")
+        return Margin(a, b, n, float(d.mean()) if n else nan, nan, nan, margin, alpha, False, False, nan, power)
+    sd = float(d.std(ddof=1))
+    if sd <= 1e-12 and fallback_sd is not None:
+        sd = float(fallback_sd)
+    upper = float(d.mean() + t.ppf(1 - alpha, n - 1) * sd / math.sqrt(n))
+    return Margin(a, b, n, float(d.mean()), sd, upper, margin, alpha, bool(upper < margin), bool(upper < 0),
+                  float(minimum_detectable_effect(n, alpha, power) * sd), power)
 
 
 def trajectory_error(replay: np.ndarray, recorded: np.ndarray) -> float:

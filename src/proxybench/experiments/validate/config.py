@@ -14,8 +14,8 @@ from proxybench.experiments.config import ConfigError, param_name
 from proxybench.experiments.study import Cli, StudyConfig
 from proxybench.usefulness.validation import METHODS as _METHODS
 
-__all__ = ["FAMILIES", "NODE_AGENT", "PYTHON", "FamilyDefaults", "FamilyModes", "ValidateConfig", "ValidateSettings",
-           "settings_for"]
+__all__ = ["FAMILIES", "NODE_AGENT", "PRIMARY_COMPARISONS", "PYTHON", "FamilyDefaults", "FamilyModes", "PrimaryPlan",
+           "StratumPlan", "ValidateConfig", "ValidateSettings", "nominal_theta", "settings_for", "stratum_of"]
 
 #: the 16 zoo agents of distinct behaviour (the "-stop" variants equal their base on maps without stop lines)
 _POOL = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
@@ -56,6 +56,9 @@ class FamilyDefaults(BaseModel):
     """the targets' θ ranges (the family's own parameter names), wider than the grid and off-centre"""
     maps: tuple[str, ...]
     """maps, one per target in turn"""
+    near: dict[str, tuple[float, float]]
+    """the near stratum: every parameter inside these ranges (proxybench's names), the range a factory-calibrated
+    robot has; the far stratum is the rest"""
     robot_nodes: int = 1
     """processes of a robot-node target at once"""
 
@@ -72,29 +75,38 @@ class FamilyModes(BaseModel):
         return self.quick if quick else self.full
 
 
+#: the search grids, centred on the nominal θ (trim 0, camera pitch 19.15°, command delay 0.10 s) in every family:
+#: settings_for refuses a grid whose centre is not the nominal
 _HELDOUT_GRID = {"trim": (-0.2, 0.0, 0.2), "camera_pitch": (15.15, 19.15, 23.15)}
-_GYM_GRID = {"trim": (-0.2, 0.0, 0.2), "command_delay": (0.05, 0.15, 0.25)}
+_GYM_GRID = {"trim": (-0.2, 0.0, 0.2), "command_delay": (0.0, 0.10, 0.20)}
+#: the near strata: |trim| <= 0.1 (a wheel pair a factory calibration leaves within 10 %) and the other searched
+#: parameter inside the grid's range (a camera mount or a latency the factory's tolerance covers)
+_HELDOUT_NEAR = {"trim": (-0.1, 0.1), "camera_pitch": (15.15, 23.15)}
+_GYM_NEAR = {"trim": (-0.1, 0.1), "command_delay": (0.0, 0.2)}
 _HELDOUT = FamilyModes(
     full=FamilyDefaults(targets=40, agents=(*_POOL, NODE_AGENT), bc_agents=2, episodes_tune=3, episodes_eval=3,
                         seconds=15.0, grid=_HELDOUT_GRID,
                         draw={"trim": (-0.15, 0.35), "camera_pitch": (13.15, 27.15), "gain": (0.85, 1.15),
                               "command_delay": (0.02, 0.2), "blur_time": (0.0, 0.1), "camera_height": (0.1, 0.116)},
-                        maps=("loop_3x3",)),
+                        maps=("loop_3x3",), near=_HELDOUT_NEAR),
     quick=FamilyDefaults(targets=3, agents=_QUICK_POOL, episodes_tune=2, episodes_eval=2, seconds=6.0,
                          grid=_HELDOUT_GRID, draw={"trim": (-0.15, 0.35), "camera_pitch": (13.15, 27.15)},
-                         maps=("loop_3x3",)))
+                         maps=("loop_3x3",), near=_HELDOUT_NEAR))
 #: per family: targets, pool, episodes (E1, E2), seconds, search grid, target θ ranges (wider than the grid and
 #: off-centre), maps; full and quick
 FAMILIES: dict[str, FamilyModes] = {
     "heldout": _HELDOUT,
     "gym": FamilyModes(
         full=_HELDOUT.full.model_copy(update={
-            "grid": _GYM_GRID, "maps": ("loop_3x3", "zigzag"), "robot_nodes": 2,
+            "grid": _GYM_GRID, "maps": ("loop_3x3", "zigzag"), "robot_nodes": 2, "near": _GYM_NEAR,
             "draw": {"trim": (-0.15, 0.35), "delay": (0.02, 0.3), "cam_angle": (13.15, 27.15),
                      "cam_height": (0.1, 0.116)}}),
         quick=_HELDOUT.quick.model_copy(update={
-            "grid": _GYM_GRID, "robot_nodes": 2, "draw": {"trim": (-0.15, 0.35), "delay": (0.02, 0.3)}})),
+            "grid": _GYM_GRID, "robot_nodes": 2, "near": _GYM_NEAR,
+            "draw": {"trim": (-0.15, 0.35), "delay": (0.02, 0.3)}})),
 }
+#: the primary comparison: PRPV against each of these calibrations (docs/validate.md)
+PRIMARY_COMPARISONS = ("calibration", "trajectory_fit")
 #: the family's parameter names for the target draw, when they are not proxybench's (gym's own names)
 _GYM_TO_PROXY = {"delay": "command_delay", "cam_angle": "camera_pitch", "cam_height": "camera_height"}
 
@@ -135,6 +147,14 @@ class ValidateConfig(StudyConfig):
     """the primary test's level"""
     power: float = Field(0.8, gt=0.5, lt=1.0)
     """the power of the minimum detectable effect"""
+    margin: float = Field(0.02, gt=0.0, le=1.0)
+    """the primary comparison's margin in PRPV/K(K−1): PRPV is non-inferior to a calibration when the upper bound
+    of PRPV − calibration is below it"""
+    assumed_sd: float = Field(0.10, gt=0.0, le=1.0)
+    """the standard deviation of the paired differences the power computation assumes (PRPV/K(K−1))"""
+    near: dict[str, tuple[float, float]] | None = None
+    """the near stratum LOW,HIGH per parameter (proxybench's names): the θ a factory-calibrated robot has; the far
+    stratum is the rest (default: the family's: |trim| <= 0.1 and the other searched parameter within the grid)"""
     image_size: Annotated[tuple[int, int], Cli(metavar="WIDTHxHEIGHT", sep="x")] = (160, 120)
     """camera image [px]"""
     n_boot: int = Field(100, ge=10, le=10_000)
@@ -175,12 +195,52 @@ class ValidateConfig(StudyConfig):
                              "every method is compared with, is required)")
         return v
 
-    @field_validator("grid")
+    @field_validator("grid", "near")
     @classmethod
     def _names(cls, v: dict | None) -> dict | None:
         for name in v or {}:
             param_name(name)
         return v
+
+    @field_validator("near")
+    @classmethod
+    def _ranges(cls, v: dict | None) -> dict | None:
+        for name, r in (v or {}).items():
+            if len(r) != 2 or r[0] > r[1]:
+                raise ValueError(f"{name}: give LOW,HIGH with LOW <= HIGH, got {list(r)}")
+        return v
+
+
+class StratumPlan(BaseModel):
+    """One pre-declared stratum of the primary comparison: what puts a target in it, and the size it needs."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    definition: str
+    """which targets (from their hidden θ, assigned at the reveal)"""
+    share: float
+    """the share of targets the draw puts in it (uniform draw; a parameter not drawn sits at the nominal)"""
+    planned: float
+    """targets expected in it: the study's targets × share"""
+    needed: int
+    """targets it needs to show non-inferiority within the margin with the declared power, at the assumed SD and a
+    true difference of 0"""
+    mde: float | None
+    """the margin (PRPV/K(K−1)) its planned size can show with that power at the assumed SD (None: under 2)"""
+
+
+class PrimaryPlan(BaseModel):
+    """The pre-registered primary comparison: PRPV against the calibrations, per stratum, with a margin."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    comparisons: tuple[str, ...]
+    """PRPV − each of these, in the quality of the pick on the held-out agents (PRPV/K(K−1) on B over E2)"""
+    margin: float
+    assumed_sd: float
+    strata: dict[str, StratumPlan]
+    test: str
+    decision: str
 
 
 class ValidateSettings(BaseModel):
@@ -214,10 +274,18 @@ class ValidateSettings(BaseModel):
     seed: int
     bc_agents: int
     robot_nodes: int
+    margin: float
+    assumed_sd: float
+    near: dict[str, tuple[float, float]]
+    primary: PrimaryPlan
 
     def proxy_draw(self) -> dict[str, tuple[float, ...]]:
         """The targets' θ ranges under proxybench's names (gym's renamed)."""
-        return {_GYM_TO_PROXY.get(k, k) if self.family == "gym" else k: v for k, v in self.draw.items()}
+        return self.to_proxy(self.draw)
+
+    def to_proxy(self, theta: dict) -> dict:
+        """``theta`` (a target's θ or ranges, under the family's names) under proxybench's names."""
+        return {_GYM_TO_PROXY.get(k, k) if self.family == "gym" else k: v for k, v in theta.items()}
 
 
 def _draw_name(family: str, name: str) -> None:
@@ -231,24 +299,91 @@ def _draw_name(family: str, name: str) -> None:
         raise ConfigError(f"draw: {name!r} is not a gym-duckietown parameter; `proxybench gym params` lists them")
 
 
+def nominal_theta(names) -> dict[str, float]:
+    """The nominal calibration's value of each named parameter (proxybench's names)."""
+    from proxybench.domain.params import NOMINAL_CALIBRATION, DomainParams
+
+    return {n: float(NOMINAL_CALIBRATION.get(n, DomainParams.model_fields[n].default)) for n in names}
+
+
+def _check_centred(grid: dict[str, tuple[float, ...]]) -> None:
+    """A grid's centre must be the nominal θ: an odd number of values per parameter, the nominal in the middle."""
+    for name, nom in nominal_theta(grid).items():
+        values = sorted(grid[name])
+        if len(values) % 2 == 0:
+            raise ConfigError(f"grid: {name} has {len(values)} values and so no centre; give an odd number with the "
+                              f"nominal {nom:g} in the middle")
+        mid = values[len(values) // 2]
+        if abs(mid - nom) > 1e-9:
+            raise ConfigError(f"grid: {name}'s centre is {mid:g}, the nominal θ's is {nom:g}; centre the grid on the "
+                              "nominal so that tuning and the nominal θ start even")
+
+
+def stratum_of(theta: dict[str, float], near: dict[str, tuple[float, float]]) -> str:
+    """``near`` when every parameter of the near box is inside it (a parameter θ lacks: at the nominal), else
+    ``far``."""
+    nominal = nominal_theta(near)
+    inside = all(lo - 1e-12 <= float(theta.get(n, nominal[n])) <= hi + 1e-12 for n, (lo, hi) in near.items())
+    return "near" if inside else "far"
+
+
+def _plan(s: dict, draw: dict[str, tuple[float, ...]]) -> PrimaryPlan:
+    """The primary comparison's plan: per stratum its share of the draw, the targets it needs and its MDE."""
+    from proxybench.usefulness.validation import minimum_detectable_effect, targets_needed
+
+    near, nominal = s["near"], nominal_theta(s["near"])
+    share = 1.0
+    for n, (lo, hi) in near.items():
+        if n in draw:
+            a, b = min(draw[n]), max(draw[n])
+            share *= max(0.0, min(hi, b) - max(lo, a)) / (b - a) if b > a else float(lo <= a <= hi)
+        else:
+            share *= float(lo <= nominal[n] <= hi)
+    needed = targets_needed(s["margin"], s["assumed_sd"], s["alpha"], s["power"])
+    box = ", ".join(f"{n} in [{lo:g}, {hi:g}]" for n, (lo, hi) in near.items())
+    strata = {}
+    for name, sh, words in (("near", share, f"every one of {box} (the θ a factory-calibrated robot has)"),
+                            ("far", 1.0 - share, f"the rest: some parameter outside {box}")):
+        planned = s["targets"] * sh
+        mde = (minimum_detectable_effect(int(planned), s["alpha"], s["power"]) * s["assumed_sd"]
+               if int(planned) >= 2 else None)
+        strata[name] = StratumPlan(definition=words, share=round(sh, 6), planned=round(planned, 3), needed=needed,
+                                   mde=None if mde is None else round(mde, 6))
+    return PrimaryPlan(
+        comparisons=PRIMARY_COMPARISONS, margin=s["margin"], assumed_sd=s["assumed_sd"], strata=strata,
+        test=(f"per stratum and comparison, the paired differences PRPV − calibration of the pick's quality on the "
+              f"held-out agents (PRPV/K(K−1), B on E2); the upper bound of their one-sided {1 - s['alpha']:g} t "
+              f"interval: non-inferior if below the margin {s['margin']:g}, superior if below 0; a target where a "
+              "calibration is not applicable is left out of that comparison; strata assigned from the hidden θ at "
+              "the reveal (final report only)"),
+        decision=("'PRPV is non-inferior to X within the margin in stratum S' only when the test says so, 'PRPV is "
+                  "superior to X in stratum S' only when the upper bound is below 0; otherwise 'not shown', with "
+                  "the interval and n; PRPV − nominal θ is a secondary comparison"))
+
+
 def settings_for(cfg: ValidateConfig, quick: bool) -> ValidateSettings:
-    """Every choice made (the config, then the family's defaults); the draw seed is not among them."""
+    """Every choice made (the config, then the family's defaults); the draw seed is not among them. Refuses a grid
+    whose centre is not the nominal θ and a draw that is not wider than the grid."""
     d = FAMILIES[cfg.family].mode(quick)
     seconds = cfg.seconds or d.seconds
     scale = seconds / 60.0  # AIDO's lane-following tolerances are for 60 s episodes
     tolerances = {"driven_lanedir_consec": 0.62 * scale, "survival_time": 2.0 * scale, "lane_score": 2.0 * scale,
                   **(cfg.tolerances or {})}
-    s = ValidateSettings(
+    grid = cfg.grid or d.grid
+    _check_centred(grid)
+    fields = dict(
         family=cfg.family, quick=quick, targets=cfg.targets or d.targets, agents=cfg.agents or d.agents,
         tuning_share=cfg.tuning_share, episodes_tune=cfg.episodes_tune or d.episodes_tune,
         episodes_eval=cfg.episodes_eval or d.episodes_eval, seconds=seconds, maps=cfg.maps or d.maps,
-        grid=cfg.grid or d.grid, draw=cfg.draw or d.draw, metrics=cfg.metrics,
+        grid=grid, draw=cfg.draw or d.draw, metrics=cfg.metrics,
         tolerances={m: tolerances.get(m, 0.0) for m in cfg.metrics}, methods=cfg.methods, top_k=cfg.top_k,
         alpha=cfg.alpha, power=cfg.power, image_size=cfg.image_size, n_boot=cfg.n_boot, seed=cfg.seed,
-        bc_agents=d.bc_agents if cfg.bc_agents is None else cfg.bc_agents, robot_nodes=d.robot_nodes)
-    for name in s.draw:
+        bc_agents=d.bc_agents if cfg.bc_agents is None else cfg.bc_agents, robot_nodes=d.robot_nodes,
+        margin=cfg.margin, assumed_sd=cfg.assumed_sd, near=cfg.near or d.near)
+    for name in fields["draw"]:
         _draw_name(cfg.family, name)
-    draw = s.proxy_draw()
+    draw = {_GYM_TO_PROXY.get(k, k) if cfg.family == "gym" else k: v for k, v in fields["draw"].items()}
+    s = ValidateSettings(**fields, primary=_plan(fields, draw))
     outside = [k for k in s.grid if k in draw and not (min(draw[k]) < min(s.grid[k]) or max(draw[k]) > max(s.grid[k]))]
     if outside:
         raise ConfigError(f"draw: {', '.join(outside)} must be drawn wider than the grid searches it, so that the "

@@ -13,10 +13,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, computed_field
 
 from proxybench.experiments.validate.config import ValidateSettings
-from proxybench.usefulness.validation import Comparison
+from proxybench.usefulness.validation import Comparison, Margin
 
-__all__ = ["QUALITIES", "HitRate", "MeasureSummary", "MethodSummary", "Pick", "Primary", "Quality", "TargetRecord",
-           "ValidationSummary", "oracle_steps", "regrets"]  # Comparison: usefulness.validation's
+__all__ = ["QUALITIES", "ContinuousPick", "HitRate", "MeasureSummary", "MethodSummary", "Pick", "Primary",
+           "PrimaryTest", "Quality", "TargetRecord", "ValidationSummary", "oracle_steps", "qualities",
+           "regrets"]  # Comparison, Margin: usefulness.validation's
 
 QUALITIES = ("prpv_norm", "kendall_gap", "top1_regret", "topk_regret")
 
@@ -41,9 +42,23 @@ class Pick(_Model):
     ties: int
 
 
+class ContinuousPick(_Model):
+    """A continuous method's θ on one target (trajectory_fit, calibration), or why it has none."""
+
+    theta: dict[str, float] | None
+    """the picked θ over the grid's parameters (None: not applicable)"""
+    score: float = float("nan")
+    """the method's own objective there (trajectory_fit: the mean trajectory error [m])"""
+    estimate: dict[str, float] = {}
+    """what the method measured before clipping to the draw range (calibration: trim, command_delay)"""
+    reason: str = ""
+    """why the method is not applicable on this target"""
+
+
 class TargetRecord(_Model):
-    """One target of the study: the candidates, each method's pick from the tuning agents, every candidate's
-    quality on the held-out agents, and what ran (``targets/NNN.json``)."""
+    """One target of the study: the candidates (the grid, then the continuous methods' picks), each method's pick
+    from the tuning agents, every candidate's quality on the held-out agents, and what ran (``targets/NNN.json``).
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -52,6 +67,13 @@ class TargetRecord(_Model):
     quality: list[Quality]
     picks: dict[str, Pick]
     scores: dict[str, list[float]]
+    grid_size: int = 0
+    """the grid's candidates come first (the oracle is the best of them); after them, the continuous picks (0: all
+    are the grid's)"""
+    not_applicable: dict[str, str] = {}
+    """per method that could not pick on this target: why (a target without poses has no calibration)"""
+    estimates: dict[str, dict[str, float]] = {}
+    """per continuous method, what it measured before clipping (calibration: trim, command_delay)"""
     target: str = ""
     map: str = ""
     tuning_agents: list[str] = []
@@ -64,18 +86,30 @@ class TargetRecord(_Model):
         """Every candidate's quality in ``measure`` (one of :data:`QUALITIES`)."""
         return np.array([getattr(q, measure) for q in self.quality], float)
 
+    def oracle(self, measure: str) -> float:
+        """The oracle's quality: the best grid candidate's in hindsight (continuous picks are not candidates of the
+        oracle, so their regret can be negative)."""
+        return float(np.nanmin(self.values(measure)[: self.grid_size or None]))
 
-def regrets(rec: TargetRecord, method: str, measure: str = "prpv_norm") -> float:
-    """The regret of ``method``'s pick on one target: its quality minus the oracle's (the lowest in hindsight)."""
+
+def qualities(rec: TargetRecord, method: str, measure: str = "prpv_norm") -> float:
+    """The quality of ``method``'s pick on one target (NaN where it did not pick)."""
     if method not in rec.picks:
         return float("nan")
-    values = rec.values(measure)
-    return float(values[rec.picks[method].index] - np.nanmin(values))
+    return float(rec.values(measure)[rec.picks[method].index])
+
+
+def regrets(rec: TargetRecord, method: str, measure: str = "prpv_norm") -> float:
+    """The regret of ``method``'s pick on one target: its quality minus the oracle's (the best grid candidate in
+    hindsight; below 0 for a continuous pick better than every grid candidate)."""
+    if method not in rec.picks:
+        return float("nan")
+    return qualities(rec, method, measure) - rec.oracle(measure)
 
 
 def oracle_steps(rec: TargetRecord, index: int, grid: dict[str, tuple[float, ...]]) -> int:
     """Grid steps (the largest along any axis) from candidate ``index`` to the nearest oracle candidate."""
-    values = rec.values("prpv_norm")
+    values = rec.values("prpv_norm")[: rec.grid_size or None]
     oracles = np.flatnonzero(np.isclose(values, np.nanmin(values)))
     pos = {n: {round(v, 9): i for i, v in enumerate(vals)} for n, vals in grid.items()}
 
@@ -112,6 +146,10 @@ class MethodSummary(_Model):
     topk_regret: MeasureSummary
     hit_rate: HitRate
     ties: float
+    not_applicable: int = 0
+    """targets where the method could not pick (left out of its comparisons)"""
+    reasons: list[str] = []
+    """why, each reason once"""
 
 
 class CriteriaCheck(_Model):
@@ -141,6 +179,15 @@ class Primary(Comparison):
     minimum_detectable_difference: float
 
 
+@dataclass(frozen=True)
+class PrimaryTest(Margin):
+    """One primary test: PRPV − a calibration in one stratum (``all``: every target, the only one an interim look
+    shows), against the margin."""
+
+    stratum: str
+    not_applicable: int  # targets of the stratum where the calibration could not pick (left out)
+
+
 class ValidationSummary(_Model):
     """``summary.json``: the study's conclusion, per method, with the primary test (absent when PRPV picked on no
     target) and the targets' revealed θ."""
@@ -155,8 +202,13 @@ class ValidationSummary(_Model):
     """per selection method, its regrets against the nominal θ's"""
     criteria: CriteriaCheck
     """what was pre-registered, checked against the code that scored"""
+    primary_tests: list[PrimaryTest] = []
+    """the pre-registered primary comparison: PRPV − each calibration per stratum (near, far) in the final report;
+    at an interim look over every target finished (stratum ``all``), no stratum shown"""
     primary: Primary | None = None
-    """the pre-registered test (None where PRPV picked on no target)"""
+    """the secondary test PRPV − nominal θ, as the first study registered it (None where PRPV picked on no target)"""
+    strata: list[str] = []
+    """each target's stratum (near, far), from its hidden θ: in the final report only"""
     truths: list[dict[str, float]] = []
     """each target's θ, revealed after scoring, in the final report only (empty at an interim look)"""
 

@@ -18,30 +18,71 @@ import numpy as np
 from proxybench.experiments.reporting import pyplot, save_figure
 from proxybench.experiments.validate.measures import QUALITIES, ValidationSummary, regrets
 from proxybench.experiments.validate.run import ValidationRun
+from proxybench.usefulness.validation import minimum_detectable_effect
 
-__all__ = ["answer", "write_validation_report"]
+__all__ = ["answer", "primary_sentences", "write_validation_report"]
 
 _LABELS = {"prpv_norm": "PRPV/K(K−1) regret", "kendall_gap": "1 − Kendall τ_b regret",
            "top1_regret": "top-1 regret", "topk_regret": "top-k regret"}
 
 
+def _where(test, interim: bool) -> str:
+    if interim:
+        return f"over the {test.n + test.not_applicable} targets finished (every stratum together)"
+    return f"in the {test.stratum} stratum"
+
+
+def primary_sentences(summary: ValidationSummary) -> list[str]:
+    """The primary comparison, one sentence per stratum and calibration, in the words the criteria fixed: "PRPV is
+    non-inferior to X within m" or "superior to X" only when the test says so; otherwise "not shown", with the
+    interval and n."""
+    s = summary.settings
+    out = []
+    for test in summary.primary_tests:
+        b, where = test.b, _where(test, summary.interim)
+        level = f"one-sided {1 - test.alpha:.0%} upper bound"
+        skipped = (f"; {test.not_applicable} target(s) where {b} was not applicable left out"
+                   if test.not_applicable else "")
+        if test.n < 2:
+            out.append(f"PRPV against {b} {where}: not tested ({test.n} target(s) with both picks{skipped}).")
+            continue
+        numbers = (f"PRPV − {b} {test.mean:+.4f} in PRPV/K(K−1) on held-out agents, {level} {test.upper:+.4f}, "
+                   f"n = {test.n}{skipped}")
+        assumed = minimum_detectable_effect(test.n, test.alpha, test.power) * s.assumed_sd
+        mde = (f"; with {test.n} targets a margin of {test.mde:.3f} (observed SD {test.sd:.3f}) could be shown with "
+               f"{test.power:.0%} power, {assumed:.3f} at the assumed SD {s.assumed_sd:g}")
+        if test.superior:
+            out.append(f"PRPV is superior to {b} {where}: {numbers} < 0.")
+        elif test.noninferior:
+            out.append(f"PRPV is non-inferior to {b} within {test.margin:g} {where}: {numbers} < {test.margin:g}.")
+        else:
+            out.append(f"PRPV non-inferior to {b} within {test.margin:g} {where}: not shown ({numbers} ≥ "
+                       f"{test.margin:g}{mde}).")
+    return out
+
+
 def answer(summary: ValidationSummary) -> str:
-    """The primary result in one sentence, as criteria.json decided it would be read."""
+    """The result as criteria.json decided it would be read: the primary comparison (PRPV against the
+    calibrations, per stratum), then the secondary one against the nominal θ."""
     p = summary.primary
     problems = summary.criteria.problems
     failed = (f"PRE-REGISTRATION CHECK FAILED ({len(problems)} problem{'s' if len(problems) > 1 else ''}: "
               f"{problems[0]}{'; …' if len(problems) > 1 else ''}); read nothing below as the registered "
               "study's result. ") if problems else ""
-    if p is None:
-        return failed + "The primary comparison (PRPV against the nominal θ) was not run."
     n, fam = summary.targets, summary.family
+    head = (f"INTERIM LOOK, {n} of {summary.targets_planned} pre-registered targets (the decision waits for all of "
+            "them; the strata are shown with the targets' θ in the final report only). ") if summary.interim else ""
+    primary = (" ".join(primary_sentences(summary))
+               or "The primary comparison (PRPV against the calibrations) was not run.")
+    if p is None:
+        return f"{failed}{head}{primary} The secondary comparison (PRPV against the nominal θ) was not run."
     verdict = ("Tuning with PRPV helped on held-out agents" if p.rejected else
                "This study does not show that tuning with PRPV helps on held-out agents")
     if summary.interim:
-        verdict = (f"INTERIM LOOK, {n} of {summary.targets_planned} pre-registered targets (the decision waits for "
-                   f"all of them): " + ("so far PRPV's pick beats the nominal θ's" if p.rejected else
-                                       "so far the data do not show that tuning with PRPV helps on held-out agents"))
-    return (f"{failed}{verdict}: over {n} {fam} targets, PRPV's pick had a mean regret {p.mean:+.4f} "
+        verdict = ("so far PRPV's pick beats the nominal θ's" if p.rejected else
+                   "so far the data do not show that tuning with PRPV helps on held-out agents")
+    return (f"{failed}{head}{primary} Secondary, PRPV against the nominal θ: {verdict}: over {n} {fam} targets, "
+            f"PRPV's pick had a mean regret {p.mean:+.4f} "
             f"[{p.low:+.4f}, {p.high:+.4f}] (PRPV/K(K−1), 95 % bootstrap over targets) relative to the nominal "
             f"θ's; it was better on {p.wins}, worse on {p.losses}, equal on {p.ties} targets; one-sided "
             f"Wilcoxon p = {p.p_wilcoxon:.3g} (α {p.alpha}; paired t p = {p.p_t:.3g}). The smallest mean "
@@ -49,17 +90,39 @@ def answer(summary: ValidationSummary) -> str:
             f"(d_z {p.d_z:.2f}, {n} targets).")
 
 
-def _frame(run: ValidationRun):
+def _frame(run: ValidationRun, summary: ValidationSummary):
+    """targets.csv: every target × method. At an interim look a continuous pick's θ (an estimate of the hidden θ)
+    and the strata are left out."""
     import pandas as pd
 
     rows = []
-    for r in run.records:
+    for i, r in enumerate(run.records):
+        stratum = {"stratum": summary.strata[i]} if summary.strata else {}
         for method, pk in r.picks.items():
             theta = r.candidates[pk.index]
-            rows.append({"target": r.target, "map": r.map, "method": method, "ties": pk.ties,
-                         **{f"pick_{k}": v for k, v in theta.items()}, **r.quality[pk.index].model_dump(),
+            hide = summary.interim and pk.index >= (r.grid_size or len(r.candidates))
+            rows.append({"target": r.target, "map": r.map, **stratum, "method": method, "ties": pk.ties,
+                         **({} if hide else {f"pick_{k}": v for k, v in theta.items()}),
+                         **r.quality[pk.index].model_dump(),
                          **{f"regret_{m}": regrets(r, method, m) for m in QUALITIES}})
+        for method, why in r.not_applicable.items():
+            rows.append({"target": r.target, "map": r.map, **stratum, "method": method, "not_applicable": why})
     return pd.DataFrame(rows)
+
+
+def _primary_table(summary: ValidationSummary) -> str:
+    """The primary tests, and the sizes the criteria planned for each stratum."""
+    plan = summary.settings.primary.strata
+    head = ("stratum", "PRPV − …", "n", "not applicable", "mean", "upper bound", "margin", "non-inferior",
+            "superior", "MDE (observed SD)", "planned / needed (criteria)")
+    rows = []
+    for t in summary.primary_tests:
+        st = plan.get(t.stratum)
+        cells = (t.stratum, t.b, t.n, t.not_applicable, f"{t.mean:+.4f}", f"{t.upper:+.4f}", f"{t.margin:g}",
+                 "yes" if t.noninferior else "not shown", "yes" if t.superior else "not shown", f"{t.mde:.3f}",
+                 f"{st.planned:g} / {st.needed}" if st else "—")
+        rows.append("<tr>" + "".join(f"<td>{html.escape(str(x))}</td>" for x in cells) + "</tr>")
+    return "<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>"
 
 
 def _forest(summary: ValidationSummary, path: Path) -> Path:
@@ -117,7 +180,7 @@ def write_validation_report(run: ValidationRun, summary: ValidationSummary, out:
     out = Path(out)
     files = {"summary": out / "summary.json", "csv": out / "targets.csv", "html": out / "report.html"}
     files["summary"].write_text(json.dumps(summary.model_dump(), indent=1, default=float))
-    _frame(run).to_csv(files["csv"], index=False)
+    _frame(run, summary).to_csv(files["csv"], index=False)
     files["forest"] = _forest(summary, out / "vs_nominal.png")
     files["strip"] = _strip(run, summary, out / "regrets.png")
     crit = summary.criteria
@@ -138,6 +201,13 @@ def write_validation_report(run: ValidationRun, summary: ValidationSummary, out:
         reveal = ("<h2>The targets' θ (revealed after scoring)</h2>"
                   f"<pre>{html.escape(json.dumps(summary.truths, indent=1))}</pre>")
     s = run.settings
+    if summary.interim:
+        strata_words = "The strata are assigned from the hidden θ and shown in the final report only."
+    else:
+        counts = {name: summary.strata.count(name) for name in s.primary.strata}
+        strata_words = "Targets per stratum: " + ", ".join(
+            f"{name} {c} ({html.escape(s.primary.strata[name].definition)}; planned {s.primary.strata[name].planned:g})"
+            for name, c in counts.items()) + "."
     bc = s.bc_agents  # checkpoints the study trains: agents too, though not named in the settings
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>proxybench validate</title>
 <style>body{{font-family:sans-serif;max-width:1150px;margin:2em auto;line-height:1.4;padding:0 1em}}
@@ -149,14 +219,18 @@ td:first-child{{text-align:left}}</style></head><body>
 {html.escape(s.family)}: {summary.targets} targets drawn from a hidden seed (revealed below, after scoring, in the final
 report only);
 no real robot was involved.</div>
-<p><b>{html.escape(answer(summary))}</b></p>
+<h2>The primary comparison: PRPV against the calibrations, per stratum</h2>
+<p><b>{html.escape(answer(summary))}</b></p>{_primary_table(summary)}
+<p>Differences of quality on the held-out agents (PRPV/K(K−1), B on E2): the oracle cancels. A continuous pick
+(trajectory_fit, calibration) is not a grid candidate, so its regret against the grid's oracle can be below 0.
+{strata_words}</p>
 <p>Criteria written {html.escape(crit.written)} at commit {html.escape(crit.commit)} (now
 {html.escape(crit.commit_now)}); {check}. Per target: {len(s.agents) + bc} agents ({len(s.agents)} named,
 {bc} behaviour-cloned checkpoints) split into tuning (A) and
 held-out (B) sets; {s.episodes_tune} tuning and {s.episodes_eval} fresh evaluation episodes of
-{s.seconds:g} s; candidates: the grid {html.escape(json.dumps({k: list(v) for k, v in s.grid.items()}))} and the
-nominal θ.</p>
-<h2>Every method against the nominal θ</h2>{_table(summary)}{_img(files['forest'])}
+{s.seconds:g} s; candidates: the grid {html.escape(json.dumps({k: list(v) for k, v in s.grid.items()}))} (the
+nominal θ at its centre) and the continuous methods' picks.</p>
+<h2>Every method against the nominal θ (secondary)</h2>{_table(summary)}{_img(files['forest'])}
 <h2>Regret per target</h2>{_img(files['strip'])}
 {reveal}
 <details><summary>settings</summary><pre>{html.escape(json.dumps(s.model_dump(mode='json'), indent=1))}</pre></details>

@@ -9,9 +9,13 @@ keeping the nominal calibration is a real competitor that can lose:
 2. the target runs A on episodes E1 and B on fresh episodes E2 (its own seeds per target);
 3. every candidate θ (a grid over the search space, and the nominal calibration) replays all of them;
 4. each method (:data:`~proxybench.usefulness.validation.METHODS`: PRPV, ε-PRPV, probabilistic PRPV, PPV,
-   Pearson, Spearman, Kendall, MMRV, trajectory matching, and the nominal θ) picks θ from A on E1;
-5. the pick is judged on B on E2 (:func:`~proxybench.usefulness.validation.quality`): its regret against the
-   oracle θ (the best candidate for B on E2 in hindsight), paired against the nominal θ's.
+   Pearson, Spearman, Kendall, MMRV, trajectory matching, and the nominal θ) picks θ from A on E1; two pick a
+   continuous θ instead: ``trajectory_fit`` (trajectory matching over continuous θ, from the best grid
+   candidate) and ``calibration`` (scripted drives on the target, no simulator: trim and command delay);
+5. the pick is judged on B on E2 (:func:`~proxybench.usefulness.validation.quality`; a continuous pick is
+   replayed like a candidate): the primary comparison is PRPV's quality against the calibrations', per stratum
+   (near and far, from the hidden θ), against a margin; the regret against the oracle θ (the best grid
+   candidate for B on E2 in hindsight) is paired against the nominal θ's as before.
 
 ``criteria.json`` — the endpoints, the test, the minimum detectable effect, the commit and a hash of the
 scoring code — is written before the first episode and never rewritten; every finished target and every look
@@ -40,9 +44,22 @@ from proxybench.experiments.agent_args import AgentArgError, parse_agents
 from proxybench.experiments.config import ConfigError
 from proxybench.experiments.proxies import proxy_params
 from proxybench.experiments.validate import registration
-from proxybench.experiments.validate.config import FAMILIES, PYTHON, ValidateConfig, ValidateSettings, settings_for
-from proxybench.experiments.validate.measures import QUALITIES, TargetRecord, ValidationSummary, regrets
-from proxybench.experiments.validate.scoring import ValidationRun, score_target, summarize
+from proxybench.experiments.validate.config import (
+    FAMILIES,
+    PYTHON,
+    ValidateConfig,
+    ValidateSettings,
+    nominal_theta,
+    settings_for,
+)
+from proxybench.experiments.validate.measures import (
+    QUALITIES,
+    ContinuousPick,
+    TargetRecord,
+    ValidationSummary,
+    regrets,
+)
+from proxybench.experiments.validate.scoring import ValidationRun, calibrated_theta, score_target, summarize
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job
 from proxybench.runner.replay import replay_runs
@@ -123,14 +140,9 @@ def _family_targets(s: ValidateSettings, draw_seed: int, out: Path) -> list[Any]
 
 
 def _candidates(s: ValidateSettings) -> list[dict[str, float]]:
-    """Every grid point, then the nominal calibration if the grid does not hold it."""
+    """Every grid point (the nominal θ is the grid's centre: settings_for sees to it)."""
     names = list(s.grid)
-    points = [dict(zip(names, values, strict=True)) for values in itertools.product(*s.grid.values())]
-    nominal = proxy_params(tuple(s.image_size))
-    here = {n: float(getattr(nominal, n)) for n in names}
-    if here not in points:
-        points.append(here)
-    return points
+    return [dict(zip(names, map(float, values), strict=True)) for values in itertools.product(*s.grid.values())]
 
 
 def _replay_jobs(specs: dict[str, AgentSpec], tgt: TargetRun, dom: DomainSpec, metrics) -> list[Job]:
@@ -154,9 +166,93 @@ def _recorded_runs(tgt: TargetRun) -> list[tuple[np.ndarray, np.ndarray, tuple, 
     return out
 
 
+#: the calibration drives (zoo agents, :mod:`proxybench.agents.calibration`): episodes of each and their length
+_DRIVES = ("calib-straight", "calib-step")
+_DRIVE_EPISODES = 2
+_DRIVE_SECONDS = 6.0
+#: the trajectory fit's budget: evaluations of the mean trajectory error (each replays every tuning run)
+_FIT_EVALUATIONS = 40
+
+
+def _calibration(target: Target, s: ValidateSettings, kw: dict[str, Any], stage) -> tuple[ContinuousPick, int]:
+    """Run the calibration drives on the target (target episodes: counted) and estimate θ from them; (the pick or
+    why there is none, episodes run)."""
+    from proxybench.agents.calibration import STEP_TIME
+    from proxybench.tasks.trajectory import Trajectory
+    from proxybench.usefulness.calibration import curvature_per_trim
+
+    fixed = getattr(target, "fixed_agents", None)
+    if fixed is not None and not set(_DRIVES) <= set(fixed):
+        return calibrated_theta(s, [], [], per_trim=1.0, step_time=STEP_TIME,
+                                reason="the target is a recording: it cannot drive the calibration drives"), 0
+    run = target.run([AgentSpec(a) for a in _DRIVES], episodes=list(range(_DRIVE_EPISODES)),
+                     progress=stage("calibration drives on the target"), **{**kw, "seconds": _DRIVE_SECONDS})
+    tracks: dict[str, list[tuple[np.ndarray, ...]]] = {a: [] for a in _DRIVES}
+    for (agent, _e), path in sorted(run.files.items()):
+        tr = Trajectory.load(path)
+        tracks[agent].append((tr["t"], tr["x"], tr["y"], tr["theta"]))
+    nominal = proxy_params(tuple(s.image_size))  # the robot model a lab knows: the DB18's
+    per_trim = curvature_per_trim(kinematic=nominal.dynamics == "kinematic", wheel_distance=nominal.wheel_distance,
+                                  v_decay=nominal.v_decay, v_gain=nominal.v_gain, w_decay=nominal.w_decay,
+                                  w_gain=nominal.w_gain)
+    pick = calibrated_theta(s, tracks["calib-straight"], [r[:3] for r in tracks["calib-step"]], per_trim=per_trim,
+                            step_time=STEP_TIME)
+    return pick, run.ran
+
+
+#: parameters that change an open-loop replay (no camera): trajectory matching can identify only these
+_MOTION = {"trim", "gain", "command_delay", "v_decay", "v_gain", "w_decay", "w_gain", "kinematic_max_speed",
+           "wheel_distance", "wheel_radius", "motor_deadband", "motor_saturation", "slip_speed", "slip_turn",
+           "motor_gamma_left", "motor_gamma_right", "delay_jitter"}
+
+
+def _trajectory_fit(grid: list[dict[str, float]], traj_err: list[float], t_a: TargetRun,
+                    s: ValidateSettings) -> ContinuousPick:
+    """Trajectory matching over continuous θ: from the grid candidate with the lowest trajectory error, bounded
+    Powell over the grid's motion parameters within their draw range (:data:`_FIT_EVALUATIONS` evaluations of the
+    mean trajectory error over the tuning runs' open-loop replays); the others (a camera) stay nominal, as no
+    replay without a camera can see them."""
+    from scipy.optimize import minimize
+
+    runs = _recorded_runs(t_a)
+    err = np.asarray(traj_err, float)
+    if not runs or not np.isfinite(err).any():
+        return ContinuousPick(theta=None, reason="the target's runs carry no pose: no trajectory to match")
+    start = grid[int(np.nanargmin(err))]
+    theta = {**start, **{n: v for n, v in nominal_theta(s.grid).items() if n not in _MOTION}}
+    free = [n for n in s.grid if n in _MOTION]
+    if not free:
+        return ContinuousPick(theta=theta, score=float(np.nanmin(err)))
+    draw = s.proxy_draw()
+    bounds = [(min(draw.get(n, s.grid[n])), max(draw.get(n, s.grid[n]))) for n in free]
+    scale = np.array([hi - lo for lo, hi in bounds])
+    lows = np.array([lo for lo, _ in bounds])
+
+    def error(z: np.ndarray) -> float:  # z: the free parameters scaled to [0, 1] over their bounds
+        values = lows + np.clip(z, 0.0, 1.0) * scale
+        return _mean_error({**theta, **dict(zip(free, map(float, values), strict=True))}, runs, t_a.map, s)
+
+    z0 = np.clip((np.array([theta[n] for n in free]) - lows) / scale, 0.0, 1.0)  # a grid end may lie outside the draw
+    best = minimize(error, z0, method="Powell", bounds=[(0.0, 1.0)] * len(free),
+                    options={"maxfev": _FIT_EVALUATIONS, "xtol": 1e-3, "ftol": 1e-4})
+    z, value = (best.x, float(best.fun)) if best.fun <= np.nanmin(err) else (z0, float(np.nanmin(err)))
+    values = lows + np.clip(z, 0.0, 1.0) * scale
+    return ContinuousPick(theta={**theta, **{n: round(float(v), 6) for n, v in zip(free, values, strict=True)}},
+                          score=value)
+
+
+def _mean_error(theta: dict[str, float], runs, map_name: str, s: ValidateSettings) -> float:
+    """The mean distance [m] between the recorded runs and their open-loop replays under θ."""
+    params = proxy_params(tuple(s.image_size), **theta)
+    replays = replay_runs(map_name, params, [(t, pwm, pose, seed) for t, pwm, pose, seed, _ in runs], s.seconds)
+    return float(np.nanmean([validation.trajectory_error(rep, r[4]) for rep, r in zip(replays, runs, strict=True)]))
+
+
 def run_target(k: int, target: Target, s: ValidateSettings, specs: list[AgentSpec], run_dir: Path,
                backend: Backend, progress: Progress | None = None) -> TargetRecord:
-    """Run target ``k`` (its episodes, every candidate's replays, the trajectory replays) and score it."""
+    """Run target ``k``: its episodes (the tuning agents on E1, the held-out agents on E2, the calibration drives),
+    the methods' continuous picks, every candidate's replays (the grid: both halves; a continuous pick: the
+    held-out half), and score it."""
     rng = np.random.default_rng([s.seed, k, 0x5B1])
     order = rng.permutation(len(specs))
     n_a = max(2, min(len(specs) - 2, round(len(specs) * s.tuning_share)))
@@ -171,12 +267,28 @@ def run_target(k: int, target: Target, s: ValidateSettings, specs: list[AgentSpe
           "run_dir": run_dir, "backend": backend}
     t_a = target.run(tune, episodes=e1, progress=stage("tuning agents on the target"), **kw)
     t_b = target.run(held, episodes=e2, progress=stage("held-out agents on the target"), **kw)
+    grid = _candidates(s)
+    # the methods that pick a θ of their own
+    continuous: dict[str, ContinuousPick] = {}
+    drives_ran = 0
+    if "calibration" in s.methods:
+        continuous["calibration"], drives_ran = _calibration(target, s, kw, stage)
+    wants_traj = "trajectory" in s.methods or "trajectory_fit" in s.methods
+    traj_err = _trajectory_errors(grid, t_a, s) if wants_traj else None
+    if "trajectory_fit" in s.methods and traj_err is not None:
+        continuous["trajectory_fit"] = _trajectory_fit(grid, traj_err, t_a, s)
+    extra = []
+    for c in continuous.values():
+        if c.theta is not None and c.theta not in grid and c.theta not in extra:
+            extra.append(c.theta)
+    cands = [*grid, *extra]
+    # every candidate replays the held-out runs; the grid's also the tuning runs (the grid methods pick from them)
     by_label = {a.label: a for a in specs}
-    cands = _candidates(s)
     jobs_a, jobs_b = [], []
     for c, theta in enumerate(cands):
         dom = DomainSpec(f"candidate {c}", proxy_params(size, **theta))
-        jobs_a.append(_replay_jobs(by_label, t_a, dom, metrics))
+        if c < len(grid):
+            jobs_a.append(_replay_jobs(by_label, t_a, dom, metrics))
         jobs_b.append(_replay_jobs(by_label, t_b, dom, metrics))
     flat = [j for js in (*jobs_a, *jobs_b) for j in js]
     sweep = run_jobs(flat, run_dir, backend,
@@ -184,11 +296,11 @@ def run_target(k: int, target: Target, s: ValidateSettings, specs: list[AgentSpe
     results = dict(zip((j.key for j in flat), sweep.results, strict=True))
     prox_a = [by_agent(js, [results[j.key] for j in js], metrics) for js in jobs_a]
     prox_b = [by_agent(js, [results[j.key] for j in js], metrics) for js in jobs_b]
-    traj_err = _trajectory_errors(cands, t_a, s) if "trajectory" in s.methods else None
-    record = score_target(s, k, cands, t_a.results, t_b.results, prox_a, prox_b, traj_err)
+    record = score_target(s, k, cands, t_a.results, t_b.results, prox_a, prox_b, traj_err, continuous)
     return record.model_copy(update={
         "target": getattr(target, "name", f"target-{k}"), "map": map_name, "tuning_agents": [a.label for a in tune],
-        "heldout_agents": [a.label for a in held], "seed": seed_t, "episodes_run": t_a.ran + t_b.ran + sweep.ran})
+        "heldout_agents": [a.label for a in held], "seed": seed_t,
+        "episodes_run": t_a.ran + t_b.ran + drives_ran + sweep.ran})
 
 
 def _trajectory_errors(cands: list[dict[str, float]], t_a: TargetRun, s: ValidateSettings) -> list[float]:
@@ -196,13 +308,7 @@ def _trajectory_errors(cands: list[dict[str, float]], t_a: TargetRun, s: Validat
     runs = _recorded_runs(t_a)
     if not runs:
         return [float("nan")] * len(cands)
-    out = []
-    for theta in cands:
-        params = proxy_params(tuple(s.image_size), **theta)
-        replays = replay_runs(t_a.map, params, [(t, pwm, pose, seed) for t, pwm, pose, seed, _ in runs], s.seconds)
-        out.append(float(np.nanmean([validation.trajectory_error(rep, r[4]) for rep, r in zip(replays, runs,
-                                                                                               strict=True)])))
-    return out
+    return [_mean_error(theta, runs, t_a.map, s) for theta in cands]
 
 
 def run_validate(cfg: ValidateConfig, out: str | Path, backend: Backend | None = None,

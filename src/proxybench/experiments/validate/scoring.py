@@ -14,26 +14,37 @@ from typing import Any
 
 import numpy as np
 
-from proxybench.experiments.proxies import proxy_params
-from proxybench.experiments.validate.config import ValidateSettings
+from proxybench.experiments.validate.config import ValidateSettings, nominal_theta, stratum_of
 from proxybench.experiments.validate.measures import (
     QUALITIES,
+    ContinuousPick,
     CriteriaCheck,
     HitRate,
     MeasureSummary,
     MethodSummary,
     Pick,
     Primary,
+    PrimaryTest,
     Quality,
     TargetRecord,
     ValidationSummary,
     oracle_steps,
+    qualities,
     regrets,
 )
 from proxybench.tasks.metrics import METRICS as TASK_METRICS
-from proxybench.usefulness.validation import METHODS, minimum_detectable_effect, pick, quality, selection_scores
+from proxybench.usefulness import calibration
+from proxybench.usefulness.validation import (
+    CONTINUOUS,
+    METHODS,
+    margin_test,
+    minimum_detectable_effect,
+    pick,
+    quality,
+    selection_scores,
+)
 
-__all__ = ["ValidationRun", "score_target", "summarize"]
+__all__ = ["ValidationRun", "calibrated_theta", "score_target", "summarize"]
 
 
 @dataclass
@@ -53,31 +64,95 @@ class ValidationRun:
     scoring_unchanged: bool = True
 
 
+def calibrated_theta(s: ValidateSettings, straight: list[tuple[np.ndarray, ...]], step: list[tuple[np.ndarray, ...]],
+                     *, per_trim: float, step_time: float, reason: str = "") -> ContinuousPick:
+    """The ``calibration`` method's θ: trim from the straight drives ((t, x, y, θ) each), the command delay from the
+    step drives ((t, x, y) each, the command stepped at ``step_time``), each the median over the drives, clipped
+    to its draw range (the grid's range when it is not drawn); the grid's other parameters stay nominal (a drive
+    cannot see a camera). Not applicable (``theta`` None, with the reason) when there is nothing to read."""
+    if reason:
+        return ContinuousPick(theta=None, reason=reason)
+    if not straight and not step:
+        return ContinuousPick(theta=None, reason="the target's drives carry no pose (a recording of scores only): "
+                                                 "nothing to calibrate from")
+    draw = s.proxy_draw()
+    estimate = {"trim": float(np.nanmedian([calibration.trim_from_drive(*r, per_trim) for r in straight]))
+                if straight else float("nan"),
+                "command_delay": float(np.nanmedian([calibration.delay_from_step(*r, step_time) for r in step]))
+                if step else float("nan")}
+    theta = nominal_theta(s.grid)
+    for name in theta:
+        if name in estimate:
+            if not np.isfinite(estimate[name]):
+                return ContinuousPick(theta=None, estimate=estimate,
+                                      reason=f"the drives did not move the robot enough to read its {name}")
+            lo, hi = min(draw.get(name, s.grid[name])), max(draw.get(name, s.grid[name]))
+            theta[name] = float(np.clip(estimate[name], lo, hi))
+    return ContinuousPick(theta=theta, estimate=estimate)
+
+
 def score_target(s: ValidateSettings, k: int, cands: list[dict[str, float]], target_a, target_b, prox_a: list,
-                 prox_b: list, traj_err: list[float] | None) -> TargetRecord:
-    """Each method's pick from the tuning agents, and the quality of every candidate on the held-out agents."""
+                 prox_b: list, traj_err: list[float] | None,
+                 continuous: dict[str, ContinuousPick] | None = None) -> TargetRecord:
+    """Each method's pick from the tuning agents, and the quality of every candidate on the held-out agents.
+
+    ``cands``: the grid (``prox_a``: the tuning agents in each), then the continuous picks' θ; ``prox_b``: the
+    held-out agents in every candidate; ``traj_err``: the grid's trajectory errors; ``continuous``: per continuous
+    method, its θ (one of ``cands``) or why it has none."""
     higher = tuple(TASK_METRICS[m].higher_is_better for m in s.metrics)
-    qualities = [Quality(**quality(p, target_b, higher, k=s.top_k).as_dict()) for p in prox_b]
-    nominal = proxy_params(tuple(s.image_size))
-    nominal_index = next(c for c, theta in enumerate(cands)
-                         if all(abs(theta[n] - float(getattr(nominal, n))) < 1e-9 for n in theta))
+    qualities_b = [Quality(**quality(p, target_b, higher, k=s.top_k).as_dict()) for p in prox_b]
+    grid_size = len(prox_a)
+    nominal = nominal_theta(s.grid)
+    nominal_index = next(c for c, theta in enumerate(cands[:grid_size])
+                         if all(abs(theta[n] - nominal[n]) < 1e-9 for n in theta))
     tol = [s.tolerances[m] for m in s.metrics]
-    picks, scores = {}, {}
+    picks, scores, not_applicable, estimates = {}, {}, {}, {}
     for method in s.methods:
+        if method in CONTINUOUS:  # a θ of its own, judged like a candidate
+            c = (continuous or {}).get(method) or ContinuousPick(theta=None, reason="not run")
+            if c.estimate:
+                estimates[method] = c.estimate
+            if c.theta is None:
+                not_applicable[method] = c.reason
+                continue
+            picks[method] = Pick(index=cands.index(c.theta), ties=1)
+            scores[method] = [c.score]
+            continue
         if method == "nominal":
-            values = np.array([0.0 if c == nominal_index else 1.0 for c in range(len(cands))])
+            values = np.array([0.0 if c == nominal_index else 1.0 for c in range(grid_size)])
         elif method == "trajectory":
-            values = np.asarray(traj_err if traj_err is not None else [np.nan] * len(cands), float)
+            values = np.asarray(traj_err if traj_err is not None else [np.nan] * grid_size, float)
         else:
             values = selection_scores(method, prox_a, target_a, higher, tolerances=tol, n_boot=s.n_boot,
                                       seed=s.seed + k)
         if not np.isfinite(values).any():
+            not_applicable[method] = "no finite score on any candidate (for trajectory: no recorded poses)"
             continue
         index, ties = pick(np.where(np.isfinite(values), values, np.inf),
                            np.random.default_rng([s.seed, k, METHODS.index(method)]))
         picks[method] = Pick(index=index, ties=ties)
         scores[method] = [float(v) for v in values]
-    return TargetRecord(candidates=cands, nominal_index=nominal_index, quality=qualities, picks=picks, scores=scores)
+    return TargetRecord(candidates=cands, nominal_index=nominal_index, quality=qualities_b, picks=picks,
+                        scores=scores, grid_size=grid_size, not_applicable=not_applicable, estimates=estimates)
+
+
+def primary_tests(s: ValidateSettings, recs: list[TargetRecord], strata: list[str] | None) -> list[PrimaryTest]:
+    """The pre-registered primary comparison: per stratum (``strata``: each record's, from the hidden θ; None at
+    an interim look: every record together, stratum ``all``) and calibration, PRPV − calibration in the quality of
+    the pick on the held-out agents, against the margin."""
+    if "prpv" not in s.methods:
+        return []
+    groups = ({"all": recs} if strata is None else
+              {name: [r for r, st in zip(recs, strata, strict=True) if st == name] for name in s.primary.strata})
+    out = []
+    for other in (m for m in s.primary.comparisons if m in s.methods):
+        for stratum, group in groups.items():
+            test = margin_test("prpv", other, [qualities(r, "prpv") for r in group],
+                               [qualities(r, other) for r in group], s.margin, alpha=s.alpha, power=s.power,
+                               fallback_sd=s.assumed_sd)
+            out.append(PrimaryTest(**test.as_dict(), stratum=stratum,
+                                   not_applicable=sum(other in r.not_applicable for r in group)))
+    return out
 
 
 def summarize(run: ValidationRun, criteria: dict[str, Any] | None = None) -> ValidationSummary:
@@ -94,7 +169,7 @@ def summarize(run: ValidationRun, criteria: dict[str, Any] | None = None) -> Val
     check = CriteriaCheck(written=criteria["written"], commit=criteria["commit"], commit_now=source_commit(),
                           scoring_unchanged=run.scoring_unchanged,
                           minimum_detectable_effect=criteria["minimum_detectable_effect"], problems=run.problems)
-    methods = [m for m in s.methods if any(m in r.picks for r in recs)]
+    methods = [m for m in s.methods if any(m in r.picks or m in r.not_applicable for r in recs)]
     nominal = {m: [regrets(r, "nominal", m) for r in recs] for m in QUALITIES}
     out: dict[str, MethodSummary] = {}
     for method in methods:
@@ -107,9 +182,12 @@ def summarize(run: ValidationRun, criteria: dict[str, Any] | None = None) -> Val
                 vs_nominal=compare(method, "nominal", rg, nominal[measure], seed=s.seed))
         hits = [oracle_steps(r, r.picks[method].index, s.grid) <= 1 for r in recs if method in r.picks]
         lo, hi = wilson(sum(hits), len(hits)) if hits else (float("nan"), float("nan"))
+        ties = [r.picks[method].ties for r in recs if method in r.picks]
+        reasons = [r.not_applicable[method] for r in recs if method in r.not_applicable]
         out[method] = MethodSummary(**measures, hit_rate=HitRate(hits=int(sum(hits)), targets=len(hits), low=lo,
                                                                  high=hi),
-                                    ties=float(np.mean([r.picks[method].ties for r in recs if method in r.picks])))
+                                    ties=float(np.mean(ties)) if ties else float("nan"),
+                                    not_applicable=len(reasons), reasons=sorted(set(reasons)))
     interim = len(recs) < s.targets
     primary = None
     if "prpv" in out:
@@ -120,10 +198,12 @@ def summarize(run: ValidationRun, criteria: dict[str, Any] | None = None) -> Val
         primary = Primary(**first.as_dict(), alpha=s.alpha, rejected=bool(first.p_wilcoxon < s.alpha), d_z=mde,
                           minimum_detectable_difference=float(mde * first.sd) if np.isfinite(first.sd)
                           else float("nan"))
-    truths = []
-    if not interim:  # the reveal waits for the final report
+    truths, strata = [], []
+    if not interim:  # the reveal (θ and with it each target's stratum) waits for the final report
         indices = run.indices or list(range(len(recs)))
         reveal = [getattr(run.targets[i], "reveal", dict)() for i in indices]
         truths = [{k: v for k, v in tr.items() if k in s.grid or k in s.draw} for tr in reveal]
+        strata = [stratum_of(s.to_proxy(tr), s.near) for tr in reveal]
     return ValidationSummary(settings=s, targets=len(recs), interim=interim, methods=out, criteria=check,
-                             primary=primary, truths=truths, wall_s=run.wall_s)
+                             primary_tests=primary_tests(s, recs, None if interim else strata), primary=primary,
+                             truths=truths, strata=strata, wall_s=run.wall_s)
