@@ -38,7 +38,8 @@ def _run(rec, out, **kw):
     return run_own_target(cfg, out, splits=24, boot=8, boot_splits=4)
 
 
-def test_the_study_on_a_recording_writes_its_files_and_its_answer_comes_back_from_the_seed(recording, tmp_path):
+def test_the_study_on_a_recording_writes_its_files_and_its_answer_comes_back_from_the_seed(recording, tmp_path,
+                                                                                            monkeypatch):
     res = _run(recording, tmp_path / "a")
     files = write_own_target_report(res, tmp_path / "a")
     assert {p.name for p in files} == {"own_target.json", "splits.csv", "own_target_splits.png", "report.html"}
@@ -46,7 +47,8 @@ def test_the_study_on_a_recording_writes_its_files_and_its_answer_comes_back_fro
     s = summary.settings
     assert s.agents == SIX and s.episodes == (0, 1, 2, 3) and s.tuning_agents == 3 and len(s.candidates) == 3
     assert s.candidates[s.nominal_index] == {"trim": 0.0}
-    assert summary.simulated is True and s.target_kind == "recorded (proxybench's reality model)"
+    assert summary.simulated is True
+    assert s.target_kind == summary.target_kind == "recorded (proxybench's reality model)"
     assert summary.answer.startswith("SIMULATED TARGET (recorded") and "over 24 splits" in summary.answer
     assert set(summary.methods) == {"prpv", "eps_prpv", "trajectory", "nominal"}
     for a in summary.methods.values():
@@ -75,6 +77,11 @@ def test_the_study_on_a_recording_writes_its_files_and_its_answer_comes_back_fro
     assert (tmp_path / "a" / "settings.json").read_bytes() == before
     resumed = _run(recording, tmp_path / "a")  # the same settings resume from the cache: nothing runs
     assert resumed.summary.episodes_run == 0 and resumed.rows == res.rows
+    assert resumed.summary.scoring_unchanged
+    monkeypatch.setattr(own_target, "_scoring_hash", lambda: "other code")  # changed code: said, not refused
+    changed = _run(recording, tmp_path / "a")
+    assert not changed.summary.scoring_unchanged and changed.rows == res.rows
+    assert (tmp_path / "a" / "settings.json").read_bytes() == before
 
 
 def test_the_splits_are_the_study_design_on_a_table_where_tuning_must_help():

@@ -129,6 +129,8 @@ class OwnTargetSummary(_Model):
     """own_target.json: what the target was, every setting, and each method's answer."""
 
     settings: OwnTargetSettings
+    target_kind: str
+    """the target's kind once it ran (a robot node says what it is only then; settings.json has it as first seen)"""
     target_label: str
     target_statement: str
     simulated: bool | None
@@ -318,7 +320,7 @@ def _tag(simulated: bool | None) -> str:
 def answer(summary: OwnTargetSummary) -> str:
     """The answer in a few sentences: the target's nature first, then PRPV's (or the first method's) verdict."""
     s = summary.settings
-    head = f"{_tag(summary.simulated)} ({s.target_kind}): {summary.target_label}."
+    head = f"{_tag(summary.simulated)} ({summary.target_kind}): {summary.target_label}."
     tuned = [m for m in s.methods if m != "nominal" and m in summary.methods]
     if not tuned:
         return head + " No method but the nominal θ picked: nothing to compare."
@@ -580,14 +582,15 @@ def run_own_target(cfg: ValidateConfig, out: str | Path, backend: Any = None, pr
         notes.append("trajectory: the target left no trajectories (wheel commands and poses), so trajectory matching "
                      "did not pick")
     rows, boots = evaluate_splits(tab, s, progress)
+    if written["commit"] != source_commit():
+        notes.append(f"settings.json was written at commit {written['commit']}; this run is {source_commit()}")
     info = target.info()
-    summary = OwnTargetSummary(settings=s, target_label=info.label, target_statement=info.statement,
-                               simulated=info.simulated, methods=summarize_splits(rows, boots, s), answer="",
+    summary = OwnTargetSummary(settings=s, target_kind=kind_words(info), target_label=info.label,
+                               target_statement=info.statement, simulated=info.simulated,
+                               methods=summarize_splits(rows, boots, s), answer="",
                                notes=notes, written=written["written"], commit=written["commit"],
                                scoring_unchanged=written["settings"]["scoring_sha256"] == _scoring_hash(),
                                episodes_run=tgt.ran + ran, wall_s=round(time.perf_counter() - t0, 1))
-    if written["commit"] != source_commit():
-        notes.append(f"settings.json was written at commit {written['commit']}; this run is {source_commit()}")
     summary = summary.model_copy(update={"answer": answer(summary)})
     return OwnTargetResult(summary, rows, settings_sha)
 
@@ -626,9 +629,11 @@ def _histogram(result: OwnTargetResult, out: Path) -> Path:
         ax.axvline(0.0, color="k", lw=0.8)
         ax.axvline(a.median, color="#c44e52", lw=1.5)
         ax.axvspan(a.median_low, a.median_high, color="#c44e52", alpha=0.15)
-        ax.set_ylabel(m)
-    axes[-1, 0].set_xlabel("tuned − nominal, held-out PRPV/K(K−1) per split (left of 0: tuning helped); red: median "
-                           "and its 95 % episode bootstrap")
+        ax.axvline(a.mean, color="#c44e52", lw=1.0, ls="--")
+        ax.set_ylabel(f"{m}\nsplits")
+    axes[-1, 0].set_xlabel("tuned − nominal, held-out PRPV/K(K−1) (left of 0: tuning helped)")
+    fig.suptitle("Over splits; red: the median (solid, its 95 % episode bootstrap shaded) and the mean (dashed)",
+                 fontsize=9)
     fig.tight_layout()
     return save_figure(fig, out / "own_target_splits.png")
 
@@ -656,7 +661,7 @@ def write_own_target_report(result: OwnTargetResult, out: str | Path, *, wall: f
 #ddd;text-align:right}}</style></head><body>
 <h1>Does tuning help on this target?</h1>
 <div style="background:{colour};border:1px solid #ccc;padding:.6em 1em"><b>{_tag(summary.simulated)}</b>
-({html.escape(s.target_kind)}). {html.escape(summary.target_statement)}</div>
+({html.escape(summary.target_kind)}). {html.escape(summary.target_statement)}</div>
 <p><b>{html.escape(summary.answer)}</b></p>
 {"".join(f"<p><i>{html.escape(n)}</i></p>" for n in summary.notes)}
 <h2>Every method against the nominal θ</h2>
