@@ -29,15 +29,21 @@ def _report(env: GymEnvironment) -> None:
 @gym_app.command("setup")
 def gym_setup(path: Path | None = _PATH) -> None:
     """Create gym-duckietown's own environment (pinned versions) and install the Debian packages it needs
-    (as root; otherwise the command to run is printed). Running it again changes nothing."""
+    (as root; otherwise the command to run is printed). Says each step, pip's progress and the time taken
+    (minutes, more on a busy machine); run again, it says what is in place and only checks (seconds)."""
     import subprocess
 
+    from rich.markup import escape
+
     from proxybench.gym.environment import setup_environment
+    from proxybench.venv import PipError
 
     try:
-        env = setup_environment(path, say=lambda s: console.print(s, highlight=False))
+        env = setup_environment(path, say=lambda s: console.print(escape(s), highlight=False))
     except subprocess.CalledProcessError as exc:
         raise fail(f"{' '.join(map(str, exc.cmd))} failed (exit status {exc.returncode})", mark="✗") from None
+    except PipError as exc:
+        raise fail(exc, mark="✗") from None
     _report(env)
 
 

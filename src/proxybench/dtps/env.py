@@ -17,7 +17,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from proxybench.venv import VenvStatus, cache_folder, make_venv
+from proxybench.venv import PipError, Steps, VenvStatus, cache_folder, duration, make_venv, pip_install
 from proxybench.venv import venv_python as _python
 
 __all__ = ["PACKAGES", "DtpsEnvError", "EnvStatus", "check_env", "env_path", "sdk_environ", "sdk_python",
@@ -76,13 +76,12 @@ def turbojpeg_found() -> bool:
     return ctypes.util.find_library("turbojpeg") is not None
 
 
-def _install_turbojpeg(say) -> str | None:
+def _install_turbojpeg() -> str | None:
     """Install libturbojpeg0 with apt as root; None when done, else the problem with the command to run."""
     if turbojpeg_found():
         return None
     if os.geteuid() != 0 or shutil.which("apt-get") is None:
         return f"libturbojpeg.so.0 is missing (duckietown-sdk decodes camera frames with it): run `sudo {_APT}`"
-    say(f"installing libturbojpeg0: {_APT}")
     env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
     run = subprocess.run(_APT.split(), capture_output=True, text=True, env=env)
     if run.returncode != 0:  # a fresh machine has no package lists yet
@@ -95,23 +94,46 @@ def _install_turbojpeg(say) -> str | None:
 
 
 def setup_env(path: str | Path | None = None, *, say=print) -> EnvStatus:
-    """Make (or complete) the SDK environment; idempotent: an environment holding :data:`PACKAGES` is kept."""
+    """Make (or complete) the SDK environment; idempotent: an environment holding :data:`PACKAGES` is kept, and a
+    run with nothing to do says so and only checks. Says each step (``2/4 ...``) with its time, pip's progress
+    and the total: a fresh setup takes minutes."""
     where = env_path(path)
-    problem = _install_turbojpeg(say)
+    steps = Steps(4, say)
+    if turbojpeg_found():
+        steps.in_place("libturbojpeg.so.0 (camera frames are JPEG): in place")
+        problem = None
+    elif os.geteuid() != 0 or shutil.which("apt-get") is None:
+        problem = _install_turbojpeg()
+        steps.in_place(f"libturbojpeg.so.0 missing: {problem}")
+    else:
+        with steps.step(f"installing libturbojpeg0: {_APT}"):
+            problem = _install_turbojpeg()
     marker = where / _MARKER
     current = json.loads(marker.read_text()).get("packages") if marker.exists() else None
-    if current != list(PACKAGES) or not _python(where).exists():
-        make_venv(where, say, f"creating the SDK environment in {where}")
-        say(f"installing {' '.join(PACKAGES)} (a few minutes)")
-        pip = subprocess.run([str(_python(where)), "-m", "pip", "install", "-q", "--disable-pip-version-check",
-                              *PACKAGES], capture_output=True, text=True)
-        if pip.returncode != 0:
-            raise DtpsEnvError(f"pip could not install {', '.join(PACKAGES)} into {where}:\n"
-                               + "\n".join(pip.stderr.strip().splitlines()[-10:]))
-        marker.write_text(json.dumps({"packages": list(PACKAGES)}) + "\n")
-    status = check_env(where)
+    if _python(where).exists():
+        steps.in_place(f"virtual environment: in place at {where}")
+    else:
+        with steps.step(f"creating the virtual environment at {where}"):
+            make_venv(where)
+    if current == list(PACKAGES):
+        steps.in_place(f"{len(PACKAGES)} packages ({', '.join(PACKAGES)}): in place")
+    else:
+        with steps.step(f"installing {len(PACKAGES)} packages and their dependencies ({' '.join(PACKAGES)}; "
+                        "minutes)"):
+            try:
+                pip_install(_python(where), PACKAGES, say)
+            except PipError as exc:
+                raise DtpsEnvError(f"pip could not install {', '.join(PACKAGES)} into {where}:\n"
+                                   + "\n".join(exc.tail[-10:])) from None
+            marker.write_text(json.dumps({"packages": list(PACKAGES)}) + "\n")
+    with steps.step("checking that the SDK imports", work=False):
+        status = check_env(where)
     if problem and problem not in status.problems:
         status.problems.insert(0, problem)
+    if steps.worked:
+        say(f"dtps setup took {duration(steps.elapsed())}")
+    else:
+        say(f"nothing to do: the SDK environment is in place at {where} (checked in {duration(steps.elapsed())})")
     return status
 
 

@@ -17,7 +17,16 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from proxybench.venv import VenvStatus, cache_folder, make_venv, venv_python
+from proxybench.venv import (
+    Steps,
+    VenvStatus,
+    cache_folder,
+    duration,
+    make_venv,
+    pip_install,
+    requirement_count,
+    venv_python,
+)
 
 __all__ = ["APT_PACKAGES", "GYM_VERSION", "GymEnvironment", "check_environment", "default_path", "setup_environment"]
 
@@ -111,23 +120,39 @@ def _probe(env: GymEnvironment) -> None:
 
 def setup_environment(path: Path | None = None, *, say: Callable[[str], None] = print) -> GymEnvironment:
     """Create (or complete) gym's environment at ``path``; install the Debian packages when root, else say
-    the command. Idempotent: what is in place is kept."""
+    the command. Idempotent: what is in place is kept, and a run with nothing to do says so and only checks.
+    Says each step (``2/4 ...``) with its time, pip's progress, and the total: it takes minutes."""
     path = Path(path or default_path())
+    steps = Steps(4, say)
     missing = missing_apt_packages()
-    if missing and os.geteuid() == 0 and shutil.which("apt-get"):
-        say(f"installing Debian packages: {' '.join(missing)}")
-        for cmd in (["apt-get", "update", "-qq"], ["apt-get", "install", "-y", "-qq", *missing]):
-            subprocess.run(cmd, check=True, env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"})
-    elif missing:
-        say(f"Debian packages missing; as root run: {apt_command(missing)}")
-    python = venv_python(path)
-    stamp = path / _STAMP
-    if python.exists() and stamp.is_file() and stamp.read_text() == REQUIREMENTS.read_text():
-        say(f"gym-duckietown environment in place: {path}")
+    if not missing:
+        steps.in_place(f"Debian packages ({' '.join(APT_PACKAGES)}): in place")
+    elif os.geteuid() == 0 and shutil.which("apt-get"):
+        with steps.step(f"installing Debian packages: {' '.join(missing)}"):
+            for cmd in (["apt-get", "update", "-qq"], ["apt-get", "install", "-y", "-qq", *missing]):
+                subprocess.run(cmd, check=True, env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"})
     else:
-        make_venv(path, say, f"creating a virtual environment at {path}")
-        say(f"installing gym-duckietown {GYM_VERSION} and its pins into {path} (a few minutes)")
-        subprocess.run([str(python), "-m", "pip", "install", "-q", "--disable-pip-version-check", "-r",
-                        str(REQUIREMENTS)], check=True)
-        stamp.write_text(REQUIREMENTS.read_text())
-    return check_environment(path)
+        steps.in_place(f"Debian packages missing; as root run: {apt_command(missing)}")
+    python = venv_python(path)
+    if python.exists():
+        steps.in_place(f"virtual environment: in place at {path}")
+    else:
+        with steps.step(f"creating the virtual environment at {path}"):
+            make_venv(path)
+    stamp = path / _STAMP
+    wanted = REQUIREMENTS.read_text()
+    count = requirement_count(wanted.splitlines())
+    if stamp.is_file() and stamp.read_text() == wanted:
+        steps.in_place(f"gym-duckietown {GYM_VERSION} and its {count} pinned packages: in place")
+    else:
+        with steps.step(f"installing {count} packages (gym-duckietown {GYM_VERSION} and its pins; minutes)"):
+            pip_install(python, ["-r", str(REQUIREMENTS)], say, expected=count)
+            stamp.write_text(wanted)
+    with steps.step("checking that gym-duckietown renders a frame", work=False):
+        env = check_environment(path)
+    if steps.worked:
+        say(f"gym setup took {duration(steps.elapsed())}")
+    else:
+        say(f"nothing to do: gym-duckietown's environment is in place at {path} (checked in "
+            f"{duration(steps.elapsed())})")
+    return env
