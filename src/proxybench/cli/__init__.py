@@ -11,6 +11,7 @@ from proxybench.cli import (  # noqa: F401 - importing registers the commands
     learning,
     maps,
     params,
+    results,
     robot,
     sandbox,
     server,
