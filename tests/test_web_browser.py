@@ -22,7 +22,8 @@ if os.environ.get("PROXYBENCH_REQUIRE_CHROMIUM"):  # CI installs both: a missing
     assert CHROMIUM.exists(), "PROXYBENCH_REQUIRE_CHROMIUM is set but /usr/bin/chromium is missing"
     import playwright.sync_api
 if not CHROMIUM.exists():
-    pytest.skip("no /usr/bin/chromium: browser tests skipped (install it: apt-get install chromium)", allow_module_level=True)
+    pytest.skip("no /usr/bin/chromium: browser tests skipped (install it: apt-get install chromium)",
+                allow_module_level=True)
 playwright = pytest.importorskip("playwright.sync_api", reason="the 'playwright' Python package is not installed")
 
 from fastapi.testclient import TestClient  # noqa: E402
