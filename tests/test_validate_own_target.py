@@ -143,3 +143,20 @@ def test_a_recording_of_three_agents_is_refused(tmp_path):
     with pytest.raises(ConfigError, match=r"^agents: the study on one target needs at least 4 \(2 to tune, 2 to "
                                           r"judge\), got 3 \(straight, pid, pid-fast\)$"):
         run_own_target(ValidateConfig(target=str(rec), **SMALL), tmp_path / "o")
+
+
+@pytest.mark.parametrize(("kind", "details", "words"), [
+    ("recorded", {"source": "real"}, "recorded (real robots, as its manifest declares)"),
+    ("recorded", {"source": "simulation"}, "recorded (another simulator)"),
+    ("reality-model", {}, "reality model (proxybench's simulated stand-in for a Duckiebot)"),
+    ("robot", {"command": "c", "kind": ""}, "robot node"),
+    ("robot", {"command": "c", "kind": "simulation"}, "robot node, a simulator by its own word"),
+    ("robot", {"command": "c", "kind": "simulation", "simulator": {"name": "gym"}},
+     "robot node, simulated by another simulator"),
+    ("robot", {"address": "a", "link": "dtps"}, "DTPS robot"),
+])
+def test_the_answer_names_the_targets_kind(kind, details, words):
+    from proxybench.domain.kinds import DomainKind
+    from proxybench.targets.base import TargetInfo
+
+    assert own_target.kind_words(TargetInfo(DomainKind(kind), None, "x", "y", details)) == words

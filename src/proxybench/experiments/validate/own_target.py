@@ -309,7 +309,7 @@ def kind_words(info: TargetInfo) -> str:
         return "DTPS robot"
     if d.get("simulator"):
         return "robot node, simulated by another simulator"
-    return "robot node"
+    return "robot node, a simulator by its own word" if d.get("kind") == "simulation" else "robot node"
 
 
 def _tag(simulated: bool | None) -> str:
@@ -334,9 +334,12 @@ def answer(summary: OwnTargetSummary) -> str:
                    "nominal θ did)")
     else:
         verdict = "this target's episodes do not settle whether tuning helps"
-    return (f"{head} Tuning θ with {m.method} on {s.tuning_agents} of {len(s.agents)} agents ({s.episodes_tune} "
-            f"episodes each) and judging it on the other {len(s.agents) - s.tuning_agents} ({s.episodes_eval} other "
-            f"episodes): tuned − nominal PRPV/K(K−1) median {m.median:+.3f} over {m.splits} splits (helped in "
+    def eps(n: int, other: str = "") -> str:
+        return f"{n} {other}episode{'s' if n != 1 else ''}"
+
+    return (f"{head} Tuning θ with {m.method} on {s.tuning_agents} of {len(s.agents)} agents ({eps(s.episodes_tune)} "
+            f"each) and judging it on the other {len(s.agents) - s.tuning_agents} ({eps(s.episodes_eval, 'other ')}"
+            f"): tuned − nominal PRPV/K(K−1) median {m.median:+.3f} over {m.splits} splits (helped in "
             f"{m.helped:.0%}, hurt in {m.hurt:.0%}, tied in {m.tied:.0%}; {s.range_percent[0]:g}–"
             f"{s.range_percent[1]:g} % of splits in [{m.range_low:+.3f}, {m.range_high:+.3f}]); with the target's "
             f"episode noise the median lies in [{m.median_low:+.3f}, {m.median_high:+.3f}] and the mean "
