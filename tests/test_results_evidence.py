@@ -1,0 +1,180 @@
+"""The shipped evidence (issue 35, item 4): `proxybench results rebuild --check` holds on the shipped tables and
+fails, naming the number, when a shipped table, numbers.json or a tagged README quote is edited; `results export`
+ships a finished quick validate study whose numbers rebuild to its own summary, and refuses an interim study, a
+failed pre-registration check and an overwrite without --replace."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from proxybench.cli import app
+from proxybench.experiments.evidence import readme_quotes
+
+ENV = {"COLUMNS": "200", "NO_COLOR": "1"}
+REPO = Path(__file__).resolve().parents[1]
+VALIDATE = ["validate", "--quick", "--targets", "3", "--seconds", "2", "--backend", "inline"]
+
+
+def _cli(*args: str):
+    return CliRunner().invoke(app, list(args), env=ENV)
+
+
+@pytest.fixture
+def shipped(tmp_path: Path) -> Path:
+    """A copy of the repository's results/ and README.md."""
+    shutil.copytree(REPO / "results", tmp_path / "results")
+    shutil.copyfile(REPO / "README.md", tmp_path / "README.md")
+    return tmp_path
+
+
+def test_rebuild_check_passes_on_the_shipped_tables():
+    res = _cli("results", "rebuild", "--check", "--root", str(REPO))
+    assert res.exit_code == 0, res.output
+    quotes, problems = readme_quotes((REPO / "README.md").read_text())
+    assert not problems and len(quotes) >= 30  # README §5's rank-check figures are tagged
+
+
+def test_an_edited_shipped_table_fails_the_check_naming_the_number(shipped: Path):
+    csv = shipped / "results" / "rank_check_gym" / "targets.csv"
+    lines = csv.read_text().splitlines()
+    head, row = lines[0].split(","), lines[1].split(",")
+    i = head.index("decided_with")
+    row[i] = str(int(row[i]) + 5)
+    csv.write_text("\n".join([lines[0], ",".join(row), *lines[2:]]) + "\n")
+    res = _cli("results", "rebuild", "--check", "--root", str(shipped))
+    assert res.exit_code == 1, res.output
+    assert "rank_check_gym.decided_with: results/numbers.json says 207, recomputed 212" in res.output
+    assert "results/rank_check_gym/summary.json is not its recomputation" in res.output
+    assert "README.md line" in res.output and "rank_check_gym.decided_with is quoted as 207" in res.output
+
+
+def test_an_edited_number_or_quote_fails_the_check_naming_it(shipped: Path):
+    numbers = shipped / "results" / "numbers.json"
+    doc = json.loads(numbers.read_text())
+    doc["numbers"]["rank_check_heldout.worth.max"]["value"] = 1.6
+    numbers.write_text(json.dumps(doc))
+    readme = shipped / "README.md"
+    text = readme.read_text()
+    quoted = "[0, 0.09]<!-- n:rank_check_heldout.targets_wrong_with.count"
+    assert text.count(quoted) == 1
+    readme.write_text(text.replace(quoted, quoted.replace("0.09", "0.08")))
+    res = _cli("results", "rebuild", "--check", "--root", str(shipped))
+    assert res.exit_code == 1, res.output
+    assert "rank_check_heldout.worth.max: results/numbers.json says 1.6, recomputed 1.49" in res.output
+    assert "rank_check_heldout.targets_wrong_with.interval.1 is quoted as 0.08" in res.output
+    assert res.output.count("✗ ") == 2  # nothing else differs
+
+
+def test_readme_quotes_pair_names_with_the_last_figures_before_each_marker():
+    text = ("K−1 of **0 of 40** [0, 0.09]<!-- n:r.a .b .c .d --> then 1,322 vs −0.5<!-- n:s.x s.y*100 -->\n"
+            "52<!-- n:s.w/60 --> and 7<!-- n:s.p s.q -->")
+    quotes, problems = readme_quotes(text)
+    assert [(q.name, q.text) for q in quotes] == [("r.a", "0"), ("r.b", "40"), ("r.c", "0"), ("r.d", "0.09"),
+                                                   ("s.x", "1,322"), ("s.y", "−0.5"), ("s.w", "52")]
+    assert quotes[5].scale == 100 and quotes[6].scale == pytest.approx(1 / 60) and quotes[6].line == 2
+    assert problems == ["README.md line 2: the marker names 2 numbers but only 1 figures precede it"]
+
+
+# -- export of a finished quick validate study ------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("evidence") / "study"
+    res = _cli(*VALIDATE, "--out", str(out))
+    assert res.exit_code == 0, res.output
+    return out
+
+
+def _leaves(obj, prefix=""):
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            yield from _leaves(v, f"{prefix}{k}.")
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            yield from _leaves(v, f"{prefix}{i}.")
+    else:
+        yield prefix[:-1], obj
+
+
+@pytest.mark.slow
+def test_export_lands_the_files_and_rebuilds_the_study_s_own_numbers(study: Path, tmp_path: Path):
+    (tmp_path / "results").mkdir()
+    res = _cli("results", "export", str(study), "quick_validate", "--root", str(tmp_path), "--machine", "CI")
+    assert res.exit_code == 0, res.output
+    run = tmp_path / "results" / "quick_validate"
+    names = {p.relative_to(run).as_posix() for p in run.rglob("*") if p.is_file()}
+    assert names == {"README.md", "criteria.json", "looks.jsonl", "summary.json", "targets.csv", "episodes.csv.gz",
+                     "targets/000.json", "targets/001.json", "targets/002.json"}
+    for name in ("criteria.json", "looks.jsonl", "summary.json", "targets/001.json"):
+        assert (run / name).read_bytes() == (study / name).read_bytes()  # the look log's hashes still hold
+    import pandas as pd
+
+    episodes = pd.read_csv(run / "episodes.csv.gz")
+    assert set(episodes["target"]) == {0, 1, 2} and {"target", "candidate"} <= set(episodes["role"])
+    assert len(episodes) == len(list((study / "runs").rglob("episodes/*.json")))
+    readme = (run / "README.md").read_text()
+    assert "Machine**: CI" in readme and "criteria.json's commit" in readme
+
+    res = _cli("results", "rebuild", "--root", str(tmp_path))
+    assert res.exit_code == 0, res.output
+    numbers = json.loads((tmp_path / "results" / "numbers.json").read_text())["numbers"]
+    summary = json.loads((study / "summary.json").read_text())
+    compared = 0
+    for path, value in _leaves(summary):
+        if isinstance(value, bool) or not isinstance(value, int | float) or path.startswith("criteria.") \
+                or value != value:  # NaN
+            continue
+        assert numbers[f"quick_validate.{path}"]["value"] == pytest.approx(value, rel=1e-9, abs=1e-12), path
+        compared += 1
+    assert compared > 100 and "quick_validate.primary.mean" in numbers
+    assert _cli("results", "rebuild", "--check", "--root", str(tmp_path)).exit_code == 0
+
+    again = _cli("results", "export", str(study), "quick_validate", "--root", str(tmp_path))
+    assert again.exit_code == 1 and "give --replace" in again.output
+    assert _cli("results", "export", str(study), "quick_validate", "--root", str(tmp_path),
+                "--replace").exit_code == 0
+
+
+@pytest.mark.slow
+def test_export_refuses_an_interim_study(study: Path, tmp_path: Path):
+    """The study as it stood after 2 of its 3 targets (record and log line of the third gone), then looked at."""
+    copy = Path(shutil.copytree(study, tmp_path / "study"))
+    (copy / "targets" / "002.json").unlink()
+    lines = (copy / "looks.jsonl").read_text().splitlines()
+    cut = next(i for i, line in enumerate(lines) if json.loads(line).get("target") == 2)
+    (copy / "looks.jsonl").write_text("\n".join(lines[:cut]) + "\n")
+    look = _cli(*VALIDATE, "--out", str(copy), "--interim")
+    assert look.exit_code == 0, look.output
+    assert json.loads((copy / "summary.json").read_text())["interim"] is True
+    (tmp_path / "results").mkdir()
+    res = _cli("results", "export", str(copy), "early", "--root", str(tmp_path))
+    assert res.exit_code == 1
+    assert "is an interim look (2 of 3 targets): the study is unfinished" in res.output
+    assert not (tmp_path / "results" / "early").exists()
+
+
+@pytest.mark.slow
+def test_export_refuses_a_failed_pre_registration_check(study: Path, tmp_path: Path):
+    copy = Path(shutil.copytree(study, tmp_path / "study"))
+    record = copy / "targets" / "001.json"
+    record.write_bytes(record.read_bytes() + b"\n")  # still a valid record, no longer the one logged
+    (tmp_path / "results").mkdir()
+    res = _cli("results", "export", str(copy), "edited", "--root", str(tmp_path))
+    assert res.exit_code == 1
+    assert "pre-registration check failed: targets/001.json is not the record looks.jsonl holds" in res.output
+    assert not (tmp_path / "results" / "edited").exists()
+
+
+def test_export_refuses_a_rank_check_study_that_is_still_running(tmp_path: Path):
+    study = Path(shutil.copytree(REPO / "results" / "rank_check_gym", tmp_path / "study"))
+    for k in range(22):  # the folder already holds targets past the 20 its summary covers
+        (study / "targets" / str(k) / "runs").mkdir(parents=True)
+    (tmp_path / "results").mkdir()
+    res = _cli("results", "export", str(study), "gym", "--root", str(tmp_path))
+    assert res.exit_code == 1
+    assert "holds 22 targets' episodes but its summary covers 20: the study is running or was extended" in res.output
