@@ -437,8 +437,11 @@ def _settings(cfg: ValidateConfig, quick: bool, out: Path) -> tuple[OwnTargetSet
     from proxybench.experiments.proxies import proxy_params
 
     nominal = proxy_params(tuple(base.image_size))
-    nominal_index = next(c for c, th in enumerate(cands)
-                         if all(abs(v - float(getattr(nominal, n))) < 1e-9 for n, v in th.items()))
+    nominal_index = next((c for c, th in enumerate(cands)
+                          if all(abs(v - float(getattr(nominal, n))) < 1e-9 for n, v in th.items())), None)
+    if nominal_index is None:  # the candidates are the study's: it puts the nominal θ among them
+        raise ConfigError(f"grid: the nominal θ ({', '.join(f'{n}={getattr(nominal, n)}' for n in base.grid)}) is "
+                          "not among the candidates; every method is compared with it")
     methods = base.methods if "methods" in cfg.model_fields_set else DEFAULT_METHODS
     from proxybench.usefulness import validation
 
