@@ -130,9 +130,9 @@ def test_validate_takes_a_config_file(tmp_path: Path):
     f.write_text("family: heldout\ntargets: 4\ninterim: true\nmethods: [prpv, nominal]\n")
     res = CliRunner().invoke(app, ["validate", "--config", str(f), "--out", str(tmp_path / "v")], env=ENV)
     assert res.exit_code == 2 and "no study to look at" in res.output, res.output
-    f.write_text("family: heldout\ntargetz: 4\n")
+    f.write_text("family: heldout\ntargetss: 4\n")
     res = CliRunner().invoke(app, ["validate", "--config", str(f), "--out", str(tmp_path / "v")], env=ENV)
-    assert res.exit_code == 2 and "targetz: unknown key (did you mean 'targets'?)" in res.output, res.output
+    assert res.exit_code == 2 and "targetss: unknown key (did you mean 'targets'?)" in res.output, res.output
     f.write_text("methods: [prpv]\n")
     res = CliRunner().invoke(app, ["validate", "--config", str(f), "--out", str(tmp_path / "v")], env=ENV)
     assert res.exit_code == 2 and "nominal is missing" in res.output, res.output
