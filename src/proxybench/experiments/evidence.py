@@ -608,12 +608,12 @@ def export_study(study: Path, name: str, root: Path, *, replace: bool = False, c
 
 # -- rebuild ----------------------------------------------------------------------------------------------------------
 
-def _runs(root: Path) -> list[tuple[str, Path, Kind]]:
+def _runs(root: Path) -> list[tuple[str, Path]]:
+    """Every run folder in ``root/results/`` (a hidden one is an export in progress)."""
     results = root / RESULTS
-    out = []
-    for d in sorted(p for p in results.iterdir() if p.is_dir() and not p.name.startswith(".")):
-        out.append((d.name, d, study_kind(d)))
-    return out
+    if not results.is_dir():
+        raise EvidenceError(f"{results}: no such folder")
+    return [(d.name, d) for d in sorted(results.iterdir()) if d.is_dir() and not d.name.startswith(".")]
 
 
 def _validate_numbers(name: str, folder: Path, rel: str) -> Rebuilt:
@@ -652,9 +652,10 @@ def rebuild(root: Path) -> Rebuilt:
     """Every number of every run in ``root/results/``, recomputed through its study's summary code, and what in
     the shipped files disagrees with its recomputation (a broken look log, an edited record or summary)."""
     out = Rebuilt({})
-    for name, folder, kind in _runs(Path(root)):
+    for name, folder in _runs(Path(root)):
         rel = f"{RESULTS}/{name}"
         try:
+            kind = study_kind(folder)
             got = (_validate_numbers if kind == "validate" else _rank_check_numbers)(name, folder, rel)
         except EvidenceError as exc:
             out.problems.append(f"{name}: {exc}")
