@@ -77,10 +77,14 @@ def python_cmd(ctx: typer.Context, path: Path | None = PathOpt) -> None:
 
 
 def agent_command(path: Path | None = None) -> str:
-    """The exact shell command that starts ``agent.py`` with the SDK environment's interpreter (banner, docs)."""
-    from proxybench.dtps.env import sdk_python
+    """The exact shell command that starts ``agent.py`` with the SDK environment's interpreter (banner, docs);
+    ``proxybench dtps python agent.py`` where that environment is not where the default says."""
+    from proxybench.dtps.env import DtpsEnvError, sdk_python
 
-    return f"{shlex.quote(str(sdk_python(path)))} agent.py"
+    try:
+        return f"{shlex.quote(str(sdk_python(path)))} agent.py"
+    except DtpsEnvError:
+        return "proxybench dtps python agent.py"
 
 
 @dtps_app.command("serve")
@@ -99,16 +103,31 @@ def serve(
 
     A SIMULATION in real time, not a robot. The agent connects with DB21J(NAME, simulated=True); its
     state/reset ends the episode and teleports the robot to the next start; so do leaving the road, a
-    collision and --episode-seconds. Every episode is written to OUT as a trajectory.
+    collision and --episode-seconds. Every episode is written to OUT as a trajectory, and summarised here
+    (frames answered, late frames, worst lag). When the machine cannot simulate at the camera's rate, it
+    warns (real time is not kept). --seconds is wall time: serving stops then, mid-episode if need be.
     """
+    import time
+
     from proxybench.domain.maps import MapError
     from proxybench.domain.params import DomainParams
     from proxybench.dtps.env import DtpsEnvError
     from proxybench.dtps.link import BridgeError
+    from proxybench.runner.dtps_serve import WALL_TIME_UP
     from proxybench.runner.dtps_serve import serve as run_serve
 
+    simulated: list[float] = []
+    behind: list[bool] = []
+
     def said(k: int, traj) -> None:
-        console.print(f"episode {k}: {traj.duration:.1f} s, end={traj.termination}", highlight=False)
+        st = traj.meta["served"]["stats"]
+        simulated.append(traj.duration)
+        behind.append(st["behind"])
+        cut = " (cut short: --seconds of wall time passed)" if any(e.message == WALL_TIME_UP for e in traj.events) \
+            else ""
+        console.print(f"episode {k}: {traj.duration:.1f} s, end={traj.termination}{cut}; {st['frames']} frames, "
+                      f"{st['frames_answered']} answered by the agent, {st['late_frames']} late, worst lag "
+                      f"{st['max_lag_s']:.2f} s", highlight=False)
 
     def ready(url: str) -> None:
         console.print(f"serving a SIMULATED DB21J at {escape(url)} (start the agent now; Ctrl-C to stop)",
@@ -117,14 +136,28 @@ def serve(
                       f"  (or: proxybench dtps python agent.py; a plain python3 lacks duckietown-sdk)",
                       highlight=False)
 
+    def late(message: str) -> None:
+        err_console.print(f"[yellow]warning:[/yellow] {escape(message)}", highlight=False)
+
+    hint = ("run the agent through proxybench in lock-step, which waits for its commands and keeps no wall "
+            "clock: proxybench run --agent \"mine=sdk[lockstep]:python3 agent.py\" (docs/dtps.md §2)")
+    if width * height > 160 * 120:
+        hint = f"serve smaller frames than {width}x{height} (--width 160 --height 120), or {hint}"
     console.print(f"starting a virtual DB21J on port {port} ...", highlight=False)
+    began = time.monotonic()
     try:
         files = run_serve(map_name, out, name=name, port=port, seconds=seconds or float("inf"),
                           episode_seconds=episode_seconds, seed=seed,
                           params=DomainParams(image_width=width, image_height=height), on_episode=said,
-                          on_ready=ready)
+                          on_ready=ready, on_late=late, late_hint=hint)
     except (DtpsEnvError, BridgeError, MapError, OSError) as exc:
         raise fail(exc) from exc
     except KeyboardInterrupt:
         raise typer.Exit(0) from None
-    console.print(f"wrote {len(files)} episodes to {escape(str(out))}", highlight=False)
+    wall = time.monotonic() - began
+    console.print(f"stopped: --seconds {seconds or 0:g} of wall time passed ({wall:.0f} s with the start); "
+                  f"{len(files)} episodes, {sum(simulated):.0f} s simulated, written to {escape(str(out))}",
+                  highlight=False)
+    if any(behind):
+        err_console.print(f"[yellow]warning:[/yellow] {sum(behind)} of {len(behind)} episodes fell behind the wall "
+                          f"clock (real time not kept): {escape(hint)}", highlight=False)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import shlex
+import sys
 from pathlib import Path
 
 from proxybench.domain.maps import Map
@@ -61,6 +62,10 @@ class SdkAgent(RobotDriver):
                          step_timeout=self.options.step_timeout)
         self.cmd = command
         self.name = name or _label(command)
+        if self.options.timing == "realtime":  # say when the simulation cannot keep the camera's rate
+            self.lateness.warn = self._late
+            self.lateness.hint = ("for a run that does not depend on this machine's speed, step the agent in "
+                                  f"lock-step: --agent \"NAME=sdk[lockstep]:{command}\" (docs/dtps.md)")
         self.privileged = self.options.privileged
         self.max_stderr_bytes = max_stderr_bytes
         self.proc: Launch | None = None
@@ -112,6 +117,9 @@ class SdkAgent(RobotDriver):
             return super().act(obs)
         except BridgeError as exc:
             raise self._failure("exited", f"the virtual DB21J (DTPS bridge) failed: {exc.detail}") from None
+
+    def _late(self, message: str) -> None:
+        print(f"[{self.name}] warning: {message}", file=sys.stderr, flush=True)
 
     # ------------------------------------------------------------------------------ the program
     def _watch(self) -> None:

@@ -8,7 +8,8 @@ wheel command in force, by one of two clocks:
               came). The agent's own latency therefore shows in the run, and runs differ from one another
               by how the machine schedules two processes: *not reproducible* sample for sample. As with the
               Duckiematrix, a blocking ``capture(); set_pwm()`` agent's command goes out with the next frame.
-              When the simulation cannot keep up, frames come late (counted in ``late_frames``).
+              When the simulation cannot keep up, frames come late (counted in ``late_frames``; ``warn``
+              hears when the run falls behind: :class:`~.lateness.Lateness`).
 ``lockstep``  frame k+1 is published only after a command answering frame k has arrived, and that command
               is held over frame k: the same agent gives the same trajectory every run, *if* it answers every
               camera frame with exactly one command (a camera callback, or a ``capture(block=True)`` loop);
@@ -25,11 +26,13 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from proxybench.agents.base import Agent, Observation
+from proxybench.dtps.lateness import Lateness
 from proxybench.dtps.virtual_robot import VirtualDB21J
 from proxybench.protocol.failures import AgentFailure
 
@@ -41,14 +44,21 @@ _SLICE = 0.05  # [s] the longest wait before the driver looks at the agent's pro
 class RobotDriver(Agent):
     """Drives the rollout from the commands an SDK agent sends to ``robot`` (see the module docstring)."""
 
+    #: whether an answer to an episode's first frame counts in ``frames_answered`` (not where that frame waits
+    #: for the program's start: its wait is ``start_s``)
+    start_frame_counts = False
+
     def __init__(self, robot: VirtualDB21J | None, *, timing: str = "realtime", start_timeout: float = 60.0,
-                 step_timeout: float = 5.0, max_commands: int = 30):
+                 step_timeout: float = 5.0, max_commands: int = 30, warn: Callable[[str], None] | None = None,
+                 hint: str = ""):
         if timing not in ("realtime", "lockstep"):
             raise ValueError(f"timing must be 'realtime' or 'lockstep', not {timing!r}")
         self.robot = robot
         self.timing, self.start_timeout, self.step_timeout = timing, start_timeout, step_timeout
         self.max_commands = max_commands
         self.latencies: list[float] = []
+        #: real time: how far the run fell behind the wall clock; ``warn`` hears it, ending with ``hint``
+        self.lateness = Lateness(warn=warn, hint=hint)
         self._begin()
 
     def _begin(self) -> None:
@@ -57,9 +67,19 @@ class RobotDriver(Agent):
         self.prev_time: float | None = None
         self.first_seq: int | None = None
         self.last_command_wall = 0.0
-        self.late_frames = self.extra_commands = self.resets = 0
-        self.max_lag = self.start_s = 0.0
+        self.extra_commands = self.resets = self.frames = 0
+        self.start_s = 0.0
         self.latencies = []
+        self.answered: set[int] = set()  # the frames a command answered, whenever it came (late ones too)
+        self.lateness.begin()
+
+    @property
+    def late_frames(self) -> int:
+        return self.lateness.late
+
+    @property
+    def max_lag(self) -> float:
+        return self.lateness.worst
 
     def reset(self, seed: int, episode: str | None = None) -> None:
         self._begin()
@@ -74,6 +94,7 @@ class RobotDriver(Agent):
         # the first frame waits for the program to start and answer: nudged in either timing, else a blocking
         # agent's first command would wait for a second frame that never comes
         seq = self.robot.publish(obs, dt=dt, nudge=self.timing == "lockstep" or self.t0 is None)
+        self.frames += 1
         if self.first_seq is None:
             self.first_seq = seq
         if self.t0 is None or self.timing == "lockstep":
@@ -87,10 +108,7 @@ class RobotDriver(Agent):
             else:
                 self.latencies.append(answered - published)
             return self.command.copy()
-        lag = published - (self.t0 + obs.time)
-        if dt is not None and lag > dt:
-            self.late_frames += 1
-        self.max_lag = max(self.max_lag, lag)
+        self.lateness.frame(published - (self.t0 + obs.time), dt)
         answered = self._collect(seq, self.t0 + obs.time + (dt or 0.0))
         if answered is not None:
             self.latencies.append(answered - published)
@@ -144,6 +162,8 @@ class RobotDriver(Agent):
             return False  # an answer to a frame of an earlier episode
         self.command = np.array([left, right])
         self.last_command_wall = time.monotonic()
+        if cmd_seq <= self.robot.seq and (cmd_seq != self.first_seq or self.start_frame_counts):
+            self.answered.add(cmd_seq)
         if seq is not None and cmd_seq >= seq:
             return True
         if self.timing == "lockstep":
@@ -158,10 +178,13 @@ class RobotDriver(Agent):
         return AgentFailure(reason, detail)
 
     def stats(self) -> dict[str, Any]:
-        """Timing of the episode so far: frame → command latencies [s], late frames, extra commands, resets."""
+        """Timing of the episode so far: frames published and answered (by a command naming the frame, whenever
+        it came: a late plant's answers arrive after their frame's slot), frame → command latencies [s] (of the
+        answers that came within their frame), late frames, worst lag, extra commands, resets."""
         lat = np.array(self.latencies) if self.latencies else np.zeros(0)
-        return {"timing": self.timing, "start_s": self.start_s, "frames_answered": int(lat.size),
+        return {"timing": self.timing, "start_s": self.start_s, "frames": self.frames,
+                "frames_answered": len(self.answered), "frames_answered_in_time": int(lat.size),
                 "latency_median_ms": float(np.median(lat) * 1e3) if lat.size else None,
                 "latency_p90_ms": float(np.percentile(lat, 90) * 1e3) if lat.size else None,
-                "late_frames": self.late_frames, "max_lag_s": self.max_lag, "extra_commands": self.extra_commands,
-                "resets": self.resets}
+                "late_frames": self.late_frames, "max_lag_s": self.max_lag, "behind": self.lateness.behind(),
+                "extra_commands": self.extra_commands, "resets": self.resets}

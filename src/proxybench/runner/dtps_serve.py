@@ -5,8 +5,11 @@ and plays :func:`~proxybench.runner.rollout.rollout` with a :class:`ServeDriver`
 server runs in real time whether or not an agent is connected (the robot holds (0, 0) until a command comes),
 like the Duckiematrix. An episode ends when the agent publishes ``state/reset`` (termination ``reset``), when
 the robot leaves the road or collides, or after ``episode_seconds``; the robot is then teleported to the next
-start pose (seed + 1) and a new episode begins. Every episode is saved as a trajectory (``episode-<k>.parquet``)
-in the output folder, with the serve's timing in its metadata.
+start pose (seed + 1) and a new episode begins. Serving stops when ``seconds`` of *wall* time have passed, in the
+middle of an episode if need be (its termination ``timeout``, its detail saying so): a simulation slower than
+real time must not stretch the serve (issue 39: ``--seconds 90`` ran 250–290 s). ``on_late`` hears when the
+simulation falls behind the wall clock (:class:`~proxybench.dtps.lateness.Lateness`). Every episode is saved as
+a trajectory (``episode-<k>.parquet``) in the output folder, with the serve's timing in its metadata.
 """
 
 from __future__ import annotations
@@ -27,15 +30,18 @@ from proxybench.runner.episode import sim_plant
 from proxybench.runner.rollout import AgentPolicy, rollout
 from proxybench.tasks.trajectory import Event, Termination
 
-__all__ = ["ServeDriver", "serve"]
+__all__ = ["WALL_TIME_UP", "ServeDriver", "serve"]
 
 
 class ServeDriver(RobotDriver):
     """Real time with an agent that comes and goes: no start or silence timeouts (the robot holds the last
     command, (0, 0) before any), and ``state/reset`` requests are remembered for the plant to end the episode."""
 
-    def __init__(self, robot: VirtualDB21J):
-        super().__init__(robot, timing="realtime", start_timeout=float("inf"), step_timeout=float("inf"))
+    start_frame_counts = True  # the first frame waits for nobody: an answer to it is an answer like any other
+
+    def __init__(self, robot: VirtualDB21J, *, warn: Callable[[str], None] | None = None, hint: str = ""):
+        super().__init__(robot, timing="realtime", start_timeout=float("inf"), step_timeout=float("inf"), warn=warn,
+                         hint=hint)
         self.name = "dtps-agent"
         self.reset_requested = False
 
@@ -53,11 +59,16 @@ class ServeDriver(RobotDriver):
         return out
 
 
-class _ResetPlant:
-    """A plant whose episode also ends when the driver saw ``state/reset`` (termination ``reset``)."""
+#: the detail of an episode cut short by the end of the serve
+WALL_TIME_UP = "the serve's time (wall clock) ran out"
 
-    def __init__(self, plant: Any, driver: ServeDriver):
-        self._plant, self._driver = plant, driver
+
+class _ResetPlant:
+    """A plant whose episode also ends when the driver saw ``state/reset`` (termination ``reset``), and when the
+    wall clock reaches ``end`` (``timeout``, :data:`WALL_TIME_UP`)."""
+
+    def __init__(self, plant: Any, driver: ServeDriver, end: float = float("inf")):
+        self._plant, self._driver, self._end = plant, driver, end
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._plant, name)
@@ -66,17 +77,22 @@ class _ResetPlant:
         out = self._plant.advance(commands, alive, k)
         if self._driver.reset_requested and not any(final for _, _, final in out):
             out.append((0, Event(self._plant.time(0), Termination.RESET, "the agent published state/reset"), True))
+        elif time.monotonic() >= self._end and not any(final for _, _, final in out):
+            out.append((0, Event(self._plant.time(0), Termination.TIMEOUT, WALL_TIME_UP), True))
         return out
 
 
 def serve(map_name: str, out: Path, *, name: str = DEFAULT_NAME, port: int = DEFAULT_PORT,
           seconds: float = float("inf"), episode_seconds: float = 60.0, seed: int = 0,
           params: DomainParams | None = None, on_episode: Callable[[int, Any], None] | None = None,
-          on_ready: Callable[[str], None] | None = None, host: str = "127.0.0.1") -> list[Path]:
+          on_ready: Callable[[str], None] | None = None, host: str = "127.0.0.1",
+          on_late: Callable[[str], None] | None = None, late_hint: str = "") -> list[Path]:
     """Serve until ``seconds`` of wall time have passed (or Ctrl-C); the trajectory files written.
 
     ``on_ready(url)`` runs once the robot's queues exist: an SDK agent started before then cannot connect
     (the SDK gives up at once on a server that is not there), so say "start your agent" only then.
+    ``on_late(message)``: the simulation fell behind the wall clock (rate-limited; the message ends with
+    ``late_hint``, what to do about it).
     """
     out.mkdir(parents=True, exist_ok=True)
     plant = sim_plant(map_name, params)
@@ -86,13 +102,14 @@ def serve(map_name: str, out: Path, *, name: str = DEFAULT_NAME, port: int = DEF
         robot.publish_map(plant.map)
         if on_ready is not None:
             on_ready(robot.url)
-        driver = ServeDriver(robot)
+        driver = ServeDriver(robot, warn=on_late, hint=late_hint)
         end = time.monotonic() + seconds
         k = 0
         while time.monotonic() < end:
             length = min(episode_seconds, end - time.monotonic())
             meta = {"map": plant.map.name, "episode": k, "served": {"url": robot.url, "timing": "realtime"}}
-            traj = rollout(_ResetPlant(plant, driver), AgentPolicy([driver]), [seed + k], length, metas=[meta])[0]
+            traj = rollout(_ResetPlant(plant, driver, end), AgentPolicy([driver]), [seed + k], length,
+                           metas=[meta])[0]
             traj.meta["served"]["stats"] = driver.stats()
             path = out / f"episode-{k}.parquet"
             traj.save(path)
