@@ -132,7 +132,11 @@ def test_the_criteria_plan_each_stratum_for_the_margin():
     # uniform draw: trim in [-0.15, 0.35] (0.2 of 0.5 inside |trim| <= 0.1), delay in [0.02, 0.3] (0.18 of 0.28)
     assert near.share == pytest.approx(0.4 * 0.18 / 0.28, abs=1e-6) and near.share + far.share == pytest.approx(1)
     assert near.needed == far.needed == 156  # one-sided t, α 0.05, 80 %: 0.02 at SD 0.10
-    assert near.planned == pytest.approx(40 * near.share, abs=1e-3) and near.mde > far.mde > 0.02
+    (n_near, mde_near), (_, mde_far) = (st.planned(40, 0.05, 0.8, 0.1) for st in (near, far))
+    assert n_near == pytest.approx(40 * near.share, abs=1e-3) and mde_near > mde_far > 0.02
+    assert near.planned(4, 0.05, 0.8, 0.1)[1] is None  # under 2 targets expected: no MDE
+    # the plan does not depend on the study's size: other targets differ in `targets` alone (criteria's message)
+    assert settings_for(ValidateConfig(family="gym", targets=7), False).primary == plan
 
 
 def _drive(trim: float, delay: float, step_time: float = 0.0) -> tuple[np.ndarray, ...]:
@@ -245,6 +249,7 @@ def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path, m
     assert all("calibration" in r["picks"] and set(r["estimates"]["calibration"]) == {"trim", "command_delay"}
                for r in records)
     assert all(r["episodes_run"] > 0 for r in records)
+    assert set(summary["planned"]) == {"near", "far"} and summary["planned"]["far"]["targets"] > 0
     assert (out / "report.html").exists() and (out / "targets.csv").exists()
     written = (out / "criteria.json").read_bytes()
     again = CliRunner().invoke(app, args, env={"COLUMNS": "200"})

@@ -220,13 +220,19 @@ class StratumPlan(BaseModel):
     """which targets (from their hidden θ, assigned at the reveal)"""
     share: float
     """the share of targets the draw puts in it (uniform draw; a parameter not drawn sits at the nominal)"""
-    planned: float
-    """targets expected in it: the study's targets × share"""
     needed: int
     """targets it needs to show non-inferiority within the margin with the declared power, at the assumed SD and a
     true difference of 0"""
-    mde: float | None
-    """the margin (PRPV/K(K−1)) its planned size can show with that power at the assumed SD (None: under 2)"""
+
+    def planned(self, targets: int, alpha: float, power: float, assumed_sd: float) -> tuple[float, float | None]:
+        """(targets expected in it: ``targets`` × share, the margin (PRPV/K(K−1)) that many can show with ``power``
+        at the assumed SD; None under 2). Derived, not a setting: a study of other size differs in ``targets``
+        alone."""
+        from proxybench.usefulness.validation import minimum_detectable_effect
+
+        n = targets * self.share
+        return round(n, 3), (round(minimum_detectable_effect(int(n), alpha, power) * assumed_sd, 6)
+                             if int(n) >= 2 else None)
 
 
 class PrimaryPlan(BaseModel):
@@ -328,8 +334,9 @@ def stratum_of(theta: dict[str, float], near: dict[str, tuple[float, float]]) ->
 
 
 def _plan(s: dict, draw: dict[str, tuple[float, ...]]) -> PrimaryPlan:
-    """The primary comparison's plan: per stratum its share of the draw, the targets it needs and its MDE."""
-    from proxybench.usefulness.validation import minimum_detectable_effect, targets_needed
+    """The primary comparison's plan: per stratum its share of the draw and the targets it needs (the targets
+    planned in it and their MDE follow from the study's ``targets``: :meth:`StratumPlan.planned`)."""
+    from proxybench.usefulness.validation import targets_needed
 
     near, nominal = s["near"], nominal_theta(s["near"])
     share = 1.0
@@ -344,11 +351,7 @@ def _plan(s: dict, draw: dict[str, tuple[float, ...]]) -> PrimaryPlan:
     strata = {}
     for name, sh, words in (("near", share, f"every one of {box} (the θ a factory-calibrated robot has)"),
                             ("far", 1.0 - share, f"the rest: some parameter outside {box}")):
-        planned = s["targets"] * sh
-        mde = (minimum_detectable_effect(int(planned), s["alpha"], s["power"]) * s["assumed_sd"]
-               if int(planned) >= 2 else None)
-        strata[name] = StratumPlan(definition=words, share=round(sh, 6), planned=round(planned, 3), needed=needed,
-                                   mde=None if mde is None else round(mde, 6))
+        strata[name] = StratumPlan(definition=words, share=round(sh, 6), needed=needed)
     return PrimaryPlan(
         comparisons=PRIMARY_COMPARISONS, margin=s["margin"], assumed_sd=s["assumed_sd"], strata=strata,
         test=(f"per stratum and comparison, the paired differences PRPV − calibration of the pick's quality on the "

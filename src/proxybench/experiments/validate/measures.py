@@ -209,6 +209,9 @@ class ValidationSummary(_Model):
     """the secondary test PRPV − nominal θ, as the first study registered it (None where PRPV picked on no target)"""
     strata: list[str] = []
     """each target's stratum (near, far), from its hidden θ: in the final report only"""
+    planned: dict[str, dict[str, float | None]] = {}
+    """per stratum, from the criteria's plan and the targets registered: the targets expected in it and the margin
+    that many can show with the declared power at the assumed SD (``mde``)"""
     truths: list[dict[str, float]] = []
     """each target's θ, revealed after scoring, in the final report only (empty at an interim look)"""
 

@@ -113,6 +113,7 @@ def _frame(run: ValidationRun, summary: ValidationSummary):
 def _primary_table(summary: ValidationSummary) -> str:
     """The primary tests, and the sizes the criteria planned for each stratum."""
     plan = summary.settings.primary.strata
+    planned = summary.planned
     head = ("stratum", "PRPV − …", "n", "not applicable", "mean", "upper bound", "margin", "non-inferior",
             "superior", "MDE (observed SD)", "planned / needed (criteria)")
     rows = []
@@ -120,7 +121,7 @@ def _primary_table(summary: ValidationSummary) -> str:
         st = plan.get(t.stratum)
         cells = (t.stratum, t.b, t.n, t.not_applicable, f"{t.mean:+.4f}", f"{t.upper:+.4f}", f"{t.margin:g}",
                  "yes" if t.noninferior else "not shown", "yes" if t.superior else "not shown", f"{t.mde:.3f}",
-                 f"{st.planned:g} / {st.needed}" if st else "—")
+                 f"{planned[t.stratum]['targets']:g} / {st.needed}" if st and t.stratum in planned else "—")
         rows.append("<tr>" + "".join(f"<td>{html.escape(str(x))}</td>" for x in cells) + "</tr>")
     return "<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>"
 
@@ -206,8 +207,8 @@ def write_validation_report(run: ValidationRun, summary: ValidationSummary, out:
     else:
         counts = {name: summary.strata.count(name) for name in s.primary.strata}
         strata_words = "Targets per stratum: " + ", ".join(
-            f"{name} {c} ({html.escape(s.primary.strata[name].definition)}; planned {s.primary.strata[name].planned:g})"
-            for name, c in counts.items()) + "."
+            f"{name} {c} ({html.escape(s.primary.strata[name].definition)}; planned "
+            f"{summary.planned[name]['targets']:g})" for name, c in counts.items()) + "."
     bc = s.bc_agents  # checkpoints the study trains: agents too, though not named in the settings
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>proxybench validate</title>
 <style>body{{font-family:sans-serif;max-width:1150px;margin:2em auto;line-height:1.4;padding:0 1em}}

@@ -155,6 +155,15 @@ def primary_tests(s: ValidateSettings, recs: list[TargetRecord], strata: list[st
     return out
 
 
+def _planned(s: ValidateSettings) -> dict[str, dict[str, float | None]]:
+    """Per stratum: the targets the plan expects in it and the margin they can show (:meth:`StratumPlan.planned`)."""
+    out = {}
+    for name, st in s.primary.strata.items():
+        n, mde = st.planned(s.targets, s.alpha, s.power, s.assumed_sd)
+        out[name] = {"targets": n, "mde": mde}
+    return out
+
+
 def summarize(run: ValidationRun, criteria: dict[str, Any] | None = None) -> ValidationSummary:
     """summary.json: per method, the regrets over targets (primary and secondary), each paired against the nominal
     θ, hit rates beside the nominal pick's; the criteria (``run.criteria_file``'s unless given) with what the
@@ -206,4 +215,5 @@ def summarize(run: ValidationRun, criteria: dict[str, Any] | None = None) -> Val
         strata = [stratum_of(s.to_proxy(tr), s.near) for tr in reveal]
     return ValidationSummary(settings=s, targets=len(recs), interim=interim, methods=out, criteria=check,
                              primary_tests=primary_tests(s, recs, None if interim else strata), primary=primary,
+                             planned=_planned(s),
                              truths=truths, strata=strata, wall_s=run.wall_s)
