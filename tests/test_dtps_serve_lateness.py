@@ -145,3 +145,55 @@ def test_dtps_serve_says_it_is_late_summarises_episodes_and_why_it_stopped(tmp_p
     warning = [s for s in out.splitlines() if s.startswith("warning:")]
     assert warning and any("behind the wall clock" in s for s in warning)
     assert any("lock-step" in s and "sdk[lockstep]:" in s for s in warning), warning
+
+
+# ------------------------------------------------------------------------------- a DTPS robot's plant too
+class _StandingLink:
+    """A DTPS robot link that answers at once, its robot standing still at ``pose``."""
+
+    def __init__(self, pose: tuple[float, float, float]):
+        self.pose, self.watchdogs, self.camera = pose, 0, None
+
+    def command(self, left: float, right: float) -> None:
+        pass
+
+    def pump(self, deadline: float) -> None:
+        pass
+
+    def check_fresh(self, camera: bool) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+
+def test_a_dtps_robot_plant_answered_slowly_warns_on_stderr(monkeypatch, capsys):
+    """The plant of a DTPS robot (a real one or the Duckiematrix) is real time too: an agent answering every
+    frame two frame periods late is warned about (once, then as it gets worse), and the episode's metadata keeps
+    the late frames and the worst lag. The clock is a fake one."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from proxybench.domain.maps import load_map
+    from proxybench.domain.simulator import start_pose
+    from proxybench.dtps.robot_options import DtpsRobotOptions
+    from proxybench.runner import dtps_plant
+
+    m = load_map("loop_3x3")
+    pose = start_pose(m, 0)
+    now = [1000.0]
+    monkeypatch.setattr(dtps_plant, "time", SimpleNamespace(monotonic=lambda: now[0]))
+    robot = SimpleNamespace(address="fakebot:1/bot", link=_StandingLink(pose), options=DtpsRobotOptions(),
+                            frame_rate=15.0)
+    plant = dtps_plant.DtpsPlant(robot, m)  # type: ignore[arg-type]
+    plant.rows, plant.info, plant.t0, plant.camera, plant._watchdogs = [[0.0, *pose, 0, 0, 0, 0]], {}, None, False, 0
+    plant.lateness.begin()
+    for k in range(60):
+        assert plant.advance(np.zeros((1, 2)), np.ones(1, bool), k) == []
+        now[0] += 2 / 15  # the next command comes two frame periods later
+    err = capsys.readouterr().err
+    warnings = [line for line in err.splitlines() if "warning: real time is not kept" in line]
+    assert warnings and len(warnings) < 10 and all(line.startswith("[dtps:fakebot:1/bot]") for line in warnings)
+    meta = plant.meta(0)["robot"]
+    assert meta["late_frames"] >= 55 and meta["max_lag_s"] > 3.0

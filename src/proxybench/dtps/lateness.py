@@ -25,6 +25,7 @@ class Lateness:
 
     warn: Callable[[str], None] | None = None
     hint: str = ""
+    cause: str = "this machine cannot keep the camera's rate"  # why it is late, as the warning says it
     lag_s: float = 0.5
     share: float = 0.10
     min_frames: int = 20
@@ -61,7 +62,7 @@ class Lateness:
     def message(self) -> str:
         """The warning; its first ends with the hint, later ones point back to it."""
         text = (f"real time is not kept: {self.worst:.1f} s behind the wall clock at worst, {self.late} of "
-                f"{self.frames} frames late (this machine cannot keep the camera's rate)")
+                f"{self.frames} frames late ({self.cause})")
         if not self.hint:
             return text
         text += f"; {self.hint}" if not self.hinted else "; what to do: see the first warning"

@@ -6,7 +6,9 @@ episode engine (:func:`~proxybench.runner.rollout.rollout`, the ``Plant`` protoc
 so the plant runs in real time: frame k is the newest camera frame at T0 + k/rate (T0: when the agent gave
 its first command, so that an agent loading for a while does not eat the episode), the agent's command is
 published at once and held until T0 + (k+1)/rate, and the newest pose then is the trajectory's sample
-(t = (k+1)/rate). Frames the agent answered too late to keep that pace are counted (``late_frames``).
+(t = (k+1)/rate). Frames the agent answered too late to keep that pace are counted (``late_frames``, with the
+worst lag ``max_lag_s``), and a run falling behind says so on stderr (:class:`~proxybench.dtps.lateness.Lateness`:
+rate-limited, once per episode and when it gets worse).
 
 Each episode starts by the options' reset mode (:class:`~proxybench.dtps.robot_options.DtpsRobotOptions`):
 an operator prompt, ``state/reset``, or a start pose recorded beforehand; the trajectory starts where the
@@ -22,6 +24,7 @@ commands stop coming; a lost connection ends the episode as a ``connection-lost`
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -34,6 +37,7 @@ from proxybench.domain.lane_pose import point_on_road
 from proxybench.domain.lanes import LaneNetwork
 from proxybench.domain.maps import Map, load_map
 from proxybench.domain.simulator import start_pose
+from proxybench.dtps.lateness import Lateness
 from proxybench.dtps.operator import Operator, PlaceRequest, TerminalOperator
 from proxybench.dtps.robot_link import TICKS_PER_TURN, DtpsRobotLink
 from proxybench.dtps.robot_options import DtpsAddress, DtpsRobotOptions
@@ -132,6 +136,13 @@ class DtpsPlant:
         self.k = 0
         self.rows: list[list[float]] = []
         self.info: dict[str, Any] = {}
+        #: how far the episode fell behind the robot's clock (a robot cannot be stepped: no lock-step to offer)
+        self.lateness = Lateness(warn=self._late, cause="the agent's commands or the robot's link come slower "
+                                 "than the camera's rate", hint="a busy machine or a weak network stretches the "
+                                 "episode in wall time while the robot keeps moving")
+
+    def _late(self, message: str) -> None:
+        print(f"[dtps:{self.robot.address}] warning: {message}", file=sys.stderr, flush=True)
 
     @property
     def frame_rate(self) -> float:
@@ -148,7 +159,8 @@ class DtpsPlant:
         if camera:
             link.wait_for("camera", -1.0, time.monotonic() + self.robot.options.stale_timeout, "a camera frame")
         self.steps = max(1, round(seconds * self.frame_rate))
-        self.k, self.late = 0, 0
+        self.k = 0
+        self.lateness.begin()
         self.rows = [[0.0, *start, 0.0, 0.0, 0.0, 0.0]]
         self.info = {"start_requested": None if requested is None else list(requested), "start": list(start)}
         self._watchdogs = link.watchdogs
@@ -182,8 +194,7 @@ class DtpsPlant:
         if self.t0 is None:
             self.t0 = time.monotonic() - k / self.frame_rate
         due = self.t0 + (k + 1) / self.frame_rate
-        if time.monotonic() > due:
-            self.late += 1
+        self.lateness.frame(time.monotonic() - (due - 1 / self.frame_rate), 1 / self.frame_rate)
         link.pump(due)
         link.check_fresh(self.camera)
         self.k = k + 1
@@ -214,7 +225,8 @@ class DtpsPlant:
                           "kind": o.kind or "", "said": said.get(o.kind or "", "not told (proxybench cannot tell "
                                                                                "a Duckiematrix robot from a real one)"),
                           "pose_source": o.pose if not o.pose_url else f"{o.pose_url} {o.pose}", "pwm": o.pwm,
-                          "reset": o.reset, **self.info, "late_frames": getattr(self, "late", 0),
+                          "reset": o.reset, **self.info, "late_frames": self.lateness.late,
+                          "max_lag_s": self.lateness.worst,
                           "watchdogs": r.link.watchdogs - getattr(self, "_watchdogs", 0)}}
 
     def wheel_distance(self, i: int) -> float:
