@@ -198,3 +198,11 @@ def test_dtps_python_runs_code_with_the_sdk_interpreter_and_passes_its_exit_stat
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 3, run.stderr[-2000:]
     assert run.stdout.splitlines() == [str(sdk_python()), "['--help', '-x']"]
+
+
+@sdk
+def test_dtps_check_names_the_interpreter_an_agent_is_started_with():
+    run = subprocess.run([sys.executable, "-m", "proxybench", "dtps", "check"], capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert f"{sdk_python()} agent.py" in run.stdout and "proxybench dtps python agent.py" in run.stdout

@@ -28,6 +28,9 @@ def _show(status) -> None:
         err_console.print(f"[red]✗[/red] {escape(problem)}", highlight=False)
     if status.ok:
         console.print("[green]ok[/green]: SDK agents (--agent NAME=sdk:COMMAND) and DTPS robots can run here")
+        console.print(f"an agent you start yourself (dtps serve) runs with this interpreter: "
+                      f"{escape(shlex.quote(str(status.python)))} agent.py, or: proxybench dtps python agent.py",
+                      highlight=False)
 
 
 @dtps_app.command("setup")
