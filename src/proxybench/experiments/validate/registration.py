@@ -230,16 +230,18 @@ def write_criteria(s: ValidateSettings, seed: int, out: Path) -> dict[str, Any]:
         "secondary_endpoints": ["regret in 1 − Kendall τ_b (first metric)", "regret of picking the top agent (first "
                                 "metric, its unit)", f"regret of picking the top {s.top_k}", "hit rate: the pick "
                                 "within one grid step of the oracle, beside the nominal pick's"],
-        "primary_comparison": "PRPV's regret minus the nominal θ's, per target",
-        "test": f"one-sided Wilcoxon signed-rank test of the paired differences (H1: PRPV's regret is lower), "
-                f"alpha {s.alpha}; a one-sided paired t-test and a percentile bootstrap interval of the mean "
-                "difference beside it; every other method against the nominal θ the same way (secondary, no "
-                "multiplicity correction: read them as descriptive)",
+        "primary_comparison": (f"PRPV's pick against {', '.join(s.primary.comparisons)} in the pick's quality on the "
+                               "held-out agents, per pre-declared stratum (settings.primary: the strata, margin, "
+                               "assumed SD and the targets each needs)"),
+        "test": s.primary.test,
+        "secondary_comparison": "PRPV's regret minus the nominal θ's, per target: a one-sided Wilcoxon signed-rank "
+                                f"test (alpha {s.alpha}), a paired t-test and a percentile bootstrap interval beside "
+                                "it; every other method against the nominal θ the same way (descriptive, no "
+                                "multiplicity correction)",
         "minimum_detectable_effect": {"d_z": minimum_detectable_effect(n, s.alpha, s.power), "targets": n,
                                       "power": s.power, "meaning": "mean paired difference in standard deviations "
                                       "of the differences a one-sided paired t-test detects with that power"},
-        "decision": "tuning helps on held-out agents if the primary test rejects at alpha; otherwise the study does "
-                    "not show it (an effect below the minimum detectable one may exist)",
+        "decision": s.primary.decision,
         "interim_looks": "logged in looks.jsonl; they show no target's θ and decide nothing",
     }
     with (out / CRITERIA).open("x") as f:  # never over an existing file
