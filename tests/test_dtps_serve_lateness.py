@@ -15,9 +15,11 @@ from typer.testing import CliRunner
 
 from proxybench.cli import app
 from proxybench.domain.params import DomainParams
+from proxybench.dtps.env import sdk_python
 from proxybench.dtps.lateness import Lateness
 from proxybench.runner import dtps_serve
 from proxybench.tasks.trajectory import Trajectory
+from support.dtps import SDK_MISSING
 
 
 # ------------------------------------------------------------------------------------------- the counter
@@ -137,6 +139,8 @@ def test_dtps_serve_says_it_is_late_summarises_episodes_and_why_it_stopped(tmp_p
     assert res.exit_code == 0, res.output
     out = res.output
     assert "start an agent with the SDK environment's interpreter:" in out and "agent.py" in out
+    if SDK_MISSING is None:  # the exact command, with the SDK interpreter's path
+        assert f"{sdk_python()} agent.py" in out
     line = next(s for s in out.splitlines() if s.startswith("episode 0:"))
     assert "cut short: --seconds of wall time passed" in line
     for word in ("frames,", "answered by the agent", "late, worst lag"):
