@@ -60,3 +60,17 @@ def test_a_proxy_without_an_agent_is_refused_by_name() -> None:
     del proxy["a2"]
     with pytest.raises(ValueError, match="a2"):
         episodes_saved(target, proxy, (0.0,))
+
+
+def test_with_three_episodes_a_useless_proxy_is_not_flattered() -> None:
+    """In sample, a λ fitted to three episodes' noise made a proxy that predicts nothing look worth ~40 %; the
+    leave-one-episode-out spread keeps it at or below nothing, and a good one (ρ = 0.8: 64 %) near its worth."""
+    def median_share(rho: float) -> float:
+        shares = []
+        for seed in range(200):
+            target, proxy = _world(rho, n=3, k=5, seed=seed)
+            shares.append(episodes_saved(target, proxy, (0.0,)).saved_share)
+        return float(np.median(shares))
+
+    assert median_share(0.0) <= 0.02
+    assert 0.4 <= median_share(0.8) <= 0.7
