@@ -219,7 +219,7 @@ def _short_quick_episodes(monkeypatch, family: str, seconds: float = 2.0) -> Non
 def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path, monkeypatch):
     _short_quick_episodes(monkeypatch, "heldout")
     out = tmp_path / "v"
-    args = ["validate", "--quick", "--targets", "3", "--backend", "inline", "--out", str(out)]
+    args = ["validate", "--quick", "--targets", "3", "--episodes-eval", "3", "--backend", "inline", "--out", str(out)]
     res = CliRunner().invoke(app, args, env={"COLUMNS": "200"})
     assert res.exit_code == 0, res.output
     criteria = json.loads((out / "criteria.json").read_text())
@@ -249,6 +249,19 @@ def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path, m
     assert all("calibration" in r["picks"] and set(r["estimates"]["calibration"]) == {"trim", "command_delay"}
                for r in records)
     assert all(r["episodes_run"] > 0 for r in records)
+    # split by family: no held-out agent is a variant of a tuning one
+    from proxybench.agents.families import family_of
+
+    assert all(not {family_of(a) for a in r["tuning_agents"]} & {family_of(a) for a in r["heldout_agents"]}
+               for r in records)
+    # agents as a sample: the gain from per-agent shares (their mean is the quality), two ways of resampling
+    level = summary["agent_level"]["prpv-nominal"]
+    assert level["targets_only"]["value"] == pytest.approx(methods["prpv"]["prpv_norm"]["vs_nominal"]["mean"])
+    assert level["targets_and_families"]["resampled"] == "both (families)"
+    assert {c["agent"] for c in level["contributions"]} == {a for r in records for a in r["heldout_agents"]}
+    # the episodes saved by each pick as the predictor (3 evaluation episodes per agent: enough to compute)
+    assert summary["savings"]["nominal"]["targets"] == 3 and "vs_nominal" in summary["savings"]["prpv"]
+    assert "agents as a sample" in res.output and "target episodes saved" in res.output
     assert set(summary["planned"]) == {"near", "far"} and summary["planned"]["far"]["targets"] > 0
     assert (out / "report.html").exists() and (out / "targets.csv").exists()
     written = (out / "criteria.json").read_bytes()

@@ -17,10 +17,14 @@ from proxybench.usefulness.validation import METHODS as _METHODS
 __all__ = ["FAMILIES", "NODE_AGENT", "PRIMARY_COMPARISONS", "PYTHON", "FamilyDefaults", "FamilyModes", "PrimaryPlan",
            "StratumPlan", "ValidateConfig", "ValidateSettings", "nominal_theta", "settings_for", "stratum_of"]
 
-#: the 16 zoo agents of distinct behaviour (the "-stop" variants equal their base on maps without stop lines)
+#: the 33 zoo agents of distinct behaviour in 10 families (the "-stop" variants equal their base on maps without stop
+#: lines; the calibration drives are the calibration method's, not agents): the first 16 and the 17 independently
+#: written controllers (agents/independent.py), so a family split can judge on controllers that share no code
 _POOL = ("random", "straight", "bang-bang", "pid", "pid-fast", "pid-sluggish", "pid-twitchy", "pure-pursuit",
          "pure-pursuit-fast", "vision", "vision-fast", "vision-slow", "vision-pitch15", "vision-pitch25",
-         "vision-wide", "vision-twitchy")
+         "vision-wide", "vision-twitchy", "stanley", "stanley-gentle", "stanley-fast", "lqr", "lqr-soft",
+         "lqr-delay", "mpc", "mpc-short", "mpc-fast", "cautious", "cautious-brisk", "hough", "hough-far",
+         "hough-fast", "birdseye", "birdseye-far", "birdseye-pitch25")
 #: a camera agent behind the AIDO protocol (its own process per episode), to keep node agents in every pool;
 #: ``{python}`` is the interpreter running the study, filled in at run time so that the settings (and with them
 #: criteria.json) do not depend on how proxybench was started (``python`` or ``python3`` of the same venv)
@@ -122,7 +126,10 @@ class ValidateConfig(StudyConfig):
     agents: Annotated[tuple[str, ...] | None, Cli("--agent", metavar="AGENT")] = Field(None, min_length=4)
     """the agent pool: zoo names, NAME=COMMAND nodes, checkpoints (split per target into tuning and held-out)"""
     tuning_share: float = Field(0.5, gt=0.0, lt=1.0)
-    """share of the pool that tunes θ (the rest judges it)"""
+    """share of the pool that tunes θ (the rest judges it; a random split)"""
+    split: Literal["family", "random"] = "family"
+    """how the pool is split per target: family (tune on some agent families, judge on the others, the direction
+    alternating over targets) | random (agents at random, tuning_share of them tuning)"""
     episodes_tune: int | None = Field(None, ge=1, le=100)
     """target episodes per tuning agent (E1)"""
     episodes_eval: int | None = Field(None, ge=1, le=100)
@@ -263,6 +270,7 @@ class ValidateSettings(BaseModel):
     targets: int
     agents: tuple[str, ...]
     tuning_share: float
+    split: Literal["family", "random"]
     episodes_tune: int
     episodes_eval: int
     seconds: float
@@ -376,7 +384,7 @@ def settings_for(cfg: ValidateConfig, quick: bool) -> ValidateSettings:
     _check_centred(grid)
     fields = dict(
         family=cfg.family, quick=quick, targets=cfg.targets or d.targets, agents=cfg.agents or d.agents,
-        tuning_share=cfg.tuning_share, episodes_tune=cfg.episodes_tune or d.episodes_tune,
+        tuning_share=cfg.tuning_share, split=cfg.split, episodes_tune=cfg.episodes_tune or d.episodes_tune,
         episodes_eval=cfg.episodes_eval or d.episodes_eval, seconds=seconds, maps=cfg.maps or d.maps,
         grid=grid, draw=cfg.draw or d.draw, metrics=cfg.metrics,
         tolerances={m: tolerances.get(m, 0.0) for m in cfg.metrics}, methods=cfg.methods, top_k=cfg.top_k,

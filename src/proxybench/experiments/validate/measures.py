@@ -15,9 +15,9 @@ from pydantic import BaseModel, ConfigDict, computed_field
 from proxybench.experiments.validate.config import ValidateSettings
 from proxybench.usefulness.validation import Comparison, Margin
 
-__all__ = ["QUALITIES", "ContinuousPick", "HitRate", "MeasureSummary", "MethodSummary", "Pick", "Primary",
-           "PrimaryTest", "Quality", "TargetRecord", "ValidationSummary", "oracle_steps", "qualities",
-           "regrets"]  # Comparison, Margin: usefulness.validation's
+__all__ = ["QUALITIES", "AgentLevel", "ContinuousPick", "Contribution", "HitRate", "Interval", "MeasureSummary",
+           "MethodSummary", "Pick", "Primary", "PrimaryTest", "Quality", "Savings", "SavingsSummary", "TargetRecord",
+           "ValidationSummary", "oracle_steps", "qualities", "regrets"]  # Comparison, Margin: usefulness.validation's
 
 QUALITIES = ("prpv_norm", "kendall_gap", "top1_regret", "topk_regret")
 
@@ -55,6 +55,18 @@ class ContinuousPick(_Model):
     """why the method is not applicable on this target"""
 
 
+class Savings(_Model):
+    """What one candidate proxy is worth in target episodes for deciding the held-out agents' pairs on E2
+    (:func:`proxybench.usefulness.episodes_saved.episodes_saved`; NaN with fewer than 3 episodes per agent)."""
+
+    worth: float
+    saved_share: float
+    episodes_alone: float
+    episodes_with: float
+    pairs: int
+    weights: tuple[float, ...]
+
+
 class TargetRecord(_Model):
     """One target of the study: the candidates (the grid, then the continuous methods' picks), each method's pick
     from the tuning agents, every candidate's quality on the held-out agents, and what ran (``targets/NNN.json``).
@@ -74,6 +86,11 @@ class TargetRecord(_Model):
     """per method that could not pick on this target: why (a target without poses has no calibration)"""
     estimates: dict[str, dict[str, float]] = {}
     """per continuous method, what it measured before clipping (calibration: trim, command_delay)"""
+    agent_shares: list[dict[str, float]] = []
+    """per candidate, each held-out agent's share of its PRPV/K(K−1) (their mean is the candidate's quality): the
+    per-agent contributions the agent-level resampling reads"""
+    savings: list[Savings] = []
+    """per candidate, its worth in target episodes for deciding the held-out agents' pairs"""
     target: str = ""
     map: str = ""
     tuning_agents: list[str] = []
@@ -188,6 +205,50 @@ class PrimaryTest(Margin):
     not_applicable: int  # targets of the stratum where the calibration could not pick (left out)
 
 
+class Interval(_Model):
+    """A point estimate with its percentile bootstrap interval and what was resampled."""
+
+    value: float
+    low: float
+    high: float
+    resampled: str
+    n_targets: int
+    n_agents: int = 0
+
+
+class Contribution(_Model):
+    """One held-out agent's leave-one-out share of a gain (negative: it makes PRPV look better)."""
+
+    agent: str
+    family: str
+    held_out: int
+    loo: float
+    low: float
+    high: float
+
+
+class AgentLevel(_Model):
+    """A gain (PRPV's pick − another method's, in held-out PRPV/K(K−1)) with targets alone resampled and with
+    targets *and* agent families resampled, and the agents it rests on most."""
+
+    targets_only: Interval
+    targets_and_families: Interval
+    contributions: list[Contribution]
+    """every held-out agent, largest |loo| first"""
+
+
+class SavingsSummary(_Model):
+    """A method's proxy (its pick on each target) as the predictor for deciding the held-out pairs: the median over
+    targets of the share of target episodes it saves, and of the episodes per agent a decided pair needs."""
+
+    targets: int
+    saved_share: Interval
+    episodes_alone: float
+    episodes_with: float
+    vs_nominal: Interval | None = None
+    """mean paired difference in saved share, this method's pick − the nominal θ (positive: it saves more)"""
+
+
 class ValidationSummary(_Model):
     """``summary.json``: the study's conclusion, per method, with the primary test (absent when PRPV picked on no
     target) and the targets' revealed θ."""
@@ -214,6 +275,12 @@ class ValidationSummary(_Model):
     that many can show with the declared power at the assumed SD (``mde``)"""
     truths: list[dict[str, float]] = []
     """each target's θ, revealed after scoring, in the final report only (empty at an interim look)"""
+    agent_level: dict[str, AgentLevel] = {}
+    """per comparison (``prpv-nominal``, ``prpv-calibration``, …): the gain resampled over targets and agent
+    families, and each held-out agent's contribution"""
+    savings: dict[str, SavingsSummary] = {}
+    """per method: target episodes its proxy saves when deciding the held-out pairs (the secondary endpoint of
+    issue 35 item 6); the nominal θ's too"""
 
     @computed_field  # type: ignore[prop-decorator]
     @property

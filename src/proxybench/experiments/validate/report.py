@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from proxybench.experiments.reporting import pyplot, save_figure
-from proxybench.experiments.validate.measures import QUALITIES, ValidationSummary, regrets
+from proxybench.experiments.reporting import html_table, pyplot, save_figure
+from proxybench.experiments.validate.measures import QUALITIES, Interval, ValidationSummary, regrets
 from proxybench.experiments.validate.run import ValidationRun
 from proxybench.usefulness.validation import minimum_detectable_effect
 
@@ -176,6 +176,47 @@ def _table(summary: ValidationSummary) -> str:
     return "<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>"
 
 
+def _iv(i: Interval) -> str:
+    return f"{i.value:+.4f} [{i.low:+.4f}, {i.high:+.4f}]"
+
+
+def _agent_level_html(summary: ValidationSummary) -> str:
+    """Each comparison's gain with targets alone and with targets and agent families resampled, and the agents
+    that carry it (the five largest leave-one-out contributions)."""
+    if not summary.agent_level:
+        return "<p>Too few targets with both picks for the agent-level resampling.</p>"
+    rows = [(name, _iv(a.targets_only), _iv(a.targets_and_families), a.targets_only.n_agents,
+             "; ".join(f"{c.agent} ({c.family}) {c.loo:+.4f} [{c.low:+.4f}, {c.high:+.4f}]"
+                       for c in a.contributions[:5]))
+            for name, a in summary.agent_level.items()]
+    return html_table(("comparison (negative: PRPV's pick better)", "targets resampled [95 %]",
+                       "targets and agent families resampled [95 %]", "held-out agents",
+                       "largest leave-one-agent-out contributions [95 %]"), rows)
+
+
+def _savings_html(summary: ValidationSummary) -> str:
+    if not summary.savings:
+        return ("<p>Not computed: it needs at least 3 evaluation episodes per held-out agent (episodes_eval) on "
+                "2 targets or more.</p>")
+    rows = [(m, _iv(v.saved_share), f"{v.episodes_alone:.1f}", f"{v.episodes_with:.1f}",
+             _iv(v.vs_nominal) if v.vs_nominal else "—", v.targets) for m, v in summary.savings.items()]
+    return html_table(("method's pick as the predictor", "share of target episodes saved, median [95 %]",
+                       "episodes per agent to decide a pair, alone (median)", "… with the proxy",
+                       "Δ saved share vs nominal θ's proxy (mean [95 %])", "targets"), rows)
+
+
+def secondary_lines(summary: ValidationSummary) -> list[str]:
+    """The agent-level resampling and the episodes saved, one line each, for the terminal."""
+    out = [f"{name}, agents as a sample: {_iv(a.targets_and_families)} with targets and agent families resampled "
+           f"({_iv(a.targets_only)} with targets alone; {a.targets_only.n_agents} held-out agents)"
+           for name, a in summary.agent_level.items()]
+    if summary.savings:
+        out.append("target episodes saved as the predictor for the held-out pairs (median over targets): " + ", ".join(
+            f"{m} {v.saved_share.value:.0%} [{v.saved_share.low:.0%}, {v.saved_share.high:.0%}]"
+            for m, v in summary.savings.items()))
+    return out
+
+
 def write_validation_report(run: ValidationRun, summary: ValidationSummary, out: str | Path) -> dict[str, Path]:
     """summary.json, targets.csv, two figures (PNG + SVG) and report.html in ``out``."""
     out = Path(out)
@@ -233,6 +274,18 @@ held-out (B) sets; {s.episodes_tune} tuning and {s.episodes_eval} fresh evaluati
 nominal θ at its centre) and the continuous methods' picks.</p>
 <h2>Every method against the nominal θ (secondary)</h2>{_table(summary)}{_img(files['forest'])}
 <h2>Regret per target</h2>{_img(files['strip'])}
+<h2>Agents as a sample too</h2>
+<p>The gain built from each held-out agent's share of PRPV/K(K−1), resampled over targets alone (the pool held
+fixed) and over targets and agent families (another pool like this one); split: {html.escape(s.split)}. An interval
+that widens a lot when families are resampled rests on a few families; the contributions name them.</p>
+{_agent_level_html(summary)}
+<h2>What each proxy is worth in target episodes (secondary)</h2>
+<p>Each method's pick as PPI++'s predictor for deciding the held-out agents' pairs on E2 (the target's own paired
+episodes, many proxy-only episodes assumed): the share of target episodes it saves for the same interval width, and
+a plug-in count of the episodes per agent a decidable pair needs (<code>usefulness/episodes_saved.py</code>). With
+{s.episodes_eval} episodes per agent these are rough; the proxy replays the target's starts and seeds but not its
+noise, so a saving needs episode-level correlation between proxy and target.</p>
+{_savings_html(summary)}
 {reveal}
 <details><summary>settings</summary><pre>{html.escape(json.dumps(s.model_dump(mode='json'), indent=1))}</pre></details>
 </body></html>"""

@@ -248,15 +248,34 @@ def _mean_error(theta: dict[str, float], runs, map_name: str, s: ValidateSetting
     return float(np.nanmean([validation.trajectory_error(rep, r[4]) for rep, r in zip(replays, runs, strict=True)]))
 
 
+def split_agents(k: int, specs: list[AgentSpec], s: ValidateSettings) -> tuple[list[AgentSpec], list[AgentSpec]]:
+    """Target ``k``'s tuning agents A and held-out agents B (seeded per target). ``family``: a random split of the
+    pool's families (agents/families.py), tuning on one side on even targets and on the other on odd ones, so no
+    held-out agent is a variant of a tuning one; ``random``: ``tuning_share`` of the agents at random."""
+    rng = np.random.default_rng([s.seed, k, 0x5B1])
+    if s.split == "family":
+        from proxybench.agents.families import family_map
+        from proxybench.usefulness.agent_resampling import family_splits
+
+        by_label = {a.label: a for a in specs}
+        families = family_map(list(by_label))
+        for _ in range(50):  # a split whose sides both hold two agents (a quality needs two of each)
+            first, second = family_splits(families, rng)[k % 2]
+            if len(first) >= 2 and len(second) >= 2:
+                return [by_label[a] for a in first], [by_label[a] for a in second]
+        raise ConfigError(f"split: the pool's families ({', '.join(sorted(set(families.values())))}) cannot be split "
+                          "into two sides of two agents or more; add agents of other families or use split: random")
+    order = rng.permutation(len(specs))
+    n_a = max(2, min(len(specs) - 2, round(len(specs) * s.tuning_share)))
+    return [specs[i] for i in sorted(order[:n_a])], [specs[i] for i in sorted(order[n_a:])]
+
+
 def run_target(k: int, target: Target, s: ValidateSettings, specs: list[AgentSpec], run_dir: Path,
                backend: Backend, progress: Progress | None = None) -> TargetRecord:
     """Run target ``k``: its episodes (the tuning agents on E1, the held-out agents on E2, the calibration drives),
     the methods' continuous picks, every candidate's replays (the grid: both halves; a continuous pick: the
     held-out half), and score it."""
-    rng = np.random.default_rng([s.seed, k, 0x5B1])
-    order = rng.permutation(len(specs))
-    n_a = max(2, min(len(specs) - 2, round(len(specs) * s.tuning_share)))
-    tune, held = [specs[i] for i in sorted(order[:n_a])], [specs[i] for i in sorted(order[n_a:])]
+    tune, held = split_agents(k, specs, s)
     seed_t = s.seed * 1000 + k + 1
     e1 = list(range(s.episodes_tune))
     e2 = list(range(s.episodes_tune, s.episodes_tune + s.episodes_eval))

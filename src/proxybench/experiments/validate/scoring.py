@@ -17,15 +17,20 @@ import numpy as np
 from proxybench.experiments.validate.config import ValidateSettings, nominal_theta, stratum_of
 from proxybench.experiments.validate.measures import (
     QUALITIES,
+    AgentLevel,
     ContinuousPick,
+    Contribution,
     CriteriaCheck,
     HitRate,
+    Interval,
     MeasureSummary,
     MethodSummary,
     Pick,
     Primary,
     PrimaryTest,
     Quality,
+    Savings,
+    SavingsSummary,
     TargetRecord,
     ValidationSummary,
     oracle_steps,
@@ -34,6 +39,9 @@ from proxybench.experiments.validate.measures import (
 )
 from proxybench.tasks.metrics import METRICS as TASK_METRICS
 from proxybench.usefulness import calibration
+from proxybench.usefulness.agent_resampling import prpv_agent_shares
+from proxybench.usefulness.episodes_saved import episodes_saved
+from proxybench.usefulness.metrics import agent_means, dominance_from_means
 from proxybench.usefulness.validation import (
     CONTINUOUS,
     METHODS,
@@ -132,8 +140,15 @@ def score_target(s: ValidateSettings, k: int, cands: list[dict[str, float]], tar
                            np.random.default_rng([s.seed, k, METHODS.index(method)]))
         picks[method] = Pick(index=index, ties=ties)
         scores[method] = [float(v) for v in values]
+    agents = list(target_b)
+    dom_t = dominance_from_means(agent_means(target_b, agents), higher)
+    shares = [dict(zip(agents, map(float, prpv_agent_shares(dominance_from_means(agent_means(p, agents), higher),
+                                                             dom_t)), strict=True)) for p in prox_b]
+    savings = [Savings(**episodes_saved({a: target_b[a] for a in agents}, p, tol, s.alpha).as_dict())
+               for p in prox_b]
     return TargetRecord(candidates=cands, nominal_index=nominal_index, quality=qualities_b, picks=picks,
-                        scores=scores, grid_size=grid_size, not_applicable=not_applicable, estimates=estimates)
+                        scores=scores, grid_size=grid_size, not_applicable=not_applicable, estimates=estimates,
+                        agent_shares=shares, savings=savings)
 
 
 def primary_tests(s: ValidateSettings, recs: list[TargetRecord], strata: list[str] | None) -> list[PrimaryTest]:
@@ -152,6 +167,81 @@ def primary_tests(s: ValidateSettings, recs: list[TargetRecord], strata: list[st
                                fallback_sd=s.assumed_sd)
             out.append(PrimaryTest(**test.as_dict(), stratum=stratum,
                                    not_applicable=sum(other in r.not_applicable for r in group)))
+    return out
+
+
+def _comparisons(s: ValidateSettings) -> list[tuple[str, str]]:
+    """PRPV against the nominal θ and against each calibration of the primary comparison that the study ran."""
+    return [("prpv", "nominal"), *(("prpv", m) for m in s.primary.comparisons if m in s.methods)]
+
+
+def _interval(r: Any) -> Interval:
+    return Interval(value=r.mean, low=r.low, high=r.high, resampled=r.resample + (" (families)" if r.by_family else ""),
+                    n_targets=r.n_targets, n_agents=r.n_agents)
+
+
+def agent_level(s: ValidateSettings, recs: list[TargetRecord]) -> dict[str, AgentLevel]:
+    """Per comparison a − b: the gain in held-out PRPV/K(K−1) built from each held-out agent's share (so that the
+    pool, not only the targets, is a sample), resampled over targets alone and over targets and agent families
+    (:mod:`proxybench.usefulness.agent_resampling`), and each agent's leave-one-out contribution."""
+    from proxybench.agents.families import family_map
+    from proxybench.usefulness.agent_resampling import ContributionTable, agent_contributions, two_way_bootstrap
+
+    out = {}
+    for a, b in _comparisons(s):
+        rows = [(str(k), agent, share - r.agent_shares[r.picks[b].index][agent])
+                for k, r in enumerate(recs) if a in r.picks and b in r.picks and r.agent_shares
+                for agent, share in r.agent_shares[r.picks[a].index].items()
+                if np.isfinite(share - r.agent_shares[r.picks[b].index][agent])]
+        if len({t for t, _, _ in rows}) < 2:
+            continue
+        table = ContributionTable.from_records(rows)
+        families = family_map(table.agents)
+        contributions = sorted(agent_contributions(table, groups=families, seed=s.seed), key=lambda c: -abs(c.loo))
+        out[f"{a}-{b}"] = AgentLevel(
+            targets_only=_interval(two_way_bootstrap(table, resample="targets", seed=s.seed)),
+            targets_and_families=_interval(two_way_bootstrap(table, groups=families, seed=s.seed)),
+            contributions=[Contribution(agent=c.agent, family=c.family or "", held_out=c.n_targets, loo=c.loo,
+                                        low=c.low, high=c.high) for c in contributions])
+    return out
+
+
+def _median_interval(values: np.ndarray, seed: int) -> tuple[float, float, float]:
+    """The median and its 95 % percentile bootstrap interval over targets."""
+    rng = np.random.default_rng([seed, 0x5A7E])
+    boots = np.median(values[rng.integers(0, len(values), (2000, len(values)))], axis=1)
+    med = float(np.median(values))
+    lo, hi = np.percentile(boots, [2.5, 97.5])
+    return med, min(float(lo), med), max(float(hi), med)
+
+
+def savings_summary(s: ValidateSettings, recs: list[TargetRecord]) -> dict[str, SavingsSummary]:
+    """Per method: the share of target episodes its pick saves as PPI++'s predictor for deciding the held-out pairs
+    (median over targets, bootstrap interval), the episodes per agent a decided pair needs with and without it, and
+    the paired difference in saved share against the nominal θ's proxy."""
+    from proxybench.usefulness.validation import compare
+
+    def saved(r: TargetRecord, m: str) -> float:
+        return r.savings[r.picks[m].index].saved_share if m in r.picks and r.savings else float("nan")
+
+    out = {}
+    for m in (x for x in s.methods if any(x in r.picks for r in recs)):
+        mine = np.array([saved(r, m) for r in recs])
+        ok = np.isfinite(mine)
+        if ok.sum() < 2:
+            continue
+        med, lo, hi = _median_interval(mine[ok], s.seed)
+        used = [r for r, good in zip(recs, ok, strict=True) if good]
+        alone = np.nanmedian([r.savings[r.picks[m].index].episodes_alone for r in used])
+        with_p = np.nanmedian([r.savings[r.picks[m].index].episodes_with for r in used])
+        vs = None
+        if m != "nominal":
+            c = compare(m, "nominal", mine, [saved(r, "nominal") for r in recs], seed=s.seed)
+            vs = Interval(value=c.mean, low=c.low, high=c.high, resampled="targets", n_targets=c.n)
+        out[m] = SavingsSummary(targets=int(ok.sum()),
+                                saved_share=Interval(value=med, low=lo, high=hi, resampled="targets (median)",
+                                                     n_targets=int(ok.sum())),
+                                episodes_alone=float(alone), episodes_with=float(with_p), vs_nominal=vs)
     return out
 
 
@@ -216,4 +306,5 @@ def summarize(run: ValidationRun, criteria: dict[str, Any] | None = None) -> Val
     return ValidationSummary(settings=s, targets=len(recs), interim=interim, methods=out, criteria=check,
                              primary_tests=primary_tests(s, recs, None if interim else strata), primary=primary,
                              planned=_planned(s),
-                             truths=truths, strata=strata, wall_s=run.wall_s)
+                             truths=truths, strata=strata, agent_level=agent_level(s, recs),
+                             savings=savings_summary(s, recs), wall_s=run.wall_s)

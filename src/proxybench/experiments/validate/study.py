@@ -89,11 +89,13 @@ class ValidateStudy(Study[ValidateConfig, "ValidationResult | OwnTargetResult"])
         if isinstance(result, OwnTargetResult):
             show_own_target(result, console, wall=wall)
             return
-        from proxybench.experiments.validate.report import answer
+        from proxybench.experiments.validate.report import answer, secondary_lines
 
         for note in result.run.notes:
             console.print(note, highlight=False, markup=False)
         console.print(answer(result.summary), highlight=False, markup=False)
+        for line in secondary_lines(result.summary):
+            console.print(line, highlight=False, markup=False)
         console.print(f"{result.run.episodes_run} episodes run now; wall {wall:.0f} s", highlight=False, markup=False)
         if result.look_sha256:
             console.print(f"this look is line sha256 {result.look_sha256} of looks.jsonl", highlight=False,
