@@ -46,11 +46,13 @@ def test_an_edited_shipped_table_fails_the_check_naming_the_number(shipped: Path
     i = head.index("decided_with")
     row[i] = str(int(row[i]) + 5)
     csv.write_text("\n".join([lines[0], ",".join(row), *lines[2:]]) + "\n")
+    was = json.loads((shipped / "results" / "numbers.json").read_text())["numbers"]["rank_check_gym.decided_with"]
     res = _cli("results", "rebuild", "--check", "--root", str(shipped))
     assert res.exit_code == 1, res.output
-    assert "rank_check_gym.decided_with: results/numbers.json says 207, recomputed 212" in res.output
+    assert (f"rank_check_gym.decided_with: results/numbers.json says {was['value']}, recomputed {was['value'] + 5}"
+            in res.output)
     assert "results/rank_check_gym/summary.json is not its recomputation" in res.output
-    assert "README.md line" in res.output and "rank_check_gym.decided_with is quoted as 207" in res.output
+    assert "README.md line" in res.output and f"rank_check_gym.decided_with is quoted as {was['value']}" in res.output
 
 
 def test_an_edited_number_or_quote_fails_the_check_naming_it(shipped: Path):
@@ -172,9 +174,11 @@ def test_export_refuses_a_failed_pre_registration_check(study: Path, tmp_path: P
 
 def test_export_refuses_a_rank_check_study_that_is_still_running(tmp_path: Path):
     study = Path(shutil.copytree(REPO / "results" / "rank_check_gym", tmp_path / "study"))
-    for k in range(22):  # the folder already holds targets past the 20 its summary covers
+    covered = json.loads((study / "summary.json").read_text())["targets"]
+    for k in range(covered + 2):  # the folder already holds targets past those its summary covers
         (study / "targets" / str(k) / "runs").mkdir(parents=True)
     (tmp_path / "results").mkdir()
     res = _cli("results", "export", str(study), "gym", "--root", str(tmp_path))
     assert res.exit_code == 1
-    assert "holds 22 targets' episodes but its summary covers 20: the study is running or was extended" in res.output
+    assert (f"holds {covered + 2} targets' episodes but its summary covers {covered}: the study is running or was "
+            "extended") in res.output

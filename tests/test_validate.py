@@ -262,6 +262,8 @@ def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path, m
     # the episodes saved by each pick as the predictor (3 evaluation episodes per agent: enough to compute)
     assert summary["savings"]["nominal"]["targets"] == 3 and "vs_nominal" in summary["savings"]["prpv"]
     assert "agents as a sample" in res.output and "target episodes saved" in res.output
+    # a quick study says it cannot answer, in the terminal and in summary.json's verdict (issue 39)
+    assert "CANNOT ANSWER THE QUESTION" in res.output and summary["verdict"].startswith("QUICK MODE")
     assert set(summary["planned"]) == {"near", "far"} and summary["planned"]["far"]["targets"] > 0
     assert (out / "report.html").exists() and (out / "targets.csv").exists()
     written = (out / "criteria.json").read_bytes()

@@ -46,7 +46,9 @@ _MARKER = re.compile(r"<!--\s*n:(.*?)-->", re.S)
 #: part of a word or of a longer figure (``K−1``, ``v2``)
 _FIGURE = re.compile(r"(?<![\w.,+\-−])[+\-−]?(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(?![\w])")
 #: summary fields that are not the study's result (where and when it was recomputed)
-_NOT_COMPARED = ("criteria.commit_now", "criteria.scoring_unchanged", "criteria.problems")
+#: fields of a validate summary.json that are not recomputed numbers: the checks of the day, and the verdict sentence
+#: the report adds (the report's words about the numbers, which are compared themselves)
+_NOT_COMPARED = ("criteria.commit_now", "criteria.scoring_unchanged", "criteria.problems", "verdict")
 
 
 class EvidenceError(Exception):

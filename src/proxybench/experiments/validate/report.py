@@ -72,6 +72,12 @@ def answer(summary: ValidationSummary) -> str:
     n, fam = summary.targets, summary.family
     head = (f"INTERIM LOOK, {n} of {summary.targets_planned} pre-registered targets (the decision waits for all of "
             "them; the strata are shown with the targets' θ in the final report only). ") if summary.interim else ""
+    if summary.settings.quick:
+        p_mde = p.minimum_detectable_difference if p is not None else float("nan")
+        head = (f"QUICK MODE ({n} targets, {len(summary.settings.agents)} agents, {summary.settings.seconds:g}-s "
+                "episodes): a smoke test of the study that CANNOT ANSWER THE QUESTION — with so few targets the "
+                f"smallest difference it could detect is about {p_mde:.2f} PRPV/K(K−1), larger than any plausible "
+                f"effect; run the full study (without --quick) for an answer. {head}")
     primary = (" ".join(primary_sentences(summary))
                or "The primary comparison (PRPV against the calibrations) was not run.")
     if p is None:
@@ -221,7 +227,8 @@ def write_validation_report(run: ValidationRun, summary: ValidationSummary, out:
     """summary.json, targets.csv, two figures (PNG + SVG) and report.html in ``out``."""
     out = Path(out)
     files = {"summary": out / "summary.json", "csv": out / "targets.csv", "html": out / "report.html"}
-    files["summary"].write_text(json.dumps(summary.model_dump(), indent=1, default=float))
+    data = {**summary.model_dump(), "verdict": answer(summary)}  # the answer in words, beside the numbers
+    files["summary"].write_text(json.dumps(data, indent=1, default=float))
     _frame(run, summary).to_csv(files["csv"], index=False)
     files["forest"] = _forest(summary, out / "vs_nominal.png")
     files["strip"] = _strip(run, summary, out / "regrets.png")
