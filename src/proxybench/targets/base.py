@@ -9,15 +9,17 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from proxybench.domain.kinds import DomainKind
 from proxybench.domain.params import DomainParams
-from proxybench.runner.backends import Backend
 from proxybench.runner.jobs import AgentSpec, DomainSpec, Job, JobResult
 from proxybench.untrusted import repeated
+
+if TYPE_CHECKING:  # the backends load the episode engine: not at import, so a config (and --help) stays light
+    from proxybench.runner.backends import Backend
 
 __all__ = ["Episodes", "Progress", "Target", "TargetEpisode", "TargetInfo", "TargetRun", "by_agent", "episode_count",
            "episode_ids", "episode_seed", "id_ranges", "live_run", "parse_episodes"]
