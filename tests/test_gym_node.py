@@ -393,7 +393,7 @@ def test_a_20_s_episode_through_the_node_is_gym_run_directly(venv: Path) -> None
 # ------------------------------------------------------------------------------ recorded, hidden θ, reveal
 def test_a_recording_says_gym_and_keeps_only_the_hash_of_hidden_parameters(venv: Path, tmp_path: Path) -> None:
     theta = tmp_path / "theta.yaml"
-    theta.write_text("trim: 0.1\ncamera_width: 80\ncamera_height: 60\nnonce: xyzzy\n")
+    theta.write_text("trim: 0.1\ncamera_width: 80\ncamera_height: 60\nnonce: xyzzy-0123456789abcdef\n")
     cmd = f"{sys.executable} -m proxybench.cli gym serve --param-file {theta} --secret"
     res = CliRunner().invoke(app, ["target", "record", "--target", f"robot:{cmd}", "--agent", "pid", "--episodes", "1",
                                    "--seconds", "1", "--out", str(tmp_path / "rec")])

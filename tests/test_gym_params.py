@@ -42,16 +42,20 @@ def test_values_are_read_as_yaml_and_defaults_are_gyms() -> None:
 
 def test_hidden_parameters_show_only_a_hash_that_the_nonce_salts(tmp_path) -> None:
     f = tmp_path / "theta.yaml"
-    f.write_text("trim: 0.1\nnonce: s3cret\n")
+    f.write_text("trim: 0.1\nnonce: s3cret-0123456789abcdef\n")
     hidden = gym_params([], f, secret=True)
     assert hidden.public() == {"hidden": True, "sha256": hidden.sha256} and hidden.values["trim"] == 0.1
-    f.write_text("trim: 0.1\nnonce: other\n")
+    f.write_text("trim: 0.1\nnonce: other-0123456789abcdef\n")
     assert gym_params([], f, secret=True).sha256 != hidden.sha256  # not guessable from trim alone
     assert gym_params(["trim=0.1"]).sha256 != hidden.sha256
     with pytest.raises(GymParamError, match="--param is visible in the command"):
         gym_params(["trim=0.1"], f, secret=True)
     with pytest.raises(GymParamError, match="--secret needs --param-file"):
         gym_params([], None, secret=True)
+    for nonce in ("", "nonce: short\n"):  # a hidden θ's hash without a long nonce can be brute-forced (issue 38)
+        f.write_text("trim: 0.1\n" + nonce)
+        with pytest.raises(GymParamError, match="--secret needs a random `nonce:` of 16 characters"):
+            gym_params([], f, secret=True)
     f.write_text("trim: 2\n")
     with pytest.raises(GymParamError, match=rf"--param-file {f}: parameter trim=2: out of range"):
         gym_params([], f)

@@ -213,6 +213,10 @@ def gym_params(items: list[str], param_file: str | Path | None = None, secret: b
     if secret and param_file is None:
         raise GymParamError("--secret needs --param-file FILE with the hidden parameters")
     values, nonce = load_param_file(param_file) if param_file is not None else ({}, "")
+    if secret and len(nonce) < 16:  # without one, the hash a report shows of a hidden θ is a brute-force away
+        raise GymParamError(f"--param-file {param_file}: --secret needs a random `nonce:` of 16 characters or more in "
+                            "the file (e.g. `nonce: " + "0" * 4 + "…`, from `python3 -c 'import secrets; "
+                            "print(secrets.token_hex(16))'`); a hidden θ's hash without one can be brute-forced")
     values.update(parse_param_items(items))
     return GymParams({**DEFAULTS, **values}, secret, nonce)
 
