@@ -7,15 +7,17 @@ import sys
 import typer
 from rich.console import Console
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
+from proxybench.cli.help import HelpTyper
+
+app = HelpTyper(add_completion=False, no_args_is_help=True,
                   help="proxybench: develop, benchmark and measure the usefulness of Duckietown simulators.")
-map_app = typer.Typer(no_args_is_help=True, help="Check, list and draw Duckietown map files.")
+map_app = HelpTyper(no_args_is_help=True, help="Check, list and draw Duckietown map files.")
 app.add_typer(map_app, name="map")
-agent_app = typer.Typer(no_args_is_help=True, help="The built-in agent zoo.")
+agent_app = HelpTyper(no_args_is_help=True, help="The built-in agent zoo.")
 app.add_typer(agent_app, name="agent")
-robot_app = typer.Typer(no_args_is_help=True, help="Robots behind AIDO's simulator protocol (simulated or real).")
+robot_app = HelpTyper(no_args_is_help=True, help="Robots behind AIDO's simulator protocol (simulated or real).")
 app.add_typer(robot_app, name="robot")
-gym_app = typer.Typer(no_args_is_help=True, help="gym-duckietown (another simulator) as a robot node: setup, check, "
+gym_app = HelpTyper(no_args_is_help=True, help="gym-duckietown (another simulator) as a robot node: setup, check, "
                       "serve.")
 app.add_typer(gym_app, name="gym")
 # wide enough for result tables when the output is a file or a pipe (rich assumes 80 columns there);

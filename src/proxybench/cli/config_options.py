@@ -326,6 +326,13 @@ def _option(path: tuple[str, ...], field: Any, name: str, command_default: str |
                                                             annotation=annotation), kind.convert)
 
 
+def _panel_title(name: str, description: str) -> str:
+    """A section's box title: ``name: description``, the name once where the description starts with it."""
+    if not description:
+        return name
+    return description if description.startswith(f"{name}:") else f"{name}: {description}"
+
+
 def _negative(name: str, field_name: str) -> str:
     """``--no-…`` of a flag: ``--robot-reflection`` → ``--robot-no-reflection``, ``--family`` → ``--no-family``."""
     stem = field_name.replace("_", "-")
@@ -351,7 +358,7 @@ def study_option_list(model: type[BaseModel], *, exclude: tuple[str, ...] = (),
                 out += [made] if made is not None else []
             prefix = _prefix + (hint.prefix if hint.prefix is not None else name.replace("_", "-") + "-")
             out += study_option_list(tp, exclude=exclude, defaults=defaults, _path=path, _prefix=prefix,
-                                     panel=f"{name}: {_text(field.description)}" if field.description else name)
+                                     panel=_panel_title(name, _text(field.description)))
             continue
         option = hint.option or f"--{_prefix}{name.replace('_', '-')}"
         made = _option(path, field, option, (defaults or {}).get(".".join(path)), panel)

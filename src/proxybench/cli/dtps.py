@@ -11,9 +11,10 @@ import typer
 from rich.markup import escape
 
 from proxybench.cli.app import app, console, err_console, fail
+from proxybench.cli.help import HelpTyper
 from proxybench.cli.options import positive
 
-dtps_app = typer.Typer(no_args_is_help=True, help="duckietown-sdk agents and DTPS robots (docs/dtps.md).")
+dtps_app = HelpTyper(no_args_is_help=True, help="duckietown-sdk agents and DTPS robots (docs/dtps.md).")
 app.add_typer(dtps_app, name="dtps")
 
 PathOpt = typer.Option(None, "--path", help="the SDK environment's folder (default: $PROXYBENCH_DTPS_ENV, else "

@@ -15,10 +15,11 @@ import typer
 from rich.progress import Progress
 
 from proxybench.cli.app import app, console, fail
+from proxybench.cli.help import HelpTyper
 from proxybench.cli.options import non_negative, positive
 from proxybench.cli.progress import stage_bars
 
-learn_app = typer.Typer(no_args_is_help=True, help="Behaviour cloning: datasets, training, fine-tuning, evaluation.")
+learn_app = HelpTyper(no_args_is_help=True, help="Behaviour cloning: datasets, training, fine-tuning, evaluation.")
 app.add_typer(learn_app, name="learn")
 
 

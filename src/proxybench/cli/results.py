@@ -8,8 +8,9 @@ from pathlib import Path
 import typer
 
 from proxybench.cli.app import app, console, fail, problem
+from proxybench.cli.help import HelpTyper
 
-results_app = typer.Typer(no_args_is_help=True, help="The shipped evidence in results/: export a finished study, "
+results_app = HelpTyper(no_args_is_help=True, help="The shipped evidence in results/: export a finished study, "
                           "rebuild (and check) every README number from what is shipped.")
 app.add_typer(results_app, name="results")
 

@@ -9,8 +9,9 @@ import subprocess
 import typer
 
 from proxybench.cli.app import app, console, fail
+from proxybench.cli.help import HelpTyper
 
-sandbox_app = typer.Typer(no_args_is_help=True, help="The sandbox that evaluators run agent packages in.")
+sandbox_app = HelpTyper(no_args_is_help=True, help="The sandbox that evaluators run agent packages in.")
 app.add_typer(sandbox_app, name="sandbox")
 
 AgentUserOpt = typer.Option("proxybench-agent", help="the unprivileged user agent packages run as")

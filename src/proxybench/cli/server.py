@@ -22,6 +22,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from proxybench.cli.app import app, console, err_console, fail, require_extra
+from proxybench.cli.help import HelpTyper
 from proxybench.cli.node_options import with_robot_node_options
 from proxybench.cli.options import positive
 from proxybench.cli.progress import status
@@ -29,7 +30,7 @@ from proxybench.cli.progress import status
 if TYPE_CHECKING:
     from proxybench.protocol.options import RobotNodeOptions
 
-server_app = typer.Typer(no_args_is_help=True, help="Administer a challenges server (users, benchmarks, paths).")
+server_app = HelpTyper(no_args_is_help=True, help="Administer a challenges server (users, benchmarks, paths).")
 app.add_typer(server_app, name="server")
 
 T = TypeVar("T")

@@ -12,6 +12,7 @@ from rich.table import Table
 
 from proxybench.cli.app import app, console, fail, problem
 from proxybench.cli.dtps_options import DtpsKind, DtpsOption, DtpsReset, dtps_option_values
+from proxybench.cli.help import HelpTyper
 from proxybench.cli.node_options import with_robot_node_options
 from proxybench.cli.options import positive
 from proxybench.cli.progress import status
@@ -19,7 +20,7 @@ from proxybench.cli.progress import status
 if TYPE_CHECKING:
     from proxybench.protocol.options import RobotNodeOptions
 
-target_app = typer.Typer(no_args_is_help=True, help="Record a target once (reality model, robot node or DTPS robot), "
+target_app = HelpTyper(no_args_is_help=True, help="Record a target once (reality model, robot node or DTPS robot), "
                                                     "check recorded targets (your lab's runs).")
 app.add_typer(target_app, name="target")
 

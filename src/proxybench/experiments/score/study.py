@@ -41,7 +41,7 @@ class ScoreStudy(ExperimentStudy):
     quick_help = "the live target's quick episodes (12 agents × 3 × 20 s)"
     out = "out/score"
     out_help = "score.json and the episode cache (OUT/runs)"
-    exclude = ("search", "plan", "sweep", "pod_seconds")
+    exclude = ("search", "plan", "sweep", "pod_seconds", "plv", "truth")  # not used by a score
     extra_defaults = {"param": "the nominal calibration", "vs_param": "the nominal calibration"}  # noqa: RUF012
 
     def run(self, config: ScoreConfig, out: Path, backend: Any, progress: Progress, *,
