@@ -56,6 +56,12 @@ class VideoWriter:
                                      ffmpeg_log_level="error")
 
     def append(self, frame: np.ndarray) -> None:
+        """Add a frame, padded with black to a multiple of 8 pixels (the codec's blocks): imageio would resize it
+        and warn on stderr, in the middle of a command's progress lines."""
+        h, w = frame.shape[:2]
+        pad = ((0, -h % 8), (0, -w % 8)) + ((0, 0),) * (frame.ndim - 2)
+        if pad[0][1] or pad[1][1]:
+            frame = np.pad(frame, pad)
         self._w.append_data(np.ascontiguousarray(frame))
 
     def close(self) -> None:

@@ -12,7 +12,8 @@ with the given options on top (an option beats the file, the file beats the defa
   default is settled only when it runs (by ``--quick``, by the target);
 - numbers keep their bounds (an integer's ``ge`` / ``le`` as a range, a float's checked, ``nan`` and ``inf``
   refused) and a bad value is a usage error naming the option, before anything runs;
-- lists are repeated options (``--agent a --agent b``; numbers also ``--ladder 50,100``); mappings are
+- lists are repeated options (``--agent a --agent b``; numbers and metric names also ``--ladder 50,100``,
+  ``--metric a,b``); mappings are
   repeated ``NAME=VALUE`` (``--sweep trim=-0.1,0,0.1``, ``--param trim=-0.3:0.3``; values of ``Any`` read as
   YAML); booleans are ``--flag/--no-flag``; a fixed-size tuple is one value (``--image-size 160x120``).
 
@@ -253,20 +254,26 @@ def _tuple_kind(tp: Any, elem: Any, sep: str, name: str, hint: Any) -> _Kind:
     return _Kind(str, convert, {"metavar": metavar})
 
 
-def _list_kind(elem: Any, sep: str, name: str, hint: Any) -> _Kind:
-    """A repeated option; numbers may also come separated (``--ladder 50,100``)."""
+#: list fields whose values are names that never hold a comma: ``--metric a,b`` is ``--metric a --metric b``
+#: (other text lists, such as commands and paths, may hold commas: those are repeated)
+NAME_LISTS = ("metrics",)
+
+
+def _list_kind(elem: Any, sep: str, name: str, hint: Any, names: bool = False) -> _Kind:
+    """A repeated option; numbers (and ``names``) may also come separated (``--ladder 50,100``)."""
     numeric = elem in (int, float)
 
     def convert(items: list[str]) -> list[Any]:
         out: list[Any] = []
         for item in items:
             try:
-                out += _split(item, elem, sep) if numeric else [_scalar(elem)(item)]
+                out += _split(item, elem, sep) if numeric or names else [_scalar(elem)(item)]
             except ValueError:
                 raise _bad(item, f"{elem.__name__} values", name) from None
         return out
 
-    return _Kind(list[str], convert, {"metavar": hint.metavar or (f"V[{sep}V…]" if numeric else None)})
+    return _Kind(list[str], convert, {"metavar": hint.metavar or (f"V[{sep}V…]" if numeric else
+                                                                  f"NAME[{sep}NAME…]" if names else None)})
 
 
 def _mapping_kind(tp: Any, sep: str, name: str, hint: Any) -> _Kind:
@@ -312,7 +319,8 @@ def _option(path: tuple[str, ...], field: Any, name: str, command_default: str |
     elif seq is not None and hint.count:  # a count N: 0 … N−1
         kind = _Kind(int, lambda n: list(range(n)), {"min": 1, "max": 100_000, "metavar": "N"})
     elif seq is not None:
-        kind = _tuple_kind(tp, seq[0], sep, name, hint) if seq[1] else _list_kind(seq[0], sep, name, hint)
+        kind = _tuple_kind(tp, seq[0], sep, name, hint) if seq[1] else \
+            _list_kind(seq[0], sep, name, hint, names=path[-1] in NAME_LISTS)
     elif typing.get_origin(tp) in (typing.Union, types.UnionType):  # e.g. a count or ids: the model reads the text
         kind = _Kind(str, _yaml, {"metavar": hint.metavar})
     elif typing.get_origin(tp) in (dict, Mapping) or dataclasses.is_dataclass(tp) or \

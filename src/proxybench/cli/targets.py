@@ -25,6 +25,11 @@ target_app = HelpTyper(no_args_is_help=True, help="Record a target once (reality
 app.add_typer(target_app, name="target")
 
 
+def counted(n: int, word: str) -> str:
+    """``1 agent``, ``2 agents``: a count and its noun, in the number the count asks for."""
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
 @target_app.command("record")
 @with_robot_node_options(command="target", command_option="--target robot:CMD")
 def record(
@@ -118,7 +123,8 @@ def record(
             be.close()
     m = summary.manifest
     console.print(f"recorded {summary.recorded} episode(s), kept {summary.kept} already recorded, in "
-                  f"{time.perf_counter() - t0:.0f} s: {len(m.agents)} agents × {len(m.episodes)} episodes × "
+                  f"{time.perf_counter() - t0:.0f} s: {counted(len(m.agents), 'agent')} × "
+                  f"{counted(len(m.episodes), 'episode')} × "
                   f"{m.seconds:g} s on {m.map} (source: {m.source}) → {out}", highlight=False)
     for line in summary.failed:
         problem(line, mark="agent failure recorded:", style="yellow")
@@ -143,7 +149,8 @@ def _target_text(target: str | None, reality: bool, robot_cmd: str | None, dtps:
 @target_app.command("check")
 def check(
     root: Path = typer.Argument(..., help="directory of a recorded target (or its target.yaml)"),
-    metric: list[str] = typer.Option([], "--metric", help="metrics to score and show (repeat) "
+    metric: list[str] = typer.Option([], "--metric", metavar="NAME[,NAME…]", help="metrics to score and show "
+                                     "(repeat, or a,b) "
                                      "(default: survival_time, driven_lanedir_consec, or the table's)"),
 ) -> None:
     """Validate a recorded target and print a summary; every problem names its file, row and column."""
@@ -153,13 +160,14 @@ def check(
     from proxybench.targets.spec import RecordedTarget
     from proxybench.tasks.trajectory import Termination
 
-    report = check_recording(root, tuple(metric) or None)
+    report = check_recording(root, tuple(n.strip() for item in metric for n in item.split(",") if n.strip()) or None)
     if not report.ok:
         raise fail("\n".join([f"{root}: {len(report.problems)} problem(s)", *report.problems]), mark="✗")
     m = report.manifest
     assert m is not None
     console.print(f"[green]✓[/green] {report.root}: {RecordedTarget(report.root).info().statement}", highlight=False)
-    console.print(f"map {m.map}, {m.seconds:g} s episodes, {len(m.agents)} agents × {len(m.episodes)} episodes "
+    console.print(f"map {m.map}, {m.seconds:g} s episodes, {counted(len(m.agents), 'agent')} × "
+                  f"{counted(len(m.episodes), 'episode')} "
                   f"({m.kind}: {m.metrics_table or m.pattern})", highlight=False)
     if m.robot is not None and m.robot.dtps is not None:
         console.print(f"DTPS robot: {m.robot.describe()}", highlight=False, markup=False)

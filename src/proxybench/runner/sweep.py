@@ -19,8 +19,9 @@ import json
 import math
 import os
 import time
+from collections import Counter
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, fields, is_dataclass
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
 
 from proxybench.domain.events import Termination
@@ -115,16 +116,21 @@ def run_jobs(
             todo.append(job)
     cached = len(by_key)
     t0 = time.perf_counter()
+    # progress counts jobs, not keys: jobs that are the same episode (a swept value equal to the nominal θ) run
+    # once and are all done then, so the count reaches the total (it stopped at 70 % of a sweep: issue 39)
+    copies = Counter(keys)
+    done = sum(copies[k] for k in by_key)
     if progress:
-        progress(cached, len(jobs), None)
+        progress(done, len(jobs), None)
     out = str(ep_dir) if keep_trajectories else None
     for res in backend.run(_batches(todo, batch_size, backend.workers), out):
         if res.termination not in UNSTORED:
             _write_atomic(ep_dir / f"{res.key}.json", res.to_json())
+        done += copies[res.key] if res.key not in by_key else 0
         by_key[res.key] = res
         if progress:
-            progress(len(by_key), len(jobs), res)
-    results = [by_key[k] for k in keys]
+            progress(done, len(jobs), res)
+    results = [_as_job(by_key[k], job) for job, k in zip(jobs, keys, strict=True)]
     sweep = SweepResult(results, run_dir, cached, len(todo), time.perf_counter() - t0)
     for r in (by_key[k] for k in queued):
         for k, v in r.timings.items():
@@ -134,6 +140,12 @@ def run_jobs(
     frame.to_parquet(tmp, index=False)
     tmp.replace(run_dir / "results.parquet")
     return sweep
+
+
+def _as_job(res: JobResult, job: Job) -> JobResult:
+    """``res`` under ``job``'s own domain name: jobs that are the same episode (the nominal θ and a swept value
+    equal to it) share one result, and each is listed as itself in results.parquet (the nominal θ was missing)."""
+    return res if res.domain == job.domain.name else replace(res, domain=job.domain.name)
 
 
 def _run_record(jobs: Sequence[Job], keys: Sequence[str], backend: Backend) -> str:

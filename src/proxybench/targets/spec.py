@@ -117,7 +117,10 @@ class RecordedTarget(Target):
                            + (f": {m.robot.simulator.describe()}, another simulator than proxybench's"
                               if m.robot and m.robot.simulator and m.robot.kind == "simulation" else "")
                            + "); proxybench cannot tell whether a robot node is a real robot or a simulator"),
-            "simulation": "SIMULATED runs of another simulator",
+            # the source says a simulator ran it, not which: proxybench's own simulated watchtower runs
+            # (run/evaluate --watchtowers, then localize) are "simulation" too ("another simulator" was wrong there)
+            "simulation": "SIMULATED runs (of a simulator: proxybench's own or another; the recording does not say "
+                          "which)",
             "dtps-robot": _dtps_words(m.robot),
         }[m.source]
         told = m.robot.dtps.kind if m.robot and m.robot.dtps else None

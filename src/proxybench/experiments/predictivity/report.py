@@ -362,11 +362,29 @@ def _diagnosis_section(res: PredictivityResult, files: dict[str, Path]) -> str:
             f"{html_img(files['pairs'], 'per-pair disagreements')}")
 
 
+def usefulness_table(res: PredictivityResult):
+    """usefulness.csv / .parquet: a row per swept proxy, then the nominal θ's (parameter ``nominal``), the
+    baseline the report shows beside them, with the same columns (its figures are the baselines' resamples)."""
+    import pandas as pd
+
+    from proxybench.experiments.baselines import NOMINAL
+
+    df = res.frame()
+    base = res.baselines.get(NOMINAL)
+    if base is None:
+        return df
+    row: dict[str, object] = {"parameter": "nominal", "value": float("nan"), "domain": NOMINAL, "truth": float("nan")}
+    for name, e in base.items():
+        row[name], row[f"{name}_low"], row[f"{name}_high"] = e.value, e.low, e.high
+    row["notes"] = "; ".join(base.notes)
+    row["pod"] = float("nan")
+    return pd.concat([df, pd.DataFrame([row])], ignore_index=True)
+
+
 def write_report(res: PredictivityResult, out: str | Path, wall_s: float | None = None) -> dict[str, Path]:
     """PNG + SVG figures, CSV + Parquet tables and one self-contained ``report.html`` in ``out``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    df = res.frame()
     files = {
         "fig3_3": figure_3_3(res, out / "fig3_3_trim.png"),
         "fig3_4": figure_3_4(res, out / "fig3_4_parameters.png"),
@@ -378,8 +396,9 @@ def write_report(res: PredictivityResult, out: str | Path, wall_s: float | None 
     if res.diagnosis:
         files["pairs"] = figure_pairs(res, out / "pairs.png")
         files["diagnosis"] = diagnosis_csv(res, out / "diagnosis.csv")
-    df.to_csv(files["csv"], index=False)
-    df.to_parquet(files["parquet"], index=False)
+    table = usefulness_table(res)
+    table.to_csv(files["csv"], index=False)
+    table.to_parquet(files["parquet"], index=False)
     per_agent = ppv_agent_frame(res)
     per_agent.to_csv(files["ppv_agents"], index=False)
     exp = res.experiment
@@ -391,7 +410,7 @@ def write_report(res: PredictivityResult, out: str | Path, wall_s: float | None 
         f"<tr><td>{html.escape(a)}</td>" + "".join(f"<td>{v:.2f}</td>" for v in s.values()) + "</tr>"
         for a, s in sorted(res.target_scores.items(), key=lambda kv: -next(iter(kv[1].values())))
     )
-    details = df.round(4).to_html(index=False, border=0)
+    details = table.round(4).to_html(index=False, border=0)
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>proxybench predictivity</title>
 <style>body{{font-family:sans-serif;max-width:1150px;margin:2em auto;line-height:1.4;padding:0 1em}}
 table{{border-collapse:collapse;font-size:13px;margin:.5em 0}}td,th{{border:1px solid #ccc;padding:2px 6px;

@@ -21,7 +21,6 @@ from proxybench.experiments.baselines import NOMINAL, baselines
 from proxybench.experiments.config import Experiment, ExperimentConfig, resolve
 from proxybench.experiments.predictivity.run import proxy_jobs
 from proxybench.experiments.proxies import proxy_domain, proxy_params
-from proxybench.experiments.study import ConfigError
 from proxybench.runner.backends import Backend, InlineBackend
 from proxybench.runner.jobs import DomainSpec
 from proxybench.runner.sweep import run_jobs
@@ -91,9 +90,8 @@ def score_proxy(cfg: ExperimentConfig, theta: Mapping[str, Any], run_dir: str | 
     doms = {"param": proxy_domain(exp.image_size, exp.proxy, theta, "param", NOMINAL),
             "vs_param": proxy_domain(exp.image_size, exp.proxy, versus or {}, "vs_param", NOMINAL),
             NOMINAL: DomainSpec(NOMINAL, proxy_params(exp.image_size, exp.proxy))}
-    if doms["param"].params == doms["vs_param"].params:
-        raise ConfigError("vs_param: the θ to compare with is the θ scored (give --vs-param NAME=VALUE, or a "
-                          "--param other than the nominal calibration)")
+    # θ compared with itself (the nominal θ scored, a θ list that holds the θ compared with) is a valid question:
+    # both replay the same episodes (one cached set), so the paired difference is 0 [0, 0]
     tgt = target.run(exp.agents, map_name=exp.map, seconds=exp.seconds, episodes=exp.episodes, seed=exp.seed,
                      metrics=exp.metrics, image_size=exp.image_size, run_dir=run_dir, backend=backend,
                      progress=progress)

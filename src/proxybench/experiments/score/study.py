@@ -80,7 +80,8 @@ class ScoreStudy(ExperimentStudy):
                                    f"× {exp.seconds:g} s; 95 % intervals; {wall:.0f} s"))
         for col in ("θ", "PRPV [order range]", "PPV (mean/agent)", "Pearson r", "Spearman ρ", "Kendall τ"):
             table.add_column(escape(col), justify="left" if col == "θ" else "right")
-        rows = [(res.scored.label, res.scored.figures), (res.versus.label, res.versus.figures),
+        rows = [(res.scored.label, res.scored.figures),
+                *([(res.versus.label, res.versus.figures)] if res.versus.label != res.scored.label else []),
                 *((k, u) for k, u in res.baselines.items() if k not in (res.scored.label, res.versus.label))]
         for label, u in rows:
             table.add_row(escape(label), ci(u["prpv"], ".1f"), ci(u["ppv"], ".2f"),
@@ -91,7 +92,9 @@ class ScoreStudy(ExperimentStudy):
             if c is None:
                 continue
             d = c.delta
-            verdict = (f"{c.a} orders the agents more like the target" if c.a_lower else
+            same = d.value == d.low == d.high == 0.0
+            verdict = ("the same θ on the same episodes: no difference" if same else
+                       f"{c.a} orders the agents more like the target" if c.a_lower else
                        f"{c.b} orders the agents more like the target" if c.separated else
                        "the episodes cannot tell them apart (the interval holds 0)")
             console.print(f"• ΔPRPV ({c.a}) − ({c.b}) = {d.value:+.1f} [{d.low:+.1f}, {d.high:+.1f}] (paired, "
