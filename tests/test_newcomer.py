@@ -187,3 +187,16 @@ def test_the_video_writer_pads_frames_instead_of_letting_ffmpeg_warn(tmp_path, c
     reader = imageio.get_reader(tmp_path / "v.mp4")
     assert tuple(reader.get_meta_data()["size"]) == (1568, 720)  # padded to the codec's blocks, not resized
     reader.close()
+
+
+def test_readme_install_lines_name_the_autolab_extra_and_only_extras_that_exist():
+    """The `autolab` extra was mentioned only in a comment; every extra the install lines name must exist."""
+    import re
+    import tomllib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    extras = set(tomllib.loads((root / "pyproject.toml").read_text())["project"]["optional-dependencies"])
+    block = (root / "README.md").read_text().split("```bash", 1)[1].split("```", 1)[0]
+    named = {e.strip() for group in re.findall(r"'\.\[([\w,-]+)\]'", block) for e in group.split(",")}
+    assert "autolab" in named and named <= extras, (named, extras)
