@@ -16,6 +16,7 @@ proxybench.untrusted.UntrustedInputError: line 1, column 9: nested deeper than 3
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import math
 import os
@@ -29,7 +30,8 @@ from typing import Any
 import yaml
 
 __all__ = ["UntrustedInputError", "clean_text", "clean_tree", "compose_yaml", "find_non_finite", "inside", "load_yaml",
-           "load_yaml_file", "nesting_depth", "problems", "read_text_file", "repeated"]
+           "load_yaml_file", "nesting_depth", "path_component", "problems", "read_bytes_file", "read_text_file",
+           "repeated", "short_repr", "write_file_under"]
 
 # NUL (PostgreSQL text cannot hold it) and lone surrogates (not encodable as UTF-8)
 _UNSTORABLE = re.compile("[\x00\ud800-\udfff]")
@@ -71,6 +73,29 @@ def find_non_finite(value: Any, path: str = "") -> str | None:
         if found is not None:
             return found
     return None
+
+
+def short_repr(value: Any, limit: int = 40) -> str:
+    """``repr(value)`` cut to ``limit`` characters, safe for any value a stranger sends: an integer of
+    thousands of digits (whose ``repr`` raises ``ValueError`` past Python's 4,300-digit limit, and takes
+    quadratic time below it) is described by its size instead.
+
+    >>> short_repr(10 ** 20000)
+    'an integer of about 20001 digits'
+    >>> short_repr("x" * 100, 10)
+    "'xxxxxxxx…"
+    """
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 128:
+        if value.bit_length() < 4000:  # str() is exact and quick up to ~1,200 digits
+            size = f"{len(str(abs(value)))} digits"
+        else:
+            size = f"about {int(value.bit_length() * math.log10(2)) + 1} digits"
+        return f"{'a negative' if value < 0 else 'an'} integer of {size}"
+    try:
+        text = repr(value)
+    except Exception as exc:  # a hostile __repr__ or a limit of the interpreter: say what it is
+        return f"a {type(value).__name__} ({type(exc).__name__} on repr)"
+    return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
 def repeated(values: Iterable[Hashable]) -> list:
@@ -152,9 +177,10 @@ def load_yaml(text: str, *, max_depth: int = 64, allow_aliases: bool = True) -> 
         loader.dispose()
 
 
-def read_text_file(path: str | os.PathLike[str], *, max_bytes: int = 1 << 20, follow_links: bool = True) -> str:
-    """A file's text: a regular file (not a folder, a device or, with ``follow_links=False``, a link), at most
-    ``max_bytes``, UTF-8. Raises :class:`UntrustedInputError` naming the file and what is wrong."""
+def read_bytes_file(path: str | os.PathLike[str], *, max_bytes: int = 1 << 20, follow_links: bool = True) -> bytes:
+    """A file's bytes: a regular file (not a folder, a FIFO, a device or, with ``follow_links=False``, a link),
+    at most ``max_bytes``. Opened without blocking (a FIFO answers at once and is refused by ``fstat``, never
+    read). Raises :class:`UntrustedInputError` naming the file and what is wrong."""
     flags = os.O_RDONLY | os.O_CLOEXEC | os.O_NONBLOCK | (0 if follow_links else os.O_NOFOLLOW)
     try:
         fd = os.open(path, flags)
@@ -172,6 +198,13 @@ def read_text_file(path: str | os.PathLike[str], *, max_bytes: int = 1 << 20, fo
         data = f.read(max_bytes + 1)
     if len(data) > max_bytes:
         raise UntrustedInputError(f"{path}: more than {max_bytes} bytes")
+    return data
+
+
+def read_text_file(path: str | os.PathLike[str], *, max_bytes: int = 1 << 20, follow_links: bool = True) -> str:
+    """A file's text (:func:`read_bytes_file`, then UTF-8). Raises :class:`UntrustedInputError` naming the file
+    and what is wrong."""
+    data = read_bytes_file(path, max_bytes=max_bytes, follow_links=follow_links)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -224,6 +257,82 @@ def inside(root: str | os.PathLike[str], written: str, *, field: str) -> Path:
         if current.is_symlink():
             raise UntrustedInputError(f"{field}: {written!r}: {current} is a link (links are not followed)")
     return current
+
+
+def path_component(value: object, *, field: str, max_len: int = 128) -> str:
+    """``value`` if it can be one file or folder name (a name from a stranger's file that becomes one): a
+    non-empty string of at most ``max_len`` characters, without ``/``, ``\\``, NUL or control characters, not
+    ``.`` or ``..``, not starting with ``~`` or ``-``. Raises :class:`UntrustedInputError` naming ``field``.
+
+    >>> path_component("wt01", field="robots.400")
+    'wt01'
+    >>> path_component("../x", field="agent")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    proxybench.untrusted.UntrustedInputError: agent: '../x' is not a single file name (no '/', ...
+    """
+    if not isinstance(value, str):
+        raise UntrustedInputError(f"{field}: {short_repr(value)} is not a name (a string)")
+    bad = (not value or len(value) > max_len or value in (".", "..") or value[0] in "~-" or value != value.strip()
+           or any(c in "/\\" or ord(c) < 32 or ord(c) == 127 for c in value))
+    if bad:
+        raise UntrustedInputError(f"{field}: {short_repr(value)} is not a single file name (no '/', '\\', NUL or "
+                                  f"control characters, not '.' or '..')")
+    return value
+
+
+def _open_folder(parent: int, name: str, *, create: bool) -> int:
+    """The folder ``name`` of the folder open as ``parent`` (created when missing and ``create``), never a link."""
+    flags = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC
+    try:
+        return os.open(name, flags, dir_fd=parent)
+    except FileNotFoundError:
+        if not create:
+            raise
+    with contextlib.suppress(FileExistsError):
+        os.mkdir(name, 0o777, dir_fd=parent)
+    return os.open(name, flags, dir_fd=parent)
+
+
+def write_file_under(root: str | os.PathLike[str], relative: str, data: bytes | str, *, mode: int = 0o666) -> Path:
+    """Write ``data`` to ``root/relative`` atomically (a temporary file, then a rename), staying inside ``root``
+    whatever is there: every part of ``relative`` is checked by :func:`path_component`, every folder below
+    ``root`` is opened relative to its parent without following links (created when missing), and the file is
+    created with ``O_EXCL | O_NOFOLLOW``: a link planted in ``root`` makes this fail, never write elsewhere.
+    ``root`` itself is the caller's (made if missing). Returns the path written."""
+    parts = PurePosixPath(relative).parts
+    if not parts or PurePosixPath(relative).is_absolute():
+        raise UntrustedInputError(f"{relative!r}: not a path relative to {root}")
+    for part in parts:
+        path_component(part, field=str(relative), max_len=255)
+    base = Path(root)
+    base.mkdir(parents=True, exist_ok=True)
+    payload = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+    fds = [os.open(base, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)]
+    try:
+        for part in parts[:-1]:
+            try:
+                fds.append(_open_folder(fds[-1], part, create=True))
+            except OSError as exc:
+                why = "a link or not a folder" if exc.errno in (errno.ELOOP, errno.ENOTDIR) else exc.strerror
+                raise UntrustedInputError(f"{base.joinpath(*parts)}: cannot write: {part!r} is {why}") from None
+        name = parts[-1]
+        tmp = f".{name}.{os.getpid()}.{os.urandom(4).hex()}.tmp"
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode, dir_fd=fds[-1])
+        try:
+            with open(fd, "wb", closefd=True) as fh:
+                fh.write(payload)
+            os.replace(tmp, name, src_dir_fd=fds[-1], dst_dir_fd=fds[-1])
+        except BaseException as exc:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp, dir_fd=fds[-1])
+            if isinstance(exc, OSError):  # e.g. a folder where the file goes
+                raise UntrustedInputError(f"{base.joinpath(*parts)}: cannot write ({exc.strerror})") from None
+            raise
+    finally:
+        for fd in fds:
+            os.close(fd)
+    return base.joinpath(*parts)
 
 
 def problems(exc: Any, prefix: str = "") -> str:

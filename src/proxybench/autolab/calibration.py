@@ -20,6 +20,7 @@ offset the file does not know.
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 from typing import Literal
 
@@ -113,9 +114,9 @@ class Calibration(BaseModel):
 def load_calibration(path: str | Path) -> Calibration:
     """Read a calibration file; :class:`LayoutError` naming the file and field otherwise."""
     path = Path(path)
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise LayoutError(f"{path}: missing: every watchtower needs its calibration (intrinsics and extrinsics)")
-    return read_model(path, Calibration, CALIBRATION_FORMAT)
+    return read_model(path, Calibration, CALIBRATION_FORMAT, follow_links=False)  # a lab's file: a link is refused
 
 
 def write_calibration(path: str | Path, cal: Calibration) -> Path:

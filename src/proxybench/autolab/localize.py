@@ -24,11 +24,12 @@ import numpy as np
 
 from proxybench.autolab.detect import Detection, Detector, tag_pose
 from proxybench.autolab.geometry import planar, pose_from_planar
-from proxybench.autolab.logs import Frame, Log
+from proxybench.autolab.logs import MAX_FRAME_BYTES, Frame, Log
 from proxybench.autolab.posegraph import Observation, PoseGraph, solve_gtsam, solve_scipy
-from proxybench.autolab.watchtowers import LayoutError
+from proxybench.autolab.watchtowers import LayoutError, UnsafeLogError
 from proxybench.domain.apriltags import ROOF_TAG_BASE, ROOF_TAG_SIZE
 from proxybench.domain.maps import Map
+from proxybench.untrusted import UntrustedInputError, read_bytes_file
 
 __all__ = ["FrameResult", "Localization", "RobotTrack", "detect_log", "localize_log"]
 
@@ -78,10 +79,13 @@ def _detect_one(args: tuple[int, Frame]) -> FrameResult:
     import cv2
 
     k, frame = args
-    if isinstance(frame.ref, bytes):
-        gray = cv2.imdecode(np.frombuffer(frame.ref, np.uint8), cv2.IMREAD_GRAYSCALE)
-    else:
-        gray = cv2.imread(frame.ref, cv2.IMREAD_GRAYSCALE)
+    data = frame.ref
+    if not isinstance(data, bytes):  # a file of the log: regular, bounded, not a link (a FIFO is never read)
+        try:
+            data = read_bytes_file(data, max_bytes=MAX_FRAME_BYTES, follow_links=False)
+        except UntrustedInputError as exc:
+            raise UnsafeLogError(str(exc)) from None
+    gray = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
     if gray is None:
         raise LayoutError(f"{frame.label}: not a readable image")
     dets = _WORKER["det"].detect(gray)

@@ -17,11 +17,22 @@ each watchtower's calibration is ``<calibrations>/<name>/calibration.yaml`` or `
 
 Every problem names the file at fault: a watchtower without calibration, an empty stream, time that runs
 backwards or jumps (a gap of more than ``MAX_GAP`` frame periods), a frame file that is missing.
+
+A log comes from another person's machine, so it is read as a stranger's input (:class:`UnsafeLogError`
+otherwise, naming the file or field and the value): ``log.yaml`` and calibrations through the bounded YAML
+loader (no links); every name that becomes a file or folder name (the agent, the active robot, the robots'
+names, a bag's watchtower names) is one path component (:func:`proxybench.untrusted.path_component`);
+watchtower folders and frames are never links, frames are regular files (a FIFO is refused, never opened) of
+at most ``MAX_FRAME_BYTES``, a stream holds at most ``MAX_STREAM_FRAMES`` frames, each listed once, a log at
+most ``MAX_LOG_FRAMES``; a bag at most ``MAX_BAG_MESSAGES`` messages and ``MAX_BAG_BYTES`` of images.
 """
 
 from __future__ import annotations
 
 import csv
+import io
+import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -31,15 +42,29 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field
 
 from proxybench.autolab.calibration import Calibration, draw_calibrations, load_calibration, write_calibration
-from proxybench.autolab.watchtowers import GroundTag, Layout, LayoutError, read_model, robot_names
+from proxybench.autolab.watchtowers import GroundTag, Layout, LayoutError, UnsafeLogError, read_model, robot_names
+from proxybench.untrusted import UntrustedInputError, path_component, read_text_file
 
-__all__ = ["LOG_FORMAT", "MAX_GAP", "Frame", "Log", "LogManifest", "Stream", "find_logs", "read_log",
+__all__ = ["LOG_FORMAT", "MAX_BAG_BYTES", "MAX_BAG_MESSAGES", "MAX_FRAME_BYTES", "MAX_GAP", "MAX_LOG_FRAMES",
+           "MAX_STREAM_FRAMES", "Frame", "Log", "LogManifest", "Stream", "find_logs", "read_log",
            "write_log_manifest", "write_sim_log"]
 
 LOG_FORMAT = "proxybench-autolab-log/1"
 LOG_NAME = "log.yaml"
 #: a stream whose clock jumps ahead by more than this many frame periods (or runs backwards) is refused
 MAX_GAP = 20.0
+#: the largest frame file read [bytes] (a 4K PNG is ~25 MB)
+MAX_FRAME_BYTES = 32 << 20
+#: frames of one watchtower's stream (an hour at 30 Hz is 108,000), and of one log
+MAX_STREAM_FRAMES = 200_000
+MAX_LOG_FRAMES = 1_000_000
+#: the largest timestamps.csv read [bytes] (~20 bytes a row)
+MAX_TIMESTAMPS_BYTES = 16 << 20
+#: watchtower folders of one log
+MAX_TOWERS = 512
+#: a ROS bag's messages read, and its image bytes held [bytes]
+MAX_BAG_MESSAGES = 2_000_000
+MAX_BAG_BYTES = 4 << 30
 _IMAGE_TOPIC = "/camera_node/image/compressed"
 _WHEELS_TOPIC = "/wheels_driver_node/wheels_cmd"
 WHEELS_CMD_MSG = """std_msgs/Header header
@@ -58,7 +83,8 @@ class LogManifest(BaseModel):
     map: str | None = None
     agent: str = Field("agent", min_length=1, description="the agent the active robot ran")
     episode: int = Field(0, ge=0)
-    seconds: float | None = Field(None, gt=0.0, description="the episode's length as planned [s]")
+    seconds: float | None = Field(None, gt=0.0, le=3600.0, description="the episode's length as planned [s] "
+                                  "(a target's episodes are at most an hour)")
     start: float = Field(0.0, description="clock time of the episode's start [s]")
     termination: str | None = Field(None, description="why the run ended, if it ended early for a reason")
     active: str = Field("ego", description="the robot the agent drove")
@@ -97,7 +123,22 @@ class Log:
 
 
 def _manifest(path: Path, overrides: dict | None = None) -> LogManifest:
-    return read_model(path, LogManifest, LOG_FORMAT, overrides, missing_ok=True)
+    """``log.yaml`` (bounded, no link), every name in it that becomes a file or folder name checked as one."""
+    manifest = read_model(path, LogManifest, LOG_FORMAT, overrides, missing_ok=True, follow_links=False)
+    check_names(manifest, str(path))
+    return manifest
+
+
+def check_names(manifest: LogManifest, origin: str) -> None:
+    """:class:`UnsafeLogError` unless the agent, the active robot and every robot's name can each be one file
+    name (``localize`` writes ``episodes/<agent>/…`` and ``localization/<agent>/<episode>/<robot>.csv``)."""
+    names = [("agent", manifest.agent), ("active", manifest.active),
+             *((f"robots.{tag}", name) for tag, name in manifest.robots.items())]
+    for field_name, value in names:
+        try:
+            path_component(value, field=field_name)
+        except UntrustedInputError as exc:
+            raise UnsafeLogError(f"{origin}: {exc}") from None
 
 
 def write_log_manifest(root: str | Path, manifest: LogManifest) -> Path:
@@ -150,12 +191,19 @@ def _check_times(times: np.ndarray, origin: str, row_label) -> None:
 def _folder_stream(folder: Path) -> Stream:
     cal = load_calibration(folder / "calibration.yaml")
     stamps = folder / "timestamps.csv"
-    if not stamps.is_file():
+    if not os.path.lexists(stamps):
         raise LayoutError(f"{stamps}: missing (frame,t: each frame's index and clock time [s])")
     try:
-        with open(stamps, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        text = read_text_file(stamps, max_bytes=MAX_TIMESTAMPS_BYTES, follow_links=False)
+    except UntrustedInputError as exc:
+        raise UnsafeLogError(str(exc)) from None
+    try:
+        rows = []
+        for row in csv.DictReader(io.StringIO(text, newline="")):
+            rows.append(row)
+            if len(rows) > MAX_STREAM_FRAMES:
+                raise UnsafeLogError(f"{stamps}: more than {MAX_STREAM_FRAMES} frames")
+    except csv.Error as exc:
         raise LayoutError(f"{stamps}: cannot read ({exc})") from None
     if rows and not {"frame", "t"} <= set(rows[0]):
         raise LayoutError(f"{stamps}: columns must be frame,t; got {', '.join(rows[0])}")
@@ -165,14 +213,36 @@ def _folder_stream(folder: Path) -> Stream:
     except (TypeError, ValueError) as exc:
         raise LayoutError(f"{stamps}: not a number ({exc})") from None
     _check_times(times, str(stamps), lambda k: f"row {k + 1} (line {k + 2})")
-    files = {p.stem: p for p in folder.iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png")}
+    if len(set(idx)) != len(idx):
+        seen: set[int] = set()
+        k = next(i for i, v in enumerate(idx) if v in seen or seen.add(v))
+        raise UnsafeLogError(f"{stamps}: row {k + 1} (line {k + 2}): frame {idx[k]} is listed twice (each frame "
+                             "once)")
+    files = {}
+    with os.scandir(folder) as entries:
+        for entry in entries:
+            p = Path(entry.path)
+            if p.suffix.lower() in (".jpg", ".jpeg", ".png"):
+                files[p.stem] = entry
     frames = []
     for k, t in zip(idx, times, strict=True):
-        p = files.get(f"{k:06d}")
-        if p is None:
+        entry = files.get(f"{k:06d}")
+        if entry is None:
             raise LayoutError(f"{stamps}: frame {k}: no image {folder / f'{k:06d}.jpg'}")
-        frames.append(Frame(float(t), str(p), str(p)))
+        _check_frame(Path(entry.path), entry.stat(follow_symlinks=False))
+        frames.append(Frame(float(t), entry.path, entry.path))
     return Stream(folder.name, cal, frames, str(folder))
+
+
+def _check_frame(path: Path, st: os.stat_result) -> None:
+    """A frame is a regular file (never a link, a FIFO or a device: a FIFO would hang its reader) of at most
+    ``MAX_FRAME_BYTES``."""
+    if stat.S_ISLNK(st.st_mode):
+        raise UnsafeLogError(f"{path}: a link (frames are files of the log, links are not followed)")
+    if not stat.S_ISREG(st.st_mode):
+        raise UnsafeLogError(f"{path}: not a regular file (a FIFO, a device or a folder where a frame belongs)")
+    if st.st_size > MAX_FRAME_BYTES:
+        raise UnsafeLogError(f"{path}: {st.st_size} bytes; a frame is at most {MAX_FRAME_BYTES}")
 
 
 def _read_folder(root: Path, overrides: dict | None) -> Log:
@@ -181,9 +251,22 @@ def _read_folder(root: Path, overrides: dict | None) -> Log:
     if not towers.is_dir():
         raise LayoutError(f"{root}: no watchtowers/ folder (one folder per watchtower: calibration.yaml, "
                           "timestamps.csv, frames)")
-    streams = [_folder_stream(d) for d in sorted(towers.iterdir()) if d.is_dir()]
+    if towers.is_symlink():
+        raise UnsafeLogError(f"{towers}: a link (the log's folders are not followed out of it)")
+    folders = []
+    for d in sorted(towers.iterdir()):
+        if d.is_symlink():
+            raise UnsafeLogError(f"{d}: a link (the log's folders are not followed out of it)")
+        if d.is_dir():
+            folders.append(d)
+        if len(folders) > MAX_TOWERS:
+            raise UnsafeLogError(f"{towers}: more than {MAX_TOWERS} watchtower folders")
+    streams = [_folder_stream(d) for d in folders]
     if not streams:
         raise LayoutError(f"{towers}: no watchtower folders")
+    total = sum(len(s.frames) for s in streams)
+    if total > MAX_LOG_FRAMES:
+        raise UnsafeLogError(f"{towers}: {total} frames; a log holds at most {MAX_LOG_FRAMES}")
     truth = root / "trajectory.parquet"
     return Log(root, manifest, streams, {}, truth if truth.is_file() else None)
 
@@ -205,17 +288,32 @@ def _read_bag(path: Path, calibrations: Path | None, overrides: dict | None) -> 
     where = calibrations or path.parent / "calibrations"
     images: dict[str, list[tuple[float, bytes]]] = {}
     wheels: dict[str, list[tuple[float, float, float]]] = {}
+    count = held = 0
     try:
         with AnyReader([path], default_typestore=store) as reader:
             conns = [c for c in reader.connections if c.topic.endswith((_IMAGE_TOPIC, _WHEELS_TOPIC))]
+            for conn in conns:  # the name becomes a file name (its calibration's): one path component
+                path_component(conn.topic.strip("/").split("/")[0], field=f"{path}: topic {conn.topic[:80]!r}")
             for conn, _, raw in reader.messages(connections=conns):
+                count += 1
+                if count > MAX_BAG_MESSAGES:
+                    raise UnsafeLogError(f"{path}: more than {MAX_BAG_MESSAGES} camera and wheel messages")
                 msg = reader.deserialize(raw, conn.msgtype)
                 stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
                 name = conn.topic.strip("/").split("/")[0]
                 if conn.topic.endswith(_IMAGE_TOPIC):
-                    images.setdefault(name, []).append((stamp, bytes(msg.data)))
+                    data = bytes(msg.data)
+                    held += len(data)
+                    if len(data) > MAX_FRAME_BYTES or held > MAX_BAG_BYTES:
+                        raise UnsafeLogError(f"{path}: {conn.topic[:80]} message {count}: images beyond "
+                                             f"{MAX_FRAME_BYTES} bytes each or {MAX_BAG_BYTES} in all")
+                    images.setdefault(name, []).append((stamp, data))
                 else:
                     wheels.setdefault(name, []).append((stamp, float(msg.vel_left), float(msg.vel_right)))
+    except UnsafeLogError:
+        raise
+    except UntrustedInputError as exc:
+        raise UnsafeLogError(str(exc)) from None
     except Exception as exc:  # rosbags raises its own errors for unreadable or foreign files
         raise LayoutError(f"{path}: cannot read as a ROS bag ({type(exc).__name__}: {exc})") from None
     robots = set(wheels)

@@ -12,6 +12,10 @@ runs become a recorded target (docs/targets.md) that ``proxybench target check``
 
 Each agent's valid runs are its episodes 0, 1, … in the order of the logs; an agent keeps as many as every
 agent has (the manifest pairs episodes by id), and any others are listed as excluded too.
+
+Names from the logs become file names here, so they are checked as single path components when the logs are
+read (``logs.check_names``; the layout's robot names here), before anything is written, and every file is
+written by :func:`proxybench.untrusted.write_file_under`: inside TARGETDIR, through no link, atomically.
 """
 
 from __future__ import annotations
@@ -23,14 +27,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
+from pydantic import ValidationError
 
 from proxybench import __version__
 from proxybench.autolab.localize import Localization, RobotTrack, localize_log
 from proxybench.autolab.logs import Log, find_logs, read_log
 from proxybench.autolab.validate import Thresholds, Verdict, validate_run
-from proxybench.autolab.watchtowers import LayoutError, load_layout
+from proxybench.autolab.watchtowers import LayoutError, UnsafeLogError, load_layout
 from proxybench.domain.maps import Map
-from proxybench.targets.manifest import ExcludedRun, TargetManifest, write_manifest
+from proxybench.targets.manifest import MANIFEST_NAME, ExcludedRun, TargetManifest, format_errors
+from proxybench.untrusted import UntrustedInputError, path_component, write_file_under
 
 __all__ = ["LocalizeSummary", "localize_logs", "track_table"]
 
@@ -58,11 +65,19 @@ def track_table(track: RobotTrack, start: float, commands: np.ndarray | None = N
     return cols
 
 
-def _write_csv(path: Path, cols: dict[str, np.ndarray]) -> None:
+def _write(out: Path, relative: str, text: str) -> None:
+    """``text`` to ``out/relative``, inside ``out`` whatever the names and whatever is planted there."""
+    try:
+        write_file_under(out, relative, text)
+    except UntrustedInputError as exc:
+        raise UnsafeLogError(str(exc)) from None
+
+
+def _write_csv(out: Path, relative: str, cols: dict[str, np.ndarray]) -> None:
     import pandas as pd
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    pd.DataFrame({k: cols[k] for k in _COLUMNS if k in cols}).to_csv(path, index=False, float_format="%.6g")
+    _write(out, relative, pd.DataFrame({k: cols[k] for k in _COLUMNS if k in cols}).to_csv(
+        index=False, float_format="%.6g"))
 
 
 def _run_info(log: Log, loc: Localization, verdict: Verdict) -> dict:
@@ -90,6 +105,11 @@ def localize_logs(
         raise LayoutError(f"{logdir}: no runs (folders with log.yaml or watchtowers/, or ROS bags)")
     lay = load_layout(layout) if layout is not None else None
     robots = dict(lay.robots) if lay is not None and lay.robots else None
+    for tag, name in (robots or {}).items():
+        try:
+            path_component(name, field=f"robots.{tag}")
+        except UntrustedInputError as exc:
+            raise UnsafeLogError(f"{layout}: {exc}") from None
     extra_tags = list(lay.ground_tags) if lay is not None else []
     out = Path(out)
     runs: list[tuple[Path, Verdict, Localization]] = []
@@ -129,21 +149,25 @@ def localize_logs(
         for e, k in enumerate(ks[:n_ep]):
             log, loc = logs[k], runs[k][2]
             active = loc.robots[log.manifest.active]
-            _write_csv(out / "episodes" / agent / f"{e}.csv",
+            _write_csv(out, f"episodes/{agent}/{e}.csv",
                        track_table(active, log.manifest.start, log.commands.get(log.manifest.active)))
-            folder = out / "localization" / agent / str(e)
+            folder = f"localization/{agent}/{e}"
             for name, track in loc.robots.items():
-                _write_csv(folder / f"{name}.csv", track_table(track, log.manifest.start, log.commands.get(name)))
-            (folder / "run.json").write_text(json.dumps(_run_info(log, loc, runs[k][1]), indent=2))
-    manifest = TargetManifest(
-        source=sources.pop(), description=f"localised by proxybench localize from {len(runs)} run(s) of "
-                                          f"{len(logs[0].streams)} watchtower(s) ({detector}, {solver})",
-        map=_map_ref(m),
-        seconds=math.ceil(seconds * 100) / 100, agents=list(valid), episodes=list(range(n_ep)),
-        trajectories="episodes/{agent}/{episode}.csv", recorded_with=f"proxybench {__version__} (localize)",
-        excluded=excluded)
-    out.mkdir(parents=True, exist_ok=True)
-    write_manifest(out, manifest)
+                _write_csv(out, f"{folder}/{name}.csv", track_table(track, log.manifest.start, log.commands.get(name)))
+            _write(out, f"{folder}/run.json", json.dumps(_run_info(log, loc, runs[k][1]), indent=2))
+    try:  # what the logs say must make a valid manifest (an episode's length, names): else one error naming it
+        manifest = TargetManifest(
+            source=sources.pop(), description=f"localised by proxybench localize from {len(runs)} run(s) of "
+                                              f"{len(logs[0].streams)} watchtower(s) ({detector}, {solver})",
+            map=_map_ref(m),
+            seconds=math.ceil(seconds * 100) / 100, agents=list(valid), episodes=list(range(n_ep)),
+            trajectories="episodes/{agent}/{episode}.csv", recorded_with=f"proxybench {__version__} (localize)",
+            excluded=excluded)
+    except ValidationError as exc:
+        raise LayoutError(format_errors(exc, f"{logdir}: the target's manifest", TargetManifest)) from None
+    # what targets.manifest.write_manifest writes, written through no link
+    _write(out, MANIFEST_NAME, yaml.safe_dump(manifest.model_dump(mode="json", exclude_none=True), sort_keys=False,
+                                              allow_unicode=True))
     return LocalizeSummary(out, manifest, runs)
 
 

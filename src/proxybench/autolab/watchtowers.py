@@ -27,6 +27,7 @@ on every non-drivable tile beside the road, as the Autolab fixes its calibration
 from __future__ import annotations
 
 import math
+import os
 import re
 from pathlib import Path
 from typing import Literal, TypeVar
@@ -40,18 +41,28 @@ from proxybench.domain.fixed_cameras import FixedCamera
 from proxybench.domain.map_objects import AprilTag
 from proxybench.domain.maps import Map, MapObject
 from proxybench.domain.params import check_image_size
-from proxybench.untrusted import repeated
+from proxybench.untrusted import UntrustedInputError, load_yaml_file, repeated
 
-__all__ = ["FORMAT", "CalibrationError", "GroundTag", "Layout", "LayoutError", "Watchtower", "auto_layout",
-           "ground_objects", "load_layout", "read_model", "resolve_layout", "robot_names", "write_layout"]
+__all__ = ["FORMAT", "MAX_YAML_BYTES", "CalibrationError", "GroundTag", "Layout", "LayoutError", "UnsafeLogError",
+           "Watchtower", "auto_layout", "ground_objects", "load_layout", "read_model", "resolve_layout", "robot_names",
+           "write_layout"]
 
 FORMAT = "proxybench-watchtowers/1"
 M = TypeVar("M", bound=BaseModel)
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+#: the largest layout, log.yaml or calibration file read [bytes], and how deeply it may nest
+MAX_YAML_BYTES = 4 << 20
+MAX_YAML_DEPTH = 16
 
 
 class LayoutError(ValueError):
     """A layout or calibration that cannot be used; the message names the file and field at fault."""
+
+
+class UnsafeLogError(LayoutError):
+    """Input from a lab's files refused as unsafe, not merely wrong (logs come from other people's machines):
+    a name that would become a path outside the output folder, a link, a FIFO or device where a file belongs,
+    a file too large or too deeply nested, too many frames. ``proxybench localize`` exits with code 2."""
 
 
 class Watchtower(BaseModel):
@@ -141,17 +152,25 @@ class Layout(BaseModel):
         return self
 
 
-def read_model(path: Path, model: type[M], fmt: str, overrides: dict | None = None, missing_ok: bool = False) -> M:
+def read_model(path: Path, model: type[M], fmt: str, overrides: dict | None = None, missing_ok: bool = False,
+               follow_links: bool = True) -> M:
     """A strict YAML file as ``model`` (``overrides``: fields given otherwise, which win); :class:`LayoutError`
-    naming the file and the field otherwise. ``missing_ok``: a missing file is an empty one."""
+    naming the file and the field otherwise. ``missing_ok``: a missing file is an empty one. Read by the
+    bounded loader (:func:`proxybench.untrusted.load_yaml_file`: a regular file of at most ``MAX_YAML_BYTES``,
+    nested at most ``MAX_YAML_DEPTH`` deep, a link only with ``follow_links``); a refusal is an
+    :class:`UnsafeLogError`."""
     from proxybench.targets.manifest import format_errors
 
     data: object = {}
-    if path.is_file() or not missing_ok:
+    if not missing_ok or os.path.lexists(path):
+        if not missing_ok and not os.path.lexists(path):
+            raise LayoutError(f"{path}: cannot read as YAML (no such file)")
         try:
-            data = yaml.safe_load(path.read_text()) or {}
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-            raise LayoutError(f"{path}: cannot read as YAML ({str(exc).splitlines()[0]})") from None
+            data = load_yaml_file(path, max_bytes=MAX_YAML_BYTES, max_depth=MAX_YAML_DEPTH,
+                                  follow_links=follow_links)
+        except UntrustedInputError as exc:
+            raise UnsafeLogError(" ".join(str(exc).split())) from None
+        data = {} if data is None else data
     if not isinstance(data, dict):
         raise LayoutError(f"{path}: expected a mapping of fields (format: {fmt}), got {type(data).__name__}")
     data.update({k: v for k, v in (overrides or {}).items() if v is not None})

@@ -39,7 +39,7 @@ def localize(
     recorded target that `proxybench target check` accepts."""
     from proxybench.autolab.target import localize_logs
     from proxybench.autolab.validate import Thresholds
-    from proxybench.autolab.watchtowers import LayoutError
+    from proxybench.autolab.watchtowers import LayoutError, UnsafeLogError
     from proxybench.cli.maps import load_map_printing_warnings
     from proxybench.domain.maps import MapError
 
@@ -65,6 +65,8 @@ def localize(
                                     overrides=overrides, limits=Thresholds(lost_s=lost, light_change=light),
                                     detector=detector, solver=solver, workers=workers, decimate=decimate,
                                     progress=tick)
+    except UnsafeLogError as exc:  # a log that is unsafe to use (a name that is a path, a FIFO, …): refused
+        raise fail(exc, 2, mark="✗") from None
     except (LayoutError, MapError, ImportError) as exc:
         raise fail(exc, mark="✗") from None
     for path, verdict, loc in summary.runs:

@@ -29,6 +29,7 @@ from proxybench.protocol.cbor_stream import (
     WireError,
     item_end,
 )
+from proxybench.untrusted import short_repr
 
 __all__ = [
     "COMPAT", "CTRL_ABORTED", "CTRL_CAPABILITIES", "CTRL_NOT_UNDERSTOOD", "CTRL_OVER", "CTRL_UNDERSTOOD",
@@ -214,7 +215,8 @@ def _need(data: Any, key: str, check, what: str, topic: str) -> Any:
         raise MessageTypeError(f"{topic}: missing field {key!r}")
     value = data[key]
     if not check(value):
-        raise MessageTypeError(f"{topic}: field {key!r} must be {what}, got {type(value).__name__} {value!r:.60}")
+        raise MessageTypeError(f"{topic}: field {key!r} must be {what}, got {type(value).__name__} "
+                               f"{short_repr(value)}")
     return value
 
 
@@ -337,6 +339,6 @@ def parse_commands(data: Any) -> np.ndarray:
     for i, key in enumerate(("motor_left", "motor_right")):
         v = _need(wheels, key, _is_number, "a number", "commands.wheels")
         if not math.isfinite(v) or not -1.0 <= v <= 1.0:
-            raise MessageTypeError(f"commands.wheels: {key} = {v!r} is not a finite number in [-1, 1]")
+            raise MessageTypeError(f"commands.wheels: {key} = {short_repr(v)} is not a finite number in [-1, 1]")
         out[i] = v
     return out
