@@ -1,6 +1,5 @@
-"""Issue 38 (trust, round 3): a lab's logs are strangers' input (``localize``), and protocol numbers of any size.
-
-The DTPS server's part (item 2) is in tests/test_dtps_serve_trust.py (it needs the SDK environment).
+"""Issue 38 (trust, round 3): a lab's logs are strangers' input (``localize``), the DTPS server is a robot (its
+tests need the SDK environment: mark ``sdk``), and protocol numbers of any size.
 """
 
 from __future__ import annotations
@@ -8,6 +7,7 @@ from __future__ import annotations
 import os
 import random
 import sys
+import time
 from pathlib import Path
 
 import cbor2
@@ -22,6 +22,7 @@ from proxybench.autolab.logs import read_log
 from proxybench.autolab.validate import Verdict
 from proxybench.autolab.watchtowers import LayoutError, UnsafeLogError
 from proxybench.domain.maps import load_map
+from support.dtps import sdk
 
 # -- a small folder log ------------------------------------------------------------------------------------
 
@@ -338,3 +339,187 @@ def test_a_20000_digit_command_in_a_cbor_message_is_a_recorded_agent_failure(tmp
     failure = err.value
     assert failure.reason == "bad-commands", failure
     assert "integer of about 20001 digits" in str(failure) and len(failure.detail) < 200, failure.detail
+
+
+# -- 2. the DTPS server is a robot, not a shared folder ---------------------------------------------------------
+
+CAMERA = "robot/map_0/vehicle_0/sensor/camera/front_center/jpeg/"
+PWM = "robot/map_0/vehicle_0/actuator/wheels/base/pwm/"
+
+
+def _request(port: int, method: str, path: str, body: bytes | None = None, headers: dict | None = None) -> int:
+    """The HTTP status of one request (0: no answer within 3 s or the connection closed; -1: not sent)."""
+    import http.client
+
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=3)
+    try:
+        conn.request(method, "/" + path, body=body, headers=headers or {})
+        return conn.getresponse().status
+    except (OSError, http.client.HTTPException):
+        return 0
+    except ValueError:  # a method or header http.client will not send
+        return -1
+    finally:
+        conn.close()
+
+
+class _Serve:
+    """``dtps serve`` on a free port in a thread, a stand-in agent posting (0, 0) to the PWM topic over HTTP,
+    the robot at hand (``robot``: its bridge), every wait bounded."""
+
+    def __init__(self, tmp_path: Path, monkeypatch) -> None:
+        import threading
+
+        from proxybench.domain.params import DomainParams
+        from proxybench.runner import dtps_serve
+        from support.dtps import free_port
+
+        self.port, self.out, self.robots = free_port(), tmp_path / "served", []
+        real = dtps_serve.VirtualDB21J
+
+        def robot(**kw):
+            self.robots.append(real(**kw, lock=False))
+            return self.robots[-1]
+
+        monkeypatch.setattr(dtps_serve, "VirtualDB21J", robot)
+        self.stop, self.ready = threading.Event(), threading.Event()
+        self.error: BaseException | None = None
+        self.files: list[Path] | None = None
+
+        def run() -> None:
+            try:
+                self.files = dtps_serve.serve("loop_3x3", self.out, port=self.port, seconds=300.0, episode_seconds=2.0,
+                                              params=DomainParams(image_width=32, image_height=24),
+                                              on_ready=lambda url: self.ready.set(), stop=self.stop)
+            except BaseException as exc:  # the test reads it
+                self.error = exc
+            finally:
+                self.ready.set()
+
+        def agent() -> None:
+            body = cbor2.dumps({"header": {}, "left": 0.0, "right": 0.0})
+            while not self.stop.is_set() and self.thread.is_alive():
+                if self.ready.is_set():
+                    _request(self.port, "POST", PWM, body, {"Content-Type": "application/cbor"})
+                time.sleep(0.05)
+
+        self.thread = threading.Thread(target=run, daemon=True)
+        self.thread.start()
+        assert self.ready.wait(120), "the serve did not start in 120 s"
+        assert self.error is None, self.error
+        threading.Thread(target=agent, daemon=True).start()
+        deadline = time.monotonic() + 60
+        while _request(self.port, "GET", CAMERA) != 200:  # 204 until the first frame is published
+            assert time.monotonic() < deadline, "no camera frame in 60 s"
+            time.sleep(0.1)
+
+    @property
+    def robot(self):
+        return self.robots[0]
+
+    def finish(self, timeout: float = 60.0) -> None:
+        self.stop.set()
+        self.thread.join(timeout)
+        assert not self.thread.is_alive(), "the serve did not stop"
+
+
+def _episodes(folder: Path) -> list[Path]:
+    return sorted(folder.glob("episode-*.parquet"))
+
+
+def _assert_no_empty_episodes(folder: Path) -> None:
+    from proxybench.tasks.trajectory import Trajectory
+
+    for f in _episodes(folder):
+        assert len(Trajectory.load(f)) > 0, f
+
+
+@sdk
+def test_a_delete_on_the_camera_is_refused_and_the_serve_keeps_serving(tmp_path, monkeypatch):
+    serve = _Serve(tmp_path, monkeypatch)
+    try:
+        assert _request(serve.port, "GET", CAMERA) == 200
+        assert _request(serve.port, "DELETE", CAMERA) == 405
+        assert _request(serve.port, "PATCH", "", b"[]", {"Content-Type": "application/json-patch+json"}) == 405
+        assert _request(serve.port, "POST", CAMERA, b"fake frame", {"Content-Type": "application/cbor"}) == 403
+        assert _request(serve.port, "GET", CAMERA) == 200 and serve.robot.alive
+    finally:
+        serve.finish()
+    assert serve.error is None, serve.error
+    _assert_no_empty_episodes(serve.out)
+
+
+@sdk
+def test_a_bridge_that_dies_ends_the_serve_with_one_line_and_no_empty_episodes(tmp_path, monkeypatch):
+    import signal
+
+    from proxybench.dtps.link import BridgeError
+
+    serve = _Serve(tmp_path, monkeypatch)
+    try:
+        os.kill(serve.robot.link.pid, signal.SIGKILL)
+        serve.thread.join(60)
+        assert not serve.thread.is_alive(), "the serve went on without its bridge"
+    finally:
+        serve.finish()
+    assert isinstance(serve.error, BridgeError), serve.error
+    assert "bridge ended" in str(serve.error) and len(str(serve.error).splitlines()) == 1, serve.error
+    assert len(_episodes(serve.out)) <= 1 and not (serve.out / "served.json").exists()
+    _assert_no_empty_episodes(serve.out)
+
+
+_METHODS = ["GET", "HEAD", "OPTIONS", "POST", "PUT", "PATCH", "DELETE", "TRACE", "CONNECT", "PROPFIND", "FOO",
+            "get", "G\tET"]
+_PATHS = ["", CAMERA, PWM, CAMERA + ":push/", PWM + ":push/", CAMERA + ":meta/", CAMERA + ":history/",
+          CAMERA + ":events/", "robot/", "robot/map_0/vehicle_0/", "map/tiles/", "static/../../etc/passwd",
+          "robot/map_0/vehicle_0/state/reset/", "x/:blobs/abc/" + "A" * 300, "%00", "a" * 5000, "robot/%2e%2e/",
+          "robot/map_0/vehicle_0/new/queue/", "?x=" + "y" * 100]
+_TYPES = ["application/cbor", "application/json", "application/json-patch+json", "application/yaml",
+          "text/plain", "multipart/form-data; boundary=x", "\u00ff", ""]
+
+
+def _hostile(rng: random.Random) -> tuple[str, str, bytes | None, dict]:
+    method = rng.choice(_METHODS)
+    path = rng.choice(_PATHS)
+    if rng.random() < 0.3:
+        path = path + "".join(rng.choice("abc/%:.-_~") for _ in range(rng.randint(1, 30)))
+    body = None
+    kind = rng.randrange(5)
+    if kind == 1:
+        body = rng.randbytes(rng.randint(0, 2000))
+    elif kind == 2:
+        body = cbor2.dumps(rng.choice([{"left": 10 ** 40, "right": "x"}, {"left": float("nan"), "right": 0.0}, [1] * 50,
+                                       {"op": "remove", "path": "/robot"}, {"data": None}, 10 ** 30]))
+    elif kind == 3:
+        body = b'[{"op": "remove", "path": "/robot/map_0/vehicle_0/sensor"}]'
+    elif kind == 4:
+        body = b"{" * rng.randint(1, 3000)
+    headers = {"Content-Type": rng.choice(_TYPES)}
+    if rng.random() < 0.2:
+        headers["X-" + "h" * rng.randint(1, 50)] = "v" * rng.randint(0, 500)
+    if rng.random() < 0.1:
+        headers["Upgrade"], headers["Connection"] = "websocket", "Upgrade"
+    return method, path, body, headers
+
+
+@sdk
+def test_fuzz_hostile_requests_never_break_the_serve(tmp_path, monkeypatch):
+    rng = random.Random(38)
+    serve = _Serve(tmp_path, monkeypatch)
+    try:
+        statuses: dict[int, int] = {}
+        for _ in range(500):
+            method, path, body, headers = _hostile(rng)
+            status = _request(serve.port, method, path, body, headers)
+            statuses[status] = statuses.get(status, 0) + 1
+            if method.upper() in ("DELETE", "PATCH", "PUT"):
+                assert status in (-1, 0, 400, 403, 405), (method, path, status)
+        assert serve.robot.alive, serve.robot.link.stderr_tail()
+        assert _request(serve.port, "GET", CAMERA) == 200  # still serving the camera
+        tail = "\n".join(serve.robot.link.stderr_tail())
+        assert "Traceback" not in tail, tail
+    finally:
+        serve.finish()
+    assert serve.error is None, serve.error
+    assert statuses.get(405, 0) > 50 and statuses.get(200, 0) > 20, statuses
+    _assert_no_empty_episodes(serve.out)

@@ -20,6 +20,13 @@ its stdin/stdout in the format of ``pipe.py`` (loaded by path). Two roles:
             and sends (0, 0) when no command came for ``--watchdog`` seconds, on ``op: stop``, and at its
             end (``op: quit``, end of input, SIGTERM), trying for ``--stop-grace`` s to deliver it.
 
+**The robot policy** (role ``server``): the HTTP server answers what a robot answers, nothing else. Once the
+robot's queues exist, a client may read (GET, HEAD, OPTIONS: sensors, the map, the index, subscriptions) and
+write (POST, or a ``:push`` stream) only the topics a robot takes commands on (``WRITABLE_TOPICS``); DELETE,
+PATCH (creating or removing queues), PUT and any other method get 405, a write elsewhere 403, and a handler's
+unexpected error a 400 of one line on stderr (never a traceback): one ``curl -X DELETE`` killed the bridge
+before (issue 38).
+
 With ``--own-netns`` (root; the evaluator's agent packages) the server moves into a network namespace of its
 own before it listens, and with ``--drop-to USER`` runs on as that user: the package's sandbox joins that
 namespace, so the agent reaches the robot on 127.0.0.1:7501 and nothing else, and cannot reach this process.
@@ -53,6 +60,10 @@ ROBOT_TOPICS = ("sensor/camera/front_center/jpeg", "sensor/wheel_encoder/left/ti
 #: the map layer, at the server's root
 MAP_TOPICS = ("map/frames", "map/tiles", "map/tile_maps")
 _COMMAND_TOPICS = ("actuator/wheels/base/pwm_filtered", "actuator/wheels/base/pwm")
+#: the topics under the robot's path a client may write to: its commands, what the SDK publishes
+WRITABLE_TOPICS = (*_COMMAND_TOPICS, "state/reset", "actuator/lights/base/pattern")
+_READ_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
+_PUSH_SUFFIX = ":push"
 _NUDGE_EVERY = 0.002  # [s] between websocket pings while a lock-step frame waits for its command
 
 
@@ -180,6 +191,59 @@ def _track_websockets() -> weakref.WeakSet:
     return live
 
 
+class RobotPolicy:
+    """What clients may ask of the virtual robot's HTTP server (see the module docstring): an aiohttp middleware
+    put in front of every handler of the dtps-http server (installed before the server exists), enforcing
+    nothing until ``arm`` (the bridge creates its own queues first)."""
+
+    def __init__(self, robot_path: str) -> None:
+        self.writable = frozenset(f"{robot_path.strip('/')}/{t}" for t in WRITABLE_TOPICS)
+        self.armed = False
+        self.refused = 0
+        self.log = logging.getLogger("proxybench.bridge")
+
+    def verdict(self, method: str, path: str) -> tuple[int, str] | None:
+        """(status, why) for a request to refuse, None for one to serve."""
+        topic = path.strip("/")
+        if method in _READ_METHODS:
+            if topic.endswith(_PUSH_SUFFIX) and topic[:-len(_PUSH_SUFFIX)].rstrip("/") not in self.writable:
+                return 403, "only the robot's command topics take writes"
+            return None
+        if method == "POST":
+            return None if topic in self.writable else (403, "only the robot's command topics take writes")
+        return 405, f"{method[:16]} is not allowed: a robot's topics are read, and its commands written"
+
+    def install(self) -> None:
+        """Put the policy in front of every aiohttp application created from now on in this process."""
+        from aiohttp import web
+
+        policy = self
+
+        @web.middleware
+        async def middleware(request, handler):
+            if policy.armed:
+                refusal = policy.verdict(request.method, request.path)
+                if refusal is not None:
+                    policy.refused += 1
+                    status, why = refusal
+                    return web.Response(status=status, text=why + "\n", headers={"Allow": "GET, HEAD, OPTIONS, POST"})
+            try:
+                return await handler(request)
+            except (web.HTTPException, asyncio.CancelledError):
+                raise
+            except Exception as exc:  # a hostile request that broke a handler: one line, never a traceback
+                policy.log.warning("refused %s %s: %s", request.method[:16], request.path[:120],
+                                   type(exc).__name__)
+                return web.Response(status=400, text=f"bad request ({type(exc).__name__})\n")
+
+        original = web.Application.__init__
+
+        def init(app, *args, middlewares=(), **kwargs) -> None:
+            original(app, *args, middlewares=[middleware, *middlewares], **kwargs)
+
+        web.Application.__init__ = init
+
+
 class Server:
     """The virtual DB21J (role ``server``)."""
 
@@ -194,6 +258,8 @@ class Server:
         from dtps import context
 
         self.live = _track_websockets()
+        self.policy = RobotPolicy(f"{self.args.prefix}/{self.args.name}")
+        self.policy.install()
         url = f"http://{self.args.host}:{self.args.port}/"
         try:
             self.ctx = await context("pbserver", urls=["create:" + url])
@@ -209,6 +275,7 @@ class Server:
             await self.queues[topic].subscribe(self._on_command(topic))
         await self.queues["state/reset"].subscribe(self._on_reset)
         await self.queues["actuator/lights/base/pattern"].subscribe(self._on_lights)
+        self.policy.armed = True  # from now on clients get what a robot gives: reads, and command writes
         if getattr(self.args, "drop_to", ""):
             _drop_to(self.args.drop_to)
         self.out.send(ev="ready", url=url, prefix=f"{self.args.prefix}/{self.args.name}".strip("/"),
@@ -509,6 +576,19 @@ def _drop_to(user: str) -> None:
     os.setuid(pw.pw_uid)
 
 
+def _one_line(record: logging.LogRecord) -> bool:
+    """A log record as one line of at most 300 characters: an exception's type and first line, not its traceback
+    (the server's log must not fill with tracebacks a hostile client provokes at will)."""
+    text = record.getMessage()
+    if record.exc_info and record.exc_info[1] is not None:
+        exc = record.exc_info[1]
+        text = f"{text}: {type(exc).__name__}: {str(exc).strip()}"
+    first = text.strip().splitlines()[0] if text.strip() else ""
+    record.msg, record.args = first[:300] + ("…" if len(first) > 300 else ""), None
+    record.exc_info, record.exc_text, record.stack_info = None, None, None
+    return True
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="role", required=True)
@@ -532,6 +612,8 @@ def main() -> None:
     logging.basicConfig()
     for handler in logging.getLogger().handlers:  # dtps sets its loggers to DEBUG when imported: filter here
         handler.setLevel(logging.WARNING)
+        if args.role == "server":  # what a stranger's request provokes is one line, never a traceback
+            handler.addFilter(_one_line)
     out = Out()
     if getattr(args, "own_netns", False):
         try:

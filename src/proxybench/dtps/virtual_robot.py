@@ -69,6 +69,15 @@ class VirtualDB21J:
                        dt=dt, pose=None if obs.pose is None else [float(v) for v in obs.pose], nudge=nudge)
         return self.seq
 
+    @property
+    def alive(self) -> bool:
+        """Whether the bridge (the robot's server) still runs."""
+        return self.link.alive
+
+    @property
+    def exit_code(self) -> int | None:
+        return self.link._os.returncode
+
     def events(self, deadline: float) -> list[dict[str, Any]]:
         """What the bridge reported by ``deadline`` (commands, resets, …); returns early when something came."""
         return self.link.poll(deadline)

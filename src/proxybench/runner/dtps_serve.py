@@ -10,11 +10,18 @@ middle of an episode if need be (its termination ``timeout``, its detail saying 
 real time must not stretch the serve (issue 39: ``--seconds 90`` ran 250–290 s). ``on_late`` hears when the
 simulation falls behind the wall clock (:class:`~proxybench.dtps.lateness.Lateness`). Every episode is saved as
 a trajectory (``episode-<k>.parquet``) in the output folder, with the serve's timing in its metadata.
+
+The serve lives only as long as its bridge: a bridge that ended (killed, crashed) ends the serve with a
+:class:`~proxybench.dtps.link.BridgeError` of one line, and the episode it cut short is not saved (issue 38: a
+``DELETE`` that killed the bridge made the serve write ~100 empty episodes a second). An episode in which no
+step ran is never saved. What clients may ask of the robot's HTTP server is the bridge's to refuse
+(``bridge.py``, the robot policy: reads, and writes to the command topics only).
 """
 
 from __future__ import annotations
 
 import json
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -25,6 +32,7 @@ import numpy as np
 from proxybench.agents.base import Observation
 from proxybench.domain.params import DomainParams
 from proxybench.dtps.driver import RobotDriver
+from proxybench.dtps.link import BridgeError
 from proxybench.dtps.virtual_robot import DEFAULT_NAME, DEFAULT_PORT, VirtualDB21J
 from proxybench.runner.episode import sim_plant
 from proxybench.runner.rollout import AgentPolicy, rollout
@@ -59,6 +67,9 @@ class ServeDriver(RobotDriver):
         return out
 
 
+#: episodes in a row that ran no step before the serve gives up
+_MAX_EMPTY = 20
+
 #: the detail of an episode cut short by the end of the serve
 WALL_TIME_UP = "the serve's time (wall clock) ran out"
 
@@ -67,8 +78,12 @@ class _ResetPlant:
     """A plant whose episode also ends when the driver saw ``state/reset`` (termination ``reset``), and when the
     wall clock reaches ``end`` (``timeout``, :data:`WALL_TIME_UP`)."""
 
-    def __init__(self, plant: Any, driver: ServeDriver, end: float = float("inf")):
-        self._plant, self._driver, self._end = plant, driver, end
+    def __init__(self, plant: Any, driver: ServeDriver, end: float = float("inf"),
+                 stop: threading.Event | None = None):
+        self._plant, self._driver, self._end, self._stop = plant, driver, end, stop
+
+    def _stopped(self) -> bool:
+        return time.monotonic() >= self._end or (self._stop is not None and self._stop.is_set())
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._plant, name)
@@ -77,7 +92,7 @@ class _ResetPlant:
         out = self._plant.advance(commands, alive, k)
         if self._driver.reset_requested and not any(final for _, _, final in out):
             out.append((0, Event(self._plant.time(0), Termination.RESET, "the agent published state/reset"), True))
-        elif time.monotonic() >= self._end and not any(final for _, _, final in out):
+        elif self._stopped() and not any(final for _, _, final in out):
             out.append((0, Event(self._plant.time(0), Termination.TIMEOUT, WALL_TIME_UP), True))
         return out
 
@@ -86,13 +101,15 @@ def serve(map_name: str, out: Path, *, name: str = DEFAULT_NAME, port: int = DEF
           seconds: float = float("inf"), episode_seconds: float = 60.0, seed: int = 0,
           params: DomainParams | None = None, on_episode: Callable[[int, Any], None] | None = None,
           on_ready: Callable[[str], None] | None = None, host: str = "127.0.0.1",
-          on_late: Callable[[str], None] | None = None, late_hint: str = "") -> list[Path]:
+          on_late: Callable[[str], None] | None = None, late_hint: str = "",
+          stop: threading.Event | None = None) -> list[Path]:
     """Serve until ``seconds`` of wall time have passed (or Ctrl-C); the trajectory files written.
 
     ``on_ready(url)`` runs once the robot's queues exist: an SDK agent started before then cannot connect
     (the SDK gives up at once on a server that is not there), so say "start your agent" only then.
     ``on_late(message)``: the simulation fell behind the wall clock (rate-limited; the message ends with
-    ``late_hint``, what to do about it).
+    ``late_hint``, what to do about it). ``stop``: set it to end the serve as the wall clock would (an embedding
+    program's Ctrl-C). Raises :class:`BridgeError` (one line) when the bridge ends under the serve.
     """
     out.mkdir(parents=True, exist_ok=True)
     plant = sim_plant(map_name, params)
@@ -104,12 +121,21 @@ def serve(map_name: str, out: Path, *, name: str = DEFAULT_NAME, port: int = DEF
             on_ready(robot.url)
         driver = ServeDriver(robot, warn=on_late, hint=late_hint)
         end = time.monotonic() + seconds
-        k = 0
-        while time.monotonic() < end:
+        k = empty = 0
+        while time.monotonic() < end and not (stop is not None and stop.is_set()):
             length = min(episode_seconds, end - time.monotonic())
             meta = {"map": plant.map.name, "episode": k, "served": {"url": robot.url, "timing": "realtime"}}
-            traj = rollout(_ResetPlant(plant, driver, end), AgentPolicy([driver]), [seed + k], length,
+            traj = rollout(_ResetPlant(plant, driver, end, stop), AgentPolicy([driver]), [seed + k], length,
                            metas=[meta])[0]
+            if not getattr(robot, "alive", True):  # the robot is gone: no episode of it, and no more episodes
+                raise BridgeError(f"the virtual robot's bridge ended during episode {k} (exit code "
+                                  f"{getattr(robot, 'exit_code', None)}): the serve stops; start it again")
+            if len(traj) == 0:  # nothing ran: nothing to save (and never a loop of such episodes)
+                empty += 1
+                if empty >= _MAX_EMPTY:
+                    raise BridgeError(f"{empty} episodes in a row ran no step: the serve stops")
+                continue
+            empty = 0
             traj.meta["served"]["stats"] = driver.stats()
             path = out / f"episode-{k}.parquet"
             traj.save(path)
