@@ -523,3 +523,16 @@ def test_fuzz_hostile_requests_never_break_the_serve(tmp_path, monkeypatch):
     assert serve.error is None, serve.error
     assert statuses.get(405, 0) > 50 and statuses.get(200, 0) > 20, statuses
     _assert_no_empty_episodes(serve.out)
+
+
+def test_a_bare_huge_integer_instead_of_a_map_is_a_one_line_protocol_error() -> None:
+    """An agent that sends a 20,000-digit integer where a map belongs gets NotAMapError naming its size, not the
+    ValueError Python raises when asked to print it."""
+    import cbor2
+
+    from proxybench.protocol.cbor_stream import CborStream, NotAMapError
+
+    stream = CborStream()
+    stream.feed(cbor2.dumps(10**20000))
+    with pytest.raises(NotAMapError, match="where a map was expected"):
+        stream.next()

@@ -16,6 +16,8 @@ from typing import Any
 
 import cbor2
 
+from proxybench.untrusted import short_repr
+
 __all__ = ["CborStream", "GarbageError", "NotAMapError", "TruncatedError", "WireError", "item_end"]
 
 _MAX_DEPTH = 256
@@ -206,7 +208,7 @@ class CborStream:
         obj = self._decode(start, stop)
         self._consume(stop)
         if not isinstance(obj, dict):
-            raise NotAMapError(f"a CBOR {type(obj).__name__} where a map was expected: {obj!r:.200}")
+            raise NotAMapError(f"a CBOR {type(obj).__name__} where a map was expected: {short_repr(obj, 200)}")
         return obj
 
     def _fast_map(self, start: int, end: int) -> dict | None:
