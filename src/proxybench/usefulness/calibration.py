@@ -13,8 +13,8 @@ itself (the validation study's ``calibration`` method, docs/validate.md). Pure f
 
 >>> import numpy as np
 >>> t = np.linspace(0, 2, 121)
->>> s = 0.3 * t
->>> round(trim_from_drive(t, s * np.cos(0.6 * s), s * 0 + np.sin(0.6 * s) / 0.6, 0.6 * s, 12.0), 3)
+>>> s, k = 0.3 * t, 0.6  # a drive at 0.3 m/s on a circle of curvature 0.6 /m
+>>> round(trim_from_drive(t, np.sin(k * s) / k, (1 - np.cos(k * s)) / k, k * s, 12.0), 3)
 0.05
 """
 
