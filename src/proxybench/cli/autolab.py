@@ -8,6 +8,7 @@ import typer
 from rich.markup import escape
 
 from proxybench.cli.app import app, console, fail
+from proxybench.cli.help import HelpTyper
 
 
 @app.command()
@@ -80,3 +81,26 @@ def localize(
     console.print(f"wrote {escape(str(out))}: {len(mf.agents)} agent(s) × {len(mf.episodes)} episode(s), "
                   f"{len(mf.excluded)} run(s) excluded; check it with: proxybench target check {escape(str(out))}",
                   highlight=False)
+
+
+autolab_app = HelpTyper(no_args_is_help=True, help="An Autolab: a lab description (lab.yaml) checked, and the lab "
+                        "its evaluator drives (docs/autolab.md).")
+app.add_typer(autolab_app, name="autolab")
+
+
+@autolab_app.command("check")
+def autolab_check(lab_file: Path = typer.Argument(..., help="the lab description (lab.yaml)")) -> None:
+    """Check a lab description: strict fields, its map, its watchtower layout or calibrations, its pose file."""
+    from proxybench.autolab.lab import LabError, check_lab, load_lab
+    from proxybench.autolab.watchtowers import UnsafeLogError
+
+    try:
+        lab = load_lab(lab_file)
+        lines = check_lab(lab, str(lab_file))
+    except UnsafeLogError as exc:
+        raise fail(exc, 2, mark="✗") from None
+    except LabError as exc:
+        raise fail(exc, mark="✗") from None
+    for line in lines:
+        console.print(escape(line), highlight=False)
+    console.print(f"[green]✓[/green] {escape(str(lab_file))}: lab {escape(lab.name)!r} is usable", highlight=False)
