@@ -160,3 +160,41 @@ def test_the_answer_names_the_targets_kind(kind, details, words):
     from proxybench.targets.base import TargetInfo
 
     assert own_target.kind_words(TargetInfo(DomainKind(kind), None, "x", "y", details)) == words
+
+
+def test_the_calibration_competes_on_a_live_target_and_prpv_is_compared_with_it_per_split(tmp_path, monkeypatch):
+    """A live target (the reality model with a hidden trim 0.12): the calibration drives it twice (straight, step),
+    reads its trim off the drives, and its θ — off the grid — is judged on every split's held-out half beside
+    PRPV's pick; PRPV − calibration is reported paired per split."""
+    monkeypatch.setattr(own_target, "_open", lambda cfg, n: RealityTarget({"trim": 0.12}))
+    cfg = ValidateConfig(target="reality", agents=("straight", "pid", "pure-pursuit", "bang-bang"), seconds=2.0,
+                         **{**SMALL, "methods": ("prpv", "calibration", "nominal")})
+    res = run_own_target(cfg, tmp_path, splits=12, boot=4, boot_splits=3)
+    s = res.summary
+    assert s.calibration is not None and abs(s.calibration.estimate["trim"] - 0.12) < 0.03
+    assert s.calibration.theta == {"trim": pytest.approx(s.calibration.estimate["trim"])}  # inside the grid's range
+    assert s.episodes_run == 4 * 4 + 2 * 2 + (3 + 1) * 4 * 4  # target, the drives, the grid and the calibrated θ
+    calib_rows = [r for r in res.rows if r.method == "calibration"]
+    assert len(calib_rows) == 12 and {r.pick for r in calib_rows} == {3}  # the candidate after the grid
+    assert set(s.versus) == {"prpv-calibration"} and s.versus["prpv-calibration"].splits == 12
+    by = {(r.split, r.method): r.quality_pick for r in res.rows}
+    d = [by[(i, "prpv")] - by[(i, "calibration")] for i in range(12)]
+    assert s.versus["prpv-calibration"].median == pytest.approx(float(np.median(d)))
+    assert "prpv − calibration: median" in s.answer
+    write_own_target_report(res, tmp_path)
+    assert "trim=" in (tmp_path / "report.html").read_text() and "(paired)" in (tmp_path / "report.html").read_text()
+    assert ",3,0.12" in (tmp_path / "splits.csv").read_text().replace(
+        f"{s.calibration.theta['trim']}", "0.12")  # the calibrated θ is named in its rows
+
+
+def test_the_calibration_on_a_recording_without_its_drives_says_why_and_the_rest_answers(recording, tmp_path):
+    res = _run(recording, tmp_path, methods=("prpv", "calibration", "nominal"))
+    s = res.summary
+    assert s.calibration is not None and s.calibration.theta is None and "recording" in s.calibration.reason
+    assert "calibration" not in s.methods and not s.versus and any(n.startswith("calibration:") for n in s.notes)
+    assert set(s.methods) == {"prpv", "nominal"}
+
+
+def test_trajectory_fit_is_refused_on_one_target_with_the_methods_that_run(recording, tmp_path):
+    with pytest.raises(ConfigError, match="methods: trajectory_fit refits θ on every split"):
+        _run(recording, tmp_path, methods=("prpv", "trajectory_fit", "nominal"))

@@ -45,12 +45,14 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from proxybench.experiments.config import ConfigError
-from proxybench.experiments.validate.config import PYTHON, ValidateConfig, settings_for
+from proxybench.experiments.validate.config import PYTHON, ValidateConfig, ValidateSettings, settings_for
+from proxybench.experiments.validate.measures import ContinuousPick
 from proxybench.targets.base import Target, TargetInfo, TargetRun
 
-__all__ = ["BOOT", "BOOT_SPLITS", "DEFAULT_METHODS", "RANGE", "SPLITS", "MethodAnswer", "OwnTargetResult",
-           "OwnTargetSettings", "OwnTargetSummary", "SplitRow", "Tables", "answer", "evaluate_splits", "kind_words",
-           "run_own_target", "show_own_target", "summarize_splits", "write_own_target_report"]
+__all__ = ["BOOT", "BOOT_SPLITS", "DEFAULT_METHODS", "ONE_TARGET_CONTINUOUS", "PAIRS", "RANGE", "SPLITS",
+           "MethodAnswer", "OwnTargetResult", "OwnTargetSettings", "OwnTargetSummary", "SplitRow", "Tables", "answer",
+           "evaluate_splits", "kind_words", "pair_name", "run_own_target", "show_own_target", "summarize_pairs",
+           "summarize_splits", "write_own_target_report"]
 
 Progress = Callable[[str, int, int], None]
 
@@ -63,9 +65,17 @@ BOOT_SPLITS = 20
 RANGE = (5.0, 95.0)
 #: the methods when ``--method`` is not given: the ones cheap enough for S + BOOT × BOOT_SPLITS picks (the
 #: correlation methods recompute every usefulness measure with a bootstrap per candidate, ~0.1 s per pick each)
-DEFAULT_METHODS = ("prpv", "eps_prpv", "prob_prpv", "trajectory", "nominal")
+DEFAULT_METHODS = ("prpv", "eps_prpv", "prob_prpv", "trajectory", "calibration", "nominal")
+#: the continuous methods a study on one target runs: ``calibration``'s θ does not depend on the split (two scripted
+#: drives on the target, no simulator), so it is measured once and judged on every split's held-out half;
+#: ``trajectory_fit`` refits per split (S × 40 replays of every tuning run) and is the family study's
+ONE_TARGET_CONTINUOUS = ("calibration",)
+#: the paired comparisons the answer reports: PRPV against the competitors that need no ranking (issue 35's primary
+#: question, on one target)
+PAIRS = (("prpv", "calibration"), ("prpv", "trajectory"))
 #: the code that scores the splits, hashed into settings.json
-_SCORING = ("experiments/validate/own_target.py", "usefulness/validation.py")
+_SCORING = ("experiments/validate/own_target.py", "usefulness/validation.py", "usefulness/calibration.py",
+            "experiments/validate/scoring.py")
 
 
 # -- typed results ------------------------------------------------------------------------------------------------
@@ -142,6 +152,11 @@ class OwnTargetSummary(_Model):
     scoring_unchanged: bool
     episodes_run: int
     wall_s: float = 0.0
+    versus: dict[str, MethodAnswer] = {}
+    """PRPV − each competitor (``prpv-calibration``, ``prpv-trajectory``), paired per split (negative: PRPV better)"""
+    calibration: ContinuousPick | None = None
+    """the calibration's θ (from its drives on the target: clipped to the grid's range) or why it has none; it is
+    the candidate after the grid (``pick`` = len(candidates) in splits.csv)"""
 
 
 class SplitRow(_Model):
@@ -179,15 +194,17 @@ class OwnTargetResult:
 class Tables:
     """Every agent × episode on the target and under each candidate, indexed by position: the splits' raw data.
 
-    ``target``: (K, E, M) scores; ``proxy``: (C, K, E, M) the candidates' replays of the same episodes;
-    ``trajectory``: (C, K, E) mean distance [m] between each recorded run and its open-loop replay under the
-    candidate (NaN where the target left no trajectory)."""
+    ``target``: (K, E, M) scores; ``proxy``: (C, K, E, M) the candidates' replays of the same episodes, the grid's
+    then (with ``calibrated``) the calibration's θ; ``trajectory``: (C, K, E) mean distance [m] between each recorded
+    run and its open-loop replay under the candidate (NaN where the target left no trajectory)."""
 
     agents: tuple[str, ...]
     episodes: tuple[int, ...]
     target: np.ndarray
     proxy: np.ndarray
     trajectory: np.ndarray
+    calibrated: bool = False
+    """the last candidate of ``proxy`` is the calibration's θ (off the grid: only ``calibration`` picks it)"""
 
 
 def _split(rng: np.random.Generator, k: int, e: int, n_a: int, n_e1: int) -> tuple[np.ndarray, ...]:
@@ -205,14 +222,20 @@ def _one(tab: Tables, s: OwnTargetSettings, higher: tuple[bool, ...], a: np.ndar
     """Each method's pick from A on E1 and its quality on B on E2: (method, pick, ties, q_pick, q_nominal, q_oracle)."""
     from proxybench.usefulness.validation import METHODS, pick, quality, selection_scores
 
-    names, n_c = tab.agents, tab.proxy.shape[0]
+    names, n_all = tab.agents, tab.proxy.shape[0]
+    n_c = n_all - 1 if tab.calibrated else n_all  # the grid: every method but the calibration picks from it
     target_a, target_b = _table(tab.target, a, e1, names), _table(tab.target, b, e2, names)
     prox_a = [_table(tab.proxy[c], a, e1, names) for c in range(n_c)]
-    prox_b = [_table(tab.proxy[c], b, e2, names) for c in range(n_c)]
+    prox_b = [_table(tab.proxy[c], b, e2, names) for c in range(n_all)]
     q = np.array([quality(p, target_b, higher, k=s.top_k).prpv_norm for p in prox_b])
+    oracle = float(np.nanmin(q[:n_c]))
     tol = [s.tolerances[m] for m in s.metrics]
     out = []
     for method in methods:
+        if method == "calibration":
+            if tab.calibrated:
+                out.append((method, n_c, 1, float(q[n_c]), float(q[s.nominal_index]), oracle))
+            continue
         if method == "nominal":
             values = np.where(np.arange(n_c) == s.nominal_index, 0.0, 1.0)
         elif method == "trajectory":
@@ -226,7 +249,7 @@ def _one(tab: Tables, s: OwnTargetSettings, higher: tuple[bool, ...], a: np.ndar
             continue
         index, ties = pick(np.where(np.isfinite(values), values, np.inf),
                            np.random.default_rng([s.seed, *key, METHODS.index(method)]))
-        out.append((method, index, ties, float(q[index]), float(q[s.nominal_index]), float(np.nanmin(q))))
+        out.append((method, index, ties, float(q[index]), float(q[s.nominal_index]), oracle))
     return out
 
 
@@ -252,20 +275,38 @@ def evaluate_splits(tab: Tables, s: OwnTargetSettings, progress: Progress | None
                                  e1=tuple(tab.episodes[j] for j in e1), e2=tuple(tab.episodes[j] for j in e2)))
         if progress:
             progress("splits", i + 1, s.splits)
-    boots: dict[str, list[tuple[float, float]]] = {m: [] for m in s.methods}
+    boots: dict[str, list[tuple[float, float]]] = {m: [] for m in (*s.methods, *map(pair_name, PAIRS))}
     for r in range(s.boot):
         rng = np.random.default_rng([s.seed, r, 0xB007])
         deltas: dict[str, list[float]] = {}
         for j in range(s.boot_splits):
             a, b, e1, e2 = _split(rng, k, e, s.tuning_agents, s.episodes_tune)
             e1, e2 = rng.choice(e1, len(e1)), rng.choice(e2, len(e2))  # the target's episodes, resampled
+            picked = {}
             for method, _, _, qp, qn, _ in _one(tab, s, higher, a, b, e1, e2, s.methods, (s.splits + r, j)):
                 deltas.setdefault(method, []).append(qp - qn)
+                picked[method] = qp
+            for first, second in PAIRS:
+                if first in picked and second in picked:
+                    deltas.setdefault(pair_name((first, second)), []).append(picked[first] - picked[second])
         for method, d in deltas.items():
             boots[method].append((float(np.median(d)), float(np.mean(d))))
         if progress:
             progress("bootstrap over the target's episodes", r + 1, s.boot)
     return rows, {m: np.asarray(v, float).reshape(-1, 2) for m, v in boots.items() if v}
+
+
+def _method_answer(name: str, d: np.ndarray, bt: np.ndarray, ties: float, s: OwnTargetSettings) -> MethodAnswer:
+    """The answer over splits of one difference ``d`` (negative: the first did better), with its bootstrap."""
+    close = np.isclose(d, 0.0, rtol=0.0, atol=1e-12)
+    lo, hi = np.percentile(d, s.range_percent)
+    mlo, mhi = np.percentile(bt[:, 0], [2.5, 97.5])
+    alo, ahi = np.percentile(bt[:, 1], [2.5, 97.5])
+    return MethodAnswer(
+        method=name, splits=len(d), median=float(np.median(d)), mean=float(d.mean()),
+        helped=float(np.mean((d < 0) & ~close)), hurt=float(np.mean((d > 0) & ~close)), tied=float(close.mean()),
+        range_low=float(lo), range_high=float(hi), median_low=float(mlo), median_high=float(mhi),
+        mean_low=float(alo), mean_high=float(ahi), mean_ties=ties)
 
 
 def summarize_splits(rows: list[SplitRow], boots: dict[str, np.ndarray], s: OwnTargetSettings
@@ -275,19 +316,30 @@ def summarize_splits(rows: list[SplitRow], boots: dict[str, np.ndarray], s: OwnT
     out = {}
     for method in s.methods:
         mine = [r for r in rows if r.method == method]
-        if not mine:
-            continue
-        d = np.array([r.delta for r in mine])
-        close = np.isclose(d, 0.0, rtol=0.0, atol=1e-12)
-        lo, hi = np.percentile(d, s.range_percent)
-        bt = boots.get(method, np.full((1, 2), np.nan))
-        mlo, mhi = np.percentile(bt[:, 0], [2.5, 97.5])
-        alo, ahi = np.percentile(bt[:, 1], [2.5, 97.5])
-        out[method] = MethodAnswer(
-            method=method, splits=len(d), median=float(np.median(d)), mean=float(d.mean()),
-            helped=float(np.mean((d < 0) & ~close)), hurt=float(np.mean((d > 0) & ~close)), tied=float(close.mean()),
-            range_low=float(lo), range_high=float(hi), median_low=float(mlo), median_high=float(mhi),
-            mean_low=float(alo), mean_high=float(ahi), mean_ties=float(np.mean([r.ties for r in mine])))
+        if mine:
+            out[method] = _method_answer(method, np.array([r.delta for r in mine]),
+                                         boots.get(method, np.full((1, 2), np.nan)),
+                                         float(np.mean([r.ties for r in mine])), s)
+    return out
+
+
+def pair_name(pair: tuple[str, str]) -> str:
+    return f"{pair[0]}-{pair[1]}"
+
+
+def summarize_pairs(rows: list[SplitRow], boots: dict[str, np.ndarray], s: OwnTargetSettings
+                    ) -> dict[str, MethodAnswer]:
+    """Per pair of :data:`PAIRS` that both picked: first − second in held-out PRPV/K(K−1) over the splits where both
+    picked (negative: the first ordered the held-out agents better), with the same bootstrap (paired: the same
+    replicate's splits)."""
+    by = {(r.split, r.method): r.quality_pick for r in rows}
+    out = {}
+    for pair in PAIRS:
+        d = np.array([by[(i, pair[0])] - by[(i, pair[1])] for i in range(s.splits)
+                      if (i, pair[0]) in by and (i, pair[1]) in by])
+        if d.size:
+            out[pair_name(pair)] = _method_answer(pair_name(pair), d, boots.get(pair_name(pair),
+                                                                               np.full((1, 2), np.nan)), 0.0, s)
     return out
 
 
@@ -344,7 +396,26 @@ def answer(summary: OwnTargetSummary) -> str:
             f"{s.range_percent[1]:g} % of splits in [{m.range_low:+.3f}, {m.range_high:+.3f}]); with the target's "
             f"episode noise the median lies in [{m.median_low:+.3f}, {m.median_high:+.3f}] and the mean "
             f"{m.mean:+.3f} in [{m.mean_low:+.3f}, {m.mean_high:+.3f}] (95 % bootstrap over episodes): {verdict}. "
+            f"{_versus_words(summary)}"
             "One target: this says nothing about other targets, nor about agents outside this pool.")
+
+
+def _versus_words(summary: OwnTargetSummary) -> str:
+    """One sentence per paired comparison: does ranking (PRPV) pick a better θ than the competitor?"""
+    out = []
+    for name, v in summary.versus.items():
+        first, second = name.split("-", 1)
+        if v.median_high < 0:
+            said = f"{first} did better than {second}"
+        elif v.median_low > 0:
+            said = f"{second} did better than {first}"
+        elif abs(v.median_low) < 1e-12 and abs(v.median_high) < 1e-12:
+            said = "on a typical split both ordered the held-out agents alike"
+        else:
+            said = "not separated"
+        out.append(f"{first} − {second}: median {v.median:+.3f} [{v.median_low:+.3f}, {v.median_high:+.3f}] over "
+                   f"{v.splits} splits ({first} better in {v.helped:.0%}, worse in {v.hurt:.0%}): {said}. ")
+    return "".join(out)
 
 
 # -- running --------------------------------------------------------------------------------------------------------
@@ -415,8 +486,10 @@ def _episode_ids(target: Target, n: int, cfg: ValidateConfig) -> list[int]:
     return ids[:n]
 
 
-def _settings(cfg: ValidateConfig, quick: bool, out: Path) -> tuple[OwnTargetSettings, Target, list[Any]]:
-    """Every choice, checked before anything runs or is written (the target opened, its agents and episodes)."""
+def _settings(cfg: ValidateConfig, quick: bool, out: Path
+              ) -> tuple[OwnTargetSettings, Target, list[Any], ValidateSettings]:
+    """Every choice, checked before anything runs or is written (the target opened, its agents and episodes); and
+    the family study's settings they came from (the calibration reads its grid)."""
     from proxybench.experiments.validate.run import _candidates
 
     _refuse_family_fields(cfg)
@@ -447,9 +520,9 @@ def _settings(cfg: ValidateConfig, quick: bool, out: Path) -> tuple[OwnTargetSet
 
     # the grid methods only: a method whose pick is a continuous θ (fitted, or calibrated by scripted drives on a
     # live target) is the family study's to run
-    off_grid = [m for m in methods if m in getattr(validation, "CONTINUOUS", ())]
+    off_grid = [m for m in methods if m in validation.CONTINUOUS and m not in ONE_TARGET_CONTINUOUS]
     if off_grid:
-        raise ConfigError(f"methods: {', '.join(off_grid)} pick θ off the grid and are not run on one target; "
+        raise ConfigError(f"methods: {', '.join(off_grid)} refits θ on every split and is not run on one target; "
                           f"give --method among {', '.join(m for m in validation.METHODS if m not in off_grid)}")
     k = len(specs)
     s = OwnTargetSettings(
@@ -459,7 +532,7 @@ def _settings(cfg: ValidateConfig, quick: bool, out: Path) -> tuple[OwnTargetSet
         candidates=cands, nominal_index=nominal_index, metrics=base.metrics, tolerances=base.tolerances,
         methods=methods, top_k=base.top_k, n_boot=base.n_boot, image_size=base.image_size, seed=base.seed,
         splits=SPLITS, boot=BOOT, boot_splits=BOOT_SPLITS, range_percent=RANGE, scoring_sha256=_scoring_hash())
-    return s, target, specs
+    return s, target, specs, base
 
 
 def _register(out: Path, s: OwnTargetSettings, new_study: bool) -> str:
@@ -495,9 +568,25 @@ def _register(out: Path, s: OwnTargetSettings, new_study: bool) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+def _calibrate(s: OwnTargetSettings, base: ValidateSettings, target: Target, run_dir: Path, backend: Any,
+               progress: Progress | None) -> tuple[ContinuousPick | None, int]:
+    """The calibration's θ from its scripted drives on the target (None when the study does not run it) and the
+    target episodes they took. Clipped to the grid's range: the user's target has no drawn range, and we never
+    centre anything on a truth we know."""
+    if "calibration" not in s.methods:
+        return None, 0
+    from proxybench.experiments.validate.run import _calibration
+
+    kw = {"map_name": s.map, "seconds": s.seconds, "seed": s.seed, "metrics": s.metrics,
+          "image_size": tuple(s.image_size), "run_dir": run_dir, "backend": backend}
+    stage = (lambda name: (lambda _st, d, t: progress(name, d, t))) if progress else (lambda _n: None)
+    return _calibration(target, base.model_copy(update={"draw": {}}), kw, stage)
+
+
 def _replays(s: OwnTargetSettings, specs: list[Any], tgt: TargetRun, run_dir: Path, backend: Any,
-             progress: Progress | None) -> tuple[np.ndarray, int]:
-    """(C, K, E, M) every candidate's replay of every target episode, through the runner; and how many ran now."""
+             progress: Progress | None, extra: list[dict[str, float]] = ()) -> tuple[np.ndarray, int]:
+    """(C, K, E, M) every candidate's replay of every target episode (the grid's, then ``extra`` θ), through the
+    runner; and how many ran now."""
     from proxybench.experiments.proxies import proxy_params
     from proxybench.runner.jobs import DomainSpec, Job
     from proxybench.runner.sweep import run_jobs
@@ -506,11 +595,11 @@ def _replays(s: OwnTargetSettings, specs: list[Any], tgt: TargetRun, run_dir: Pa
     pos = {(a, e): (i, j) for i, a in enumerate(s.agents) for j, e in enumerate(s.episodes)}
     jobs = [Job(by_label[e.agent], DomainSpec(f"candidate {c}", proxy_params(tuple(s.image_size), **theta)),
                 tgt.map, e.episode, e.seed, tgt.seconds, pose=e.pose, metrics=s.metrics)
-            for c, theta in enumerate(s.candidates) for e in tgt.episodes]
+            for c, theta in enumerate([*s.candidates, *extra]) for e in tgt.episodes]
     sweep = run_jobs(jobs, run_dir, backend,
                      progress=(lambda d, t, _r: progress("candidates replay the target's episodes", d, t))
                      if progress else None)
-    out = np.full((len(s.candidates), len(s.agents), len(s.episodes), len(s.metrics)), np.nan)
+    out = np.full((len(s.candidates) + len(extra), len(s.agents), len(s.episodes), len(s.metrics)), np.nan)
     per = len(tgt.episodes)
     for n, (job, res) in enumerate(zip(jobs, sweep.results, strict=True)):
         i, j = pos[(job.agent.label, job.episode)]
@@ -561,7 +650,7 @@ def run_own_target(cfg: ValidateConfig, out: str | Path, backend: Any = None, pr
     out = Path(out)
     if not cfg.target:
         raise ConfigError("target: give the target (DIR, robot:CMD or dtps:HOST[:PORT]/PATH)")
-    s, target, specs = _settings(cfg, quick, out)
+    s, target, specs, base = _settings(cfg, quick, out)
     s = s.model_copy(update={k: v for k, v in (("splits", splits), ("boot", boot), ("boot_splits", boot_splits))
                              if v is not None})
     if min(s.splits, s.boot, s.boot_splits) < 1:
@@ -581,9 +670,16 @@ def run_own_target(cfg: ValidateConfig, out: str | Path, backend: Any = None, pr
     for a, rows in tgt.results.items():
         for ep, row in zip(tgt.episodes_of(a), rows, strict=True):
             target_t[s.agents.index(a), s.episodes.index(ep.episode)] = row
-    proxy, ran = _replays(s, specs, tgt, run_dir, backend, progress)
-    tab = Tables(s.agents, s.episodes, target_t, proxy, _trajectories(s, tgt, progress))
+    calib, drives_ran = _calibrate(s, base, target, run_dir, backend, progress)
+    extra = [calib.theta] if calib is not None and calib.theta is not None else []
+    proxy, ran = _replays(s, specs, tgt, run_dir, backend, progress, extra=extra)
+    trajectory = _trajectories(s, tgt, progress)
+    if extra:
+        trajectory = np.concatenate([trajectory, np.full((1, *trajectory.shape[1:]), np.nan)])
+    tab = Tables(s.agents, s.episodes, target_t, proxy, trajectory, calibrated=bool(extra))
     notes = []
+    if calib is not None and calib.theta is None:
+        notes.append(f"calibration: {calib.reason}, so it did not pick")
     if "trajectory" in s.methods and not np.isfinite(tab.trajectory).any():
         notes.append("trajectory: the target left no trajectories (wheel commands and poses), so trajectory matching "
                      "did not pick")
@@ -593,10 +689,12 @@ def run_own_target(cfg: ValidateConfig, out: str | Path, backend: Any = None, pr
     info = target.info()
     summary = OwnTargetSummary(settings=s, target_kind=kind_words(info), target_label=info.label,
                                target_statement=info.statement, simulated=info.simulated,
-                               methods=summarize_splits(rows, boots, s), answer="",
+                               methods=summarize_splits(rows, boots, s), versus=summarize_pairs(rows, boots, s),
+                               answer="",
                                notes=notes, written=written["written"], commit=written["commit"],
                                scoring_unchanged=written["settings"]["scoring_sha256"] == _scoring_hash(),
-                               episodes_run=tgt.ran + ran, wall_s=round(time.perf_counter() - t0, 1))
+                               episodes_run=tgt.ran + ran + drives_ran, wall_s=round(time.perf_counter() - t0, 1),
+                               calibration=calib)
     summary = summary.model_copy(update={"answer": answer(summary)})
     return OwnTargetResult(summary, rows, settings_sha)
 
@@ -606,7 +704,8 @@ def run_own_target(cfg: ValidateConfig, out: str | Path, backend: Any = None, pr
 def _csv(result: OwnTargetResult, path: Path) -> Path:
     import csv
 
-    cands = result.summary.settings.candidates
+    calib = result.summary.calibration
+    cands = [*result.summary.settings.candidates, *([calib.theta] if calib is not None and calib.theta else [])]
     names = list(cands[0]) if cands else []
     with path.open("w", newline="") as f:
         w = csv.writer(f)
@@ -660,6 +759,15 @@ def write_own_target_report(result: OwnTargetResult, out: str | Path, *, wall: f
     rows = [(m, a.splits, f"{a.median:+.4f}", f"[{a.median_low:+.4f}, {a.median_high:+.4f}]", f"{a.mean:+.4f}",
              f"[{a.mean_low:+.4f}, {a.mean_high:+.4f}]", f"{a.helped:.0%} / {a.hurt:.0%} / {a.tied:.0%}",
              f"[{a.range_low:+.4f}, {a.range_high:+.4f}]", f"{a.mean_ties:.1f}") for m, a in summary.methods.items()]
+    rows += [(f"{m.replace('-', ' − ')} (paired)", a.splits, f"{a.median:+.4f}", f"[{a.median_low:+.4f}, "
+              f"{a.median_high:+.4f}]", f"{a.mean:+.4f}", f"[{a.mean_low:+.4f}, {a.mean_high:+.4f}]",
+              f"{a.helped:.0%} / {a.hurt:.0%} / {a.tied:.0%}", f"[{a.range_low:+.4f}, {a.range_high:+.4f}]", "")
+             for m, a in summary.versus.items()]
+    calib = summary.calibration
+    calib_words = ("" if calib is None else "Calibration (two scripted drives on the target, no simulator): " + (
+        "θ {" + ", ".join(f"{k}={v:g}" for k, v in calib.theta.items()) + "} from the measured {" +
+        ", ".join(f"{k}={v:.4g}" for k, v in calib.estimate.items()) + "} (clipped to the grid's range)."
+        if calib.theta else f"not applicable: {calib.reason}."))
     cands = ", ".join(("nominal " if c == s.nominal_index else "") + "{" + ", ".join(
         f"{k}={v:g}" for k, v in th.items()) + "}" for c, th in enumerate(s.candidates))
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>validate on one target</title>
@@ -671,7 +779,8 @@ def write_own_target_report(result: OwnTargetResult, out: str | Path, *, wall: f
 <p><b>{html.escape(summary.answer)}</b></p>
 {"".join(f"<p><i>{html.escape(n)}</i></p>" for n in summary.notes)}
 <h2>Every method against the nominal θ</h2>
-<p>Tuned − nominal in PRPV/K(K−1) of the held-out agents on the held-out episodes (negative: tuning helped), over
+<p>Tuned − nominal in PRPV/K(K−1) of the held-out agents on the held-out episodes (negative: tuning helped); the
+rows marked "paired" are PRPV's pick against a competitor's on the same splits (negative: PRPV better). Over
 {s.splits} random splits of the agents ({s.tuning_agents} tune, {len(s.agents) - s.tuning_agents} judge) and of the
 episodes ({s.episodes_tune} tune, {s.episodes_eval} judge). The range over splits describes how the answer moves
 with the split; it is not a confidence interval (splits share the same episodes). The 95 % intervals come from
@@ -684,6 +793,7 @@ E2: they hold the target's episode noise.</p>
 <h2>Settings (settings.json, written {html.escape(summary.written)} at commit {html.escape(summary.commit)})</h2>
 <p>Agents: {html.escape(", ".join(s.agents))}. Episodes: {html.escape(", ".join(map(str, s.episodes)))} of
 {s.seconds:g} s on {html.escape(s.map)}. Candidates: {html.escape(cands)}. Metrics: {html.escape(", ".join(s.metrics))}.
+{html.escape(calib_words)}
 Seed {s.seed}. Scoring code {"unchanged since settings.json" if summary.scoring_unchanged else
 "<b>CHANGED since settings.json was written</b>"}. {summary.episodes_run} episodes ran for this report.</p>
 </body></html>"""
@@ -698,7 +808,7 @@ def show_own_target(result: OwnTargetResult, console: Any, *, wall: float = 0.0)
     for note in summary.notes:
         console.print(note, highlight=False, markup=False)
     console.print(summary.answer, highlight=False, markup=False)
-    for m, a in summary.methods.items():
+    for m, a in [*summary.methods.items(), *summary.versus.items()]:
         console.print(f"  {m:>10}: median {a.median:+.4f} [{a.median_low:+.4f}, {a.median_high:+.4f}]  helped "
                       f"{a.helped:4.0%}  hurt {a.hurt:4.0%}  tied {a.tied:4.0%}  splits in [{a.range_low:+.4f}, "
                       f"{a.range_high:+.4f}]", highlight=False, markup=False)
