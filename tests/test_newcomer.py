@@ -60,6 +60,17 @@ def test_target_check_of_a_localised_simulated_run_says_what_it_is(tmp_path):
     assert res.exit_code == 0 and _ended_early(res.output) == "1", res.output
 
 
+def test_a_localised_run_that_ran_to_the_end_survived_the_whole_episode(tmp_path):
+    """Its samples stop a frame inside the episode (9.80 s of 10 s): survival_time is the episode's 10 s, not the
+    last pose's time; a run that stops a second short survived only as long as its samples."""
+    from proxybench.targets.recorded import check_recording
+
+    whole = check_recording(_localised_like(tmp_path / "T", end=9.80), ("survival_time",))
+    assert whole.ok and whole.episodes[0].scores["survival_time"] == 10.0
+    short = check_recording(_localised_like(tmp_path / "S", end=9.0), ("survival_time",))
+    assert short.ok and short.episodes[0].scores["survival_time"] == pytest.approx(9.0 - 0.13)
+
+
 def test_target_check_takes_metrics_separated_by_commas(tmp_path):
     root = _localised_like(tmp_path / "T", end=9.80)
     res = runner.invoke(app, ["target", "check", str(root), "--metric", "survival_time,deviation_center_line"],

@@ -307,6 +307,7 @@ def _mark_early_end(traj, seconds: float, m) -> None:
     steps = np.diff(t)
     period = float(max(np.median(steps), np.percentile(steps, 90))) if steps.size else 0.0
     if seconds - traj.duration <= max(2 * period, 0.1):  # the recording runs to the end (within a frame each side)
+        traj.meta["ran_whole_episode"] = True  # survival_time: the episode's length, not the last sample's time
         return
     x, y = float(traj["x"][-1]), float(traj["y"][-1])
     tile = m.tile_at(x, y)

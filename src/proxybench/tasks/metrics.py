@@ -84,7 +84,11 @@ def _dt(traj: Trajectory) -> np.ndarray:
 
 
 def _survival_time(traj: Trajectory) -> float:
+    """Capped at the episode's length; a recording that ran to the end, sampled a frame or two inside it (a
+    localised run's last pose at 9.67 s of 10 s), survived the whole episode (``meta["ran_whole_episode"]``)."""
     cap = traj.meta.get("episode_seconds")
+    if cap and traj.meta.get("ran_whole_episode"):
+        return float(cap)
     return min(traj.duration, float(cap)) if cap else traj.duration
 
 
