@@ -28,14 +28,16 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from proxybench.autolab.validate import Thresholds
 from proxybench.autolab.watchtowers import GroundTag, Layout, LayoutError, read_model, resolve_layout
 from proxybench.domain.apriltags import CODES, ROOF_TAG_BASE
 from proxybench.untrusted import repeated
+
+if TYPE_CHECKING:
+    from proxybench.autolab.validate import Thresholds
 
 __all__ = ["LAB_FORMAT", "Lab", "LabError", "LabLimits", "LabRobot", "LabWatchtowers", "Reset", "StreamSource",
            "check_lab", "load_lab"]
@@ -171,6 +173,9 @@ class LabLimits(BaseModel):
     max_episode_s: float = Field(120.0, gt=0.0, le=3600.0)
 
     def thresholds(self) -> Thresholds:
+        """The DTA's validation thresholds of this lab (validate imports the detector: loaded when needed)."""
+        from proxybench.autolab.validate import Thresholds
+
         return Thresholds(self.lost_s, self.light_change, self.end_slack_s)
 
 

@@ -96,6 +96,9 @@ def evaluator(
     robot_cmd: str | None = typer.Option(None, help="robot node (robot protocol) that target jobs run on "
                                                     "[the reality model]"),
     robot_options: RobotNodeOptions = None,  # the --robot-* options: with_robot_node_options
+    autolab: Path | None = typer.Option(None, "--autolab", help="lab.yaml: also lease Autolab jobs (feature autolab) "
+                                        "and run them on this lab's robot, measured by its watchtowers "
+                                        "(docs/autolab.md)"),
 ) -> None:
     """Pull jobs from a challenges server and evaluate them, until stopped (SIGTERM / Ctrl-C).
 
@@ -117,9 +120,19 @@ def evaluator(
     from proxybench.evaluator import Evaluator, EvaluatorConfig, Limits
 
     feats = tuple(dict.fromkeys(f.strip() for f in features.split(",") if f.strip()))
+    lab = None
+    if autolab is not None:
+        from proxybench.autolab.lab import LabError, check_lab, load_lab
+
+        try:
+            lab = load_lab(autolab)
+            check_lab(lab, str(autolab))
+        except LabError as exc:
+            raise fail(exc, 2, mark="✗") from None
+        feats = (*feats, "autolab") if "autolab" not in feats else feats
     if not feats:
         raise typer.BadParameter("give at least one feature (sim, target)", param_hint="--features")
-    unknown = [f for f in feats if f not in KNOWN_FEATURES]
+    unknown = [f for f in feats if f not in KNOWN_FEATURES and not (f == "autolab" and lab is not None)]
     if unknown:
         err_console.print(f"[yellow]![/yellow] feature(s) {', '.join(unknown)} are not known to this evaluator "
                           f"({', '.join(KNOWN_FEATURES)}); jobs needing them will end in host-error")
@@ -139,7 +152,8 @@ def evaluator(
         work_dir=work_dir,
         limits=Limits(cpu_seconds=cpu_seconds, memory_bytes=memory_mb << 20, file_bytes=file_mb << 20,
                       scratch_bytes=scratch_mb << 20, tmp_bytes=max(1, scratch_mb // 4) << 20),
-        video=video, keep_work=keep_work, robot_cmd=robot_cmd, robot_options=robot_options.non_default())
+        video=video, keep_work=keep_work, robot_cmd=robot_cmd, robot_options=robot_options.non_default(),
+        autolab=lab)
     try:
         ev = Evaluator(server or "http://127.0.0.1:8000", secret, config, _reporter())
     except RuntimeError as exc:

@@ -13,6 +13,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from proxybench.autolab.lab import Lab
 from proxybench.contract import Lease
 from proxybench.evaluator.sandbox import Isolation, Limits
 
@@ -33,7 +34,8 @@ class WorkerJob(BaseModel):
     """One leased job as its worker sees it. ``job_features``: what the job needs (``sim``, ``target``);
     ``isolation`` and ``limits``: how agent packages run here; ``video``: record the first validation
     episode; ``robot_cmd`` / ``robot_options``: the robot node target jobs run on (None: the reality model)
-    and how to start it (the non-default fields of ``RobotNodeOptions``)."""
+    and how to start it (the non-default fields of ``RobotNodeOptions``); ``autolab``: the lab (``lab.yaml``, its
+    paths absolute) whose robot and watchtowers run and measure Autolab jobs (:mod:`.autolab`)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -45,6 +47,7 @@ class WorkerJob(BaseModel):
     video: bool = True
     robot_cmd: str | None = None
     robot_options: dict[str, Any] = Field(default_factory=dict)
+    autolab: Lab | None = None
 
     def write(self, path: Path) -> Path:
         """Write the job as JSON (the model's own)."""

@@ -36,6 +36,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from proxybench import __version__
+from proxybench.autolab.lab import Lab
 from proxybench.client import ServerClient, ServerError
 from proxybench.contract import Lease, LeasedBenchmark, ResultUpload
 from proxybench.evaluator.job import EvaluatorInfo, WorkerJob
@@ -57,7 +58,8 @@ class EvaluatorConfig:
     unprivileged user agent packages run as; ``dev_unsafe``: the developer's flag that lets them run as the
     evaluator's own user where that is impossible (every report says so); ``start_allowance_s`` [s]: what a
     job may take beyond its benchmark's wall-clock budget (starting the worker, agent and target, the
-    video): past both, the job ends ``failed``."""
+    video): past both, the job ends ``failed``; ``autolab``: the lab whose robot and watchtowers run Autolab
+    jobs (feature ``autolab``, :mod:`.autolab`)."""
 
     name: str
     work_dir: Path
@@ -72,6 +74,7 @@ class EvaluatorConfig:
     robot_options: dict[str, Any] = field(default_factory=dict)
     post_retry_s: float = 600.0
     start_allowance_s: float = 300.0
+    autolab: Lab | None = None
 
 
 class Reporter:
@@ -264,7 +267,8 @@ class Evaluator:
                                evaluator=EvaluatorInfo(name=self.config.name, features=list(self.config.features),
                                                        version=__version__),
                                isolation=self.isolation, limits=self.config.limits, video=self.config.video,
-                               robot_cmd=self.config.robot_cmd, robot_options=dict(self.config.robot_options))
+                               robot_cmd=self.config.robot_cmd, robot_options=dict(self.config.robot_options),
+                               autolab=self.config.autolab)
         job.write("job.json", worker_job.model_dump_json(indent=1).encode())
         if self._stopping.is_set():
             return Outcome("host-error", f"evaluator {self.config.name!r} is shutting down ({self.stop_reason}); "

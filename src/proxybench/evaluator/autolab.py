@@ -1,0 +1,305 @@
+"""An Autolab's job (``proxybench evaluator --autolab lab.yaml``): the robot is measured by the watchtowers.
+
+For each split of a leased job the worker runs the benchmark's episodes on the lab's robot while the lab's
+watchtowers record, then per episode:
+
+1. **localise** the robot from the watchtower streams (:func:`proxybench.autolab.localize.localize_log`: the
+   same detection and pose graph as ``proxybench localize``);
+2. **validate** the run (the DTA's rules, :func:`proxybench.autolab.validate.validate_run`, with the lab's
+   limits): a robot the watchtowers lost is ``tracking_lost``, any other invalid run ``invalid``; either makes
+   the job the lab's fault (``host-error``, queued again for another try), with the reason;
+3. **score** from the *localised* trajectory (its lane pose recomputed from the map, as for any recorded run),
+   never from the pose the robot reports; the robot's own record is kept beside it, and where it is the
+   simulator's truth (a virtual robot) each episode reports the localisation's error against it.
+
+Today a lab's robot is a **virtual** DB21J (the simulator; an SDK agent reaches it over DTPS as on the
+Duckiematrix) and its watchtowers are **simulated** from a layout; DTPS or robot-node robots and a lab's own
+camera streams are described by ``lab.yaml`` but refused here (``host-error``, saying so).
+
+The worker's :class:`~proxybench.evaluator.run._Job` is passed in (duck-typed: this module does not import
+``run``): its benchmark, agent, agent contract, progress and outcome are reused as they are.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from proxybench.autolab.lab import Lab
+from proxybench.evaluator.outcome import Artifact, HostFault, Outcome, SubmissionFault
+
+__all__ = ["AutolabEpisode", "localize_episode", "run_autolab"]
+
+log = logging.getLogger("proxybench.evaluator.job")
+#: the Autolab's job feature: a benchmark stored with it is leased only by Autolab evaluators
+FEATURE = "autolab"
+
+
+@dataclass
+class AutolabEpisode:
+    """One episode as the lab measured it: the localised trajectory file, its scores, the DTA's verdict, and,
+    where the robot's record is the truth (virtual robots), the localisation's error against it."""
+
+    episode: int
+    trajectory: Path | None
+    scores: dict[str, float]
+    valid: bool
+    reasons: list[str]
+    lost: bool
+    samples: int
+    frames: int
+    error_median_m: float | None = None
+    error_p95_m: float | None = None
+    files: list[Path] = field(default_factory=list)
+
+    def report(self) -> dict[str, Any]:
+        from proxybench.evaluator.report import clean
+
+        return {"episode": self.episode, "valid": self.valid, "reasons": self.reasons, "samples": self.samples,
+                "frames": self.frames, "scores": {k: clean(v) for k, v in self.scores.items()},
+                "localization_median_error_m": clean(self.error_median_m),
+                "localization_p95_error_m": clean(self.error_p95_m)}
+
+
+def _check_lab(lab: Lab, bench) -> None:
+    """What this evaluator can do with this lab and benchmark; :class:`HostFault` saying what it cannot."""
+    robot = lab.robot()
+    if robot.kind != "virtual":
+        raise HostFault(f"lab {lab.name!r}: robot {robot.name!r} is a {robot.kind} robot; the Autolab evaluator "
+                        "drives virtual robots only so far")
+    if lab.roof_tags() and next(iter(lab.roof_tags())) != 400:
+        raise HostFault(f"lab {lab.name!r}: a virtual robot carries roof tag 400 (the simulator's ego)")
+    if lab.watchtowers.layout is None:
+        raise HostFault(f"lab {lab.name!r}: watchtower streams of its own are not read online yet; give a layout "
+                        "(simulated watchtowers)")
+    if bench.map != lab.map:
+        raise HostFault(f"benchmark {bench.name!r} is on map {bench.map!r}; lab {lab.name!r} has map {lab.map!r}")
+    if bench.duration > lab.limits.max_episode_s:
+        raise HostFault(f"benchmark {bench.name!r}: episodes of {bench.duration:g} s are longer than lab "
+                        f"{lab.name!r} runs (limits.max_episode_s {lab.limits.max_episode_s:g} s)")
+    if bench.traffic() is not None and not bench.traffic().empty:
+        raise HostFault(f"benchmark {bench.name!r} has npcs:, which lab {lab.name!r} does not have")
+
+
+def _with_reset(bench, lab: Lab):
+    """The benchmark with its start poses from the lab's pose file (``reset.mode: pose_file``), else as it is
+    (teleport: the virtual robot is put at the benchmark's starts)."""
+    if lab.reset.mode != "pose_file" or lab.reset.poses is None:
+        return bench
+    from proxybench.dtps.robot_options import load_start_poses
+
+    specs = bench.episode_specs()
+    try:
+        poses = load_start_poses(lab.reset.poses, [s.index for s in specs])
+    except ValueError as exc:
+        raise HostFault(f"lab {lab.name!r}: reset.poses: {exc}") from None
+    episodes = bench.episodes.model_copy(update={"poses": [list(poses[s.index]) for s in specs],
+                                                 "seeds": [s.seed for s in specs], "count": None})
+    return bench.model_copy(update={"episodes": episodes})
+
+
+def _errors(truth, t: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Position error [m] of each localised sample against the robot's record, interpolated at its time."""
+    tt = truth["t"]
+    x = np.interp(t, tt, truth["x"])
+    y = np.interp(t, tt, truth["y"])
+    return np.hypot(pose[:, 0] - x, pose[:, 1] - y)
+
+
+def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics) -> AutolabEpisode:
+    """One episode's streams → log → localised, validated and scored (see the module)."""
+    from proxybench.autolab.localize import localize_log
+    from proxybench.autolab.logs import LogManifest, read_log, write_sim_log
+    from proxybench.autolab.target import track_table
+    from proxybench.autolab.validate import validate_run
+    from proxybench.domain.events import Event, Termination
+    from proxybench.tasks.trajectory import Trajectory
+
+    robot = lab.robot().name
+    folder.mkdir(parents=True, exist_ok=True)
+    if res.streams is None or not Path(res.streams).is_dir():
+        raise HostFault(f"episode {res.episode}: the watchtowers recorded nothing (no streams)")
+    truth = Trajectory.load(res.trajectory) if res.trajectory else None
+    ended = None if res.termination is Termination.TIMEOUT else str(res.termination)
+    shutil.copytree(res.streams, folder / "streams")
+    manifest = LogManifest(source="simulation", map=bench.map, agent="agent", episode=res.episode,
+                           seconds=bench.duration, termination=ended, active=robot, robots=lab.roof_tags())
+    write_sim_log(folder, layout, folder / "streams", manifest)
+    run_log = read_log(folder)
+    loc = localize_log(run_log, m, workers=1, decimate=2.0)
+    verdict = validate_run(run_log, loc, lab.limits.thresholds())
+    track = loc.robots.get(robot)
+    lost = any("lost" in r or "never localised" in r for r in verdict.reasons)
+    episode = AutolabEpisode(res.episode, None, {}, verdict.valid, list(verdict.reasons), lost,
+                             0 if track is None else int(track.t.size), loc.frames)
+    if track is None or track.t.size < 2:
+        return episode
+    import pandas as pd
+
+    cols = track_table(track, run_log.manifest.start)
+    pd.DataFrame(cols).to_csv(folder / "track.csv", index=False, float_format="%.6g")
+    t, pose = cols["t"], track.pose
+    events = [] if verdict.valid else [Event(float(t[-1]), "tracking_lost" if lost else "invalid",
+                                             "; ".join(verdict.reasons))]
+    meta = {**(truth.meta if truth is not None else {}), "source": "autolab", "measured_by": "watchtowers",
+            "lab": lab.name, "robot": robot}
+    meta.pop("timing", None)
+    localized = Trajectory.from_poses(m, t, pose, meta=meta, events=[*(truth.events if truth else []), *events],
+                                      termination=res.termination, origin=str(folder / "track.csv"))
+    episode.trajectory = localized.save(folder / "localized.parquet")
+    episode.scores = {name: float(metrics[name](localized)) for name in bench.metrics}
+    episode.files = [folder / "localized.parquet", folder / "track.csv"]
+    if truth is not None:
+        err = _errors(truth, t, pose)
+        pd.DataFrame({"t": t, "error_m": err, "sigma_x": track.sigma[:, 0], "sigma_y": track.sigma[:, 1],
+                      "views": track.views}).to_csv(folder / "errors.csv", index=False, float_format="%.6g")
+        episode.files.append(folder / "errors.csv")
+        episode.error_median_m, episode.error_p95_m = float(np.median(err)), float(np.percentile(err, 95))
+    return episode
+
+
+def _scores(episodes: list[AutolabEpisode], bench) -> dict[str, float | None]:
+    """The benchmark's aggregated columns (``<metric>_<stat>``) over the localised episodes' scores."""
+    import pandas as pd
+
+    from proxybench.evaluator.report import clean
+    from proxybench.tasks.aggregate import aggregate, scores_by_agent
+
+    rows = [{"agent": "agent", "domain": "autolab", "episode": e.episode, "metric": k, "value": v}
+            for e in episodes for k, v in e.scores.items()]
+    agg = aggregate(pd.DataFrame(rows, columns=["agent", "domain", "episode", "metric", "value"]), n_resamples=1000)
+    raw = next(iter(scores_by_agent(agg).values()), {}) if len(agg) else {}
+    scores = {k: clean(v) for k, v in raw.items()}
+    for c in bench.criteria():
+        scores.setdefault(c.metric, None)
+    return scores
+
+
+def _pack(path: Path, ev, episodes: list[AutolabEpisode]) -> Path:
+    """``episode-<k>.parquet`` (localised: what was scored), ``episode-<k>-track.csv`` (with σ and views),
+    ``episode-<k>-errors.csv`` (against the robot's record) and ``robot-episode-<k>.parquet`` (the robot's own)."""
+    by_ep = {r.episode: r for r in ev.sweep.results}
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for e in episodes:
+            for f in e.files:
+                inner = "" if f.suffix == ".parquet" else f"-{f.stem}"
+                zf.write(f, f"episode-{e.episode}{inner}{f.suffix}")
+            r = by_ep.get(e.episode)
+            if r is not None and r.trajectory and Path(r.trajectory).is_file():
+                zf.write(r.trajectory, f"robot-episode-{e.episode}.parquet")
+    return path
+
+
+def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str, float | None]:
+    """Episodes on the lab's robot with its watchtowers recording; localised, validated, scored (the module)."""
+    from proxybench.autolab.calibration import stream_spec
+    from proxybench.domain.maps import load_map
+    from proxybench.evaluator.report import summarize
+    from proxybench.protocol.failures import AgentFailure
+    from proxybench.runner.backends import InlineBackend
+    from proxybench.runner.episode import PrivilegedAgentError
+    from proxybench.runner.evaluate import evaluate_benchmark
+    from proxybench.runner.jobs import is_privileged
+    from proxybench.tasks.metrics import METRICS
+
+    job.phase = split
+    m = load_map(bench.map)
+    layout = lab.layout(m)
+    streams = stream_spec(layout)
+    robot = lab.robot()
+    log.info("%s: %d episodes of %g s on lab %r's robot %r (virtual), %d watchtowers recording", split,
+             len(bench.episode_specs()), bench.duration, lab.name, robot.name, len(layout.watchtowers))
+    try:
+        ev = evaluate_benchmark(bench, [spec], job.dir / "runs" / split, InlineBackend(), streams=streams,
+                                privileged=is_privileged, progress=job.progress)
+    except AgentFailure as exc:
+        job.check_sandbox([exc.stderr_tail])
+        raise SubmissionFault(f"agent node failed in the {split} episodes: {exc}") from None
+    except PrivilegedAgentError as exc:
+        raise SubmissionFault(str(exc)) from None
+    from proxybench.domain.events import Termination
+
+    failed = [r for r in ev.sweep.results if r.termination is Termination.ROBOT_FAILURE]
+    if failed:
+        raise HostFault(f"robot_failure: lab {lab.name!r}'s robot {robot.name!r} failed in {split} episode "
+                        f"{failed[0].episode}: {failed[0].message}")
+    record = summarize(ev, split, domain_kind="autolab/virtual")
+    if record.problems:  # the virtual robot is our simulator: its record must be whole
+        raise RuntimeError(f"invalid {split} data from the virtual robot: " + "; ".join(record.problems[:5]))
+    if record.failures:
+        job.check_sandbox([f.get("stderr_tail") or [] for f in record.failures])
+        if hidden:
+            raise SubmissionFault(f"the agent failed in {len(record.failures)} hidden test episodes (details are "
+                                  "shown to the operators only)")
+        raise SubmissionFault(record.failure_message())
+    job.phase = f"{split} localisation"
+    episodes = []
+    for k, res in enumerate(sorted(ev.sweep.results, key=lambda r: r.episode)):
+        episodes.append(localize_episode(res, bench, lab, layout, m, job.dir / "autolab" / split / str(res.episode),
+                                         METRICS))
+        job.progress(k + 1, len(ev.sweep.results))
+        e = episodes[-1]
+        log.info("%s episode %d: %d frames, %d samples, %s%s", split, e.episode, e.frames, e.samples,
+                 "valid" if e.valid else "INVALID: " + "; ".join(e.reasons),
+                 "" if e.error_median_m is None else f"; localisation error median {100 * e.error_median_m:.2f} cm")
+    report = dict(record.report)
+    report.update(domain_kind="autolab/virtual", measured_by="watchtowers", lab=lab.name, robot=robot.name,
+                  watchtowers=len(layout.watchtowers), localization=[e.report() for e in episodes],
+                  robot_reported_scores=record.scores)
+    errs = [e.error_median_m for e in episodes if e.error_median_m is not None]
+    report["localization_median_error_m"] = float(np.median(errs)) if errs else None
+    for row, e in zip(report["episodes"], episodes, strict=True):
+        row["scores"] = e.report()["scores"]
+    if hidden:
+        job.outcome.hidden_report = report
+    else:
+        job.outcome.public_report.update(report)
+    zip_path = _pack(job.dir / f"trajectories-{split}.zip", ev, episodes)
+    job.outcome.artifacts.append(Artifact(zip_path.name, str(zip_path), hidden, "application/zip"))
+    bad = [e for e in episodes if not e.valid or e.trajectory is None]
+    if bad:
+        e = bad[0]
+        word = "tracking_lost" if e.lost or e.trajectory is None else "invalid"
+        raise HostFault(f"{word}: {split} episode {e.episode} is not fit to be scored (the DTA's validation): "
+                        + ("; ".join(e.reasons) or "the watchtowers localised the robot fewer than twice"))
+    if not hidden and job.job.video and episodes[0].trajectory is not None:
+        _video(job, episodes[0].trajectory, bench)
+    return _scores(episodes, bench)
+
+
+def _video(job, trajectory: Path, bench) -> None:
+    """A top-down video of the first localised episode (optional: a missing codec costs no result)."""
+    from proxybench.evaluator.report import topdown_video
+
+    try:
+        path = topdown_video(trajectory, job.dir / "validation-episode-0.mp4", bench.frame_rate)
+    except Exception as exc:
+        log.warning("no video of the first episode: %s", exc)
+        return
+    job.outcome.artifacts.append(Artifact(path.name, str(path), False, "video/mp4"))
+
+
+def run_autolab(job) -> Outcome:
+    """The whole Autolab job for the worker's ``job`` (see the module); fills and returns ``job.outcome``."""
+    lab: Lab = job.job.autolab
+    bench = _with_reset(job.benchmark(), lab)
+    _check_lab(lab, bench)
+    job.outcome.public_report.update(evaluator=job.job.evaluator.model_dump(mode="json"),
+                                     sandbox=job.job.isolation.report(), domain_kind="autolab/virtual")
+    spec = job.agent(bench)
+    job.agent_contract(bench, spec)
+    job.outcome.public_scores = _run_split(job, lab, bench, spec, "validation", hidden=False)
+    test_seed = job.lease.benchmark.test_seed
+    if test_seed is not None:
+        hidden = _with_reset(job.benchmark(test_seed), lab)
+        job.outcome.hidden_scores = _run_split(job, lab, hidden, spec, "test", hidden=True)
+    job.outcome.message = (f"{len(bench.episode_specs())} validation episodes"
+                           + (" and the hidden test episodes" if test_seed is not None else "")
+                           + f" evaluated in lab {lab.name!r}, measured by its watchtowers")
+    return job.outcome

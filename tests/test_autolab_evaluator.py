@@ -1,0 +1,101 @@
+"""The Autolab end to end (issue 36): a duckietown-sdk agent package submitted to the challenges server is leased
+by an Autolab evaluator (``--autolab lab.yaml``), driven on the lab's virtual DB21J while simulated watchtowers
+record, localised, validated by the DTA's rules and scored from the localised trajectory.
+
+The server is test_evaluator's (uvicorn in a thread, SQLite); the episode is short (one of 3 s, camera at 5 Hz,
+watchtowers at 5 Hz) so that the job takes seconds of CPU besides the SDK's start.
+"""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("fastapi")
+pytest.importorskip("uvicorn")
+
+from support.dtps import sdk
+from support.sandbox import AGENT_USER_GROUP, require_safe_sandbox
+from test_evaluator import Served, evaluator, served, the_job  # noqa: F401 - served: test_evaluator's fixture
+
+pytestmark = AGENT_USER_GROUP
+
+AGENTS = Path(__file__).parent / "dtps_agents"
+LAB = """\
+format: proxybench-lab/1
+name: test-lab
+map: loop_3x3
+robots:
+  - {name: db1, virtual: true}
+watchtowers: {layout: auto}
+reset: {mode: teleport}
+"""
+BENCH = """\
+name: autolab_tiny
+description: one short episode in a simulated Autolab
+map: loop_3x3
+episodes: {count: 1, seed: 3}
+duration: 3.0
+physics_rate: 30.0
+frame_rate: 5.0
+camera_only: true
+metrics: [survival_time, driven_lanedir_consec, deviation_center_line]
+scoring:
+  - {metric: driven_lanedir_consec_median, higher_is_better: true}
+  - {metric: survival_time_median}
+"""
+
+
+def sdk_package() -> bytes:
+    """The lane-following SDK agent of tests/dtps_agents as an agent package (lock-step)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        zf.writestr("proxybench-agent.yaml", "name: sdk-lane\nprotocol: duckietown-sdk\ncommand: python3 lane.py\n"
+                                             "timing: lockstep\nstart_timeout: 120\n")
+        zf.writestr("lane.py", (AGENTS / "lane.py").read_text())
+    return buf.getvalue()
+
+
+@sdk
+def test_an_sdk_package_is_measured_by_the_watchtowers_and_scored_from_them(served: Served,  # noqa: F811
+                                                                             tmp_path: Path) -> None:
+    from proxybench.autolab.lab import load_lab
+    from proxybench.tasks.trajectory import Trajectory
+
+    require_safe_sandbox()
+    served.admin.post("/benchmarks", {"yaml": BENCH, "features": ["autolab"], "hidden_split": False})
+    (tmp_path / "lab.yaml").write_text(LAB)
+    archive = tmp_path / "sdk-lane.zip"
+    archive.write_bytes(sdk_package())
+    sub = served.developer.submit_archive(archive, "sdk-lane", benchmark="autolab_tiny")
+    plain = evaluator(served, tmp_path, name="sim-only", video=False)
+    assert plain.take_one() is None  # an evaluator without a lab never leases an Autolab job
+    lab_ev = evaluator(served, tmp_path, name="lab", video=False, features=("sim", "autolab"),
+                       autolab=load_lab(tmp_path / "lab.yaml"))
+    status = lab_ev.take_one()
+    job, (result,) = the_job(served, sub["id"])
+    assert status == job["status"] == "success", result["message"]
+    assert "measured by its watchtowers" in result["message"]
+    report = result["public_report"]
+    assert report["measured_by"] == "watchtowers" and report["domain_kind"] == "autolab/virtual"
+    assert report["lab"] == "test-lab" and report["robot"] == "db1" and report["watchtowers"] == 12
+    (loc,) = report["localization"]
+    assert loc["valid"] and loc["samples"] >= 10, loc
+    assert report["localization_median_error_m"] <= 0.02
+    scores, robots = result["public_scores"], report["robot_reported_scores"]
+    assert scores["driven_lanedir_consec_median"] > 0.2  # it drove along its lane
+    # scored from the localised trajectory: close to, but not, the robot's own record
+    assert scores["driven_lanedir_consec_median"] == pytest.approx(robots["driven_lanedir_consec_median"], abs=0.1)
+    assert scores["driven_lanedir_consec_median"] != robots["driven_lanedir_consec_median"]
+    assert report["episodes"][0]["scores"]["driven_lanedir_consec"] == scores["driven_lanedir_consec_median"]
+    zipped = next(a for a in result["artifacts"] if a["name"] == "trajectories-validation.zip")
+    with zipfile.ZipFile(io.BytesIO(served.admin.http.get(f"/artifacts/{zipped['sha256']}").content)) as zf:
+        assert {"episode-0.parquet", "episode-0-track.csv", "episode-0-errors.csv",
+                "robot-episode-0.parquet"} <= set(zf.namelist())
+        zf.extract("episode-0.parquet", tmp_path)
+    traj = Trajectory.load(tmp_path / "episode-0.parquet")
+    assert traj.meta["measured_by"] == "watchtowers" and traj.meta["robot"] == "db1"
+    assert served.developer.leaderboard("autolab_tiny")["rows"][0]["label"] == "sdk-lane"
