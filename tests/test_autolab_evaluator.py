@@ -87,6 +87,7 @@ def test_an_sdk_package_is_measured_by_the_watchtowers_and_scored_from_them(serv
     assert report["localization_median_error_m"] <= 0.02
     scores, robots = result["public_scores"], report["robot_reported_scores"]
     assert scores["driven_lanedir_consec_median"] > 0.2  # it drove along its lane
+    assert scores["survival_time_median"] == robots["survival_time_median"] == 3.0  # it ran the whole episode
     # scored from the localised trajectory: close to, but not, the robot's own record
     assert scores["driven_lanedir_consec_median"] == pytest.approx(robots["driven_lanedir_consec_median"], abs=0.1)
     assert scores["driven_lanedir_consec_median"] != robots["driven_lanedir_consec_median"]
@@ -99,3 +100,30 @@ def test_an_sdk_package_is_measured_by_the_watchtowers_and_scored_from_them(serv
     traj = Trajectory.load(tmp_path / "episode-0.parquet")
     assert traj.meta["measured_by"] == "watchtowers" and traj.meta["robot"] == "db1"
     assert served.developer.leaderboard("autolab_tiny")["rows"][0]["label"] == "sdk-lane"
+
+
+@sdk
+def test_a_robot_the_watchtowers_never_see_is_tracking_lost_and_goes_back_to_the_queue(
+        served: Served, tmp_path: Path) -> None:  # noqa: F811
+    from proxybench.autolab.lab import load_lab
+    from proxybench.autolab.watchtowers import Layout, Watchtower, write_layout
+
+    require_safe_sandbox()
+    served.admin.post("/benchmarks", {"yaml": BENCH, "features": ["autolab"], "hidden_split": False})
+    # one watchtower low over the grass inside the loop: it sees the floor, never the road the robot drives on
+    write_layout(tmp_path / "towers.yaml", Layout(map="loop_3x3", watchtowers=[
+        Watchtower(name="wt01", position=(0.8775, 0.8775, 0.3), yaw=90, pitch=89, frame_rate=5)]))
+    (tmp_path / "lab.yaml").write_text(LAB.replace("{layout: auto}", "{layout: towers.yaml}"))
+    archive = tmp_path / "sdk-lane.zip"
+    archive.write_bytes(sdk_package())
+    sub = served.developer.submit_archive(archive, "sdk-lane", benchmark="autolab_tiny")
+    lab_ev = evaluator(served, tmp_path, name="lab", video=False, features=("sim", "autolab"),
+                       autolab=load_lab(tmp_path / "lab.yaml"))
+    assert lab_ev.take_one() == "host-error"
+    job, results = the_job(served, sub["id"])
+    assert job["status"] == "queued" and results == []  # the lab's fault: another lab may run it
+    (event,) = [e for e in served.admin.get(f"/jobs/{job['id']}")["events"] if e["kind"] == "host-error"]
+    assert event["message"].startswith("tracking_lost: validation episode 0 is not fit to be scored")
+    assert "robot 'db1' never localised" in event["message"]
+    assert lab_ev.take_one() is None  # this lab is excluded from the job now
+    assert served.developer.leaderboard("autolab_tiny")["rows"] == []

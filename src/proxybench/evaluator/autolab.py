@@ -147,8 +147,10 @@ def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics) -> 
     t, pose = cols["t"], track.pose
     events = [] if verdict.valid else [Event(float(t[-1]), "tracking_lost" if lost else "invalid",
                                              "; ".join(verdict.reasons))]
+    # a valid run that ended by time ran the whole episode, though its last sighting is a frame inside it
     meta = {**(truth.meta if truth is not None else {}), "source": "autolab", "measured_by": "watchtowers",
-            "lab": lab.name, "robot": robot}
+            "lab": lab.name, "robot": robot, "episode_seconds": bench.duration,
+            "ran_whole_episode": verdict.valid and res.termination is Termination.TIMEOUT}
     meta.pop("timing", None)
     localized = Trajectory.from_poses(m, t, pose, meta=meta, events=[*(truth.events if truth else []), *events],
                                       termination=res.termination, origin=str(folder / "track.csv"))
