@@ -313,3 +313,37 @@ def test_validate_gym_family_quick_end_to_end(tmp_path, monkeypatch):
     drawn = summary["truths"][0]["trim"]
     report = (out / "targets.csv").read_text() + (out / "criteria.json").read_text()
     assert f"{drawn}" not in report  # the hidden θ is only in the secret file and the revealed summary
+
+
+def test_the_pools_networks_learn_in_different_places(monkeypatch):
+    """Issue 35 item 3: behaviour-cloned agents trained elsewhere than the nominal proxy — another θ, the
+    domain-randomised family, DAgger rounds — so held-out networks are not all siblings; the first two recipes are
+    every earlier study's (nominal proxy, 1,500 and 6,000 frames), so a resumed study trains what it trained."""
+    import proxybench.experiments.plv.dagger as dagger_mod
+    import proxybench.learning as learning
+    import proxybench.learning.collection as collection
+    from proxybench.experiments.validate import run as vr
+
+    calls = []
+
+    def fake_collect(domain, cfg, policy=None, beta=0.0, progress=None, pool=None):
+        calls.append((domain.name, domain.kind, cfg.samples, policy is not None))
+        return object()
+
+    monkeypatch.setattr(collection, "collect", fake_collect)
+    monkeypatch.setattr(dagger_mod, "collect", fake_collect)
+    monkeypatch.setattr(dagger_mod, "torch_policy", lambda model: (lambda images: None))
+    monkeypatch.setattr(dagger_mod.Dataset, "concat", staticmethod(lambda parts: object()))
+    monkeypatch.setattr(learning, "train", lambda model, data, cfg: None)
+    monkeypatch.setattr(dagger_mod, "train", lambda model, data, cfg: None)
+    assert vr.BC_RECIPES[:2] == (vr.BCRecipe("nominal", 1500), vr.BCRecipe("nominal", 6000))
+    seen = {}
+    for recipe in vr.BC_RECIPES:
+        calls.clear()
+        vr._train_bc(recipe, 3, lambda what: None)
+        seen[recipe.where] = list(calls)
+    assert seen["nominal"] == [("proxy", "simulation", 12000, False)]  # the last nominal recipe
+    assert seen["other"][0][0].startswith("proxy:camera_pitch=") and seen["other"][0][1] == "simulation"
+    assert seen["randomized"][0][:2] == ("randomized", "family")
+    assert seen["dagger"][0] == ("proxy", "simulation", 3000, False)
+    assert [c[3] for c in seen["dagger"][1:]] == [True, True] and sum(c[2] for c in seen["dagger"][1:]) == 1500

@@ -92,13 +92,34 @@ class ValidationResult:
     look_sha256: str = ""  # the look's line in looks.jsonl
 
 
-#: data and training of the study's behaviour-cloned agents: different amounts, so that their quality differs
-_BC_SAMPLES = (1500, 6000, 3000, 12000)
+@dataclass(frozen=True)
+class BCRecipe:
+    """How one behaviour-cloned agent of the pool is trained: where its data comes from and how much of it.
+
+    ``where``: ``nominal`` (the expert in the nominal proxy), ``other`` (a proxy at ``changes``: a network that
+    learnt in another θ), ``randomized`` (the domain-randomised family) or ``dagger`` (nominal, then DAgger rounds
+    with ``on_policy`` frames the network drove itself). Networks that learnt elsewhere than where they are judged
+    make held-out agents less like the tuning ones."""
+
+    where: str
+    samples: int
+    changes: tuple[tuple[str, float], ...] = ()
+    on_policy: int = 0
+
+
+#: the study's behaviour-cloned agents, the i-th by recipe i (cycling): the first two as every earlier study had them
+#: (the nominal proxy, 1,500 and 6,000 frames), then a network trained at camera pitch 25° with trim 0.1, one in the
+#: domain-randomised family, one with two DAgger rounds, and the nominal proxy with 3,000 and 12,000 frames
+BC_RECIPES = (BCRecipe("nominal", 1500), BCRecipe("nominal", 6000),
+              BCRecipe("other", 3000, changes=(("camera_pitch", 25.0), ("trim", 0.1))),
+              BCRecipe("randomized", 6000), BCRecipe("dagger", 3000, on_policy=1500),
+              BCRecipe("nominal", 3000), BCRecipe("nominal", 12000),
+              BCRecipe("other", 3000, changes=(("camera_pitch", 13.0), ("command_delay", 0.1))))
 
 
 def train_bc_agents(s: ValidateSettings, folder: Path, progress: Progress | None = None) -> list[str]:
-    """Checkpoints of ``bc_agents`` networks cloned from the expert in the nominal proxy, from the study's seed
-    (trained once; a resumed study reuses them). Needs PyTorch (the ``learning`` extra)."""
+    """Checkpoints of ``bc_agents`` networks cloned from the expert, the i-th by :data:`BC_RECIPES` [i], from the
+    study's seed (trained once; a resumed study reuses them). Needs PyTorch (the ``learning`` extra)."""
     if not s.bc_agents:
         return []
     try:
@@ -106,21 +127,42 @@ def train_bc_agents(s: ValidateSettings, folder: Path, progress: Progress | None
     except ImportError:
         raise ConfigError("bc_agents: training behaviour-cloned agents needs PyTorch (pip install "
                           "'proxybench[learning]'); or set bc_agents: 0") from None
-    from proxybench.learning import ModelConfig, TrainConfig, build_model, proxy_domain, save_checkpoint, train
-    from proxybench.learning.collection import CollectConfig, collect
+    from proxybench.learning import save_checkpoint
 
     paths = []
     for i in range(s.bc_agents):
         path = folder / f"bc-{s.seed}-{i}.pt"
+        recipe = BC_RECIPES[i % len(BC_RECIPES)]
         if not (path.exists() and path.with_suffix(".json").exists()):
-            n = _BC_SAMPLES[i % len(_BC_SAMPLES)]
-            data = collect(proxy_domain(80, 60), CollectConfig(samples=n, robots=16, seed=s.seed * 100 + i),
-                           progress=(lambda d, t, i=i: progress(f"BC agent {i}: data", d, t)) if progress else None)
-            model = build_model(ModelConfig(), seed=s.seed * 100 + i)
-            train(model, data, TrainConfig(epochs=8.0, max_steps=800, seed=s.seed * 100 + i))
-            save_checkpoint(path, model, {"samples": n, "study_seed": s.seed, "index": i})
+            seed = s.seed * 100 + i
+            say = (lambda what, i=i: (lambda d, t: progress(f"BC agent {i}: {what}", d, t))) if progress else (
+                lambda what: None)
+            model = _train_bc(recipe, seed, say)
+            save_checkpoint(path, model, {"samples": recipe.samples, "study_seed": s.seed, "index": i,
+                                          "where": recipe.where, "changes": dict(recipe.changes),
+                                          "on_policy": recipe.on_policy})
         paths.append(str(path))
     return paths
+
+
+def _train_bc(recipe: BCRecipe, seed: int, say: Callable[[str], Any]):
+    """One network by ``recipe`` (80×60 images, 16 robots collecting, 8 epochs / 800 steps as before)."""
+    from proxybench.learning import ModelConfig, TrainConfig, build_model, proxy_domain, randomized_domain, train
+    from proxybench.learning.collection import CollectConfig, collect
+
+    domain = {"randomized": lambda: randomized_domain(80, 60),
+              "other": lambda: proxy_domain(80, 60, **dict(recipe.changes))}.get(recipe.where,
+                                                                                  lambda: proxy_domain(80, 60))()
+    collect_cfg = CollectConfig(samples=recipe.samples, robots=16, seed=seed)
+    train_cfg = TrainConfig(epochs=8.0, max_steps=800, seed=seed)
+    data = collect(domain, collect_cfg, progress=say("data"))
+    model = build_model(ModelConfig(), seed=seed)
+    train(model, data, train_cfg)
+    if recipe.where == "dagger":
+        from proxybench.experiments.plv.dagger import dagger
+
+        dagger(model, domain, data, recipe.on_policy, collect_cfg, train_cfg, progress=say("DAgger"))
+    return model
 
 
 def _family_targets(s: ValidateSettings, draw_seed: int, out: Path) -> list[Any]:
