@@ -127,3 +127,28 @@ def test_a_robot_the_watchtowers_never_see_is_tracking_lost_and_goes_back_to_the
     assert "robot 'db1' never localised" in event["message"]
     assert lab_ev.take_one() is None  # this lab is excluded from the job now
     assert served.developer.leaderboard("autolab_tiny")["rows"] == []
+
+
+@pytest.mark.parametrize(("change", "words"), [
+    (("{name: db1, virtual: true}", "{name: db1, dtps: 10.0.0.2/db1}"), "is a dtps robot; the Autolab evaluator "
+                                                                        "drives virtual robots only so far"),
+    (("map: loop_3x3", "map: small_loop"), "is on map 'loop_3x3'; lab 'test-lab' has map 'small_loop'"),
+    (("reset: {mode: operator}", "reset: {mode: operator}\nlimits: {max_episode_s: 2}"),
+     "episodes of 3 s are longer than lab 'test-lab' runs"),
+    (("{layout: auto}", "{streams: [{name: wt1, dtps: 10.0.0.3/wt1, calibration: c.yaml}]}"),
+     "watchtower streams of its own are not read online yet"),
+])
+def test_what_an_autolab_evaluator_cannot_run_is_a_host_error_saying_why(tmp_path: Path, change: tuple[str, str],
+                                                                         words: str) -> None:
+    import yaml
+
+    from proxybench.autolab.lab import load_lab
+    from proxybench.evaluator.autolab import _check_lab
+    from proxybench.evaluator.outcome import HostFault
+    from proxybench.tasks.benchmark import Benchmark
+
+    (tmp_path / "lab.yaml").write_text(LAB.replace("teleport", "operator").replace(*change))
+    bench = Benchmark.from_dict(yaml.safe_load(BENCH), origin="autolab_tiny")
+    with pytest.raises(HostFault) as info:
+        _check_lab(load_lab(tmp_path / "lab.yaml"), bench)
+    assert words in str(info.value)
