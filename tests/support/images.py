@@ -113,7 +113,8 @@ def base_rootfs() -> Path:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not tar.is_file():
             part = folder / "rootfs.tar.part"
-            cmd = ["mmdebstrap", "--variant=extract", "--mode=root", "--quiet", f"--include={','.join(PACKAGES)}",
+            cmd = ["mmdebstrap", "--variant=extract", "--mode=root", "--format=tar", "--quiet",
+                   f"--include={','.join(PACKAGES)}",
                    *(f"--dpkgopt=path-exclude={e}" for e in EXCLUDES), SUITE, str(part), MIRROR]
             done = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
             if done.returncode != 0:

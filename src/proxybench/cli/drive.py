@@ -137,7 +137,8 @@ def run(
 
 
 def _agent(agent_name: str, agent_cmd: str | None, options):
-    """--agent (a zoo name, or NAME=sdk:COMMAND) or --agent-cmd (an AIDO node); a clear error otherwise."""
+    """--agent (a zoo name, NAME=sdk:COMMAND or NAME=image:PATH) or --agent-cmd (an AIDO node); a clear error
+    otherwise."""
     from proxybench.agents import make_agent
 
     if agent_cmd is not None:
@@ -148,15 +149,15 @@ def _agent(agent_name: str, agent_cmd: str | None, options):
         except KeyError as exc:
             raise fail(exc.args[0], 2) from exc
     from proxybench.dtps.env import DtpsEnvError
-    from proxybench.experiments.agent_args import AgentArgError, parse_agent
+    from proxybench.experiments.agent_args import AgentArgError, is_image, parse_agent
     from proxybench.runner.jobs import SdkProgram
     from proxybench.runner.outcomes import make_agent_for
 
     try:
         spec = parse_agent(agent_name)
-        if not isinstance(spec, SdkProgram):
+        if not isinstance(spec, SdkProgram) and not is_image(agent_name):
             raise AgentArgError(f"--agent {agent_name!r}: an AIDO agent node goes in --agent-cmd; --agent takes a zoo "
-                                f"name or NAME=sdk:COMMAND")
+                                f"name, NAME=sdk:COMMAND or NAME=image:PATH")
         return make_agent_for(spec)
     except (AgentArgError, DtpsEnvError) as exc:
         raise fail(exc, 2) from exc

@@ -24,6 +24,11 @@ runs there as another user) and bwrap shares it instead of making an empty one: 
 on that namespace's loopback and nothing else, and sees no process of the host. With ``--host-net`` (the
 developer's unsafe mode only) bwrap keeps the host's network.
 
+With ``--rootfs`` (a container image, docs/evaluator.md) the package folder is the image's root file system:
+bwrap shows it read-only as ``/`` instead of the host's ``/usr`` and the runtime, with its own ``/proc``, ``/dev``,
+bounded tmpfs for ``/tmp``, ``/dev/shm`` and ``/scratch``, starts in ``--chdir``, and gives the agent the image's
+user id inside its user namespace (``--inside-uid``; outside it is still the agent user, with no capability).
+
 With ``--fifo-root ROOT`` (the node's FIFO transport) the caller has made a folder directly in ROOT
 holding the two FIFOs and named them in ``AIDONODE_DATA_IN`` / ``AIDONODE_DATA_OUT``; that one folder,
 checked, is shown read-only at ``/fifo`` (a FIFO on a read-only mount can still be opened both ways) and
@@ -129,6 +134,19 @@ def _fifo_folder(root: str) -> str | None:
     return os.path.join(real_root, os.path.basename(folder))
 
 
+def _parent_alive(parent: int) -> bool:
+    """Whether ``parent`` still runs us: our parent, or our parent's parent where proxybench's subreaper launcher
+    (``protocol/_subreaper.py``, which kills everything below it when the caller dies) stands between."""
+    ppid = os.getppid()
+    if ppid == parent:
+        return True
+    try:
+        with open(f"/proc/{ppid}/stat", "rb") as f:
+            return int(f.read().rsplit(b")", 1)[1].split()[1]) == parent
+    except (OSError, IndexError, ValueError):
+        return False
+
+
 def _join_netns(variable: str) -> None:
     """Join the network namespace ``/proc/PID/ns/net`` named in ``$variable`` (as root, before the user switch)."""
     path = os.environ.get(variable, "")
@@ -158,6 +176,8 @@ def _bwrap_argv(args: argparse.Namespace, runtime: list[tuple[str, str]], packag
             "--hostname", "sandbox", "--clearenv"]
     for key, value in env.items():
         argv += ["--setenv", key, value]
+    if args.rootfs:
+        return argv + _rootfs_mounts(args, package, fifo)
     argv += ["--ro-bind", "/usr", "/usr"]
     for link in ROOT_LINKS:
         if os.path.islink(link):
@@ -181,6 +201,19 @@ def _bwrap_argv(args: argparse.Namespace, runtime: list[tuple[str, str]], packag
     return argv
 
 
+def _rootfs_mounts(args: argparse.Namespace, rootfs: str, fifo: str | None) -> list[str]:
+    """A container image's root file system as ``/`` (read-only; the mount points exist in it), its own ``/proc``,
+    ``/dev`` and tmpfs, the user the image names (inside the user namespace only) and its working directory."""
+    argv = ["--uid", str(args.inside_uid), "--gid", str(args.inside_gid)] if args.inside_uid is not None else []
+    argv += ["--ro-bind", rootfs, "/", "--proc", "/proc", "--dev", "/dev",
+             "--perms", "1777", "--size", str(args.tmp), "--tmpfs", "/tmp",
+             "--perms", "1777", "--size", str(args.tmp), "--tmpfs", "/dev/shm",
+             "--perms", "0777", "--size", str(args.scratch), "--tmpfs", SCRATCH_AT]
+    if fifo is not None:
+        argv += ["--ro-bind", fifo, FIFO_AT]
+    return [*argv, "--chdir", args.chdir or "/", "--"]
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="_confine")
     p.add_argument("--package", required=True, help="the unpacked agent package (read-only at /agent)")
@@ -192,11 +225,16 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--uid", type=int, help="the agent user (needs root): the sandbox runs as this user")
     p.add_argument("--gid", type=int)
     p.add_argument("--bwrap", help="bubblewrap executable; without it: no namespaces (developer's unsafe mode)")
-    p.add_argument("--parent", type=int, help="exit at once unless this is still our parent process")
+    p.add_argument("--parent", type=int, help="exit at once unless this is still our parent process (or the parent "
+                                              "of proxybench's subreaper launcher that started us)")
     p.add_argument("--env", action="append", default=[], help="KEY=VALUE for the agent's environment")
     p.add_argument("--fifo-root", help="FIFO transport: the folder in which the caller makes each node's FIFO folder")
     p.add_argument("--join-netns-env", help="join the network namespace /proc/PID/ns/net named in this variable (root)")
     p.add_argument("--host-net", action="store_true", help="keep the host's network (developer's unsafe mode)")
+    p.add_argument("--rootfs", action="store_true", help="--package is a container image's root file system: run in it")
+    p.add_argument("--chdir", help="with --rootfs: the working directory inside it")
+    p.add_argument("--inside-uid", type=int, help="with --rootfs: the user id the agent has inside its namespace")
+    p.add_argument("--inside-gid", type=int)
     p.add_argument("command", nargs=argparse.REMAINDER)
     return p
 
@@ -233,7 +271,7 @@ def main(argv: list[str]) -> int:
             os.setuid(args.uid)
         _prctl(PR_SET_NO_NEW_PRIVS, 1)
         _prctl(PR_SET_PDEATHSIG, signal.SIGKILL)  # after setuid: a credential change clears it
-        if args.parent is not None and os.getppid() != args.parent:
+        if args.parent is not None and not _parent_alive(args.parent):
             return 3  # the worker is already gone
         if args.bwrap:
             command = _bwrap_argv(args, runtime, package, fifo_view, env, os.getuid(), os.getgid()) + command
@@ -286,7 +324,7 @@ def _guard(command: list[str], env: dict[str, str], parent: int | None) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, end)
     _prctl(PR_SET_PDEATHSIG, signal.SIGTERM)  # the worker gone: end(), which a SIGKILL could not run
-    if parent is not None and os.getppid() != parent:
+    if parent is not None and not _parent_alive(parent):
         end()
     _, status = os.waitpid(child, 0)  # retried after a handler that returns (PEP 475)
     code = os.waitstatus_to_exitcode(status)

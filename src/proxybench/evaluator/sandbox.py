@@ -44,7 +44,7 @@ from proxybench.protocol.package import SDK_PROTOCOL, AgentManifest, PackageErro
 from proxybench.protocol.unpack import extract_archive
 
 __all__ = [
-    "AGENT_USER", "ArchiveMismatch", "Isolation", "Limits", "SandboxError", "agent_command", "confine",
+    "AGENT_USER", "ArchiveMismatch", "Isolation", "Limits", "SandboxError", "agent_command", "confine", "confine_image",
     "detect_isolation", "fifo_root", "package_spec", "prepare_agent", "probe", "runtime_paths", "sdk_package_spec",
 ]
 
@@ -277,11 +277,7 @@ def confine(argv: list[str], folder: str | Path, limits: Limits, isolation: Isol
         argv[0] = python or os.path.abspath(sys.executable)
     if isolation.kind == "none":
         Path(folder, ".tmp").mkdir(exist_ok=True)
-    uid = isolation.uid if isolation.uid is not None else os.getuid()
-    shim = [sys.executable, "-I", "-S", str(_SHIM), "--package", folder, "--cpu", str(limits.cpu_seconds),
-            "--memory", str(limits.memory_bytes), "--fsize", str(limits.file_bytes), "--core", "0",
-            "--nproc", str(_tasks_of(uid) + limits.processes), "--scratch", str(limits.scratch_bytes),
-            "--tmp", str(limits.tmp_bytes)]
+    shim = _shim(folder, limits, isolation)
     if isolation.kind == "bwrap":
         shim += ["--bwrap", str(isolation.bwrap)]
         for path in (*isolation.runtime, *extra_runtime):
@@ -290,15 +286,49 @@ def confine(argv: list[str], folder: str | Path, limits: Limits, isolation: Isol
             shim += ["--join-netns-env", join_netns_env]
         elif host_net:
             shim += ["--host-net"]
-    if isolation.uid is not None:
-        shim += ["--uid", str(isolation.uid), "--gid", str(isolation.gid)]
-    if parent is not None:
-        shim += ["--parent", str(os.getpid() if parent == -1 else parent)]
-    if fifo_root is not None:
-        shim += ["--fifo-root", str(Path(fifo_root).resolve())]
-    for key, value in {**_agent_env(isolation, folder), **(extra_env or {})}.items():
-        shim += ["--env", f"{key}={value}"]
+    shim += _shim_tail(isolation, parent, fifo_root, {**_agent_env(isolation, folder), **(extra_env or {})})
     return [*shim, "--", *argv]
+
+
+def _shim(folder: str, limits: Limits, isolation: Isolation) -> list[str]:
+    """The shim's command line up to its limits: what every sandbox shares."""
+    uid = isolation.uid if isolation.uid is not None else os.getuid()
+    return [sys.executable, "-I", "-S", str(_SHIM), "--package", folder, "--cpu", str(limits.cpu_seconds),
+            "--memory", str(limits.memory_bytes), "--fsize", str(limits.file_bytes), "--core", "0",
+            "--nproc", str(_tasks_of(uid) + limits.processes), "--scratch", str(limits.scratch_bytes),
+            "--tmp", str(limits.tmp_bytes)]
+
+
+def _shim_tail(isolation: Isolation, parent: int | None, fifo_root: str | Path | None,
+               env: dict[str, str]) -> list[str]:
+    """The shim's user switch, parent check, FIFO root and the agent's environment."""
+    tail: list[str] = []
+    if isolation.uid is not None:
+        tail += ["--uid", str(isolation.uid), "--gid", str(isolation.gid)]
+    if parent is not None:
+        tail += ["--parent", str(os.getpid() if parent == -1 else parent)]
+    if fifo_root is not None:
+        tail += ["--fifo-root", str(Path(fifo_root).resolve())]
+    for key, value in env.items():
+        tail += ["--env", f"{key}={value}"]
+    return tail
+
+
+def confine_image(argv: list[str], rootfs: str | Path, limits: Limits, isolation: Isolation, *,
+                  env: dict[str, str], workdir: str = "/", user: tuple[int, int] = (0, 0), parent: int | None = -1,
+                  fifo_root: str | Path | None = None) -> list[str]:
+    """The command line that runs ``argv`` in a container image's root file system (``rootfs``, shown read-only as
+    ``/``), with the image's environment ``env``, working directory and user (ids inside the sandbox's user
+    namespace; outside it the agent runs as the agent user all the same). Images need bubblewrap: raises
+    :class:`SandboxError` where this host cannot run them."""
+    if not isolation.usable:
+        raise SandboxError(isolation.problem)
+    if isolation.kind != "bwrap":
+        raise SandboxError(f"container images run in bubblewrap only, and this host has none ({isolation.note})")
+    shim = _shim(str(Path(rootfs).resolve()), limits, isolation)
+    shim += ["--bwrap", str(isolation.bwrap), "--rootfs", "--chdir", workdir, "--inside-uid", str(user[0]),
+             "--inside-gid", str(user[1])]
+    return [*shim, *_shim_tail(isolation, parent, fifo_root, env), "--", *argv]
 
 
 def prepare_agent(archive: bytes, sha256: str, dest: Path, *, max_bytes: int | None = None) -> AgentManifest:

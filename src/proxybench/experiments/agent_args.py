@@ -8,7 +8,10 @@ One string per agent:
   run in the evaluator's sandbox (own folder, resource limits, no network where the host allows);
 - ``NAME=COMMAND``: an agent node started with COMMAND (the AIDO protocol on stdin/stdout), labelled NAME;
 - ``NAME=sdk:COMMAND`` (``sdk[lockstep]:``, ``sdk[privileged]:``): a duckietown-sdk program driving a virtual
-  DB21J over DTPS (docs/dtps.md).
+  DB21J over DTPS (docs/dtps.md);
+- ``NAME=image:PATH``: a container image (an OCI layout folder, an OCI archive or a ``docker save`` tarball),
+  unpacked once into the image cache and run from its own root file system in the evaluator's sandbox
+  (docs/evaluator.md, "Container images").
 
 An experiment file may also give an agent as a benchmark file's mapping (:class:`~proxybench.tasks.agent_entries.
 AgentEntry`): ``{name, command, cwd, transport, start_timeout, step_timeout, reflection}`` for a node started
@@ -25,7 +28,7 @@ from pathlib import Path
 from proxybench.runner.jobs import AgentSpec
 from proxybench.tasks.agent_entries import AgentEntry
 
-__all__ = ["AgentArgError", "parse_agent", "parse_agents"]
+__all__ = ["AgentArgError", "is_image", "parse_agent", "parse_agents"]
 
 _ARCHIVES = (".zip", ".tar", ".tar.gz", ".tgz")
 
@@ -92,13 +95,41 @@ def parse_agent(text: str | AgentEntry, work_dir: str | Path = "out/agents") -> 
         hint = " (a checkpoint needs X.pt with X.json beside it)"
     elif text.lower().endswith(_ARCHIVES):
         hint = " (no such package file)"
-    raise AgentArgError(f"agent {text!r} is not a zoo agent, a checkpoint, an agent package or NAME=COMMAND{hint}; "
+    raise AgentArgError(f"agent {text!r} is not a zoo agent, a checkpoint, an agent package, NAME=COMMAND or "
+                        f"NAME=image:PATH{hint}; "
                         f"zoo agents: {', '.join(ZOO)}")
 
 
+IMAGE_PREFIX = "image:"
+
+
+def is_image(text: str) -> bool:
+    """Whether an agent argument names a container image (``NAME=image:PATH``)."""
+    return text.partition("=")[2].strip().startswith(IMAGE_PREFIX)
+
+
+def _image(name: str, path: str) -> AgentSpec:
+    """A container image, unpacked in the image cache, its node run from its own root file system in the sandbox."""
+    from proxybench.evaluator.image_agent import image_spec
+    from proxybench.evaluator.images import ImageError
+    from proxybench.evaluator.sandbox import SandboxError, detect_isolation
+
+    try:
+        # started by whichever worker runs the episode, so no parent-process check (parent=None)
+        return image_spec(name, Path(path).expanduser(), detect_isolation(), parent=None)
+    except ImageError as exc:
+        raise AgentArgError(f"agent {name!r}: {exc}") from None
+    except SandboxError as exc:
+        raise AgentArgError(f"agent {name!r}: image {path}: {exc} (`proxybench sandbox check` says what this host "
+                            "lacks)") from None
+
+
 def _node_or_sdk(name: str, command: str) -> AgentSpec:
-    """``NAME=COMMAND`` (an AIDO node) or ``NAME=sdk[...]:COMMAND`` (an SDK program)."""
+    """``NAME=COMMAND`` (an AIDO node), ``NAME=sdk[...]:COMMAND`` (an SDK program) or ``NAME=image:PATH``."""
     from proxybench.dtps.options import SdkOptions, parse_sdk
+
+    if command.startswith(IMAGE_PREFIX):
+        return _image(name, command.removeprefix(IMAGE_PREFIX).strip())
 
     try:
         sdk = parse_sdk(command)

@@ -1,0 +1,170 @@
+"""A container image as an agent node: how it starts (its config) and how it speaks (labels or a side file).
+
+The image's config decides how it starts, as ``docker run`` would: ENTRYPOINT then CMD as the command, its
+``Env`` (``PATH`` as Docker's default where it sets none, ``HOME=/scratch`` where it sets none: its own home is
+read-only here), its ``WorkingDir`` (default ``/``) and its ``User`` (``uid[:gid]`` or names from its own
+``/etc/passwd`` and ``/etc/group``; default root) — a user id inside the sandbox's user namespace only, with no
+capability; outside it the agent is the unprivileged agent user like every package.
+
+What a package's manifest says beyond its command (``proxybench-agent.yaml``: protocol, transport, timeouts,
+reflection) an image says in labels, ``org.proxybench.agent.<key>`` (e.g. ``LABEL
+org.proxybench.agent.transport=fifo``), or in a side file beside it, ``<image path>.proxybench-agent.yaml``
+holding the same keys (the file wins over the labels). Without either it is an ``aido-z2`` node on stdin/stdout
+with the default timeouts, as AIDO's templates are.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import stat
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+
+from proxybench.evaluator.images import ImageConfig, ImageError, ImageLimits, UnpackedImage, unpack_image
+from proxybench.evaluator.sandbox import Isolation, Limits, confine_image, fifo_root
+from proxybench.protocol.package import SDK_PROTOCOL, AgentManifest
+from proxybench.untrusted import UntrustedInputError, load_yaml
+
+__all__ = ["LABEL_PREFIX", "SIDE_SUFFIX", "image_env", "image_manifest", "image_spec", "image_user"]
+
+LABEL_PREFIX = "org.proxybench.agent."
+SIDE_SUFFIX = ".proxybench-agent.yaml"
+KEYS = ("name", "protocol", "transport", "start_timeout", "step_timeout", "reflection", "description")
+DOCKER_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
+_MAX_ENV = 1000
+_MAX_ID_FILE = 1 << 20
+
+
+def _side_file(path: Path) -> dict[str, Any]:
+    side = path.with_name(path.name + SIDE_SUFFIX)
+    if not side.is_file():
+        return {}
+    try:
+        raw = load_yaml(side.read_bytes()[: 64 << 10].decode("utf-8"), max_depth=4, allow_aliases=False)
+    except (UnicodeDecodeError, UntrustedInputError, ValueError) as exc:
+        raise ImageError(f"{side}: {exc}") from None
+    if not isinstance(raw, dict):
+        raise ImageError(f"{side}: expected a mapping of {', '.join(KEYS)}")
+    return {f"{side.name}: {k}": v for k, v in raw.items()}
+
+
+def image_manifest(name: str, path: Path, config: ImageConfig) -> AgentManifest:
+    """The agent manifest of an image: its labels, then its side file, over the defaults; the command is the
+    image's ENTRYPOINT + CMD. Raises :class:`ImageError` naming the label or key at fault."""
+    given: dict[str, tuple[str, Any]] = {}  # key → (where it was given, value)
+    for label, value in (config.labels or {}).items():
+        if label.startswith(LABEL_PREFIX):
+            given[label.removeprefix(LABEL_PREFIX)] = (f"label {label}", value)
+    for where, value in _side_file(path).items():
+        given[where.rsplit(": ", 1)[1]] = (where, value)
+    for key, (where, _) in given.items():
+        if key not in KEYS:
+            raise ImageError(f"image {path}: {where}: unknown key {key!r} (one of {', '.join(KEYS)}; the command "
+                             "is the image's ENTRYPOINT and CMD)")
+    if not config.argv:
+        raise ImageError(f"image {path}: its config has neither Entrypoint nor Cmd: nothing to start")
+    values = {k: v for k, (_, v) in given.items()}
+    try:
+        manifest = AgentManifest.model_validate({"protocol": "aido-z2", **values, "name": name, "command": config.argv})
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        key = str(first["loc"][0]) if first["loc"] else "?"
+        raise ImageError(f"image {path}: {given.get(key, (key,))[0]}: {first['msg']}") from None
+    if manifest.protocol == SDK_PROTOCOL:
+        raise ImageError(f"image {path}: protocol {SDK_PROTOCOL} is not run from images yet (give it as a package "
+                         "or NAME=sdk:COMMAND)")
+    if manifest.protocol != "aido-z2":
+        raise ImageError(f"image {path}: protocol {manifest.protocol!r} is not one of aido-z2")
+    return manifest
+
+
+def image_env(config: ImageConfig) -> dict[str, str]:
+    """The agent's environment: the image's ``Env`` over Docker's ``PATH``, ``HOME=/scratch``, ``TMPDIR=/tmp`` and
+    one thread per numeric library (one evaluator, one core)."""
+    env = {"PATH": DOCKER_PATH, "HOME": "/scratch", "TMPDIR": "/tmp", "OMP_NUM_THREADS": "1",
+           "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
+    for item in (config.env or [])[:_MAX_ENV]:
+        key, sep, value = item.partition("=")
+        if not sep or not key or "\x00" in item:
+            raise ImageError(f"config: Env entry {item[:80]!r} is not KEY=VALUE")
+        env[key] = value
+    return env
+
+
+def _id_file(rootfs: Path, name: str) -> list[list[str]]:
+    """The rows of the image's ``/etc/passwd`` or ``/etc/group``, read only where neither ``/etc`` nor the file
+    is a symbolic link (the tree is the image's: a link could point at the host's files)."""
+    etc, file = rootfs / "etc", rootfs / "etc" / name
+    try:
+        if not stat.S_ISDIR(etc.lstat().st_mode) or not stat.S_ISREG(file.lstat().st_mode):
+            return []
+        with open(file, "rb") as f:
+            text = f.read(_MAX_ID_FILE).decode("utf-8", "replace")
+    except OSError:
+        return []
+    return [line.split(":") for line in text.splitlines() if line and not line.startswith("#")]
+
+
+def _lookup(rows: list[list[str]], name: str, column: int) -> int | None:
+    for row in rows:
+        if len(row) > column and row[0] == name and row[column].isdigit():
+            return int(row[column])
+    return None
+
+
+def image_user(image: UnpackedImage) -> tuple[int, int]:
+    """(uid, gid) of the image's ``User``: numbers, or names from its own passwd and group files."""
+    text = image.config.user.strip()
+    if not text:
+        return 0, 0
+    user, _, group = text.partition(":")
+    passwd = _id_file(image.rootfs, "passwd")
+    uid = int(user) if user.isdigit() else _lookup(passwd, user, 2)
+    if uid is None:
+        raise ImageError(f"config: User {text!r}: no user {user!r} in the image's /etc/passwd")
+    if not group:
+        gid = next((int(r[3]) for r in passwd if len(r) > 3 and r[2] == str(uid) and r[3].isdigit()), uid)
+    else:
+        gid = int(group) if group.isdigit() else _lookup(_id_file(image.rootfs, "group"), group, 2)
+        if gid is None:
+            raise ImageError(f"config: User {text!r}: no group {group!r} in the image's /etc/group")
+    if uid > 2**31 or gid > 2**31:
+        raise ImageError(f"config: User {text!r}: ids must be below 2^31")
+    return uid, gid
+
+
+def _workdir(image: UnpackedImage) -> str:
+    """The image's WorkingDir, which must be a folder of the image (Docker would make it; the tree is read-only)."""
+    workdir = os.path.normpath("/" + (image.config.working_dir or "/")).replace("//", "/")
+    here = image.rootfs / workdir.lstrip("/")
+    if ".." in workdir.split("/") or here.is_symlink() or not here.is_dir():
+        raise ImageError(f"config: WorkingDir {image.config.working_dir!r} is not a folder of the image")
+    return workdir
+
+
+def image_spec(name: str, path: str | os.PathLike[str], isolation: Isolation, *, limits: Limits | None = None,
+               cache: str | os.PathLike[str] | None = None, image_limits: ImageLimits | None = None,
+               parent: int | None = -1):
+    """The runner's ``AgentSpec`` of the image at ``path``, unpacked (or found) in ``cache``: a node whose command
+    runs the image in the sandbox, with the start-up options of its labels or side file. Raises
+    :class:`ImageError` (the image's fault) or :class:`~proxybench.evaluator.sandbox.SandboxError` (the host's)."""
+    from proxybench.runner.jobs import AgentSpec
+
+    path = Path(path)
+    image = unpack_image(path, cache, limits=image_limits)
+    manifest = image_manifest(name, path, image.config)
+    try:
+        env, user, workdir = image_env(image.config), image_user(image), _workdir(image)
+    except ImageError as exc:
+        raise ImageError(f"image {path}: {exc}") from None
+    options = manifest.node_options()
+    root = None
+    if options.transport == "fifo":
+        root = fifo_root(image.rootfs)
+        options = manifest.node_options(fifo_dir=str(root))
+    argv = confine_image(list(manifest.command), image.rootfs, limits or Limits(), isolation, env=env,
+                         workdir=workdir, user=user, parent=parent, fifo_root=root)
+    return AgentSpec.node(name, shlex.join(argv), options)
