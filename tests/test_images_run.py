@@ -121,3 +121,11 @@ def test_an_image_is_ranked_by_predictivity(tmp_path: Path, images: dict[str, Pa
     results = pd.read_parquet(next((out / "runs").rglob("results.parquet")))
     assert {"pid", "straight", "mine"} <= set(results.agent)
     assert set(results[results.agent == "mine"].termination) == {"timeout"}
+
+
+def test_sandbox_check_says_whether_images_run_here(monkeypatch: pytest.MonkeyPatch) -> None:
+    res = runner.invoke(app, ["sandbox", "check"], env={"COLUMNS": "250"})
+    assert "container images" in res.output and "run in bubblewrap as the agent user" in res.output, res.output
+    monkeypatch.setattr("proxybench.evaluator.images.shutil.which", lambda _tool: None)
+    res = runner.invoke(app, ["sandbox", "check"], env={"COLUMNS": "250"})
+    assert "refused: skopeo and umoci not installed: apt-get install skopeo umoci" in res.output, res.output

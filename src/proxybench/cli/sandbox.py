@@ -31,7 +31,20 @@ def _show(isolation) -> None:
     if isolation.pythonpath:
         table.add_row("PYTHONPATH", escape(isolation.pythonpath))
     table.add_row("note", escape(isolation.note or isolation.problem))
+    table.add_row("container images", escape(_images(isolation)))
     console.print(table)
+
+
+def _images(isolation) -> str:
+    """Whether ``--agent NAME=image:PATH`` can run here, and where images are unpacked."""
+    from proxybench.evaluator.image_agent import images_problem
+    from proxybench.evaluator.images import default_cache
+
+    problem = images_problem(isolation)
+    if problem is not None:
+        return f"refused: {problem}"
+    how = "as the agent user" if isolation.safe else "UNSAFE, as this user"
+    return f"run in bubblewrap {how}, their own root file system read-only as / (cache: {default_cache()})"
 
 
 @sandbox_app.command("check")

@@ -23,12 +23,19 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from proxybench.evaluator.images import ImageConfig, ImageError, ImageLimits, UnpackedImage, unpack_image
+from proxybench.evaluator.images import (
+    ImageConfig,
+    ImageError,
+    ImageLimits,
+    UnpackedImage,
+    image_tools,
+    unpack_image,
+)
 from proxybench.evaluator.sandbox import Isolation, Limits, confine_image, fifo_root
 from proxybench.protocol.package import SDK_PROTOCOL, AgentManifest
 from proxybench.untrusted import UntrustedInputError, load_yaml
 
-__all__ = ["LABEL_PREFIX", "SIDE_SUFFIX", "image_env", "image_manifest", "image_spec", "image_user"]
+__all__ = ["LABEL_PREFIX", "SIDE_SUFFIX", "image_env", "image_manifest", "image_spec", "image_user", "images_problem"]
 
 LABEL_PREFIX = "org.proxybench.agent."
 SIDE_SUFFIX = ".proxybench-agent.yaml"
@@ -36,6 +43,15 @@ KEYS = ("name", "protocol", "transport", "start_timeout", "step_timeout", "refle
 DOCKER_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
 _MAX_ENV = 1000
 _MAX_ID_FILE = 1 << 20
+
+
+def images_problem(isolation: Isolation) -> str | None:
+    """None if container images can run here (skopeo and umoci installed, a bubblewrap sandbox), else why not."""
+    if problem := image_tools():
+        return problem
+    if isolation.kind != "bwrap":
+        return f"images run in bubblewrap only: {isolation.problem or isolation.note}"
+    return None
 
 
 def _side_file(path: Path) -> dict[str, Any]:
