@@ -15,7 +15,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "proxybench"
 
 #: docs/DESIGN.md §2, bottom up: a module may import from its own package and from packages of a lower rank
 RANKS = {
-    "untrusted": 0, "messages": 0, "media": 0, "lazy": 0, "venv": 0, "__init__": 0,
+    "untrusted": 0, "messages": 0, "media": 0, "lazy": 0, "venv": 0, "private": 0, "__init__": 0,
     "domain": 1,
     "agents": 2,
     "protocol": 3,

@@ -103,7 +103,8 @@ def test_cpus_auto_trusts_no_planted_folder_or_lock_file(tmp_path: Path) -> None
     mine = sorted(os.sched_getaffinity(0))
     (tmp_path / "real").mkdir()
     (tmp_path / "link").symlink_to(tmp_path / "real")
-    assert claim_cpu(tmp_path / "link") is None  # a symlink where the folder should be: not ours
+    with pytest.raises(CpuError, match="is a symbolic link: refused"):  # a symlink where the folder should be
+        claim_cpu(tmp_path / "link")
     if len(mine) < 2:
         return
     victim = tmp_path / "victim"

@@ -8,19 +8,18 @@ any input from outside (:mod:`.pipe`): the events it forwards carry what an SDK 
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import select
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 from proxybench.dtps import pipe
 from proxybench.dtps.env import sdk_python
+from proxybench.private import LockTimeout, PrivateFileError, hold_lock, make_private_folder, user_folder
 from proxybench.protocol.transport import Launch
 
-__all__ = ["BRIDGE", "BridgeError", "BridgeLink", "PortLock"]
+__all__ = ["BRIDGE", "PORT_LOCK_TIMEOUT_S", "BridgeError", "BridgeLink", "PortLock", "PortLockError"]
 
 #: the bridge script (runs in the SDK environment; never imports proxybench)
 BRIDGE = Path(__file__).with_name("bridge.py")
@@ -35,27 +34,35 @@ class BridgeError(RuntimeError):
         super().__init__(detail + (f" (exit code {exit_code})" if exit_code is not None else "") + tail)
 
 
-class PortLock:
-    """One virtual robot per TCP port on this machine at a time (an unchanged SDK agent always connects to 7501):
-    an exclusive ``flock`` on a file in the temporary folder, released when the holder closes it or dies."""
+class PortLockError(BridgeError):
+    """The port's lock could not be had: another run of this user still holds it at the deadline, or its file or
+    folder is not safely ours (one line naming the holder or the path)."""
 
-    def __init__(self, port: int):
-        self.path = Path(tempfile.gettempdir()) / f"proxybench-dtps-{port}.lock"
+
+#: how long a virtual robot waits for its port by default (another episode of this user may be serving it)
+PORT_LOCK_TIMEOUT_S = 600.0
+
+
+class PortLock:
+    """One virtual robot per TCP port for this user at a time (an unchanged SDK agent always connects to 7501): an
+    exclusive ``flock`` on ``dtps-<port>.lock`` in the user's private folder (:mod:`proxybench.private`: 0700,
+    checked, no links followed, so another local user can neither hold it nor redirect it), released when the
+    holder closes it or dies; waited for with a deadline."""
+
+    def __init__(self, port: int, *, folder: Path | None = None):
+        self.port = port
+        self._folder = folder
+        self.path: Path | None = None
         self.fd: int | None = None
 
-    def acquire(self, timeout: float | None = None) -> bool:
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while True:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                self.fd = fd
-                return True
-            except BlockingIOError:
-                if deadline is not None and time.monotonic() >= deadline:
-                    os.close(fd)
-                    return False
-                time.sleep(0.05)
+    def acquire(self, timeout: float = PORT_LOCK_TIMEOUT_S) -> None:
+        """Hold the port's lock, waiting up to ``timeout`` s; :class:`PortLockError` (one line) if it cannot."""
+        try:
+            folder = make_private_folder(self._folder) if self._folder is not None else user_folder("dtps")
+            self.path = folder / f"port-{int(self.port)}.lock"
+            self.fd = hold_lock(self.path, timeout=timeout, what=f"port {self.port}'s virtual robot")
+        except (LockTimeout, PrivateFileError) as exc:
+            raise PortLockError(str(exc)) from None
 
     def release(self) -> None:
         if self.fd is not None:
@@ -71,7 +78,9 @@ class BridgeLink:
         py = Path(python) if python is not None else sdk_python()
         self.reader = pipe.Reader()
         self.events: list[dict[str, Any]] = []
-        self._os = Launch([str(py), "-I", str(BRIDGE), *args], transport="pipes", env=env, stderr_lines=40)
+        # not under the subreaper launcher: a robot in a namespace of its own is joined at /proc/<its pid>/ns/net
+        self._os = Launch([str(py), "-I", str(BRIDGE), *args], transport="pipes", env=env, stderr_lines=40,
+                          reap=False)
         self.ready = self.wait_for("ready", time.monotonic() + start_timeout)
 
     # ------------------------------------------------------------------------------------------ I/O

@@ -13,7 +13,7 @@ from typing import Any
 
 from proxybench.agents.base import Observation
 from proxybench.domain.maps import Map
-from proxybench.dtps.link import BridgeLink, PortLock
+from proxybench.dtps.link import PORT_LOCK_TIMEOUT_S, BridgeLink, PortLock
 from proxybench.dtps.maplayer import map_layers
 from proxybench.protocol import jpeg
 
@@ -29,16 +29,18 @@ NETNS_USER = "nobody"
 class VirtualDB21J:
     """The virtual robot at ``http://host:port/robot/<name>/``; ``publish`` one frame, ``events`` what came back.
 
-    ``lock``: wait for the port's lock (another proxybench episode may be serving it); ``start_timeout``
-    bounds the bridge's start.
+    ``lock``: wait for the port's lock (another proxybench episode of this user may be serving it) up to
+    ``lock_timeout`` s, then :class:`~.link.PortLockError` naming the holder; ``start_timeout`` bounds the bridge's
+    start.
     """
 
     def __init__(self, *, name: str = DEFAULT_NAME, host: str = "127.0.0.1", port: int = DEFAULT_PORT,
-                 python: str | None = None, start_timeout: float = 60.0, lock: bool = True, own_netns: bool = False):
+                 python: str | None = None, start_timeout: float = 60.0, lock: bool = True, own_netns: bool = False,
+                 lock_timeout: float = PORT_LOCK_TIMEOUT_S):
         self.name, self.host, self.port = name, host, port
         self.lock = PortLock(port)
         if lock and not own_netns:  # a namespace of its own has its own port 7501
-            self.lock.acquire()
+            self.lock.acquire(lock_timeout)
         extra = ["--own-netns", "--drop-to", NETNS_USER] if own_netns else []
         try:
             self.link = BridgeLink(["server", "--host", host, "--port", str(port), "--name", name, *extra],

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import fcntl
 import os
-import stat
-import tempfile
 from collections.abc import Iterable
 from pathlib import Path
+
+from proxybench.private import PrivateFileError, make_private_folder, open_private, user_folder
 
 __all__ = ["CpuClaim", "CpuError", "check_cpus", "choose_cpus", "claim_cpu", "cpu_list", "lock_dir", "parse_cpus",
            "pin_node"]
@@ -53,25 +53,32 @@ class CpuClaim:
 
 
 def lock_dir() -> Path:
-    """Where ``--cpus auto`` keeps its lock files: one folder per user in the temporary folder."""
-    return Path(tempfile.gettempdir()) / f"proxybench-gym-cpus-{os.getuid()}"
+    """Where ``--cpus auto`` keeps its lock files: ``gym-cpus`` in the user's private folder (made and checked;
+    :class:`CpuError` naming the path where something planted there is not ours)."""
+    try:
+        return user_folder("gym-cpus")
+    except PrivateFileError as exc:
+        raise CpuError(f"--cpus auto: {exc}") from None
 
 
 def claim_cpu(folder: Path | None = None) -> CpuClaim | None:
     """The last CPU this process may use that no other claim holds, leaving the node at least one other; None
-    where there is one CPU only, or every one is held (then gym runs where the scheduler puts it)."""
+    where there is one CPU only, or every one is held (then gym runs where the scheduler puts it). A lock file that
+    is not ours (a link, a folder, another user's) skips its CPU; its content is never read."""
     allowed = sorted(os.sched_getaffinity(0))
     if len(allowed) < 2:
         return None
-    folder = folder or lock_dir()
-    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
-    info = folder.lstat()
-    if not stat.S_ISDIR(info.st_mode) or info.st_uid != os.getuid():  # another user's folder: not trusted
-        return None
-    for cpu in reversed(allowed):
+    if folder is None:
+        folder = lock_dir()
+    else:
         try:
-            fd = os.open(folder / f"cpu{cpu}.lock", os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
-        except OSError:
+            make_private_folder(folder)
+        except PrivateFileError as exc:  # a planted folder or link: not trusted
+            raise CpuError(f"--cpus auto: {exc}") from None
+    for cpu in reversed(allowed):
+        try:  # a planted link, folder, FIFO or another user's file is not our lock: that CPU is skipped
+            fd = open_private(folder / f"cpu{cpu}.lock")
+        except PrivateFileError:
             continue
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

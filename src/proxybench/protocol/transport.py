@@ -1,7 +1,9 @@
 """The operating-system side of an agent process: launch, pipes or FIFOs, stderr draining, kill and reap.
 
 Kept apart from the protocol logic (:mod:`.process`) because every piece here exists to make failure
-harmless: the node runs in its own process group so that killing it also kills whatever it spawned;
+harmless: the node runs in its own process group so that killing it also kills whatever it spawned, and (on
+Linux) under a subreaper launcher (``_subreaper.py``) so that what it forked out of its group (``setsid``
+daemons) is killed at the end too;
 stderr is drained by a thread into a bounded ring so a chatty node can never block on a full pipe; the
 parent's ends of the streams are non-blocking, so every wait has a deadline.
 """
@@ -18,17 +20,23 @@ import shutil
 import signal
 import stat
 import subprocess
+import sys
 import tempfile
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from proxybench.protocol.wire import ENV_DATA_IN, ENV_DATA_OUT
 
-__all__ = ["SHELL", "Launch", "NotAFifo", "StderrDrain", "needs_shell", "node_argv"]
+__all__ = ["SHELL", "SUBREAPER", "Launch", "NotAFifo", "StderrDrain", "needs_shell", "node_argv"]
 
 _PIPE_SIZE = 1 << 20  # a whole 640×480 observation fits in one write
+#: the launcher that reaps whatever a program forks (run with this interpreter, ``-I -S``)
+SUBREAPER = Path(__file__).with_name("_subreaper.py")
+#: how long the launcher may take to end a program's tree (its grace for SIGTERM, then the kills)
+_REAPER_WAIT_S = 3.0
 #: the shell that runs command strings using shell syntax (``cd dir && exec node``)
 SHELL = "/bin/sh"
 _SHELL_CHARS = frozenset("|&;<>()$`*?[]~{}!#\n")
@@ -197,10 +205,18 @@ class Launch:
 
     def __init__(self, argv: list[str], *, transport: str = "pipes", env: dict[str, str] | None = None,
                  cwd: str | None = None, stderr_lines: int = 50, on_stderr: Callable[[str], None] | None = None,
-                 fifo_dir: str | None = None):
+                 fifo_dir: str | None = None, reap: bool = True):
         if transport not in ("pipes", "fifos", "none"):
             raise ValueError(f"transport must be 'pipes', 'fifos' or 'none', not {transport!r}")
         self.transport = transport
+        #: the process is the subreaper launcher, the program its child: see :meth:`terminate`
+        self.reaped = reap and sys.platform == "linux"
+        self._pass_fds: tuple[int, ...] = ()
+        exec_r = -1
+        if self.reaped:
+            exec_r, exec_w = os.pipe()
+            argv = [sys.executable, "-I", "-S", str(SUBREAPER), str(exec_w), "--", *argv]
+            self._pass_fds = (exec_w,)
         self.fifo_dir = fifo_dir
         self.tmpdir: str | None = None
         self.dummy_fd: int | None = None
@@ -215,15 +231,40 @@ class Launch:
         except BaseException:
             os.close(err_r)
             self._cleanup_tmp()
+            if exec_r >= 0:
+                os.close(exec_r)
             raise
         finally:
             os.close(err_w)
+            for fd in self._pass_fds:
+                os.close(fd)
+        #: the program's process id (with the launcher: its child; :attr:`proc` is the launcher)
         self.pid = self.proc.pid
+        self.pidfd: int | None = None
+        if exec_r >= 0:
+            self._check_exec(exec_r, argv[6], err_r)
         self.stderr = StderrDrain(err_r, stderr_lines, on_line=on_stderr)
+        with contextlib.suppress(OSError, AttributeError):
+            self.pidfd = os.pidfd_open(self.proc.pid)
+
+    def _check_exec(self, exec_r: int, program: str, err_r: int) -> None:
+        """Raise the ``OSError`` that ``subprocess`` would have where the launcher could not execute ``program``
+        (it writes the errno to ``exec_r``'s pipe; the pipe closes empty once the program runs)."""
+        data = b""
         try:
-            self.pidfd: int | None = os.pidfd_open(self.pid)
-        except (OSError, AttributeError):
-            self.pidfd = None
+            while select.select([exec_r], [], [], 30.0)[0] and (chunk := os.read(exec_r, 64)):
+                data += chunk
+        finally:
+            os.close(exec_r)
+        words = dict((w[:1], w[1:]) for w in data.decode("ascii", "replace").split() if w[1:].isdigit())
+        if "P" in words:
+            self.pid = int(words["P"])
+        if "E" not in words:
+            return
+        self.terminate(0.0)
+        os.close(err_r)
+        code = int(words["E"])
+        raise OSError(code, os.strerror(code) if code else "cannot execute", program)
 
     def _start_pipes(self, argv: list[str], env: dict, cwd: str | None, err_w: int) -> subprocess.Popen:
         in_r, in_w = os.pipe()
@@ -232,7 +273,7 @@ class Launch:
             _grow_pipe(fd)
         try:
             proc = subprocess.Popen(argv, stdin=in_r, stdout=out_w, stderr=err_w, cwd=cwd, env=env,
-                                    start_new_session=True)
+                                    start_new_session=True, pass_fds=self._pass_fds)
         except BaseException:
             os.close(in_w)
             os.close(out_r)
@@ -249,7 +290,7 @@ class Launch:
         """No protocol stream (a program that talks over the network, e.g. an SDK agent): stdout joins stderr."""
         self.in_fd = -1
         return subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=err_w, stderr=err_w, cwd=cwd, env=env,
-                                start_new_session=True)
+                                start_new_session=True, pass_fds=self._pass_fds)
 
     def _start_fifos(self, argv: list[str], env: dict, cwd: str | None, err_w: int) -> subprocess.Popen:
         self.tmpdir = tempfile.mkdtemp(prefix="proxybench-node-", dir=self.fifo_dir)
@@ -267,7 +308,7 @@ class Launch:
         _grow_pipe(self.in_fd)
         try:
             return subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=err_w, stderr=err_w, cwd=cwd, env=env,
-                                    start_new_session=True)
+                                    start_new_session=True, pass_fds=self._pass_fds)
         except BaseException:
             os.close(self.in_fd)
             raise
@@ -305,7 +346,7 @@ class Launch:
         if not hasattr(os, "waitid"):  # macOS: reaping is the only way to know
             return self.proc.poll() is not None
         try:
-            return os.waitid(os.P_PID, self.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None
+            return os.waitid(os.P_PID, self.proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None
         except ChildProcessError:
             return True
 
@@ -344,15 +385,20 @@ class Launch:
 
     def _killpg(self, sig: int) -> None:
         with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(self.pid, sig)
+            os.killpg(self.proc.pid, sig)
 
     def terminate(self, grace: float = 0.0, term_first: bool = False) -> int | None:
         """Let the process end by itself for ``grace`` s, then kill its whole group; reap; its exit status."""
         if self.returncode is not None:
             return self.returncode
-        if not self.wait_exit(grace) and term_first:
-            self._killpg(signal.SIGTERM)
-            self.wait_exit(0.5)
+        if not self.wait_exit(grace):
+            if self.reaped:  # the launcher ends the program and every descendant, in or out of the group
+                with contextlib.suppress(ProcessLookupError, PermissionError):
+                    os.kill(self.proc.pid, signal.SIGTERM if term_first else signal.SIGUSR1)
+                self.wait_exit(_REAPER_WAIT_S)
+            elif term_first:
+                self._killpg(signal.SIGTERM)
+                self.wait_exit(0.5)
         self._killpg(signal.SIGKILL)  # the leader is at most a zombie here, so its group id is still ours
         with contextlib.suppress(subprocess.TimeoutExpired):  # stuck in the kernel even after SIGKILL: never hang
             self.returncode = self.proc.wait(timeout=10.0)

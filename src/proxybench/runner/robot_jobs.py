@@ -5,7 +5,7 @@ protocol (docs/robot-protocol.md): a physical robot's bridge, another simulator,
 Its jobs produce the same ``JobResult`` and trajectory files as simulated ones, through the same cache.
 The node is started once per batch and reused across its episodes; after a failure the next episode
 starts a fresh process. At most ``ProtocolLink.nodes`` processes of one command run at once on a machine
-(a lock file per slot in the temp directory), across workers and sweeps, so that a bridge to one
+(a lock file per slot in the user's private folder), across workers and sweeps, so that a bridge to one
 physical robot is never started twice.
 """
 
@@ -15,14 +15,13 @@ import contextlib
 import fcntl
 import hashlib
 import os
-import tempfile
 import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 from proxybench.domain.events import Termination
 from proxybench.domain.kinds import DomainKind
+from proxybench.private import open_private, user_folder
 from proxybench.protocol import RobotFailure
 from proxybench.runner.jobs import Job, JobResult
 from proxybench.runner.outcomes import all_metrics, make_agent_for, refused, result_of
@@ -44,13 +43,15 @@ def robot_slot(command: str, nodes: int, poll_s: float = 0.05) -> Iterator[int]:
     """Hold one of ``nodes`` machine-wide slots for ``command`` while the block runs; yields the slot.
 
     The slots are ``flock``-ed files, released by the kernel when a holder dies, so a killed worker never
-    leaves a robot locked.
+    leaves a robot locked; they live in the user's private folder (:mod:`proxybench.private`), so another local
+    user can neither hold a slot nor plant a link there (:class:`~proxybench.private.PrivateFileError` names it).
     """
-    folder = Path(tempfile.gettempdir()) / f"proxybench-robots-{os.getuid()}"
-    folder.mkdir(exist_ok=True)
+    folder = user_folder("robots")
     tag = hashlib.sha256(command.encode()).hexdigest()[:16]
-    files = [open(folder / f"{tag}.{k}.lock", "a+") for k in range(nodes)]  # noqa: SIM115 (held below)
+    files: list[Any] = []
     try:
+        for k in range(nodes):
+            files.append(os.fdopen(open_private(folder / f"{tag}.{k}.lock"), "r+b"))
         while True:
             for k, f in enumerate(files):
                 try:
