@@ -35,11 +35,13 @@ def gym_setup(path: Path | None = _PATH) -> None:
 
     from rich.markup import escape
 
-    from proxybench.gym.environment import setup_environment
+    from proxybench.gym.environment import GymPythonError, setup_environment
     from proxybench.venv import PipError
 
     try:
         env = setup_environment(path, say=lambda s: console.print(escape(s), highlight=False))
+    except GymPythonError as exc:
+        raise fail(exc, 2, mark="✗") from None
     except subprocess.CalledProcessError as exc:
         raise fail(f"{' '.join(map(str, exc.cmd))} failed (exit status {exc.returncode})", mark="✗") from None
     except PipError as exc:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,11 +29,16 @@ from proxybench.venv import (
     venv_python,
 )
 
-__all__ = ["APT_PACKAGES", "GYM_VERSION", "GymEnvironment", "check_environment", "default_path", "setup_environment"]
+__all__ = ["APT_PACKAGES", "GYM_VERSION", "PYTHON_NEEDED", "GymEnvironment", "GymPythonError", "check_environment",
+           "check_python", "default_path", "python_version", "setup_environment"]
 
 GYM_VERSION = "6.1.34"
 APT_PACKAGES = ("libegl1", "libegl-mesa0", "libgl1-mesa-dri", "libglu1-mesa")
 REQUIREMENTS = Path(__file__).with_name("requirements.txt")
+#: the interpreters the freeze installs on, [low, high): soupsieve 4.1.3 requires Python >= 3.11.5 (pip stops
+#: half-way on Debian 12's own 3.11.2, issue 38), numpy 1.23.5 has wheels up to 3.11 only
+PYTHON_NEEDED = ((3, 11, 5), (3, 12, 0))
+PYTHON_WHY = "soupsieve 4.1.3 needs 3.11.5 or later, numpy 1.23.5 has no wheels past 3.11"
 _STAMP = "proxybench-requirements.txt"  # a copy of the freeze it was installed from: changed pins reinstall
 #: what check imports and renders in the environment: versions, then one 32×24 frame headless
 _PROBE = """
@@ -118,11 +124,43 @@ def _probe(env: GymEnvironment) -> None:
         env.problems.append(f"gym-duckietown rendered a frame of shape {out['frame']}, expected [24, 32, 3]")
 
 
+class GymPythonError(RuntimeError):
+    """The interpreter gym's environment would be made with (or was made with) cannot install the pins."""
+
+
+def python_version(python: Path) -> tuple[int, int, int]:
+    """The version of the interpreter ``python`` (this process's own without starting it)."""
+    if Path(python) == Path(sys.executable):
+        return tuple(sys.version_info[:3])  # type: ignore[return-value]
+    out = subprocess.run([str(python), "-c", "import sys; print(*sys.version_info[:3])"], capture_output=True,
+                         text=True, timeout=60, check=True).stdout.split()
+    return int(out[0]), int(out[1]), int(out[2])
+
+
+def check_python(version: tuple[int, int, int], python: Path, path: Path, *, made: bool) -> None:
+    """:class:`GymPythonError` (one line: what is needed, what ``python`` is, what to do) unless the freeze installs
+    on ``version``; ``made``: ``python`` is the environment's own at ``path`` (an earlier run made it), else the
+    interpreter that would make it."""
+    low, high = PYTHON_NEEDED
+    if low <= version < high:
+        return
+    make = f"`python{low[0]}.{low[1]} -m venv {path}` with such an interpreter (a pyenv or uv Python)"
+    whose, fix = ("the environment's interpreter", f"remove {path}, make it again: {make}") if made else \
+        ("this interpreter", f"make the environment first: {make}")
+    raise GymPythonError(f"gym-duckietown's pinned packages need Python {'.'.join(map(str, low))} or a later "
+                         f"{low[0]}.{low[1]} ({PYTHON_WHY}); {whose} {python} is Python {'.'.join(map(str, version))}:"
+                         f" {fix}, then run proxybench gym setup again")
+
+
 def setup_environment(path: Path | None = None, *, say: Callable[[str], None] = print) -> GymEnvironment:
     """Create (or complete) gym's environment at ``path``; install the Debian packages when root, else say
     the command. Idempotent: what is in place is kept, and a run with nothing to do says so and only checks.
-    Says each step (``2/4 ...``) with its time, pip's progress, and the total: it takes minutes."""
+    Says each step (``2/4 ...``) with its time, pip's progress, and the total: it takes minutes. An interpreter
+    the pins cannot install on is refused before anything starts (:class:`GymPythonError`)."""
     path = Path(path or default_path())
+    made = venv_python(path).exists()
+    interpreter = venv_python(path) if made else Path(sys.executable)
+    check_python(python_version(interpreter), interpreter, path, made=made)
     steps = Steps(4, say)
     missing = missing_apt_packages()
     if not missing:
