@@ -127,14 +127,17 @@ def base_rootfs() -> Path:
 
 
 def agent_image(dest: Path, script: Path, *, args: tuple[str, ...] = (), labels: dict[str, str] | None = None,
-                env: dict[str, str] | None = None, workdir: str | None = None, user: str | None = None) -> Path:
+                env: dict[str, str] | None = None, workdir: str | None = None, user: str | None = None,
+                files: dict[str, bytes] | None = None, at: str = "opt/agent") -> Path:
     """An OCI layout at ``dest``: the base root file system (``/dev`` left out) plus ``script`` at
-    ``/opt/agent/agent.py``, its ENTRYPOINT ``/usr/bin/python3 /opt/agent/agent.py ARGS``."""
+    ``/AT/agent.py`` (and ``files`` beside it), its ENTRYPOINT ``/usr/bin/python3 /AT/agent.py ARGS``."""
     rootfs = dest.parent / f"{dest.name}.rootfs"
     rootfs.mkdir()
     subprocess.run(["tar", "-xf", str(base_rootfs()), "-C", str(rootfs), "--exclude=./dev/*"], check=True)
-    (rootfs / "opt" / "agent").mkdir(parents=True)
-    shutil.copy(script, rootfs / "opt" / "agent" / "agent.py")
+    (rootfs / at).mkdir(parents=True)
+    shutil.copy(script, rootfs / at / "agent.py")
+    for name, data in (files or {}).items():
+        (rootfs / at / name).write_bytes(data)
 
     def umoci(*argv: str) -> None:
         subprocess.run(["umoci", *argv], check=True, capture_output=True)
@@ -143,7 +146,7 @@ def agent_image(dest: Path, script: Path, *, args: tuple[str, ...] = (), labels:
     umoci("new", "--image", f"{dest}:latest")
     umoci("insert", "--rootless", "--image", f"{dest}:latest", str(rootfs), "/")
     shutil.rmtree(rootfs)
-    config = ["--config.entrypoint", "/usr/bin/python3", "--config.entrypoint", "/opt/agent/agent.py"]
+    config = ["--config.entrypoint", "/usr/bin/python3", "--config.entrypoint", f"/{at}/agent.py"]
     for a in args:
         config += ["--config.entrypoint", a]
     for k, v in (labels or {}).items():
