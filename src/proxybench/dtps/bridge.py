@@ -25,7 +25,9 @@ robot's queues exist, a client may read (GET, HEAD, OPTIONS: sensors, the map, t
 write (POST, or a ``:push`` stream) only the topics a robot takes commands on (``WRITABLE_TOPICS``); DELETE,
 PATCH (creating or removing queues), PUT and any other method get 405, a write elsewhere 403, and a handler's
 unexpected error a 400 of one line on stderr (never a traceback): one ``curl -X DELETE`` killed the bridge
-before (issue 38).
+before (issue 38). A connection's request headers must be complete ``--header-timeout`` s after it opened, and a
+kept-alive connection may idle ``--idle-timeout`` s (:class:`HeaderDeadline`), so a client that sends half a
+header and stalls (a slow-loris) holds nothing.
 
 With ``--own-netns`` (root; the evaluator's agent packages) the server moves into a network namespace of its
 own before it listens, and with ``--drop-to USER`` runs on as that user: the package's sandbox joins that
@@ -244,6 +246,58 @@ class RobotPolicy:
         web.Application.__init__ = init
 
 
+class HeaderDeadline:
+    """A deadline on each connection's request headers, and a shorter idle time between kept-alive requests, in
+    front of the dtps-http server (aiohttp has none: a client that sends half a request line and stalls held its
+    connection for good; issue 38, a slow-loris). aiohttp's request handler is patched before the server exists:
+    a connection whose first request's headers are not complete ``header_s`` after it opened is closed, and the
+    keep-alive timer (which also ends a half-sent next request) is at most ``idle_s``. A websocket or a request
+    whose headers arrived is never touched."""
+
+    def __init__(self, header_s: float, idle_s: float) -> None:
+        self.header_s, self.idle_s = header_s, idle_s
+        self.closed = 0
+        self.log = logging.getLogger("proxybench.bridge")
+        self._timers: dict[int, asyncio.TimerHandle] = {}
+
+    def _too_slow(self, handler) -> None:
+        self._timers.pop(id(handler), None)
+        if not handler._request_count:  # still no complete request line and headers
+            self.closed += 1
+            self.log.warning("closed a connection whose request headers did not arrive within %g s", self.header_s)
+            handler.force_close()
+
+    def _disarm(self, handler) -> None:
+        timer = self._timers.pop(id(handler), None)
+        if timer is not None:
+            timer.cancel()
+
+    def install(self) -> None:
+        """Patch aiohttp's request handler in this process (before the server is created)."""
+        from aiohttp import web_protocol
+
+        deadline, handler_class = self, web_protocol.RequestHandler
+        made, received, lost = handler_class.connection_made, handler_class.data_received, handler_class.connection_lost
+
+        def connection_made(handler, transport) -> None:
+            handler._keepalive_timeout = min(handler._keepalive_timeout, deadline.idle_s)  # read by start()
+            made(handler, transport)
+            deadline._timers[id(handler)] = handler._loop.call_later(deadline.header_s, deadline._too_slow, handler)
+
+        def data_received(handler, data: bytes) -> None:
+            received(handler, data)
+            if handler._request_count:
+                deadline._disarm(handler)
+
+        def connection_lost(handler, exc) -> None:
+            deadline._disarm(handler)
+            lost(handler, exc)
+
+        handler_class.connection_made = connection_made
+        handler_class.data_received = data_received
+        handler_class.connection_lost = connection_lost
+
+
 class Server:
     """The virtual DB21J (role ``server``)."""
 
@@ -260,6 +314,8 @@ class Server:
         self.live = _track_websockets()
         self.policy = RobotPolicy(f"{self.args.prefix}/{self.args.name}")
         self.policy.install()
+        self.deadline = HeaderDeadline(self.args.header_timeout, self.args.idle_timeout)
+        self.deadline.install()
         url = f"http://{self.args.host}:{self.args.port}/"
         try:
             self.ctx = await context("pbserver", urls=["create:" + url])
@@ -599,6 +655,10 @@ def main() -> None:
     srv.add_argument("--prefix", default="robot")
     srv.add_argument("--own-netns", action="store_true", help="serve in a network namespace of its own (root)")
     srv.add_argument("--drop-to", default="", help="once listening, run on as this user")
+    srv.add_argument("--header-timeout", type=float, default=10.0,
+                     help="close a connection whose request headers are not complete this long after it opened [s]")
+    srv.add_argument("--idle-timeout", type=float, default=15.0,
+                     help="close a kept-alive connection idle this long between requests [s]")
     cli = sub.add_parser("client")
     cli.add_argument("--url", required=True)
     cli.add_argument("--name", required=True, help="the robot's path on the server (a real DB21: its name; the "
