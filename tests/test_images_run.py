@@ -129,3 +129,27 @@ def test_sandbox_check_says_whether_images_run_here(monkeypatch: pytest.MonkeyPa
     monkeypatch.setattr("proxybench.evaluator.images.shutil.which", lambda _tool: None)
     res = runner.invoke(app, ["sandbox", "check"], env={"COLUMNS": "250"})
     assert "refused: skopeo and umoci not installed: apt-get install skopeo umoci" in res.output, res.output
+
+
+BENCH = """
+name: tiny-image
+map: loop_3x3
+episodes: {count: 1, seed: 1}
+duration: 1.0
+domain: {params: {image_width: 80, image_height: 60}}
+metrics: [survival_time]
+scoring:
+  - {metric: survival_time_median, tolerance: 0.5}
+"""
+
+
+def test_agent_check_and_evaluate_take_an_image(tmp_path: Path, images: dict[str, Path]) -> None:
+    res = runner.invoke(app, ["agent", "check", f"image:{images['fifo']}", "--seconds", "0.5", "--no-contract"])
+    assert res.exit_code == 0 and "over fifo" in res.output, res.output
+    bench = tmp_path / "bench.yaml"
+    bench.write_text(BENCH)
+    res = runner.invoke(app, ["evaluate", str(bench), "--agent", f"mine=image:{images['pipe']}", "--backend",
+                              "inline", "--run-dir", str(tmp_path / "ev")])
+    assert res.exit_code == 0 and "mine" in res.output, res.output
+    res = runner.invoke(app, ["agent", "check", f"image:{tmp_path / 'nothing'}"])
+    assert res.exit_code == 2 and "no such file or folder" in res.output, res.output

@@ -157,3 +157,10 @@ def test_not_an_image_is_a_one_line_error(tmp_path: Path) -> None:
                          (tmp_path / "missing", "no such file or folder")):
         with pytest.raises(ImageError, match=reason):
             unpack_image(path, tmp_path / "cache")
+
+
+def test_the_time_limit_bounds_the_whole_unpack(tmp_path: Path) -> None:
+    layout = oci_layout(tmp_path / "img", _good_layers(), CONFIG)
+    with pytest.raises(ImageError, match="time limit"):
+        unpack_image(layout, tmp_path / "cache", limits=ImageLimits(max_seconds=0.001))
+    assert os.listdir(tmp_path / "cache" / "rootfs") == [] and os.listdir(tmp_path / "cache" / "staging") == []

@@ -50,6 +50,17 @@ def agent_serve(
     raise typer.Exit(serve(agent, node_name=node_name))
 
 
+def _image_node(text: str):
+    """(sandboxed command, node options) of ``image:PATH``; a bad image is a one-line error."""
+    from proxybench.experiments.agent_args import AgentArgError, parse_agent
+
+    try:
+        spec = parse_agent(f"image={text}")
+    except AgentArgError as exc:
+        raise fail(exc, 2) from exc
+    return spec.command, spec.node_options()
+
+
 @agent_app.command("check")
 @with_agent_node_options()
 def agent_check(
@@ -66,7 +77,8 @@ def agent_check(
     commands it sent; a node that fails says why (reason, exit code, last stderr lines) and the command
     exits 1. Then the agent contract, one line per check (commands, determinism, privileged flag, isolation
     between episodes, clean failure; docs/protocol.md); a failed check exits 1 too.
-    E.g. `proxybench agent check "cd sub && exec python3 solution.py" --transport fifo`.
+    E.g. `proxybench agent check "cd sub && exec python3 solution.py" --transport fifo`; a container image as
+    `proxybench agent check image:PATH` (its labels or side file give the start-up options).
     """
     import time
 
@@ -77,6 +89,8 @@ def agent_check(
     from proxybench.runner.episode import play
 
     t0 = time.perf_counter()
+    if command.startswith("image:"):  # a container image: its own start-up options, run in the sandbox
+        command, options = _image_node(command)
     agent = remote_agent(command, options)
     started = time.perf_counter() - t0
     proc = agent.process

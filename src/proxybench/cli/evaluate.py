@@ -83,7 +83,7 @@ def _save_table(rows: list[dict], out: Path) -> None:
 def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:
     """--agent and --agent-cmd, else the benchmark file's ``agents:``, else every zoo agent."""
     from proxybench.agents import ZOO
-    from proxybench.experiments.agent_args import AgentArgError, parse_agent
+    from proxybench.experiments.agent_args import AgentArgError, is_image, parse_agent
     from proxybench.runner.jobs import AgentSpec
 
     if not names and not commands:
@@ -92,15 +92,15 @@ def _agent_specs(names: list[str], commands: list[str], options, bench) -> list:
         names = list(ZOO)
     specs = []
     for n in names:
-        if "=sdk" in n:  # NAME=sdk:COMMAND, a duckietown-sdk program
+        if "=sdk" in n or is_image(n):  # NAME=sdk:COMMAND, a duckietown-sdk program; NAME=image:PATH, an image
             try:
                 specs.append(parse_agent(n))
             except AgentArgError as exc:
                 raise typer.BadParameter(str(exc), param_hint="--agent") from None
             continue
         if n not in ZOO:
-            raise typer.BadParameter(f"unknown agent {n!r}; known: {', '.join(ZOO)} (or NAME=sdk:COMMAND)",
-                                     param_hint="--agent")
+            raise typer.BadParameter(f"unknown agent {n!r}; known: {', '.join(ZOO)} (or NAME=sdk:COMMAND, "
+                                     "NAME=image:PATH)", param_hint="--agent")
         specs.append(AgentSpec(n))
     for item in commands:
         name, sep, cmd = item.partition("=")
