@@ -164,3 +164,37 @@ def test_the_time_limit_bounds_the_whole_unpack(tmp_path: Path) -> None:
     with pytest.raises(ImageError, match="time limit"):
         unpack_image(layout, tmp_path / "cache", limits=ImageLimits(max_seconds=0.001))
     assert os.listdir(tmp_path / "cache" / "rootfs") == [] and os.listdir(tmp_path / "cache" / "staging") == []
+
+
+def test_a_cached_digest_is_not_enough_the_folder_must_hold_its_bytes(tmp_path: Path) -> None:
+    import shutil
+
+    cache = tmp_path / "cache"
+    layout = oci_layout(tmp_path / "img", _good_layers(), CONFIG, compression="none")
+    unpack_image(layout, cache)
+    copy = tmp_path / "copy"  # the same index (the cached digest), other layer bytes of the same size
+    shutil.copytree(layout, copy)
+    blob = max((copy / "blobs" / "sha256").iterdir(), key=lambda p: p.stat().st_size)
+    data = bytearray(blob.read_bytes())
+    data[-2000] ^= 0xFF
+    blob.write_bytes(bytes(data))
+    with pytest.raises(ImageError, match=r"Digest did not match|hash to"):
+        unpack_image(copy, cache)
+    blob.unlink()
+    blob.symlink_to("/etc/shadow")
+    with pytest.raises(ImageError, match="is not a plain file"):
+        unpack_image(copy, cache)
+
+
+def test_a_compressed_archive_is_refused_before_anything_is_written(tmp_path: Path) -> None:
+    import gzip
+
+    layout = oci_layout(tmp_path / "img", _good_layers(), CONFIG)
+    archive = tmp_path / "docker.tar"
+    subprocess.run(["skopeo", "--insecure-policy", "copy", "-q", f"oci:{layout}:latest",
+                    f"docker-archive:{archive}:a:latest"], check=True)
+    gz = tmp_path / "docker.tar.gz"
+    gz.write_bytes(gzip.compress(archive.read_bytes(), compresslevel=1))
+    with pytest.raises(ImageError, match="a compressed archive; give the tar itself"):
+        unpack_image(gz, tmp_path / "cache")
+    assert os.listdir(tmp_path / "cache" / "staging") == []

@@ -118,21 +118,41 @@ def _source(path: Path, limits: ImageLimits) -> tuple[str, int]:
     except OSError as exc:
         raise ImageError(f"image {path}: {exc.strerror}") from None
     if stat.S_ISDIR(st.st_mode):
-        if not (path / "oci-layout").is_file() or not (path / "index.json").is_file():
-            raise ImageError(f"image {path}: a folder, but not an OCI image layout (no oci-layout and index.json)")
-        size = sum(e.stat(follow_symlinks=False).st_size for e in os.scandir(path / "blobs" / "sha256")
-                   if e.is_file(follow_symlinks=False)) if (path / "blobs" / "sha256").is_dir() else 0
-        return f"oci:{path}", size
+        return f"oci:{path}", _layout_size(path, limits)
     if not stat.S_ISREG(st.st_mode):
         raise ImageError(f"image {path}: not a file or folder")
     if st.st_size > limits.max_archive_bytes:
         raise ImageError(f"image {path}: {st.st_size} bytes; at most {limits.max_archive_bytes} are allowed")
+    with open(path, "rb") as f:
+        head = f.read(6)
+    if head[:2] == b"\x1f\x8b" or head[:4] == b"\x28\xb5\x2f\xfd" or head[:3] == b"BZh" or head == b"\xfd7zXZ\x00":
+        raise ImageError(f"image {path}: a compressed archive; give the tar itself (e.g. gunzip it first): "
+                         "unpacking it would write its full size before any check")
     names = _archive_names(path, limits)
     if "oci-layout" in names and "index.json" in names:
         return f"oci-archive:{path}", st.st_size
     if "manifest.json" in names:
         return f"docker-archive:{path}", st.st_size
     raise ImageError(f"image {path}: a tar without oci-layout/index.json (OCI) or manifest.json (docker save)")
+
+
+def _layout_size(path: Path, limits: ImageLimits) -> int:
+    """Bytes of a layout folder's blobs; its index, marker and blobs must be plain files (no links, FIFOs or
+    devices for skopeo to follow), and not too many of them."""
+    for name in ("oci-layout", "index.json"):
+        if not (path / name).is_file() or (path / name).is_symlink():
+            raise ImageError(f"image {path}: a folder, but not an OCI image layout (no plain file {name})")
+    blobs = path / "blobs" / "sha256"
+    if not blobs.is_dir() or blobs.is_symlink() or (path / "blobs").is_symlink():
+        raise ImageError(f"image {path}: an OCI layout without a blobs/sha256 folder")
+    size = 0
+    for n, entry in enumerate(os.scandir(blobs)):
+        if n > limits.max_layers * 8 + 64:
+            raise ImageError(f"image {path}: more than {limits.max_layers * 8 + 64} blobs")
+        if not entry.is_file(follow_symlinks=False):
+            raise ImageError(f"image {path}: blob {entry.name[:19]} is not a plain file")
+        size += entry.stat(follow_symlinks=False).st_size
+    return size
 
 
 def _archive_names(path: Path, limits: ImageLimits) -> set[str]:
@@ -281,21 +301,31 @@ def _cached(cache: Path, digest: str) -> UnpackedImage | None:
 
 
 def _known_digest(path: Path, cache: Path) -> tuple[str | None, str | None]:
-    """(manifest digest already cached for this source, the archive's SHA-256 to remember it by). A layout
-    folder's index names its manifest's digest, which pins every byte of the image; an archive is known by its
-    own SHA-256 from an earlier unpack."""
+    """(manifest digest already cached for this source, the archive's SHA-256 to remember it by). An archive is
+    known by its own SHA-256 from an earlier unpack; a layout folder by its index's manifest digest, once its
+    manifest, config and layer blobs are found to hash to what they claim (naming a cached image's digest is not
+    enough: the folder must hold that image's bytes)."""
     if path.is_dir():
         try:
             manifests = _json((path / "index.json").read_bytes()[:_MAX_JSON], "index.json").get("manifests")
-        except (OSError, ImageError):
-            return None, None
-        if isinstance(manifests, list) and len(manifests) == 1 and isinstance(manifests[0], dict) and \
-                manifests[0].get("mediaType") in MANIFEST_TYPES and isinstance(manifests[0].get("digest"), str):
-            return manifests[0]["digest"], None
+            if isinstance(manifests, list) and len(manifests) == 1 and \
+                    manifests[0].get("mediaType") in MANIFEST_TYPES and _blobs_hold(path, manifests[0]):
+                return manifests[0]["digest"], None
+        except (OSError, ImageError, AttributeError, KeyError, TypeError):
+            pass
         return None, None
     sha = _digest_of_file(path)
     known = cache / "sources" / sha
     return (known.read_text().strip() if known.is_file() else None), sha
+
+
+def _blobs_hold(layout: Path, descriptor: dict[str, Any]) -> bool:
+    """Whether the layout's blobs of this manifest (itself, its config, its layers) hash to their digests."""
+    manifest = _json_blob(layout, descriptor, "manifest")
+    for d in [manifest["config"], *manifest["layers"]]:
+        if f"sha256:{_digest_of_file(_blob(layout, d, 'blob'))}" != d["digest"]:
+            return False
+    return True
 
 
 def _finish_tree(rootfs: Path) -> None:
