@@ -315,7 +315,7 @@ def _read_bag(path: Path, calibrations: Path | None, overrides: dict | None) -> 
     except UntrustedInputError as exc:
         raise UnsafeLogError(str(exc)) from None
     except Exception as exc:  # rosbags raises its own errors for unreadable or foreign files
-        raise LayoutError(f"{path}: cannot read as a ROS bag ({type(exc).__name__}: {exc})") from None
+        raise LayoutError(f"{path}: cannot read as a ROS bag ({type(exc).__name__}: {_one_line(exc)})") from None
     robots = set(wheels)
     streams = []
     for name, msgs in sorted(images.items()):
@@ -330,6 +330,12 @@ def _read_bag(path: Path, calibrations: Path | None, overrides: dict | None) -> 
         raise LayoutError(f"{path}: no watchtower image topics (/<name>{_IMAGE_TOPIC}) in the bag")
     commands = {r: np.array(sorted(v)) for r, v in wheels.items()}
     return Log(path, _manifest(path.with_suffix(".log.yaml"), overrides), streams, commands)
+
+
+def _one_line(exc: BaseException, limit: int = 200) -> str:
+    """An exception's text as one short printable line: rosbags quotes the bag's own bytes, newlines and all."""
+    text = "".join(c if c.isprintable() else " " for c in " ".join(str(exc).split()))
+    return text if len(text) <= limit else text[:limit] + "…"
 
 
 def _is_bag(p: Path) -> bool:
