@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.markup import escape
 
-from proxybench.cli.app import app, console, fail
+from proxybench.cli.app import app, console, fail, require_extra
 from proxybench.cli.help import HelpTyper
 
 
@@ -104,3 +104,56 @@ def autolab_check(lab_file: Path = typer.Argument(..., help="the lab description
     for line in lines:
         console.print(escape(line), highlight=False)
     console.print(f"[green]✓[/green] {escape(str(lab_file))}: lab {escape(lab.name)!r} is usable", highlight=False)
+
+
+@autolab_app.command("demo")
+def autolab_demo(
+    out: Path | None = typer.Option(None, "--out", help="a new or empty folder for the server's database, the lab, "
+                                                        "tokens, logs and job.json [a temporary folder]"),
+    once: bool = typer.Option(False, "--once", help="run the one submission end to end, write OUT/job.json and exit "
+                                                    "(0 when the job succeeded)"),
+    port: int = typer.Option(0, min=0, max=65535, help="the server's port on 127.0.0.1 [a free one]"),
+    seconds: float = typer.Option(10.0, min=0.5, max=120.0, help="the episode's length [s]"),
+    frame_rate: float = typer.Option(10.0, min=0.5, max=30.0, help="the robot's camera rate [Hz]"),
+    watchtower_rate: float = typer.Option(5.0, min=0.5, max=30.0, help="the watchtowers' frame rate [Hz]"),
+    video: bool = typer.Option(True, help="the evaluator uploads a top-down video of the localised episode"),
+    dev_unsafe_same_user: bool = typer.Option(False, "--dev-unsafe-same-user", help="DEVELOPMENT ONLY: where the "
+                                              "agent user's sandbox is impossible, run the agent as this user"),
+) -> None:
+    """Stand up a whole simulated Autolab on this machine and evaluate the built-in SDK agent in it.
+
+    The challenges server (SQLite in OUT/server, on 127.0.0.1 only), a lab of a virtual DB21J and simulated
+    watchtowers (OUT/lab.yaml), an Autolab evaluator (`proxybench evaluator --autolab`), and a submission of the
+    built-in lane-following duckietown-sdk agent, measured by the watchtowers. It prints the leaderboard's URL and
+    serves until Ctrl-C, which stops everything it started. Needs `proxybench dtps setup` and the agent sandbox
+    (`proxybench sandbox setup`).
+    """
+    require_extra("server")
+    import signal
+
+    from proxybench.autolab.lab import LabError
+    from proxybench.cli.autolab_demo import DemoError, DemoOptions, run_demo
+    from proxybench.client import ServerError
+
+    def stop(*_: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, stop)  # stopped like Ctrl-C: everything it started is stopped too
+    options = DemoOptions(out=out, once=once, port=port, seconds=seconds, frame_rate=frame_rate,
+                          watchtower_rate=watchtower_rate, video=video, dev_unsafe=dev_unsafe_same_user)
+    try:
+        summary = run_demo(options, lambda line: console.print(escape(line), highlight=False))
+    except KeyboardInterrupt:
+        console.print("stopped: the evaluator, its job and the server")
+        return
+    except (DemoError, LabError, ServerError) as exc:
+        raise fail(exc, mark="✗") from None
+    scores = ", ".join(f"{k} {v:.3f}" for k, v in summary.scores.items() if v is not None and k.endswith("_median"))
+    error = summary.localization_median_error_m
+    console.print(f"job {summary.job}: {summary.status}: {escape(summary.message)}", highlight=False)
+    if scores:
+        console.print(f"  scores (measured by the watchtowers): {escape(scores)}"
+                      + ("" if error is None else f"; localisation median error {100 * error:.2f} cm"), highlight=False)
+    console.print(f"  leaderboard: {summary.leaderboard}", highlight=False)
+    if summary.status != "success":
+        raise typer.Exit(1)
