@@ -19,27 +19,21 @@ import os
 import shlex
 import stat
 from pathlib import Path
-from typing import Any
 
-from pydantic import ValidationError
-
-from proxybench.evaluator.images import (
+from proxybench.evaluator.images import UnpackedImage, unpack_image
+from proxybench.evaluator.sandbox import Isolation, Limits, confine_image, fifo_root
+from proxybench.protocol.images import (
+    LABEL_PREFIX,
+    SIDE_SUFFIX,
     ImageConfig,
     ImageError,
     ImageLimits,
-    UnpackedImage,
+    image_manifest,
     image_tools,
-    unpack_image,
 )
-from proxybench.evaluator.sandbox import Isolation, Limits, confine_image, fifo_root
-from proxybench.protocol.package import SDK_PROTOCOL, AgentManifest
-from proxybench.untrusted import UntrustedInputError, load_yaml
 
 __all__ = ["LABEL_PREFIX", "SIDE_SUFFIX", "image_env", "image_manifest", "image_spec", "image_user", "images_problem"]
 
-LABEL_PREFIX = "org.proxybench.agent."
-SIDE_SUFFIX = ".proxybench-agent.yaml"
-KEYS = ("name", "protocol", "transport", "start_timeout", "step_timeout", "reflection", "description")
 DOCKER_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
 _MAX_ENV = 1000
 _MAX_ID_FILE = 1 << 20
@@ -52,49 +46,6 @@ def images_problem(isolation: Isolation) -> str | None:
     if isolation.kind != "bwrap":
         return f"images run in bubblewrap only: {isolation.problem or isolation.note}"
     return None
-
-
-def _side_file(path: Path) -> dict[str, Any]:
-    side = path.with_name(path.name + SIDE_SUFFIX)
-    if not side.is_file():
-        return {}
-    try:
-        raw = load_yaml(side.read_bytes()[: 64 << 10].decode("utf-8"), max_depth=4, allow_aliases=False)
-    except (UnicodeDecodeError, UntrustedInputError, ValueError) as exc:
-        raise ImageError(f"{side}: {exc}") from None
-    if not isinstance(raw, dict):
-        raise ImageError(f"{side}: expected a mapping of {', '.join(KEYS)}")
-    return {f"{side.name}: {k}": v for k, v in raw.items()}
-
-
-def image_manifest(name: str, path: Path, config: ImageConfig) -> AgentManifest:
-    """The agent manifest of an image: its labels, then its side file, over the defaults; the command is the
-    image's ENTRYPOINT + CMD. Raises :class:`ImageError` naming the label or key at fault."""
-    given: dict[str, tuple[str, Any]] = {}  # key → (where it was given, value)
-    for label, value in (config.labels or {}).items():
-        if label.startswith(LABEL_PREFIX):
-            given[label.removeprefix(LABEL_PREFIX)] = (f"label {label}", value)
-    for where, value in _side_file(path).items():
-        given[where.rsplit(": ", 1)[1]] = (where, value)
-    for key, (where, _) in given.items():
-        if key not in KEYS:
-            raise ImageError(f"image {path}: {where}: unknown key {key!r} (one of {', '.join(KEYS)}; the command "
-                             "is the image's ENTRYPOINT and CMD)")
-    if not config.argv:
-        raise ImageError(f"image {path}: its config has neither Entrypoint nor Cmd: nothing to start")
-    values = {k: v for k, (_, v) in given.items()}
-    try:
-        manifest = AgentManifest.model_validate({"protocol": "aido-z2", **values, "name": name, "command": config.argv})
-    except ValidationError as exc:
-        first = exc.errors()[0]
-        key = str(first["loc"][0]) if first["loc"] else "?"
-        raise ImageError(f"image {path}: {given.get(key, (key,))[0]}: {first['msg']}") from None
-    if manifest.protocol == SDK_PROTOCOL:
-        raise ImageError(f"image {path}: protocol {SDK_PROTOCOL} is not run from images yet (give it as a package "
-                         "or NAME=sdk:COMMAND)")
-    if manifest.protocol != "aido-z2":
-        raise ImageError(f"image {path}: protocol {manifest.protocol!r} is not one of aido-z2")
-    return manifest
 
 
 def image_env(config: ImageConfig) -> dict[str, str]:

@@ -10,7 +10,7 @@ uncompressed bytes to the config's ``diff_id``, and every member must keep to th
   ``etc/passwd``): the tar engine would follow it, and where it leads is the host's file system;
 - a whiteout (``.wh.NAME``) removes one name in its own folder, never ``.``, ``..`` or the root;
 - no devices (a rootless unpack cannot make them; an agent has no use for them), no sparse members;
-- members, bytes and time are bounded across the whole image (:class:`~proxybench.evaluator.images.ImageLimits`),
+- members, bytes and time are bounded across the whole image (:class:`~proxybench.protocol.images.ImageLimits`),
   so a layer of a million empty files stops at the limit, after reading that many headers, not a million.
 
 Errors are :class:`ImageError`, one line naming the layer (its index and digest) and the member at fault.
