@@ -73,6 +73,15 @@ def _admitted(bench, spec):
     return spec
 
 
+def _is_image(path: Path) -> bool:
+    """Whether the submission's archive is a container image rather than a package (told by its content, as the
+    server told it on upload)."""
+    from proxybench.protocol.images import is_image_archive
+
+    with path.open("rb") as f:
+        return is_image_archive(f)
+
+
 class _Job:
     """One job's work; fills :attr:`outcome` as it goes, so a fault still reports what was done."""
 
@@ -122,6 +131,8 @@ class _Job:
         isolation = self.job.isolation
         if not isolation.usable:  # checked before unpacking: nothing of the stranger's is touched
             raise HostFault(isolation.problem)
+        if _is_image(self.dir / "agent.archive"):
+            return _admitted(bench, self.image_agent())
         archive = (self.dir / "agent.archive").read_bytes()
         try:
             manifest = sb.prepare_agent(archive, sub.archive_sha256, self.dir / "agent")
@@ -138,6 +149,40 @@ class _Job:
                 "agent: package %r (%s), command %s, transport %s; sandbox: %s", manifest.name,
                 (sub.archive_sha256 or "")[:12], manifest.command, manifest.transport, isolation.note)
         return _admitted(bench, spec)
+
+    def image_agent(self):
+        """The job's agent from a container image (the submission's archive is one): hash-checked, checked and
+        unpacked into this evaluator's image cache (or found there), run in the sandbox with its root file system
+        (:func:`~proxybench.evaluator.image_agent.image_spec`). The image's faults are the submission's; missing
+        tools or a sandbox that cannot run images, this host's."""
+        import hashlib
+
+        from proxybench.evaluator.image_agent import image_spec, images_problem
+        from proxybench.evaluator.sandbox import SandboxError
+        from proxybench.protocol.images import ImageError
+
+        sub, isolation = self.lease.submission, self.job.isolation
+        if problem := images_problem(isolation):
+            raise HostFault(f"this evaluator cannot run container images: {problem}")
+        path = self.dir / "agent.archive"
+        sha = hashlib.sha256()
+        with path.open("rb") as f:
+            while chunk := f.read(1 << 20):
+                sha.update(chunk)
+        if sha.hexdigest() != sub.archive_sha256:
+            raise HostFault(f"archive hash is {sha.hexdigest()}, not the submitted {sub.archive_sha256}: refusing "
+                            "to run it")
+        name = (sub.manifest or {}).get("name") or sub.label
+        try:
+            spec = image_spec(str(name)[:64], path, isolation, limits=self.job.limits)
+        except ImageError as exc:
+            raise SubmissionFault(f"image refused: {str(exc).replace(f'image {path}: ', '')}") from None
+        except SandboxError as exc:
+            raise HostFault(str(exc)) from None
+        self.unsafe = not isolation.safe
+        log.log(logging.WARNING if self.unsafe else logging.INFO, "agent: image %r (%s), command %s; sandbox: %s",
+                spec.name, (sub.archive_sha256 or "")[:12], spec.command.split(" -- ", 1)[-1], isolation.note)
+        return spec
 
     def agent_contract(self, bench, spec) -> None:
         """The agent checker on the job's agent before its episodes (``proxybench.testing.AgentContract`` on a second

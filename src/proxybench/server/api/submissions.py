@@ -1,16 +1,21 @@
-"""Submissions: built-in agents (JSON) or agent packages (multipart upload); listing, details, retiring."""
+"""Submissions: built-in agents (JSON), agent packages or container images (multipart upload); listing, details,
+retiring."""
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 import time
-from typing import Annotated
+from pathlib import Path as FilePath
+from typing import IO, Annotated
 
 from fastapi import APIRouter, Depends, Form, Path, Request, UploadFile
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
-from proxybench.protocol.package import PackageError, check_archive
+from proxybench.protocol.images import ImageError, ImageLimits, check_image, is_image_archive
+from proxybench.protocol.package import AgentManifest, PackageError, check_archive
 from proxybench.server.api.deps import DB, Caller, Conf, require, require_reader, run_write
 from proxybench.server.api.schemas import MAX_ID, Retired, SubmissionCreate, SubmissionOut
 from proxybench.server.artifacts import TooLarge
@@ -25,6 +30,8 @@ router = APIRouter(tags=["submissions"])
 Developer = Annotated[User, Depends(require("developer"))]
 Uploader = Annotated[User, Depends(require_reader("developer"))]
 SubmissionId = Annotated[int, Path(ge=1, le=MAX_ID)]
+#: how long the check of an uploaded container image may take (skopeo's copy, every layer read once)
+IMAGE_CHECK_SECONDS = 300.0
 
 
 @router.post("/submissions", status_code=201, response_model=SubmissionOut, response_model_exclude_unset=True)
@@ -53,8 +60,9 @@ async def submit_archive(request: Request, settings: Conf, user: Uploader,
                          archive: UploadFile, label: Annotated[str, Form()], description: Annotated[str, Form()] = "",
                          benchmark: Annotated[str | None, Form()] = None,
                          path: Annotated[str | None, Form()] = None) -> dict:
-    """Submit an agent package (zip or tar.gz with ``proxybench-agent.yaml``). The archive is checked and
-    stored before any database write; the submission is then created in one short transaction."""
+    """Submit an agent package (zip or tar.gz with ``proxybench-agent.yaml``) or a container image (an OCI archive
+    or a ``docker save`` tarball, told by its content). The archive is checked and stored before any database
+    write; the submission is then created in one short transaction."""
     label = _form_text(label, "label", 64) or ""
     description = _form_text(description, "description", 10_000) or ""
     benchmark, path = _form_text(benchmark, "benchmark", 64), _form_text(path, "path", 64)
@@ -62,11 +70,15 @@ async def submit_archive(request: Request, settings: Conf, user: Uploader,
     size = archive.size if archive.size is not None else 0
     if size > settings.archive_max_bytes:
         raise ServiceError(413, f"archive is {size} bytes; the limit is {settings.archive_max_bytes}")
-    try:
-        manifest = await run_in_threadpool(check_archive, archive.file)
-    except PackageError as exc:
-        raise ServiceError(422, f"archive {name!r}: {exc}") from None
     store = request.app.state.store
+    try:
+        if await run_in_threadpool(is_image_archive, archive.file):
+            manifest = await run_in_threadpool(_check_image, archive.file, name, label, store.root,
+                                               settings.archive_max_bytes)
+        else:
+            manifest = await run_in_threadpool(check_archive, archive.file)
+    except (PackageError, ImageError) as exc:
+        raise ServiceError(422, f"archive {name!r}: {exc}") from None
 
     def _store() -> tuple[str, int]:
         archive.file.seek(0)
@@ -88,6 +100,23 @@ async def submit_archive(request: Request, settings: Conf, user: Uploader,
         return submission_view(session, sub, me.role == "superuser", owner=me, new=True)
 
     return await run_write(request, _record)
+
+
+def _check_image(f: IO[bytes], name: str, label: str, scratch: FilePath, max_bytes: int) -> AgentManifest:
+    """The agent manifest of an uploaded container image, checked as the evaluator checks it before unpacking
+    (:func:`~proxybench.protocol.images.check_image`: every blob hashed, every layer read once), in a private
+    folder beside the store that is removed afterwards. Errors name the upload, not the folder."""
+    with tempfile.TemporaryDirectory(dir=scratch, prefix=".image-check-") as folder:
+        path = FilePath(folder) / "image.tar"
+        f.seek(0)
+        with path.open("wb") as out:
+            shutil.copyfileobj(f, out, 1 << 20)
+        f.seek(0)
+        limits = ImageLimits(max_archive_bytes=max_bytes, max_seconds=IMAGE_CHECK_SECONDS)
+        try:
+            return check_image(path, label or "image", limits=limits, scratch=folder).manifest
+        except ImageError as exc:
+            raise ImageError(str(exc).replace(f"image {path}: ", "").replace(str(path), name)) from None
 
 
 @router.get("/submissions", response_model=list[SubmissionOut], response_model_exclude_unset=True)
