@@ -81,3 +81,41 @@ def results_rebuild(
     console.print(f"wrote {path}: {len(got.numbers)} numbers", highlight=False, markup=False)
     if got.problems or readme:
         raise typer.Exit(1)
+
+
+@results_app.command("plan-episodes")
+def results_plan_episodes(
+    study: Path = typer.Argument(..., help="a validation study with its per-episode table (results/NAME, as "
+                                 "exported)"),
+    out: Path | None = typer.Option(None, help="where episode_plan.json and .csv go (default: the study's folder)"),
+    p_correct: float = typer.Option(0.8, min=0.05, max=0.99, help="goal: the chance PRPV picks the world's best "
+                                    "grid candidate"),
+    width: float = typer.Option(0.05, min=0.0, help="goal: the mean width of PRPV's order range, in PRPV/K(K−1)"),
+    reps: int = typer.Option(100, min=20, help="posterior worlds per planned n"),
+    targets: int | None = typer.Option(None, min=1, help="plan only the first N targets"),
+    seed: int = typer.Option(0, min=0),
+) -> None:
+    """How many target episodes per agent the study needed: `plan` on each target's own episodes and the grid's
+    replays of them (no episode runs). Sizes E1/E2 of the next study (docs/validate.md, "Choosing E1 and E2")."""
+    from proxybench.cli.progress import stage_bars, stage_progress
+    from proxybench.experiments.config import ConfigError
+    from proxybench.experiments.validate.episode_plan import plan_study, write_episode_plan
+
+    try:
+        with stage_bars() as bar:
+            res = plan_study(study, p_correct=p_correct, width=width, reps=reps, seed=seed, targets=targets,
+                             progress=stage_progress(bar))
+    except ConfigError as exc:
+        raise fail(exc) from None
+    files = write_episode_plan(res, out or study)
+    def n(v: float | None) -> str:
+        return "beyond 320" if v is None else f"{v:g}"
+
+    lo, hi = res.quartiles_n_for_p_correct
+    console.print(
+        f"{res.study}: {len(res.targets)} targets, {res.episodes_tune} + {res.episodes_eval} episodes per agent. With "
+        f"the study's episodes PRPV picks the world's best of the grid with median chance "
+        f"{res.median_p_correct_at_pilot:.2f} over targets; a chance of {res.p_correct_goal:g} needs a median "
+        f"{n(res.median_n_for_p_correct)} episodes per agent (quartiles {n(lo)}, {n(hi)}); PRPV's order range is "
+        f"{res.median_width_at_pilot:.3f} wide (median, PRPV/K(K−1)), ≤ {res.width_goal:g} needs "
+        f"{n(res.median_n_for_width)}. Wrote {', '.join(str(f) for f in files)}", highlight=False, markup=False)

@@ -88,7 +88,7 @@ _GYM_GRID = {"trim": (-0.2, 0.0, 0.2), "command_delay": (0.0, 0.10, 0.20)}
 _HELDOUT_NEAR = {"trim": (-0.1, 0.1), "camera_pitch": (15.15, 23.15)}
 _GYM_NEAR = {"trim": (-0.1, 0.1), "command_delay": (0.0, 0.2)}
 _HELDOUT = FamilyModes(
-    full=FamilyDefaults(targets=40, agents=(*_POOL, NODE_AGENT), bc_agents=5, episodes_tune=3, episodes_eval=3,
+    full=FamilyDefaults(targets=40, agents=(*_POOL, NODE_AGENT), bc_agents=5, episodes_tune=10, episodes_eval=10,
                         seconds=15.0, grid=_HELDOUT_GRID,
                         draw={"trim": (-0.15, 0.35), "camera_pitch": (13.15, 27.15), "gain": (0.85, 1.15),
                               "command_delay": (0.02, 0.2), "blur_time": (0.0, 0.1), "camera_height": (0.1, 0.116)},
