@@ -18,6 +18,7 @@ as it is. See docs/autolab.md ("A lab") for an example::
       #   - {name: wt02, recorded: rec/wt02, calibration: cal/wt02.yaml}
     reset: {mode: teleport}                         # operator | teleport (virtual robots) | pose_file (+ poses)
     limits: {lost_s: 1.0, light_change: 0.2, end_slack_s: 1.0, max_episode_s: 120}
+    # drills: {streams_stop_s: 1.5, streams_stop: [wt01]}   # simulated faults (simulated watchtowers only)
 
 The watchtower layout is the existing layout model (:mod:`.watchtowers`); a calibration is the existing
 calibration file (:mod:`.calibration`: intrinsics as ROS's ``camera_info`` writes them, extrinsics in the map
@@ -39,8 +40,8 @@ from proxybench.untrusted import repeated
 if TYPE_CHECKING:
     from proxybench.autolab.validate import Thresholds
 
-__all__ = ["LAB_FORMAT", "Lab", "LabError", "LabLimits", "LabRobot", "LabWatchtowers", "Reset", "StreamSource",
-           "check_lab", "load_lab"]
+__all__ = ["LAB_FORMAT", "Drills", "Lab", "LabError", "LabLimits", "LabRobot", "LabWatchtowers", "Reset",
+           "StreamSource", "check_lab", "load_lab"]
 
 LAB_FORMAT = "proxybench-lab/1"
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
@@ -179,6 +180,23 @@ class LabLimits(BaseModel):
         return Thresholds(self.lost_s, self.light_change, self.end_slack_s)
 
 
+class Drills(BaseModel):
+    """Faults a lab of simulated watchtowers plays on purpose, so that its operators (and tests) see how its
+    evaluator handles them: ``streams_stop_s``: the watchtowers named in ``streams_stop`` (default: all) deliver no
+    frame after this episode time [s], as a camera whose network or driver stopped mid-episode."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    streams_stop_s: float | None = Field(None, gt=0.0, le=3600.0)
+    streams_stop: list[str] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _named(self) -> Drills:
+        if self.streams_stop and self.streams_stop_s is None:
+            raise ValueError("streams_stop: give streams_stop_s, the time they stop")
+        return self
+
+
 class Lab(BaseModel):
     """A lab: its map, robots, watchtowers, how robots are reset and its limits (see the module)."""
 
@@ -191,6 +209,7 @@ class Lab(BaseModel):
     watchtowers: LabWatchtowers
     reset: Reset = Reset()
     limits: LabLimits = LabLimits()
+    drills: Drills = Drills()
 
     @field_validator("name")
     @classmethod
@@ -209,6 +228,9 @@ class Lab(BaseModel):
         clash = sorted(set(tags) & {g.id for g in self.watchtowers.ground_tags})
         if clash:
             raise ValueError(f"robots: roof tag id(s) {', '.join(map(str, clash))} are also ground tags")
+        if self.drills.streams_stop_s is not None and self.watchtowers.layout is None:
+            raise ValueError("drills: a lab's own watchtower streams are not stopped on purpose; drills are for "
+                             "simulated watchtowers (layout)")
         if self.reset.mode == "teleport":
             real = [r.name for r in self.robots if not r.virtual]
             if real:
@@ -291,6 +313,13 @@ def check_lab(lab: Lab, origin: str = "lab.yaml") -> list[str]:
             raise LabError(f"{origin}: watchtowers.layout: {exc}") from None
         lines.append(f"watchtowers: {len(layout.watchtowers)} simulated ({lab.watchtowers.layout}), "
                      f"{len(layout.ground_tags)} ground tags")
+        unknown = sorted(set(lab.drills.streams_stop) - {w.name for w in layout.watchtowers})
+        if unknown:
+            raise LabError(f"{origin}: drills.streams_stop: no watchtower {', '.join(map(repr, unknown))} in the "
+                           "layout")
+        if lab.drills.streams_stop_s is not None:
+            which = ", ".join(lab.drills.streams_stop) or "all"
+            lines.append(f"drill: watchtower stream(s) {which} stop at t = {lab.drills.streams_stop_s:g} s")
     for s in lab.watchtowers.streams:
         try:
             load_calibration(s.calibration)

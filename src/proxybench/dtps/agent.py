@@ -23,7 +23,7 @@ from proxybench.dtps.env import env_path, sdk_python
 from proxybench.dtps.link import BridgeError
 from proxybench.dtps.options import SdkOptions
 from proxybench.dtps.virtual_robot import VirtualDB21J
-from proxybench.protocol.failures import AgentFailure
+from proxybench.protocol.failures import AgentFailure, NodeFailure, RobotFailure
 from proxybench.protocol.transport import Launch, node_argv
 
 __all__ = ["NETNS_ENV", "SdkAgent"]
@@ -47,7 +47,9 @@ class SdkAgent(RobotDriver):
 
     :class:`~proxybench.dtps.env.DtpsEnvError` at construction when the SDK environment is missing (a problem
     of this host, not of the agent). Everything the program does wrong is an
-    :class:`~proxybench.protocol.AgentFailure` from ``reset`` / ``act``, which the runner records.
+    :class:`~proxybench.protocol.AgentFailure` from ``reset`` / ``act``, which the runner records; a virtual
+    robot whose bridge dies mid-episode is a :class:`~proxybench.protocol.RobotFailure` (the lab's fault, not the
+    agent's), whatever the program did after it lost its robot.
     """
 
     #: a privileged SDK agent still drives by its camera (it reads the true pose beside it)
@@ -69,10 +71,13 @@ class SdkAgent(RobotDriver):
         self.privileged = self.options.privileged
         self.max_stderr_bytes = max_stderr_bytes
         self.proc: Launch | None = None
-        self.failure: AgentFailure | None = None
+        self.failure: NodeFailure | None = None
         self._map: Map | None = None
 
     def _robot(self) -> VirtualDB21J:
+        if self.robot is not None and not self.robot.alive:  # it died in an earlier episode: a fresh one
+            self.robot.close()
+            self.robot = None
         if self.robot is None:
             try:
                 self.robot = VirtualDB21J(python=str(self.python), start_timeout=self.options.start_timeout,
@@ -116,7 +121,11 @@ class SdkAgent(RobotDriver):
         try:
             return super().act(obs)
         except BridgeError as exc:
-            raise self._failure("exited", f"the virtual DB21J (DTPS bridge) failed: {exc.detail}") from None
+            failure = self._failure("exited", f"the virtual DB21J (DTPS bridge) failed: {exc.detail}")
+            if isinstance(failure, AgentFailure):  # the bridge answered wrongly yet runs: still the robot's
+                failure = self.failure = RobotFailure("exited", f"the virtual DB21J (DTPS bridge) failed: "
+                                                                f"{exc.detail}", exc.exit_code, exc.stderr_tail)
+            raise failure from None
 
     def _late(self, message: str) -> None:
         print(f"[{self.name}] warning: {message}", file=sys.stderr, flush=True)
@@ -131,15 +140,29 @@ class SdkAgent(RobotDriver):
         if proc.stderr.total_bytes - getattr(self, "_stderr_mark", 0) > self.max_stderr_bytes:
             raise self._failure("stderr-flood", f"more than {self.max_stderr_bytes} bytes of output during one frame")
 
-    def _failure(self, reason: str, detail: str) -> AgentFailure:
-        """Kill the program's process group (letting one that is ending finish), then the failure to raise."""
+    def _failure(self, reason: str, detail: str) -> NodeFailure:
+        """Kill the program's process group (letting one that is ending finish), then the failure to raise: the
+        robot's (:class:`RobotFailure`) when its bridge has died, whatever the program did after (lost its robot,
+        exited, stopped answering), else the agent's."""
         proc = self.proc
+        dead = self._dead_robot()
         if proc is None:
-            return AgentFailure(reason, detail)
+            return dead or AgentFailure(reason, detail)
         code = proc.terminate(_GRACE.get(reason, 0.0))
-        self.failure = AgentFailure(reason, detail, code, proc.stderr.finish(), pid=proc.pid)
+        self.failure = dead or AgentFailure(reason, detail, code, proc.stderr.finish(), pid=proc.pid)
+        if dead is not None:
+            proc.stderr.finish()
         self.proc = None
         return self.failure
+
+    def _dead_robot(self) -> RobotFailure | None:
+        """The robot's failure when the virtual DB21J's bridge (its DTPS server) is no longer running."""
+        robot = self.robot
+        if robot is None or robot.alive:
+            return None
+        code = robot.exit_code
+        return RobotFailure("exited", "the virtual DB21J's DTPS server (bridge) died"
+                            + ("" if code is None else f" (exit code {code})"), code, robot.link.stderr_tail())
 
     def _stop_program(self) -> None:
         if self.proc is not None:

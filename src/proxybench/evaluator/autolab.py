@@ -34,7 +34,7 @@ import numpy as np
 from proxybench.autolab.lab import Lab
 from proxybench.evaluator.outcome import Artifact, HostFault, Outcome, SubmissionFault
 
-__all__ = ["AutolabEpisode", "localize_episode", "run_autolab"]
+__all__ = ["AutolabEpisode", "localize_episode", "run_autolab", "stop_streams"]
 
 log = logging.getLogger("proxybench.evaluator.job")
 #: the Autolab's job feature: a benchmark stored with it is leased only by Autolab evaluators
@@ -112,6 +112,31 @@ def _errors(truth, t: np.ndarray, pose: np.ndarray) -> np.ndarray:
     return np.hypot(pose[:, 0] - x, pose[:, 1] - y)
 
 
+def stop_streams(streams: Path, lab: Lab) -> list[str]:
+    """The lab's drill (``drills.streams_stop_s``): the named watchtowers' recordings (default all) end at that
+    episode time, their later frames gone, as a camera whose stream stopped; the watchtowers stopped."""
+    import csv
+
+    at = lab.drills.streams_stop_s
+    if at is None:
+        return []
+    names = lab.drills.streams_stop or sorted(p.name for p in streams.iterdir() if p.is_dir())
+    for name in names:
+        stamps = streams / name / "timestamps.csv"
+        with open(stamps, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        kept = [r for r in rows if float(r["t"]) <= at]
+        for r in rows[len(kept):]:
+            for frame in (streams / name).glob(f"{int(r['frame']):06d}.*"):
+                frame.unlink()
+        with open(stamps, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["frame", "t"])
+            w.writerows([(r["frame"], r["t"]) for r in kept])
+    log.warning("drill: watchtower stream(s) %s stopped at t = %g s", ", ".join(names), at)
+    return names
+
+
 def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics) -> AutolabEpisode:
     """One episode's streams → log → localised, validated and scored (see the module)."""
     from proxybench.autolab.localize import localize_log
@@ -128,6 +153,7 @@ def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics) -> 
     truth = Trajectory.load(res.trajectory) if res.trajectory else None
     ended = None if res.termination is Termination.TIMEOUT else str(res.termination)
     shutil.copytree(res.streams, folder / "streams")
+    stop_streams(folder / "streams", lab)
     manifest = LogManifest(source="simulation", map=bench.map, agent="agent", episode=res.episode,
                            seconds=bench.duration, termination=ended, active=robot, robots=lab.roof_tags())
     write_sim_log(folder, layout, folder / "streams", manifest)
@@ -232,6 +258,10 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
         raise HostFault(f"robot_failure: lab {lab.name!r}'s robot {robot.name!r} failed in {split} episode "
                         f"{failed[0].episode}: {failed[0].message}")
     record = summarize(ev, split, domain_kind="autolab/virtual")
+    dead = [f for f in record.failures if str(f.get("message", "")).startswith("RobotFailure:")]
+    if dead:  # the robot's DTPS endpoint died under the agent: the lab's fault, whatever the agent did after
+        raise HostFault(f"robot_failure: lab {lab.name!r}'s robot {robot.name!r} failed in {split} episode "
+                        f"{dead[0].get('episode')}: {str(dead[0]['message']).removeprefix('RobotFailure: ')}")
     if record.problems:  # the virtual robot is our simulator: its record must be whole
         raise RuntimeError(f"invalid {split} data from the virtual robot: " + "; ".join(record.problems[:5]))
     if record.failures:
