@@ -95,6 +95,8 @@ def test_bad_labels_side_files_and_configs_are_one_line_errors(tmp_path: Path) -
         (ImageConfig(Entrypoint=["/a"], Labels={"org.proxybench.agent.command": "x"}), "unknown key 'command'"),
         (ImageConfig(Labels={}), "neither Entrypoint nor Cmd"),
         (ImageConfig(Cmd=["/a"], Labels={"org.proxybench.agent.protocol": "grpc"}), "'grpc' is not one of"),
+        (ImageConfig(Cmd=["/a"], Labels={"org.proxybench.agent.timing": "lockstep"}),
+         "label org.proxybench.agent.timing: .*only for protocol duckietown-sdk"),
     ]
     for config, reason in cases:
         with pytest.raises(ImageError, match=reason) as err:
@@ -106,6 +108,9 @@ def test_bad_labels_side_files_and_configs_are_one_line_errors(tmp_path: Path) -
     (tmp_path / "img.proxybench-agent.yaml").write_text("transport: fifo\nstart_timeout: 12\n")
     manifest = image_manifest("x", path, ImageConfig(Cmd=["/a"], Labels={"org.proxybench.agent.transport": "pipe"}))
     assert manifest.transport == "fifo" and manifest.start_timeout == 12  # the side file wins over labels
+    sdk = image_manifest("x", tmp_path / "other", ImageConfig(Cmd=["/a"], Labels={
+        "org.proxybench.agent.protocol": "duckietown-sdk", "org.proxybench.agent.timing": "lockstep"}))
+    assert (sdk.protocol, sdk.timing) == ("duckietown-sdk", "lockstep")  # an SDK image: tests/test_images_sdk.py
 
 
 @pytest.mark.slow

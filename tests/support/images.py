@@ -103,10 +103,12 @@ def oci_layout(layout: Path, plain: list[bytes], config: dict | None = None, *, 
     return layout
 
 
-def base_rootfs() -> Path:
-    """The cached minimal Debian root file system (a tar), built by mmdebstrap on first use."""
+def base_rootfs(packages: tuple[str, ...] = PACKAGES) -> Path:
+    """The cached minimal Debian root file system (a tar) holding ``packages``, built by mmdebstrap on first use."""
     require_image_tools()
-    folder = CACHE / hashlib.sha256(RECIPE.encode()).hexdigest()[:16]
+    recipe = RECIPE if packages == PACKAGES else \
+        json.dumps({"suite": SUITE, "variant": "extract", "packages": packages, "excludes": EXCLUDES})
+    folder = CACHE / hashlib.sha256(recipe.encode()).hexdigest()[:16]
     folder.mkdir(parents=True, exist_ok=True)
     tar = folder / "rootfs.tar"
     with open(folder / ".lock", "a+") as lock:
@@ -114,7 +116,7 @@ def base_rootfs() -> Path:
         if not tar.is_file():
             part = folder / "rootfs.tar.part"
             cmd = ["mmdebstrap", "--variant=extract", "--mode=root", "--format=tar", "--quiet",
-                   f"--include={','.join(PACKAGES)}",
+                   f"--include={','.join(packages)}",
                    *(f"--dpkgopt=path-exclude={e}" for e in EXCLUDES), SUITE, str(part), MIRROR]
             done = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
             if done.returncode != 0:
@@ -128,12 +130,16 @@ def base_rootfs() -> Path:
 
 def agent_image(dest: Path, script: Path, *, args: tuple[str, ...] = (), labels: dict[str, str] | None = None,
                 env: dict[str, str] | None = None, workdir: str | None = None, user: str | None = None,
-                files: dict[str, bytes] | None = None, at: str = "opt/agent") -> Path:
-    """An OCI layout at ``dest``: the base root file system (``/dev`` left out) plus ``script`` at
-    ``/AT/agent.py`` (and ``files`` beside it), its ENTRYPOINT ``/usr/bin/python3 /AT/agent.py ARGS``."""
+                files: dict[str, bytes] | None = None, at: str = "opt/agent", packages: tuple[str, ...] = PACKAGES,
+                trees: dict[str, tuple[Path, tuple[str, ...]]] | None = None) -> Path:
+    """An OCI layout at ``dest``: the base root file system of ``packages`` (``/dev`` left out) plus ``script`` at
+    ``/AT/agent.py`` (and ``files`` beside it), its ENTRYPOINT ``/usr/bin/python3 /AT/agent.py ARGS``; ``trees``:
+    folders copied in, ``{path in the image: (folder, names to leave out)}`` (an SDK's site-packages)."""
     rootfs = dest.parent / f"{dest.name}.rootfs"
     rootfs.mkdir()
-    subprocess.run(["tar", "-xf", str(base_rootfs()), "-C", str(rootfs), "--exclude=./dev/*"], check=True)
+    subprocess.run(["tar", "-xf", str(base_rootfs(packages)), "-C", str(rootfs), "--exclude=./dev/*"], check=True)
+    for where, (folder, leave_out) in (trees or {}).items():
+        shutil.copytree(folder, rootfs / where, symlinks=True, ignore=shutil.ignore_patterns(*leave_out))
     (rootfs / at).mkdir(parents=True)
     shutil.copy(script, rootfs / at / "agent.py")
     for name, data in (files or {}).items():

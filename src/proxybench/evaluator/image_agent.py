@@ -10,7 +10,8 @@ What a package's manifest says beyond its command (``proxybench-agent.yaml``: pr
 reflection) an image says in labels, ``org.proxybench.agent.<key>`` (e.g. ``LABEL
 org.proxybench.agent.transport=fifo``), or in a side file beside it, ``<image path>.proxybench-agent.yaml``
 holding the same keys (the file wins over the labels). Without either it is an ``aido-z2`` node on stdin/stdout
-with the default timeouts, as AIDO's templates are.
+with the default timeouts, as AIDO's templates are. With ``protocol: duckietown-sdk`` (and ``timing``) it is a
+duckietown-sdk program carrying its own SDK, driving a virtual DB21J that it finds at 127.0.0.1:7501.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import stat
 from pathlib import Path
 
 from proxybench.evaluator.images import UnpackedImage, unpack_image
-from proxybench.evaluator.sandbox import Isolation, Limits, confine_image, fifo_root
+from proxybench.evaluator.sandbox import Isolation, Limits, SandboxError, confine_image, fifo_root
 from proxybench.protocol.images import (
     LABEL_PREFIX,
     SIDE_SUFFIX,
@@ -31,6 +32,7 @@ from proxybench.protocol.images import (
     image_manifest,
     image_tools,
 )
+from proxybench.protocol.package import SDK_PROTOCOL, AgentManifest
 
 __all__ = ["LABEL_PREFIX", "SIDE_SUFFIX", "image_env", "image_manifest", "image_spec", "image_user", "images_problem"]
 
@@ -127,6 +129,8 @@ def image_spec(name: str, path: str | os.PathLike[str], isolation: Isolation, *,
         env, user, workdir = image_env(image.config), image_user(image), _workdir(image)
     except ImageError as exc:
         raise ImageError(f"image {path}: {exc}") from None
+    if manifest.protocol == SDK_PROTOCOL:
+        return _sdk_spec(manifest, image, env, user, workdir, isolation, limits or Limits(), parent)
     options = manifest.node_options()
     root = None
     if options.transport == "fifo":
@@ -135,3 +139,27 @@ def image_spec(name: str, path: str | os.PathLike[str], isolation: Isolation, *,
     argv = confine_image(list(manifest.command), image.rootfs, limits or Limits(), isolation, env=env,
                          workdir=workdir, user=user, parent=parent, fifo_root=root)
     return AgentSpec.node(name, shlex.join(argv), options)
+
+
+def _sdk_spec(manifest: AgentManifest, image: UnpackedImage, env: dict[str, str], user: tuple[int, int],
+              workdir: str, isolation: Isolation, limits: Limits, parent: int | None):
+    """The ``AgentSpec`` of a duckietown-sdk image: its program (with the image's own SDK) in the sandbox, and its
+    virtual DB21J (the DTPS bridge, which runs in this host's SDK environment) where only the sandbox reaches it,
+    as for an SDK package (:func:`~proxybench.evaluator.sandbox.sdk_package_spec`): the safe sandbox joins the
+    bridge's network namespace, so the program finds its robot at 127.0.0.1:7501 as on the Duckiematrix."""
+    from proxybench.dtps.agent import NETNS_ENV
+    from proxybench.dtps.env import DtpsEnvError, sdk_python
+    from proxybench.dtps.options import SdkOptions
+    from proxybench.runner.jobs import AgentSpec
+
+    try:
+        sdk_python()  # the bridge's environment: this host's problem when it is missing
+    except DtpsEnvError as exc:
+        raise SandboxError(f"duckietown-sdk image {manifest.name!r}: its virtual robot needs this host's SDK "
+                           f"environment: {exc}") from None
+    own = isolation.uid is not None  # root, switching to the agent user: the bridge's own namespace
+    argv = confine_image(list(manifest.command), image.rootfs, limits, isolation, env=env, workdir=workdir,
+                         user=user, parent=parent, join_netns_env=NETNS_ENV if own else None, host_net=not own)
+    options = SdkOptions(timing=manifest.timing or "realtime", start_timeout=manifest.start_timeout,
+                         step_timeout=manifest.step_timeout, own_netns=own)
+    return AgentSpec.sdk(manifest.name, shlex.join(argv), options)

@@ -316,10 +316,12 @@ def _shim_tail(isolation: Isolation, parent: int | None, fifo_root: str | Path |
 
 def confine_image(argv: list[str], rootfs: str | Path, limits: Limits, isolation: Isolation, *,
                   env: dict[str, str], workdir: str = "/", user: tuple[int, int] = (0, 0), parent: int | None = -1,
-                  fifo_root: str | Path | None = None) -> list[str]:
+                  fifo_root: str | Path | None = None, join_netns_env: str | None = None,
+                  host_net: bool = False) -> list[str]:
     """The command line that runs ``argv`` in a container image's root file system (``rootfs``, shown read-only as
     ``/``), with the image's environment ``env``, working directory and user (ids inside the sandbox's user
-    namespace; outside it the agent runs as the agent user all the same). Images need bubblewrap: raises
+    namespace; outside it the agent runs as the agent user all the same). ``join_netns_env`` and ``host_net`` as
+    for :func:`confine` (a duckietown-sdk image's virtual robot). Images need bubblewrap: raises
     :class:`SandboxError` where this host cannot run them."""
     if not isolation.usable:
         raise SandboxError(isolation.problem)
@@ -328,6 +330,10 @@ def confine_image(argv: list[str], rootfs: str | Path, limits: Limits, isolation
     shim = _shim(str(Path(rootfs).resolve()), limits, isolation)
     shim += ["--bwrap", str(isolation.bwrap), "--rootfs", "--chdir", workdir, "--inside-uid", str(user[0]),
              "--inside-gid", str(user[1])]
+    if join_netns_env is not None:
+        shim += ["--join-netns-env", join_netns_env]
+    elif host_net:
+        shim += ["--host-net"]
     return [*shim, *_shim_tail(isolation, parent, fifo_root, env), "--", *argv]
 
 

@@ -38,9 +38,10 @@ from proxybench.protocol.image_layers import LAYER_TYPES, ImageError, LayerBudge
 from proxybench.protocol.package import SDK_PROTOCOL, AgentManifest
 from proxybench.untrusted import UntrustedInputError, load_yaml
 
-__all__ = ["KEYS", "LABEL_PREFIX", "MANIFEST_TYPES", "REF", "SIDE_SUFFIX", "CheckedImage", "ImageConfig", "ImageError",
-           "ImageLimits", "StagedImage", "blob_path", "check_image", "digest_of_file", "image_config", "image_manifest",
-           "image_tools", "is_image_archive", "json_blob", "json_object", "run_tool", "stage_image", "tool_env"]
+__all__ = ["IMAGE_PROTOCOLS", "KEYS", "LABEL_PREFIX", "MANIFEST_TYPES", "REF", "SIDE_SUFFIX", "CheckedImage",
+           "ImageConfig", "ImageError", "ImageLimits", "StagedImage", "blob_path", "check_image", "digest_of_file",
+           "image_config", "image_manifest", "image_tools", "is_image_archive", "json_blob", "json_object", "run_tool",
+           "stage_image", "tool_env"]
 
 MANIFEST_TYPES = ("application/vnd.oci.image.manifest.v1+json",
                   "application/vnd.docker.distribution.manifest.v2+json")
@@ -49,7 +50,9 @@ _MAX_JSON = 1 << 20
 REF = "img"
 LABEL_PREFIX = "org.proxybench.agent."
 SIDE_SUFFIX = ".proxybench-agent.yaml"
-KEYS = ("name", "protocol", "transport", "start_timeout", "step_timeout", "reflection", "description")
+#: what an image's agent may speak: an AIDO node, or a duckietown-sdk program that drives a virtual DB21J
+IMAGE_PROTOCOLS = ("aido-z2", SDK_PROTOCOL)
+KEYS = ("name", "protocol", "transport", "start_timeout", "step_timeout", "reflection", "description", "timing")
 
 
 class ImageLimits(BaseModel):
@@ -392,11 +395,10 @@ def image_manifest(name: str, path: Path, config: ImageConfig) -> AgentManifest:
         manifest = AgentManifest.model_validate({"protocol": "aido-z2", **values, "name": name, "command": config.argv})
     except ValidationError as exc:
         first = exc.errors()[0]
-        key = str(first["loc"][0]) if first["loc"] else "?"
-        raise ImageError(f"image {path}: {given.get(key, (key,))[0]}: {first['msg']}") from None
-    if manifest.protocol == SDK_PROTOCOL:
-        raise ImageError(f"image {path}: protocol {SDK_PROTOCOL} is not run from images yet (give it as a package "
-                         "or NAME=sdk:COMMAND)")
-    if manifest.protocol != "aido-z2":
-        raise ImageError(f"image {path}: protocol {manifest.protocol!r} is not one of aido-z2")
+        msg = str(first["msg"]).removeprefix("Value error, ")
+        # a check of the whole manifest (timing without duckietown-sdk) names its key first in its message
+        key = str(first["loc"][0]) if first["loc"] else next((k for k in given if msg.startswith(f"{k}:")), "?")
+        raise ImageError(f"image {path}: {given.get(key, (key,))[0]}: {msg.removeprefix(f'{key}: ')}") from None
+    if manifest.protocol not in IMAGE_PROTOCOLS:
+        raise ImageError(f"image {path}: protocol {manifest.protocol!r} is not one of {', '.join(IMAGE_PROTOCOLS)}")
     return manifest
