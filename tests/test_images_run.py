@@ -16,7 +16,7 @@ from proxybench.cli import app
 from proxybench.evaluator.image_agent import image_manifest, image_user
 from proxybench.evaluator.images import ImageConfig, ImageError, unpack_image
 from proxybench.experiments.agent_args import parse_agent
-from support.images import agent_image
+from support.images import agent_image, member, oci_layout, tar_layer
 from support.sandbox import AGENT_USER_GROUP, processes_left, require_safe_sandbox
 
 pytestmark = AGENT_USER_GROUP  # its agents run as the agent user: one test at a time
@@ -128,9 +128,27 @@ def test_an_image_is_ranked_by_predictivity(tmp_path: Path, images: dict[str, Pa
     assert set(results[results.agent == "mine"].termination) == {"timeout"}
 
 
-def test_sandbox_check_says_whether_images_run_here(monkeypatch: pytest.MonkeyPatch) -> None:
-    res = runner.invoke(app, ["sandbox", "check"], env={"COLUMNS": "250"})
-    assert "container images" in res.output and "run in bubblewrap as the agent user" in res.output, res.output
+def test_sandbox_check_says_whether_images_run_here(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                                    images: dict[str, Path]) -> None:
+    def check(cache: Path) -> str:
+        monkeypatch.setenv("PROXYBENCH_IMAGE_CACHE", str(cache))
+        res = runner.invoke(app, ["sandbox", "check"], env={"COLUMNS": "400"})
+        return " ".join(res.output.split())
+
+    out = check(tmp_path / "empty")
+    assert "container images" in out and "run in bubblewrap as the agent user" in out, out
+    assert "no image cached yet: none started" in out, out
+    # a cached image is started (its own true, sh or python3), not only its tools found
+    image = unpack_image(images["pipe"], tmp_path / "cache")
+    assert f"started cached image {image.digest[:19]}" in check(tmp_path / "cache")
+    bare = oci_layout(tmp_path / "bare", [tar_layer([member("etc/hostname", data=b"x")])], {"Cmd": ["/a"]})
+    unpack_image(bare, tmp_path / "bare-cache")
+    assert "none of the 1 cached images has true, sh or python3" in check(tmp_path / "bare-cache")
+    broken = oci_layout(tmp_path / "broken", [tar_layer([member("bin/sh", data=b"not a program", mode=0o644)])],
+                        {"Cmd": ["/bin/sh"]})
+    unpack_image(broken, tmp_path / "broken-cache")
+    out = check(tmp_path / "broken-cache")
+    assert "FAILED: cached image sha256:" in out and "(/bin/sh -c :) did not start" in out, out
     monkeypatch.setattr("proxybench.evaluator.images.shutil.which", lambda _tool: None)
     res = runner.invoke(app, ["sandbox", "check"], env={"COLUMNS": "250"})
     assert "refused: skopeo and umoci not installed: apt-get install skopeo umoci" in res.output, res.output

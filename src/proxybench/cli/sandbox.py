@@ -37,19 +37,21 @@ def _show(isolation) -> None:
 
 def _images(isolation) -> str:
     """Whether ``--agent NAME=image:PATH`` can run here, and where images are unpacked."""
-    from proxybench.evaluator.image_agent import images_problem
+    from proxybench.evaluator.image_agent import images_problem, probe_image
     from proxybench.evaluator.images import default_cache
 
     problem = images_problem(isolation)
     if problem is not None:
         return f"refused: {problem}"
     how = "as the agent user" if isolation.safe else "UNSAFE, as this user"
-    return f"run in bubblewrap {how}, their own root file system read-only as / (cache: {default_cache()})"
+    return (f"run in bubblewrap {how}, their own root file system read-only as / (cache: {default_cache()}); "
+            f"{probe_image(isolation)}")
 
 
 @sandbox_app.command("check")
 def check(agent_user: str = AgentUserOpt) -> None:
-    """Say how this host would run agent packages (starts Python in the sandbox once); exit 1 unless safe."""
+    """Say how this host would run agent packages (starts Python in the sandbox once) and container images (starts a
+    cached image once, if one is cached); exit 1 unless safe."""
     from proxybench.evaluator.sandbox import detect_isolation
 
     isolation = detect_isolation(agent_user)

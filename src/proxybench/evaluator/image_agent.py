@@ -19,9 +19,11 @@ from __future__ import annotations
 import os
 import shlex
 import stat
+import subprocess
+import time
 from pathlib import Path
 
-from proxybench.evaluator.images import UnpackedImage, unpack_image
+from proxybench.evaluator.images import UnpackedImage, cached_images, unpack_image
 from proxybench.evaluator.sandbox import Isolation, Limits, SandboxError, confine_image, fifo_root
 from proxybench.protocol.images import (
     LABEL_PREFIX,
@@ -34,7 +36,8 @@ from proxybench.protocol.images import (
 )
 from proxybench.protocol.package import SDK_PROTOCOL, AgentManifest
 
-__all__ = ["LABEL_PREFIX", "SIDE_SUFFIX", "image_env", "image_manifest", "image_spec", "image_user", "images_problem"]
+__all__ = ["LABEL_PREFIX", "SIDE_SUFFIX", "image_env", "image_manifest", "image_spec", "image_user", "images_problem",
+           "probe_image"]
 
 DOCKER_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
 _MAX_ENV = 1000
@@ -163,3 +166,60 @@ def _sdk_spec(manifest: AgentManifest, image: UnpackedImage, env: dict[str, str]
     options = SdkOptions(timing=manifest.timing or "realtime", start_timeout=manifest.start_timeout,
                          step_timeout=manifest.step_timeout, own_netns=own)
     return AgentSpec.sdk(manifest.name, shlex.join(argv), options)
+
+
+#: what :func:`probe_image` starts in an image, the first it has: nothing of the image's agent runs
+PROBES = (("usr/bin/true", ["/usr/bin/true"]), ("bin/true", ["/bin/true"]), ("bin/sh", ["/bin/sh", "-c", ":"]),
+          ("usr/bin/python3", ["/usr/bin/python3", "-c", "pass"]))
+
+
+def _file_in_root(rootfs: Path, path: str, hops: int = 16) -> bool:
+    """Whether ``path`` is a plain file of the image, its symbolic links (``bin -> usr/bin``, ``python3 ->
+    python3.11``) resolved inside the root as the sandbox resolves them, never on this host."""
+    parts, done = [p for p in path.split("/") if p], []
+    while parts:
+        name = parts.pop(0)
+        if name in (".", ".."):
+            done = done[:-1] if name == ".." else done
+            continue
+        here = rootfs.joinpath(*done, name)
+        if here.is_symlink():
+            hops -= 1
+            if hops < 0:
+                return False
+            target = os.readlink(here)
+            done = [] if target.startswith("/") else done
+            parts = [p for p in target.split("/") if p] + parts
+            continue
+        done.append(name)
+    return stat.S_ISREG(os.lstat(rootfs.joinpath(*done)).st_mode) if os.path.lexists(rootfs.joinpath(*done)) else False
+
+
+def probe_image(isolation: Isolation, cache: str | os.PathLike[str] | None = None) -> str:
+    """Start one cached image (the most recently unpacked that has ``true``, ``sh`` or ``python3``) in the sandbox
+    as an agent would start, and say how that went, in one line: the check that images run here, not only that
+    their tools are installed. Nothing cached: says so (an image is unpacked on first use)."""
+    images = cached_images(cache)
+    if not images:
+        return "no image cached yet: none started"
+    for image in images:
+        probe = next((argv for rel, argv in PROBES if _file_in_root(image.rootfs, rel)), None)
+        if probe is not None:
+            break
+    else:
+        return f"none of the {len(images)} cached images has true, sh or python3 to start"
+    try:
+        user = image_user(image)
+    except ImageError:
+        user = (0, 0)
+    t0 = time.perf_counter()
+    try:
+        argv = confine_image(probe, image.rootfs, Limits(), isolation, env=image_env(image.config), user=user,
+                             parent=None)
+        done = subprocess.run(argv, capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+    except (OSError, subprocess.SubprocessError, SandboxError, ImageError) as exc:
+        return f"FAILED to start cached image {image.digest[:19]}: {exc}"
+    if done.returncode != 0:
+        tail = " / ".join(done.stderr.strip().splitlines()[-3:]) or f"exit status {done.returncode}"
+        return f"FAILED: cached image {image.digest[:19]} ({' '.join(probe)}) did not start: {tail}"
+    return f"started cached image {image.digest[:19]} ({' '.join(probe)}) in {time.perf_counter() - t0:.2f} s"

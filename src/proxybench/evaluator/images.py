@@ -46,8 +46,8 @@ from proxybench.protocol.images import (
     tool_env,
 )
 
-__all__ = ["ImageConfig", "ImageError", "ImageLimits", "UnpackedImage", "default_cache", "image_tools",
-           "unpack_image"]
+__all__ = ["ImageConfig", "ImageError", "ImageLimits", "UnpackedImage", "cached_images", "default_cache",
+           "image_tools", "unpack_image"]
 
 #: folders the sandbox mounts over; each must be an empty folder of the root file system
 MOUNT_POINTS = ("proc", "dev", "tmp", "scratch", "fifo")
@@ -80,6 +80,21 @@ def _cached(cache: Path, digest: str) -> UnpackedImage | None:
     if not meta.is_file() or not (cache / "rootfs" / digest[7:]).is_dir():
         return None
     return UnpackedImage.model_validate_json(meta.read_bytes())
+
+
+def cached_images(cache: str | os.PathLike[str] | None = None) -> list[UnpackedImage]:
+    """The images unpacked in ``cache`` (default :func:`default_cache`), the most recently unpacked first; a record
+    that does not read is left out (it is the cache's, not an image)."""
+    folder = Path(cache) if cache is not None else default_cache()
+    found = []
+    for meta in sorted((folder / "rootfs").glob("*.json"), key=lambda p: p.stat().st_mtime, reverse=True):
+        try:
+            image = UnpackedImage.model_validate_json(meta.read_bytes())
+        except (OSError, ValueError):
+            continue
+        if image.rootfs.is_dir():
+            found.append(image)
+    return found
 
 
 def _known_digest(path: Path, cache: Path) -> tuple[str | None, str | None]:
