@@ -347,3 +347,25 @@ def test_the_pools_networks_learn_in_different_places(monkeypatch):
     assert seen["randomized"][0][:2] == ("randomized", "family")
     assert seen["dagger"][0] == ("proxy", "simulation", 3000, False)
     assert [c[3] for c in seen["dagger"][1:]] == [True, True] and sum(c[2] for c in seen["dagger"][1:]) == 1500
+    assert seen["gym"][0][1] == "robot" and seen["gym"][0][0].endswith("-m proxybench gym serve")  # gym's defaults
+
+
+def test_a_network_that_trains_in_gym_needs_its_environment_before_anything_trains(monkeypatch, tmp_path):
+    from types import SimpleNamespace
+
+    import proxybench.gym.environment as environment
+    from proxybench.experiments.config import ConfigError
+    from proxybench.experiments.validate import run as vr
+    from proxybench.experiments.validate.config import ValidateConfig, settings_for
+
+    missing = SimpleNamespace(problems=["no gym-duckietown environment at /nowhere (run: proxybench gym setup)"])
+    monkeypatch.setattr(environment, "check_environment", lambda path=None, render=True: missing)
+    trained = []
+    monkeypatch.setattr(vr, "_train_bc", lambda *a: trained.append(a))
+    gym_index = next(i for i, r in enumerate(vr.BC_RECIPES) if r.where == "gym")
+    s = settings_for(ValidateConfig(family="gym", bc_agents=gym_index + 1), False)
+    with pytest.raises(ConfigError, match=f"bc_agents: network {gym_index} trains in gym-duckietown.*proxybench gym "
+                                          f"setup.*bc_agents to {gym_index} or fewer"):
+        vr.train_bc_agents(s, tmp_path)
+    assert trained == [] and not list(tmp_path.iterdir())
+    assert settings_for(ValidateConfig(family="gym"), False).bc_agents == gym_index + 1  # the gym family trains it

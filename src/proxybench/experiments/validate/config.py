@@ -102,7 +102,7 @@ FAMILIES: dict[str, FamilyModes] = {
     "heldout": _HELDOUT,
     "gym": FamilyModes(
         full=_HELDOUT.full.model_copy(update={
-            "grid": _GYM_GRID, "maps": ("loop_3x3", "zigzag"), "robot_nodes": 2, "near": _GYM_NEAR,
+            "grid": _GYM_GRID, "maps": ("loop_3x3", "zigzag"), "robot_nodes": 2, "near": _GYM_NEAR, "bc_agents": 6,
             "draw": {"trim": (-0.15, 0.35), "delay": (0.02, 0.3), "cam_angle": (13.15, 27.15),
                      "cam_height": (0.1, 0.116)}}),
         quick=_HELDOUT.quick.model_copy(update={

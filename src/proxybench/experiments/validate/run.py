@@ -97,9 +97,10 @@ class BCRecipe:
     """How one behaviour-cloned agent of the pool is trained: where its data comes from and how much of it.
 
     ``where``: ``nominal`` (the expert in the nominal proxy), ``other`` (a proxy at ``changes``: a network that
-    learnt in another θ), ``randomized`` (the domain-randomised family) or ``dagger`` (nominal, then DAgger rounds
-    with ``on_policy`` frames the network drove itself). Networks that learnt elsewhere than where they are judged
-    make held-out agents less like the tuning ones."""
+    learnt in another θ), ``randomized`` (the domain-randomised family), ``dagger`` (nominal, then DAgger rounds
+    with ``on_policy`` frames the network drove itself) or ``gym`` (another simulator: gym-duckietown at its own
+    defaults behind the robot protocol, never at a target's θ; needs ``proxybench gym setup``). Networks that
+    learnt elsewhere than where they are judged make held-out agents less like the tuning ones."""
 
     where: str
     samples: int
@@ -109,10 +110,11 @@ class BCRecipe:
 
 #: the study's behaviour-cloned agents, the i-th by recipe i (cycling): the first two as every earlier study had them
 #: (the nominal proxy, 1,500 and 6,000 frames), then a network trained at camera pitch 25° with trim 0.1, one in the
-#: domain-randomised family, one with two DAgger rounds, and the nominal proxy with 3,000 and 12,000 frames
+#: domain-randomised family, one with two DAgger rounds, one in gym-duckietown (the gym family trains six), and
+#: the nominal proxy with 3,000 and 12,000 frames
 BC_RECIPES = (BCRecipe("nominal", 1500), BCRecipe("nominal", 6000),
               BCRecipe("other", 3000, changes=(("camera_pitch", 25.0), ("trim", 0.1))),
-              BCRecipe("randomized", 6000), BCRecipe("dagger", 3000, on_policy=1500),
+              BCRecipe("randomized", 6000), BCRecipe("dagger", 3000, on_policy=1500), BCRecipe("gym", 3000),
               BCRecipe("nominal", 3000), BCRecipe("nominal", 12000),
               BCRecipe("other", 3000, changes=(("camera_pitch", 13.0), ("command_delay", 0.1))))
 
@@ -129,6 +131,7 @@ def train_bc_agents(s: ValidateSettings, folder: Path, progress: Progress | None
                           "'proxybench[learning]'); or set bc_agents: 0") from None
     from proxybench.learning import save_checkpoint
 
+    _check_gym_recipes(s.bc_agents)
     paths = []
     for i in range(s.bc_agents):
         path = folder / f"bc-{s.seed}-{i}.pt"
@@ -145,14 +148,36 @@ def train_bc_agents(s: ValidateSettings, folder: Path, progress: Progress | None
     return paths
 
 
+def _check_gym_recipes(n: int) -> None:
+    """A recipe that trains in gym-duckietown needs its environment: a one-line error before anything trains."""
+    if not any(BC_RECIPES[i % len(BC_RECIPES)].where == "gym" for i in range(n)):
+        return
+    from proxybench.gym.environment import check_environment
+
+    problems = check_environment(render=False).problems
+    if problems:
+        first = next(i for i in range(n) if BC_RECIPES[i % len(BC_RECIPES)].where == "gym")
+        raise ConfigError(f"bc_agents: network {first} trains in gym-duckietown, whose environment is not ready "
+                          f"({problems[0]}); or set bc_agents to {first} or fewer")
+
+
 def _train_bc(recipe: BCRecipe, seed: int, say: Callable[[str], Any]):
     """One network by ``recipe`` (80×60 images, 16 robots collecting, 8 epochs / 800 steps as before)."""
-    from proxybench.learning import ModelConfig, TrainConfig, build_model, proxy_domain, randomized_domain, train
+    from proxybench.learning import (
+        ModelConfig,
+        TrainConfig,
+        build_model,
+        proxy_domain,
+        randomized_domain,
+        robot_domain,
+        train,
+    )
     from proxybench.learning.collection import CollectConfig, collect
 
     domain = {"randomized": lambda: randomized_domain(80, 60),
-              "other": lambda: proxy_domain(80, 60, **dict(recipe.changes))}.get(recipe.where,
-                                                                                  lambda: proxy_domain(80, 60))()
+              "other": lambda: proxy_domain(80, 60, **dict(recipe.changes)),
+              "gym": lambda: robot_domain(f"{shlex.quote(sys.executable)} -m proxybench gym serve", 80, 60)
+              }.get(recipe.where, lambda: proxy_domain(80, 60))()
     collect_cfg = CollectConfig(samples=recipe.samples, robots=16, seed=seed)
     train_cfg = TrainConfig(epochs=8.0, max_steps=800, seed=seed)
     data = collect(domain, collect_cfg, progress=say("data"))
