@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import pwd
 import socket
+import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -24,6 +25,8 @@ from proxybench.evaluator.sandbox import Limits
 from support.dtps import sdk
 from support.images import PACKAGES, agent_image
 from support.sandbox import AGENT_USER_GROUP, processes_left, require_safe_sandbox
+from test_evaluator import Served, evaluator, the_job
+from test_evaluator import served as served_fixture  # noqa: F401 - the fixture, under this name
 
 pytestmark = [AGENT_USER_GROUP, sdk]  # its agents run as the agent user: one test at a time
 AGENTS = Path(__file__).parent / "dtps_agents"
@@ -89,3 +92,29 @@ def test_an_sdk_image_drives_its_virtual_robot_and_reaches_nothing_else(
     with pytest.raises(BlockingIOError):
         host.accept()  # it never reached the host's loopback
     assert processes_left(isolation.uid) == []
+
+
+def test_an_sdk_image_submitted_to_the_server_is_evaluated_and_ranked(
+        served_fixture: Served, image: tuple[Path, socket.socket], tmp_path: Path,  # noqa: F811
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The same image as an OCI archive (~57 MB: under the server's 64 MiB default) through the whole chain: upload,
+    the server's check, a lease, the evaluator's unpack into its cache, the SDK program driving its virtual robot
+    in the benchmark's episodes, the leaderboard."""
+    served = served_fixture
+    monkeypatch.setenv("PROXYBENCH_IMAGE_CACHE", str(tmp_path / "image-cache"))
+    layout, host = image
+    archive = tmp_path / "sdk.tar"
+    subprocess.run(["skopeo", "--insecure-policy", "copy", "-q", f"oci:{layout}:latest", f"oci-archive:{archive}"],
+                   check=True)
+    sub = served.developer.submit_archive(archive, "sdk-image", benchmark="tiny_open")
+    ev = evaluator(served, tmp_path, video=False)
+    assert ev.take_one() == "success"
+    job, (result,) = the_job(served, sub["id"])
+    assert job["status"] == "success", job["message"]
+    report = result["public_report"]
+    assert report["agent_contract"]["checks"][0]["passed"]  # its commands reached the benchmark's robot
+    assert [e["termination"] for e in report["episodes"]] == ["timeout"] * 2, report["episodes"]
+    assert [r["label"] for r in served.developer.leaderboard("tiny_open")["rows"]] == ["sdk-image"]
+    with pytest.raises(BlockingIOError):
+        host.accept()
+    assert processes_left(require_safe_sandbox().uid) == []

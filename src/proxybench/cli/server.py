@@ -216,7 +216,8 @@ def _export(settings, anchor: float) -> None:
 
 @app.command()
 def submit(
-    agent: str = typer.Argument(..., help="a built-in agent name, or an agent package (.zip / .tar.gz)"),
+    agent: str = typer.Argument(..., help="a built-in agent name, an agent package (.zip / .tar.gz) or a container "
+                                          "image (.tar: an OCI archive or a docker save tarball)"),
     benchmark: str | None = typer.Option(None, help="benchmark name on the server"),
     path: str | None = typer.Option(None, "--path", help="benchmark path name on the server (instead of --benchmark)"),
     label: str | None = typer.Option(None, help="submission label [the agent name]; an older one is retired"),
