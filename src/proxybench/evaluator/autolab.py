@@ -14,7 +14,10 @@ watchtowers record, then per episode:
 
 Today a lab's robot is a **virtual** DB21J (the simulator; an SDK agent reaches it over DTPS as on the
 Duckiematrix) and its watchtowers are **simulated** from a layout; DTPS or robot-node robots and a lab's own
-camera streams are described by ``lab.yaml`` but refused here (``host-error``, saying so).
+camera streams are described by ``lab.yaml`` but refused here (``host-error``, saying so). A lab of several virtual
+robots runs a job on each at once (the evaluator's :mod:`.robots` gives each job its robot); they do not yet share
+a world: each robot is the ego of a world of its own, seen by the watchtowers under the simulator's ego roof tag
+(400), which localisation names after the job's robot.
 
 The worker's :class:`~proxybench.evaluator.run._Job` is passed in (duck-typed: this module does not import
 ``run``): its benchmark, agent, agent contract, progress and outcome are reused as they are.
@@ -34,7 +37,7 @@ import numpy as np
 from proxybench.autolab.lab import Lab
 from proxybench.evaluator.outcome import Artifact, HostFault, Outcome, SubmissionFault
 
-__all__ = ["AutolabEpisode", "localize_episode", "run_autolab", "stop_streams"]
+__all__ = ["AutolabEpisode", "localize_episode", "run_autolab", "stop_streams", "world_tags"]
 
 log = logging.getLogger("proxybench.evaluator.job")
 #: the Autolab's job feature: a benchmark stored with it is leased only by Autolab evaluators
@@ -67,14 +70,13 @@ class AutolabEpisode:
                 "localization_p95_error_m": clean(self.error_p95_m)}
 
 
-def _check_lab(lab: Lab, bench) -> None:
-    """What this evaluator can do with this lab and benchmark; :class:`HostFault` saying what it cannot."""
-    robot = lab.robot()
+def _check_lab(lab: Lab, bench, robot_name: str | None = None) -> None:
+    """What this evaluator can do with this lab, its robot ``robot_name`` (None: the first) and the benchmark;
+    :class:`HostFault` saying what it cannot."""
+    robot = lab.robot(robot_name)
     if robot.kind != "virtual":
         raise HostFault(f"lab {lab.name!r}: robot {robot.name!r} is a {robot.kind} robot; the Autolab evaluator "
                         "drives virtual robots only so far")
-    if lab.roof_tags() and next(iter(lab.roof_tags())) != 400:
-        raise HostFault(f"lab {lab.name!r}: a virtual robot carries roof tag 400 (the simulator's ego)")
     if lab.watchtowers.layout is None:
         raise HostFault(f"lab {lab.name!r}: watchtower streams of its own are not read online yet; give a layout "
                         "(simulated watchtowers)")
@@ -137,8 +139,18 @@ def stop_streams(streams: Path, lab: Lab) -> list[str]:
     return names
 
 
-def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics) -> AutolabEpisode:
-    """One episode's streams → log → localised, validated and scored (see the module)."""
+def world_tags(robot: str) -> dict[int, str]:
+    """Roof tag id -> robot name in the world of the virtual robot ``robot``: robots do not yet share a world, so
+    each is the ego of its own and wears the simulator's ego tag."""
+    from proxybench.domain.apriltags import ROOF_TAG_BASE
+
+    return {ROOF_TAG_BASE: robot}
+
+
+def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics,
+                     robot: str | None = None) -> AutolabEpisode:
+    """One episode's streams → log → localised, validated and scored (see the module); ``robot``: the lab's robot
+    that drove it (None: the first)."""
     from proxybench.autolab.localize import localize_log
     from proxybench.autolab.logs import LogManifest, read_log, write_sim_log
     from proxybench.autolab.target import track_table
@@ -146,7 +158,7 @@ def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics) -> 
     from proxybench.domain.events import Event, Termination
     from proxybench.tasks.trajectory import Trajectory
 
-    robot = lab.robot().name
+    robot = lab.robot(robot).name
     folder.mkdir(parents=True, exist_ok=True)
     if res.streams is None or not Path(res.streams).is_dir():
         raise HostFault(f"episode {res.episode}: the watchtowers recorded nothing (no streams)")
@@ -155,7 +167,7 @@ def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics) -> 
     shutil.copytree(res.streams, folder / "streams")
     stop_streams(folder / "streams", lab)
     manifest = LogManifest(source="simulation", map=bench.map, agent="agent", episode=res.episode,
-                           seconds=bench.duration, termination=ended, active=robot, robots=lab.roof_tags())
+                           seconds=bench.duration, termination=ended, active=robot, robots=world_tags(robot))
     write_sim_log(folder, layout, folder / "streams", manifest)
     run_log = read_log(folder)
     loc = localize_log(run_log, m, workers=1, decimate=2.0)
@@ -240,7 +252,7 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     m = load_map(bench.map)
     layout = lab.layout(m)
     streams = stream_spec(layout)
-    robot = lab.robot()
+    robot = lab.robot(job.job.autolab_robot)
     log.info("%s: %d episodes of %g s on lab %r's robot %r (virtual), %d watchtowers recording", split,
              len(bench.episode_specs()), bench.duration, lab.name, robot.name, len(layout.watchtowers))
     try:
@@ -274,7 +286,7 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     episodes = []
     for k, res in enumerate(sorted(ev.sweep.results, key=lambda r: r.episode)):
         episodes.append(localize_episode(res, bench, lab, layout, m, job.dir / "autolab" / split / str(res.episode),
-                                         METRICS))
+                                         METRICS, robot.name))
         job.progress(k + 1, len(ev.sweep.results))
         e = episodes[-1]
         log.info("%s episode %d: %d frames, %d samples, %s%s", split, e.episode, e.frames, e.samples,
@@ -321,7 +333,7 @@ def run_autolab(job) -> Outcome:
     """The whole Autolab job for the worker's ``job`` (see the module); fills and returns ``job.outcome``."""
     lab: Lab = job.job.autolab
     bench = _with_reset(job.benchmark(), lab)
-    _check_lab(lab, bench)
+    _check_lab(lab, bench, job.job.autolab_robot)
     job.outcome.public_report.update(evaluator=job.job.evaluator.model_dump(mode="json"),
                                      sandbox=job.job.isolation.report(), domain_kind="autolab/virtual")
     spec = job.agent(bench)

@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from proxybench.autolab.lab import Lab
 from proxybench.contract import Lease
@@ -35,7 +35,8 @@ class WorkerJob(BaseModel):
     ``isolation`` and ``limits``: how agent packages run here; ``video``: record the first validation
     episode; ``robot_cmd`` / ``robot_options``: the robot node target jobs run on (None: the reality model)
     and how to start it (the non-default fields of ``RobotNodeOptions``); ``autolab``: the lab (``lab.yaml``, its
-    paths absolute) whose robot and watchtowers run and measure Autolab jobs (:mod:`.autolab`)."""
+    paths absolute) whose robot and watchtowers run and measure Autolab jobs (:mod:`.autolab`); ``autolab_robot``: the
+    lab's robot this job holds (:mod:`.robots`; None: the first)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -48,6 +49,18 @@ class WorkerJob(BaseModel):
     robot_cmd: str | None = None
     robot_options: dict[str, Any] = Field(default_factory=dict)
     autolab: Lab | None = None
+    autolab_robot: str | None = None
+
+    @model_validator(mode="after")
+    def _robot_of_the_lab(self) -> WorkerJob:
+        if self.autolab_robot is not None:
+            if self.autolab is None:
+                raise ValueError("autolab_robot: a robot is given but no lab (autolab)")
+            names = [r.name for r in self.autolab.robots]
+            if self.autolab_robot not in names:
+                raise ValueError(f"autolab_robot: lab {self.autolab.name!r} has no robot {self.autolab_robot!r} "
+                                 f"(it has {', '.join(names)})")
+        return self
 
     def write(self, path: Path) -> Path:
         """Write the job as JSON (the model's own)."""

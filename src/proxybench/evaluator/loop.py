@@ -15,6 +15,9 @@ out). Per job:
 4. artifacts are uploaded by content hash, then the result is posted, retried through network failures
    (the server stores it exactly once per lease, so a retry after a lost reply is harmless).
 
+An Autolab evaluator runs one such loop per robot of its lab at once (:mod:`.robots`): a job is leased only
+with a free robot in hand, and holds it until its result is posted.
+
 SIGTERM / SIGINT (:meth:`Evaluator.stop`) end the loop; a job being worked on is killed and reported as
 ``aborted`` (as ``host-error`` if its work had not started, so that it goes back to the queue).
 """
@@ -41,6 +44,7 @@ from proxybench.client import ServerClient, ServerError
 from proxybench.contract import Lease, LeasedBenchmark, ResultUpload
 from proxybench.evaluator.job import EvaluatorInfo, WorkerJob
 from proxybench.evaluator.outcome import Artifact, Outcome
+from proxybench.evaluator.robots import RobotLeases
 from proxybench.evaluator.sandbox import AGENT_USER, Isolation, Limits, detect_isolation
 from proxybench.evaluator.workdir import JobDir, StateDir
 from proxybench.evaluator.worker import Worker, job_artifacts_only
@@ -146,7 +150,10 @@ class Evaluator:
         self.jobs_done = 0
         self.work = StateDir(config.work_dir)  # this user's only (mode 700), locked: see evaluator/workdir.py
         self._spare: Worker | None = None
+        self._spare_lock = threading.Lock()  # the spare is shared by the slots of an Autolab's robots
         self._keep_spare = False  # run(): start the next job's worker as soon as one is free
+        #: an Autolab's robots: a job is leased only with a free one in hand (one slot per robot in run())
+        self.robots = RobotLeases(config.autolab) if config.autolab is not None else None
         self._worker_env = {k: v for k, v in os.environ.items() if not k.startswith("PROXYBENCH_TOKEN")}
         for stale in self.work.entries("job-"):  # left by a killed evaluator: never resumed, the lease is gone
             self.work.remove(stale)
@@ -175,9 +182,31 @@ class Evaluator:
             log.warning("%s; their jobs end in host-error and go to other evaluators", self.isolation.problem)
         elif not self.isolation.safe:
             log.warning("%s", self.isolation.note)
+        slots = len(self.robots) if self.robots is not None else 1
+        if slots > 1 and not self._robots_apart():
+            self.reporter.note(f"lab {self.config.autolab.name!r}: one job at a time: without the safe sandbox the "
+                               "virtual robots share this host's network and its port 7501")
+            slots = 1
+        if slots == 1:
+            self._loop(once)
+        else:
+            self.reporter.note(f"lab {self.config.autolab.name!r}: up to {slots} jobs at once, one on each of robots "
+                               f"{', '.join(self.robots.robots)}")
+            self._slots(slots, once)
+        self.close()
+        return self.jobs_done
+
+    def _robots_apart(self) -> bool:
+        """Whether each job's virtual robot gets a network namespace of its own (its own 127.0.0.1:7501): the safe
+        sandbox's rule in :func:`.sandbox.sdk_package_spec`; otherwise two robots would wait for one port."""
+        return self.isolation.kind == "bwrap" and self.isolation.uid is not None
+
+    def _loop(self, once: bool) -> None:
+        """Lease and run jobs one after another until stopped (with ``once``: one lease attempt)."""
         while not self._stopping.is_set():
-            if self._spare is None or not self._spare.ready:
-                self._spare = self._new_worker()  # imports while we wait for a job
+            with self._spare_lock:
+                if self._spare is None or not self._spare.ready:
+                    self._spare = self._new_worker()  # imports while we wait for a job
             self._keep_spare = not once
             status = self.take_one()
             if once:
@@ -185,8 +214,26 @@ class Evaluator:
             if status is None:
                 self._wake.wait(self.config.poll)
                 self._wake.clear()
-        self.close()
-        return self.jobs_done
+
+    def _slots(self, slots: int, once: bool) -> None:
+        """``slots`` loops at once (an Autolab's robots, one job each); the first error of one stops them all and is
+        raised here, as the single loop's would be."""
+        errors: list[BaseException] = []
+
+        def loop() -> None:
+            try:
+                self._loop(once)
+            except BaseException as exc:
+                errors.append(exc)
+                self.stop(f"a slot failed: {exc}")
+
+        threads = [threading.Thread(target=loop, name=f"slot-{k}", daemon=True) for k in range(slots)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        if errors:
+            raise errors[0]
 
     def close(self) -> None:
         """Stop the spare worker, release the server connection and the work dir."""
@@ -198,23 +245,36 @@ class Evaluator:
 
     def take_one(self) -> str | None:
         """Lease one job and see it through. Returns the status reported, ``lost`` (the lease was lost: work
-        dropped), ``unreported`` (the server stayed unreachable), or None when no job was free."""
+        dropped), ``unreported`` (the server stayed unreachable), or None when no job was free (or, in an
+        Autolab, no robot: then nothing is leased)."""
+        robot = None
+        if self.robots is not None:
+            robot = self.robots.take()
+            if robot is None:
+                return None
         try:
-            leased = self.client.lease(self.config.name, list(self.config.features), __version__)
-        except ServerError as exc:
-            if exc.status in (400, 401, 403, 404, 422):  # this evaluator's token or settings: asking again won't help
-                raise
-            self.reporter.note(f"cannot lease a job: {exc}")
-            return None
-        except ValidationError as exc:  # a lease this evaluator cannot read (a server too new or too old)
-            self.reporter.note(f"cannot read the server's lease reply: {exc}")
-            return None
-        if leased is None:
-            return None
-        self.reporter.job_started(leased)
-        status = self._process(leased)
-        self.jobs_done += 1
-        return status
+            try:
+                leased = self.client.lease(self.config.name, list(self.config.features), __version__)
+            except ServerError as exc:
+                if exc.status in (400, 401, 403, 404, 422):  # this evaluator's token or settings: won't help to retry
+                    raise
+                self.reporter.note(f"cannot lease a job: {exc}")
+                return None
+            except ValidationError as exc:  # a lease this evaluator cannot read (a server too new or too old)
+                self.reporter.note(f"cannot read the server's lease reply: {exc}")
+                return None
+            if leased is None:
+                return None
+            self.reporter.job_started(leased)
+            if robot is not None:
+                log.info("job %s: on lab %r's robot %r", leased.job_id, self.config.autolab.name, robot)
+            status = self._process(leased, robot)
+            with self._spare_lock:
+                self.jobs_done += 1
+            return status
+        finally:
+            if robot is not None:
+                self.robots.give_back(robot)
 
     # -- one job -----------------------------------------------------------------------------------
 
@@ -227,7 +287,7 @@ class Evaluator:
             log.warning("cannot read job %s's features (%s); assuming a simulation job", lease.job_id, exc)
             return ["sim"]
 
-    def _process(self, lease: Lease) -> str:
+    def _process(self, lease: Lease, robot: str | None = None) -> str:
         try:  # job.json holds the hidden test seed: a folder of the evaluator's user only, made afresh
             job = self.work.new_job(f"job-{lease.job_id}-{lease.lease_id[:8]}")
         except OSError as exc:
@@ -238,12 +298,13 @@ class Evaluator:
         heart.start()
         try:
             try:
-                outcome = self._work(lease, job, heart)
+                outcome = self._work(lease, job, heart, robot)
             except OSError as exc:  # e.g. a full disk while preparing the job
                 log.exception("job %s: cannot prepare the job", lease.job_id)
                 outcome = Outcome("host-error", f"this host cannot prepare the job: {exc}")
-            if self._keep_spare and not self._stopping.is_set() and (self._spare is None or not self._spare.ready):
-                self._spare = self._new_worker()  # the next job's worker imports while this one uploads
+            with self._spare_lock:
+                if self._keep_spare and not self._stopping.is_set() and (self._spare is None or not self._spare.ready):
+                    self._spare = self._new_worker()  # the next job's worker imports while this one uploads
             if heart.lost.is_set():
                 self.reporter.job_finished(lease, "lost", f"lease lost, work dropped: {heart.lost_reason}")
                 return "lost"
@@ -255,7 +316,7 @@ class Evaluator:
             heart_client.close()
             job.close(remove=not self.config.keep_work)
 
-    def _work(self, lease: Lease, job: JobDir, heart: _Heartbeat) -> Outcome:
+    def _work(self, lease: Lease, job: JobDir, heart: _Heartbeat, robot: str | None = None) -> Outcome:
         sub = lease.submission
         if sub.archive_sha256:
             try:
@@ -268,13 +329,14 @@ class Evaluator:
                                                        version=__version__),
                                isolation=self.isolation, limits=self.config.limits, video=self.config.video,
                                robot_cmd=self.config.robot_cmd, robot_options=dict(self.config.robot_options),
-                               autolab=self.config.autolab)
+                               autolab=self.config.autolab, autolab_robot=robot)
         job.write("job.json", worker_job.model_dump_json(indent=1).encode())
         if self._stopping.is_set():
             return Outcome("host-error", f"evaluator {self.config.name!r} is shutting down ({self.stop_reason}); "
                                          "job not started")
-        worker = self._spare if self._spare is not None and self._spare.ready else self._new_worker()
-        self._spare = None
+        with self._spare_lock:  # one slot at a time: each new worker's log is made afresh under one name
+            worker = self._spare if self._spare is not None and self._spare.ready else self._new_worker()
+            self._spare = None
         budget = lease.benchmark.wall_budget
         deadline = math.inf if budget is None else time.monotonic() + budget + self.config.start_allowance_s
         worker.give(job.path)

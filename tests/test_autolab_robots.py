@@ -1,0 +1,192 @@
+"""Several robots in one Autolab (issue 36 item 3): the Autolab evaluator runs one job per free robot at once, and
+never a job on a busy robot. The robots do not yet share a world (each is the ego of its own; docs/autolab.md).
+
+The server and package helpers are test_evaluator's and test_autolab_evaluator's (one short episode).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from proxybench.autolab.lab import Lab
+
+pytest.importorskip("fastapi")
+pytest.importorskip("uvicorn")
+
+from support.dtps import sdk
+from support.sandbox import AGENT_USER_GROUP, require_safe_sandbox
+from test_autolab_evaluator import BENCH, sdk_package
+from test_evaluator import Served, evaluator, served, the_job  # noqa: F401 - served: test_evaluator's fixture
+
+LAB2 = """\
+format: proxybench-lab/1
+name: two-robots
+map: loop_3x3
+robots:
+  - {name: db1, virtual: true}
+  - {name: db2, virtual: true}
+watchtowers: {layout: auto}
+reset: {mode: teleport}
+"""
+
+
+def _lab(robots: list[dict]) -> Lab:
+    return Lab.model_validate({"map": "loop_3x3", "robots": robots, "watchtowers": {"layout": "auto"},
+                               "reset": {"mode": "operator"}})
+
+
+def test_a_robot_is_held_by_one_job_at_a_time_and_only_drivable_robots_are_offered() -> None:
+    from proxybench.evaluator.robots import RobotLeases
+
+    leases = RobotLeases(_lab([{"name": "db1", "virtual": True}, {"name": "cam", "dtps": "10.0.0.2/cam"},
+                               {"name": "db2", "virtual": True}]))
+    assert leases.robots == ("db1", "db2") and len(leases) == 2  # the DTPS robot is not driven yet
+    assert [leases.take(), leases.take(), leases.take()] == ["db1", "db2", None]
+    assert leases.busy == ["db1", "db2"]
+    leases.give_back("db1")
+    assert leases.busy == ["db2"] and leases.take() == "db1"
+    leases.give_back("db2")
+    with pytest.raises(RuntimeError, match="robot 'db2' is not held"):
+        leases.give_back("db2")
+    # a lab with no virtual robot offers its first, whose job the worker refuses saying why
+    assert RobotLeases(_lab([{"name": "cam", "dtps": "10.0.0.2/cam"}])).robots == ("cam",)
+
+
+def test_threads_racing_for_robots_never_share_one() -> None:
+    from proxybench.evaluator.robots import RobotLeases
+
+    leases = RobotLeases(_lab([{"name": f"db{k}", "virtual": True} for k in range(3)]))
+    held: list[str] = []
+    clash: list[str] = []
+    lock = threading.Lock()
+
+    def use() -> None:
+        for _ in range(200):
+            name = leases.take()
+            if name is None:
+                continue
+            with lock:
+                if name in held:
+                    clash.append(name)
+                held.append(name)
+            with lock:
+                held.remove(name)
+            leases.give_back(name)
+
+    threads = [threading.Thread(target=use) for _ in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert clash == [] and leases.busy == []
+
+
+def test_a_worker_job_names_a_robot_of_its_lab() -> None:
+    from pydantic import ValidationError
+
+    from support.jobs import worker_job
+
+    lab = _lab([{"name": "db1", "virtual": True}, {"name": "db2", "virtual": True}])
+    assert worker_job(autolab=lab, autolab_robot="db2").autolab_robot == "db2"
+    with pytest.raises(ValidationError, match="autolab_robot: lab 'lab' has no robot 'db9' \\(it has db1, db2\\)"):
+        worker_job(autolab=lab, autolab_robot="db9")
+    with pytest.raises(ValidationError, match="autolab_robot: a robot is given but no lab"):
+        worker_job(autolab_robot="db1")
+
+
+def test_each_robot_is_localised_under_its_own_worlds_ego_tag() -> None:
+    from proxybench.domain.apriltags import ROOF_TAG_BASE
+    from proxybench.evaluator.autolab import world_tags
+
+    assert world_tags("db2") == {ROOF_TAG_BASE: "db2"}
+
+
+def _submit(srv: Served, tmp_path: Path, labels: list[str]) -> list[dict]:
+    srv.admin.post("/benchmarks", {"yaml": BENCH, "features": ["autolab"], "hidden_split": False})
+    archive = tmp_path / "agent.zip"
+    archive.write_bytes(sdk_package())
+    return [srv.developer.submit_archive(archive, label, benchmark="autolab_tiny") for label in labels]
+
+
+def _lab_evaluator(srv: Served, tmp_path: Path):
+    from proxybench.autolab.lab import load_lab
+
+    tmp_path.mkdir(exist_ok=True)
+    (tmp_path / "lab.yaml").write_text(LAB2)
+    return evaluator(srv, tmp_path, name="lab", video=False, features=("sim", "autolab"),
+                     autolab=load_lab(tmp_path / "lab.yaml"))
+
+
+def test_with_every_robot_busy_the_evaluator_leases_nothing(served: Served, tmp_path: Path) -> None:  # noqa: F811
+    (sub,) = _submit(served, tmp_path, ["lane"])
+    ev = _lab_evaluator(served, tmp_path)
+    try:
+        assert ev.robots.take() == "db1" and ev.robots.take() == "db2"
+        assert ev.take_one() is None  # no free robot: the job is not even leased
+        job, results = the_job(served, sub["id"])
+        assert job["status"] == "queued" and results == []
+        assert "leased" not in [e["kind"] for e in served.admin.get(f"/jobs/{job['id']}")["events"]]
+    finally:
+        ev.close()
+
+
+def test_without_the_safe_sandbox_an_autolab_runs_one_job_at_a_time(served: Served,  # noqa: F811
+                                                                    tmp_path: Path) -> None:
+    from proxybench.evaluator.loop import Reporter
+    from proxybench.evaluator.sandbox import Isolation
+
+    class Notes(Reporter):
+        def __init__(self) -> None:
+            self.lines: list[str] = []
+
+        def note(self, text: str) -> None:
+            self.lines.append(text)
+
+    for isolation, says in ((Isolation("bwrap", "agent", uid=4242, gid=4242, safe=True), "up to 2 jobs at once"),
+                            (Isolation("none", "me", note="unsafe"), "one job at a time: without the safe sandbox")):
+        ev = _lab_evaluator(served, tmp_path / isolation.kind)
+        ev.isolation, ev.reporter = isolation, Notes()
+        assert ev.run(once=True) == 0  # nothing queued
+        assert any(says in line for line in ev.reporter.lines), ev.reporter.lines
+
+
+@sdk
+@AGENT_USER_GROUP
+def test_two_robots_evaluate_two_jobs_at_once_in_one_lab(served: Served, tmp_path: Path) -> None:  # noqa: F811
+    require_safe_sandbox()
+    subs = _submit(served, tmp_path, ["lane-a", "lane-b", "lane-c"])
+    ev = _lab_evaluator(served, tmp_path)
+    spans: dict[str, tuple[float, float]] = {}
+    work = ev._work
+
+    def timed(lease, job, heart, robot=None):  # the span of each job's worker, from the job given to its outcome
+        start = time.monotonic()
+        try:
+            return work(lease, job, heart, robot)
+        finally:
+            spans[robot] = (start, time.monotonic())
+
+    ev._work = timed
+    assert ev.run(once=True) == 2  # one lease attempt per robot: two jobs at once, the third waits for a robot
+    assert sorted(spans) == ["db1", "db2"]
+    (a0, a1), (b0, b1) = spans["db1"], spans["db2"]
+    assert a0 < b1 and b0 < a1, spans  # both workers ran at the same time
+    done = {}
+    for sub in subs:
+        job, results = the_job(served, sub["id"])
+        if job["status"] == "queued":
+            assert results == []
+            continue
+        (result,) = results
+        assert job["status"] == "success", result["message"]
+        report = result["public_report"]
+        assert report["measured_by"] == "watchtowers" and report["lab"] == "two-robots"
+        assert report["localization_median_error_m"] <= 0.02
+        assert result["public_scores"]["survival_time_median"] == 3.0
+        done[report["robot"]] = sub["id"]
+    assert sorted(done) == ["db1", "db2"]  # one job on each robot, never two on one
+    assert len(served.developer.leaderboard("autolab_tiny")["rows"]) == 2
