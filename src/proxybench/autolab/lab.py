@@ -13,6 +13,7 @@ as it is. See docs/autolab.md ("A lab") for an example::
       # - {name: db3, command: python3 bridge.py}   # a robot node (robot protocol)
     watchtowers:
       layout: auto                                  # a layout file (docs/autolab.md) or auto: simulated towers
+      # serve: dtps                                 # simulated towers served as DTPS camera topics, read back
       # streams:                                    # or a lab's own, each with its ROS camera_info calibration
       #   - {name: wt01, dtps: 192.168.1.31/wt01, calibration: cal/wt01.yaml}
       #   - {name: wt02, recorded: rec/wt02, calibration: cal/wt02.yaml}
@@ -115,6 +116,15 @@ class StreamSource(BaseModel):
     def _name(cls, v: str) -> str:
         return _plain_name(v)
 
+    @field_validator("dtps")
+    @classmethod
+    def _address(cls, v: str | None) -> str | None:
+        if v is not None:  # HOST[:PORT]/PATH: the camera topic is PATH/sensor/camera/front_center/jpeg
+            from proxybench.dtps.robot_options import parse_address
+
+            parse_address(v)  # a ValueError saying what is wrong
+        return v
+
     @model_validator(mode="after")
     def _one_source(self) -> StreamSource:
         if (self.dtps is None) == (self.recorded is None):
@@ -124,11 +134,14 @@ class StreamSource(BaseModel):
 
 class LabWatchtowers(BaseModel):
     """The lab's watchtowers: a ``layout`` file (or ``auto``: generated for the map), simulated, or ``streams``
-    of its own cameras with ``ground_tags`` (its calibration tags on the floor)."""
+    of its own cameras with ``ground_tags`` (its calibration tags on the floor). ``serve``: how the simulated
+    watchtowers' frames reach localisation: ``files`` (written by the simulator) or ``dtps`` (served as DTPS camera
+    topics and read back by the lab's reader, as a lab's own streams are: :mod:`.live`)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     layout: str | None = None
+    serve: Literal["files", "dtps"] = "files"
     streams: list[StreamSource] = Field(default_factory=list)
     ground_tags: list[GroundTag] = Field(default_factory=list)
 
@@ -136,6 +149,8 @@ class LabWatchtowers(BaseModel):
     def _one_source(self) -> LabWatchtowers:
         if (self.layout is None) == (not self.streams):
             raise ValueError("give exactly one of layout: FILE|auto (simulated watchtowers) and streams: [...]")
+        if self.serve != "files" and self.layout is None:
+            raise ValueError("serve: only simulated watchtowers (layout) are served; streams are a lab's own")
         if self.layout is not None and self.ground_tags:
             raise ValueError("ground_tags: a layout file holds its own ground tags; give them there")
         dup = repeated(s.name for s in self.streams)
@@ -312,7 +327,8 @@ def check_lab(lab: Lab, origin: str = "lab.yaml") -> list[str]:
         except LayoutError as exc:
             raise LabError(f"{origin}: watchtowers.layout: {exc}") from None
         lines.append(f"watchtowers: {len(layout.watchtowers)} simulated ({lab.watchtowers.layout}), "
-                     f"{len(layout.ground_tags)} ground tags")
+                     f"{len(layout.ground_tags)} ground tags"
+                     + (", served as DTPS camera topics" if lab.watchtowers.serve == "dtps" else ""))
         unknown = sorted(set(lab.drills.streams_stop) - {w.name for w in layout.watchtowers})
         if unknown:
             raise LabError(f"{origin}: drills.streams_stop: no watchtower {', '.join(map(repr, unknown))} in the "

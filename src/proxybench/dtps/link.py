@@ -71,15 +71,16 @@ class PortLock:
 
 
 class BridgeLink:
-    """A running bridge: ``args`` after ``bridge.py`` (role and options), started with the SDK interpreter."""
+    """A running bridge: ``args`` after ``script`` (default ``bridge.py``: role and options), started with the SDK
+    interpreter."""
 
     def __init__(self, args: list[str], *, python: str | Path | None = None, start_timeout: float = 30.0,
-                 env: dict[str, str] | None = None):
+                 env: dict[str, str] | None = None, script: Path = BRIDGE):
         py = Path(python) if python is not None else sdk_python()
         self.reader = pipe.Reader()
         self.events: list[dict[str, Any]] = []
         # not under the subreaper launcher: a robot in a namespace of its own is joined at /proc/<its pid>/ns/net
-        self._os = Launch([str(py), "-I", str(BRIDGE), *args], transport="pipes", env=env, stderr_lines=40,
+        self._os = Launch([str(py), "-I", str(script), *args], transport="pipes", env=env, stderr_lines=40,
                           reap=False)
         self.ready = self.wait_for("ready", time.monotonic() + start_timeout)
 

@@ -13,22 +13,41 @@ A camera is due when its own schedule (one frame every 1/rate s from a phase dra
 since its last frame; its frame shows the world at the episode frame at or after that time (the simulator
 steps at ``frame_rate``), stamped with that time on the camera's clock (episode time + ``clock_offset``).
 Nothing here chooses where episodes run: the runner's frame hook calls it.
+
+A spec with a ``sink`` (a :class:`StreamSink`) sends the frames there instead of writing them: the sink is told
+where the episode's streams belong when its recorder starts (``begin``), gets each frame as JPEG bytes stamped on
+the camera's clock (``frame``), and writes the folder itself when the episode ends (``end``). The Autolab's
+simulated watchtowers served over DTPS are such a sink (``autolab.live``): their frames reach the folder through
+a DTPS server and the lab's reader, as a lab's own watchtowers' do. A spec with a sink may have no cameras at all
+(a lab's own cameras, recorded by the sink while the episode runs).
 """
 
 from __future__ import annotations
 
 import csv
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from proxybench.domain.fixed_cameras import FixedCamera, FixedCameraRig
 from proxybench.domain.maps import Map, MapObject
 
-__all__ = ["StreamRecorder", "StreamSpec", "with_fixtures"]
+__all__ = ["StreamRecorder", "StreamSink", "StreamSpec", "with_fixtures"]
+
+
+class StreamSink(Protocol):
+    """Where an episode's watchtower frames go instead of files (see the module); ``kind`` enters the job's key."""
+
+    kind: str
+
+    def begin(self, out: Path) -> None: ...
+
+    def frame(self, camera: str, jpeg: bytes, stamp: float, t: float) -> None: ...
+
+    def end(self) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -41,10 +60,13 @@ class StreamSpec:
     fixtures: tuple[MapObject, ...] = ()
     image_format: str = "jpg"
     quality: int = 95
+    sink: StreamSink | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
-        if not (len(self.cameras) == len(self.rates) == len(self.clock_offsets)) or not self.cameras:
-            raise ValueError("a stream spec needs one rate and one clock offset per camera, and a camera")
+        if not (len(self.cameras) == len(self.rates) == len(self.clock_offsets)) or not (self.cameras or self.sink):
+            raise ValueError("a stream spec needs one rate and one clock offset per camera, and a camera (or a sink)")
+        if self.sink is not None and self.image_format != "jpg":
+            raise ValueError("a stream sink takes JPEG frames (image_format jpg)")
         if self.image_format not in ("jpg", "png"):
             raise ValueError(f"image_format must be jpg or png, got {self.image_format!r}")
         if any(r <= 0 for r in self.rates):
@@ -54,9 +76,12 @@ class StreamSpec:
         """What identifies the streams in a job's hash."""
         from dataclasses import asdict
 
-        return {"cameras": [asdict(c) for c in self.cameras], "rates": list(self.rates),
-                "clock": list(self.clock_offsets), "fixtures": [asdict(o) for o in self.fixtures],
-                "format": [self.image_format, self.quality]}
+        doc = {"cameras": [asdict(c) for c in self.cameras], "rates": list(self.rates),
+               "clock": list(self.clock_offsets), "fixtures": [asdict(o) for o in self.fixtures],
+               "format": [self.image_format, self.quality]}
+        if self.sink is not None:  # absent otherwise, so jobs recording files keep their keys
+            doc["sink"] = self.sink.kind
+        return doc
 
 
 def with_fixtures(m: Map, fixtures: tuple[MapObject, ...]) -> Map:
@@ -72,11 +97,14 @@ class StreamRecorder:
     def __init__(self, sim, spec: StreamSpec, out: str | Path, world: int = 0):
         self.sim, self.spec, self.world = sim, spec, world
         self.out = Path(out)
-        self.rig = FixedCameraRig(sim, spec.cameras)
+        self.rig = FixedCameraRig(sim, spec.cameras) if spec.cameras else None  # a sink alone: nothing rendered
         self.phase = [(zlib.crc32(c.name.encode()) % 1000) / 1000.0 / r for c, r in zip(spec.cameras, spec.rates,
                                                                                           strict=True)]
         self.count = [0] * len(spec.cameras)
         self.stamps: list[list[tuple[int, float]]] = [[] for _ in spec.cameras]
+        if spec.sink is not None:
+            spec.sink.begin(self.out)
+            return
         for c in spec.cameras:
             (self.out / c.name).mkdir(parents=True, exist_ok=True)
 
@@ -94,16 +122,26 @@ class StreamRecorder:
             cam = self.spec.cameras[i]
             r = self.spec.rates[i]
             k = len(self.stamps[i])
-            path = self.out / cam.name / f"{k:06d}.{ext}"
-            if not cv2.imwrite(str(path), np.ascontiguousarray(images[i][:, :, ::-1]), flags):
-                raise OSError(f"{path}: cannot write the frame")
+            bgr = np.ascontiguousarray(images[i][:, :, ::-1])
+            if self.spec.sink is not None:
+                ok, jpeg = cv2.imencode(".jpg", bgr, flags)
+                if not ok:
+                    raise OSError(f"watchtower {cam.name}: cannot encode its frame")
+                self.spec.sink.frame(cam.name, jpeg.tobytes(), t + self.spec.clock_offsets[i], t)
+            else:
+                path = self.out / cam.name / f"{k:06d}.{ext}"
+                if not cv2.imwrite(str(path), bgr, flags):
+                    raise OSError(f"{path}: cannot write the frame")
             self.stamps[i].append((k, t + self.spec.clock_offsets[i]))
             while t + 1e-9 >= self.phase[i] + self.count[i] / r:  # skip slots the episode's frames stepped over
                 self.count[i] += 1
         return len(due)
 
     def close(self) -> None:
-        """Write every camera's ``timestamps.csv``."""
+        """Write every camera's ``timestamps.csv`` (with a sink: the sink writes the folder)."""
+        if self.spec.sink is not None:
+            self.spec.sink.end()
+            return
         for cam, rows in zip(self.spec.cameras, self.stamps, strict=True):
             with open(self.out / cam.name / "timestamps.csv", "w", newline="") as fh:
                 w = csv.writer(fh)
