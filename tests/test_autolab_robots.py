@@ -98,6 +98,39 @@ def test_a_worker_job_names_a_robot_of_its_lab() -> None:
         worker_job(autolab_robot="db1")
 
 
+def test_the_console_draws_a_bar_per_running_job(monkeypatch: pytest.MonkeyPatch) -> None:
+    import io
+
+    from rich.console import Console
+
+    import proxybench.cli.evaluator as cli
+    from proxybench.contract import Lease, LeasedBenchmark, LeasedSubmission
+
+    out = io.StringIO()
+    monkeypatch.setattr(cli, "console", Console(file=out, force_terminal=True, width=120))
+    reporter = cli._reporter()
+
+    def lease(job: int) -> Lease:
+        return Lease(job_id=job, lease_id="ab", lease_seconds=5.0,
+                     submission=LeasedSubmission(id=job, label=f"lane-{job}", agent="pid"),
+                     benchmark=LeasedBenchmark(name="autolab_tiny", version=1, spec_yaml="{}"))
+
+    a, b = lease(1), lease(2)
+    reporter.job_started(a)
+    reporter.job_started(b)  # a second job while the first runs: one live display, a bar each
+    assert len(reporter.tasks) == 2
+    reporter.job_progress(a, {"phase": "validation", "done": 1, "total": 2})
+    reporter.job_progress(b, {"phase": "test", "done": 0, "total": 3})
+    bars = {t.description: (t.completed, t.total) for t in reporter.progress.tasks}
+    assert bars == {"job 1: validation episodes": (1, 2), "job 2: test episodes": (0, 3)}
+    reporter.job_finished(a, "success", "done")
+    assert [t.description for t in reporter.progress.tasks] == ["job 2: test episodes"]
+    reporter.job_finished(b, "failed", "crashed")
+    assert reporter.progress is None and reporter.tasks == {}
+    text = out.getvalue()
+    assert "job 1: " in text and "success" in text and "job 2: " in text and "failed" in text
+
+
 def test_each_robot_is_localised_under_its_own_worlds_ego_tag() -> None:
     from proxybench.domain.apriltags import ROOF_TAG_BASE
     from proxybench.evaluator.autolab import world_tags

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import socket
+import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -28,35 +29,48 @@ def _reporter():
     from proxybench.evaluator import Reporter
 
     class RichReporter(Reporter):
-        """Job lines on the console and a bar of the job's episodes while it runs."""
+        """Job lines on the console and a bar of each running job's episodes (an Autolab runs one job per robot at
+        once: one live display, a bar per job, called from the evaluator's slot threads)."""
 
         def __init__(self) -> None:
             self.progress: Progress | None = None
-            self.task: Any = None
+            self.tasks: dict[int, Any] = {}
+            self.lock = threading.Lock()
 
         def job_started(self, lease: Lease) -> None:
             b, s = lease.benchmark, lease.submission
             who = s.agent or (s.manifest or {}).get("name", "archive")
-            console.print(f"[bold]job {lease.job_id}[/bold] (attempt {lease.attempt}): "
-                          + escape(f"{b.name} v{b.version} ← submission {s.id} {s.label} [{who}]"), highlight=False)
-            self.progress = progress_bar(TextColumn("  {task.description}"), BarColumn(), MofNCompleteColumn(),
-                                         TimeElapsedColumn(), console=console, transient=True)
-            self.progress.start()
-            self.task = self.progress.add_task("setting up", total=None)
+            with self.lock:
+                console.print(f"[bold]job {lease.job_id}[/bold] (attempt {lease.attempt}): "
+                              + escape(f"{b.name} v{b.version} ← submission {s.id} {s.label} [{who}]"),
+                              highlight=False)
+                if self.progress is None:
+                    self.progress = progress_bar(TextColumn("  {task.description}"), BarColumn(),
+                                                 MofNCompleteColumn(), TimeElapsedColumn(), console=console,
+                                                 transient=True)
+                    self.progress.start()
+                self.tasks[lease.job_id] = self.progress.add_task(f"job {lease.job_id}: setting up", total=None)
 
         def job_progress(self, lease: Lease, progress: dict[str, Any]) -> None:
-            if self.progress is not None:
-                self.progress.update(self.task, description=f"{progress.get('phase', '')} episodes",
-                                     completed=progress.get("done", 0), total=progress.get("total"))
+            with self.lock:
+                task = self.tasks.get(lease.job_id)
+                if self.progress is not None and task is not None:
+                    self.progress.update(task, description=f"job {lease.job_id}: {progress.get('phase', '')} "
+                                                           "episodes",
+                                         completed=progress.get("done", 0), total=progress.get("total"))
 
         def job_finished(self, lease: Lease, status: str, message: str) -> None:
-            if self.progress is not None:
-                self.progress.stop()
-                self.progress = None
-            colour = {"success": "green", "failed": "yellow", "lost": "yellow"}.get(status, "red")
-            first = message.splitlines()[0] if message else ""
-            console.print(f"  job {lease.job_id}: [{colour}]{status}[/{colour}] {escape(first[:300])}",
-                          highlight=False)
+            with self.lock:
+                task = self.tasks.pop(lease.job_id, None)
+                if self.progress is not None and not self.tasks:  # the last running job: its last count, then gone
+                    self.progress.stop()
+                    self.progress = None
+                elif self.progress is not None and task is not None:
+                    self.progress.remove_task(task)
+                colour = {"success": "green", "failed": "yellow", "lost": "yellow"}.get(status, "red")
+                first = message.splitlines()[0] if message else ""
+                console.print(f"  job {lease.job_id}: [{colour}]{status}[/{colour}] {escape(first[:300])}",
+                              highlight=False)
 
         def note(self, text: str) -> None:
             console.print(escape(text), highlight=False)
@@ -97,8 +111,8 @@ def evaluator(
                                                     "[the reality model]"),
     robot_options: RobotNodeOptions = None,  # the --robot-* options: with_robot_node_options
     autolab: Path | None = typer.Option(None, "--autolab", help="lab.yaml: also lease Autolab jobs (feature autolab) "
-                                        "and run them on this lab's robot, measured by its watchtowers "
-                                        "(docs/autolab.md)"),
+                                        "and run them on this lab's robots, one job per free robot at once, "
+                                        "measured by its watchtowers (docs/autolab.md)"),
 ) -> None:
     """Pull jobs from a challenges server and evaluate them, until stopped (SIGTERM / Ctrl-C).
 
