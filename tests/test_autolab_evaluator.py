@@ -135,8 +135,8 @@ def test_a_robot_the_watchtowers_never_see_is_tracking_lost_and_goes_back_to_the
     (("map: loop_3x3", "map: small_loop"), "is on map 'loop_3x3'; lab 'test-lab' has map 'small_loop'"),
     (("reset: {mode: operator}", "reset: {mode: operator}\nlimits: {max_episode_s: 2}"),
      "episodes of 3 s are longer than lab 'test-lab' runs"),
-    (("{layout: auto}", "{streams: [{name: wt1, dtps: 10.0.0.3/wt1, calibration: c.yaml}]}"),
-     "watchtower streams of its own are not read online yet"),
+    (("{layout: auto}", "{streams: [{name: wt1, recorded: rec/wt1, calibration: c.yaml}]}"),
+     "watchtower(s) wt1 are recorded folders"),
 ])
 def test_what_an_autolab_evaluator_cannot_run_is_a_host_error_saying_why(tmp_path: Path, change: tuple[str, str],
                                                                          words: str) -> None:

@@ -246,3 +246,4 @@ def test_a_virtual_lab_served_over_dtps_is_read_back_and_localised_within_two_ce
     episode = localize_episode(res, bench, lab, layout, m, tmp_path / "autolab", METRICS)
     assert episode.valid, episode.reasons
     assert episode.error_median_m is not None and episode.error_median_m <= 0.02
+

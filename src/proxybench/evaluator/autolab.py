@@ -13,8 +13,10 @@ watchtowers record, then per episode:
    simulator's truth (a virtual robot) each episode reports the localisation's error against it.
 
 Today a lab's robot is a **virtual** DB21J (the simulator; an SDK agent reaches it over DTPS as on the
-Duckiematrix) and its watchtowers are **simulated** from a layout; DTPS or robot-node robots and a lab's own
-camera streams are described by ``lab.yaml`` but refused here (``host-error``, saying so). A lab of several virtual
+Duckiematrix) and its watchtowers are **simulated** from a layout (their frames written by the simulator, or served
+as DTPS camera topics and read back, ``serve: dtps``) or a lab's own **DTPS camera topics** (``streams``), read by
+the lab's watchtower reader (:mod:`proxybench.autolab.live`); DTPS or robot-node robots and recorded streams are
+described by ``lab.yaml`` but refused here (``host-error``, saying so). A lab of several virtual
 robots runs a job on each at once (the evaluator's :mod:`.robots` gives each job its robot); they do not yet share
 a world: each robot is the ego of a world of its own, seen by the watchtowers under the simulator's ego roof tag
 (400), which localisation names after the job's robot.
@@ -77,9 +79,10 @@ def _check_lab(lab: Lab, bench, robot_name: str | None = None) -> None:
     if robot.kind != "virtual":
         raise HostFault(f"lab {lab.name!r}: robot {robot.name!r} is a {robot.kind} robot; the Autolab evaluator "
                         "drives virtual robots only so far")
-    if lab.watchtowers.layout is None:
-        raise HostFault(f"lab {lab.name!r}: watchtower streams of its own are not read online yet; give a layout "
-                        "(simulated watchtowers)")
+    recorded = [s.name for s in lab.watchtowers.streams if s.recorded is not None]
+    if recorded:
+        raise HostFault(f"lab {lab.name!r}: watchtower(s) {', '.join(recorded)} are recorded folders (for `proxybench "
+                        "localize`); a job records its watchtowers live: give them as dtps: HOST[:PORT]/PATH")
     if bench.map != lab.map:
         raise HostFault(f"benchmark {bench.name!r} is on map {bench.map!r}; lab {lab.name!r} has map {lab.map!r}")
     if bench.duration > lab.limits.max_episode_s:
@@ -168,7 +171,14 @@ def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics,
     stop_streams(folder / "streams", lab)
     manifest = LogManifest(source="simulation", map=bench.map, agent="agent", episode=res.episode,
                            seconds=bench.duration, termination=ended, active=robot, robots=world_tags(robot))
-    write_sim_log(folder, layout, folder / "streams", manifest)
+    if not any(p.is_dir() for p in (folder / "streams").iterdir()):
+        raise HostFault(f"tracking_lost: episode {res.episode}: no watchtower delivered a frame")
+    if layout is None:  # a lab's own streams, read over DTPS: its calibration files, its ground tags
+        from proxybench.autolab.live import write_stream_log
+
+        write_stream_log(folder, lab, folder / "streams", manifest)
+    else:
+        write_sim_log(folder, layout, folder / "streams", manifest)
     run_log = read_log(folder)
     loc = localize_log(run_log, m, workers=1, decimate=2.0)
     verdict = validate_run(run_log, loc, lab.limits.thresholds())
@@ -239,7 +249,9 @@ def _pack(path: Path, ev, episodes: list[AutolabEpisode]) -> Path:
 def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str, float | None]:
     """Episodes on the lab's robot with its watchtowers recording; localised, validated, scored (the module)."""
     from proxybench.autolab.calibration import stream_spec
+    from proxybench.autolab.live import live_streams
     from proxybench.domain.maps import load_map
+    from proxybench.dtps.cameras import ReaderError
     from proxybench.evaluator.report import summarize
     from proxybench.protocol.failures import AgentFailure
     from proxybench.runner.backends import InlineBackend
@@ -250,19 +262,30 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
 
     job.phase = split
     m = load_map(bench.map)
-    layout = lab.layout(m)
-    streams = stream_spec(layout)
+    layout = lab.layout(m) if lab.watchtowers.layout is not None else None
+    try:  # watchtowers read over DTPS (served simulated ones, or the lab's own): autolab.live
+        live = live_streams(lab, layout)
+    except ReaderError as exc:
+        raise HostFault(f"watchtowers: {exc}") from None
+    streams = live.spec if live is not None else stream_spec(layout)
+    towers = len(live.names) if live is not None else len(layout.watchtowers)
     robot = lab.robot(job.job.autolab_robot)
-    log.info("%s: %d episodes of %g s on lab %r's robot %r (virtual), %d watchtowers recording", split,
-             len(bench.episode_specs()), bench.duration, lab.name, robot.name, len(layout.watchtowers))
+    log.info("%s: %d episodes of %g s on lab %r's robot %r (virtual), %d watchtowers recording%s", split,
+             len(bench.episode_specs()), bench.duration, lab.name, robot.name, towers,
+             "" if live is None else " over DTPS")
     try:
         ev = evaluate_benchmark(bench, [spec], job.dir / "runs" / split, InlineBackend(), streams=streams,
                                 privileged=is_privileged, progress=job.progress)
+    except ReaderError as exc:
+        raise HostFault(f"watchtowers: {exc}") from None
     except AgentFailure as exc:
         job.check_sandbox([exc.stderr_tail])
         raise SubmissionFault(f"agent node failed in the {split} episodes: {exc}") from None
     except PrivilegedAgentError as exc:
         raise SubmissionFault(str(exc)) from None
+    finally:
+        if live is not None:
+            live.close()
     from proxybench.domain.events import Termination
 
     failed = [r for r in ev.sweep.results if r.termination is Termination.ROBOT_FAILURE]
@@ -294,8 +317,10 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
                  "" if e.error_median_m is None else f"; localisation error median {100 * e.error_median_m:.2f} cm")
     report = dict(record.report)
     report.update(domain_kind="autolab/virtual", measured_by="watchtowers", lab=lab.name, robot=robot.name,
-                  watchtowers=len(layout.watchtowers), localization=[e.report() for e in episodes],
+                  watchtowers=towers, localization=[e.report() for e in episodes],
                   robot_reported_scores=record.scores)
+    if live is not None:  # what the DTPS reader received per episode (frames, bad messages, frames lost)
+        report["watchtower_streams"] = [e.report() for e in live.sink.episodes]
     errs = [e.error_median_m for e in episodes if e.error_median_m is not None]
     report["localization_median_error_m"] = float(np.median(errs)) if errs else None
     for row, e in zip(report["episodes"], episodes, strict=True):
