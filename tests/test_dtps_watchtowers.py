@@ -247,3 +247,54 @@ def test_a_virtual_lab_served_over_dtps_is_read_back_and_localised_within_two_ce
     assert episode.valid, episode.reasons
     assert episode.error_median_m is not None and episode.error_median_m <= 0.02
 
+    # the same frames as a lab's own streams: its calibration files and ground tags in lab.yaml, no layout
+    from proxybench.autolab.calibration import draw_calibrations, write_calibration
+
+    cals, _ = draw_calibrations(layout)
+    (tmp_path / "cal").mkdir()
+    streams = [{"name": n, "dtps": f"wt.local/{n}", "calibration": str(write_calibration(tmp_path / "cal" / n, c))}
+               for n, c in cals.items()]
+    own = {**yaml.safe_load(LAB), "watchtowers": {"streams": streams, "ground_tags": [
+        g.model_dump() for g in layout.ground_tags]}}
+    (tmp_path / "own.yaml").write_text(yaml.safe_dump(own))
+    mine = localize_episode(res, bench, load_lab(tmp_path / "own.yaml"), None, m, tmp_path / "own", METRICS)
+    assert mine.valid and mine.error_median_m <= 0.02
+    assert (tmp_path / "own" / "watchtowers" / "wt01" / "calibration.yaml").read_text() == (
+        tmp_path / "cal" / "wt01").read_text()
+
+
+@sdk
+def test_a_labs_own_dtps_streams_are_recorded_per_episode_on_the_wall_clock(tmp_path: Path) -> None:
+    """A lab's own watchtowers (here served by the test, stamping with the wall clock as a camera does): the sink
+    opens an episode at its recorder's start, times are seconds since then, frames outside it are not kept."""
+    from proxybench.autolab.calibration import Calibration, write_calibration
+    from proxybench.autolab.lab import load_lab
+    from proxybench.autolab.live import live_streams
+    from proxybench.dtps.cameras import WatchtowerServer
+
+    server = WatchtowerServer(["cam1"])
+    try:
+        cal = Calibration(name="cam1", image_width=64, image_height=48,
+                          camera_matrix={"rows": 3, "cols": 3, "data": [50, 0, 31.5, 0, 50, 23.5, 0, 0, 1]},
+                          extrinsics={"position": [0.5, 0.5, 0.8], "yaw": 90, "pitch": 89})
+        write_calibration(tmp_path / "cam1.yaml", cal)
+        (tmp_path / "lab.yaml").write_text(LAB.replace(
+            "{layout: auto, serve: dtps}", f"{{streams: [{{name: cam1, dtps: '{server.address('cam1')}', "
+                                           "calibration: cam1.yaml}], ground_tags: [{id: 1, x: 0.3, y: 0.3}]}"))
+        with live_streams(load_lab(tmp_path / "lab.yaml"), None) as live:
+            assert live.spec.cameras == () and len(live.spec.fixtures) == 1  # nothing simulated; the floor tag
+            server.publish("cam1", _jpeg(), time.time(), 0.0)  # before the episode
+            time.sleep(0.3)
+            live.sink.begin(tmp_path / "ep")
+            for _ in range(5):
+                server.publish("cam1", _jpeg(), time.time(), 0.0)
+                time.sleep(0.1)
+            live.sink.end()
+            (read,) = live.sink.episodes
+    finally:
+        server.close()
+    assert read.frames == {"cam1": 5}
+    with open(tmp_path / "ep" / "cam1" / "timestamps.csv") as fh:
+        times = [float(r["t"]) for r in csv.DictReader(fh)]
+    assert 0.0 <= times[0] < 0.3 and times == sorted(times)
+    assert json.loads((tmp_path / "ep" / "reader.json").read_text())["frames"] == {"cam1": 5}
