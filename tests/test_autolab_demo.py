@@ -57,6 +57,8 @@ def test_demo_once_runs_one_submission_end_to_end_and_writes_job_json(tmp_path: 
     assert set(job["robot_reported_scores"]) >= {"driven_lanedir_consec_median"}
     assert re.search(r"leaderboard: http://127\.0\.0\.1:\d+/leaderboards/autolab_demo", text), text
     assert (out / "lab.yaml").is_file() and (out / "server" / "admin.token").is_file()
+    # two virtual robots: the evaluator runs a job on each at once (issue 36 item 3)
+    assert "up to 2 jobs at once, one on each of robots db1, db2" in (out / "evaluator.log").read_text()
     assert oct((out / "developer.token").stat().st_mode & 0o777) == "0o600"
     assert processes_left(require_safe_sandbox().uid, 10) == []
 

@@ -128,8 +128,8 @@ def demo_folder(out: Path | None) -> Path:
 
 
 def write_lab(folder: Path, options: DemoOptions) -> Path:
-    """``lab.yaml`` (one virtual DB21J) with its simulated watchtowers' layout (``watchtowers.yaml``, at the
-    demo's frame rate), checked as ``autolab check`` would."""
+    """``lab.yaml`` (two virtual DB21Js: two jobs at once, each robot in a world of its own) with its simulated
+    watchtowers' layout (``watchtowers.yaml``, at the demo's frame rate), checked as ``autolab check`` would."""
     import yaml
 
     from proxybench.autolab.lab import check_lab, load_lab
@@ -138,7 +138,8 @@ def write_lab(folder: Path, options: DemoOptions) -> Path:
 
     write_layout(folder / "watchtowers.yaml", auto_layout(load_map(options.map), frame_rate=options.watchtower_rate))
     lab = {"format": "proxybench-lab/1", "name": "demo-lab", "map": options.map,
-           "robots": [{"name": "db1", "virtual": True}], "watchtowers": {"layout": "watchtowers.yaml"},
+           "robots": [{"name": "db1", "virtual": True}, {"name": "db2", "virtual": True}],
+           "watchtowers": {"layout": "watchtowers.yaml"},
            "reset": {"mode": "teleport"}, "limits": {"max_episode_s": max(120.0, options.seconds)}}
     path = folder / "lab.yaml"
     path.write_text(yaml.safe_dump(lab, sort_keys=False))
@@ -293,7 +294,8 @@ def run_demo(options: DemoOptions, say: Callable[[str], None]) -> JobSummary:
         board = f"{url}/leaderboards/{BENCHMARK}"
         say(f"server {url} (admin token {folder / 'server' / 'admin.token'}, developer token "
             f"{folder / 'developer.token'})")
-        say(f"lab {lab}: virtual robot db1, simulated watchtowers at {options.watchtower_rate:g} Hz")
+        say(f"lab {lab}: virtual robots db1 and db2 (one job each at once), simulated watchtowers at "
+            f"{options.watchtower_rate:g} Hz")
         cmd = evaluator_command(url, ev_token, lab, folder / "evaluator", options)
         with evaluator_process(cmd, folder / "evaluator.log") as ev, ServerClient(url, dev_token) as dev:
             say(f"Autolab evaluator started (pid {ev.pid}, log {folder / 'evaluator.log'})")
