@@ -150,13 +150,13 @@ def test_a_fifo_frame_is_refused_without_being_opened(tmp_path):
 
 def test_the_detector_reads_no_fifo_either(tmp_path):
     pytest.importorskip("cv2")
-    from proxybench.autolab.localize import _detect_one
+    from proxybench.autolab.localize import _decode
     from proxybench.autolab.logs import Frame
 
     fifo = tmp_path / "000000.jpg"
     os.mkfifo(fifo)
     with pytest.raises(UnsafeLogError, match="not a regular file"):
-        _detect_one((0, Frame(0.0, str(fifo), str(fifo))))
+        _decode(Frame(0.0, str(fifo), str(fifo)))
 
 
 def test_a_frame_that_is_a_link_is_refused(tmp_path):

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from proxybench.autolab.detect import Detection, Detector, tag_pose
+from proxybench.autolab.detect import Detection, Detector, TagPose, tag_pose
 from proxybench.autolab.geometry import planar, pose_from_planar
 from proxybench.autolab.logs import MAX_FRAME_BYTES, Frame, Log
 from proxybench.autolab.posegraph import Observation, PoseGraph, solve_gtsam, solve_scipy
@@ -53,6 +53,7 @@ class FrameResult:
     t: float
     detections: list[Detection]
     brightness: float
+    detected: bool = True  # the detector ran on this frame (False: its watchtower's view had not changed)
 
 
 @dataclass
@@ -66,7 +67,18 @@ class Localization:
     detections: int
     notes: list[str] = field(default_factory=list)
     timing: dict[str, float] = field(default_factory=dict)
+    detected: int = 0  # frames the detector ran on (the others re-used their watchtower's unchanged view)
 
+
+#: a watchtower is fixed: a frame whose 8 × 8-pixel block means all lie within this many grey levels of the frame
+#: its tags were last detected in shows the same tags, which are re-used (sensor noise and JPEG move a block's
+#: mean by ≤ 2 levels; a robot moving half a pixel moves the blocks on its tag's edges by more than 6)
+SAME_VIEW_LEVELS = 6
+#: the side of those blocks [px]
+BLOCK = 8
+#: an unchanged view is detected again every this many frames all the same: independent detections of the
+#: floor tags keep coming (each frame's noise is its own), which the pose graph averages
+REFRESH_FRAMES = 10
 
 _WORKER: dict = {}
 
@@ -75,10 +87,10 @@ def _init(kind: str, decimate: float) -> None:
     _WORKER["det"] = Detector(kind, decimate)
 
 
-def _detect_one(args: tuple[int, Frame]) -> FrameResult:
+def _decode(frame: Frame) -> np.ndarray:
+    """The frame as a (H, W) grey image; its file read as strangers' input (regular, bounded, not a link)."""
     import cv2
 
-    k, frame = args
     data = frame.ref
     if not isinstance(data, bytes):  # a file of the log: regular, bounded, not a link (a FIFO is never read)
         try:
@@ -88,36 +100,75 @@ def _detect_one(args: tuple[int, Frame]) -> FrameResult:
     gray = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
     if gray is None:
         raise LayoutError(f"{frame.label}: not a readable image")
-    dets = _WORKER["det"].detect(gray)
+    return gray
+
+
+def _thumbnail(gray: np.ndarray) -> np.ndarray:
+    """Each BLOCK × BLOCK block's mean (int16, so that differences do not wrap)."""
+    import cv2
+
+    h, w = gray.shape
+    size = (max(1, w // BLOCK), max(1, h // BLOCK))
+    return cv2.resize(gray, size, interpolation=cv2.INTER_AREA).astype(np.int16)
+
+
+def _checked(frame: Frame, dets: list[Detection]) -> list[Detection]:
     seen: set[int] = set()
     for d in dets:
         if d.tag_id in seen:
             raise LayoutError(f"{frame.label}: tag id {d.tag_id} seen twice in one frame: two tags carry that id")
         seen.add(d.tag_id)
-    return FrameResult(k, frame.t, dets, float(gray[::4, ::4].mean()))
+    return dets
+
+
+def _detect_stream(args: tuple[int, list[Frame], bool]) -> list[FrameResult]:
+    """One watchtower's frames in order. With ``reuse``, a frame whose view has not changed since the frame its
+    tags were last detected in (every block within SAME_VIEW_LEVELS) gets those detections again without running
+    the detector: a fixed camera mostly sees a still floor, so only frames where something moved cost a detection.
+    Brightness is each frame's own (the mean of its blocks)."""
+    k, frames, reuse = args
+    out: list[FrameResult] = []
+    ref: np.ndarray | None = None
+    dets: list[Detection] = []
+    age = 0
+    for frame in frames:
+        gray = _decode(frame)
+        thumb = _thumbnail(gray)
+        age += 1
+        same = (reuse and ref is not None and age < REFRESH_FRAMES and ref.shape == thumb.shape
+                and int(np.abs(thumb - ref).max(initial=0)) <= SAME_VIEW_LEVELS)
+        if not same:
+            dets, ref, age = _checked(frame, _WORKER["det"].detect(gray)), thumb, 0
+        out.append(FrameResult(k, frame.t, dets, float(thumb.mean()), detected=not same))
+    return out
 
 
 def detect_log(log: Log, detector: str = "apriltag", workers: int | None = None, decimate: float = 1.0,
-               progress: Callable[[int, int], None] | None = None) -> list[FrameResult]:
-    """Tags and brightness of every frame of every stream, in ``workers`` processes (default: the cores)."""
-    jobs = [(k, f) for k, s in enumerate(log.streams) for f in s.frames]
+               progress: Callable[[int, int], None] | None = None, reuse: bool = True) -> list[FrameResult]:
+    """Tags and brightness of every frame of every stream, one stream at a time in order (its frames re-use the
+    last detection while the view is unchanged, unless ``reuse`` is False), in ``workers`` processes (default:
+    the cores)."""
+    jobs = [(k, s.frames, reuse) for k, s in enumerate(log.streams)]
+    total = sum(len(s.frames) for s in log.streams)
     workers = workers or len(os.sched_getaffinity(0))
     out: list[FrameResult] = []
     if workers <= 1:
         _init(detector, decimate)
-        for n, job in enumerate(jobs):
-            out.append(_detect_one(job))
-            if progress:
-                progress(n + 1, len(jobs))
-        return out
-    import multiprocessing as mp
+        results = map(_detect_stream, jobs)
+    else:
+        import multiprocessing as mp
 
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=_init,
-                             initargs=(detector, decimate)) as pool:
-        for n, res in enumerate(pool.map(_detect_one, jobs, chunksize=16)):
-            out.append(res)
+        pool = ProcessPoolExecutor(min(workers, max(1, len(jobs))), mp_context=mp.get_context("spawn"),
+                                   initializer=_init, initargs=(detector, decimate))
+        results = pool.map(_detect_stream, jobs)
+    try:
+        for res in results:
+            out.extend(res)
             if progress:
-                progress(n + 1, len(jobs))
+                progress(len(out), total)
+    finally:
+        if workers > 1:
+            pool.shutdown(cancel_futures=True)
     return out
 
 
@@ -144,15 +195,15 @@ def _tag_tables(log: Log, m: Map, robots: dict[int, str]) -> tuple[dict[int, np.
 def localize_log(log: Log, m: Map, *, robots: dict[int, str] | None = None, detector: str = "apriltag",
                  solver: str = "gtsam", workers: int | None = None, decimate: float = 1.0,
                  frames: list[FrameResult] | None = None,
-                 progress: Callable[[int, int], None] | None = None) -> Localization:
+                 progress: Callable[[int, int], None] | None = None, reuse: bool = True) -> Localization:
     """Every robot's trajectory in the map frame from one run's log (see the module docstring)."""
     import time
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     robots = dict(robots or log.manifest.robots or {ROOF_TAG_BASE: "ego"})
     if frames is None:
-        frames = detect_log(log, detector, workers, decimate, progress)
-    t1 = time.perf_counter()
+        frames = detect_log(log, detector, workers, decimate, progress, reuse)
+    t1, c1 = time.perf_counter(), time.process_time()
     fixed, sizes = _tag_tables(log, m, robots)
     graph = PoseGraph(fixed=fixed)
     cals = {s.name: s.calibration for s in log.streams}
@@ -164,6 +215,7 @@ def localize_log(log: Log, m: Map, *, robots: dict[int, str] | None = None, dete
     seen: dict[str, list[tuple[float, str, np.ndarray, np.ndarray]]] = {}
     unknown: set[int] = set()
     n_det = 0
+    poses: dict[int, TagPose | None] = {}  # a detection re-used by unchanged frames is measured once (by its identity)
     for fr in frames:
         name = log.streams[fr.stream].name
         for d in fr.detections:
@@ -171,7 +223,9 @@ def localize_log(log: Log, m: Map, *, robots: dict[int, str] | None = None, dete
             if d.tag_id not in sizes:
                 unknown.add(d.tag_id)
                 continue
-            tp = tag_pose(d, sizes[d.tag_id], cals[name], ups[name])
+            if id(d) not in poses:
+                poses[id(d)] = tag_pose(d, sizes[d.tag_id], cals[name], ups[name])
+            tp = poses[id(d)]
             if tp is None:
                 continue
             if d.tag_id in fixed:
@@ -191,14 +245,15 @@ def localize_log(log: Log, m: Map, *, robots: dict[int, str] | None = None, dete
             graph.observations.append(Observation(name, ("robot", robot, len(times) - 1), T, cov))
         graph.robots[robot] = np.array(times)
     solution = (solve_gtsam if solver == "gtsam" else solve_scipy)(graph)
-    t2 = time.perf_counter()
+    t2, c2 = time.perf_counter(), time.process_time()
     tracks = {r: _track(r, graph, solution, seen[r], rates) for r in graph.robots}
     bright: dict[str, list[tuple[float, float]]] = {}
     for fr in frames:
         bright.setdefault(log.streams[fr.stream].name, []).append((fr.t, fr.brightness))
     towers = {n: solution.poses[("tower", n)] for n in graph.towers}
     return Localization(tracks, towers, {k: np.array(v) for k, v in bright.items()}, len(frames), n_det, notes,
-                        {"detect_s": t1 - t0, "solve_s": t2 - t1})
+                        {"detect_s": t1 - t0, "solve_s": t2 - t1,  # wall; CPU of this process (not its workers)
+                         "detect_cpu_s": c1 - c0, "solve_cpu_s": c2 - c1}, sum(f.detected for f in frames))
 
 
 def _track(robot: str, graph: PoseGraph, solution, obs: list, rates: dict[str, float]) -> RobotTrack:
