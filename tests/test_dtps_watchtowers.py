@@ -101,6 +101,36 @@ def test_a_watchtower_that_sent_nothing_gets_no_folder(tmp_path: Path) -> None:
     assert sorted(p.name for p in (tmp_path / "ep").iterdir()) == ["wt01"]
 
 
+
+def test_a_stream_spec_with_a_sink_needs_no_camera_and_keys_its_jobs_apart(tmp_path: Path) -> None:
+    """The runner's side: a recorder whose spec has a sink opens and closes the sink's episode, writes nothing."""
+    from proxybench.domain.fixed_cameras import FixedCamera
+    from proxybench.runner.streams import StreamRecorder, StreamSpec
+
+    calls: list[tuple] = []
+
+    class Sink:
+        kind = "dtps"
+
+        def begin(self, out: Path) -> None:
+            calls.append(("begin", out))
+
+        def frame(self, *args) -> None:
+            calls.append(("frame", *args))
+
+        def end(self) -> None:
+            calls.append(("end",))
+
+    with pytest.raises(ValueError, match="and a camera"):
+        StreamSpec((), (), ())
+    cam = FixedCamera("wt01", 0.5, 0.5, 0.8, 0.0, 89.0, 64, 48)
+    assert "sink" not in StreamSpec((cam,), (5.0,), (0.0,)).key_data()
+    assert StreamSpec((cam,), (5.0,), (0.0,), sink=Sink()).key_data()["sink"] == "dtps"
+    rec = StreamRecorder(None, StreamSpec((), (), (), sink=Sink()), tmp_path / "ep")
+    assert rec.frame(0.2) == 0
+    rec.close()
+    assert calls == [("begin", tmp_path / "ep"), ("end",)] and not (tmp_path / "ep").exists()
+
 LAB = """\
 format: proxybench-lab/1
 name: dtps-lab
