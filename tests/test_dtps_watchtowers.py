@@ -328,3 +328,32 @@ def test_a_labs_own_dtps_streams_are_recorded_per_episode_on_the_wall_clock(tmp_
         times = [float(r["t"]) for r in csv.DictReader(fh)]
     assert 0.0 <= times[0] < 0.3 and times == sorted(times)
     assert json.loads((tmp_path / "ep" / "reader.json").read_text())["frames"] == {"cam1": 5}
+
+
+@sdk
+def test_hostile_camera_messages_over_dtps_are_counted_with_one_line_and_never_written(tmp_path: Path) -> None:
+    """A watchtower whose messages are a stranger's worst: text for bytes, a NaN clock, a message over the bound,
+    bytes that are no image; each is refused by the reader with one line, the good frames around them kept."""
+    from proxybench.dtps.cameras import WatchtowerReader, WatchtowerServer
+
+    server = WatchtowerServer(["wt01"])
+    try:
+        reader = WatchtowerReader([camera_source("wt01", server.address("wt01"), 64, 48)], max_frame_bytes=100_000)
+        try:
+            reader.begin(tmp_path / "ep", origin=0.0)
+            server.publish("wt01", _jpeg(), 1.0, 1.0)
+            for jpeg, stamp in [("text", 2.0), (_jpeg(), float("nan")), (bytes(200_000), 3.0),
+                                (b"\x00" * 100, 4.0)]:
+                server.link.send(op="frame", name="wt01", jpeg=jpeg, stamp=stamp, t=0.0, seq=0)
+            server.publish("wt01", _jpeg(), 5.0, 5.0)
+            got = reader.end({"wt01": 6}, timeout=20.0)
+            server.take_counts()
+        finally:
+            reader.close()
+        assert server.alive
+    finally:
+        server.close()
+    assert got.frames == {"wt01": 2} and got.bad == {"wt01": 4} and got.missing == {}
+    assert got.problems["wt01"] == "TypeError: data is str, not image bytes"
+    with open(tmp_path / "ep" / "wt01" / "timestamps.csv") as fh:
+        assert [r["t"] for r in csv.DictReader(fh)] == ["1.000000", "5.000000"]
