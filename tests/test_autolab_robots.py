@@ -205,7 +205,7 @@ def test_two_robots_evaluate_two_jobs_at_once_in_one_lab(served: Served, tmp_pat
 
     ev._work = timed
     assert ev.run(once=True) == 2  # one lease attempt per robot: two jobs at once, the third waits for a robot
-    assert sorted(spans) == ["db1", "db2"]
+    assert sorted(spans) == ["db1", "db2"] and ev.robots.busy == []  # each robot given back after its job
     (a0, a1), (b0, b1) = spans["db1"], spans["db2"]
     assert a0 < b1 and b0 < a1, spans  # both workers ran at the same time
     done = {}
