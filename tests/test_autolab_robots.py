@@ -187,6 +187,24 @@ def test_without_the_safe_sandbox_an_autolab_runs_one_job_at_a_time(served: Serv
         assert any(says in line for line in ev.reporter.lines), ev.reporter.lines
 
 
+def test_an_error_in_one_robots_loop_stops_the_evaluator_and_is_raised(served: Served,  # noqa: F811
+                                                                      tmp_path: Path) -> None:
+    from proxybench.autolab.lab import load_lab
+    from proxybench.client import ServerError
+    from proxybench.evaluator.loop import Evaluator, EvaluatorConfig
+    from proxybench.evaluator.sandbox import Isolation
+
+    (tmp_path / "lab.yaml").write_text(LAB2)
+    cfg = EvaluatorConfig(name="lab", work_dir=tmp_path / "work", poll=0.2, features=("sim", "autolab"),
+                          autolab=load_lab(tmp_path / "lab.yaml"))
+    ev = Evaluator(served.url, "not-a-token", cfg)
+    ev.isolation = Isolation("bwrap", "agent", uid=4242, gid=4242, safe=True)  # two loops, whatever this host has
+    with pytest.raises(ServerError) as info:
+        ev.run()  # not once: only the error ends it
+    assert info.value.status == 401 and ev.stop_reason.startswith("a slot failed")
+    assert ev.robots.busy == []
+
+
 @sdk
 @AGENT_USER_GROUP
 def test_two_robots_evaluate_two_jobs_at_once_in_one_lab(served: Served, tmp_path: Path) -> None:  # noqa: F811
