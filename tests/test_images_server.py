@@ -135,3 +135,74 @@ def test_an_image_whose_agent_attacks_ends_failed_with_its_reason(served_fixture
     assert "ATTEMPTED kill_parent" in stderr and "now kill(-1)" in stderr and "ESCAPED" not in stderr
     assert served.developer.leaderboard("tiny_open")["rows"] == []
     assert processes_left(isolation.uid) == []
+
+
+def test_an_image_has_its_own_size_limit_and_each_refusal_names_its_setting(tmp_path: Path,
+                                                                          archives: dict[str, Path]) -> None:
+    """AIDO images are hundreds of MB, packages a few: an upload told to be an image is held to image_max_bytes,
+    a package to archive_max_bytes, and the 413 names the setting to raise; nothing is stored by a refusal."""
+    import io
+    import zipfile
+
+    from fastapi.testclient import TestClient
+
+    from proxybench.server.app import create_app
+    from proxybench.server.config import Settings
+
+    image = archives["oci-archive"]
+    size = image.stat().st_size
+    package = io.BytesIO()
+    with zipfile.ZipFile(package, "w", zipfile.ZIP_STORED) as zf:
+        zf.writestr("proxybench-agent.yaml", "name: big\ncommand: python3 agent.py\n")
+        zf.writestr("weights.bin", os.urandom(2 << 20))
+
+    def upload(client: TestClient, who: dict, name: str, data: bytes) -> tuple[int, str]:
+        r = client.post("/api/v1/submissions/upload", headers=who, data={"label": name, "benchmark": "aido_lf"},
+                        files={"archive": (name, data, "application/octet-stream")})
+        return r.status_code, r.text
+
+    for image_max, image_ok in ((size + 10, True), (size - 1, False)):
+        data_dir = tmp_path / f"server-{image_max}"
+        app = create_app(Settings(data_dir=data_dir, archive_max_bytes=1 << 20, image_max_bytes=image_max))
+        with TestClient(app) as client:
+            admin = {"Authorization": f"Bearer {app.state.admin_token}"}
+            token = client.post("/api/v1/users", headers=admin, json={"name": "dev", "role": "developer"}).json()
+            dev = {"Authorization": f"Bearer {token['token']}"}
+            status, text = upload(client, dev, "image.tar", image.read_bytes())
+            if image_ok:  # 50 MB over the package limit, under the image limit
+                assert status == 201, text
+            else:
+                assert status == 413 and "image_max_bytes" in text and "image.tar" in text, text
+            status, text = upload(client, dev, "big.zip", package.getvalue())
+            assert status == 413 and "archive_max_bytes" in text and "big.zip" in text, text
+            stored = [p for p in (data_dir / "artifacts").rglob("*") if p.is_file()]
+            assert len(stored) == (1 if image_ok else 0)
+
+
+def test_a_download_is_streamed_and_a_corrupt_or_broken_one_is_a_host_side_error(tmp_path: Path) -> None:
+    """The evaluator writes a submission's archive as it arrives (an image is not held in memory); bytes that do
+    not hash to the submitted digest, or a transfer that breaks off, are the transfer's fault (status 0)."""
+    import hashlib
+
+    import httpx
+
+    from proxybench.client import ServerClient
+
+    body = os.urandom(3 << 20)
+    good = hashlib.sha256(body).hexdigest()
+
+    def handler(request: httpx.Request) -> httpx.Response:
+        if request.url.path.endswith(good):
+            return httpx.Response(200, content=body)
+        if request.url.path.endswith("0" * 64):
+            raise httpx.ReadError("connection reset", request=request)
+        return httpx.Response(200, content=body[:-1] + b"x")
+
+    client = ServerClient("http://server.invalid", "pbt_x")
+    client.http = httpx.Client(base_url="http://server.invalid/api/v1", transport=httpx.MockTransport(handler))
+    chunks = list(client.stream_artifact(good, chunk=1 << 20))
+    assert len(chunks) == 3 and b"".join(chunks) == body
+    for sha, says in (("f" * 64, "do not match their hash"), ("0" * 64, "broke off")):
+        with pytest.raises(ServerError, match=says) as err:
+            list(client.stream_artifact(sha))
+        assert err.value.status == 0

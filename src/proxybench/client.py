@@ -15,6 +15,7 @@ import hashlib
 import os
 import stat
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -167,6 +168,24 @@ class ServerClient:
         params = {"job_id": lease[0], "lease_id": lease[1]} if lease is not None else None
         self.request("PUT", f"/artifacts/{sha}", content=data, headers={"content-type": media_type}, params=params)
         return sha
+
+    def stream_artifact(self, sha256: str, chunk: int = 1 << 20) -> Iterator[bytes]:
+        """The artifact's bytes as they arrive (a container image of a gigabyte is never held whole), its hash
+        checked at the end: a corrupted transfer raises after the last chunk, so the caller must not use what it
+        wrote until the iterator is exhausted."""
+        digest = hashlib.sha256()
+        try:
+            with self.http.stream("GET", f"/artifacts/{sha256}") as r:
+                if r.status_code >= 400:
+                    r.read()
+                    raise ServerError(r.status_code, r.text[:500])
+                for part in r.iter_bytes(chunk):
+                    digest.update(part)
+                    yield part
+        except httpx.TransportError as exc:
+            raise ServerError(0, f"artifact {sha256[:12]}…: the download broke off ({exc})") from None
+        if digest.hexdigest() != sha256:
+            raise ServerError(0, f"artifact {sha256[:12]}…: downloaded bytes do not match their hash")
 
     def get_artifact(self, sha256: str) -> bytes:
         """Download and check the content hash (a corrupted transfer is an error, not an agent)."""

@@ -320,7 +320,7 @@ class Evaluator:
         sub = lease.submission
         if sub.archive_sha256:
             try:
-                job.write("agent.archive", self.client.get_artifact(sub.archive_sha256))
+                job.write("agent.archive", self.client.stream_artifact(sub.archive_sha256))
             except ServerError as exc:
                 status = "host-error" if exc.status == 0 else "error"
                 return Outcome(status, f"cannot download the submission's archive: {exc}")

@@ -26,6 +26,7 @@ import fcntl
 import os
 import shutil
 import stat
+from collections.abc import Iterable
 from pathlib import Path
 
 __all__ = ["JobDir", "StateDir", "WorkDirError", "default_work_dir", "open_state_dir"]
@@ -141,11 +142,13 @@ def _open_in(dir_fd: int, name: str, flags: int, mode: int = 0o600) -> int:
     return os.open(name, flags | os.O_NOFOLLOW | os.O_CLOEXEC, mode, dir_fd=dir_fd)
 
 
-def _write(dir_fd: int, name: str, data: bytes) -> None:
-    """A new file ``name`` in ``dir_fd`` (an existing one, or a link, is an error), holding ``data``."""
+def _write(dir_fd: int, name: str, data: bytes | Iterable[bytes]) -> None:
+    """A new file ``name`` in ``dir_fd`` (an existing one, or a link, is an error), holding ``data`` (bytes, or
+    chunks written as they come: a container image is not held in memory)."""
     fd = _open_in(dir_fd, name, os.O_WRONLY | os.O_CREAT | os.O_EXCL)
     with open(fd, "wb") as f:
-        f.write(data)
+        for chunk in [data] if isinstance(data, bytes | bytearray) else data:
+            f.write(chunk)
 
 
 def _read_plain(dir_fd: int, name: str, limit: int | None = None) -> bytes:
@@ -193,7 +196,7 @@ class JobDir(_Folder):
         self.parent, self.name, self.fd = parent, name, fd
         self.path = parent.path / name  # for the worker (a process of the same user) and messages
 
-    def write(self, name: str, data: bytes) -> None:
+    def write(self, name: str, data: bytes | Iterable[bytes]) -> None:
         _write(self.fd, name, data)
 
     def close(self, remove: bool) -> None:

@@ -187,7 +187,8 @@ def create_app(settings: Settings | None = None, *, prepared: bool = False) -> F
     configure_connections(settings.header_timeout, settings.max_connections_per_address)
     raise_open_files()
     rules = BodyRules(limits=[(f"{API}/artifacts/", settings.artifact_max_bytes),
-                              (f"{API}/submissions/upload", settings.archive_max_bytes + (1 << 20))],
+                              (f"{API}/submissions/upload",
+                               max(settings.archive_max_bytes, settings.image_max_bytes) + (1 << 20))],
                       default=settings.json_max_bytes, timeout=settings.body_timeout,
                       min_rate=settings.body_min_rate, spool_dir=settings.data_dir / "spool",
                       max_readers_per_address=settings.max_readers_per_address)

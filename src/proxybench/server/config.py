@@ -25,7 +25,9 @@ class Settings(BaseModel):
     lease_seconds: float = Field(120.0, gt=0, description="a job lease lapses this long after the last heartbeat")
     max_attempts: int = Field(3, ge=1, description="leases a job may take before it is given up")
     daily_submission_limit: int = Field(20, ge=0, description="submissions per developer per 24 h (0: no limit)")
-    archive_max_bytes: int = Field(64 << 20, gt=0, description="largest agent archive accepted")
+    archive_max_bytes: int = Field(64 << 20, gt=0, description="largest agent package accepted")
+    image_max_bytes: int = Field(2 << 30, gt=0, description="largest container image (OCI archive or docker save "
+                                 "tarball) accepted; AIDO submissions are hundreds of MB")
     artifact_max_bytes: int = Field(256 << 20, gt=0, description="largest artifact accepted")
     max_concurrent_requests: int = Field(8, ge=1, le=200, description="requests in progress at once; "
                                          "the rest queue (one process has one GIL: more only adds switching)")

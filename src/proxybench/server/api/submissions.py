@@ -68,13 +68,15 @@ async def submit_archive(request: Request, settings: Conf, user: Uploader,
     benchmark, path = _form_text(benchmark, "benchmark", 64), _form_text(path, "path", 64)
     name = clean_text(archive.filename or "agent-archive")[:255]
     size = archive.size if archive.size is not None else 0
-    if size > settings.archive_max_bytes:
-        raise ServiceError(413, f"archive is {size} bytes; the limit is {settings.archive_max_bytes}")
+    image = await run_in_threadpool(is_image_archive, archive.file)
+    limit, what = (settings.image_max_bytes, "image_max_bytes") if image else (settings.archive_max_bytes,
+                                                                                  "archive_max_bytes")
+    if size > limit:
+        raise ServiceError(413, f"archive {name!r} is {size} bytes; the server's {what} is {limit}")
     store = request.app.state.store
     try:
-        if await run_in_threadpool(is_image_archive, archive.file):
-            manifest = await run_in_threadpool(_check_image, archive.file, name, label, store.root,
-                                               settings.archive_max_bytes)
+        if image:
+            manifest = await run_in_threadpool(_check_image, archive.file, name, label, store.root, limit)
         else:
             manifest = await run_in_threadpool(check_archive, archive.file)
     except (PackageError, ImageError) as exc:
@@ -82,7 +84,7 @@ async def submit_archive(request: Request, settings: Conf, user: Uploader,
 
     def _store() -> tuple[str, int]:
         archive.file.seek(0)
-        return store.write(iter(lambda: archive.file.read(1 << 20), b""), settings.archive_max_bytes)
+        return store.write(iter(lambda: archive.file.read(1 << 20), b""), limit)
 
     try:
         sha, size = await run_in_threadpool(_store)
