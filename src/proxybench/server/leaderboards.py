@@ -23,6 +23,11 @@ episode index, seed and per-episode scores, as the evaluator uploads them). Subm
 episode by episode. ``bt`` on the board says whether first place is provisional and how many episodes it rests on;
 ``bt`` on a row is its score. A result without a per-episode report has no score (``null``). The bootstrap's cost
 grows with the cube of the agents: large boards get fewer resamples, and none above :data:`BT_MAX_AGENTS`.
+
+A result an Autolab measured (its report says ``measured_by: watchtowers``: scored from the trajectory its
+watchtowers localised, not from the robot's own report) is marked on its row (``measured_by``, ``lab``), and
+:func:`simulation_scores` finds the same agent's newest simulation result on another benchmark to show beside it
+(read when the page is read: a result on another benchmark does not change this board).
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
+from pydantic import BaseModel, ConfigDict
 from sqlalchemy import Connection, bindparam, func, select
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -46,8 +52,8 @@ from proxybench.server.models import BenchmarkVersion, Result, Submission, User
 from proxybench.tasks.scoring import Criterion, leaderboard
 from proxybench.usefulness.bradley_terry import episode_metric
 
-__all__ = ["BT_MAX_AGENTS", "MIN_INTERVAL_S", "SYNC_BUILD_ROWS", "Board", "BoardCache", "board_bradley_terry",
-           "build_board", "resolve_version"]
+__all__ = ["BT_MAX_AGENTS", "MIN_INTERVAL_S", "SYNC_BUILD_ROWS", "Board", "BoardCache", "SimulationScore",
+           "board_bradley_terry", "build_board", "resolve_version", "simulation_scores"]
 
 log = logging.getLogger("proxybench.server")
 SYNC_BUILD_ROWS = 100  # boards of at most this many rows are always built before they are served
@@ -87,7 +93,8 @@ class Entries:
     """What a board is built from: the newest success of each active submission, and how far it has read
     (the highest result id, and how many submissions were retired then: a retirement means reading all)."""
 
-    # sid -> (rid, at, scores, label, agent, user, per-episode values: {(episode, seed): (one per criterion)})
+    # sid -> (rid, at, scores, label, agent, user, per-episode values: {(episode, seed): (one per criterion)},
+    #         how it was measured: {"measured_by", "lab"} or {})
     by_submission: dict[int, tuple] = field(default_factory=dict)
     last_result: int = 0
     retired: int = -1
@@ -107,6 +114,15 @@ def _episode_values(report: Any, metrics: tuple[str, ...]) -> dict[tuple[str, st
         if any(v == v for v in values):  # an episode with none of the criteria's values tells nothing
             out[(str(row["episode"]), str(row.get("seed")))] = values
     return out
+
+
+def _measured(report: Any) -> dict[str, str]:
+    """How a result was measured, from its report (untrusted: only short strings are kept): ``measured_by`` and
+    the ``lab`` for a result an Autolab's watchtowers measured, else nothing."""
+    if not isinstance(report, dict):
+        return {}
+    out = {k: report[k] for k in ("measured_by", "lab") if isinstance(report.get(k), str) and 0 < len(report[k]) <= 64}
+    return out if "measured_by" in out else {}
 
 
 def _number(v: Any) -> float | None:
@@ -132,7 +148,7 @@ def _read_entries(session: Session, bench_id: int, split: str, since: Entries | 
     ).all()
     for rid, at, scores, sid, label, agent, manifest, user, report in rows:  # the latest success per submission wins
         out.by_submission[sid] = (rid, at, scores or {}, label, agent or (manifest or {}).get("name", "archive"),
-                                  user, _episode_values(report, metrics))
+                                  user, _episode_values(report, metrics), _measured(report))
         out.last_result = max(out.last_result, rid)
     return out
 
@@ -192,11 +208,12 @@ def build_board(session: Session, bench_id: int, split: str,
     bt, bt_rows = board_bradley_terry(criteria, {sid: entries.by_submission[sid][6] for sid in scores})
     rows = []
     for rank in ranks:
-        rid, at, _, label, agent, user, _ = entries.by_submission[rank.agent]
+        rid, at, _, label, agent, user, _, measured = entries.by_submission[rank.agent]
         rows.append({"rank": rank.rank, "submission_id": rank.agent, "label": label, "user": user, "agent": agent,
                      "copeland": rank.copeland, "wins": rank.wins, "losses": rank.losses,
                      "scores": {c.metric: _json_number(scores[rank.agent].get(c.metric)) for c in criteria},
-                     "bt": bt_rows.get(rank.agent), "result_id": rid, "at": at})
+                     "bt": bt_rows.get(rank.agent), "result_id": rid, "at": at,
+                     "measured_by": measured.get("measured_by"), "lab": measured.get("lab")})
     return board_version, {
         "benchmark": row.name, "version": row.version, "split": split,
         "criteria": [{"metric": c.metric, "higher_is_better": c.higher_is_better, "tolerance": c.tolerance}
@@ -383,3 +400,61 @@ def leaderboard_rows(session: Session, name: str, split: str = "public",
         return build_board(session, bench_id, split)[1]
     board, stale = boards.get(bench_id, split, board_version)
     return {**board.data, "total": len(board.data["rows"]), "stale": stale, "built_at": board.built_at}
+
+
+MAX_SIMULATION_RESULTS = 500  # results of the measured agents read at most, newest first, to find their simulation
+SIMULATION = "simulation"  # the report's domain_kind of a run in proxybench's simulator (domain.kinds.DomainKind)
+
+
+class SimulationScore(BaseModel):
+    """The same agent's newest simulation result on another benchmark: where, and its scores on this board's
+    criteria (None where it has no such score)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    benchmark: str
+    version: int
+    result_id: int
+    same_submission: bool
+    scores: dict[str, float | None]
+
+
+def simulation_scores(session: Session, board: dict[str, Any]) -> dict[int, SimulationScore]:
+    """By submission id, for each row of ``board`` measured by watchtowers: the same agent's newest successful
+    simulation result on another benchmark (the same submission's first, else the same user's submission of the
+    same agent: the same package by its hash, or the same built-in agent), in the board's split."""
+    measured = [r["submission_id"] for r in board["rows"] if r.get("measured_by") == "watchtowers"]
+    if not measured:
+        return {}
+    subs = session.execute(select(Submission.id, Submission.user_id, Submission.archive_sha256, Submission.agent_name)
+                           .where(Submission.id.in_(measured))).all()
+    agent_of = {sid: (user, sha or None, None if sha else name) for sid, user, sha, name in subs}
+    same = session.execute(select(Submission.id, Submission.user_id, Submission.archive_sha256, Submission.agent_name)
+                           .where(Submission.status == "active",
+                                  Submission.user_id.in_({a[0] for a in agent_of.values()}))).all()
+    twins: dict[int, set[int]] = {sid: {sid} for sid in agent_of}
+    for sid, user, sha, name in same:
+        for mine, key in agent_of.items():
+            if (user, sha or None, None if sha else name) == key and key[1:] != (None, None):
+                twins[mine].add(sid)
+    candidates = set().union(*twins.values())
+    score_col = Result.public_scores if board["split"] == "public" else Result.hidden_scores
+    report_col = Result.public_report if board["split"] == "public" else Result.hidden_report
+    rows = session.execute(
+        select(Result.id, Result.submission_id, score_col, report_col, BenchmarkVersion.name, BenchmarkVersion.version)
+        .join(BenchmarkVersion, Result.benchmark_id == BenchmarkVersion.id)
+        .where(Result.status == "success", Result.submission_id.in_(candidates),
+               BenchmarkVersion.name != board["benchmark"])
+        .order_by(Result.id.desc()).limit(MAX_SIMULATION_RESULTS)).all()
+    metrics = [c["metric"] for c in board["criteria"]]
+    out: dict[int, SimulationScore] = {}
+    for rid, sid, scores, report, bench, version in rows:  # newest first
+        if not isinstance(report, dict) or report.get("domain_kind") != SIMULATION:
+            continue
+        for mine, ids in twins.items():
+            if sid not in ids or (mine in out and (out[mine].same_submission or sid != mine)):
+                continue
+            values = {m: _json_number(_number((scores or {}).get(m))) for m in metrics}
+            out[mine] = SimulationScore(benchmark=bench, version=version, result_id=rid, same_submission=sid == mine,
+                                        scores=values)
+    return out

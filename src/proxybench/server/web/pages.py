@@ -17,7 +17,7 @@ from proxybench.server.api.deps import DB, SESSION_COOKIE, Conf, WebCaller, WebF
 from proxybench.server.api.jobs import list_evaluators
 from proxybench.server.benchmarks import parse_benchmark
 from proxybench.server.errors import ServiceError
-from proxybench.server.leaderboards import leaderboard_rows
+from proxybench.server.leaderboards import leaderboard_rows, simulation_scores
 from proxybench.server.models import JOB_STATUSES, BenchmarkVersion, Job, Result
 from proxybench.server.security import close_web_session, csrf_token, open_web_session, token_row
 from proxybench.server.web.common import render, safe_next
@@ -160,5 +160,10 @@ def leaderboard(request: Request, name: str, session: DB, user: WebCaller, split
     board = leaderboard_rows(session, name, split, version, boards=request.app.state.boards)
     view = get_benchmark(name, session, user, board["version"])
     columns, rows = ranked_rows(session, board, board["rows"])
+    sims = simulation_scores(session, board)  # beside a result measured by watchtowers: the agent's simulation
+    for r in rows:
+        sim = sims.get(r["submission_id"])
+        r["sim"] = None if sim is None else {**sim.model_dump(), "cells": board_cells(sim.scores, columns, None)}
     return render(request, "leaderboard.html", user, board=board, columns=columns, rows=rows, b=view,
-                  versions=_versions(session, name), generated=time.time())
+                  versions=_versions(session, name), generated=time.time(),
+                  measured=any(r.get("measured_by") for r in rows))
