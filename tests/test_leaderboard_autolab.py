@@ -29,16 +29,14 @@ def _report(kind: str, lanedir: float, **extra) -> dict:
                                                                                    "survival_time": 3.0}}], **extra}
 
 
-@pytest.fixture()
-def lab_site(tmp_path):
-    """A server with an Autolab benchmark and a simulation one with the same criteria; results uploaded:
+def seed_lab_board(client: TestClient, admin_token: str) -> dict[str, str]:
+    """An Autolab benchmark (lab_tiny) and a simulation one with the same criteria (sim_tiny), results uploaded as
+    evaluators upload them; the users' tokens:
 
     - gina's pid: simulation 0.912 on sim_tiny, 0.734 measured by the watchtowers of lab 'test-lab';
     - hank's pid: 0.501 measured by watchtowers (hank has no simulation result; gina's pid is not his);
     - ivy's vision: 0.305 with no ``measured_by`` (an evaluator that does not say): not marked."""
-    app = create_app(Settings(data_dir=tmp_path / "data"))
-    client = TestClient(app)
-    admin = {"Authorization": f"Bearer {app.state.admin_token}"}
+    admin = {"Authorization": f"Bearer {admin_token}"}
     for text, feats in ((LAB_BENCH, ["autolab"]), (SIM_BENCH, ["sim"])):
         assert client.post("/api/v1/benchmarks", headers=admin, json={"yaml": text, "features": feats}).status_code \
             in (200, 201)
@@ -65,7 +63,14 @@ def lab_site(tmp_path):
                               "public_scores": scores, "public_report": report, "hidden_scores": scores,
                               "hidden_report": report})
         assert r.status_code in (200, 201), r.text
-    return client, tokens
+    return tokens
+
+
+@pytest.fixture()
+def lab_site(tmp_path):
+    app = create_app(Settings(data_dir=tmp_path / "data"))
+    client = TestClient(app)
+    return client, seed_lab_board(client, app.state.admin_token)
 
 
 def _rows(html: str) -> dict[str, str]:

@@ -221,3 +221,36 @@ def test_an_expired_or_revoked_session_goes_back_to_the_login_page(server, page)
         assert client.post(f"/api/v1/tokens/{tok['id']}/revoke", headers=frank).status_code == 200
     page.goto(url + "/jobs")
     assert page.url.startswith(url + "/login")
+
+
+@pytest.fixture(scope="module")
+def lab_server(tmp_path_factory):
+    """(base URL, tokens) of a live server whose Autolab board holds results measured by watchtowers
+    (test_leaderboard_autolab.seed_lab_board)."""
+    from test_leaderboard_autolab import seed_lab_board
+
+    app = create_app(Settings(data_dir=tmp_path_factory.mktemp("web-browser-lab") / "data"))
+    with TestClient(app) as client:
+        tokens = seed_lab_board(client, app.state.admin_token)
+    with serve_in_thread(app) as url:
+        yield url, tokens
+
+
+def test_the_leaderboard_marks_results_measured_by_watchtowers(lab_server, page):
+    """Issue 36: an Autolab result is marked "measured by watchtowers", the agent's simulation score beside it."""
+    url, tokens = lab_server
+    sign_in(page, url, DemoData(tokens=tokens), "ivy", "/leaderboards/lab_tiny")
+    rows = page.locator("[data-testid=leaderboard] tbody tr")
+    assert rows.count() == 3
+    labels = page.locator("[data-testid=leaderboard] tbody tr td:nth-child(2)").all_inner_texts()
+    assert labels == ["gina pid lab", "hank pid lab", "ivy vision lab"]  # ranked by the watchtowers' scores
+    gina, hank, ivy = (rows.nth(k) for k in range(3))
+    assert gina.locator("[data-testid=measured-by]").inner_text() == "measured by watchtowers"
+    assert "lab test-lab" in gina.locator("[data-testid=measured-by]").get_attribute("title")
+    assert gina.locator("[data-testid=sim-score]").inner_text() == "simulation (sim_tiny): 0.91 · 3.0"
+    assert hank.locator("[data-testid=measured-by]").is_visible()
+    assert hank.locator("[data-testid=sim-score]").inner_text() == "no simulation result of this agent"
+    assert ivy.locator("[data-testid=measured-by]").count() == 0
+    gina.locator("[data-testid=sim-score] a").click()  # the simulation score links to its board
+    page.wait_for_url(url + "/leaderboards/sim_tiny?version=1")
+    assert page.locator("[data-testid=leaderboard] tbody tr td:nth-child(2)").all_inner_texts() == ["gina pid sim"]
