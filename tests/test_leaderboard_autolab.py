@@ -48,21 +48,12 @@ def seed_lab_board(client: TestClient, admin_token: str) -> dict[str, str]:
             ("hank", "hank pid lab", "pid", "lab_tiny",
              _report("autolab/virtual", 0.501, measured_by="watchtowers", lab="test-lab")),
             ("ivy", "ivy vision lab", "vision", "lab_tiny", _report("autolab/virtual", 0.305))]
-    ev = {"Authorization": f"Bearer {tokens['lab']}"}
     for user, label, agent, bench, report in plan:
         r = client.post("/api/v1/submissions", headers={"Authorization": f"Bearer {tokens[user]}"},
                         json={"label": label, "agent": agent, "benchmark": bench})
         assert r.status_code == 201, r.text
-        feats = ["sim"] if bench == "sim_tiny" else ["sim", "autolab"]  # as `evaluator --autolab` offers
-        job = client.post("/api/v1/jobs/lease", headers=ev, json={"evaluator": "lab", "features": feats}).json()
-        assert job["submission"]["label"] == label
-        lanedir = report["episodes"][0]["scores"]["driven_lanedir_consec"]
-        scores = {"episodes": 1, "driven_lanedir_consec_median": lanedir, "survival_time_median": 3.0}
-        r = client.post(f"/api/v1/jobs/{job['job_id']}/result", headers=ev,
-                        json={"lease_id": job["lease_id"], "evaluator": "lab", "status": "success",
-                              "public_scores": scores, "public_report": report, "hidden_scores": scores,
-                              "hidden_report": report})
-        assert r.status_code in (200, 201), r.text
+        # an Autolab evaluator offers sim and autolab (`evaluator --autolab`)
+        _upload(client, tokens, label, ["sim"] if bench == "sim_tiny" else ["sim", "autolab"], report)
     return tokens
 
 
@@ -112,3 +103,42 @@ def test_the_web_leaderboard_shows_the_mark_and_the_agents_simulation_score(lab_
 def _csrf(client: TestClient) -> str:
     form = client.get("/login")
     return re.search(r'name="csrf" value="([0-9a-f]+)"', form.text).group(1)
+
+
+def _upload(client: TestClient, tokens: dict[str, str], label: str, feats: list[str], report: dict) -> None:
+    """Lease the next job (it must be ``label``'s) and upload a success with ``report``."""
+    ev = {"Authorization": f"Bearer {tokens['lab']}"}
+    job = client.post("/api/v1/jobs/lease", headers=ev, json={"evaluator": "lab", "features": feats}).json()
+    assert job["submission"]["label"] == label
+    lanedir = report["episodes"][0]["scores"]["driven_lanedir_consec"]
+    scores = {"episodes": 1, "driven_lanedir_consec_median": lanedir, "survival_time_median": 3.0}
+    r = client.post(f"/api/v1/jobs/{job['job_id']}/result", headers=ev,
+                    json={"lease_id": job["lease_id"], "evaluator": "lab", "status": "success", "public_scores": scores,
+                          "public_report": report, "hidden_scores": scores, "hidden_report": report})
+    assert r.status_code in (200, 201), r.text
+
+
+def test_a_submission_run_in_simulation_then_in_the_lab_shows_its_own_simulation_score(lab_site):
+    """A path (simulation, then the lab): its row shows that submission's own simulation result even when another
+    submission of the same agent has a newer one, which the other rows of that agent show."""
+    client, tokens = lab_site
+    admin = {"Authorization": f"Bearer {client.app.state.admin_token}"}
+    path = {"steps": [{"id": "sim", "benchmark": "sim_tiny"}, {"id": "lab", "benchmark": "lab_tiny"}],
+            "edges": [{"source": "sim", "target": "lab", "condition": {"metric": "survival_time_median", "min": 1}}]}
+    assert client.post("/api/v1/paths", headers=admin, json={"name": "sim-then-lab", "spec": path}).status_code == 201
+    gina = {"Authorization": f"Bearer {tokens['gina']}"}
+    r = client.post("/api/v1/submissions", headers=gina,
+                    json={"label": "gina pid path", "agent": "pid", "path": "sim-then-lab"})
+    assert r.status_code == 201, r.text
+    _upload(client, tokens, "gina pid path", ["sim"], _report("simulation", 0.655))
+    _upload(client, tokens, "gina pid path", ["sim", "autolab"],
+            _report("autolab/virtual", 0.8, measured_by="watchtowers", lab="test-lab"))
+    r = client.post("/api/v1/submissions", headers=gina, json={"label": "gina pid sim2", "agent": "pid",
+                                                               "benchmark": "sim_tiny"})
+    assert r.status_code == 201, r.text
+    _upload(client, tokens, "gina pid sim2", ["sim"], _report("simulation", 0.951))  # the newest of pid
+    assert client.post("/login", data={"token": tokens["gina"], "csrf": _csrf(client)},
+                       follow_redirects=False).status_code == 303
+    rows = _rows(client.get("/leaderboards/lab_tiny").text)
+    assert "simulation ( sim_tiny ): 0.66 · 3.0" in rows["gina pid path"]  # its own, not the newest of pid
+    assert "simulation ( sim_tiny ): 0.95 · 3.0" in rows["gina pid lab"]  # the newest of another submission

@@ -429,14 +429,17 @@ def simulation_scores(session: Session, board: dict[str, Any]) -> dict[int, Simu
     subs = session.execute(select(Submission.id, Submission.user_id, Submission.archive_sha256, Submission.agent_name)
                            .where(Submission.id.in_(measured))).all()
     agent_of = {sid: (user, sha or None, None if sha else name) for sid, user, sha, name in subs}
+    by_agent: dict[tuple, list[int]] = {}  # (user, package hash, built-in agent) -> the measured submissions
+    for sid, key in agent_of.items():
+        if key[1:] != (None, None):
+            by_agent.setdefault(key, []).append(sid)
     same = session.execute(select(Submission.id, Submission.user_id, Submission.archive_sha256, Submission.agent_name)
                            .where(Submission.status == "active",
                                   Submission.user_id.in_({a[0] for a in agent_of.values()}))).all()
     twins: dict[int, set[int]] = {sid: {sid} for sid in agent_of}
     for sid, user, sha, name in same:
-        for mine, key in agent_of.items():
-            if (user, sha or None, None if sha else name) == key and key[1:] != (None, None):
-                twins[mine].add(sid)
+        for mine in by_agent.get((user, sha or None, None if sha else name), ()):
+            twins[mine].add(sid)
     candidates = set().union(*twins.values())
     score_col = Result.public_scores if board["split"] == "public" else Result.hidden_scores
     report_col = Result.public_report if board["split"] == "public" else Result.hidden_report
@@ -448,12 +451,16 @@ def simulation_scores(session: Session, board: dict[str, Any]) -> dict[int, Simu
         .order_by(Result.id.desc()).limit(MAX_SIMULATION_RESULTS)).all()
     metrics = [c["metric"] for c in board["criteria"]]
     out: dict[int, SimulationScore] = {}
+    for_whom: dict[int, list[int]] = {}  # a candidate submission -> the measured submissions it stands for
+    for mine, ids in twins.items():
+        for sid in ids:
+            for_whom.setdefault(sid, []).append(mine)
     for rid, sid, scores, report, bench, version in rows:  # newest first
         if not isinstance(report, dict) or report.get("domain_kind") != SIMULATION:
             continue
-        for mine, ids in twins.items():
-            if sid not in ids or (mine in out and (out[mine].same_submission or sid != mine)):
-                continue
+        for mine in for_whom.get(sid, ()):
+            if mine in out and (out[mine].same_submission or sid != mine):
+                continue  # a newer one is kept, unless this is the measured submission's own
             values = {m: _json_number(_number((scores or {}).get(m))) for m in metrics}
             out[mine] = SimulationScore(benchmark=bench, version=version, result_id=rid, same_submission=sid == mine,
                                         scores=values)
