@@ -116,8 +116,27 @@ def test_an_agent_that_crashes_fails_its_job_with_its_last_words(served: Served,
     assert processes_left(require_safe_sandbox().uid, 10) == []
 
 
+def _parent(pid: int) -> int:
+    try:
+        stat = (Path("/proc") / str(pid) / "stat").read_text()
+    except OSError:
+        return 0
+    return int(stat.rsplit(")", 1)[1].split()[1])  # the field after the state; the name may hold spaces
+
+
+def _ours(pid: int) -> bool:
+    """Whether ``pid`` descends from this test process (another test's bridge, in the other xdist worker or
+    another suite on the machine, is not ours to kill)."""
+    me = os.getpid()
+    while pid > 1:
+        pid = _parent(pid)
+        if pid == me:
+            return True
+    return False
+
+
 def _bridges() -> list[int]:
-    """The running virtual DB21J bridges (the robot's DTPS server: ``dtps/bridge.py server``)."""
+    """This test's running virtual DB21J bridges (the robot's DTPS server: ``dtps/bridge.py server``)."""
     out = []
     for p in Path("/proc").iterdir():
         if not p.name.isdigit():
@@ -126,7 +145,7 @@ def _bridges() -> list[int]:
             cmd = (p / "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        if any(c.endswith(b"dtps/bridge.py") for c in cmd) and b"server" in cmd:
+        if any(c.endswith(b"dtps/bridge.py") for c in cmd) and b"server" in cmd and _ours(int(p.name)):
             out.append(int(p.name))
     return out
 

@@ -29,6 +29,8 @@ class _NoPip:
         self.calls.append(cmd)
         if "pip" in cmd or "venv" in cmd or cmd[0] == "apt-get":
             raise AssertionError(f"a setup with nothing to do ran {cmd}")
+        if any("sys.version_info" in c for c in cmd):  # gym setup asks the interpreter's version first
+            return subprocess.CompletedProcess(cmd, 0, "3 11 7\n", "")
         return subprocess.CompletedProcess(cmd, 0, self.probe_stdout, "")
 
     def popen(self, cmd: list[str], *args: Any, **kwargs: Any) -> None:
