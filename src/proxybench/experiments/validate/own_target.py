@@ -809,7 +809,7 @@ def show_own_target(result: OwnTargetResult, console: Any, *, wall: float = 0.0)
         console.print(note, highlight=False, markup=False)
     console.print(summary.answer, highlight=False, markup=False)
     for m, a in [*summary.methods.items(), *summary.versus.items()]:
-        console.print(f"  {m:>10}: median {a.median:+.4f} [{a.median_low:+.4f}, {a.median_high:+.4f}]  helped "
+        console.print(f"  {m:>16}: median {a.median:+.4f} [{a.median_low:+.4f}, {a.median_high:+.4f}]  helped "
                       f"{a.helped:4.0%}  hurt {a.hurt:4.0%}  tied {a.tied:4.0%}  splits in [{a.range_low:+.4f}, "
                       f"{a.range_high:+.4f}]", highlight=False, markup=False)
     if not summary.scoring_unchanged:
