@@ -22,7 +22,7 @@ settings.load_profile("proxybench")
 # never import them into the test process (``--doctest-modules`` would), where their module-level code
 # (e.g. AIDO scripts' ``logging.disable``) would change every later test.
 collect_ignore_glob = ["aido/*.py", "hostile_agents/*.py", "protocol_agents/*.py", "dtps_agents/*.py",
-                       "dtps_robots/*.py"]
+                       "dtps_robots/*.py", "image_agents/*.py"]  # image agents exit unless inside their image
 
 
 @pytest.fixture(scope="session")
