@@ -28,10 +28,16 @@ pytestmark = AGENT_USER_GROUP
 SHORT = ["--seconds", "3", "--frame-rate", "5", "--watchtower-rate", "5", "--no-video"]
 
 
+def _as_from_a_terminal() -> None:
+    """Ctrl-C's default action in the child, as a terminal gives it: a suite started in the background (``cmd &``,
+    nohup) inherits SIGINT ignored, and Python then never raises KeyboardInterrupt, so the Ctrl-C test hung."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def demo(*args: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "proxybench", "autolab", "demo", *args],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env={**os.environ, "COLUMNS": "200"})
+                            env={**os.environ, "COLUMNS": "200"}, preexec_fn=_as_from_a_terminal)
 
 
 def _alive(pid: int) -> bool:
