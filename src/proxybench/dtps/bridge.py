@@ -645,6 +645,31 @@ def _one_line(record: logging.LogRecord) -> bool:
     return True
 
 
+def quiet_logging(*, one_line: bool) -> None:
+    """Log warnings and worse only (dtps sets its loggers to DEBUG when imported: filter at the handlers), each
+    record as one line (:func:`_one_line`, never a traceback) when ``one_line``."""
+    logging.basicConfig()
+    for handler in logging.getLogger().handlers:
+        handler.setLevel(logging.WARNING)
+        if one_line:
+            handler.addFilter(_one_line)
+
+
+def serve_role(make, args: argparse.Namespace, out: Out) -> None:
+    """Run a role (``make(args, out)``, built inside the event loop) on this process's stdin requests until its
+    end: the end of input, ``op: quit``, SIGTERM (which ends it as the end of input does) or Ctrl-C."""
+
+    async def run() -> None:
+        loop = asyncio.get_running_loop()
+        role = make(args, out)
+        requests = In(loop)
+        loop.add_signal_handler(signal.SIGTERM, requests.queue.put_nowait, None)  # ends like the end of input
+        await role.run(requests)
+
+    with contextlib.suppress(KeyboardInterrupt):
+        asyncio.run(run())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="role", required=True)
@@ -669,11 +694,7 @@ def main() -> None:
     cli.add_argument("--watchdog", type=float, default=0.5)
     cli.add_argument("--stop-grace", type=float, default=3.0, help="how long to try to deliver (0, 0) on exit [s]")
     args = parser.parse_args()
-    logging.basicConfig()
-    for handler in logging.getLogger().handlers:  # dtps sets its loggers to DEBUG when imported: filter here
-        handler.setLevel(logging.WARNING)
-        if args.role == "server":  # what a stranger's request provokes is one line, never a traceback
-            handler.addFilter(_one_line)
+    quiet_logging(one_line=args.role == "server")  # what a stranger's request provokes is one line
     out = Out()
     if getattr(args, "own_netns", False):
         try:
@@ -681,16 +702,7 @@ def main() -> None:
         except OSError as exc:
             out.send(ev="error", detail=f"cannot serve in a network namespace of its own: {exc}")
             raise SystemExit(2) from None
-
-    async def run() -> None:
-        loop = asyncio.get_running_loop()
-        role = Server(args, out) if args.role == "server" else Client(args, out)
-        requests = In(loop)
-        loop.add_signal_handler(signal.SIGTERM, requests.queue.put_nowait, None)  # ends like the end of input
-        await role.run(requests)
-
-    with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(run())
+    serve_role(Server if args.role == "server" else Client, args, out)
 
 
 if __name__ == "__main__":

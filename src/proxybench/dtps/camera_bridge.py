@@ -26,9 +26,7 @@ import argparse
 import asyncio
 import contextlib
 import importlib.util
-import logging
 import math
-import signal
 import time
 from pathlib import Path
 
@@ -192,21 +190,8 @@ def main() -> None:
     rd.add_argument("--timeout", type=float, default=20.0, help="to reach each source and subscribe [s]")
     rd.add_argument("--queue", type=int, default=256, help="messages held per source while the pipe is busy")
     args = parser.parse_args()
-    logging.basicConfig()
-    for handler in logging.getLogger().handlers:  # dtps sets its loggers to DEBUG when imported: filter here
-        handler.setLevel(logging.WARNING)
-        handler.addFilter(bridge._one_line)
-    out = bridge.Out()
-
-    async def run() -> None:
-        loop = asyncio.get_running_loop()
-        role = Towers(args, out) if args.role == "towers" else Watch(args, out)
-        requests = bridge.In(loop)
-        loop.add_signal_handler(signal.SIGTERM, requests.queue.put_nowait, None)  # ends like the end of input
-        await role.run(requests)
-
-    with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(run())
+    bridge.quiet_logging(one_line=True)
+    bridge.serve_role(Towers if args.role == "towers" else Watch, args, bridge.Out())
 
 
 if __name__ == "__main__":
