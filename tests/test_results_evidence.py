@@ -182,3 +182,66 @@ def test_export_refuses_a_rank_check_study_that_is_still_running(tmp_path: Path)
     assert res.exit_code == 1
     assert (f"holds {covered + 2} targets' episodes but its summary covers {covered}: the study is running or was "
             "extended") in res.output
+
+
+# -- a PLV run (the 15-seed full run is shipped the same way) ---------------------------------------------------------
+
+def _plv_study(folder: Path) -> Path:
+    """A finished `proxybench plv` report folder: the registered study's canned result (nothing trains), each
+    training run given three evaluation episodes whose mean is its score, written by the PLV report itself."""
+    from proxybench.experiments.plv.study import PLVStudy
+
+    study = PLVStudy()
+    res = study.example()
+    for r in res.runs:
+        r["scores"] = [r["score"] - 0.5, r["score"], r["score"] + 0.5]
+        r["terminations"] = ["timeout", "timeout", "out-of-lane"]
+    study.write_report(res, folder)
+    return folder
+
+
+def test_a_plv_run_exports_and_rebuilds_to_its_own_table(tmp_path: Path):
+    study = _plv_study(tmp_path / "plv-out")
+    (tmp_path / "results").mkdir()
+    res = _cli("results", "export", str(study), "plv_example", "--root", str(tmp_path))
+    assert res.exit_code == 0, res.output
+    shipped = tmp_path / "results" / "plv_example"
+    assert {p.name for p in shipped.iterdir()} == {"plv.json", "runs.csv.gz", "episodes.csv.gz", "README.md"}
+    assert "runs" not in json.loads((shipped / "plv.json").read_text())  # the runs travel as tables
+    res = _cli("results", "rebuild", "--root", str(tmp_path))
+    assert res.exit_code == 0, res.output
+    numbers = json.loads((tmp_path / "results" / "numbers.json").read_text())["numbers"]
+    report = json.loads((study / "plv.json").read_text())["summary"]
+    row = next(r for r in report["rows"] if r["proxy"] == "pitch-19")
+    assert numbers["plv_example.reference"]["value"] == pytest.approx(report["reference"])
+    assert numbers["plv_example.rows.pitch-19.plv"]["value"] == pytest.approx(row["plv"])
+    assert numbers["plv_example.rows.pitch-19.plv"]["source"] == "results/plv_example/runs.csv.gz"
+
+
+def test_an_edited_plv_episode_table_fails_the_check_naming_the_run(tmp_path: Path):
+    import gzip
+
+    study = _plv_study(tmp_path / "plv-out")
+    (tmp_path / "results").mkdir()
+    assert _cli("results", "export", str(study), "plv_example", "--root", str(tmp_path)).exit_code == 0
+    assert _cli("results", "rebuild", "--root", str(tmp_path)).exit_code == 0
+    table = tmp_path / "results" / "plv_example" / "episodes.csv.gz"
+    lines = gzip.decompress(table.read_bytes()).decode().splitlines()
+    head, first = lines[0].split(","), lines[1].split(",")
+    first[head.index("score")] = "99.0"  # one evaluation episode of arm pitch-19, n=250, seed 0
+    table.write_bytes(gzip.compress("\n".join([lines[0], ",".join(first), *lines[2:]]).encode() + b"\n"))
+    res = _cli("results", "rebuild", "--check", "--root", str(tmp_path))
+    assert res.exit_code == 1
+    assert f"run {first[0]} n={first[1]} seed={first[2]}" in res.output
+
+
+def test_export_refuses_a_plv_run_missing_a_proxy_s_training(tmp_path: Path):
+    study = _plv_study(tmp_path / "plv-out")
+    blob = json.loads((study / "plv.json").read_text())
+    blob["runs"] = [r for r in blob["runs"] if r["arm"] != "pitch-35"]
+    (study / "plv.json").write_text(json.dumps(blob))
+    (tmp_path / "results").mkdir()
+    res = _cli("results", "export", str(study), "plv_example", "--root", str(tmp_path))
+    assert res.exit_code == 1
+    assert "no training run of arm 'pitch-35': the run is unfinished" in res.output
+    assert not (tmp_path / "results" / "plv_example").exists()

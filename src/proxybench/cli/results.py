@@ -20,7 +20,7 @@ _ROOT = typer.Option(None, help="the repository root holding results/ (default: 
 
 @results_app.command("export")
 def results_export(
-    study: Path = typer.Argument(..., help="a finished study's --out folder (validate or rank-check)"),
+    study: Path = typer.Argument(..., help="a finished study's --out folder (validate, rank-check or plv)"),
     name: str = typer.Argument(..., help="the run's folder in results/ (e.g. validate_gym)"),
     replace: bool = typer.Option(False, help="overwrite an existing results/NAME"),
     root: Path | None = _ROOT,
@@ -31,8 +31,9 @@ def results_export(
     note: list[str] = typer.Option([], help="a line for the run's README.md (deviations, context); repeatable"),
 ) -> None:
     """Copy what a reviewer needs to recompute a finished study into results/NAME/: for validate criteria.json,
-    looks.jsonl, summary.json, targets.csv, targets/NNN.json; for rank-check summary.json and targets.csv; the
-    per-episode score table (episodes.csv.gz) and a README.md. No caches, no trajectories. Refuses an unfinished
+    looks.jsonl, summary.json, targets.csv, targets/NNN.json; for rank-check summary.json and targets.csv; for plv
+    plv.json (without its runs) and the training runs' table (runs.csv.gz); the per-episode score table
+    (episodes.csv.gz) and a README.md. No caches, no trajectories. Refuses an unfinished
     study (an interim look), a failed pre-registration check, and an existing results/NAME without --replace."""
     from proxybench.experiments.evidence import EvidenceError, export_study, find_root
 

@@ -39,7 +39,9 @@ RESULTS = "results"
 NUMBERS = "numbers.json"
 #: the per-episode score table of a run (gzip with no time stamp: the same episodes give the same bytes)
 EPISODES = "episodes.csv.gz"
-Kind = Literal["validate", "rank-check"]
+Kind = Literal["validate", "rank-check", "plv"]
+#: a PLV run's training runs (one row each) beside the per-episode table
+RUNS = "runs.csv.gz"
 _NAME = re.compile(r"[a-z0-9][a-z0-9_-]{0,63}")
 _MARKER = re.compile(r"<!--\s*n:(.*?)-->", re.S)
 #: a quoted figure: optional sign (ASCII or typographic minus), thousands separated by commas, decimals; not
@@ -171,16 +173,18 @@ def _from_json(v: Any) -> Any:
 # -- what a study folder is ----------------------------------------------------------------------------------------
 
 def study_kind(folder: Path) -> Kind:
-    """``validate`` (a folder with criteria.json) or ``rank-check`` (summary.json with rank-check's fields and
-    targets.csv)."""
+    """``validate`` (a folder with criteria.json), ``plv`` (plv.json) or ``rank-check`` (summary.json with
+    rank-check's fields and targets.csv)."""
     if (folder / "criteria.json").is_file():
         return "validate"
+    if (folder / "plv.json").is_file():
+        return "plv"
     if (folder / "summary.json").is_file() and (folder / "targets.csv").is_file():
         summary = _json(folder / "summary.json")
         if isinstance(summary, dict) and "decided_with" in summary:
             return "rank-check"
-    raise EvidenceError(f"{folder}: neither a validate study (criteria.json) nor a rank-check study (summary.json "
-                        "and targets.csv)")
+    raise EvidenceError(f"{folder}: neither a validate study (criteria.json), a PLV run (plv.json) nor a rank-check "
+                        "study (summary.json and targets.csv)")
 
 
 @dataclass
@@ -425,6 +429,139 @@ def _rank_check_episodes(folder: Path, res: Any, dest: Path) -> int:
     return _write_table(rows, ["target", "role", "agent", "episode", "domain", "key"], dest)
 
 
+# -- a PLV run (``proxybench plv``) -----------------------------------------------------------------------------------
+
+#: a training run's columns in runs.csv.gz (its evaluation episodes are in episodes.csv.gz)
+_PLV_RUN_COLUMNS = ("arm", "n", "seed", "off_policy", "on_policy", "cost", "score", "final_loss", "train_s", "eval_s")
+#: summary fields that are the bootstrap's per-seed draws or run-time bookkeeping, not numbers README quotes
+_PLV_SKIP = (".scores.", "zero_shot_scores", "method")
+
+
+def _plv_result(blob: dict[str, Any], runs: list[dict[str, Any]], where: Path) -> Any:
+    """The PLV result (config, training runs, proxies' records, expert) that :func:`summary_record` summarises."""
+    from proxybench.experiments.plv.config import PLVConfig
+    from proxybench.experiments.plv.run import PLVResult
+
+    try:
+        cfg = PLVConfig.from_dict(blob.get("config") or {})
+    except (TypeError, ValueError) as exc:
+        raise EvidenceError(f"{where}: its config does not load with this code ({exc})") from None
+    missing = [name for name in cfg.proxies if name not in (blob.get("proxies") or {})]
+    if missing:
+        raise EvidenceError(f"{where}: no pre-training record of proxy {missing[0]!r}: the run is unfinished")
+    arms = {r["arm"] for r in runs}
+    if "target-only" not in arms or any(name not in arms for name in cfg.proxies):
+        gone = "target-only" if "target-only" not in arms else next(n for n in cfg.proxies if n not in arms)
+        raise EvidenceError(f"{where}: no training run of arm {gone!r}: the run is unfinished")
+    return PLVResult(cfg, runs, dict(blob["proxies"]), float(blob["summary"]["expert"]))
+
+
+def _plv_record(res: Any) -> dict[str, Any]:
+    """plv.json's summary, findings and proxies as the PLV report writes them, through JSON (as shipped)."""
+    from proxybench.experiments.plv.report import summary_record
+
+    return json.loads(json.dumps(summary_record(res), default=str))
+
+
+def _plv_differences(shipped: dict[str, Any], recomputed: dict[str, Any], rel: str) -> list[str]:
+    return _differences(dict(_flatten({k: shipped.get(k) for k in ("summary", "findings")})),
+                        dict(_flatten({k: recomputed[k] for k in ("summary", "findings")})), f"{rel}/plv.json")
+
+
+def _plv_episode_rows(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per evaluation episode of every training run: which run (arm, rung n, seed), its score, its end."""
+    rows = []
+    for r in runs:
+        ends = r.get("terminations") or [""] * len(r.get("scores") or [])
+        for k, (score, end) in enumerate(zip(r.get("scores") or [], ends, strict=False)):
+            rows.append({"arm": r["arm"], "n": r["n"], "seed": r["seed"], "episode": k, "score": score,
+                         "termination": end})
+    return rows
+
+
+def _export_plv(study: Path, dest: Path, command: str | None, commit: str | None, machine: str | None,
+                notes: list[str]) -> list[str]:
+    blob = _json(study / "plv.json")
+    runs = blob.get("runs") if isinstance(blob, dict) else None
+    if not runs:
+        raise EvidenceError(f"{study / 'plv.json'} holds no training runs (not a finished `proxybench plv` report)")
+    res = _plv_result(blob, runs, study / "plv.json")
+    differ = _plv_differences(blob, _plv_record(res), str(study))
+    if differ:
+        raise EvidenceError(f"{study}: {differ[0]}")
+    shipped = {k: blob[k] for k in ("config", "summary", "findings", "proxies", "wall_s", "stage_s") if k in blob}
+    (dest / "plv.json").write_text(json.dumps(shipped, indent=1, default=str) + "\n")
+    n_runs = _write_table([{k: r.get(k) for k in _PLV_RUN_COLUMNS} for r in runs], ["arm", "n", "seed"],
+                          dest / RUNS)
+    episodes = _write_table(_plv_episode_rows(runs), ["arm", "n", "seed", "episode"], dest / EPISODES)
+    cfg = res.config
+    facts = "".join(f"- {f}\n" for f in blob.get("findings") or [])
+    command = command or "`proxybench plv` with the config in plv.json (the run does not record its command line)"
+    extra = "".join(f"- {n}\n" for n in notes)
+    text = f"""# {dest.name}: proxy learning value (`proxybench plv`)
+
+Target: {blob["summary"].get("target", "?")}. Proxies: {", ".join(f"{k} ({v})" for k, v in cfg.proxies.items())}.
+
+{facts}
+- **What**: a behaviour-cloning network trained on the target alone and after pre-training on each proxy, ladder
+  {", ".join(f"{n:,}" for n in cfg.ladder)} target samples × {len(cfg.seeds)} seeds, each scored on
+  {cfg.eval.episodes} evaluation episodes of {cfg.eval.seconds:g} s; PLV from fitted learning curves with bootstrap
+  intervals over seeds (docs/learning.md).
+- **Command**: {command}
+- **Code**: {commit or "not recorded by the run"}.
+- **Machine**: {machine or _machine_default()}.
+- **Time**: {float(blob.get("wall_s") or 0.0) / 3600:.1f} h of wall time in the invocation that wrote plv.json
+  (an interrupted run resumes from its cache; earlier invocations are not counted).
+- **Tables**: {n_runs:,} training runs in `{RUNS}` (arm, rung n, seed, target samples off/on policy, cost, mean
+  score, final loss, seconds); {episodes:,} evaluation episodes in `{EPISODES}` (arm, n, seed, episode, score,
+  termination).
+{extra}
+Recompute: `proxybench results rebuild --check` (each run's score from its episodes, then plv.json's summary and
+findings through the PLV report's own `summary_record`). Files:
+
+{_files_table(dest)}
+"""
+    (dest / "README.md").write_text(text)
+    return []
+
+
+def _plv_runs_from_tables(folder: Path) -> tuple[list[dict[str, Any]], list[str]]:
+    """The training runs from runs.csv.gz, each with its episodes' scores; a run whose score is not the mean of
+    its episodes is a problem."""
+    import pandas as pd
+
+    try:
+        runs = pd.read_csv(folder / RUNS)
+        eps = pd.read_csv(folder / EPISODES, keep_default_na=False, dtype={"termination": str})
+    except (OSError, ValueError) as exc:
+        raise EvidenceError(f"{folder}: {RUNS} or {EPISODES} unreadable ({exc.__class__.__name__})") from None
+    problems, out = [], []
+    by_run = {key: g.sort_values("episode") for key, g in eps.groupby(["arm", "n", "seed"])}
+    for r in runs.to_dict("records"):
+        g = by_run.get((r["arm"], r["n"], r["seed"]))
+        scores = [] if g is None else [float(v) for v in g["score"]]
+        if not scores or not math.isclose(sum(scores) / len(scores), float(r["score"]), rel_tol=1e-9, abs_tol=1e-9):
+            problems.append(f"{RUNS}: run {r['arm']} n={r['n']} seed={r['seed']} scores {r['score']!r}, its episodes "
+                            f"in {EPISODES} average {sum(scores) / len(scores) if scores else 'nothing'!r}")
+        out.append({**r, "scores": scores, "terminations": [] if g is None else list(g["termination"])})
+    return out, problems
+
+
+def _plv_numbers(name: str, folder: Path, rel: str) -> Rebuilt:
+    shipped = _json(folder / "plv.json")
+    runs, problems = _plv_runs_from_tables(folder)
+    record = _plv_record(_plv_result(shipped, runs, folder / "plv.json"))
+    problems = [f"{name}: {p}" for p in problems + _plv_differences(shipped, record, rel)]
+    summary = dict(record["summary"])
+    summary["rows"] = {row["proxy"]: row for row in summary.get("rows") or []}  # by proxy name, not position
+    numbers = {}
+    for path, v in _flatten({"summary": summary, "wall_s": shipped.get("wall_s")}):
+        if _is_number(v) and not any(s in f".{path}." for s in _PLV_SKIP):
+            source = "plv.json" if path == "wall_s" else RUNS
+            numbers[f"{name}.{path.removeprefix('summary.')}"] = Number(v, f"{rel}/{source}")
+    return Rebuilt(numbers, problems)
+
+
 # -- export ---------------------------------------------------------------------------------------------------------
 
 def _machine_default() -> str:
@@ -597,7 +734,7 @@ def export_study(study: Path, name: str, root: Path, *, replace: bool = False, c
     dest = tmp / name
     dest.mkdir()
     try:
-        writer = _export_validate if kind == "validate" else _export_rank_check
+        writer = {"validate": _export_validate, "plv": _export_plv}.get(kind, _export_rank_check)
         said = writer(study, dest, command, commit, machine, list(notes))
         if final.exists():
             shutil.rmtree(final)
@@ -658,7 +795,8 @@ def rebuild(root: Path) -> Rebuilt:
         rel = f"{RESULTS}/{name}"
         try:
             kind = study_kind(folder)
-            got = (_validate_numbers if kind == "validate" else _rank_check_numbers)(name, folder, rel)
+            numbers = {"validate": _validate_numbers, "plv": _plv_numbers}.get(kind, _rank_check_numbers)
+            got = numbers(name, folder, rel)
         except EvidenceError as exc:
             out.problems.append(f"{name}: {exc}")
             continue

@@ -25,7 +25,7 @@ from proxybench.experiments.plv.run import PLVResult
 from proxybench.usefulness.plv_intervals import Interval
 
 __all__ = ["Summary", "figure_3_6", "figure_plv", "findings", "needed_column", "score_range", "summarize",
-           "table_rows", "write_report", "zero_shot_by_seed"]
+           "summary_record", "table_rows", "write_report", "zero_shot_by_seed"]
 
 THESIS_REDUCTION = (0.88, 0.97)
 
@@ -169,6 +169,22 @@ def _what_is_simulated(cfg) -> str:
             "the result as real only if you know the node drives a physical robot.")
 
 
+def summary_record(res: PLVResult, s: Summary | None = None) -> dict[str, Any]:
+    """What plv.json says of a run besides its training runs: the config, the summary (reference, Table 3.1's rows,
+    curves, intervals, fitted curves), the findings, the proxies' pre-training records. A pure function of the
+    runs, so that a shipped run (results/, :mod:`proxybench.experiments.evidence`) is recomputed by this very code."""
+    s = s if s is not None else summarize(res)
+    cfg = res.config
+    method = METHOD.format(confirm=cfg.confirm, replicates=cfg.replicates)
+    return {"config": cfg.to_dict(), "summary": {"converged": s.converged, "converged_ok": s.converged_ok,
+            "reference": s.reference, "expert": res.expert_score, "rows": [asdict(r) for r in s.rows],
+            "curves": {arm: [asdict(p) for p in c] for arm, c in s.curves.items()},
+            "intervals": None if s.intervals is None else s.intervals.to_dict(),
+            "fitted": None if s.fitted is None else s.fitted.to_dict(), "target_needed": s.target_cost,
+            "ladder_reference": s.ladder_reference, "target": s.target_label, "method": method},
+            "findings": findings(res, s), "proxies": res.proxies}
+
+
 def write_report(res: PLVResult, out: str | Path) -> dict[str, Path]:
     """PNG + SVG figures, CSV/JSON tables and one self-contained ``report.html`` in ``out``."""
     import pandas as pd
@@ -185,13 +201,7 @@ def write_report(res: PLVResult, out: str | Path) -> dict[str, Path]:
     facts = findings(res, s)
     cfg = res.config
     method = METHOD.format(confirm=cfg.confirm, replicates=cfg.replicates)
-    blob = {"config": res.config.to_dict(), "summary": {"converged": s.converged, "converged_ok": s.converged_ok,
-            "reference": s.reference, "expert": res.expert_score, "rows": [asdict(r) for r in s.rows],
-            "curves": {arm: [asdict(p) for p in c] for arm, c in s.curves.items()},
-            "intervals": None if s.intervals is None else s.intervals.to_dict(),
-            "fitted": None if s.fitted is None else s.fitted.to_dict(), "target_needed": s.target_cost,
-            "ladder_reference": s.ladder_reference, "target": s.target_label, "method": method},
-            "findings": facts, "proxies": res.proxies, "runs": res.runs, "wall_s": res.wall_s, "stage_s": res.stage_s,
+    blob = {**summary_record(res, s), "runs": res.runs, "wall_s": res.wall_s, "stage_s": res.stage_s,
             "cached": res.cached}
     files["json"].write_text(json.dumps(blob, indent=1, default=str))
     img = {k: base64.b64encode(files[k].read_bytes()).decode() for k in ("fig3_6", "fig_plv")}
