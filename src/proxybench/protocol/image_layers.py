@@ -75,11 +75,13 @@ class LayerBudget:
             raise ImageError(f"{where}: checking the image took longer than its time limit")
 
 
-class _Metered(io.RawIOBase):
-    """A layer's compressed bytes, hashed as they are read (the manifest's digest)."""
+class _Hashed(io.RawIOBase):
+    """A stream read through once, its bytes hashed and counted as they are read: a layer's compressed bytes (the
+    manifest's digest and size), or with a ``budget`` its uncompressed tar stream (the config's diff_id), each
+    read spent against the budget."""
 
-    def __init__(self, inner: IO[bytes]) -> None:
-        self.inner = inner
+    def __init__(self, inner: IO[bytes], budget: LayerBudget | None = None, where: str = "") -> None:
+        self.inner, self.budget, self.where = inner, budget, where
         self.sha = hashlib.sha256()
         self.size = 0
 
@@ -91,24 +93,8 @@ class _Metered(io.RawIOBase):
         buf[: len(data)] = data
         self.sha.update(data)
         self.size += len(data)
-        return len(data)
-
-
-class _Uncompressed(io.RawIOBase):
-    """The uncompressed tar stream: hashed (the config's diff_id) and counted against the budget."""
-
-    def __init__(self, inner: IO[bytes], budget: LayerBudget, where: str) -> None:
-        self.inner, self.budget, self.where = inner, budget, where
-        self.sha = hashlib.sha256()
-
-    def readable(self) -> bool:
-        return True
-
-    def readinto(self, buf) -> int:  # type: ignore[no-untyped-def]
-        data = self.inner.read(len(buf))
-        buf[: len(data)] = data
-        self.sha.update(data)
-        self.budget.spend(len(data), self.where)
+        if self.budget is not None:
+            self.budget.spend(len(data), self.where)
         return len(data)
 
 
@@ -269,10 +255,10 @@ def scan_layer(blob: IO[bytes], *, index: int, digest: str, size: int, diff_id: 
     (``diff_id``, the config's) and every member (module docstring). Raises :class:`ImageError`."""
     where = f"layer {index} ({digest[:19]})"
     links.start_layer()
-    metered = _Metered(blob)
+    metered = _Hashed(blob)
     raw = io.BufferedReader(metered, CHUNK)
     try:
-        plain = _Uncompressed(_decompressor(raw, compression), budget, where)  # type: ignore[arg-type]
+        plain = _Hashed(_decompressor(raw, compression), budget, where)  # type: ignore[arg-type]
         stream = io.BufferedReader(plain, CHUNK)
         with tarfile.open(fileobj=stream, mode="r|", tarinfo=BoundedTarInfo) as tf:
             while (m := _next(tf, stream)) is not None:
