@@ -18,6 +18,7 @@ as it is. See docs/autolab.md ("A lab") for an example::
       #   - {name: wt01, dtps: 192.168.1.31/wt01, calibration: cal/wt01.yaml}
       #   - {name: wt02, recorded: rec/wt02, calibration: cal/wt02.yaml}
     reset: {mode: teleport}                         # operator | teleport (virtual robots) | pose_file (+ poses)
+    # operator: {folder: lab.operator, timeout_s: 600}      # where a person confirms placements, intervenes
     limits: {lost_s: 1.0, light_change: 0.2, end_slack_s: 1.0, max_episode_s: 120}
     # drills: {streams_stop_s: 1.5, streams_stop: [wt01]}   # simulated faults (simulated watchtowers only)
 
@@ -41,7 +42,7 @@ from proxybench.untrusted import repeated
 if TYPE_CHECKING:
     from proxybench.autolab.validate import Thresholds
 
-__all__ = ["LAB_FORMAT", "Drills", "Lab", "LabError", "LabLimits", "LabRobot", "LabWatchtowers", "Reset",
+__all__ = ["LAB_FORMAT", "Drills", "Lab", "LabError", "LabLimits", "LabOperator", "LabRobot", "LabWatchtowers", "Reset",
            "StreamSource", "check_lab", "load_lab"]
 
 LAB_FORMAT = "proxybench-lab/1"
@@ -176,6 +177,18 @@ class Reset(BaseModel):
         return self
 
 
+class LabOperator(BaseModel):
+    """The lab's operator, for robots no program can place or stop (``reset.mode: operator``, interventions):
+    ``folder`` is where the evaluator asks and the operator answers (``proxybench autolab ready`` / ``intervene``:
+    :mod:`.operator`; default ``<name>.operator`` beside ``lab.yaml``); ``timeout_s``: how long a placement may
+    wait for its confirmation before the job ends as the lab's fault."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    folder: Path | None = None
+    timeout_s: float = Field(600.0, gt=0.0, le=86400.0)
+
+
 class LabLimits(BaseModel):
     """What the lab accepts: a run is invalid when the robot is unseen longer than ``lost_s`` [s], the light
     changes more than ``light_change`` (relative) or the recording ends ``end_slack_s`` [s] early (the DTA's
@@ -223,6 +236,7 @@ class Lab(BaseModel):
     robots: list[LabRobot] = Field(min_length=1, max_length=64)
     watchtowers: LabWatchtowers
     reset: Reset = Reset()
+    operator: LabOperator = LabOperator()
     limits: LabLimits = LabLimits()
     drills: Drills = Drills()
 
@@ -302,8 +316,10 @@ def load_lab(path: str | Path) -> Lab:
     streams = [s.model_copy(update={"recorded": _absolute(s.recorded, base),
                                     "calibration": _absolute(s.calibration, base)}) for s in w.streams]
     reset = lab.reset.model_copy(update={"poses": _absolute(lab.reset.poses, base)})
+    operator = lab.operator.model_copy(update={"folder": _absolute(lab.operator.folder, base)
+                                               or base / f"{lab.name}.operator"})
     return lab.model_copy(update={"watchtowers": w.model_copy(update={"layout": layout, "streams": streams}),
-                                  "reset": reset})
+                                  "reset": reset, "operator": operator})
 
 
 def check_lab(lab: Lab, origin: str = "lab.yaml") -> list[str]:

@@ -91,6 +91,19 @@ def agent_command(path: Path | None = None) -> str:
         return "proxybench dtps python agent.py"
 
 
+def _served_towers(map_name: str, layout: str):
+    """(stream spec, sink) of the watchtowers of ``layout`` on the map, served over DTPS (``serve --watchtowers``),
+    each watchtower's address printed."""
+    from proxybench.autolab.served import served_towers
+    from proxybench.autolab.watchtowers import resolve_layout
+    from proxybench.domain.maps import load_map
+
+    spec, sink = served_towers(resolve_layout(layout, load_map(map_name)))
+    console.print(f"serving {len(spec.cameras)} SIMULATED watchtowers at "
+                  f"{escape(sink.server.address(spec.cameras[0].name).rsplit('/', 1)[0])}/NAME", highlight=False)
+    return spec, sink
+
+
 @dtps_app.command("serve")
 def serve(
     map_name: str = typer.Option("loop_3x3", "--map", help="built-in map name or YAML file"),
@@ -102,6 +115,9 @@ def serve(
     width: int = typer.Option(640, min=8, max=4096, help="camera width [px]"),
     height: int = typer.Option(480, min=8, max=4096, help="camera height [px]"),
     out: Path = typer.Option(Path("out/dtps-serve"), help="folder for the episodes' trajectories"),
+    frame_rate: float = typer.Option(15.0, "--frame-rate", callback=positive, help="camera frames per second [Hz]"),
+    watchtowers: str | None = typer.Option(None, "--watchtowers", help="also serve this watchtower layout (a file, "
+                                           "or auto) of the same world as DTPS camera topics: a stand-in lab"),
 ) -> None:
     """Serve the simulator as a virtual DB21J on http://127.0.0.1:PORT/robot/NAME/ for an SDK agent you start.
 
@@ -111,8 +127,11 @@ def serve(
     (frames answered, late frames, worst lag). When the machine cannot simulate at the camera's rate, it
     warns (real time is not kept). --seconds is wall time: serving stops then, mid-episode if need be.
     """
+    import signal
+    import threading
     import time
 
+    from proxybench.autolab.watchtowers import LayoutError
     from proxybench.domain.maps import MapError
     from proxybench.domain.params import DomainParams
     from proxybench.dtps.env import DtpsEnvError
@@ -149,15 +168,24 @@ def serve(
         hint = f"serve smaller frames than {width}x{height} (--width 160 --height 120), or {hint}"
     console.print(f"starting a virtual DB21J on port {port} ...", highlight=False)
     began = time.monotonic()
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())  # ends the episode, which is saved, then the serve
+    towers = None
     try:
+        if watchtowers is not None:
+            towers = _served_towers(map_name, watchtowers)
         files = run_serve(map_name, out, name=name, port=port, seconds=seconds or float("inf"),
                           episode_seconds=episode_seconds, seed=seed,
-                          params=DomainParams(image_width=width, image_height=height), on_episode=said,
-                          on_ready=ready, on_late=late, late_hint=hint)
-    except (DtpsEnvError, BridgeError, MapError, OSError) as exc:
+                          params=DomainParams(image_width=width, image_height=height, frame_rate=frame_rate),
+                          on_episode=said, on_ready=ready, on_late=late, late_hint=hint, stop=stop,
+                          streams=None if towers is None else towers[0])
+    except (DtpsEnvError, BridgeError, MapError, OSError, LayoutError, ValueError) as exc:
         raise fail(exc) from exc
     except KeyboardInterrupt:
         raise typer.Exit(0) from None
+    finally:
+        if towers is not None:
+            towers[1].server.close()
     wall = time.monotonic() - began
     console.print(f"stopped: --seconds {seconds or 0:g} of wall time passed ({wall:.0f} s with the start); "
                   f"{len(files)} episodes, {sum(simulated):.0f} s simulated, written to {escape(str(out))}",

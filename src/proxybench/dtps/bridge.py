@@ -456,14 +456,37 @@ class Client:
 
         self.ctx = await context("pbclient", urls=[self.args.url])
         self.pose_ctx = self.ctx if not self.args.pose_url else await context("pblocal", urls=[self.args.pose_url])
-        await self._topic(self.ctx, "sensor/camera/front_center/jpeg").subscribe(self._forward("camera"))
-        for side in ("left", "right"):
-            await self._topic(self.ctx, f"sensor/wheel_encoder/{side}/ticks").subscribe(self._forward("ticks", side))
+        if getattr(self.args, "observe", False):  # an Autolab's record of a robot someone else drives
+            for topic in _COMMAND_TOPICS:
+                await self._topic(self.ctx, topic).subscribe(self._observed(topic))
+        else:
+            await self._topic(self.ctx, "sensor/camera/front_center/jpeg").subscribe(self._forward("camera"))
+            for side in ("left", "right"):
+                await self._topic(self.ctx, f"sensor/wheel_encoder/{side}/ticks").subscribe(
+                    self._forward("ticks", side))
         if self.args.pose:
             await self._topic(self.pose_ctx, self.args.pose).subscribe(self._forward("pose"))
         loop = asyncio.get_running_loop()
-        self.tasks = [loop.create_task(self._publisher()), loop.create_task(self._watchdog())]
+        self.tasks = [loop.create_task(self._watchdog())]
+        if not getattr(self.args, "observe", False):  # an observer publishes only when told to stop the robot
+            self.tasks.append(loop.create_task(self._publisher()))
         self.out.send(ev="ready", url=self.args.url, prefix=self.args.name.strip("/"))
+
+    def _observed(self, topic: str):
+        """Forward every wheel command published on ``topic`` (``--observe``: all kept, in order, with when the
+        bridge heard it)."""
+        async def on_data(rd) -> None:
+            try:
+                msg = rd.get_as_native_object()
+                left, right = msg["left"], msg["right"]
+                if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in (left, right)):
+                    raise TypeError(f"left/right are {type(left).__name__}/{type(right).__name__}, not numbers")
+                stamp = (msg.get("header") or {}).get("timestamp")
+                self.out.send(ev="command", topic=topic, left=float(left), right=float(right),
+                              stamp=stamp if isinstance(stamp, float) else None, wall=time.time())
+            except Exception as exc:
+                self.out.send(ev="bad", topic=topic, detail=f"{type(exc).__name__}: {exc}"[:500])
+        return on_data
 
     def _forward(self, kind: str, side: str | None = None):
         async def on_data(rd) -> None:
@@ -522,6 +545,8 @@ class Client:
 
     def command(self, left: float, right: float) -> None:
         """The command in force from now on (only the latest matters)."""
+        if len(self.tasks) == 1:  # an observer's first command (a stop): its publisher starts now
+            self.tasks.append(asyncio.get_running_loop().create_task(self._publisher()))
         self.latest = (left, right)
         if (left, right) != (0.0, 0.0):
             self.zero_delivered.clear()
@@ -693,6 +718,8 @@ def main() -> None:
     cli.add_argument("--pose-url", default="", help="the localisation server's URL, when not the robot's")
     cli.add_argument("--watchdog", type=float, default=0.5)
     cli.add_argument("--stop-grace", type=float, default=3.0, help="how long to try to deliver (0, 0) on exit [s]")
+    cli.add_argument("--observe", action="store_true", help="forward the wheel commands others publish (not the "
+                     "camera or encoders); publish only stops (op: stop, and on exit)")
     args = parser.parse_args()
     quiet_logging(one_line=args.role == "server")  # what a stranger's request provokes is one line
     out = Out()

@@ -30,12 +30,14 @@ from typing import Any
 import numpy as np
 
 from proxybench.agents.base import Observation
+from proxybench.domain.maps import Map, load_map
 from proxybench.domain.params import DomainParams
 from proxybench.dtps.driver import RobotDriver
 from proxybench.dtps.link import BridgeError
 from proxybench.dtps.virtual_robot import DEFAULT_NAME, DEFAULT_PORT, VirtualDB21J
 from proxybench.runner.episode import sim_plant
 from proxybench.runner.rollout import AgentPolicy, rollout
+from proxybench.runner.streams import StreamRecorder, StreamSpec, with_fixtures
 from proxybench.tasks.trajectory import Event, Termination
 
 __all__ = ["WALL_TIME_UP", "ServeDriver", "serve"]
@@ -97,22 +99,39 @@ class _ResetPlant:
         return out
 
 
+def _recording(recorder: StreamRecorder | None):
+    """The rollout's frame hook that renders the fixed cameras due at the robot's time (None: no cameras)."""
+    if recorder is None:
+        return None
+
+    def on_frame(k: int, images, alive, plant) -> None:
+        if alive[0]:
+            recorder.frame(plant.time(0))
+    return on_frame
+
+
 def serve(map_name: str, out: Path, *, name: str = DEFAULT_NAME, port: int = DEFAULT_PORT,
           seconds: float = float("inf"), episode_seconds: float = 60.0, seed: int = 0,
           params: DomainParams | None = None, on_episode: Callable[[int, Any], None] | None = None,
           on_ready: Callable[[str], None] | None = None, host: str = "127.0.0.1",
           on_late: Callable[[str], None] | None = None, late_hint: str = "",
-          stop: threading.Event | None = None) -> list[Path]:
+          stop: threading.Event | None = None, streams: StreamSpec | None = None) -> list[Path]:
     """Serve until ``seconds`` of wall time have passed (or Ctrl-C); the trajectory files written.
 
     ``on_ready(url)`` runs once the robot's queues exist: an SDK agent started before then cannot connect
     (the SDK gives up at once on a server that is not there), so say "start your agent" only then.
     ``on_late(message)``: the simulation fell behind the wall clock (rate-limited; the message ends with
     ``late_hint``, what to do about it). ``stop``: set it to end the serve as the wall clock would (an embedding
-    program's Ctrl-C). Raises :class:`BridgeError` (one line) when the bridge ends under the serve.
+    program's Ctrl-C). ``streams``: fixed cameras of the same world (a lab's simulated watchtowers, their fixtures
+    in the world), recorded or sent to the spec's sink every episode (``episode-<k>.streams``): a stand-in for a
+    lab whose watchtowers see this robot (docs/autolab.md). Raises :class:`BridgeError` (one line) when the bridge
+    ends under the serve.
     """
     out.mkdir(parents=True, exist_ok=True)
-    plant = sim_plant(map_name, params)
+    world: Map | str = map_name
+    if streams is not None:  # the lab's calibration tags on its floor
+        world = with_fixtures(load_map(map_name), streams.fixtures)
+    plant = sim_plant(world, params)
     robot = VirtualDB21J(name=name, port=port, host=host)
     files: list[Path] = []
     try:
@@ -125,8 +144,13 @@ def serve(map_name: str, out: Path, *, name: str = DEFAULT_NAME, port: int = DEF
         while time.monotonic() < end and not (stop is not None and stop.is_set()):
             length = min(episode_seconds, end - time.monotonic())
             meta = {"map": plant.map.name, "episode": k, "served": {"url": robot.url, "timing": "realtime"}}
-            traj = rollout(_ResetPlant(plant, driver, end, stop), AgentPolicy([driver]), [seed + k], length,
-                           metas=[meta])[0]
+            recorder = StreamRecorder(plant.sim, streams, out / f"episode-{k}.streams") if streams else None
+            try:
+                traj = rollout(_ResetPlant(plant, driver, end, stop), AgentPolicy([driver]), [seed + k], length,
+                               metas=[meta], on_frame=_recording(recorder))[0]
+            finally:
+                if recorder is not None:
+                    recorder.close()
             if not getattr(robot, "alive", True):  # the robot is gone: no episode of it, and no more episodes
                 raise BridgeError(f"the virtual robot's bridge ended during episode {k} (exit code "
                                   f"{getattr(robot, 'exit_code', None)}): the serve stops; start it again")
