@@ -28,6 +28,7 @@ from pathlib import Path
 from proxybench.autolab.calibration import draw_calibrations, load_calibration, stream_spec
 from proxybench.autolab.lab import Lab
 from proxybench.autolab.logs import LogManifest, write_log_manifest
+from proxybench.autolab.online import OnlineDetector, OnlineEpisode
 from proxybench.autolab.watchtowers import Layout, ground_objects
 from proxybench.dtps.cameras import EpisodeStreams, WatchtowerReader, WatchtowerServer, camera_source
 
@@ -42,13 +43,16 @@ class DtpsSink:
     server: WatchtowerServer | None = None
     kind: str = "dtps"
     episodes: list[EpisodeStreams] = field(default_factory=list)
+    online: OnlineDetector | None = None  # detects each frame the reader writes, as it arrives (autolab.online)
     _origin: float | None = None
+    _online_episode: OnlineEpisode | None = None
 
     def begin(self, out: Path) -> None:
         self._origin = time.time()
         if self.server is not None:
             self.server.take_counts()  # frames of an episode that failed before its end are not this one's
-        self.reader.begin(out, self._origin)
+        ep = self._online_episode = self.online.begin(out) if self.online is not None else None
+        self.reader.begin(out, self._origin, on_frame=ep.frame if ep is not None else None)
 
     def frame(self, camera: str, jpeg: bytes, stamp: float, t: float) -> None:
         if self.server is None or self._origin is None:
@@ -57,6 +61,9 @@ class DtpsSink:
 
     def end(self) -> None:
         result = self.reader.end(self.server.take_counts() if self.server is not None else None)
+        if self._online_episode is not None:
+            self._online_episode.end()
+            self._online_episode = None
         self._origin = None
         (result.folder / "reader.json").write_text(json.dumps(result.report(), sort_keys=True) + "\n")
         self.episodes.append(result)
@@ -103,9 +110,10 @@ def _served(layout: Layout) -> tuple[WatchtowerServer, list]:
     return server, sources
 
 
-def live_streams(lab: Lab, layout: Layout | None) -> LiveStreams | None:
+def live_streams(lab: Lab, layout: Layout | None, online: OnlineDetector | None = None) -> LiveStreams | None:
     """The lab's watchtowers read over DTPS (see the module), or None where they are recorded as files (a layout
-    without ``serve: dtps``). ``layout``: the lab's simulated layout on its map (None: the lab's own streams)."""
+    without ``serve: dtps``). ``layout``: the lab's simulated layout on its map (None: the lab's own streams);
+    ``online``: detects each frame read as it arrives (:mod:`.online`)."""
     from proxybench.runner.streams import StreamSpec
 
     w = lab.watchtowers
@@ -118,7 +126,7 @@ def live_streams(lab: Lab, layout: Layout | None) -> LiveStreams | None:
         except BaseException:
             server.close()
             raise
-        sink = DtpsSink(reader, server)
+        sink = DtpsSink(reader, server, online=online)
         base = stream_spec(layout)
         spec = StreamSpec(base.cameras, base.rates, base.clock_offsets, base.fixtures, sink=sink)
         return LiveStreams(spec, sink, [s.name for s in sources])
@@ -128,7 +136,7 @@ def live_streams(lab: Lab, layout: Layout | None) -> LiveStreams | None:
             raise ValueError(f"watchtower {s.name}: a recorded folder is not read live; give dtps: HOST[:PORT]/PATH")
         cal = load_calibration(s.calibration)
         sources.append(camera_source(s.name, s.dtps, cal.image_width, cal.image_height))
-    sink = DtpsSink(WatchtowerReader(sources))
+    sink = DtpsSink(WatchtowerReader(sources), online=online)
     fixtures = ground_objects(Layout.model_construct(ground_tags=list(w.ground_tags)))
     return LiveStreams(StreamSpec((), (), (), fixtures, sink=sink), sink, [s.name for s in sources])
 

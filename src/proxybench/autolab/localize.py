@@ -31,7 +31,8 @@ from proxybench.domain.apriltags import ROOF_TAG_BASE, ROOF_TAG_SIZE
 from proxybench.domain.maps import Map
 from proxybench.untrusted import UntrustedInputError, read_bytes_file
 
-__all__ = ["FrameResult", "Localization", "RobotTrack", "detect_log", "localize_log"]
+__all__ = ["FrameResult", "Localization", "RobotTrack", "StreamView", "detect_frame", "detect_log",
+           "localize_log"]
 
 
 @dataclass
@@ -121,26 +122,38 @@ def _checked(frame: Frame, dets: list[Detection]) -> list[Detection]:
     return dets
 
 
-def _detect_stream(args: tuple[int, list[Frame], bool]) -> list[FrameResult]:
-    """One watchtower's frames in order. With ``reuse``, a frame whose view has not changed since the frame its
-    tags were last detected in (every block within SAME_VIEW_LEVELS) gets those detections again without running
-    the detector: a fixed camera mostly sees a still floor, so only frames where something moved cost a detection.
-    Brightness is each frame's own (the mean of its blocks)."""
-    k, frames, reuse = args
-    out: list[FrameResult] = []
+@dataclass
+class StreamView:
+    """One watchtower's last detected view, carried from frame to frame of its stream in order: its block means
+    (None before the first frame), its detections, and the frames since it was detected. Offline
+    (:func:`detect_log`) and online (:mod:`.online`) detection step the same state, so both give the same frames."""
+
     ref: np.ndarray | None = None
-    dets: list[Detection] = []
-    age = 0
-    for frame in frames:
-        gray = _decode(frame)
-        thumb = _thumbnail(gray)
-        age += 1
-        same = (reuse and ref is not None and age < REFRESH_FRAMES and ref.shape == thumb.shape
-                and int(np.abs(thumb - ref).max(initial=0)) <= SAME_VIEW_LEVELS)
-        if not same:
-            dets, ref, age = _checked(frame, _WORKER["det"].detect(gray)), thumb, 0
-        out.append(FrameResult(k, frame.t, dets, float(thumb.mean()), detected=not same))
-    return out
+    dets: list[Detection] = field(default_factory=list)
+    age: int = 0
+
+
+def detect_frame(view: StreamView, detector: Detector, frame: Frame, stream: int, reuse: bool = True) -> FrameResult:
+    """The next frame of the stream whose view is ``view``. With ``reuse``, a frame whose view has not changed since
+    the frame its tags were last detected in (every block within SAME_VIEW_LEVELS) gets those detections again
+    without running the detector: a fixed camera mostly sees a still floor, so only frames where something moved
+    cost a detection. Brightness is each frame's own (the mean of its blocks)."""
+    gray = _decode(frame)
+    thumb = _thumbnail(gray)
+    view.age += 1
+    ref = view.ref
+    same = (reuse and ref is not None and view.age < REFRESH_FRAMES and ref.shape == thumb.shape
+            and int(np.abs(thumb - ref).max(initial=0)) <= SAME_VIEW_LEVELS)
+    if not same:
+        view.dets, view.ref, view.age = _checked(frame, detector.detect(gray)), thumb, 0
+    return FrameResult(stream, frame.t, view.dets, float(thumb.mean()), detected=not same)
+
+
+def _detect_stream(args: tuple[int, list[Frame], bool]) -> list[FrameResult]:
+    """One watchtower's frames in order (:func:`detect_frame`)."""
+    k, frames, reuse = args
+    view = StreamView()
+    return [detect_frame(view, _WORKER["det"], frame, k, reuse) for frame in frames]
 
 
 def detect_log(log: Log, detector: str = "apriltag", workers: int | None = None, decimate: float = 1.0,

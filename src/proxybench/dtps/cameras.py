@@ -24,6 +24,7 @@ import socket
 import struct
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -145,11 +146,15 @@ class EpisodeStreams:
 
 class EpisodeWriter:
     """Writes one episode's frames (events of the ``watch`` bridge) into ``folder`` (see the module); pure of
-    threads and processes, so that every check is testable with events made by hand."""
+    threads and processes, so that every check is testable with events made by hand. ``on_frame(name, index,
+    data, t)`` is told of each frame written (its file's index, its bytes, its episode time): online localisation
+    detects it as it arrives (it must return at once: it runs on the reader's thread)."""
 
     def __init__(self, sources: list[CameraSource], folder: Path, origin: float, *,
-                 max_frame_bytes: int = MAX_FRAME_BYTES, max_frames: int = MAX_FRAMES):
+                 max_frame_bytes: int = MAX_FRAME_BYTES, max_frames: int = MAX_FRAMES,
+                 on_frame: Callable[[str, int, bytes, float], None] | None = None):
         self.sources = {s.name: s for s in sources}
+        self.on_frame = on_frame
         self.folder, self.origin = Path(folder), float(origin)
         self.max_frame_bytes, self.max_frames = max_frame_bytes, max_frames
         self.streams = {name: _Stream() for name in self.sources}
@@ -210,6 +215,8 @@ class EpisodeWriter:
         with open(folder / f"{k:06d}.{'jpg' if fmt == 'jpeg' else 'png'}", "xb") as fh:
             fh.write(data)
         s.rows.append((k, clock - self.origin, clock, received))
+        if self.on_frame is not None:
+            self.on_frame(name, k, data, clock - self.origin)
 
     def received(self) -> dict[str, int]:
         """Frames taken so far (written, refused or dropped) per watchtower."""
@@ -285,14 +292,16 @@ class WatchtowerReader:
         if self._failure is not None:
             raise ReaderError(self._failure)
 
-    def begin(self, folder: str | Path, origin: float) -> None:
-        """Record from now on into ``folder``; ``origin``: the watchtowers' clock [s] at the episode's t = 0."""
+    def begin(self, folder: str | Path, origin: float,
+              on_frame: Callable[[str, int, bytes, float], None] | None = None) -> None:
+        """Record from now on into ``folder``; ``origin``: the watchtowers' clock [s] at the episode's t = 0;
+        ``on_frame``: told of each frame written (:class:`EpisodeWriter`)."""
         self._check()
         with self._lock:
             if self._writer is not None:
                 raise ReaderError("the watchtower reader records one episode at a time; one is still open")
             self._writer = EpisodeWriter(self.sources, Path(folder), origin, max_frame_bytes=self.max_frame_bytes,
-                                         max_frames=self.max_frames)
+                                         max_frames=self.max_frames, on_frame=on_frame)
 
     def end(self, published: dict[str, int] | None = None, *, grace: float = 1.0,
             timeout: float = 10.0) -> EpisodeStreams:

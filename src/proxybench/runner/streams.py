@@ -20,6 +20,10 @@ the camera's clock (``frame``), and writes the folder itself when the episode en
 simulated watchtowers served over DTPS are such a sink (``autolab.live``): their frames reach the folder through
 a DTPS server and the lab's reader, as a lab's own watchtowers' do. A spec with a sink may have no cameras at all
 (a lab's own cameras, recorded by the sink while the episode runs).
+
+A spec without a sink may have an ``observer`` (a :class:`FrameObserver`), told of each frame as its file is
+written, so that it can work on the frames while the episode runs (the Autolab's online localisation,
+``autolab.online``); it never changes what is written.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ import numpy as np
 from proxybench.domain.fixed_cameras import FixedCamera, FixedCameraRig
 from proxybench.domain.maps import Map, MapObject
 
-__all__ = ["StreamRecorder", "StreamSink", "StreamSpec", "with_fixtures"]
+__all__ = ["EpisodeObserver", "FrameObserver", "StreamRecorder", "StreamSink", "StreamSpec", "with_fixtures"]
 
 
 class StreamSink(Protocol):
@@ -50,6 +54,20 @@ class StreamSink(Protocol):
     def end(self) -> None: ...
 
 
+class EpisodeObserver(Protocol):
+    """One episode's frames as they are written: ``frame`` must return at once (it runs in the frame hook)."""
+
+    def frame(self, camera: str, index: int, ref: str, t: float) -> None: ...
+
+    def end(self) -> None: ...
+
+
+class FrameObserver(Protocol):
+    """Told of each episode whose streams are written to files (see the module): ``begin`` gives its handle."""
+
+    def begin(self, out: Path) -> EpisodeObserver: ...
+
+
 @dataclass(frozen=True)
 class StreamSpec:
     """Fixed cameras to record during an episode: ``rates`` [Hz] and ``clock_offsets`` [s] per camera."""
@@ -61,6 +79,7 @@ class StreamSpec:
     image_format: str = "jpg"
     quality: int = 95
     sink: StreamSink | None = field(default=None, compare=False)
+    observer: FrameObserver | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         if not (len(self.cameras) == len(self.rates) == len(self.clock_offsets)) or not (self.cameras or self.sink):
@@ -94,14 +113,17 @@ def with_fixtures(m: Map, fixtures: tuple[MapObject, ...]) -> Map:
 class StreamRecorder:
     """Writes the streams of ``spec`` for world ``world`` of ``sim`` into ``out`` (see the module docstring)."""
 
-    def __init__(self, sim, spec: StreamSpec, out: str | Path, world: int = 0):
+    def __init__(self, sim, spec: StreamSpec, out: str | Path, world: int = 0, rig: FixedCameraRig | None = None):
         self.sim, self.spec, self.world = sim, spec, world
         self.out = Path(out)
-        self.rig = FixedCameraRig(sim, spec.cameras) if spec.cameras else None  # a sink alone: nothing rendered
+        if rig is None and spec.cameras:  # a sink alone: nothing rendered; ``rig``: shared by a lab world's episodes
+            rig = FixedCameraRig(sim, spec.cameras)
+        self.rig = rig
         self.phase = [(zlib.crc32(c.name.encode()) % 1000) / 1000.0 / r for c, r in zip(spec.cameras, spec.rates,
                                                                                           strict=True)]
         self.count = [0] * len(spec.cameras)
         self.stamps: list[list[tuple[int, float]]] = [[] for _ in spec.cameras]
+        self.watch = spec.observer.begin(self.out) if spec.observer is not None and spec.sink is None else None
         if spec.sink is not None:
             spec.sink.begin(self.out)
             return
@@ -132,6 +154,8 @@ class StreamRecorder:
                 path = self.out / cam.name / f"{k:06d}.{ext}"
                 if not cv2.imwrite(str(path), bgr, flags):
                     raise OSError(f"{path}: cannot write the frame")
+                if self.watch is not None:
+                    self.watch.frame(cam.name, k, str(path), t)
             self.stamps[i].append((k, t + self.spec.clock_offsets[i]))
             while t + 1e-9 >= self.phase[i] + self.count[i] / r:  # skip slots the episode's frames stepped over
                 self.count[i] += 1
@@ -147,3 +171,5 @@ class StreamRecorder:
                 w = csv.writer(fh)
                 w.writerow(["frame", "t"])
                 w.writerows([(k, f"{t:.6f}") for k, t in rows])
+        if self.watch is not None:
+            self.watch.end()
