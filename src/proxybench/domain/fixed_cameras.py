@@ -125,6 +125,8 @@ class FixedCameraRig:
         """(P, PF) world ``world`` beyond the map's objects, now: extras, pedestrians, its robots with roof tags."""
         sim = self.sim
         w = sim.worlds
+        if w.shared_tags is not None:  # a lab's shared world: every robot, each under its own roof tag
+            return np.ascontiguousarray(w.moving_prims(sim._state, sim.tick, sim.params[0].physics_dt).copy())
         rows = [self._robot_rows(robot_tag_id(), sim.state[world, :3])]
         for j, r in enumerate(range(w.robot_lo[world], w.robot_hi[world])):
             rows.append(self._robot_rows(robot_tag_id(j), sim.npc_state[r - sim.n, :3]))

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from proxybench.domain.apriltags import ROOF_TAG_BASE
 from proxybench.domain.dynamics import DYN_FIELDS, ST, TRACE_FIELDS, blur_poses, pack_dynamics, physics_ticks
 from proxybench.domain.lane_pose import LP, lane_pose_into, point_on_road
 from proxybench.domain.lanes import LaneNetwork
@@ -26,7 +27,7 @@ from proxybench.domain.objects import CF_MARGIN, collision_check, footprint_dist
 from proxybench.domain.params import STRUCTURAL_FIELDS, DomainParams
 from proxybench.domain.renderer import Renderer
 from proxybench.domain.routes import RouteTracker
-from proxybench.domain.worlds import Worlds
+from proxybench.domain.worlds import HIT_KINDS, Worlds, robot_contacts
 
 __all__ = ["Simulator", "StartDistribution", "episode_seed", "start_pose"]
 
@@ -136,6 +137,8 @@ class Simulator:
         render: bool = True,
         start: StartDistribution | None = None,
         npcs: Traffic | Sequence[Traffic] | None = None,
+        shared: bool = False,
+        roof_tags: Sequence[int] | None = None,
     ):
         self.map = load_map(map_) if isinstance(map_, str) else map_
         self.net = LaneNetwork(self.map)
@@ -156,7 +159,16 @@ class Simulator:
         self.frame_dt = 1.0 / first.frame_rate
         self.objects = pack_objects(self.map.objects)
         traffic = [npcs or Traffic()] * self.n if npcs is None or isinstance(npcs, Traffic) else list(npcs)
-        self.worlds = Worlds(self.net, self.objects, traffic, self.n)
+        #: a shared world (a lab's robots, :mod:`proxybench.runner.lab_world`): the egos see and can hit each other,
+        #: each wearing roof tag ``roof_tags[i]`` (default 400 + i); otherwise each ego is alone in a world of its own
+        self.shared = bool(shared)
+        tags = list(roof_tags) if roof_tags is not None else [ROOF_TAG_BASE + i for i in range(self.n)]
+        self.roof_tags = tuple(tags) if self.shared else (ROOF_TAG_BASE,) * self.n
+        self.worlds = Worlds(self.net, self.objects, traffic, self.n, tags if self.shared else None)
+        #: shared world: the robot each ego first touched this episode (-1: none) and whether it was at fault
+        #: (moving towards the other: ``worlds.robot_contacts``); only an ego at fault is ``collided``
+        self.contact = np.full(self.n, -1, dtype=np.int64)
+        self.contact_fault = np.zeros(self.n, dtype=np.bool_)
         rows = self.worlds.rows  # the N egos, then the NPC robots; public arrays are views of the egos' rows
         self._state = np.zeros((rows, ST.N))
         self.dyn = np.zeros((rows, len(pack_dynamics(first))))
@@ -296,6 +308,7 @@ class Simulator:
         rows = self._rows_of(i)
         self._collided[rows] = False
         self._hit[rows] = 0
+        self.contact[i], self.contact_fault[i] = -1, False
         points = self._state[:, None, :2].copy()
         if self.objects.colliders.shape[0]:
             flag = np.zeros(len(rows), dtype=np.bool_)
@@ -346,10 +359,20 @@ class Simulator:
                 self._hit[self._collided & ~before] = 1
             if dynamic:
                 w.collide(trace, tick0, self.params[0].physics_dt, self._collided, self._hit)
+            if self.shared and self.n > 1:
+                self._robot_contacts(trace)
         if own is not None and own is not trace:
             own[:] = trace[: self.n]
         self._frame_index += 1
         self._update_lane(None)
+
+    def _robot_contacts(self, trace: np.ndarray) -> None:
+        """A shared world's robot-to-robot contacts of this frame: the one at fault is ``collided`` (with a robot)."""
+        before = self.contact.copy()
+        robot_contacts(trace, self.n, self.contact, self.contact_fault)
+        new = (before < 0) & (self.contact >= 0) & self.contact_fault & ~self.collided
+        self.collided[new] = True
+        self.hit_kind[new] = HIT_KINDS.index("robot")
 
     def _update_lane(self, idx: np.ndarray | None) -> None:
         a = self.arrays

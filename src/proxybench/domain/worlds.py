@@ -44,7 +44,7 @@ from proxybench.domain.objects import (
 )
 from proxybench.domain.params import DomainParams
 
-__all__ = ["HIT_KINDS", "Worlds", "extra_duckie_spots", "world_collisions"]
+__all__ = ["FAULT_SPEED", "HIT_KINDS", "Worlds", "extra_duckie_spots", "robot_contacts", "world_collisions"]
 
 #: what a robot hit, by ``Simulator.hit_kind`` code (0: nothing)
 HIT_KINDS = ("", "map object", "duckie", "pedestrian", "robot")
@@ -97,6 +97,34 @@ def world_collisions(
                 break
 
 
+#: [m/s] a robot moving towards another faster than this at contact is at fault (a standing robot never is)
+FAULT_SPEED = 0.01
+
+
+@nb.njit(cache=True)
+def robot_contacts(trace, n, partner, fault):
+    """First contact of each ego (rows ``0 .. n - 1`` of ``trace`` (R, S, ≥5): x, y, θ, v after each of S ticks)
+    with another ego of a shared world: centres closer than ``ROBOT_MARGIN``. Sticky: ``partner[i]`` (-1: none yet)
+    gets the other robot, ``fault[i]`` whether robot i was moving towards it (its velocity's component along the
+    line from its centre to the other's exceeds ``FAULT_SPEED``). A head-on contact makes both at fault."""
+    for k in range(trace.shape[1]):
+        for i in range(n):
+            for j in range(i + 1, n):
+                if partner[i] >= 0 and partner[j] >= 0:
+                    continue
+                dx = trace[j, k, 0] - trace[i, k, 0]
+                dy = trace[j, k, 1] - trace[i, k, 1]
+                d = math.sqrt(dx * dx + dy * dy)
+                if d >= ROBOT_MARGIN:
+                    continue
+                ux, uy = (dx / d, dy / d) if d > 0.0 else (0.0, 0.0)
+                for a, b, sx, sy in ((i, j, ux, uy), (j, i, -ux, -uy)):
+                    if partner[a] < 0:
+                        partner[a] = b
+                        v = trace[a, k, 3]
+                        fault[a] = v * (math.cos(trace[a, k, 2]) * sx + math.sin(trace[a, k, 2]) * sy) > FAULT_SPEED
+
+
 def extra_duckie_spots(net: LaneNetwork, colliders: np.ndarray, count: int, seed: int) -> np.ndarray:
     """(≤ count, 2) spots [m] just beside the road (5–20 cm off its edge), clear of map objects and of each other.
 
@@ -132,10 +160,16 @@ class Worlds:
     world by world (``robot_world`` (K,) says whose).
     """
 
-    def __init__(self, net: LaneNetwork, static: ObjectArrays, traffic: Sequence[Traffic], n: int):
+    def __init__(self, net: LaneNetwork, static: ObjectArrays, traffic: Sequence[Traffic], n: int,
+                 shared_tags: Sequence[int] | None = None):
         if len(traffic) != n:
             raise ValueError(f"{len(traffic)} NPC sets for {n} robots")
+        if shared_tags is not None and (len(shared_tags) != n or any(not t.empty for t in traffic)):
+            raise ValueError(f"a shared world of {n} robots takes one roof tag per robot ({len(shared_tags)} given) "
+                             "and no npcs: its robots are each other's traffic")
         self.net, self.static, self.n = net, static, n
+        #: shared world (a lab's robots): the egos are one world, each wearing its own roof tag; None: N worlds
+        self.shared_tags = None if shared_tags is None else tuple(int(t) for t in shared_tags)
         self.traffic = tuple(traffic)
         per_world = [len(t.robots) for t in traffic]
         self.robot_world = np.repeat(np.arange(n), per_world).astype(np.int64)
@@ -163,11 +197,13 @@ class Worlds:
     @property
     def active(self) -> bool:
         """Anything beyond the map's own objects in any world (else the simulator skips all of this)."""
-        return self.k > 0 or self.ped_world.size > 0 or self.extra_cols.shape[0] > 0
+        return self.k > 0 or self.ped_world.size > 0 or self.extra_cols.shape[0] > 0 or self.shared_tags is not None
 
     def set_params(self, w: int, p: DomainParams) -> None:
         """World w follows θ = ``p``: NPC speed factor and extra duckies."""
         self.speed_scale[w] = p.npc_speed_scale
+        if self.shared_tags is not None and p.extra_duckies:
+            raise ValueError("a shared world takes no extra duckies (θ extra_duckies must be 0)")
         key = (p.extra_duckies, p.object_seed)
         if key != self._extra_key[w]:
             spots = extra_duckie_spots(self.net, self.static.colliders, *key)
@@ -204,16 +240,42 @@ class Worlds:
         self.extra_hi = np.append(self.extra_lo[1:], n_cols).astype(np.int64)
         self._ped_xy = np.zeros((self.ped_world.size, 2))
         nb_ = self._bot_prims.shape[0]
+        if self.shared_tags is not None:
+            self._shared_layout(nb_)
+            return
         self.ranges = np.zeros((self.rows, 4), dtype=np.int64)
         self.ranges[:, 0] = self.world_lo[self.row_world]
         self.ranges[:, 1] = self.world_hi[self.row_world]
         self.ranges[self.n:, 2] = self._bot_row
         self.ranges[self.n:, 3] = self._bot_row + nb_
 
+    def _shared_layout(self, nb_: int) -> None:
+        """A shared world's ``moving``: every ego's body with its own roof tag; each ego sees them all but its own."""
+        self._tpl = [robot_primitives(t) for t in self.shared_tags]
+        self.moving = np.concatenate(self._tpl)
+        self.world_lo = np.zeros(self.n, dtype=np.int64)
+        self.world_hi = np.full(self.n, self.moving.shape[0], dtype=np.int64)
+        self._ego_row = np.arange(self.n, dtype=np.int64) * nb_
+        self.ranges = np.zeros((self.rows, 4), dtype=np.int64)
+        self.ranges[:, 0] = 0
+        self.ranges[:, 1] = self.moving.shape[0]
+        self.ranges[:, 2] = self._ego_row
+        self.ranges[:, 3] = self._ego_row + nb_
+
     def moving_prims(self, state: np.ndarray, ticks: np.ndarray, dt: float) -> np.ndarray:
         """``moving`` with pedestrians at their worlds' times (``ticks`` (N,) × ``dt`` [s]) and NPC robots at
-        their poses (``state`` rows n..)."""
+        their poses (``state`` rows n..); in a shared world, every ego at its pose (``state`` rows ..n)."""
         m = self.moving
+        if self.shared_tags is not None:
+            x, y, th = state[: self.n, 0], state[: self.n, 1], state[: self.n, 2]
+            c, s = np.cos(th), np.sin(th)
+            for j, p in enumerate(self._tpl[0]):
+                rows = self._ego_row + j
+                m[rows, PF_X] = x + c * p[PF_X] - s * p[PF_Y]
+                m[rows, PF_Y] = y + s * p[PF_X] + c * p[PF_Y]
+                m[rows, PF_COS] = c * p[PF_COS] - s * p[PF_SIN]
+                m[rows, PF_SIN] = s * p[PF_COS] + c * p[PF_SIN]
+            return m
         if self.ped_world.size:
             a = self.peds
             pedestrians_at(ticks[: self.n] * dt, self.speed_scale, self.ped_world, a.pts, a.cum, a.npts, a.speed,
@@ -241,7 +303,9 @@ class Worlds:
                          a.delay, a.mode, self.ped_radius, self.speed_scale, only_world, flags, kind)
 
     def objects_of(self, w: int, state: np.ndarray, ticks: np.ndarray, dt: float) -> np.ndarray:
-        """World w's extras and pedestrians as primitives (P, PF), for top-down views."""
+        """World w's extras and pedestrians as primitives (P, PF), for top-down views (a shared world has none)."""
+        if self.shared_tags is not None:
+            return np.zeros((0, self.moving.shape[1]))
         m = self.moving_prims(state, ticks, dt)
         keep = np.ones(self.world_hi[w] - self.world_lo[w], dtype=bool)
         for r in self._bot_row[(self.robot_world == w)]:
