@@ -31,9 +31,9 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from proxybench.autolab.watchtowers import GroundTag, Layout, LayoutError, read_model, resolve_layout
 from proxybench.domain.apriltags import CODES, ROOF_TAG_BASE
@@ -60,6 +60,19 @@ def _plain_name(v: str) -> str:
     return v
 
 
+def _dtps_address(v: str) -> str:
+    from proxybench.dtps.robot_options import parse_address
+
+    parse_address(v)  # a ValueError saying what is wrong
+    return v
+
+
+#: a lab's, robot's or watchtower's name (:func:`_plain_name`)
+PlainName = Annotated[str, AfterValidator(_plain_name)]
+#: a DTPS robot's or camera's address, ``HOST[:PORT]/PATH`` (``dtps.robot_options.parse_address``)
+DtpsAddress = Annotated[str, AfterValidator(_dtps_address)]
+
+
 class LabRobot(BaseModel):
     """One robot of the lab: exactly one of ``virtual`` (a virtual DB21J: the simulator behind DTPS), ``dtps``
     (a DTPS robot, ``HOST[:PORT]/PATH``) and ``command`` (a robot node speaking the robot protocol); ``roof_tag``:
@@ -67,25 +80,11 @@ class LabRobot(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    name: str
+    name: PlainName
     virtual: bool = False
-    dtps: str | None = None
+    dtps: DtpsAddress | None = None
     command: str | None = Field(None, min_length=1)
     roof_tag: int | None = Field(None, ge=0, lt=len(CODES))
-
-    @field_validator("name")
-    @classmethod
-    def _name(cls, v: str) -> str:
-        return _plain_name(v)
-
-    @field_validator("dtps")
-    @classmethod
-    def _address(cls, v: str | None) -> str | None:
-        if v is not None:
-            from proxybench.dtps.robot_options import parse_address
-
-            parse_address(v)  # a ValueError saying what is wrong
-        return v
 
     @model_validator(mode="after")
     def _one_kind(self) -> LabRobot:
@@ -107,24 +106,10 @@ class StreamSource(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    name: str
-    dtps: str | None = None
+    name: PlainName
+    dtps: DtpsAddress | None = None  # the camera topic is PATH/sensor/camera/front_center/jpeg
     recorded: Path | None = None
     calibration: Path
-
-    @field_validator("name")
-    @classmethod
-    def _name(cls, v: str) -> str:
-        return _plain_name(v)
-
-    @field_validator("dtps")
-    @classmethod
-    def _address(cls, v: str | None) -> str | None:
-        if v is not None:  # HOST[:PORT]/PATH: the camera topic is PATH/sensor/camera/front_center/jpeg
-            from proxybench.dtps.robot_options import parse_address
-
-            parse_address(v)  # a ValueError saying what is wrong
-        return v
 
     @model_validator(mode="after")
     def _one_source(self) -> StreamSource:
@@ -231,7 +216,7 @@ class Lab(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     format: Literal["proxybench-lab/1"] = LAB_FORMAT
-    name: str = "lab"
+    name: PlainName = "lab"
     map: str
     robots: list[LabRobot] = Field(min_length=1, max_length=64)
     watchtowers: LabWatchtowers
@@ -239,11 +224,6 @@ class Lab(BaseModel):
     operator: LabOperator = LabOperator()
     limits: LabLimits = LabLimits()
     drills: Drills = Drills()
-
-    @field_validator("name")
-    @classmethod
-    def _name(cls, v: str) -> str:
-        return _plain_name(v)
 
     @model_validator(mode="after")
     def _consistent(self) -> Lab:
