@@ -4,12 +4,21 @@
     .venv/bin/python benchmarks/bench_localization.py --quick    # one map, 8 s
     .venv/bin/python benchmarks/bench_localization.py --log D    # an existing `run --watchtowers` log only
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_localization.py --keep-up [--log D]   # CPU per simulated s
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_localization.py --online [--log D]    # online: CPU and lag
 
 ``--keep-up`` (issue 36 item 4): the technical track's 30-s run (or ``--log D``, ``--map``) localised in this
 process pinned to one core, as the Autolab evaluator localises an episode (one detection process), twice side by
 side: detecting every frame, and re-using a watchtower's last detection while its view is unchanged (the default).
 It prints CPU seconds (this process's, threads included; imports before the clock) per simulated second, where they
 went (decoding and detecting, measuring and solving), and the median / p95 position error against the truth.
+
+``--online`` (issue 36 item 4, online): the same run replayed in real time (each frame offered at its episode time,
+as the watchtower reader receives it: its bytes) to the Autolab evaluator's online detection
+(``autolab.online.OnlineDetector``: a bounded queue, one worker thread) in this process pinned to one core, twice
+side by side: quiet, and with a busy neighbour (a process multiplying numpy matrices in a loop, pinned to the same
+core). It prints CPU per simulated second (this process's during the replay, plus the pose graph at the end), the
+lag (frames queued when a frame arrived: median, p95, most), frames dropped, the wall time from the episode's last
+frame until its detections were done, the solve at the end, and the position error against the truth.
 
 Per map: the PID agent drives one episode while the map's generated watchtower layout (``--watchtowers auto``)
 records; the log is localised (pupil-apriltags, decimation 2, two detection processes) and each localised sample
@@ -129,6 +138,115 @@ def keep_up(log_dir: Path, map_name: str) -> list[dict]:
     return rows
 
 
+#: the busy neighbour of ``--online``: a process that multiplies matrices without end
+HOG = ("import numpy as np\n"
+       "a = np.random.default_rng(0).random((300, 300))\n"
+       "while True:\n"
+       "    a = a @ a\n"
+       "    a /= np.abs(a).max()\n")
+
+
+def _neighbour(core: int):
+    """The busy neighbour, started and pinned to ``core`` (its caller stops it)."""
+    import os
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-c", HOG], env={**os.environ, "OMP_NUM_THREADS": "1",
+                                                              "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
+    os.sched_setaffinity(proc.pid, {core})
+    return proc
+
+
+def replay(log, online, speed: float) -> tuple[object, list[int], float]:
+    """Offer ``log``'s frames (their bytes) to ``online`` at their episode times (``speed`` × real time), as the
+    watchtower reader would; (the episode, frames queued at each offer, wall seconds from the last frame to done)."""
+    from pathlib import Path as _P
+
+    ep = online.begin(log.root / "watchtowers")
+    order = sorted((fr.t, s.name, int(_P(fr.ref).stem), fr.ref) for s in log.streams for fr in s.frames)
+    t0, start, queued = order[0][0], time.perf_counter(), []
+    for t, name, index, ref in order:
+        delay = start + (t - t0) / speed - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+        queued.append(online.lag().queued)
+        ep.frame(name, index, _P(ref).read_bytes(), t)
+    ep.end()
+    last = time.perf_counter()
+    ep.wait()
+    return ep, queued, time.perf_counter() - last
+
+
+def online_rows(log_dir: Path, map_name: str, speed: float, max_queue: int) -> list[dict]:
+    """Replay one log to the online detection on one core, quiet and beside a busy neighbour (see the module)."""
+    import os
+
+    import cv2
+    import gtsam  # noqa: F401 - imported before the clock, as in a running evaluator
+    import pupil_apriltags  # noqa: F401
+
+    from proxybench.autolab.localize import localize_log
+    from proxybench.autolab.logs import read_log
+    from proxybench.autolab.online import OnlineDetector
+    from proxybench.domain.maps import load_map
+    from proxybench.tasks.trajectory import Trajectory
+
+    core = min(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, {core})
+    cv2.setNumThreads(1)
+    log, m = read_log(log_dir), load_map(map_name)
+    truth = Trajectory.load(log.truth).columns
+    seconds = float(log.manifest.seconds or truth["t"][-1])
+    rows = []
+    for busy in (False, True):
+        hog = _neighbour(core) if busy else None
+        try:
+            online = OnlineDetector(decimate=2.0, max_queue=max_queue)
+            c0 = time.process_time()
+            ep, queued, drain = replay(log, online, speed)
+            online.close()
+            c1 = time.process_time()
+            loc = localize_log(log, m, frames=ep.frames_for(log))
+            c2 = time.process_time()
+        finally:
+            if hog is not None:
+                hog.kill()
+                hog.wait()
+        pos, _ = errors(loc.robots["ego"], truth)
+        rep = ep.report()
+        rows.append({"busy": busy, "seconds": seconds, "frames": rep["frames"], "detected": rep["detected"],
+                     "dropped": sum(rep["dropped"].values()), "cpu": c1 - c0, "worker": rep["cpu_s"],
+                     "solve": c2 - c1, "queued": np.array(queued), "drain": drain, "pos": pos})
+    return rows
+
+
+def show_online(args: argparse.Namespace) -> None:
+    """Record (unless ``--log``) and print the online table."""
+    import os
+
+    name = args.map or MAPS[0]
+    with tempfile.TemporaryDirectory() as tmp:
+        log = args.log if args.log is not None else record(name, args.seconds or 30.0, Path(tmp) / name)
+        rows = online_rows(log, name, args.speed, args.max_queue)
+    load = os.getloadavg()[0]
+    r0 = rows[0]
+    table = Table(title=f"Online localisation on one core: {name}, {r0['seconds']:g} s, {r0['frames']} frames "
+                        f"replayed at {args.speed:g}× real time, queue ≤ {args.max_queue} (load average {load:.1f})")
+    for col in ("neighbour", "frames detected", "dropped", "CPU during the episode [s] (worker's)",
+                "solve at the end [s]", "CPU per simulated s", "queued: median / p95 / most",
+                "done after the last frame [s]", "pos. err. median / p95 [cm]"):
+        table.add_column(col, justify="left" if col == "neighbour" else "right")
+    for r in rows:
+        q = r["queued"]
+        table.add_row("busy (numpy matmul, same core)" if r["busy"] else "quiet", str(r["detected"]),
+                      str(r["dropped"]), f"{r['cpu']:.1f} ({r['worker']:.1f})", f"{r['solve']:.2f}",
+                      f"{(r['cpu'] + r['solve']) / r['seconds']:.2f}",
+                      f"{np.median(q):.0f} / {np.percentile(q, 95):.0f} / {q.max()}", f"{r['drain']:.2f}",
+                      f"{_q(r['pos'], 50)} / {_q(r['pos'], 95)}")
+    Console(width=200).print(table)
+
+
 def _q(v: np.ndarray, q: float) -> str:
     return f"{np.percentile(v, q):.2f}" if v.size else "–"
 
@@ -141,9 +259,20 @@ def main() -> None:
     ap.add_argument("--map", default=None, help="the map of --log, or the one map to record")
     ap.add_argument("--keep-up", action="store_true", help="CPU per simulated second on one core (the technical "
                     "track, 30 s), every frame detected against unchanged views re-used")
+    ap.add_argument("--online", action="store_true", help="online detection on one core, quiet and beside a busy "
+                    "neighbour: CPU per simulated second and lag (the technical track, 30 s)")
+    ap.add_argument("--speed", type=float, default=1.0, help="--online: replay at this many times real time")
+    ap.add_argument("--max-queue", type=int, default=None, help="--online: the queue's bound (default: the "
+                    "evaluator's, autolab.online.MAX_QUEUE)")
     args = ap.parse_args()
     if args.keep_up:
         return show_keep_up(args)
+    if args.online:
+        if args.max_queue is None:
+            from proxybench.autolab.online import MAX_QUEUE
+
+            args.max_queue = MAX_QUEUE
+        return show_online(args)
     seconds = args.seconds or (8.0 if args.quick else 30.0)
     maps = [args.map] if args.map else (MAPS[:1] if args.quick else MAPS)
     rows = []

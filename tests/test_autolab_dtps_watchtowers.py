@@ -40,4 +40,7 @@ def test_the_autolab_evaluator_records_served_watchtowers_over_dtps_and_scores_f
     assert streams["missing"] == {} and streams["bad"] == {} and sum(streams["frames"].values()) >= 150
     assert report["watchtowers"] == 12 and report["measured_by"] == "watchtowers"
     assert report["localization_median_error_m"] <= 0.02
+    (loc,) = report["localization"]  # detected online as the reader wrote them: all of them (the queue holds 512)
+    online = loc["online_detection"]
+    assert online["frames"] == online["localised"] == sum(streams["frames"].values()) and online["dropped"] == {}
     assert result["public_scores"]["survival_time_median"] == 3.0

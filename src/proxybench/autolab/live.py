@@ -14,6 +14,9 @@ is the folder the reader wrote: what localisation reads. Simulated watchtowers s
 that started at the episode's wall-clock start plus the episode time (and each watchtower's drawn clock error);
 the reader takes that start as the episode's clock origin. A lab's own watchtowers stamp with their own clocks, and
 the origin is the wall clock when the episode's recording began.
+
+With an :class:`~.online.OnlineDetector` (``live_streams(…, online)``) each frame the reader writes is also queued
+for detection as it arrives (:mod:`.online`), so that at an episode's end only its pose graph is left.
 """
 
 from __future__ import annotations
