@@ -4,7 +4,9 @@ For each split of a leased job the worker runs the benchmark's episodes on the l
 watchtowers record, then per episode:
 
 1. **localise** the robot from the watchtower streams (:func:`proxybench.autolab.localize.localize_log`: the
-   same detection and pose graph as ``proxybench localize``);
+   same detection and pose graph as ``proxybench localize``), each frame detected online as it arrived while the
+   episode ran (:mod:`proxybench.autolab.online`: a bounded queue, drops counted, the lag logged every few
+   seconds), so that only the pose graph is left;
 2. **validate** the run (the DTA's rules, :func:`proxybench.autolab.validate.validate_run`, with the lab's
    limits): a robot the watchtowers lost is ``tracking_lost``, any other invalid run ``invalid``; either makes
    the job the lab's fault (``host-error``, queued again for another try), with the reason;
@@ -30,7 +32,7 @@ from __future__ import annotations
 import logging
 import shutil
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +64,7 @@ class AutolabEpisode:
     error_median_m: float | None = None
     error_p95_m: float | None = None
     files: list[Path] = field(default_factory=list)
+    online: dict[str, Any] | None = None  # what the online detection did (autolab.online), None: detected offline
 
     def report(self) -> dict[str, Any]:
         from proxybench.evaluator.report import clean
@@ -69,7 +72,7 @@ class AutolabEpisode:
         return {"episode": self.episode, "valid": self.valid, "reasons": self.reasons, "samples": self.samples,
                 "frames": self.frames, "scores": {k: clean(v) for k, v in self.scores.items()},
                 "localization_median_error_m": clean(self.error_median_m),
-                "localization_p95_error_m": clean(self.error_p95_m)}
+                "localization_p95_error_m": clean(self.error_p95_m), "online_detection": self.online}
 
 
 def _check_lab(lab: Lab, bench, robot_name: str | None = None) -> None:
@@ -151,9 +154,10 @@ def world_tags(robot: str) -> dict[int, str]:
 
 
 def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics,
-                     robot: str | None = None) -> AutolabEpisode:
+                     robot: str | None = None, online=None) -> AutolabEpisode:
     """One episode's streams → log → localised, validated and scored (see the module); ``robot``: the lab's robot
-    that drove it (None: the first)."""
+    that drove it (None: the first); ``online``: the episode's frames as detected while it ran
+    (:class:`~proxybench.autolab.online.OnlineEpisode`: only the pose graph is left; None: detected here)."""
     from proxybench.autolab.localize import localize_log
     from proxybench.autolab.logs import LogManifest, read_log, write_sim_log
     from proxybench.autolab.target import track_table
@@ -180,12 +184,14 @@ def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics,
     else:
         write_sim_log(folder, layout, folder / "streams", manifest)
     run_log = read_log(folder)
-    loc = localize_log(run_log, m, workers=1, decimate=2.0)
+    frames = online.frames_for(run_log) if online is not None else None  # the log's frames, drills applied
+    loc = localize_log(run_log, m, workers=1, decimate=2.0, frames=frames)
     verdict = validate_run(run_log, loc, lab.limits.thresholds())
     track = loc.robots.get(robot)
     lost = any("lost" in r or "never localised" in r for r in verdict.reasons)
     episode = AutolabEpisode(res.episode, None, {}, verdict.valid, list(verdict.reasons), lost,
-                             0 if track is None else int(track.t.size), loc.frames)
+                             0 if track is None else int(track.t.size), loc.frames,
+                             online=online.report() if online is not None else None)
     if track is None or track.t.size < 2:
         return episode
     import pandas as pd
@@ -212,6 +218,12 @@ def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics,
         episode.files.append(folder / "errors.csv")
         episode.error_median_m, episode.error_p95_m = float(np.median(err)), float(np.percentile(err, 95))
     return episode
+
+
+def _log_lag(split: str, lag) -> None:
+    """The live view of the online localisation (every few seconds while episodes run): how far behind it is."""
+    log.info("%s: localisation %d frames behind (%.1f s of episode), %d detected, %d dropped so far", split,
+             lag.queued, lag.behind_s, lag.detected, lag.dropped)
 
 
 def _scores(episodes: list[AutolabEpisode], bench) -> dict[str, float | None]:
@@ -250,6 +262,7 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     """Episodes on the lab's robot with its watchtowers recording; localised, validated, scored (the module)."""
     from proxybench.autolab.calibration import stream_spec
     from proxybench.autolab.live import live_streams
+    from proxybench.autolab.online import OnlineDetector
     from proxybench.domain.maps import load_map
     from proxybench.dtps.cameras import ReaderError
     from proxybench.evaluator.report import summarize
@@ -263,11 +276,13 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     job.phase = split
     m = load_map(bench.map)
     layout = lab.layout(m) if lab.watchtowers.layout is not None else None
+    # each frame detected as it arrives (autolab.online): after an episode only its pose graph is left
+    online = OnlineDetector(decimate=2.0, report=lambda lag: _log_lag(split, lag))
     try:  # watchtowers read over DTPS (served simulated ones, or the lab's own): autolab.live
-        live = live_streams(lab, layout)
+        live = live_streams(lab, layout, online)
     except ReaderError as exc:
         raise HostFault(f"watchtowers: {exc}") from None
-    streams = live.spec if live is not None else stream_spec(layout)
+    streams = live.spec if live is not None else replace(stream_spec(layout), observer=online)
     towers = len(live.names) if live is not None else len(layout.watchtowers)
     robot = lab.robot(job.job.autolab_robot)
     log.info("%s: %d episodes of %g s on lab %r's robot %r (virtual), %d watchtowers recording%s", split,
@@ -286,6 +301,7 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     finally:
         if live is not None:
             live.close()
+        online.close()  # the worker detects what is queued, then ends
     from proxybench.domain.events import Termination
 
     failed = [r for r in ev.sweep.results if r.termination is Termination.ROBOT_FAILURE]
@@ -309,12 +325,15 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     episodes = []
     for k, res in enumerate(sorted(ev.sweep.results, key=lambda r: r.episode)):
         episodes.append(localize_episode(res, bench, lab, layout, m, job.dir / "autolab" / split / str(res.episode),
-                                         METRICS, robot.name))
+                                         METRICS, robot.name, online.episode(res.streams) if res.streams else None))
         job.progress(k + 1, len(ev.sweep.results))
         e = episodes[-1]
         log.info("%s episode %d: %d frames, %d samples, %s%s", split, e.episode, e.frames, e.samples,
                  "valid" if e.valid else "INVALID: " + "; ".join(e.reasons),
                  "" if e.error_median_m is None else f"; localisation error median {100 * e.error_median_m:.2f} cm")
+        if e.online is not None:
+            log.info("%s episode %d: detected online: %d frames, %d dropped, at most %d queued", split, e.episode,
+                     e.online["frames"], sum(e.online["dropped"].values()), e.online["max_queued"])
     report = dict(record.report)
     report.update(domain_kind="autolab/virtual", measured_by="watchtowers", lab=lab.name, robot=robot.name,
                   watchtowers=towers, localization=[e.report() for e in episodes],
