@@ -18,6 +18,7 @@ as it is. See docs/autolab.md ("A lab") for an example::
       #   - {name: wt01, dtps: 192.168.1.31/wt01, calibration: cal/wt01.yaml}
       #   - {name: wt02, recorded: rec/wt02, calibration: cal/wt02.yaml}
     reset: {mode: teleport}                         # operator | teleport (virtual robots) | pose_file (+ poses)
+    # world: shared                                 # the virtual robots share one floor (default own: one each)
     # operator: {folder: lab.operator, timeout_s: 600}      # where a person confirms placements, intervenes
     limits: {lost_s: 1.0, light_change: 0.2, end_slack_s: 1.0, max_episode_s: 120}
     # drills: {streams_stop_s: 1.5, streams_stop: [wt01]}   # simulated faults (simulated watchtowers only)
@@ -224,6 +225,9 @@ class Lab(BaseModel):
     operator: LabOperator = LabOperator()
     limits: LabLimits = LabLimits()
     drills: Drills = Drills()
+    #: ``shared``: the lab's virtual robots share one world (they see and can hit each other; runner.lab_world);
+    #: ``own``: each robot is the ego of a world of its own (the default)
+    world: Literal["own", "shared"] = "own"
 
     @model_validator(mode="after")
     def _consistent(self) -> Lab:
@@ -240,6 +244,8 @@ class Lab(BaseModel):
         if self.drills.streams_stop_s is not None and self.watchtowers.layout is None:
             raise ValueError("drills: a lab's own watchtower streams are not stopped on purpose; drills are for "
                              "simulated watchtowers (layout)")
+        if self.world == "shared" and self.watchtowers.layout is None:
+            raise ValueError("world: a shared world's watchtowers are simulated: give watchtowers.layout")
         if self.reset.mode == "teleport":
             real = [r.name for r in self.robots if not r.virtual]
             if real:

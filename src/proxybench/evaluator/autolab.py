@@ -65,6 +65,7 @@ class AutolabEpisode:
     error_p95_m: float | None = None
     files: list[Path] = field(default_factory=list)
     online: dict[str, Any] | None = None  # what the online detection did (autolab.online), None: detected offline
+    seen: list[str] = field(default_factory=list)  # the lab's robots the watchtowers localised (a shared world: all)
 
     def report(self) -> dict[str, Any]:
         from proxybench.evaluator.report import clean
@@ -174,7 +175,8 @@ def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics,
     shutil.copytree(res.streams, folder / "streams")
     stop_streams(folder / "streams", lab)
     manifest = LogManifest(source="simulation", map=bench.map, agent="agent", episode=res.episode,
-                           seconds=bench.duration, termination=ended, active=robot, robots=world_tags(robot))
+                           seconds=bench.duration, termination=ended, active=robot,
+                           robots=lab.roof_tags() if lab.world == "shared" else world_tags(robot))
     if not any(p.is_dir() for p in (folder / "streams").iterdir()):
         raise HostFault(f"tracking_lost: episode {res.episode}: no watchtower delivered a frame")
     if layout is None:  # a lab's own streams, read over DTPS: its calibration files, its ground tags
@@ -191,7 +193,7 @@ def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics,
     lost = any("lost" in r or "never localised" in r for r in verdict.reasons)
     episode = AutolabEpisode(res.episode, None, {}, verdict.valid, list(verdict.reasons), lost,
                              0 if track is None else int(track.t.size), loc.frames,
-                             online=online.report() if online is not None else None)
+                             online=online.report() if online is not None else None, seen=sorted(loc.robots))
     if track is None or track.t.size < 2:
         return episode
     import pandas as pd
@@ -265,6 +267,7 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     from proxybench.autolab.online import OnlineDetector
     from proxybench.domain.maps import load_map
     from proxybench.dtps.cameras import ReaderError
+    from proxybench.evaluator.lab_world import contact_invalid, episode_streams, shared_domain
     from proxybench.evaluator.report import summarize
     from proxybench.protocol.failures import AgentFailure
     from proxybench.runner.backends import InlineBackend
@@ -285,11 +288,14 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     streams = live.spec if live is not None else replace(stream_spec(layout), observer=online)
     towers = len(live.names) if live is not None else len(layout.watchtowers)
     robot = lab.robot(job.job.autolab_robot)
+    world = job.job.lab_world  # world: shared: the episodes run in the lab's one world, which records the towers
+    domain = None if world is None else shared_domain(world, robot.name, bench, job.dir / "runs" / split / "towers")
     log.info("%s: %d episodes of %g s on lab %r's robot %r (virtual), %d watchtowers recording%s", split,
              len(bench.episode_specs()), bench.duration, lab.name, robot.name, towers,
              "" if live is None else " over DTPS")
     try:
-        ev = evaluate_benchmark(bench, [spec], job.dir / "runs" / split, InlineBackend(), streams=streams,
+        ev = evaluate_benchmark(bench, [spec], job.dir / "runs" / split, InlineBackend(),
+                                streams=streams if world is None else None, domain=domain,
                                 privileged=is_privileged, progress=job.progress)
     except ReaderError as exc:
         raise HostFault(f"watchtowers: {exc}") from None
@@ -308,6 +314,11 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     if failed:
         raise HostFault(f"robot_failure: lab {lab.name!r}'s robot {robot.name!r} failed in {split} episode "
                         f"{failed[0].episode}: {failed[0].message}")
+    if world is not None:  # the shared world's collision rule: a robot another ran into ran an invalid episode
+        ev.sweep.results = [episode_streams(r) for r in ev.sweep.results]
+        hit = next(filter(None, (contact_invalid(r, split, robot.name) for r in ev.sweep.results)), None)
+        if hit is not None:
+            raise HostFault(hit)
     record = summarize(ev, split, domain_kind="autolab/virtual")
     dead = [f for f in record.failures if str(f.get("message", "")).startswith("RobotFailure:")]
     if dead:  # the robot's DTPS endpoint died under the agent: the lab's fault, whatever the agent did after
@@ -325,7 +336,8 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     episodes = []
     for k, res in enumerate(sorted(ev.sweep.results, key=lambda r: r.episode)):
         episodes.append(localize_episode(res, bench, lab, layout, m, job.dir / "autolab" / split / str(res.episode),
-                                         METRICS, robot.name, online.episode(res.streams) if res.streams else None))
+                                         METRICS, robot.name,
+                                         online.episode(res.streams) if res.streams and world is None else None))
         job.progress(k + 1, len(ev.sweep.results))
         e = episodes[-1]
         log.info("%s episode %d: %d frames, %d samples, %s%s", split, e.episode, e.frames, e.samples,

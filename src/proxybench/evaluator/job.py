@@ -15,6 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from proxybench.autolab.lab import Lab
 from proxybench.contract import Lease
+from proxybench.evaluator.lab_world import WorldAddress
 from proxybench.evaluator.sandbox import Isolation, Limits
 
 __all__ = ["EvaluatorInfo", "WorkerJob"]
@@ -50,9 +51,13 @@ class WorkerJob(BaseModel):
     robot_options: dict[str, Any] = Field(default_factory=dict)
     autolab: Lab | None = None
     autolab_robot: str | None = None
+    #: the lab's shared world (``world: shared``) this job's robot lives in: its server's socket and key
+    lab_world: WorldAddress | None = None
 
     @model_validator(mode="after")
     def _robot_of_the_lab(self) -> WorkerJob:
+        if self.lab_world is not None and (self.autolab is None or self.autolab.world != "shared"):
+            raise ValueError("lab_world: given for a job whose lab (autolab) has no shared world")
         if self.autolab_robot is not None:
             if self.autolab is None:
                 raise ValueError("autolab_robot: a robot is given but no lab (autolab)")

@@ -154,6 +154,7 @@ class Evaluator:
         self._keep_spare = False  # run(): start the next job's worker as soon as one is free
         #: an Autolab's robots: a job is leased only with a free one in hand (one slot per robot in run())
         self.robots = RobotLeases(config.autolab) if config.autolab is not None else None
+        self.lab_world = None  # the lab's shared world (world: shared), started by run()
         self._worker_env = {k: v for k, v in os.environ.items() if not k.startswith("PROXYBENCH_TOKEN")}
         for stale in self.work.entries("job-"):  # left by a killed evaluator: never resumed, the lease is gone
             self.work.remove(stale)
@@ -182,6 +183,13 @@ class Evaluator:
             log.warning("%s; their jobs end in host-error and go to other evaluators", self.isolation.problem)
         elif not self.isolation.safe:
             log.warning("%s", self.isolation.note)
+        lab = self.config.autolab
+        if lab is not None and lab.world == "shared" and self.lab_world is None:
+            from proxybench.evaluator.lab_world import LabWorldProcess
+
+            self.lab_world = LabWorldProcess(lab)
+            self.reporter.note(f"lab {lab.name!r}: its virtual robots share one world (served at "
+                               f"{self.lab_world.address.path})")
         slots = len(self.robots) if self.robots is not None else 1
         if slots > 1 and not self._robots_apart():
             self.reporter.note(f"lab {self.config.autolab.name!r}: one job at a time: without the safe sandbox the "
@@ -240,6 +248,9 @@ class Evaluator:
         if self._spare is not None:
             self._spare.kill()
             self._spare = None
+        if self.lab_world is not None:
+            self.lab_world.close()
+            self.lab_world = None
         self.client.close()
         self.work.close()
 
@@ -329,7 +340,8 @@ class Evaluator:
                                                        version=__version__),
                                isolation=self.isolation, limits=self.config.limits, video=self.config.video,
                                robot_cmd=self.config.robot_cmd, robot_options=dict(self.config.robot_options),
-                               autolab=self.config.autolab, autolab_robot=robot)
+                               autolab=self.config.autolab, autolab_robot=robot,
+                               lab_world=None if self.lab_world is None else self.lab_world.address)
         job.write("job.json", worker_job.model_dump_json(indent=1).encode())
         if self._stopping.is_set():
             return Outcome("host-error", f"evaluator {self.config.name!r} is shutting down ({self.stop_reason}); "

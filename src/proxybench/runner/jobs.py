@@ -32,8 +32,8 @@ ENGINE_VERSION = 6  # 2: camera agents see JPEG-decoded frames, as over the AIDO
 # trajectories can differ in the last bits); 6: floor tags and NPC robots' roof tags drawn as AprilTag 36h11 patterns
 
 __all__ = ["DOMAIN_KINDS", "ENGINE_VERSION", "AgentSpec", "DomainSpec", "DtpsLink", "InProcessAgent", "Job",
-           "JobResult", "NodeAgent", "ProtocolLink", "RobotDomain", "SdkProgram", "SimDomain", "batch_group",
-           "is_privileged"]
+           "JobResult", "LabWorldLink", "NodeAgent", "ProtocolLink", "RobotDomain", "SdkProgram", "SimDomain",
+           "batch_group", "is_privileged"]
 
 
 _OPTION_PAIRS = tuple[tuple[str, Any], ...]
@@ -253,6 +253,9 @@ class DomainSpec:
                 return RobotDomain(link=ProtocolLink(options=options, **link), **data)
             if how == "dtps":
                 return RobotDomain(link=DtpsLink(link["address"], options), **data)
+            if how == "lab-world":
+                params = DomainParams.model_validate(link.pop("params"))
+                return RobotDomain(link=LabWorldLink(params=params, **link), **data)
             raise ValueError(f"robot domain: link type must be protocol or dtps, got {how!r}")
         raise ValueError(f"domain spec: type must be simulated or robot, got {tag!r}")
 
@@ -357,17 +360,46 @@ class DtpsLink:
 
 
 @dataclass(frozen=True)
+class LabWorldLink:
+    """Robot ``robot`` of a lab's shared world (:mod:`proxybench.runner.lab_world`), served at the Unix socket
+    ``path`` to whoever holds ``key`` (hex; never part of a job's key); ``params``: θ of its episodes; ``streams``: the
+    folder its episodes' watchtower streams are written under (``<k>/``, the k-th episode; None: none). One robot:
+    one episode at a time."""
+
+    path: str
+    key: str
+    robot: str
+    params: DomainParams = field(default_factory=DomainParams)
+    streams: str | None = None
+    nodes: ClassVar[int] = 1
+
+    def __post_init__(self) -> None:
+        _nonblank("lab world", "robot", self.robot)
+
+    @property
+    def command(self) -> str:
+        return f"lab-world:{self.robot}"
+
+    def key_data(self) -> dict[str, Any]:
+        return {"command": self.command, "link": "lab-world", "params": self.params.model_dump(mode="json")}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"type": "lab-world", "path": self.path, "key": self.key, "robot": self.robot,
+                "params": self.params.model_dump(mode="json"), "streams": self.streams}
+
+
+@dataclass(frozen=True)
 class RobotDomain(DomainSpec):
     """A robot reached by its ``link``, stepped at ``frame_rate`` [Hz] (see :class:`DomainSpec`)."""
 
     name: str
-    link: ProtocolLink | DtpsLink
+    link: ProtocolLink | DtpsLink | LabWorldLink
     frame_rate: float = DEFAULT_FRAME_RATE
     kind: ClassVar[DomainKind] = DomainKind.ROBOT
     params: ClassVar[None] = None  # the robot's θ is its own
 
     def __post_init__(self) -> None:
-        if not isinstance(self.link, ProtocolLink | DtpsLink):
+        if not isinstance(self.link, ProtocolLink | DtpsLink | LabWorldLink):
             raise TypeError(f"DomainSpec {self.name!r}: link must be a ProtocolLink or a DtpsLink, got "
                             f"{type(self.link).__name__}")
 

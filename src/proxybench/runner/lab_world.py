@@ -537,7 +537,7 @@ class LabWorldPlant:
         ticks = wheel_ticks(s[[ST.WHEEL_L, ST.WHEEL_R]], res)
         if not privileged:
             return Observation(image, self.last.t, (float(ticks[0] * res), float(ticks[1] * res)), res,
-                               front_range=lambda: self.last.range)
+                               range_reader=lambda: self.last.range)
         return Observation(image, self.last.t, (float(ticks[0] * res), float(ticks[1] * res)), res,
                            LanePose.from_row(self.last.lane), self.last.route,
                            (float(s[ST.X]), float(s[ST.Y]), float(s[ST.THETA])), lambda: self.last.range)

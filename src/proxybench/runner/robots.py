@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 from proxybench.domain.maps import Map
-from proxybench.runner.jobs import DtpsLink, ProtocolLink, RobotDomain
+from proxybench.runner.jobs import DtpsLink, LabWorldLink, ProtocolLink, RobotDomain
 
 __all__ = ["RobotConnection", "open_robot"]
 
@@ -42,11 +42,36 @@ class _NodeRobot:
         self.robot.close()
 
 
+class _LabWorldRobot:
+    """A robot of a lab's shared world (:mod:`.lab_world`), its episodes played by a :class:`LabWorldPlant`."""
+
+    def __init__(self, link: LabWorldLink):
+        from proxybench.runner.lab_world import LabWorldAddress, connect
+
+        self.link = link
+        self.conn = connect(LabWorldAddress(link.path, bytes.fromhex(link.key)), link.robot)
+        self.plants = 0
+
+    def plant(self, map_: Map) -> Any:
+        from proxybench.runner.lab_world import LabWorldPlant
+        from proxybench.runner.outcomes import camera_filter
+
+        plant = LabWorldPlant(self.conn, self.link.robot, map_, self.link.params, self.link.streams, camera_filter())
+        plant.begun = self.plants  # each episode's streams in a folder of its own, across the batch
+        self.plants += 1
+        return plant
+
+    def close(self) -> None:
+        self.conn.close()
+
+
 def open_robot(domain: RobotDomain, frame_rate: float | None = None) -> RobotConnection:
     """Reach the robot of ``domain`` (stepped at ``frame_rate`` [Hz], default the domain's). A robot that cannot
     be reached raises :class:`~proxybench.protocol.RobotFailure`."""
     rate = frame_rate or domain.frame_rate
     link = domain.link
+    if isinstance(link, LabWorldLink):
+        return _LabWorldRobot(link)
     if isinstance(link, DtpsLink):
         from proxybench.runner.dtps_plant import DtpsRobot
 
