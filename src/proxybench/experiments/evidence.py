@@ -437,6 +437,10 @@ _PLV_RUN_COLUMNS = ("arm", "n", "seed", "off_policy", "on_policy", "cost", "scor
 _PLV_SKIP = (".scores.", "zero_shot_scores", "method")
 
 
+def _word(name: str) -> str:
+    return re.sub(r"[^a-z0-9_-]+", "-", name.lower()).strip("-") or "-"
+
+
 def _plv_result(blob: dict[str, Any], runs: list[dict[str, Any]], where: Path) -> Any:
     """The PLV result (config, training runs, proxies' records, expert) that :func:`summary_record` summarises."""
     from proxybench.experiments.plv.config import PLVConfig
@@ -553,7 +557,9 @@ def _plv_numbers(name: str, folder: Path, rel: str) -> Rebuilt:
     record = _plv_record(_plv_result(shipped, runs, folder / "plv.json"))
     problems = [f"{name}: {p}" for p in problems + _plv_differences(shipped, record, rel)]
     summary = dict(record["summary"])
-    summary["rows"] = {row["proxy"]: row for row in summary.get("rows") or []}  # by proxy name, not position
+    # by the arm's name, not position, as one word that a README tag can hold ("pitch 19°" → "pitch-19")
+    summary["rows"] = {_word(row["proxy"]): row for row in summary.get("rows") or []}
+    summary["curves"] = {_word(arm): c for arm, c in (summary.get("curves") or {}).items()}
     numbers = {}
     for path, v in _flatten({"summary": summary, "wall_s": shipped.get("wall_s")}):
         if _is_number(v) and not any(s in f".{path}." for s in _PLV_SKIP):
