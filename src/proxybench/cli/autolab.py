@@ -106,6 +106,41 @@ def autolab_check(lab_file: Path = typer.Argument(..., help="the lab description
     console.print(f"[green]✓[/green] {escape(str(lab_file))}: lab {escape(lab.name)!r} is usable", highlight=False)
 
 
+def _operator(lab_file: Path, robot: str, act) -> str:
+    """Run the desk's ``act(lab, robot)`` for the lab in ``lab_file``; exit 1 with its one line if it cannot."""
+    from proxybench.autolab.lab import LabError, load_lab
+    from proxybench.autolab.operator import OperatorError
+
+    try:
+        return act(load_lab(lab_file), robot)
+    except (LabError, OperatorError, OSError) as exc:
+        raise fail(exc, mark="✗") from None
+    except KeyError as exc:
+        raise fail(str(exc.args[0]), mark="✗") from None
+
+
+@autolab_app.command("ready")
+def autolab_ready(lab_file: Path = typer.Argument(..., help="the lab description (lab.yaml)"),
+                  robot: str = typer.Argument(..., help="the robot you placed")) -> None:
+    """Confirm that ROBOT stands where the Autolab evaluator asked (reset mode operator): its episode starts."""
+    from proxybench.autolab.operator import confirm_ready
+
+    request = _operator(lab_file, robot, confirm_ready)
+    console.print(f"[green]✓[/green] confirmed: {escape(request)}", highlight=False)
+
+
+@autolab_app.command("intervene")
+def autolab_intervene(lab_file: Path = typer.Argument(..., help="the lab description (lab.yaml)"),
+                      robot: str = typer.Argument(..., help="the robot you stepped in for"),
+                      reason: str = typer.Option("the operator intervened", "--reason", help="what happened")) -> None:
+    """Say that you intervened in ROBOT's running episode: it ends, and its job is the lab's fault
+    (host-error manual_intervention, run again)."""
+    from proxybench.autolab.operator import intervene
+
+    episode = _operator(lab_file, robot, lambda lab, name: intervene(lab, name, reason))
+    console.print(f"intervention recorded: {escape(episode)} of robot {escape(robot)} ends", highlight=False)
+
+
 @autolab_app.command("demo")
 def autolab_demo(
     out: Path | None = typer.Option(None, "--out", help="a new or empty folder for the server's database, the lab, "

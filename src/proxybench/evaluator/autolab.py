@@ -80,9 +80,9 @@ def _check_lab(lab: Lab, bench, robot_name: str | None = None) -> None:
     """What this evaluator can do with this lab, its robot ``robot_name`` (None: the first) and the benchmark;
     :class:`HostFault` saying what it cannot."""
     robot = lab.robot(robot_name)
-    if robot.kind != "virtual":
-        raise HostFault(f"lab {lab.name!r}: robot {robot.name!r} is a {robot.kind} robot; the Autolab evaluator "
-                        "drives virtual robots only so far")
+    if robot.kind == "command":  # docs/autolab.md, "A real robot": why a robot node is not driven here
+        raise HostFault(f"lab {lab.name!r}: robot {robot.name!r} is a robot node (command:); the Autolab evaluator "
+                        "drives virtual and DTPS robots only: give the robot's DTPS address (dtps: HOST[:PORT]/PATH)")
     recorded = [s.name for s in lab.watchtowers.streams if s.recorded is not None]
     if recorded:
         raise HostFault(f"lab {lab.name!r}: watchtower(s) {', '.join(recorded)} are recorded folders (for `proxybench "
@@ -393,12 +393,19 @@ def run_autolab(job) -> Outcome:
     job.outcome.public_report.update(evaluator=job.job.evaluator.model_dump(mode="json"),
                                      sandbox=job.job.isolation.report(), domain_kind="autolab/virtual")
     spec = job.agent(bench)
+    split = _run_split
+    if lab.robot(job.job.autolab_robot).kind == "dtps":  # a foreign robot: driven by the agent, watched by the lab
+        from proxybench.evaluator.autolab_dtps import check_dtps_robot, run_dtps_split
+
+        check_dtps_robot(lab, spec)
+        job.outcome.public_report["domain_kind"] = "autolab/dtps"
+        split = run_dtps_split
     job.agent_contract(bench, spec)
-    job.outcome.public_scores = _run_split(job, lab, bench, spec, "validation", hidden=False)
+    job.outcome.public_scores = split(job, lab, bench, spec, "validation", hidden=False)
     test_seed = job.lease.benchmark.test_seed
     if test_seed is not None:
         hidden = _with_reset(job.benchmark(test_seed), lab)
-        job.outcome.hidden_scores = _run_split(job, lab, hidden, spec, "test", hidden=True)
+        job.outcome.hidden_scores = split(job, lab, hidden, spec, "test", hidden=True)
     job.outcome.message = (f"{len(bench.episode_specs())} validation episodes"
                            + (" and the hidden test episodes" if test_seed is not None else "")
                            + f" evaluated in lab {lab.name!r}, measured by its watchtowers")

@@ -1,0 +1,299 @@
+"""An Autolab job on a lab's **DTPS robot** (a real DB21J, a Duckiematrix robot): driven by the agent, watched by
+the lab, measured by its watchtowers (docs/autolab.md, "A real robot").
+
+Here proxybench simulates nothing: the robot is foreign. Per split:
+
+- the lab's **watchtowers** are its own DTPS camera streams (``watchtowers.streams``), read by
+  :mod:`proxybench.autolab.live` (a simulated layout cannot see a robot it does not simulate: refused);
+- a **relay** (:mod:`proxybench.dtps.relay`) gives the sandboxed SDK agent the robot at ``127.0.0.1:7501`` in a
+  network namespace that holds nothing else (safe sandbox), so the agent speaks DTPS to *that* robot, with no other
+  network; the robot's path is the agent's to name (the Duckiematrix's ``robot/map_0/vehicle_0`` is what
+  ``DB21J("map_0/vehicle_0", simulated=True)`` asks for);
+- an **observer** (:mod:`proxybench.dtps.observer`) records the episode from the robot's own topics: every wheel
+  command and the pose the robot reports, if any (kept beside the result, never scored).
+
+Per episode: the operator places the robot (``reset: operator``, or ``pose_file`` for its poses: a real robot is
+placed by a person either way) and confirms (:mod:`proxybench.autolab.operator`); the watchtowers record; the
+agent's program starts; the episode's clock starts at the robot's **first command** and runs the benchmark's
+duration; then the program is ended and the robot sent (0, 0). The recording is re-based on that clock (a frame
+before it is dropped: the robot stood still) and localised, validated and scored as a virtual robot's
+(:func:`~.autolab.localize_episode`), from the localised trajectory only. An operator's intervention ends the
+episode and the job: ``manual_intervention``; no confirmation in time: ``robot_failure: operator-timeout``; a
+program that ends early or never commands the robot is the agent's failure.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import os
+import time
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from proxybench.autolab.lab import Lab
+from proxybench.evaluator.outcome import Artifact, HostFault, SubmissionFault
+
+__all__ = ["check_dtps_robot", "rebase_streams", "run_dtps_split"]
+
+log = logging.getLogger("proxybench.evaluator.job")
+#: how often the episode loop looks at the robot, the program and the operator's desk [s]
+_TICK = 0.05
+
+
+@dataclass
+class _Ran:
+    """One episode as :func:`~.autolab.localize_episode` reads it: its streams, no truth, ended by time."""
+
+    episode: int
+    streams: Path
+    termination: object
+    trajectory: Path | None = None
+
+
+def check_dtps_robot(lab: Lab, spec) -> None:
+    """What a DTPS robot's job needs; :class:`HostFault` saying what is missing."""
+    from proxybench.runner.jobs import SdkProgram
+
+    if lab.watchtowers.layout is not None:
+        raise HostFault(f"lab {lab.name!r}: simulated watchtowers (layout) cannot see a DTPS robot; give the lab's "
+                        "own cameras as watchtowers.streams")
+    if lab.reset.mode == "teleport":  # lab.yaml refuses it already; a lab made in code might not
+        raise HostFault(f"lab {lab.name!r}: a DTPS robot is placed by its operator (reset.mode operator or pose_file)")
+    if not isinstance(spec, SdkProgram):
+        raise HostFault(f"lab {lab.name!r}: on a DTPS robot this evaluator runs duckietown-sdk agents only; agent "
+                        f"{spec.name!r} is an AIDO node (docs/autolab.md, 'A real robot')")
+
+
+def rebase_streams(folder: Path, origin: float) -> int:
+    """Each watchtower's ``timestamps.csv`` in ``folder`` on the episode's clock: ``t = stamp − origin`` (the
+    camera's stamp, the robot's first command's wall time); frames before it dropped (their files removed). The
+    frames kept."""
+    kept = 0
+    for stamps in sorted(folder.glob("*/timestamps.csv")):
+        with open(stamps, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        keep = []
+        for r in rows:
+            t = float(r["stamp"]) - origin
+            if t >= 0.0:
+                keep.append((r["frame"], f"{t:.6f}", r["stamp"], r["received"]))
+            else:
+                for f in stamps.parent.glob(f"{int(r['frame']):06d}.*"):
+                    f.unlink()
+        if not keep:
+            for f in stamps.parent.iterdir():
+                f.unlink()
+            stamps.parent.rmdir()
+            continue
+        with open(stamps, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["frame", "t", "stamp", "received"])
+            w.writerows(keep)
+        kept += len(keep)
+    return kept
+
+
+def _write_record(path: Path, heard, origin: float) -> Path:
+    """The robot's own record of the episode (commands, reported poses) on the episode's clock, as CSV."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["kind", "t", "left", "right", "x", "y", "theta"])
+        w.writerows(("command", f"{c[0] - origin:.4f}", c[1], c[2], "", "", "") for c in heard.commands)
+        w.writerows(("pose", f"{p[0] - origin:.4f}", "", "", p[1], p[2], p[3]) for p in heard.poses)
+    return path
+
+
+class _Lab:
+    """What a split holds open on the lab: the relay, the observer, the watchtower reader, the desk."""
+
+    def __init__(self, lab: Lab, robot, spec, layout_none_streams):
+        from proxybench.autolab.operator import OperatorDesk, OperatorError
+        from proxybench.dtps.link import PortLock
+        from proxybench.dtps.observer import RobotObserver
+        from proxybench.dtps.relay import RelayError, RobotRelay
+        from proxybench.dtps.robot_options import parse_address
+        from proxybench.protocol.failures import RobotFailure
+
+        self.address = parse_address(robot.dtps)
+        self.live = layout_none_streams
+        self.lock = None
+        self.relay = self.observer = None
+        own = bool(spec.node_options().own_netns)
+        try:
+            self.desk = OperatorDesk.of(lab, robot.name)
+            if not own:  # the developer's unsafe modes: the relay on the host's 7501, one at a time
+                self.lock = PortLock(7501)
+                self.lock.acquire(60.0)
+            self.relay = RobotRelay(self.address.host, self.address.port, own_netns=own)
+            self.observer = RobotObserver(self.address)
+        except (RelayError, RobotFailure, OperatorError, OSError) as exc:
+            self.close()
+            raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} ({self.address}): {exc}") \
+                from None
+
+    def close(self) -> None:
+        for part in (self.observer, self.relay):
+            if part is not None:
+                try:
+                    part.close()
+                except Exception as exc:  # closing must go on for the rest
+                    log.warning("closing the lab's link to its robot: %s", exc)
+        if self.lock is not None:
+            self.lock.release()
+
+
+def _episode(job, lab: Lab, robot, bench, spec, held: _Lab, ep, split: str, folder: Path):
+    """One episode on the DTPS robot (see the module): (the streams folder, what the robot heard, clock origin)."""
+    from proxybench.autolab.operator import OperatorTimeout
+    from proxybench.dtps.agent import NETNS_ENV
+    from proxybench.dtps.env import env_path
+    from proxybench.protocol.transport import Launch, node_argv
+    from proxybench.runner.starts import start_pose
+
+    x, y, th = ep.pose if ep.pose is not None else start_pose(bench.map, ep.seed, bench.domain_params())
+    what = f"{split} episode {ep.index}"
+    request = f"place robot {robot.name} at x={x:.3f} m, y={y:.3f} m, θ={th * 57.29578:.1f}° for {what}"
+    try:
+        waited = held.desk.place(request, lab.operator.timeout_s, tell=_tell)
+    except OperatorTimeout as exc:
+        raise HostFault(f"robot_failure: {exc}") from None
+    log.info("%s: the operator placed %s after %.1f s", what, robot.name, waited)
+    held.observer.take()  # what came before this episode is not its record
+    options = spec.node_options()
+    nonce = held.desk.open_episode(what)
+    sink = held.live.sink
+    sink.begin(folder / "streams")
+    env = {"PATH": f"{env_path() / 'bin'}{os.pathsep}{os.environ.get('PATH', '/usr/bin:/bin')}",
+           "PYTHONUNBUFFERED": "1", "PROXYBENCH_EPISODE_SEED": str(int(ep.seed))}
+    if held.relay.netns is not None:
+        env[NETNS_ENV] = held.relay.netns
+    began, first, proc = time.time(), None, None
+    heard = None
+    try:
+        proc = Launch(node_argv(spec.command), transport="none", env=env, stderr_lines=50)
+        while True:
+            time.sleep(_TICK)
+            held.observer.pump(time.monotonic())
+            if first is None and held.observer.heard.commands:
+                first = held.observer.heard.commands[0][0]
+            reason = held.desk.intervention(nonce)
+            if reason is not None:
+                raise HostFault(f"manual_intervention: the operator intervened on robot {robot.name!r} of lab "
+                                f"{lab.name!r} in {what}: {reason}")
+            if not held.relay.alive or not held.observer.alive:
+                raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} failed in {what}: its "
+                                f"DTPS link ({held.address}) ended")
+            now = time.time()
+            if first is not None and now - first >= bench.duration:
+                break
+            if proc.exited():
+                tail = proc.stderr.finish()
+                job.check_sandbox([tail])
+                ran = "before its first command" if first is None else f"{now - first:.1f} s into the episode"
+                raise SubmissionFault(f"the SDK agent program ended {ran} ({what}), exit code {proc.terminate()}"
+                                      + "".join(f"\n  {line}" for line in tail[-15:]))
+            if first is None and now - began > options.start_timeout:
+                raise SubmissionFault(f"the SDK agent program sent the robot no wheel command within its "
+                                      f"start_timeout ({options.start_timeout:g} s) in {what}")
+    finally:
+        if proc is not None:
+            proc.terminate(0.0, term_first=True)
+            proc.stderr.finish()
+        held.observer.stop()
+        heard = held.observer.take()
+        held.desk.close_episode()
+        sink.end()
+    return sink.episodes[-1], heard, first
+
+
+def _tell(text: str) -> None:
+    """The placement request: the job's log, and the evaluator's terminal where it has one."""
+    log.warning("%s", text)
+    try:
+        fd = os.open("/dev/tty", os.O_WRONLY | os.O_NOCTTY | os.O_NONBLOCK)
+    except OSError:
+        return
+    try:
+        os.write(fd, f"[proxybench autolab] {text}\n".encode())
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def run_dtps_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str, float | None]:
+    """A split's episodes on the lab's DTPS robot (see the module); the benchmark's scores, from the localised
+    trajectories."""
+    from proxybench.autolab.live import live_streams
+    from proxybench.domain.events import Termination
+    from proxybench.domain.maps import load_map
+    from proxybench.dtps.cameras import ReaderError
+    from proxybench.evaluator.autolab import _scores, _video, localize_episode
+    from proxybench.tasks.metrics import METRICS
+
+    robot = lab.robot(job.job.autolab_robot)
+    check_dtps_robot(lab, spec)
+    job.phase = split
+    m = load_map(bench.map)
+    try:
+        live = live_streams(lab, None)
+    except ReaderError as exc:
+        raise HostFault(f"watchtowers: {exc}") from None
+    specs = bench.episode_specs()
+    log.info("%s: %d episodes of %g s on lab %r's DTPS robot %r (%s), %d watchtowers recording over DTPS", split,
+             len(specs), bench.duration, lab.name, robot.name, robot.dtps, len(live.names))
+    episodes, records, origins = [], [], []
+    held = None
+    try:
+        held = _Lab(lab, robot, spec, live)
+        for k, ep in enumerate(specs):
+            folder = job.dir / "autolab" / split / str(ep.index)
+            try:
+                streams, heard, first = _episode(job, lab, robot, bench, spec, held, ep, split, folder)
+            except ReaderError as exc:
+                raise HostFault(f"watchtowers: {exc}") from None
+            kept = rebase_streams(streams.folder, first)
+            log.info("%s episode %d: first command at %.3f; %d watchtower frames from then on, %d commands and %d "
+                     "poses heard", split, ep.index, first, kept, len(heard.commands), len(heard.poses))
+            records.append(_write_record(folder / "robot.csv", heard.since(first), first))
+            origins.append({"episode": ep.index, "first_command_wall": first, "commands": len(heard.commands),
+                            "poses": len(heard.poses), "bad": heard.bad, "frames": kept})
+            ran = _Ran(ep.index, streams.folder, Termination.TIMEOUT)
+            job.phase = f"{split} localisation"
+            episodes.append(localize_episode(ran, bench, lab, None, m, folder / "localized", METRICS, robot.name))
+            job.phase = split
+            job.progress(k + 1, len(specs))
+    finally:
+        if held is not None:
+            held.close()
+        live.close()
+    report = {"domain_kind": "autolab/dtps", "measured_by": "watchtowers", "lab": lab.name, "robot": robot.name,
+              "robot_address": robot.dtps, "watchtowers": len(live.names),
+              "localization": [e.report() for e in episodes], "localization_median_error_m": None,
+              "robot_record": origins, "watchtower_streams": [e.report() for e in live.sink.episodes],
+              "episodes": [{"episode": e.episode, "scores": e.report()["scores"], "valid": e.valid}
+                           for e in episodes]}
+    if hidden:
+        job.outcome.hidden_report = report
+    else:
+        job.outcome.public_report.update(report)
+    zip_path = job.dir / f"trajectories-{split}.zip"
+    with zipfile.ZipFile(zip_path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for e, record in zip(episodes, records, strict=True):
+            for f in e.files:
+                zf.write(f, f"episode-{e.episode}{'' if f.suffix == '.parquet' else '-' + f.stem}{f.suffix}")
+            zf.write(record, f"robot-episode-{e.episode}.csv")
+        zf.writestr("robot-record.json", json.dumps(origins, indent=1))
+    job.outcome.artifacts.append(Artifact(zip_path.name, str(zip_path), hidden, "application/zip"))
+    bad = [e for e in episodes if not e.valid or e.trajectory is None]
+    if bad:
+        e = bad[0]
+        word = "tracking_lost" if e.lost or e.trajectory is None else "invalid"
+        raise HostFault(f"{word}: {split} episode {e.episode} is not fit to be scored (the DTA's validation): "
+                        + ("; ".join(e.reasons) or "the watchtowers localised the robot fewer than twice"))
+    if not hidden and job.job.video and episodes and episodes[0].trajectory is not None:
+        _video(job, episodes[0].trajectory, bench)
+    return _scores(episodes, bench)
