@@ -395,11 +395,13 @@ def run_autolab(job) -> Outcome:
     spec = job.agent(bench)
     split = _run_split
     if lab.robot(job.job.autolab_robot).kind == "dtps":  # a foreign robot: driven by the agent, watched by the lab
-        from proxybench.evaluator.autolab_dtps import check_dtps_robot, run_dtps_split
+        from functools import partial
+
+        from proxybench.evaluator.autolab_dtps import Scoring, check_dtps_robot, run_dtps_split
 
         check_dtps_robot(lab, spec)
         job.outcome.public_report["domain_kind"] = "autolab/dtps"
-        split = run_dtps_split
+        split = partial(run_dtps_split, scoring=Scoring(localize_episode, _scores, _video))
     job.agent_contract(bench, spec)
     job.outcome.public_scores = split(job, lab, bench, spec, "validation", hidden=False)
     test_seed = job.lease.benchmark.test_seed

@@ -30,13 +30,15 @@ import logging
 import os
 import time
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from proxybench.autolab.lab import Lab
 from proxybench.evaluator.outcome import Artifact, HostFault, SubmissionFault
 
-__all__ = ["check_dtps_robot", "rebase_streams", "run_dtps_split"]
+__all__ = ["Scoring", "check_dtps_robot", "rebase_streams", "run_dtps_split"]
 
 log = logging.getLogger("proxybench.evaluator.job")
 #: how often the episode loop looks at the robot, the program and the operator's desk [s]
@@ -51,6 +53,16 @@ class _Ran:
     streams: Path
     termination: object
     trajectory: Path | None = None
+
+
+@dataclass(frozen=True)
+class Scoring:
+    """What a DTPS robot's split shares with a virtual robot's (:mod:`.autolab`: localise, validate and score an
+    episode; aggregate; the video), handed in by that module, which imports this one (never the other way)."""
+
+    localize: Callable[..., Any]
+    scores: Callable[..., dict[str, float | None]]
+    video: Callable[..., None]
 
 
 def check_dtps_robot(lab: Lab, spec) -> None:
@@ -224,14 +236,14 @@ def _tell(text: str) -> None:
         os.close(fd)
 
 
-def run_dtps_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str, float | None]:
+def run_dtps_split(job, lab: Lab, bench, spec, split: str, hidden: bool, *,
+                   scoring: Scoring) -> dict[str, float | None]:
     """A split's episodes on the lab's DTPS robot (see the module); the benchmark's scores, from the localised
     trajectories."""
     from proxybench.autolab.live import live_streams
     from proxybench.domain.events import Termination
     from proxybench.domain.maps import load_map
     from proxybench.dtps.cameras import ReaderError
-    from proxybench.evaluator.autolab import _scores, _video, localize_episode
     from proxybench.tasks.metrics import METRICS
 
     robot = lab.robot(job.job.autolab_robot)
@@ -263,7 +275,7 @@ def run_dtps_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict
                             "poses": len(heard.poses), "bad": heard.bad, "frames": kept})
             ran = _Ran(ep.index, streams.folder, Termination.TIMEOUT)
             job.phase = f"{split} localisation"
-            episodes.append(localize_episode(ran, bench, lab, None, m, folder / "localized", METRICS, robot.name))
+            episodes.append(scoring.localize(ran, bench, lab, None, m, folder / "localized", METRICS, robot.name))
             job.phase = split
             job.progress(k + 1, len(specs))
     finally:
@@ -295,5 +307,5 @@ def run_dtps_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict
         raise HostFault(f"{word}: {split} episode {e.episode} is not fit to be scored (the DTA's validation): "
                         + ("; ".join(e.reasons) or "the watchtowers localised the robot fewer than twice"))
     if not hidden and job.job.video and episodes and episodes[0].trajectory is not None:
-        _video(job, episodes[0].trajectory, bench)
-    return _scores(episodes, bench)
+        scoring.video(job, episodes[0].trajectory, bench)
+    return scoring.scores(episodes, bench)
