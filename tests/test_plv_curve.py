@@ -90,3 +90,59 @@ def test_plv_vs_prpv_reports_both_picks(tmp_path):
     assert all("plv_label" in c and "delta" in c for c in data["candidates"])
     bad = CliRunner().invoke(app, ["plv-vs-prpv", "--target", str(tmp_path), "--out", str(out)])
     assert bad.exit_code == 2 and "live one" in bad.output
+
+
+def _finished_plv_run(folder):
+    """A finished `proxybench plv` report: the study's canned result (pitch-19 = the nominal, pitch-35), written by
+    the PLV report (nothing trains)."""
+    from proxybench.experiments.plv.study import PLVStudy
+
+    study = PLVStudy()
+    study.write_report(study.example(), folder)
+    return folder
+
+
+def test_plv_vs_prpv_takes_plv_from_a_finished_run(tmp_path):
+    """The 15-seed PLV run need not be trained again: plv-vs-prpv replays the agents on that run's proxies for PRPV
+    and reads each proxy's PLV, interval and all, from the run."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from proxybench.cli import learning  # noqa: F401 - registers the command
+    from proxybench.cli.app import app
+    from proxybench.experiments.plv.measures import summarize
+    from proxybench.experiments.plv.study import PLVStudy
+
+    run = _finished_plv_run(tmp_path / "plv")
+    exp = {"agents": ["straight", "pid", "pure-pursuit"], "episodes": 2, "seconds": 2.0, "image_size": [32, 24],
+           "n_boot": 50, "plv": {"from_run": str(run)}}
+    (tmp_path / "exp.yaml").write_text(yaml.safe_dump(exp))
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["plv-vs-prpv", "--config", str(tmp_path / "exp.yaml"), "--out", str(out),
+                                   "--backend", "inline"])
+    assert res.exit_code == 0, res.output
+    data = json.loads((out / "choice.json").read_text())
+    assert [c["label"] for c in data["candidates"]] == ["nominal", "camera_pitch=35"]
+    rows = {r.proxy: r for r in summarize(PLVStudy().example()).rows}
+    by = {c["label"]: c for c in data["candidates"]}
+    assert by["nominal"]["plv"] == pytest.approx(rows["pitch-19"].plv)
+    assert by["camera_pitch=35"]["plv_label"] == (rows["pitch-35"].plv_ci or rows["pitch-35"].plv_label)
+    assert data["plv_seeds"] == 2 and data["extra"]["plv_from_run"] == str(run)
+    assert not (out / "plv").exists()  # nothing was trained
+
+
+def test_plv_vs_prpv_from_a_run_refuses_a_candidate_the_run_lacks(tmp_path):
+    from typer.testing import CliRunner
+
+    from proxybench.cli import learning  # noqa: F401 - registers the command
+    from proxybench.cli.app import app
+
+    run = _finished_plv_run(tmp_path / "plv")
+    res = CliRunner().invoke(app, ["plv-vs-prpv", "--plv", f"from_run={run}", "--sweep", "camera_pitch=12",
+                                   "--agent", "straight", "--agent", "pid", "--episodes", "1", "--seconds", "1",
+                                   "--out", str(tmp_path / "out"), "--backend", "inline"])
+    assert res.exit_code == 2
+    assert "has no proxy with θ camera_pitch=12" in res.output and "pitch-35 (proxy:camera_pitch=35)" in res.output
+    res = CliRunner().invoke(app, ["plv-vs-prpv", "--plv", f"from_run={run}", "--plv", "seeds=[0]",
+                                   "--out", str(tmp_path / "out2")])
+    assert res.exit_code == 2 and "plv.seeds: with plv.from_run the PLV settings are the run's" in res.output

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 __all__ = ["EPISODES", "NUMBERS", "RESULTS", "EvidenceError", "Exported", "Number", "Quote", "Rebuilt", "check",
-           "export_study", "find_root", "readme_quotes", "rebuild", "study_kind", "write_numbers"]
+           "export_study", "find_root", "load_plv_run", "readme_quotes", "rebuild", "study_kind", "write_numbers"]
 
 RESULTS = "results"
 NUMBERS = "numbers.json"
@@ -549,6 +549,22 @@ def _plv_runs_from_tables(folder: Path) -> tuple[list[dict[str, Any]], list[str]
                             f"in {EPISODES} average {sum(scores) / len(scores) if scores else 'nothing'!r}")
         out.append({**r, "scores": scores, "terminations": [] if g is None else list(g["termination"])})
     return out, problems
+
+
+def load_plv_run(folder: Path) -> Any:
+    """A finished PLV run as a :class:`~proxybench.experiments.plv.run.PLVResult`: from ``proxybench plv``'s --out
+    folder (plv.json with its runs) or from a shipped ``results/NAME`` (plv.json and the tables; a run whose score
+    is not its episodes' mean is refused). :class:`EvidenceError` names what is missing or wrong."""
+    folder = Path(folder)
+    blob = _json(folder / "plv.json")
+    if not isinstance(blob, dict) or "summary" not in blob:
+        raise EvidenceError(f"{folder / 'plv.json'}: not a `proxybench plv` report (no summary)")
+    if blob.get("runs"):
+        return _plv_result(blob, blob["runs"], folder / "plv.json")
+    runs, problems = _plv_runs_from_tables(folder)
+    if problems:
+        raise EvidenceError(f"{folder}: {problems[0]}")
+    return _plv_result(blob, runs, folder / "plv.json")
 
 
 def _plv_numbers(name: str, folder: Path, rel: str) -> Rebuilt:

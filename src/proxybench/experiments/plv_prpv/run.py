@@ -37,7 +37,8 @@ from proxybench.usefulness.intervals import usefulness
 from proxybench.usefulness.metrics import PairedResults
 from proxybench.usefulness.noise import compare_paired, lowest_claim, paired_prpv_samples
 
-__all__ = ["DEFAULT_CANDIDATES", "Candidate", "ChoiceResult", "candidates_of", "run_plv_prpv"]
+__all__ = ["DEFAULT_CANDIDATES", "Candidate", "ChoiceResult", "candidates_of", "instance_theta", "run_candidates",
+           "run_plv_prpv"]
 
 #: when the experiment sweeps nothing: camera pitch below, at and above the nominal calibration
 DEFAULT_CANDIDATES = {"camera_pitch": (12.0, 19.15, 26.0)}
@@ -119,6 +120,17 @@ def candidates_of(sweep: dict[str, tuple[float, ...]], fixed: dict[str, Any]) ->
     return list(out.values())
 
 
+def _from_run(cfg: ExperimentConfig) -> Path | None:
+    """``plv: {from_run: DIR}``: PLV read from a finished run instead of trained; then no other PLV setting, which
+    would be silently ignored."""
+    if "from_run" not in cfg.plv:
+        return None
+    others = sorted(k for k in cfg.plv if k != "from_run")
+    if others:
+        raise ConfigError(f"plv.{others[0]}: with plv.from_run the PLV settings are the run's; drop {others[0]}")
+    return Path(str(cfg.plv["from_run"]))
+
+
 def run_plv_prpv(cfg: ExperimentConfig, out: str | Path, *, quick: bool = False, backend: Backend | None = None,
                  progress: Progress | None = None) -> ChoiceResult:
     """PRPV and PLV of every candidate θ on the experiment's target; both picks with their tied sets."""
@@ -131,9 +143,15 @@ def run_plv_prpv(cfg: ExperimentConfig, out: str | Path, *, quick: bool = False,
     if cfg.target_params:
         raise ConfigError("target_params: PLV's reality model is the calibrated one; drop target_params")
     out, backend = Path(out), backend or InlineBackend()
+    from_run = _from_run(cfg)
+    if from_run is not None and cfg.proxy:
+        raise ConfigError(f"proxy: a PLV run's proxies are the nominal calibration with one θ changed; with "
+                          f"plv.from_run drop proxy ({', '.join(sorted(cfg.proxy))})")
     exp, target = resolve(cfg, "predictivity", quick=quick, work_dir=out / "agents")
-    sweep = dict(cfg.sweep) if "sweep" in cfg.model_fields_set else dict(DEFAULT_CANDIDATES)
-    cands = candidates_of(sweep, exp.proxy)
+    if "sweep" in cfg.model_fields_set:
+        cands = candidates_of(dict(cfg.sweep), exp.proxy)
+    else:
+        cands = run_candidates(from_run) if from_run is not None else candidates_of(DEFAULT_CANDIDATES, exp.proxy)
     # predicting: the agents on the target, replayed in every candidate
     tgt = target.run(exp.agents, map_name=exp.map, seconds=exp.seconds, episodes=exp.episodes, seed=exp.seed,
                      metrics=exp.metrics, image_size=exp.image_size, run_dir=out / "runs", backend=backend,
@@ -156,6 +174,8 @@ def run_plv_prpv(cfg: ExperimentConfig, out: str | Path, *, quick: bool = False,
     for j, c in enumerate(rows):
         d = compare_paired(labels, [r.prpv for r in rows], samples, j, best).delta
         c.delta = (d.value, d.low, d.high)
+    if from_run is not None:
+        return _choice(rows, labels, best, plausible, tgt, exp, *_plv_from_run(rows, from_run, cfg.target))
     # teaching: a network pre-trained on each candidate, fine-tuned on target samples
     plv_cfg, _, _ = plv_search_settings(cfg.model_copy(update={"target": "reality"}), quick=quick)
     plv_cfg = type(plv_cfg).from_dict({"target": cfg.target}, plv_cfg)
@@ -171,6 +191,13 @@ def run_plv_prpv(cfg: ExperimentConfig, out: str | Path, *, quick: bool = False,
         t_cost = trial.plv.target_cost
     finally:
         objective.close()
+    return _choice(rows, labels, best, plausible, tgt, exp, len(plv_cfg.seeds), reference, t_cost,
+                   {"expert": expert, "plv_config": plv_cfg.to_dict()})
+
+
+def _choice(rows: list[Candidate], labels: list[str], best: int, plausible: list[int], tgt: Any, exp: Any,
+            seeds: int, reference: float, t_cost: float | None, extra: dict[str, Any]) -> ChoiceResult:
+    """Both picks and their tied sets, once every candidate has its PRPV and its PLV."""
     reached = [c for c in rows if c.plv is not None]
     plv_best = max(reached, key=lambda c: c.plv) if reached else None
     plv_tied = [] if plv_best is None else [
@@ -178,7 +205,79 @@ def run_plv_prpv(cfg: ExperimentConfig, out: str | Path, *, quick: bool = False,
                                                    and c.plv_high >= plv_best.plv_low)
         or (c.plv_high is not None and plv_best.plv_low is None)]
     return ChoiceResult(rows, labels[best], [labels[j] for j in plausible], plv_best.label if plv_best else None,
-                        plv_tied, tgt.info.statement, exp.agent_labels, exp.episode_count, len(plv_cfg.seeds),
-                        reference,
-                        t_cost, {"expert": expert, "map": exp.map, "seconds": exp.seconds,
-                                 "metrics": list(exp.metrics), "plv_config": plv_cfg.to_dict()})
+                        plv_tied, tgt.info.statement, exp.agent_labels, exp.episode_count, seeds, reference, t_cost,
+                        {"map": exp.map, "seconds": exp.seconds, "metrics": list(exp.metrics), **extra})
+
+
+def instance_theta(spec: str) -> dict[str, float] | None:
+    """θ of a PLV proxy given as an instance (``proxy:camera_pitch=3``, ``proxy`` alone: the nominal); None for a
+    family (``randomized``, a family file), which PRPV cannot replay as one θ.
+
+    >>> instance_theta("proxy:camera_pitch=3,trim=0.1")
+    {'camera_pitch': 3.0, 'trim': 0.1}
+    >>> instance_theta("randomized") is None
+    True
+    """
+    if spec == "proxy":
+        return {}
+    if not spec.startswith("proxy:"):
+        return None
+    try:
+        return {k: float(v) for k, _, v in (item.partition("=") for item in spec.removeprefix("proxy:").split(","))}
+    except ValueError:
+        return None
+
+
+def _same_theta(a: dict[str, float], b: dict[str, float]) -> bool:
+    full_a, full_b = {**NOMINAL, **a}, {**NOMINAL, **b}
+    return all(np.isclose(float(full_a.get(k, np.nan)), float(full_b.get(k, np.nan))) for k in {*a, *b})
+
+
+def run_candidates(folder: Path) -> list[tuple[str, dict[str, float]]]:
+    """The candidates a finished PLV run offers: its instance proxies, labelled as :func:`candidates_of` labels."""
+    from proxybench.experiments.evidence import EvidenceError, load_plv_run
+
+    try:
+        res = load_plv_run(folder)
+    except EvidenceError as exc:
+        raise ConfigError(f"plv.from_run: {exc}") from None
+    out: dict[str, tuple[str, dict[str, float]]] = {}
+    for spec in res.config.proxies.values():
+        theta = instance_theta(spec)
+        if theta is None:
+            continue  # a family: no one θ to replay the agents on
+        label = "nominal" if _same_theta(theta, {}) else ",".join(f"{k}={v:g}" for k, v in sorted(theta.items()))
+        out.setdefault(label, (label, theta))
+    if not out:
+        raise ConfigError(f"plv.from_run: {folder} has no instance proxy (proxy:NAME=VALUE) to compare PRPV on")
+    return list(out.values())
+
+
+def _plv_from_run(rows: list[Candidate], folder: Path, target: str) -> tuple[int, float, float | None,
+                                                                              dict[str, Any]]:
+    """Each candidate's PLV from a finished ``proxybench plv`` run (its --out folder or a shipped results/NAME):
+    the proxy of that run with the candidate's θ, else ConfigError naming the candidate. The run's target must be
+    this study's (PLV and PRPV must answer for one target)."""
+    from proxybench.experiments.evidence import EvidenceError, load_plv_run
+    from proxybench.experiments.plv.measures import summarize
+
+    try:
+        res = load_plv_run(folder)
+    except EvidenceError as exc:
+        raise ConfigError(f"plv.from_run: {exc}") from None
+    if res.config.target != target:
+        raise ConfigError(f"plv.from_run: {folder}'s PLV was measured on target {res.config.target!r}, this study's "
+                          f"target is {target!r}")
+    s = summarize(res)
+    for c in rows:
+        match = [r for r in s.rows if (th := instance_theta(str(r.spec))) is not None and _same_theta(th, c.theta)]
+        if not match:
+            have = ", ".join(f"{r.proxy} ({r.spec})" for r in s.rows)
+            raise ConfigError(f"plv.from_run: {folder} has no proxy with θ {c.label} (it has {have}); sweep only "
+                              "its proxies' θ or leave the sweep out")
+        r = match[0]
+        c.plv, c.plv_low, c.plv_high = r.plv, r.plv_low, r.plv_high
+        c.plv_label = r.plv_ci or r.plv_label
+        c.reached, c.zero_shot = float(r.reached_share or 0.0), r.zero_shot
+    return (len(res.config.seeds), s.reference, s.target_cost,
+            {"expert": res.expert_score, "plv_config": res.config.to_dict(), "plv_from_run": str(folder)})
