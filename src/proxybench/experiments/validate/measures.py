@@ -13,10 +13,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, computed_field
 
 from proxybench.experiments.validate.config import ValidateSettings
+from proxybench.usefulness.episodes_saved import EpisodeSavings
 from proxybench.usefulness.validation import Comparison, Margin
 
 __all__ = ["QUALITIES", "AgentLevel", "ContinuousPick", "Contribution", "HitRate", "Interval", "MeasureSummary",
-           "MethodSummary", "Pick", "Primary", "PrimaryTest", "Quality", "Savings", "SavingsSummary", "TargetRecord",
+           "MethodSummary", "Pick", "Primary", "PrimaryTest", "Quality", "SavingsSummary", "TargetRecord",
            "ValidationSummary", "oracle_steps", "qualities", "regrets"]  # Comparison, Margin: usefulness.validation's
 
 QUALITIES = ("prpv_norm", "kendall_gap", "top1_regret", "topk_regret")
@@ -55,18 +56,6 @@ class ContinuousPick(_Model):
     """why the method is not applicable on this target"""
 
 
-class Savings(_Model):
-    """What one candidate proxy is worth in target episodes for deciding the held-out agents' pairs on E2
-    (:func:`proxybench.usefulness.episodes_saved.episodes_saved`; NaN with fewer than 3 episodes per agent)."""
-
-    worth: float
-    saved_share: float
-    episodes_alone: float
-    episodes_with: float
-    pairs: int
-    weights: tuple[float, ...]
-
-
 class TargetRecord(_Model):
     """One target of the study: the candidates (the grid, then the continuous methods' picks), each method's pick
     from the tuning agents, every candidate's quality on the held-out agents, and what ran (``targets/NNN.json``).
@@ -89,8 +78,9 @@ class TargetRecord(_Model):
     agent_shares: list[dict[str, float]] = []
     """per candidate, each held-out agent's share of its PRPV/K(K−1) (their mean is the candidate's quality): the
     per-agent contributions the agent-level resampling reads"""
-    savings: list[Savings] = []
-    """per candidate, its worth in target episodes for deciding the held-out agents' pairs"""
+    savings: list[EpisodeSavings] = []
+    """per candidate, its worth in target episodes for deciding the held-out agents' pairs on E2
+    (:func:`proxybench.usefulness.episodes_saved.episodes_saved`; NaN with fewer than 3 episodes per agent)"""
     target: str = ""
     map: str = ""
     tuning_agents: list[str] = []

@@ -29,7 +29,6 @@ from proxybench.experiments.validate.measures import (
     Primary,
     PrimaryTest,
     Quality,
-    Savings,
     SavingsSummary,
     TargetRecord,
     ValidationSummary,
@@ -144,8 +143,7 @@ def score_target(s: ValidateSettings, k: int, cands: list[dict[str, float]], tar
     dom_t = dominance_from_means(agent_means(target_b, agents), higher)
     shares = [dict(zip(agents, map(float, prpv_agent_shares(dominance_from_means(agent_means(p, agents), higher),
                                                              dom_t)), strict=True)) for p in prox_b]
-    savings = [Savings(**episodes_saved({a: target_b[a] for a in agents}, p, tol, s.alpha).as_dict())
-               for p in prox_b]
+    savings = [episodes_saved({a: target_b[a] for a in agents}, p, tol, s.alpha) for p in prox_b]
     return TargetRecord(candidates=cands, nominal_index=nominal_index, quality=qualities_b, picks=picks,
                         scores=scores, grid_size=grid_size, not_applicable=not_applicable, estimates=estimates,
                         agent_shares=shares, savings=savings)
