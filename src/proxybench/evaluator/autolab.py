@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from proxybench.autolab.lab import Lab
+from proxybench.autolab.online import Lag
 from proxybench.evaluator.outcome import Artifact, HostFault, Outcome, SubmissionFault
 
 __all__ = ["AutolabEpisode", "localize_episode", "run_autolab", "stop_streams", "world_tags"]
@@ -222,7 +223,7 @@ def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics,
     return episode
 
 
-def _log_lag(split: str, lag) -> None:
+def _log_lag(split: str, lag: Lag) -> None:
     """The live view of the online localisation (every few seconds while episodes run): how far behind it is."""
     log.info("%s: localisation %d frames behind (%.1f s of episode), %d detected, %d dropped so far", split,
              lag.queued, lag.behind_s, lag.detected, lag.dropped)
