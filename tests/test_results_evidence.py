@@ -245,3 +245,60 @@ def test_export_refuses_a_plv_run_missing_a_proxy_s_training(tmp_path: Path):
     assert res.exit_code == 1
     assert "no training run of arm 'pitch-35': the run is unfinished" in res.output
     assert not (tmp_path / "results" / "plv_example").exists()
+
+
+# -- plv-vs-prpv ----------------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def choice_study(tmp_path_factory) -> Path:
+    """A finished plv-vs-prpv comparison on the reality model: PLV read from a canned PLV run, PRPV from 3 agents ×
+    2 episodes replayed in its two proxies (the nominal and camera pitch 35°)."""
+    import yaml
+
+    from proxybench.cli import learning  # noqa: F401 - registers the command
+
+    tmp = tmp_path_factory.mktemp("choice")
+    run = _plv_study(tmp / "plv")
+    exp = {"agents": ["straight", "pid", "pure-pursuit"], "episodes": 2, "seconds": 2.0, "image_size": [32, 24],
+           "n_boot": 50, "plv": {"from_run": str(run)}}
+    (tmp / "exp.yaml").write_text(yaml.safe_dump(exp))
+    res = _cli("plv-vs-prpv", "--config", str(tmp / "exp.yaml"), "--out", str(tmp / "out"), "--backend", "inline")
+    assert res.exit_code == 0, res.output
+    return tmp / "out"
+
+
+def test_a_plv_vs_prpv_comparison_exports_and_rebuilds_its_picks(choice_study: Path, tmp_path: Path):
+    (tmp_path / "results").mkdir()
+    res = _cli("results", "export", str(choice_study), "plv_vs_prpv", "--root", str(tmp_path))
+    assert res.exit_code == 0, res.output
+    shipped = tmp_path / "results" / "plv_vs_prpv"
+    assert {p.name for p in shipped.iterdir()} == {"choice.json", "episodes.csv.gz", "README.md"}
+    assert "episode_scores" not in json.loads((shipped / "choice.json").read_text())["extra"]
+    res = _cli("results", "rebuild", "--root", str(tmp_path))
+    assert res.exit_code == 0, res.output
+    numbers = json.loads((tmp_path / "results" / "numbers.json").read_text())["numbers"]
+    written = {c["label"]: c for c in json.loads((choice_study / "choice.json").read_text())["candidates"]}
+    assert numbers["plv_vs_prpv.candidates.camera_pitch-35.prpv"]["value"] == pytest.approx(
+        written["camera_pitch=35"]["prpv"])
+    assert numbers["plv_vs_prpv.candidates.nominal.prpv"]["source"] == "results/plv_vs_prpv/episodes.csv.gz"
+
+
+def test_an_edited_plv_vs_prpv_episode_fails_the_check(choice_study: Path, tmp_path: Path):
+    import gzip
+
+    (tmp_path / "results").mkdir()
+    assert _cli("results", "export", str(choice_study), "plv_vs_prpv", "--root", str(tmp_path)).exit_code == 0
+    assert _cli("results", "rebuild", "--root", str(tmp_path)).exit_code == 0
+    table = tmp_path / "results" / "plv_vs_prpv" / "episodes.csv.gz"
+    lines = gzip.decompress(table.read_bytes()).decode().splitlines()
+    head = lines[0].split(",")
+    edited = []
+    for line in lines[1:]:  # the straight agent drives 100 m in every candidate's replay: it now wins everywhere
+        cells = line.split(",")
+        if cells[head.index("domain")] != "target" and cells[head.index("agent")] == "straight":
+            cells[head.index("driven_lanedir_consec")] = "100.0"
+        edited.append(",".join(cells))
+    table.write_bytes(gzip.compress("\n".join([lines[0], *edited]).encode() + b"\n"))
+    res = _cli("results", "rebuild", "--check", "--root", str(tmp_path))
+    assert res.exit_code == 1
+    assert "plv_vs_prpv: results/plv_vs_prpv/choice.json is not its recomputation" in res.output

@@ -39,7 +39,7 @@ RESULTS = "results"
 NUMBERS = "numbers.json"
 #: the per-episode score table of a run (gzip with no time stamp: the same episodes give the same bytes)
 EPISODES = "episodes.csv.gz"
-Kind = Literal["validate", "rank-check", "plv"]
+Kind = Literal["validate", "rank-check", "plv", "plv-vs-prpv"]
 #: a PLV run's training runs (one row each) beside the per-episode table
 RUNS = "runs.csv.gz"
 _NAME = re.compile(r"[a-z0-9][a-z0-9_-]{0,63}")
@@ -173,18 +173,20 @@ def _from_json(v: Any) -> Any:
 # -- what a study folder is ----------------------------------------------------------------------------------------
 
 def study_kind(folder: Path) -> Kind:
-    """``validate`` (a folder with criteria.json), ``plv`` (plv.json) or ``rank-check`` (summary.json with
-    rank-check's fields and targets.csv)."""
+    """``validate`` (a folder with criteria.json), ``plv`` (plv.json), ``plv-vs-prpv`` (choice.json) or
+    ``rank-check`` (summary.json with rank-check's fields and targets.csv)."""
     if (folder / "criteria.json").is_file():
         return "validate"
     if (folder / "plv.json").is_file():
         return "plv"
+    if (folder / "choice.json").is_file():
+        return "plv-vs-prpv"
     if (folder / "summary.json").is_file() and (folder / "targets.csv").is_file():
         summary = _json(folder / "summary.json")
         if isinstance(summary, dict) and "decided_with" in summary:
             return "rank-check"
-    raise EvidenceError(f"{folder}: neither a validate study (criteria.json), a PLV run (plv.json) nor a rank-check "
-                        "study (summary.json and targets.csv)")
+    raise EvidenceError(f"{folder}: neither a validate study (criteria.json), a PLV run (plv.json), a plv-vs-prpv "
+                        "comparison (choice.json) nor a rank-check study (summary.json and targets.csv)")
 
 
 @dataclass
@@ -584,6 +586,111 @@ def _plv_numbers(name: str, folder: Path, rel: str) -> Rebuilt:
     return Rebuilt(numbers, problems)
 
 
+# -- argmin PRPV against argmax PLV (``proxybench plv-vs-prpv``) -------------------------------------------------------
+
+def _choice_scores_rows(scores: Any) -> list[dict[str, Any]]:
+    """One row per episode: ``domain`` (``target``, or the candidate θ it replays), agent, episode, each metric."""
+    rows = []
+    for domain, by in [("target", scores.target), *scores.candidates.items()]:
+        for agent, eps in by.items():
+            for k, ep in enumerate(eps):
+                rows.append({"domain": domain, "agent": agent, "episode": k,
+                             **{m: float(v) for m, v in zip(scores.metrics, ep, strict=True)}})
+    return rows
+
+
+def _choice_scores_from_table(folder: Path, metrics: list[str]) -> Any:
+    import numpy as np
+    import pandas as pd
+
+    from proxybench.experiments.plv_prpv.run import EpisodeScores
+
+    try:
+        frame = pd.read_csv(folder / EPISODES)
+    except (OSError, ValueError) as exc:
+        raise EvidenceError(f"{folder / EPISODES}: unreadable ({exc.__class__.__name__})") from None
+    missing = [c for c in ("domain", "agent", "episode", *metrics) if c not in frame.columns]
+    if missing:
+        raise EvidenceError(f"{folder / EPISODES}: no column {', '.join(missing)}")
+    by: dict[str, dict[str, np.ndarray]] = {}
+    for (domain, agent), g in frame.groupby(["domain", "agent"], sort=False):
+        by.setdefault(str(domain), {})[str(agent)] = g.sort_values("episode")[metrics].to_numpy(float)
+    target = by.pop("target", {})
+    return EpisodeScores(target, by, tuple(metrics))
+
+
+def _choice_differences(shipped: dict[str, Any], recomputed: Any, what: str) -> list[str]:
+    fresh = json.loads(json.dumps(recomputed.to_dict(), default=str))
+    drop = ("extra", "wall_s")
+    return _differences(dict(_flatten({k: v for k, v in shipped.items() if k not in drop})),
+                        dict(_flatten({k: v for k, v in fresh.items() if k not in drop})), what)
+
+
+def _export_choice(study: Path, dest: Path, command: str | None, commit: str | None, machine: str | None,
+                   notes: list[str]) -> list[str]:
+    from proxybench.experiments.plv_prpv.run import EpisodeScores, recompute_choice
+
+    shipped = _json(study / "choice.json")
+    extra = shipped.get("extra") or {}
+    if "episode_scores" not in extra:
+        raise EvidenceError(f"{study / 'choice.json'} holds no episode scores (written before they were kept): rerun "
+                            "`proxybench plv-vs-prpv` with this code (its cached episodes are reused)")
+    scores = EpisodeScores.from_dict(extra["episode_scores"])
+    differ = _choice_differences(shipped, recompute_choice(shipped, scores), str(study / "choice.json"))
+    if differ:
+        raise EvidenceError(differ[0])
+    slim = {**shipped, "extra": {k: v for k, v in extra.items() if k != "episode_scores"}}
+    (dest / "choice.json").write_text(json.dumps(slim, indent=1, default=str) + "\n")
+    episodes = _write_table(_choice_scores_rows(scores), ["domain", "agent", "episode"], dest / EPISODES)
+    source = extra.get("plv_from_run")
+    plv = (f"read from the PLV run `{source}` (`--plv from_run`), shipped and rebuilt on its own where it is in "
+           "results/" if source else "trained by this run (its networks are not shipped; PLV figures are "
+           "taken as the run wrote them)")
+    command = command or "`proxybench plv-vs-prpv` with the settings in choice.json (no command line recorded)"
+    extra_lines = "".join(f"- {n}\n" for n in notes)
+    text = f"""# {dest.name}: argmin PRPV against argmax PLV (`proxybench plv-vs-prpv`)
+
+{shipped.get("verdict", "")}
+
+- **What**: {len(shipped["candidates"])} candidate θ ({", ".join(c["label"] for c in shipped["candidates"])}) on
+  {shipped["target"]}; PRPV from {len(shipped["agents"])} agents × {shipped["episodes"]} episodes on the target,
+  each replayed in every candidate ({extra.get("n_boot")} bootstrap resamples, seed {extra.get("seed")}); PLV over
+  {shipped["plv_seeds"]} seeds, {plv}.
+- **Command**: {command}
+- **Code**: {commit or "not recorded by the run"}.
+- **Machine**: {machine or _machine_default()}.
+- **Episodes**: {episodes:,} rows in `{EPISODES}` (domain: `target` or the candidate replayed, agent, episode, one
+  column per task metric).
+{extra_lines}
+Recompute: `proxybench results rebuild --check` (every candidate's PRPV, order range, paired difference to the
+lowest and both picks from `{EPISODES}` through plv-vs-prpv's own `recompute_choice`). Files:
+
+{_files_table(dest)}
+"""
+    (dest / "README.md").write_text(text)
+    return []
+
+
+def _choice_numbers(name: str, folder: Path, rel: str) -> Rebuilt:
+    from proxybench.experiments.plv_prpv.run import recompute_choice
+
+    shipped = _json(folder / "choice.json")
+    metrics = list((shipped.get("extra") or {}).get("metrics") or [])
+    if not metrics:
+        raise EvidenceError(f"{folder / 'choice.json'}: extra.metrics is missing")
+    res = recompute_choice(shipped, _choice_scores_from_table(folder, metrics))
+    problems = [f"{name}: {p}" for p in _choice_differences(shipped, res, f"{rel}/choice.json")]
+    numbers = {}
+    fresh = json.loads(json.dumps(res.to_dict(), default=str))
+    tree = {"candidates": {_word(c["label"]): c for c in fresh["candidates"]}, "reference": fresh["reference"],
+            "target_samples": fresh["target_samples"]}
+    for path, v in _flatten(tree):
+        if _is_number(v) and ".theta." not in f".{path}.":
+            numbers[f"{name}.{path}"] = Number(v, f"{rel}/{EPISODES}" if ".prpv" in f".{path}" or ".delta." in
+                                               f".{path}." else f"{rel}/choice.json")
+    return Rebuilt(numbers, problems)
+
+
 # -- export ---------------------------------------------------------------------------------------------------------
 
 def _machine_default() -> str:
@@ -756,7 +863,8 @@ def export_study(study: Path, name: str, root: Path, *, replace: bool = False, c
     dest = tmp / name
     dest.mkdir()
     try:
-        writer = {"validate": _export_validate, "plv": _export_plv}.get(kind, _export_rank_check)
+        writer = {"validate": _export_validate, "plv": _export_plv, "plv-vs-prpv": _export_choice}.get(
+            kind, _export_rank_check)
         said = writer(study, dest, command, commit, machine, list(notes))
         if final.exists():
             shutil.rmtree(final)
@@ -817,7 +925,8 @@ def rebuild(root: Path) -> Rebuilt:
         rel = f"{RESULTS}/{name}"
         try:
             kind = study_kind(folder)
-            numbers = {"validate": _validate_numbers, "plv": _plv_numbers}.get(kind, _rank_check_numbers)
+            numbers = {"validate": _validate_numbers, "plv": _plv_numbers, "plv-vs-prpv": _choice_numbers}.get(
+                kind, _rank_check_numbers)
             got = numbers(name, folder, rel)
         except EvidenceError as exc:
             out.problems.append(f"{name}: {exc}")

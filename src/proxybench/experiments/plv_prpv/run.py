@@ -37,7 +37,8 @@ from proxybench.usefulness.intervals import usefulness
 from proxybench.usefulness.metrics import PairedResults
 from proxybench.usefulness.noise import compare_paired, lowest_claim, paired_prpv_samples
 
-__all__ = ["DEFAULT_CANDIDATES", "Candidate", "ChoiceResult", "candidates_of", "instance_theta", "run_candidates",
+__all__ = ["DEFAULT_CANDIDATES", "Candidate", "ChoiceResult", "EpisodeScores", "candidates_of", "instance_theta",
+           "plv_picks", "prpv_of_candidates", "recompute_choice", "run_candidates",
            "run_plv_prpv"]
 
 #: when the experiment sweeps nothing: camera pitch below, at and above the nominal calibration
@@ -156,26 +157,19 @@ def run_plv_prpv(cfg: ExperimentConfig, out: str | Path, *, quick: bool = False,
     tgt = target.run(exp.agents, map_name=exp.map, seconds=exp.seconds, episodes=exp.episodes, seed=exp.seed,
                      metrics=exp.metrics, image_size=exp.image_size, run_dir=out / "runs", backend=backend,
                      progress=progress)
-    higher = tuple(METRICS[m].higher_is_better for m in exp.metrics)
     proxies = {}
     for label, theta in cands:
         dom = DomainSpec(label, proxy_params(exp.image_size, exp.proxy, **theta))
         jobs = proxy_jobs(exp, tgt, dom)
         proxies[label] = by_agent(jobs, run_jobs(jobs, out / "runs", backend).results, exp.metrics)
     rows = [Candidate(label, theta) for label, theta in cands]
-    for c in rows:
-        e = usefulness(PairedResults(proxies[c.label], tgt.results, higher, exp.metrics), n_boot=exp.n_boot,
-                       seed=exp.seed)["prpv"]
-        c.prpv, c.prpv_low, c.prpv_high = e.value, e.low, e.high
+    scores = EpisodeScores(tgt.results, proxies, tuple(exp.metrics))
+    best, plausible = prpv_of_candidates(rows, scores, exp.n_boot, exp.seed)
     labels = [c.label for c in rows]
-    samples = paired_prpv_samples(tgt.results, [proxies[lb] for lb in labels], higher, n_boot=exp.n_boot,
-                                  seed=exp.seed)
-    best, _, plausible = lowest_claim(labels, [c.prpv for c in rows], samples)
-    for j, c in enumerate(rows):
-        d = compare_paired(labels, [r.prpv for r in rows], samples, j, best).delta
-        c.delta = (d.value, d.low, d.high)
+    episodes = {"episode_scores": scores.to_dict(), "n_boot": exp.n_boot, "seed": exp.seed}
     if from_run is not None:
-        return _choice(rows, labels, best, plausible, tgt, exp, *_plv_from_run(rows, from_run, cfg.target))
+        seeds, reference, t_cost, extra = _plv_from_run(rows, from_run, cfg.target)
+        return _choice(rows, labels, best, plausible, tgt, exp, seeds, reference, t_cost, {**extra, **episodes})
     # teaching: a network pre-trained on each candidate, fine-tuned on target samples
     plv_cfg, _, _ = plv_search_settings(cfg.model_copy(update={"target": "reality"}), quick=quick)
     plv_cfg = type(plv_cfg).from_dict({"target": cfg.target}, plv_cfg)
@@ -192,21 +186,84 @@ def run_plv_prpv(cfg: ExperimentConfig, out: str | Path, *, quick: bool = False,
     finally:
         objective.close()
     return _choice(rows, labels, best, plausible, tgt, exp, len(plv_cfg.seeds), reference, t_cost,
-                   {"expert": expert, "plv_config": plv_cfg.to_dict()})
+                   {"expert": expert, "plv_config": plv_cfg.to_dict(), **episodes})
+
+
+@dataclass
+class EpisodeScores:
+    """Every episode's task scores behind PRPV: per agent (episodes × metrics) on the target and replayed in each
+    candidate θ (episode i of a replay replays the target's episode i). Kept in the result (choice.json), so that
+    the picks can be recomputed from what is shipped (results/, :mod:`proxybench.experiments.evidence`)."""
+
+    target: dict[str, np.ndarray]
+    candidates: dict[str, dict[str, np.ndarray]]
+    metrics: tuple[str, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        as_lists = {a: np.asarray(v, float).tolist() for a, v in self.target.items()}
+        return {"metrics": list(self.metrics), "target": as_lists,
+                "candidates": {c: {a: np.asarray(v, float).tolist() for a, v in by.items()}
+                               for c, by in self.candidates.items()}}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> EpisodeScores:
+        arrays = {a: np.asarray(v, float) for a, v in d["target"].items()}
+        return cls(arrays, {c: {a: np.asarray(v, float) for a, v in by.items()} for c, by in d["candidates"].items()},
+                   tuple(d["metrics"]))
+
+
+def prpv_of_candidates(rows: list[Candidate], scores: EpisodeScores, n_boot: int, seed: int) -> tuple[int, list[int]]:
+    """Each candidate's PRPV with its order range and its paired difference to the lowest (set on ``rows``); the
+    lowest one's index and the candidates the data cannot tell from it. A pure function of the episode scores."""
+    higher = tuple(METRICS[m].higher_is_better for m in scores.metrics)
+    for c in rows:
+        e = usefulness(PairedResults(scores.candidates[c.label], scores.target, higher, scores.metrics),
+                       n_boot=n_boot, seed=seed)["prpv"]
+        c.prpv, c.prpv_low, c.prpv_high = e.value, e.low, e.high
+    labels = [c.label for c in rows]
+    samples = paired_prpv_samples(scores.target, [scores.candidates[lb] for lb in labels], higher, n_boot=n_boot,
+                                  seed=seed)
+    best, _, plausible = lowest_claim(labels, [c.prpv for c in rows], samples)
+    for j, c in enumerate(rows):
+        d = compare_paired(labels, [r.prpv for r in rows], samples, j, best).delta
+        c.delta = (d.value, d.low, d.high)
+    return best, list(plausible)
 
 
 def _choice(rows: list[Candidate], labels: list[str], best: int, plausible: list[int], tgt: Any, exp: Any,
             seeds: int, reference: float, t_cost: float | None, extra: dict[str, Any]) -> ChoiceResult:
     """Both picks and their tied sets, once every candidate has its PRPV and its PLV."""
+    plv_pick, plv_tied = plv_picks(rows)
+    return ChoiceResult(rows, labels[best], [labels[j] for j in plausible], plv_pick, plv_tied,
+                        tgt.info.statement, exp.agent_labels, exp.episode_count, seeds, reference, t_cost,
+                        {"map": exp.map, "seconds": exp.seconds, "metrics": list(exp.metrics), **extra})
+
+
+def plv_picks(rows: list[Candidate]) -> tuple[str | None, list[str]]:
+    """argmax PLV (None when no candidate reaches P) and the candidates whose interval reaches the best one's."""
     reached = [c for c in rows if c.plv is not None]
     plv_best = max(reached, key=lambda c: c.plv) if reached else None
-    plv_tied = [] if plv_best is None else [
+    if plv_best is None:
+        return None, []
+    return plv_best.label, [
         c.label for c in rows if c is plv_best or (c.plv_high is not None and plv_best.plv_low is not None
                                                    and c.plv_high >= plv_best.plv_low)
         or (c.plv_high is not None and plv_best.plv_low is None)]
-    return ChoiceResult(rows, labels[best], [labels[j] for j in plausible], plv_best.label if plv_best else None,
-                        plv_tied, tgt.info.statement, exp.agent_labels, exp.episode_count, seeds, reference, t_cost,
-                        {"map": exp.map, "seconds": exp.seconds, "metrics": list(exp.metrics), **extra})
+
+
+def recompute_choice(shipped: dict[str, Any], scores: EpisodeScores) -> ChoiceResult:
+    """A finished comparison (choice.json) recomputed: PRPV, its intervals and both picks from the episode scores,
+    PLV as the run measured it (its networks are not shipped; a PLV run is shipped and rebuilt on its own)."""
+    keep = {f for f in Candidate.__dataclass_fields__ if f.startswith("plv") or f in ("label", "theta", "reached",
+                                                                                       "zero_shot")}
+    rows = [Candidate(**{k: v for k, v in c.items() if k in keep}) for c in shipped["candidates"]]
+    extra = shipped.get("extra") or {}
+    best, plausible = prpv_of_candidates(rows, scores, int(extra["n_boot"]), int(extra["seed"]))
+    plv_pick, plv_tied = plv_picks(rows)
+    labels = [c.label for c in rows]
+    return ChoiceResult(rows, labels[best], [labels[j] for j in plausible], plv_pick, plv_tied, shipped["target"],
+                        list(shipped["agents"]), int(shipped["episodes"]), int(shipped["plv_seeds"]),
+                        float(shipped["reference"]), shipped.get("target_samples"), dict(extra))
 
 
 def instance_theta(spec: str) -> dict[str, float] | None:
