@@ -9,6 +9,7 @@ watchtowers at 5 Hz) so that the job takes seconds of CPU besides the SDK's star
 from __future__ import annotations
 
 import io
+import tempfile
 import zipfile
 from pathlib import Path
 
@@ -23,7 +24,6 @@ from test_evaluator import Served, evaluator, served, the_job  # noqa: F401 - se
 
 pytestmark = AGENT_USER_GROUP
 
-AGENTS = Path(__file__).parent / "dtps_agents"
 LAB = """\
 format: proxybench-lab/1
 name: test-lab
@@ -50,13 +50,11 @@ scoring:
 
 
 def sdk_package() -> bytes:
-    """The lane-following SDK agent of tests/dtps_agents as an agent package (lock-step)."""
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w") as zf:
-        zf.writestr("proxybench-agent.yaml", "name: sdk-lane\nprotocol: duckietown-sdk\ncommand: python3 lane.py\n"
-                                             "timing: lockstep\nstart_timeout: 120\n")
-        zf.writestr("lane.py", (AGENTS / "lane.py").read_text())
-    return buf.getvalue()
+    """The Autolab demo's built-in agent package: its lane-following SDK agent, lock-step."""
+    from proxybench.cli.autolab_demo import agent_package
+
+    with tempfile.TemporaryDirectory() as folder:
+        return agent_package(Path(folder)).read_bytes()
 
 
 @sdk

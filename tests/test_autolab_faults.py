@@ -25,16 +25,17 @@ import pytest
 pytest.importorskip("fastapi")
 pytest.importorskip("uvicorn")
 
+from proxybench.cli.autolab_demo import LANE_AGENT
 from support.dtps import sdk
 from support.sandbox import AGENT_USER_GROUP, processes_left, require_safe_sandbox
-from test_autolab_evaluator import AGENTS, BENCH, LAB, sdk_package
+from test_autolab_evaluator import BENCH, LAB, sdk_package
 from test_evaluator import Served, evaluator, served, start_cli_evaluator, the_job  # noqa: F401 - served: fixture
 
 pytestmark = [AGENT_USER_GROUP, sdk]
 
 #: the lane follower, crashing at its 10th camera frame: 2 s into the episode (the agent contract before it feeds
 #: a second of frames, 5)
-CRASH = (AGENTS / "lane.py").read_text().replace(
+CRASH = LANE_AGENT.replace(
     "while True:\n", "frames = 0\nwhile True:\n    frames += 1\n"
     "    if frames == 10:\n        raise ZeroDivisionError('my lane agent divided by zero')\n", 1)
 

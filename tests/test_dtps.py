@@ -1,7 +1,8 @@
 """duckietown-sdk agents in proxybench (docs/dtps.md): parsing without the SDK, episodes with it.
 
 Tests marked ``sdk`` need the SDK environment (``proxybench dtps setup``; see tests/support/dtps.py).
-The SDK agents here (tests/dtps_agents) use only the SDK's public API, except the misbehaving ones.
+The SDK agents here (tests/dtps_agents, and the lane follower: the Autolab demo's built-in agent,
+``cli.autolab_demo.LANE_AGENT``) use only the SDK's public API, except the misbehaving ones.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from proxybench.cli.autolab_demo import LANE_AGENT
 from proxybench.dtps import pipe
 from proxybench.dtps.env import sdk_python
 from proxybench.dtps.maplayer import map_layers
@@ -24,6 +26,14 @@ from proxybench.tasks.agent_entries import AgentEntry
 from support.dtps import sdk
 
 AGENTS = Path(__file__).parent / "dtps_agents"
+
+
+@pytest.fixture(scope="module")
+def lane(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder holding ``lane.py``: the Autolab demo's built-in lane follower."""
+    folder = tmp_path_factory.mktemp("lane")
+    (folder / "lane.py").write_text(LANE_AGENT)
+    return folder
 
 
 # -------------------------------------------------------------------------------- without the SDK
@@ -94,11 +104,11 @@ def _episode(command: str, seconds: float, **options):
 
 
 @sdk
-def test_an_unchanged_sdk_agent_drives_proxybench_run(tmp_path):
+def test_an_unchanged_sdk_agent_drives_proxybench_run(tmp_path, lane):
     out = tmp_path / "run"
     run = subprocess.run([sys.executable, "-m", "proxybench", "run", "--agent", "mine=sdk:python3 lane.py",
                           "--seconds", "2", "--width", "160", "--height", "120", "--no-video", "--out", str(out)],
-                         cwd=AGENTS, capture_output=True, text=True, timeout=300)
+                         cwd=lane, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr + run.stdout
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["agent"] == "mine" and metrics["termination"] == "timeout" and metrics["survival_time"] == 2.0
@@ -106,9 +116,9 @@ def test_an_unchanged_sdk_agent_drives_proxybench_run(tmp_path):
 
 
 @sdk
-def test_lockstep_runs_repeat_sample_for_sample():
-    (a, stats), (b, _) = _episode("python3 lane.py", 1.5, timing="lockstep"), \
-        _episode("python3 lane.py", 1.5, timing="lockstep")
+def test_lockstep_runs_repeat_sample_for_sample(lane):
+    (a, stats), (b, _) = _episode("python3 lane.py", 1.5, timing="lockstep", cwd=str(lane)), \
+        _episode("python3 lane.py", 1.5, timing="lockstep", cwd=str(lane))
     assert a.termination == b.termination == "timeout"
     assert stats["extra_commands"] == 0 and stats["frames_answered"] == round(1.5 * 15) - 1
     np.testing.assert_array_equal(a.pose(), b.pose())
@@ -131,10 +141,10 @@ def test_misbehaving_sdk_agents_end_as_named_failures(how, timing, reason, start
 
 @pytest.mark.slow
 @sdk
-def test_an_sdk_agent_is_ranked_by_predictivity(tmp_path):
+def test_an_sdk_agent_is_ranked_by_predictivity(tmp_path, lane):
     out = tmp_path / "p"
     run = subprocess.run([sys.executable, "-m", "proxybench", "predictivity", "--quick", "--agent", "pid",
-                          "--agent", "straight", "--agent", f"mine=sdk[lockstep]:cd {AGENTS} && exec python3 lane.py",
+                          "--agent", "straight", "--agent", f"mine=sdk[lockstep]:cd {lane} && exec python3 lane.py",
                           "--episodes", "1", "--seconds", "1.5", "--sweep", "trim=0,0.2", "--pod-seconds", "0",
                           "--backend", "inline", "--out", str(out)], capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-3000:] + run.stdout[-3000:]

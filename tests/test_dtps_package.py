@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from proxybench.cli.autolab_demo import LANE_AGENT
 from proxybench.protocol.package import AgentManifest, PackageError, check_archive
 from support.dtps import sdk
 from support.sandbox import AGENT_USER_GROUP, require_safe_sandbox
@@ -39,7 +40,7 @@ def test_an_sdk_package_archive_is_accepted(tmp_path):
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w") as zf:
         zf.writestr("proxybench-agent.yaml", "name: mine\nprotocol: duckietown-sdk\ncommand: python3 lane.py\n")
-        zf.writestr("lane.py", (AGENTS / "lane.py").read_text())
+        zf.writestr("lane.py", LANE_AGENT)
     assert check_archive(buf.getvalue()).protocol == "duckietown-sdk"
     with pytest.raises(PackageError, match="protocol"):
         bad = io.BytesIO()
@@ -60,8 +61,9 @@ def test_an_sdk_package_drives_from_its_sandbox_and_reaches_only_its_robot(tmp_p
     isolation = require_safe_sandbox()
     package = tmp_path / "agent"
     package.mkdir(mode=0o755)
+    shutil.copy(AGENTS / "sandboxed.py", package / "sandboxed.py")
+    (package / "lane.py").write_text(LANE_AGENT)  # the Autolab demo's lane follower, which sandboxed.py runs
     for name in ("lane.py", "sandboxed.py"):
-        shutil.copy(AGENTS / name, package / name)
         (package / name).chmod(0o644)
     with socket.socket() as host:  # a port on the host's loopback the agent must not reach
         host.bind(("127.0.0.1", 0))

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 
+from proxybench.cli.autolab_demo import LANE_AGENT
 from proxybench.evaluator.image_agent import image_spec
 from proxybench.evaluator.sandbox import Limits
 from support.dtps import sdk
@@ -53,7 +54,7 @@ def image(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, sock
         host.bind(("127.0.0.1", 0))
         host.listen()
         host.setblocking(False)
-        files = {name: (AGENTS / name).read_bytes() for name in ("sandboxed.py", "lane.py")}
+        files = {"sandboxed.py": (AGENTS / "sandboxed.py").read_bytes(), "lane.py": LANE_AGENT.encode()}
         layout = agent_image(root / "sdk", SDK_AGENT, args=(str(host.getsockname()[1]),), files=files,
                              packages=(*PACKAGES, "libturbojpeg0", "libstdc++6"),
                              trees={"opt/sdk": (_site_packages(), LEAVE_OUT)},

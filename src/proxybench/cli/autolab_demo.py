@@ -32,7 +32,8 @@ __all__ = ["BENCHMARK", "LANE_AGENT", "DemoError", "DemoOptions", "JobSummary", 
 #: the demo benchmark's name on its server
 BENCHMARK = "autolab_demo"
 #: the built-in agent: lane following written against duckietown-sdk's public API only (as its README shows it);
-#: the same program runs on the Duckiematrix or a real DB21J
+#: the same program runs on the Duckiematrix or a real DB21J. The tests' SDK lane follower is this one
+#: (tests/test_dtps.py, test_autolab_evaluator.py, ...)
 LANE_AGENT = '''\
 """Lane following with duckietown-sdk: steer between the yellow centre line and the white edge."""
 import numpy as np
