@@ -33,14 +33,14 @@ from pathlib import Path
 from typing import Any, Literal
 
 __all__ = ["EPISODES", "NUMBERS", "RESULTS", "EvidenceError", "Exported", "Number", "Quote", "Rebuilt", "check",
-           "export_study", "find_root", "load_plv_run", "readme_quotes", "rebuild", "study_kind", "write_numbers"]
+           "export_study", "find_root", "readme_quotes", "rebuild", "study_kind", "write_numbers"]
 
 RESULTS = "results"
 NUMBERS = "numbers.json"
 #: the per-episode score table of a run (gzip with no time stamp: the same episodes give the same bytes)
 EPISODES = "episodes.csv.gz"
 Kind = Literal["validate", "rank-check", "plv", "plv-vs-prpv"]
-#: a PLV run's training runs (one row each) beside the per-episode table
+#: a PLV run's training runs (one row each) beside the per-episode table (:mod:`proxybench.experiments.plv.stored`)
 RUNS = "runs.csv.gz"
 _NAME = re.compile(r"[a-z0-9][a-z0-9_-]{0,63}")
 _MARKER = re.compile(r"<!--\s*n:(.*?)-->", re.S)
@@ -443,25 +443,6 @@ def _word(name: str) -> str:
     return re.sub(r"[^a-z0-9_-]+", "-", name.lower()).strip("-") or "-"
 
 
-def _plv_result(blob: dict[str, Any], runs: list[dict[str, Any]], where: Path) -> Any:
-    """The PLV result (config, training runs, proxies' records, expert) that :func:`summary_record` summarises."""
-    from proxybench.experiments.plv.config import PLVConfig
-    from proxybench.experiments.plv.run import PLVResult
-
-    try:
-        cfg = PLVConfig.from_dict(blob.get("config") or {})
-    except (TypeError, ValueError) as exc:
-        raise EvidenceError(f"{where}: its config does not load with this code ({exc})") from None
-    missing = [name for name in cfg.proxies if name not in (blob.get("proxies") or {})]
-    if missing:
-        raise EvidenceError(f"{where}: no pre-training record of proxy {missing[0]!r}: the run is unfinished")
-    arms = {r["arm"] for r in runs}
-    if "target-only" not in arms or any(name not in arms for name in cfg.proxies):
-        gone = "target-only" if "target-only" not in arms else next(n for n in cfg.proxies if n not in arms)
-        raise EvidenceError(f"{where}: no training run of arm {gone!r}: the run is unfinished")
-    return PLVResult(cfg, runs, dict(blob["proxies"]), float(blob["summary"]["expert"]))
-
-
 def _plv_record(res: Any) -> dict[str, Any]:
     """plv.json's summary, findings and proxies as the PLV report writes them, through JSON (as shipped)."""
     from proxybench.experiments.plv.report import summary_record
@@ -531,42 +512,22 @@ findings through the PLV report's own `summary_record`). Files:
     return []
 
 
-def _plv_runs_from_tables(folder: Path) -> tuple[list[dict[str, Any]], list[str]]:
-    """The training runs from runs.csv.gz, each with its episodes' scores; a run whose score is not the mean of
-    its episodes is a problem."""
-    import pandas as pd
+def _plv_result(blob: dict[str, Any], runs: list[dict[str, Any]], where: Path) -> Any:
+    from proxybench.experiments.plv.stored import StoredRunError, result_of
 
     try:
-        runs = pd.read_csv(folder / RUNS)
-        eps = pd.read_csv(folder / EPISODES, keep_default_na=False, dtype={"termination": str})
-    except (OSError, ValueError) as exc:
-        raise EvidenceError(f"{folder}: {RUNS} or {EPISODES} unreadable ({exc.__class__.__name__})") from None
-    problems, out = [], []
-    by_run = {key: g.sort_values("episode") for key, g in eps.groupby(["arm", "n", "seed"])}
-    for r in runs.to_dict("records"):
-        g = by_run.get((r["arm"], r["n"], r["seed"]))
-        scores = [] if g is None else [float(v) for v in g["score"]]
-        if not scores or not math.isclose(sum(scores) / len(scores), float(r["score"]), rel_tol=1e-9, abs_tol=1e-9):
-            problems.append(f"{RUNS}: run {r['arm']} n={r['n']} seed={r['seed']} scores {r['score']!r}, its episodes "
-                            f"in {EPISODES} average {sum(scores) / len(scores) if scores else 'nothing'!r}")
-        out.append({**r, "scores": scores, "terminations": [] if g is None else list(g["termination"])})
-    return out, problems
+        return result_of(blob, runs, where)
+    except StoredRunError as exc:
+        raise EvidenceError(str(exc)) from None
 
 
-def load_plv_run(folder: Path) -> Any:
-    """A finished PLV run as a :class:`~proxybench.experiments.plv.run.PLVResult`: from ``proxybench plv``'s --out
-    folder (plv.json with its runs) or from a shipped ``results/NAME`` (plv.json and the tables; a run whose score
-    is not its episodes' mean is refused). :class:`EvidenceError` names what is missing or wrong."""
-    folder = Path(folder)
-    blob = _json(folder / "plv.json")
-    if not isinstance(blob, dict) or "summary" not in blob:
-        raise EvidenceError(f"{folder / 'plv.json'}: not a `proxybench plv` report (no summary)")
-    if blob.get("runs"):
-        return _plv_result(blob, blob["runs"], folder / "plv.json")
-    runs, problems = _plv_runs_from_tables(folder)
-    if problems:
-        raise EvidenceError(f"{folder}: {problems[0]}")
-    return _plv_result(blob, runs, folder / "plv.json")
+def _plv_runs_from_tables(folder: Path) -> tuple[list[dict[str, Any]], list[str]]:
+    from proxybench.experiments.plv.stored import StoredRunError, runs_from_tables
+
+    try:
+        return runs_from_tables(folder)
+    except StoredRunError as exc:
+        raise EvidenceError(str(exc)) from None
 
 
 def _plv_numbers(name: str, folder: Path, rel: str) -> Rebuilt:

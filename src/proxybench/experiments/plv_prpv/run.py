@@ -292,11 +292,11 @@ def _same_theta(a: dict[str, float], b: dict[str, float]) -> bool:
 
 def run_candidates(folder: Path) -> list[tuple[str, dict[str, float]]]:
     """The candidates a finished PLV run offers: its instance proxies, labelled as :func:`candidates_of` labels."""
-    from proxybench.experiments.evidence import EvidenceError, load_plv_run
+    from proxybench.experiments.plv.stored import StoredRunError, load_plv_run
 
     try:
         res = load_plv_run(folder)
-    except EvidenceError as exc:
+    except StoredRunError as exc:
         raise ConfigError(f"plv.from_run: {exc}") from None
     out: dict[str, tuple[str, dict[str, float]]] = {}
     for spec in res.config.proxies.values():
@@ -315,12 +315,12 @@ def _plv_from_run(rows: list[Candidate], folder: Path, target: str) -> tuple[int
     """Each candidate's PLV from a finished ``proxybench plv`` run (its --out folder or a shipped results/NAME):
     the proxy of that run with the candidate's θ, else ConfigError naming the candidate. The run's target must be
     this study's (PLV and PRPV must answer for one target)."""
-    from proxybench.experiments.evidence import EvidenceError, load_plv_run
     from proxybench.experiments.plv.measures import summarize
+    from proxybench.experiments.plv.stored import StoredRunError, load_plv_run
 
     try:
         res = load_plv_run(folder)
-    except EvidenceError as exc:
+    except StoredRunError as exc:
         raise ConfigError(f"plv.from_run: {exc}") from None
     if res.config.target != target:
         raise ConfigError(f"plv.from_run: {folder}'s PLV was measured on target {res.config.target!r}, this study's "
