@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -17,6 +20,13 @@ from support.scheduling import (  # noqa: F401 - hooks: how pytest-xdist shares 
 # deadline and no health check on how fast examples are generated. What they test is correctness, never speed.
 settings.register_profile("proxybench", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("proxybench")
+
+# An Autolab's robot leases are file locks shared by every evaluator process of this user (evaluator/robots.py):
+# each test process keeps its own, so that tests running at once with one lab's name never wait for each other's
+# robots (each xdist worker sets its own, not inheriting the controller's; the processes a test starts inherit it;
+# tests of the locks themselves give their own folder).
+os.environ["PROXYBENCH_AUTOLAB_LOCKS"] = tempfile.mkdtemp(prefix="proxybench-robot-locks-")
+atexit.register(shutil.rmtree, os.environ["PROXYBENCH_AUTOLAB_LOCKS"], True)
 
 # Programs the tests start as separate processes (agent and robot nodes, AIDO's own code, hostile agents):
 # never import them into the test process (``--doctest-modules`` would), where their module-level code

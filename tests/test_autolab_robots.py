@@ -52,6 +52,8 @@ def test_a_robot_is_held_by_one_job_at_a_time_and_only_drivable_robots_are_offer
     leases.give_back("db2")
     with pytest.raises(RuntimeError, match="robot 'db2' is not held"):
         leases.give_back("db2")
+    leases.close()  # the evaluator's end frees what it still holds
+    assert leases.busy == []
     # a lab with no virtual robot offers its first, whose job the worker refuses saying why
     assert RobotLeases(_lab([{"name": "cam", "dtps": "10.0.0.2/cam"}])).robots == ("cam",)
 
@@ -83,6 +85,91 @@ def test_threads_racing_for_robots_never_share_one() -> None:
     for t in threads:
         t.join()
     assert clash == [] and leases.busy == []
+
+
+HOLDER = """\
+import sys
+from proxybench.autolab.lab import Lab
+from pathlib import Path
+from proxybench.evaluator.robots import RobotLeases
+lab = Lab.model_validate({"name": sys.argv[1], "map": "loop_3x3", "robots": [{"name": "db1", "virtual": True},
+                          {"name": "db2", "virtual": True}], "watchtowers": {"layout": "auto"}})
+leases = RobotLeases(lab, None if sys.argv[2] == "-" else Path(sys.argv[2]))
+print(",".join(filter(None, [leases.take() for _ in range(int(sys.argv[3]))])), flush=True)
+sys.stdin.read()  # hold them until killed
+"""
+
+
+def _holder(lab: str, lock_dir: Path | None, robots: int):
+    """Another evaluator process of this user holding ``robots`` of lab ``lab``'s robots (db1, db2) until killed."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-c", HOLDER, lab, str(lock_dir or "-"), str(robots)],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    held = proc.stdout.readline().strip()
+    assert held, "the holder process took no robot"
+    return proc, held
+
+
+def test_a_robot_held_by_another_evaluator_process_is_not_taken_until_its_holder_dies(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    from proxybench.evaluator.robots import RobotLeases
+
+    locks = tmp_path / "locks"
+    proc, held = _holder("lab", locks, 1)
+    try:
+        assert held == "db1"
+        leases = RobotLeases(_lab([{"name": "db1", "virtual": True}, {"name": "db2", "virtual": True}]), locks)
+        with caplog.at_level("INFO", logger="proxybench.evaluator"):
+            assert leases.take() == "db2"  # only the robot the other process left free
+            assert leases.take() is None
+        assert list(leases.elsewhere) == ["db1"] and f"pid {proc.pid}" in leases.elsewhere["db1"]
+        assert f"robot(s) held by another evaluator on this machine: db1 (pid {proc.pid}" in caplog.text
+        assert "no robot free: leasing nothing until one is" in caplog.text
+    finally:
+        proc.kill()  # -9: its lock dies with it, nothing to clean up
+        proc.wait()
+    caplog.clear()
+    with caplog.at_level("INFO", logger="proxybench.evaluator"):
+        assert leases.take() == "db1"
+    assert "robot(s) db1 free again" in caplog.text and leases.busy == ["db1", "db2"]
+    leases.close()
+
+
+def test_a_link_planted_where_a_robots_lock_goes_is_refused_never_followed(tmp_path: Path) -> None:
+    from proxybench.evaluator.robots import RobotLeases
+    from proxybench.private import PrivateFileError, make_private_folder
+
+    locks = make_private_folder(tmp_path / "locks")
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    (locks / "db1.lock").symlink_to(victim)
+    leases = RobotLeases(_lab([{"name": "db1", "virtual": True}]), locks)
+    with pytest.raises(PrivateFileError, match=r"db1\.lock: .*refused"):
+        leases.take()
+    assert victim.read_text() == "precious" and leases.busy == []
+
+
+def test_a_second_evaluator_with_the_same_lab_leases_nothing_while_another_holds_its_robots(
+        served: Served, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:  # noqa: F811
+    (sub,) = _submit(served, tmp_path, ["lane"])
+    proc, held = _holder("two-robots", None, 2)  # the locks of this user (this test process's folder)
+    try:
+        assert held == "db1,db2"
+        ev = _lab_evaluator(served, tmp_path)
+        try:
+            with caplog.at_level("INFO", logger="proxybench.evaluator"):
+                assert ev.take_one() is None  # no free robot on this machine: the job is not even leased
+            assert "robot(s) held by another evaluator on this machine: db1" in caplog.text
+            job, results = the_job(served, sub["id"])
+            assert job["status"] == "queued" and results == []
+            assert "leased" not in [e["kind"] for e in served.admin.get(f"/jobs/{job['id']}")["events"]]
+        finally:
+            ev.close()
+    finally:
+        proc.kill()
+        proc.wait()
 
 
 def test_a_worker_job_names_a_robot_of_its_lab() -> None:

@@ -244,10 +244,12 @@ class Evaluator:
             raise errors[0]
 
     def close(self) -> None:
-        """Stop the spare worker, release the server connection and the work dir."""
+        """Stop the spare worker, free the lab's robots, release the server connection and the work dir."""
         if self._spare is not None:
             self._spare.kill()
             self._spare = None
+        if self.robots is not None:
+            self.robots.close()
         if self.lab_world is not None:
             self.lab_world.close()
             self.lab_world = None
