@@ -102,3 +102,71 @@ def test_two_sdk_jobs_run_at_once_in_one_shared_world(served: Served, tmp_path: 
     assert sorted(seen) == ["db1", "db2"]
     assert all(report_robot in robots for report_robot, robots in seen.items())
     assert ["db1", "db2"] in seen.values(), seen  # the watchtowers saw both robots on the floor during an episode
+
+
+def test_a_robot_driving_into_a_standing_one_ends_as_a_collision_and_the_standing_ones_run_is_invalid(
+        tmp_path: Path) -> None:
+    """The collision rule end to end through the world's server and the evaluator's check: robot db1 drives straight
+    into db2, which stands still; db1's episode ends as a ``collision`` (scored as the agent's), db2's run is invalid
+    (the Autolab evaluator's host error, so it is run again)."""
+    import secrets
+    import threading
+
+    import numpy as np
+
+    from proxybench.agents.base import Agent
+    from proxybench.domain.params import DomainParams
+    from proxybench.evaluator.lab_world import contact_invalid
+    from proxybench.runner.jobs import JobResult
+    from proxybench.runner.lab_world import LabWorldAddress, LabWorldPlant, LabWorldSpec, connect, serve
+    from proxybench.runner.robot_episode import run_episode_on_plant
+    from proxybench.tasks.trajectory import Termination
+
+    class Constant(Agent):
+        privileged = True  # no camera: nothing to render
+
+        def __init__(self, pwm: float, first: threading.Event | None = None) -> None:
+            self.pwm, self.first = pwm, first
+
+        def act(self, obs):
+            if self.first is not None:  # db2's agent answers its first frame once db1 is on the floor too
+                assert self.first.wait(60)
+            return np.array([self.pwm, self.pwm])
+
+    address = LabWorldAddress(str(tmp_path / "w.sock"), secrets.token_bytes(16))
+    ready, stop = threading.Event(), threading.Event()
+    threading.Thread(target=serve, args=(LabWorldSpec("loop_3x3", ("db1", "db2"), (420, 421)), address, ready, stop),
+                     daemon=True).start()
+    assert ready.wait(120)
+    db1_started, db2_started = threading.Event(), threading.Event()
+    starts = {"db1": ((1.0, 0.3, 0.0), Constant(0.5), db1_started),
+              "db2": ((1.4, 0.3, 0.0), Constant(0.0, db1_started), db2_started)}
+    out = {}
+
+    def job(name: str) -> None:
+        pose, agent, started = starts[name]
+        conn = connect(address, name)
+        if name == "db1":
+            assert db2_started.wait(60)  # db1 starts behind a robot that is already there
+        plant = LabWorldPlant(conn, name, "loop_3x3", DomainParams(frame_rate=10.0))
+        begin = plant.begin
+        plant.begin = lambda *a: (begin(*a), started.set())[0]
+        out[name] = run_episode_on_plant(plant, agent, 1, 3.0, pose=pose, camera=False)
+        conn.close()
+
+    threads = [threading.Thread(target=job, args=(n,)) for n in ("db2", "db1")]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(300)
+    stop.set()
+    a, b = out["db1"], out["db2"]
+    assert a.termination is Termination.COLLISION and "ran into robot 'db2'" in a.event(Termination.COLLISION).message
+    assert b.termination is Termination.TIMEOUT and b.event("robot_contact") is not None
+    results = {}
+    for name, traj in out.items():
+        path = traj.save(tmp_path / f"{name}.parquet")
+        results[name] = JobResult("k", "agent", "lab-world", 0, 1, {}, traj.termination, str(path))
+    assert contact_invalid(results["db1"], "validation", "db1") is None  # at fault: its collision is scored
+    why = contact_invalid(results["db2"], "validation", "db2")
+    assert why.startswith("invalid: validation episode 0 on robot 'db2'") and "robot 'db1' ran into this robot" in why

@@ -74,7 +74,8 @@ class AutolabEpisode:
         return {"episode": self.episode, "valid": self.valid, "reasons": self.reasons, "samples": self.samples,
                 "frames": self.frames, "scores": {k: clean(v) for k, v in self.scores.items()},
                 "localization_median_error_m": clean(self.error_median_m),
-                "localization_p95_error_m": clean(self.error_p95_m), "online_detection": self.online}
+                "localization_p95_error_m": clean(self.error_p95_m), "online_detection": self.online,
+                "robots_localised": self.seen}
 
 
 def _check_lab(lab: Lab, bench, robot_name: str | None = None) -> None:
