@@ -139,6 +139,47 @@ def test_the_criteria_plan_each_stratum_for_the_margin():
     assert settings_for(ValidateConfig(family="gym", targets=7), False).primary == plan
 
 
+def test_per_stratum_declares_each_stratum_s_size_and_the_draw_fills_it():
+    """The strata's sizes by design: the draw goes on until near and far each hold per_stratum targets, the
+    criteria declare them (and the margin that many can show), and a study without it is pre-registered byte for
+    byte as before the option existed."""
+    from proxybench.experiments.config import ConfigError
+    from proxybench.experiments.validate.config import stratum_of
+    from proxybench.experiments.validate.run import ValidateConfig, drawn_theta, settings_for, stratified_draws
+
+    for family in ("heldout", "gym"):
+        s = settings_for(ValidateConfig(family=family, per_stratum=6), False)
+        assert s.targets == 12 and {st.allocated for st in s.primary.strata.values()} == {6}
+        assert s.primary.strata["near"].planned(12, 0.05, 0.8, 0.1)[0] == 6  # not 12 × its share
+        kept = stratified_draws(s, 4321)
+        assert len(set(kept)) == 12
+        strata = [stratum_of(drawn_theta(s, 4321, i), s.near) for i in kept]
+        assert strata.count("near") == strata.count("far") == 6
+        assert "allocated" in s.primary.model_dump(mode="json")["strata"]["near"]
+    plain = settings_for(ValidateConfig(family="gym"), False)
+    assert stratified_draws(plain, 4321) is None
+    assert "allocated" not in json.dumps(plain.model_dump(mode="json"))  # old studies' keys unchanged
+    with pytest.raises(ConfigError, match=r"targets: 5 is not 2 × per_stratum \(6\)"):
+        settings_for(ValidateConfig(family="gym", per_stratum=3, targets=5), False)
+    with pytest.raises(ConfigError, match="per_stratum: the draw puts no target in the near stratum"):
+        settings_for(ValidateConfig(family="heldout", per_stratum=3, draw={"trim": (0.15, 0.35)}), False)
+
+
+@pytest.mark.slow
+def test_a_stratified_quick_study_holds_its_declared_strata(tmp_path, monkeypatch):
+    _short_quick_episodes(monkeypatch, "heldout")
+    out = tmp_path / "v"
+    res = CliRunner().invoke(app, ["validate", "--quick", "--per-stratum", "2", "--backend", "inline", "--out",
+                                   str(out)], env={"COLUMNS": "200"})
+    assert res.exit_code == 0, res.output
+    criteria = json.loads((out / "criteria.json").read_text())
+    assert criteria["settings"]["targets"] == 4
+    assert {st["allocated"] for st in criteria["settings"]["primary"]["strata"].values()} == {2}
+    summary = json.loads((out / "summary.json").read_text())
+    assert sorted(summary["strata"]) == ["far", "far", "near", "near"]
+    assert summary["planned"]["near"]["targets"] == 2
+
+
 def _drive(trim: float, delay: float, step_time: float = 0.0) -> tuple[np.ndarray, ...]:
     """(t, x, y, θ) of the DB18 dynamic model driving PWM 0.4 from ``step_time``, acting ``delay`` later."""
     dt, n = 1 / 60, 181

@@ -44,9 +44,10 @@ class GymTarget(RobotTarget):
 
 
 def gym_targets(n: int, seed: int, ranges: dict[str, tuple[float, float]], folder: Path, *,
-                nodes: int = 1) -> list[GymTarget]:
-    """``n`` gym targets with θ drawn from ``seed``; their parameter files are written into ``folder`` (mode 700,
-    each file 600; kept, with their nonces, when a study resumes)."""
+                nodes: int = 1, indices: list[int] | None = None) -> list[GymTarget]:
+    """``n`` gym targets with θ drawn from ``seed`` (target k is draw ``indices[k]``, by default draw k); their
+    parameter files are written into ``folder`` (mode 700, each file 600; kept, with their nonces, when a study
+    resumes)."""
     from proxybench.gym.params import load_param_file
 
     if n < 1:
@@ -55,7 +56,7 @@ def gym_targets(n: int, seed: int, ranges: dict[str, tuple[float, float]], folde
     out = []
     for k in range(n):
         path = folder / f"gym-{k:03d}.yaml"
-        theta = draw_gym(seed, k, ranges)
+        theta = draw_gym(seed, k if indices is None else indices[k], ranges)
         if not path.exists() or load_param_file(path)[0] != theta:
             path.write_text(yaml.safe_dump({**theta, "nonce": secrets.token_hex(16)}))
             path.chmod(0o600)

@@ -151,8 +151,10 @@ class HeldOutTarget(_LiveTarget):
         return run
 
 
-def heldout_targets(n: int, seed: int, ranges: dict[str, tuple[float, float]] | None = None) -> list[HeldOutTarget]:
-    """The first ``n`` targets of the held-out family seeded ``seed`` (θ drawn in ``ranges``)."""
+def heldout_targets(n: int, seed: int, ranges: dict[str, tuple[float, float]] | None = None,
+                    indices: list[int] | None = None) -> list[HeldOutTarget]:
+    """``n`` targets of the held-out family seeded ``seed`` (θ drawn in ``ranges``): the first ``n``, or the draws
+    ``indices`` (a stratified study keeps the draws that fill its strata)."""
     if n < 1:
         raise ValueError(f"targets: need at least 1 held-out target, got {n}")
-    return [HeldOutTarget(seed, i, ranges) for i in range(n)]
+    return [HeldOutTarget(seed, i, ranges) for i in (range(n) if indices is None else indices[:n])]

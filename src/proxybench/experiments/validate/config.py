@@ -6,9 +6,9 @@ of the run reads. Light: importable without the simulator (the CLI builds its op
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_serializer
 
 from proxybench.experiments.config import ConfigError, param_name
 from proxybench.experiments.study import Cli, StudyConfig
@@ -159,6 +159,9 @@ class ValidateConfig(StudyConfig):
     of PRPV − calibration is below it"""
     assumed_sd: float = Field(0.10, gt=0.0, le=1.0)
     """the standard deviation of the paired differences the power computation assumes (PRPV/K(K−1))"""
+    per_stratum: int | None = Field(None, ge=2, le=500)
+    """targets in each stratum (near, far): the draw goes on until each has this many, so the strata's sizes are
+    declared, not left to the draw's shares (targets = 2 × this)"""
     near: dict[str, tuple[float, float]] | None = None
     """the near stratum LOW,HIGH per parameter (proxybench's names): the θ a factory-calibrated robot has; the far
     stratum is the rest (default: the family's: |trim| <= 0.1 and the other searched parameter within the grid)"""
@@ -230,14 +233,26 @@ class StratumPlan(BaseModel):
     needed: int
     """targets it needs to show non-inferiority within the margin with the declared power, at the assumed SD and a
     true difference of 0"""
+    allocated: int | None = None
+    """targets the draw puts in it by design (``--per-stratum``: drawn until it has them); None: ``share`` of the
+    targets, as they fall"""
+
+    @model_serializer(mode="wrap")
+    def _omit_unallocated(self, handler: Any) -> dict[str, Any]:
+        """No ``allocated`` key when it is None: the criteria (and every target's settings key) of a study drawn as
+        the targets fall are byte-identical to those written before the field existed."""
+        data = handler(self)
+        if data.get("allocated") is None:
+            data.pop("allocated", None)
+        return data
 
     def planned(self, targets: int, alpha: float, power: float, assumed_sd: float) -> tuple[float, float | None]:
-        """(targets expected in it: ``targets`` × share, the margin (PRPV/K(K−1)) that many can show with ``power``
-        at the assumed SD; None under 2). Derived, not a setting: a study of other size differs in ``targets``
-        alone."""
+        """(targets in it: ``allocated``, else expected: ``targets`` × share; the margin (PRPV/K(K−1)) that many can
+        show with ``power`` at the assumed SD; None under 2). Derived, not a setting: a study of other size differs
+        in ``targets`` alone."""
         from proxybench.usefulness.validation import minimum_detectable_effect
 
-        n = targets * self.share
+        n = float(self.allocated) if self.allocated is not None else targets * self.share
         return round(n, 3), (round(minimum_detectable_effect(int(n), alpha, power) * assumed_sd, 6)
                              if int(n) >= 2 else None)
 
@@ -341,7 +356,7 @@ def stratum_of(theta: dict[str, float], near: dict[str, tuple[float, float]]) ->
     return "near" if inside else "far"
 
 
-def _plan(s: dict, draw: dict[str, tuple[float, ...]]) -> PrimaryPlan:
+def _plan(s: dict, draw: dict[str, tuple[float, ...]], per_stratum: int | None = None) -> PrimaryPlan:
     """The primary comparison's plan: per stratum its share of the draw and the targets it needs (the targets
     planned in it and their MDE follow from the study's ``targets``: :meth:`StratumPlan.planned`)."""
     from proxybench.usefulness.validation import targets_needed
@@ -359,7 +374,10 @@ def _plan(s: dict, draw: dict[str, tuple[float, ...]]) -> PrimaryPlan:
     strata = {}
     for name, sh, words in (("near", share, f"every one of {box} (the θ a factory-calibrated robot has)"),
                             ("far", 1.0 - share, f"the rest: some parameter outside {box}")):
-        strata[name] = StratumPlan(definition=words, share=round(sh, 6), needed=needed)
+        if per_stratum is not None and sh <= 0.0:
+            raise ConfigError(f"per_stratum: the draw puts no target in the {name} stratum ({box}); widen --draw or "
+                              "leave per_stratum out")
+        strata[name] = StratumPlan(definition=words, share=round(sh, 6), needed=needed, allocated=per_stratum)
     return PrimaryPlan(
         comparisons=PRIMARY_COMPARISONS, margin=s["margin"], assumed_sd=s["assumed_sd"], strata=strata,
         test=(f"per stratum and comparison, the paired differences PRPV − calibration of the pick's quality on the "
@@ -382,8 +400,11 @@ def settings_for(cfg: ValidateConfig, quick: bool) -> ValidateSettings:
                   **(cfg.tolerances or {})}
     grid = cfg.grid or d.grid
     _check_centred(grid)
+    if cfg.per_stratum is not None and cfg.targets is not None and cfg.targets != 2 * cfg.per_stratum:
+        raise ConfigError(f"targets: {cfg.targets} is not 2 × per_stratum ({2 * cfg.per_stratum}); give one of them")
+    targets = 2 * cfg.per_stratum if cfg.per_stratum is not None else cfg.targets or d.targets
     fields = dict(
-        family=cfg.family, quick=quick, targets=cfg.targets or d.targets, agents=cfg.agents or d.agents,
+        family=cfg.family, quick=quick, targets=targets, agents=cfg.agents or d.agents,
         tuning_share=cfg.tuning_share, split=cfg.split, episodes_tune=cfg.episodes_tune or d.episodes_tune,
         episodes_eval=cfg.episodes_eval or d.episodes_eval, seconds=seconds, maps=cfg.maps or d.maps,
         grid=grid, draw=cfg.draw or d.draw, metrics=cfg.metrics,
@@ -394,7 +415,7 @@ def settings_for(cfg: ValidateConfig, quick: bool) -> ValidateSettings:
     for name in fields["draw"]:
         _draw_name(cfg.family, name)
     draw = {_GYM_TO_PROXY.get(k, k) if cfg.family == "gym" else k: v for k, v in fields["draw"].items()}
-    s = ValidateSettings(**fields, primary=_plan(fields, draw))
+    s = ValidateSettings(**fields, primary=_plan(fields, draw, cfg.per_stratum))
     outside = [k for k in s.grid if k in draw and not (min(draw[k]) < min(s.grid[k]) or max(draw[k]) > max(s.grid[k]))]
     if outside:
         raise ConfigError(f"draw: {', '.join(outside)} must be drawn wider than the grid searches it, so that the "

@@ -435,6 +435,7 @@ def _refuse_family_fields(cfg: ValidateConfig) -> None:
     for name, why in (("targets", "the study on your own target has one target"),
                       ("draw", "your target's θ is its own; nothing is drawn"),
                       ("draw_seed", "your target's θ is its own; nothing is drawn"),
+                      ("per_stratum", "your target's θ is its own; there are no strata to fill"),
                       ("bc_agents", "behaviour-cloned agents are not trained for your target; give them as --agent "
                                     "checkpoints"),
                       ("interim", "a study on one target has no interim look")):

@@ -51,6 +51,7 @@ from proxybench.experiments.validate.config import (
     ValidateSettings,
     nominal_theta,
     settings_for,
+    stratum_of,
 )
 from proxybench.experiments.validate.measures import (
     QUALITIES,
@@ -193,6 +194,7 @@ def _train_bc(recipe: BCRecipe, seed: int, say: Callable[[str], Any]):
 def _family_targets(s: ValidateSettings, draw_seed: int, out: Path) -> list[Any]:
     """The family's targets, black boxes until reveal (their θ drawn from ``draw_seed``)."""
     ranges = dict(s.draw)
+    indices = stratified_draws(s, draw_seed)
     if s.family == "gym":
         from proxybench.gym.environment import check_environment
         from proxybench.targets.gym import gym_targets
@@ -200,10 +202,47 @@ def _family_targets(s: ValidateSettings, draw_seed: int, out: Path) -> list[Any]
         env = check_environment(render=False)
         if env.problems:
             raise ConfigError("family gym: gym-duckietown's environment is not ready: " + "; ".join(env.problems))
-        return gym_targets(s.targets, draw_seed, ranges, out / "secret" / "gym", nodes=s.robot_nodes)
+        return gym_targets(s.targets, draw_seed, ranges, out / "secret" / "gym", nodes=s.robot_nodes,
+                           indices=indices)
     from proxybench.targets.heldout import heldout_targets
 
-    return heldout_targets(s.targets, draw_seed, ranges)
+    return heldout_targets(s.targets, draw_seed, ranges, indices)
+
+
+#: draws tried at most to fill the strata (a stratum the draw reaches with probability p needs about N / p)
+MAX_DRAWS = 100_000
+
+
+def drawn_theta(s: ValidateSettings, draw_seed: int, index: int) -> dict[str, float]:
+    """θ of draw ``index`` under proxybench's names, as the target's reveal will state it (for its stratum)."""
+    if s.family == "gym":
+        from proxybench.targets.gym import draw_gym
+
+        return s.to_proxy(draw_gym(draw_seed, index, dict(s.draw)))
+    from proxybench.targets.heldout import HeldOutTarget
+
+    return HeldOutTarget(draw_seed, index, dict(s.draw)).reveal()
+
+
+def stratified_draws(s: ValidateSettings, draw_seed: int) -> list[int] | None:
+    """With strata allocated by design (``per_stratum``): the draws kept, in draw order, until every stratum has
+    its targets (a draw whose stratum is full is skipped), then shuffled by the secret seed so that a target's place
+    says nothing of its stratum. None: the first ``targets`` draws, strata as they fall."""
+    quota = {name: st.allocated for name, st in s.primary.strata.items()}
+    if any(q is None for q in quota.values()):
+        return None
+    kept: list[int] = []
+    taken = dict.fromkeys(quota, 0)
+    for i in range(MAX_DRAWS):
+        stratum = stratum_of(drawn_theta(s, draw_seed, i), s.near)
+        if taken[stratum] < (quota[stratum] or 0):
+            taken[stratum] += 1
+            kept.append(i)
+            if len(kept) == s.targets:
+                order = np.random.default_rng([draw_seed, 0x57A7]).permutation(len(kept))
+                return [kept[j] for j in order]
+    short = ", ".join(f"{n} {taken[n]} of {q}" for n, q in quota.items())
+    raise ConfigError(f"per_stratum: {MAX_DRAWS:,} draws did not fill the strata ({short}); widen --draw")
 
 
 def _candidates(s: ValidateSettings) -> list[dict[str, float]]:
