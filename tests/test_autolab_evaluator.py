@@ -128,8 +128,6 @@ def test_a_robot_the_watchtowers_never_see_is_tracking_lost_and_goes_back_to_the
 
 
 @pytest.mark.parametrize(("change", "words"), [
-    (("{name: db1, virtual: true}", "{name: db1, command: python3 robot.py}"),
-     "is a robot node (command:); the Autolab evaluator drives virtual and DTPS robots only"),
     (("map: loop_3x3", "map: small_loop"), "is on map 'loop_3x3'; lab 'test-lab' has map 'small_loop'"),
     (("reset: {mode: operator}", "reset: {mode: operator}\nlimits: {max_episode_s: 2}"),
      "episodes of 3 s are longer than lab 'test-lab' runs"),

@@ -94,10 +94,11 @@ class LiveStreams:
         self.close()
 
 
-def _served(layout: Layout) -> tuple[WatchtowerServer, list]:
-    """The layout's simulated watchtowers served over DTPS, each with its calibration's intrinsics published."""
+def _served(layout: Layout, port: int | None = None) -> tuple[WatchtowerServer, list]:
+    """The layout's simulated watchtowers served over DTPS (on ``port`` of 127.0.0.1, None: a free one), each with
+    its calibration's intrinsics published."""
     cals, _ = draw_calibrations(layout)
-    server = WatchtowerServer([w.name for w in layout.watchtowers])
+    server = WatchtowerServer([w.name for w in layout.watchtowers], port=port)
     try:
         sources = []
         for w in layout.watchtowers:

@@ -50,24 +50,56 @@ def robot_serve(
     param: list[str] = typer.Option([], "--param", help="domain parameter k=v (repeatable), e.g. image_width=160"),
     seed: int = typer.Option(0, min=0, help="episode seed when neither `seed` nor episode_start gives one"),
     name: str = typer.Option("robot", help="node name in timing information"),
+    watchtowers: str | None = typer.Option(None, "--watchtowers", help="also serve this watchtower layout (a file, "
+                                           "or auto) of the robot's world as DTPS camera topics: a stand-in lab "
+                                           "(docs/autolab.md, 'A real robot')"),
+    watchtower_port: int | None = typer.Option(None, "--watchtower-port", min=1, max=65535, help="the "
+                                               "watchtowers' TCP port on 127.0.0.1 (default: a free one, printed)"),
 ) -> None:
     """Serve the proxybench simulator as a robot node on stdin/stdout (or $AIDONODE_DATA_IN/_OUT).
 
     This is a SIMULATED robot: one proxybench Simulator behind AIDO's simulator protocol
-    (docs/robot-protocol.md), the reference for a physical robot's bridge. Messages go to stderr only.
+    (docs/robot-protocol.md), the reference for a physical robot's bridge. Messages go to stderr only. With
+    --watchtowers its world's watchtowers are served as a lab's DTPS cameras, each frame stamped with the wall time
+    of the episode's first command plus the world's time (what a camera of a real-time world would stamp).
     """
     from proxybench.domain.maps import MapError
     from proxybench.protocol.robot_node import RobotNode, serve_robot
     from proxybench.runner.sim_robot import SimRobot
 
+    if watchtower_port is not None and watchtowers is None:
+        raise fail("--watchtower-port: give --watchtowers LAYOUT too")
     params = parse_params(param)
+    towers = None
     try:
-        node = RobotNode(SimRobot(params, map_name), seed=seed, node_name=name)
-    except (MapError, ValueError) as exc:
-        raise fail(exc) from exc
-    print(f"[{name}] serving a SIMULATED robot (proxybench simulator, {params.image_width}x{params.image_height} "
-          f"at {params.frame_rate:g} Hz) on the robot protocol", file=sys.stderr, flush=True)
-    raise typer.Exit(serve_robot(node, exit_on_abort=False))
+        try:
+            if watchtowers is not None:
+                towers = _node_towers(map_name, watchtowers, watchtower_port, name)
+            robot = SimRobot(params, map_name, streams=None if towers is None else towers[0])
+            node = RobotNode(robot, seed=seed, node_name=name)
+        except (MapError, ValueError, RuntimeError) as exc:  # a layout's LayoutError, a server's ReaderError
+            raise fail(exc) from exc
+        print(f"[{name}] serving a SIMULATED robot (proxybench simulator, {params.image_width}x"
+              f"{params.image_height} at {params.frame_rate:g} Hz) on the robot protocol", file=sys.stderr, flush=True)
+        code = serve_robot(node, exit_on_abort=False)
+        robot.close_streams()  # the last episode's recording ends with the node
+    finally:
+        if towers is not None:
+            towers[1].server.close()
+    raise typer.Exit(code)
+
+
+def _node_towers(map_name: str | None, layout: str, port: int | None, name: str):
+    """(stream spec, sink) of ``layout``'s watchtowers on the map served over DTPS for a robot node, their address
+    printed on stderr (stdout is the protocol's)."""
+    from proxybench.autolab.served import served_towers
+    from proxybench.autolab.watchtowers import resolve_layout
+    from proxybench.domain.maps import load_map
+
+    spec, sink = served_towers(resolve_layout(layout, load_map(map_name or "loop_3x3")), port=port, node=True)
+    print(f"[{name}] serving {len(spec.cameras)} SIMULATED watchtowers at "
+          f"{sink.server.address(spec.cameras[0].name).rsplit('/', 1)[0]}/NAME", file=sys.stderr, flush=True)
+    return spec, sink
 
 
 @robot_app.command("check")

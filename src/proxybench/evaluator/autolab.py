@@ -17,8 +17,10 @@ watchtowers record, then per episode:
 Today a lab's robot is a **virtual** DB21J (the simulator; an SDK agent reaches it over DTPS as on the
 Duckiematrix) and its watchtowers are **simulated** from a layout (their frames written by the simulator, or served
 as DTPS camera topics and read back, ``serve: dtps``) or a lab's own **DTPS camera topics** (``streams``), read by
-the lab's watchtower reader (:mod:`proxybench.autolab.live`); DTPS or robot-node robots and recorded streams are
-described by ``lab.yaml`` but refused here (``host-error``, saying so). A lab of several virtual
+the lab's watchtower reader (:mod:`proxybench.autolab.live`). A lab's **DTPS robot** is driven by the agent and
+watched (:mod:`.autolab_dtps`), a **robot node** (``command:``) stepped by the runner and watched
+(:mod:`.autolab_node`), both measured by the lab's own streams; recorded streams are described by ``lab.yaml`` but
+refused here (``host-error``, saying so). A lab of several virtual
 robots runs a job on each at once (the evaluator's :mod:`.robots` gives each job its robot); they do not yet share
 a world: each robot is the ego of a world of its own, seen by the watchtowers under the simulator's ego roof tag
 (400), which localisation names after the job's robot.
@@ -81,10 +83,7 @@ class AutolabEpisode:
 def _check_lab(lab: Lab, bench, robot_name: str | None = None) -> None:
     """What this evaluator can do with this lab, its robot ``robot_name`` (None: the first) and the benchmark;
     :class:`HostFault` saying what it cannot."""
-    robot = lab.robot(robot_name)
-    if robot.kind == "command":  # docs/autolab.md, "A real robot": why a robot node is not driven here
-        raise HostFault(f"lab {lab.name!r}: robot {robot.name!r} is a robot node (command:); the Autolab evaluator "
-                        "drives virtual and DTPS robots only: give the robot's DTPS address (dtps: HOST[:PORT]/PATH)")
+    lab.robot(robot_name)  # a robot the lab lacks: KeyError naming it
     recorded = [s.name for s in lab.watchtowers.streams if s.recorded is not None]
     if recorded:
         raise HostFault(f"lab {lab.name!r}: watchtower(s) {', '.join(recorded)} are recorded folders (for `proxybench "
@@ -404,6 +403,15 @@ def run_autolab(job) -> Outcome:
         check_dtps_robot(lab, spec)
         job.outcome.public_report["domain_kind"] = "autolab/dtps"
         split = partial(run_dtps_split, scoring=Scoring(localize_episode, _scores, _video))
+    elif lab.robot(job.job.autolab_robot).kind == "command":  # a robot node: stepped by the runner, watched by the lab
+        from functools import partial
+
+        from proxybench.evaluator.autolab_dtps import Scoring
+        from proxybench.evaluator.autolab_node import check_node_robot, run_node_split
+
+        check_node_robot(lab)
+        job.outcome.public_report["domain_kind"] = "autolab/node"
+        split = partial(run_node_split, scoring=Scoring(localize_episode, _scores, _video))
     job.agent_contract(bench, spec)
     job.outcome.public_scores = split(job, lab, bench, spec, "validation", hidden=False)
     test_seed = job.lease.benchmark.test_seed

@@ -38,7 +38,7 @@ from typing import Any
 from proxybench.autolab.lab import Lab
 from proxybench.evaluator.outcome import Artifact, HostFault, SubmissionFault
 
-__all__ = ["Scoring", "check_dtps_robot", "rebase_streams", "run_dtps_split"]
+__all__ = ["Scoring", "check_dtps_robot", "rebase_streams", "run_dtps_split", "tell_operator"]
 
 log = logging.getLogger("proxybench.evaluator.job")
 #: how often the episode loop looks at the robot, the program and the operator's desk [s]
@@ -169,7 +169,7 @@ def _episode(job, lab: Lab, robot, bench, spec, held: _Lab, ep, split: str, fold
     what = f"{split} episode {ep.index}"
     request = f"place robot {robot.name} at x={x:.3f} m, y={y:.3f} m, θ={th * 57.29578:.1f}° for {what}"
     try:
-        waited = held.desk.place(request, lab.operator.timeout_s, tell=_tell)
+        waited = held.desk.place(request, lab.operator.timeout_s, tell=tell_operator)
     except OperatorTimeout as exc:
         raise HostFault(f"robot_failure: {exc}") from None
     log.info("%s: the operator placed %s after %.1f s", what, robot.name, waited)
@@ -221,7 +221,7 @@ def _episode(job, lab: Lab, robot, bench, spec, held: _Lab, ep, split: str, fold
     return sink.episodes[-1], heard, first
 
 
-def _tell(text: str) -> None:
+def tell_operator(text: str) -> None:
     """The placement request: the job's log, and the evaluator's terminal where it has one."""
     log.warning("%s", text)
     try:

@@ -7,6 +7,11 @@ robots' bridges, a test double the runner cannot tell from one (except that it s
 "simulation"``), and a simulator AIDO's experiment manager accepts. Driven through the protocol it gives
 exactly the in-process trajectory: it ends an episode by the runner's rule (``domain.episode_end``) and
 reports the physics-rate trace the in-process runner records.
+
+With ``streams`` (``proxybench robot serve --watchtowers``: a stand-in lab) the robot's world also holds the lab's
+fixtures (its ground tags) and its fixed cameras are rendered after every frame from the episode's first step
+on, each frame handed to the spec's sink (served as DTPS camera topics, :mod:`proxybench.autolab.served`): a lab's
+watchtowers watching a robot node.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import numpy as np
 from proxybench.domain.dynamics import ST, TRACE_FIELDS
 from proxybench.domain.episode_end import end_event, ended
 from proxybench.domain.events import Event
+from proxybench.domain.fixed_cameras import FixedCameraRig
 from proxybench.domain.lane_pose import LanePose
 from proxybench.domain.maps import Map, MapError, MapObject, load_map, parse_map
 from proxybench.domain.params import DomainParams
@@ -28,6 +34,7 @@ from proxybench.domain.simulator import Simulator
 from proxybench.domain.topdown import top_down
 from proxybench.protocol import robot_wire
 from proxybench.protocol.robot_backend import BackendState, FrameStep
+from proxybench.runner.streams import StreamRecorder, StreamSpec
 
 __all__ = ["SimRobot"]
 
@@ -42,10 +49,16 @@ def _map_text(m: Map) -> str | None:
 
 class SimRobot:
     """One simulated robot with θ ``params`` (default :class:`DomainParams`); ``map_``: a map to build the
-    simulator for up front (``set_map`` with its text then costs nothing; other maps are built when set)."""
+    simulator for up front (``set_map`` with its text then costs nothing; other maps are built when set);
+    ``streams``: fixed cameras of its world, rendered to their sink every frame (see the module)."""
 
-    def __init__(self, params: DomainParams | None = None, map_: Map | str | None = None):
+    def __init__(self, params: DomainParams | None = None, map_: Map | str | None = None,
+                 streams: StreamSpec | None = None):
         self.params = params or DomainParams()
+        self.streams = streams
+        self._fixtures: tuple[MapObject, ...] = () if streams is None else tuple(streams.fixtures)
+        self._recorder: StreamRecorder | None = None
+        self._rig: FixedCameraRig | None = None  # the fixed cameras' renderers, built before an episode's start
         self.frame_dt = 1.0 / self.params.frame_rate
         self.encoder_resolution = self.params.encoder_resolution
         self._sims: dict[tuple[str, tuple[MapObject, ...]], Simulator] = {}
@@ -57,7 +70,8 @@ class SimRobot:
             text = _map_text(m)
             if text is None:
                 raise ValueError(f"map {m.name!r} has no source file, so set_map could never select it")
-            self._sims[(text, ())] = self._build(m)
+            self._sims[(text, self._fixtures)] = self._build(dataclasses.replace(m, objects=m.objects
+                                                                                 + self._fixtures))
 
     def _build(self, m: Map) -> Simulator:
         """A simulator for ``m``, its compiled kernels loaded (or compiled) now, within the caller's init
@@ -84,24 +98,37 @@ class SimRobot:
 
     # ------------------------------------------------------------------------------- RobotBackend
     def set_map(self, text: str) -> None:
-        self.sim = self._simulator(text)
+        self.sim = self._simulator(text, self._fixtures)
         self._text = text
 
     def reset(self, seed: int, pose: tuple[float, float, float] | None, route: list[str] | None,
               objects: tuple[MapObject, ...], camera: bool = True) -> None:
+        self.close_streams()
         if objects:
-            self.sim = self._simulator(self._text, objects)
+            self.sim = self._simulator(self._text, self._fixtures + tuple(objects))
         self.sim.reset(0, seed, pose, route)
+        if self.streams is not None and self.streams.cameras and (self._rig is None or self._rig.sim is not self.sim):
+            self._rig = FixedCameraRig(self.sim, self.streams.cameras)  # now, not at the first command (its clock)
 
     def step_frame(self, pwm: np.ndarray) -> FrameStep:
         sim = self.sim
         first_tick = int(sim.frame_index[0]) * sim.substeps
         lanes = (int(sim.routes.pin[0]), int(sim.routes.next[0]))
+        if self.streams is not None and self._recorder is None:  # the recording begins with the first command
+            self._recorder = StreamRecorder(sim, self.streams, Path("episode"), rig=self._rig)
         sim.step(pwm[None], self._trace)
+        if self._recorder is not None:
+            self._recorder.frame(self.time())
         block = np.empty((sim.substeps, len(robot_wire.TRACE_COLUMNS)))
         block[:, 0] = (np.arange(1, sim.substeps + 1) + first_tick) * sim.params[0].physics_dt  # the runner's t
         block[:, 1:] = self._trace[0][:, _TRACE_IDX]
         return FrameStep(block, lanes)
+
+    def close_streams(self) -> None:
+        """End the episode's recording of the fixed cameras, if one runs (its sink ends the episode)."""
+        recorder, self._recorder = self._recorder, None
+        if recorder is not None:
+            recorder.close()
 
     def time(self) -> float:
         return float(self.sim.time[0])
