@@ -118,3 +118,29 @@ def test_an_sdk_package_drives_the_labs_robot_node_and_is_scored_from_the_watcht
     at_time, to_path = _errors(tmp_path / "zip" / "episode-0-track.csv", tmp_path / "zip" / "robot-episode-0.parquet")
     assert np.median(to_path) <= 0.02, np.percentile(to_path, [50, 95])
     assert np.median(at_time) <= 0.02, np.percentile(at_time, [50, 95])  # one clock: the node's first command
+
+
+@AGENT_USER_GROUP
+def test_an_aido_node_package_drives_the_labs_robot_node_through_the_runner(
+        served: Served, tmp_path: Path, node_lab: Path) -> None:  # noqa: F811
+    from test_evaluator import make_package
+
+    require_safe_sandbox()
+    served.admin.post("/benchmarks", {"yaml": BENCH, "features": ["autolab"], "hidden_split": False})
+    archive = tmp_path / "forward.zip"
+    archive.write_bytes(make_package("ok"))  # an AIDO node driving straight on at (0.3, 0.3)
+    sub = served.developer.submit_archive(archive, "forward", benchmark="autolab_tiny")
+    lab = load_lab(node_lab)
+    placed = _answer(confirm_ready, lab.operator.folder / "db1" / "waiting.json", lab, "db1")
+    lab_ev = evaluator(served, tmp_path, name="lab", video=False, features=("sim", "autolab"), autolab=lab)
+    status = lab_ev.take_one()
+    placed.join(timeout=60)
+    job, (result,) = the_job(served, sub["id"])
+    assert status == job["status"] == "success", result["message"]
+    report = result["public_report"]
+    (record,) = report["robot_record"]
+    (loc,) = report["localization"]
+    assert report["domain_kind"] == "autolab/node" and loc["valid"], (record, loc)
+    assert result["public_scores"]["survival_time_median"] > 0.5
+    uid = agent_uid()
+    assert uid is None or processes_left(uid) == []
