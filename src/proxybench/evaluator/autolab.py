@@ -21,9 +21,10 @@ the lab's watchtower reader (:mod:`proxybench.autolab.live`). A lab's **DTPS rob
 watched (:mod:`.autolab_dtps`), a **robot node** (``command:``) stepped by the runner and watched
 (:mod:`.autolab_node`), both measured by the lab's own streams; recorded streams are described by ``lab.yaml`` but
 refused here (``host-error``, saying so). A lab of several virtual
-robots runs a job on each at once (the evaluator's :mod:`.robots` gives each job its robot); they do not yet share
-a world: each robot is the ego of a world of its own, seen by the watchtowers under the simulator's ego roof tag
-(400), which localisation names after the job's robot.
+robots runs a job on each at once (the evaluator's :mod:`.robots` gives each job its robot); with ``world: shared``
+they drive one world (:mod:`.lab_world`: they see and can hit each other, each localised under its own roof tag, a
+run another robot ran into invalid), else each robot is the ego of a world of its own, seen by the watchtowers under
+the simulator's ego roof tag (400), which localisation names after the job's robot.
 
 The worker's :class:`~proxybench.evaluator.run._Job` is passed in (duck-typed: this module does not import
 ``run``): its benchmark, agent, agent contract, progress and outcome are reused as they are.
@@ -148,8 +149,8 @@ def stop_streams(streams: Path, lab: Lab) -> list[str]:
 
 
 def world_tags(robot: str) -> dict[int, str]:
-    """Roof tag id -> robot name in the world of the virtual robot ``robot``: robots do not yet share a world, so
-    each is the ego of its own and wears the simulator's ego tag."""
+    """Roof tag id -> robot name in the world of the virtual robot ``robot`` when the lab's robots do not share a
+    world (``world: own``): each is the ego of its own and wears the simulator's ego tag."""
     from proxybench.domain.apriltags import ROOF_TAG_BASE
 
     return {ROOF_TAG_BASE: robot}

@@ -17,9 +17,10 @@ running at once with one lab's name do not wait for each other's robots.
 
 The robots it drives are the lab's **virtual** DB21Js (each a simulator of the worker's own behind its own DTPS
 server, in a network namespace of its own under the safe sandbox, so that each SDK agent finds *its* robot at
-127.0.0.1:7501). They do not yet share a world: each robot is the ego of a world of its own (docs/autolab.md,
-"Several robots"). A lab without virtual robots offers its first robot, whose job the worker refuses with a host
-error saying why (a DTPS or robot-node robot is described but not yet driven).
+127.0.0.1:7501). With ``world: shared`` they are robots of the lab's one world (:mod:`.lab_world`), else each is
+the ego of a world of its own (docs/autolab.md, "Several robots"). A lab without virtual robots offers its first
+robot, whose job the worker refuses with a host error saying why (a DTPS or robot-node robot is described but not
+yet driven).
 """
 
 from __future__ import annotations
