@@ -10,6 +10,7 @@ trajectory file) is read by the test only.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import os
 import shutil
@@ -322,3 +323,43 @@ def test_an_operators_intervention_ends_the_episode_and_the_job_as_the_labs_faul
     uid = agent_uid()
     assert uid is None or processes_left(uid) == []
     assert not (desk / "episode.json").exists()  # no later intervention can land on another episode
+
+
+@sdk
+@AGENT_USER_GROUP
+def test_a_dtps_robot_that_drops_off_mid_episode_is_a_robot_failure_with_nothing_stored(
+        served: Served, tmp_path: Path, real_lab: subprocess.Popen) -> None:  # noqa: F811
+    from proxybench.dtps.observer import RobotObserver
+    from proxybench.dtps.robot_options import parse_address
+
+    require_safe_sandbox()
+    served.admin.post("/benchmarks", {"yaml": BENCH.replace("duration: 3.0", "duration: 60.0"),
+                                      "features": ["autolab"], "hidden_split": False})
+    archive = tmp_path / "sdk-lane.zip"
+    archive.write_bytes(sdk_package())
+    sub = served.developer.submit_archive(archive, "sdk-lane", benchmark="autolab_tiny")
+    lab = load_lab(tmp_path / "lab.yaml")
+    placed = _answer(confirm_ready, lab.operator.folder / "db1" / "waiting.json", lab, "db1")
+    lab_ev = evaluator(served, tmp_path, name="lab", video=False, features=("sim", "autolab"), autolab=lab)
+    outcome: list[str | None] = []
+    driving = threading.Thread(target=lambda: outcome.append(lab_ev.take_one()), daemon=True)
+    driving.start()
+    with_us = RobotObserver(parse_address(lab.robots[0].dtps))  # the test hears the agent drive the robot
+    try:
+        while not with_us.heard.commands and driving.is_alive():
+            with_us.pump(time.monotonic() + 0.2)
+    finally:
+        os.killpg(real_lab.pid, signal.SIGKILL)  # the robot (and the lab's stand-in watchtowers) drop off DTPS
+        real_lab.wait(60)
+        with contextlib.suppress(Exception):
+            with_us.close()
+    driving.join(timeout=600)
+    placed.join(timeout=60)
+    assert outcome == ["host-error"]
+    job, results = the_job(served, sub["id"])
+    assert job["status"] == "queued" and results == []  # the lab's fault: nothing stored, the job runs again
+    (event,) = [e for e in served.admin.get(f"/jobs/{job['id']}")["events"] if e["kind"] == "host-error"]
+    assert event["message"].startswith("robot_failure: robot 'db1' of lab 'real-lab' failed in validation episode "
+                                       "0: its DTPS server 127.0.0.1:"), event["message"]
+    uid = agent_uid()
+    assert uid is None or processes_left(uid) == []

@@ -19,7 +19,9 @@ duration; then the program is ended and the robot sent (0, 0). The recording is 
 before it is dropped: the robot stood still) and localised, validated and scored as a virtual robot's
 (:func:`~.autolab.localize_episode`), from the localised trajectory only. An operator's intervention ends the
 episode and the job: ``manual_intervention``; no confirmation in time: ``robot_failure: operator-timeout``; a
-program that ends early or never commands the robot is the agent's failure.
+program that ends early or never commands the robot is the agent's failure. A robot that **drops off** DTPS (its
+server no longer accepts a connection, :class:`Heartbeat`, or the relay or observer ends) ends the episode and the
+job as ``robot_failure``, whatever the program did after it lost its robot.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ import csv
 import json
 import logging
 import os
+import socket
+import threading
 import time
 import zipfile
 from collections.abc import Callable
@@ -38,7 +42,7 @@ from typing import Any
 from proxybench.autolab.lab import Lab
 from proxybench.evaluator.outcome import Artifact, HostFault, SubmissionFault
 
-__all__ = ["Scoring", "check_dtps_robot", "rebase_streams", "run_dtps_split", "tell_operator"]
+__all__ = ["Heartbeat", "Scoring", "check_dtps_robot", "rebase_streams", "run_dtps_split", "tell_operator"]
 
 log = logging.getLogger("proxybench.evaluator.job")
 #: how often the episode loop looks at the robot, the program and the operator's desk [s]
@@ -108,6 +112,42 @@ def rebase_streams(folder: Path, origin: float) -> int:
     return kept
 
 
+class Heartbeat:
+    """Whether a DTPS robot is still there: a thread opens a TCP connection to its server every ``period`` [s]
+    (``timeout`` each); ``misses`` failures in a row and :attr:`lost` says why. Nothing else tells: the observer
+    only listens (a subscription to a server that went away reports nothing) and the relay copies bytes for the
+    agent, whose connections may close for any reason; a real robot's Wi-Fi may drop a probe, hence the misses."""
+
+    def __init__(self, host: str, port: int, *, period: float = 1.0, timeout: float = 2.0, misses: int = 2):
+        self.host, self.port, self.period, self.timeout, self.misses = host, port, period, timeout, misses
+        self.lost: str | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="dtps-robot-heartbeat", daemon=True)
+        self._thread.start()
+
+    def probe(self) -> str | None:
+        """One connection to the robot's server now: None when it accepted, else why not."""
+        try:
+            socket.create_connection((self.host, self.port), timeout=self.timeout).close()
+        except OSError as exc:
+            return exc.strerror or type(exc).__name__
+        return None
+
+    def _run(self) -> None:
+        missed = 0
+        while not self._stop.wait(self.period):
+            why = self.probe()
+            missed = 0 if why is None else missed + 1
+            if missed >= self.misses:
+                self.lost = f"its DTPS server {self.host}:{self.port} answered none of {missed} connections in a row " \
+                            f"({why})"
+                return
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=self.timeout + 1.0)
+
+
 def _write_record(path: Path, heard, origin: float) -> Path:
     """The robot's own record of the episode (commands, reported poses) on the episode's clock, as CSV."""
     with open(path, "w", newline="") as fh:
@@ -132,7 +172,7 @@ class _Lab:
         self.address = parse_address(robot.dtps)
         self.live = layout_none_streams
         self.lock = None
-        self.relay = self.observer = None
+        self.relay = self.observer = self.heartbeat = None
         own = bool(spec.node_options().own_netns)
         try:
             self.desk = OperatorDesk.of(lab, robot.name)
@@ -141,13 +181,14 @@ class _Lab:
                 self.lock.acquire(60.0)
             self.relay = RobotRelay(self.address.host, self.address.port, own_netns=own)
             self.observer = RobotObserver(self.address)
+            self.heartbeat = Heartbeat(self.address.host, self.address.port)
         except (RelayError, RobotFailure, OperatorError, OSError) as exc:
             self.close()
             raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} ({self.address}): {exc}") \
                 from None
 
     def close(self) -> None:
-        for part in (self.observer, self.relay):
+        for part in (self.heartbeat, self.observer, self.relay):
             if part is not None:
                 try:
                     part.close()
@@ -162,6 +203,7 @@ def _episode(job, lab: Lab, robot, bench, spec, held: _Lab, ep, split: str, fold
     from proxybench.autolab.operator import OperatorTimeout
     from proxybench.dtps.agent import NETNS_ENV
     from proxybench.dtps.env import env_path
+    from proxybench.protocol.failures import RobotFailure
     from proxybench.protocol.transport import Launch, node_argv
     from proxybench.runner.starts import start_pose
 
@@ -188,13 +230,20 @@ def _episode(job, lab: Lab, robot, bench, spec, held: _Lab, ep, split: str, fold
         proc = Launch(node_argv(spec.command), transport="none", env=env, stderr_lines=50)
         while True:
             time.sleep(_TICK)
-            held.observer.pump(time.monotonic())
+            try:
+                held.observer.pump(time.monotonic())
+            except RobotFailure as exc:
+                raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} failed in {what}: "
+                                f"{exc.detail}") from None
             if first is None and held.observer.heard.commands:
                 first = held.observer.heard.commands[0][0]
             reason = held.desk.intervention(nonce)
             if reason is not None:
                 raise HostFault(f"manual_intervention: the operator intervened on robot {robot.name!r} of lab "
                                 f"{lab.name!r} in {what}: {reason}")
+            if held.heartbeat.lost is not None:
+                raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} failed in {what}: "
+                                f"{held.heartbeat.lost}")
             if not held.relay.alive or not held.observer.alive:
                 raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} failed in {what}: its "
                                 f"DTPS link ({held.address}) ended")
@@ -202,6 +251,10 @@ def _episode(job, lab: Lab, robot, bench, spec, held: _Lab, ep, split: str, fold
             if first is not None and now - first >= bench.duration:
                 break
             if proc.exited():
+                gone = held.heartbeat.probe()  # a program that lost its robot is not at fault
+                if gone is not None:
+                    raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} failed in {what}: "
+                                    f"its DTPS server {held.address.host}:{held.address.port} went away ({gone})")
                 tail = proc.stderr.finish()
                 job.check_sandbox([tail])
                 ran = "before its first command" if first is None else f"{now - first:.1f} s into the episode"
