@@ -423,7 +423,7 @@ def _handle(world: LabWorld, conns: dict[Connection, str | None], blocked: dict,
         elif op == "step":
             r = world.robots[name]
             if r.ended is not None:  # the world ended it (the deadline) while its agent thought
-                _send(conn, {"ok": True, "frame": world._reply(r, (-1, -1), False)})
+                _send(conn, {"ok": True, "frame": world._reply(r, None, False)})  # no physics: it did not move
             else:
                 world.command(name, msg["pwm"])
         elif op == "end":
