@@ -21,7 +21,7 @@ as it is. See docs/autolab.md ("A lab") for an example::
     # world: shared                                 # the virtual robots share one floor (default own: one each)
     # operator: {folder: lab.operator, timeout_s: 600}      # where a person confirms placements, intervenes
     limits: {lost_s: 1.0, light_change: 0.2, end_slack_s: 1.0, max_episode_s: 120}
-    # drills: {streams_stop_s: 1.5, streams_stop: [wt01]}   # simulated faults (simulated watchtowers only)
+    # drills: {streams_stop_s: 1.5, streams_stop: [wt01], streams_stop_attempts: 1}   # simulated faults
 
 The watchtower layout is the existing layout model (:mod:`.watchtowers`); a calibration is the existing
 calibration file (:mod:`.calibration`: intrinsics as ROS's ``camera_info`` writes them, extrinsics in the map
@@ -197,18 +197,28 @@ class LabLimits(BaseModel):
 class Drills(BaseModel):
     """Faults a lab of simulated watchtowers plays on purpose, so that its operators (and tests) see how its
     evaluator handles them: ``streams_stop_s``: the watchtowers named in ``streams_stop`` (default: all) deliver no
-    frame after this episode time [s], as a camera whose network or driver stopped mid-episode."""
+    frame after this episode time [s], as a camera whose network or driver stopped mid-episode;
+    ``streams_stop_attempts``: only in the first this many attempts at each episode (default: every attempt), so
+    that a run made invalid is valid when the benchmark's ``invalid_retries`` runs it again."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     streams_stop_s: float | None = Field(None, gt=0.0, le=3600.0)
     streams_stop: list[str] = Field(default_factory=list)
+    streams_stop_attempts: int | None = Field(None, ge=1, le=100)
 
     @model_validator(mode="after")
     def _named(self) -> Drills:
         if self.streams_stop and self.streams_stop_s is None:
             raise ValueError("streams_stop: give streams_stop_s, the time they stop")
+        if self.streams_stop_attempts is not None and self.streams_stop_s is None:
+            raise ValueError("streams_stop_attempts: give streams_stop_s, the time they stop")
         return self
+
+    def stops_streams(self, attempt: int) -> bool:
+        """Whether the streams stop in this attempt (1: the first run) at an episode."""
+        return self.streams_stop_s is not None and (self.streams_stop_attempts is None
+                                                    or attempt <= self.streams_stop_attempts)
 
 
 class Lab(BaseModel):
@@ -337,7 +347,9 @@ def check_lab(lab: Lab, origin: str = "lab.yaml") -> list[str]:
                            "layout")
         if lab.drills.streams_stop_s is not None:
             which = ", ".join(lab.drills.streams_stop) or "all"
-            lines.append(f"drill: watchtower stream(s) {which} stop at t = {lab.drills.streams_stop_s:g} s")
+            first = lab.drills.streams_stop_attempts
+            lines.append(f"drill: watchtower stream(s) {which} stop at t = {lab.drills.streams_stop_s:g} s"
+                         + ("" if first is None else f" in the first {first} attempt(s) at each episode"))
     for s in lab.watchtowers.streams:
         try:
             load_calibration(s.calibration)

@@ -70,6 +70,28 @@ class AutolabEpisode:
     files: list[Path] = field(default_factory=list)
     online: dict[str, Any] | None = None  # what the online detection did (autolab.online), None: detected offline
     seen: list[str] = field(default_factory=list)  # the lab's robots the watchtowers localised (a shared world: all)
+    attempt: int = 1  # 1: the episode's first run; 2, …: run again because the one before was invalid
+    robot_record: str | None = None  # the robot's own trajectory of this attempt
+    earlier: list[AutolabEpisode] = field(default_factory=list)  # the invalid attempts before this one, in order
+
+    @property
+    def fit(self) -> bool:
+        """Whether it can be scored: valid, and localised at least twice."""
+        return self.valid and self.trajectory is not None
+
+    @property
+    def verdict(self) -> str:
+        """``valid``, ``tracking_lost`` (the watchtowers lost the robot) or ``invalid`` (another DTA rule)."""
+        return "valid" if self.fit else "tracking_lost" if self.lost or self.trajectory is None else "invalid"
+
+    def why(self) -> str:
+        """Why it is not fit to be scored, in one line."""
+        return "; ".join(self.reasons) or "the watchtowers localised the robot fewer than twice"
+
+    def attempt_report(self) -> dict[str, Any]:
+        """This attempt in the report's ``attempts``: its number, the DTA's verdict and why."""
+        return {"attempt": self.attempt, "verdict": self.verdict, "reasons": [] if self.fit else [self.why()],
+                "samples": self.samples, "frames": self.frames}
 
     def report(self) -> dict[str, Any]:
         from proxybench.evaluator.report import clean
@@ -78,7 +100,8 @@ class AutolabEpisode:
                 "frames": self.frames, "scores": {k: clean(v) for k, v in self.scores.items()},
                 "localization_median_error_m": clean(self.error_median_m),
                 "localization_p95_error_m": clean(self.error_p95_m), "online_detection": self.online,
-                "robots_localised": self.seen}
+                "robots_localised": self.seen, "attempt": self.attempt,
+                "attempts": [e.attempt_report() for e in [*self.earlier, self]]}
 
 
 def _check_lab(lab: Lab, bench, robot_name: str | None = None) -> None:
@@ -123,13 +146,14 @@ def _errors(truth, t: np.ndarray, pose: np.ndarray) -> np.ndarray:
     return np.hypot(pose[:, 0] - x, pose[:, 1] - y)
 
 
-def stop_streams(streams: Path, lab: Lab) -> list[str]:
+def stop_streams(streams: Path, lab: Lab, attempt: int = 1) -> list[str]:
     """The lab's drill (``drills.streams_stop_s``): the named watchtowers' recordings (default all) end at that
-    episode time, their later frames gone, as a camera whose stream stopped; the watchtowers stopped."""
+    episode time, their later frames gone, as a camera whose stream stopped; the watchtowers stopped. ``attempt``:
+    which run of the episode this is (``drills.streams_stop_attempts`` may spare the later ones)."""
     import csv
 
     at = lab.drills.streams_stop_s
-    if at is None:
+    if at is None or not lab.drills.stops_streams(attempt):
         return []
     names = lab.drills.streams_stop or sorted(p.name for p in streams.iterdir() if p.is_dir())
     for name in names:
@@ -157,10 +181,11 @@ def world_tags(robot: str) -> dict[int, str]:
 
 
 def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics,
-                     robot: str | None = None, online=None) -> AutolabEpisode:
+                     robot: str | None = None, online=None, attempt: int = 1) -> AutolabEpisode:
     """One episode's streams → log → localised, validated and scored (see the module); ``robot``: the lab's robot
     that drove it (None: the first); ``online``: the episode's frames as detected while it ran
-    (:class:`~proxybench.autolab.online.OnlineEpisode`: only the pose graph is left; None: detected here)."""
+    (:class:`~proxybench.autolab.online.OnlineEpisode`: only the pose graph is left; None: detected here);
+    ``attempt``: which run of the episode this is (1: the first; an invalid one is run again, ``invalid_retries``)."""
     from proxybench.autolab.localize import localize_log
     from proxybench.autolab.logs import LogManifest, read_log, write_sim_log
     from proxybench.autolab.target import track_table
@@ -175,7 +200,7 @@ def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics,
     truth = Trajectory.load(res.trajectory) if res.trajectory else None
     ended = None if res.termination is Termination.TIMEOUT else str(res.termination)
     shutil.copytree(res.streams, folder / "streams")
-    stop_streams(folder / "streams", lab)
+    stop_streams(folder / "streams", lab, attempt)
     manifest = LogManifest(source="simulation", map=bench.map, agent="agent", episode=res.episode,
                            seconds=bench.duration, termination=ended, active=robot,
                            robots=lab.roof_tags() if lab.world == "shared" else world_tags(robot))
@@ -195,7 +220,8 @@ def localize_episode(res, bench, lab: Lab, layout, m, folder: Path, metrics,
     lost = any("lost" in r or "never localised" in r for r in verdict.reasons)
     episode = AutolabEpisode(res.episode, None, {}, verdict.valid, list(verdict.reasons), lost,
                              0 if track is None else int(track.t.size), loc.frames,
-                             online=online.report() if online is not None else None, seen=sorted(loc.robots))
+                             online=online.report() if online is not None else None, seen=sorted(loc.robots),
+                             attempt=attempt, robot_record=res.trajectory or None)
     if track is None or track.t.size < 2:
         return episode
     import pandas as pd
@@ -249,7 +275,12 @@ def _scores(episodes: list[AutolabEpisode], bench) -> dict[str, float | None]:
 
 def _pack(path: Path, ev, episodes: list[AutolabEpisode]) -> Path:
     """``episode-<k>.parquet`` (localised: what was scored), ``episode-<k>-track.csv`` (with σ and views),
-    ``episode-<k>-errors.csv`` (against the robot's record) and ``robot-episode-<k>.parquet`` (the robot's own)."""
+    ``episode-<k>-errors.csv`` (against the robot's record) and ``robot-episode-<k>.parquet`` (the robot's own);
+    an episode run again because it was invalid keeps each attempt before the last under
+    ``episode-<k>-attempt-<a>…`` and ``robot-episode-<k>-attempt-<a>.parquet``, and ``attempts.json`` lists every
+    attempt of every episode (number, verdict, reasons)."""
+    import json
+
     by_ep = {r.episode: r for r in ev.sweep.results}
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         for e in episodes:
@@ -259,11 +290,35 @@ def _pack(path: Path, ev, episodes: list[AutolabEpisode]) -> Path:
             r = by_ep.get(e.episode)
             if r is not None and r.trajectory and Path(r.trajectory).is_file():
                 zf.write(r.trajectory, f"robot-episode-{e.episode}.parquet")
+            for a in e.earlier:
+                name = f"episode-{e.episode}-attempt-{a.attempt}"
+                for f in a.files:
+                    zf.write(f, f"{name}{'' if f.suffix == '.parquet' else f'-{f.stem}'}{f.suffix}")
+                if a.robot_record and Path(a.robot_record).is_file():
+                    zf.write(a.robot_record, f"robot-{name}.parquet")
+        zf.writestr("attempts.json", json.dumps({str(e.episode): [a.attempt_report() for a in [*e.earlier, e]]
+                                                 for e in episodes}, indent=1))
     return path
 
 
-def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str, float | None]:
-    """Episodes on the lab's robot with its watchtowers recording; localised, validated, scored (the module)."""
+@dataclass
+class _Driven:
+    """One run of a split's episodes on the robot (all of them, or the invalid ones again): the split's evaluation
+    (a re-run's results put in place of the attempts before), the robot's record of it, this run's episodes as the
+    watchtowers measured them, what the DTPS reader received (None: no reader) and how many watchtowers watched."""
+
+    ev: Any
+    record: Any
+    episodes: list[AutolabEpisode]
+    streams: list[dict[str, Any]] | None
+    towers: int
+
+
+def _drive(job, lab: Lab, bench, spec, split: str, hidden: bool, attempt: int = 1,
+           only: set[int] | None = None, base=None) -> _Driven:
+    """Episodes on the lab's robot with its watchtowers recording, each localised and validated (the module):
+    every episode of ``bench``, or with ``only`` those again (``attempt`` 2, …: the run of each before was invalid,
+    :func:`_retry_invalid`), their results put into ``base``, the split's evaluation so far."""
     from proxybench.autolab.calibration import stream_spec
     from proxybench.autolab.live import live_streams
     from proxybench.autolab.online import OnlineDetector
@@ -274,11 +329,12 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     from proxybench.protocol.failures import AgentFailure
     from proxybench.runner.backends import InlineBackend
     from proxybench.runner.episode import PrivilegedAgentError
-    from proxybench.runner.evaluate import evaluate_benchmark
+    from proxybench.runner.evaluate import evaluate_benchmark, with_reruns
     from proxybench.runner.jobs import is_privileged
     from proxybench.tasks.metrics import METRICS
 
-    job.phase = split
+    job.phase = split if attempt == 1 else f"{split} attempt {attempt}"
+    runs = job.dir / "runs" / (split if attempt == 1 else f"{split}-attempt-{attempt}")
     m = load_map(bench.map)
     layout = lab.layout(m) if lab.watchtowers.layout is not None else None
     # each frame detected as it arrives (autolab.online): after an episode only its pose graph is left
@@ -291,14 +347,14 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     towers = len(live.names) if live is not None else len(layout.watchtowers)
     robot = lab.robot(job.job.autolab_robot)
     world = job.job.lab_world  # world: shared: the episodes run in the lab's one world, which records the towers
-    domain = None if world is None else shared_domain(world, robot.name, bench, job.dir / "runs" / split / "towers")
-    log.info("%s: %d episodes of %g s on lab %r's robot %r (virtual), %d watchtowers recording%s", split,
-             len(bench.episode_specs()), bench.duration, lab.name, robot.name, towers,
-             "" if live is None else " over DTPS")
+    domain = None if world is None else shared_domain(world, robot.name, bench, runs / "towers")
+    log.info("%s: %d episodes of %g s on lab %r's robot %r (virtual), %d watchtowers recording%s%s", split,
+             len(bench.episode_specs()) if only is None else len(only), bench.duration, lab.name, robot.name, towers,
+             "" if live is None else " over DTPS", "" if attempt == 1 else f"; attempt {attempt}")
     try:
-        ev = evaluate_benchmark(bench, [spec], job.dir / "runs" / split, InlineBackend(),
+        ev = evaluate_benchmark(bench, [spec], runs, InlineBackend(),
                                 streams=streams if world is None else None, domain=domain,
-                                privileged=is_privileged, progress=job.progress)
+                                privileged=is_privileged, progress=job.progress, episodes=only)
     except ReaderError as exc:
         raise HostFault(f"watchtowers: {exc}") from None
     except AgentFailure as exc:
@@ -321,6 +377,8 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
         hit = next(filter(None, (contact_invalid(r, split, robot.name) for r in ev.sweep.results)), None)
         if hit is not None:
             raise HostFault(hit)
+    ran = ev  # this run's episodes; the split's evaluation holds the earlier attempts' valid ones beside them
+    ev = ev if base is None else with_reruns(base, ev)
     record = summarize(ev, split, domain_kind="autolab/virtual")
     dead = [f for f in record.failures if str(f.get("message", "")).startswith("RobotFailure:")]
     if dead:  # the robot's DTPS endpoint died under the agent: the lab's fault, whatever the agent did after
@@ -336,11 +394,13 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
         raise SubmissionFault(record.failure_message())
     job.phase = f"{split} localisation"
     episodes = []
-    for k, res in enumerate(sorted(ev.sweep.results, key=lambda r: r.episode)):
-        episodes.append(localize_episode(res, bench, lab, layout, m, job.dir / "autolab" / split / str(res.episode),
-                                         METRICS, robot.name,
-                                         online.episode(res.streams) if res.streams and world is None else None))
-        job.progress(k + 1, len(ev.sweep.results))
+    for k, res in enumerate(sorted(ran.sweep.results, key=lambda r: r.episode)):
+        name = str(res.episode) if attempt == 1 else f"{res.episode}-attempt-{attempt}"  # every attempt kept
+        folder = job.dir / "autolab" / split / name
+        episodes.append(localize_episode(res, bench, lab, layout, m, folder, METRICS, robot.name,
+                                         online.episode(res.streams) if res.streams and world is None else None,
+                                         attempt=attempt))
+        job.progress(k + 1, len(ran.sweep.results))
         e = episodes[-1]
         log.info("%s episode %d: %d frames, %d samples, %s%s", split, e.episode, e.frames, e.samples,
                  "valid" if e.valid else "INVALID: " + "; ".join(e.reasons),
@@ -348,12 +408,45 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
         if e.online is not None:
             log.info("%s episode %d: detected online: %d frames, %d dropped, at most %d queued", split, e.episode,
                      e.online["frames"], sum(e.online["dropped"].values()), e.online["max_queued"])
+    return _Driven(ev, record, episodes, None if live is None else [e.report() for e in live.sink.episodes], towers)
+
+
+def _retry_invalid(job, lab: Lab, bench, spec, split: str, hidden: bool, driven: _Driven) -> _Driven:
+    """Run each episode the DTA's validation found invalid again on the robot (reset to its start, as every episode
+    is), up to the benchmark's ``invalid_retries`` times: a run the lab measured badly (the robot lost, the light
+    changed, a stream stopped) is the lab's fault, not the agent's, so the job only fails over to another lab once
+    the retries are spent. Each episode keeps its attempts before (``earlier``): every one is in the report and
+    the artifacts."""
+    robot = lab.robot(job.job.autolab_robot).name
+    for attempt in range(2, bench.invalid_retries + 2):
+        bad = {e.episode: e for e in driven.episodes if not e.fit}
+        if not bad:
+            break
+        for e in bad.values():
+            log.warning("%s episode %d is %s (%s): resetting robot %r and running it again (attempt %d of %d)",
+                        split, e.episode, e.verdict, e.why(), robot, attempt, bench.invalid_retries + 1)
+        job.allow_extra_wall(len(bad) * bench.duration * bench.wall_time_factor)  # the lab's time, not the agent's
+        again = _drive(job, lab, bench, spec, split, hidden, attempt, set(bad), driven.ev)
+        for e in again.episodes:
+            e.earlier = [*bad[e.episode].earlier, bad[e.episode]]
+        redone = {e.episode: e for e in again.episodes}
+        driven = _Driven(again.ev, again.record, [redone.get(e.episode, e) for e in driven.episodes],
+                         None if driven.streams is None else [*driven.streams, *(again.streams or [])], again.towers)
+    return driven
+
+
+def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str, float | None]:
+    """Episodes on the lab's robot with its watchtowers recording; localised, validated, scored (the module), an
+    invalid one run again as the benchmark says (``invalid_retries``)."""
+    driven = _retry_invalid(job, lab, bench, spec, split, hidden, _drive(job, lab, bench, spec, split, hidden))
+    ev, record, episodes, towers = driven.ev, driven.record, driven.episodes, driven.towers
+    robot = lab.robot(job.job.autolab_robot)
     report = dict(record.report)
     report.update(domain_kind="autolab/virtual", measured_by="watchtowers", lab=lab.name, robot=robot.name,
                   watchtowers=towers, localization=[e.report() for e in episodes],
-                  robot_reported_scores=record.scores)
-    if live is not None:  # what the DTPS reader received per episode (frames, bad messages, frames lost)
-        report["watchtower_streams"] = [e.report() for e in live.sink.episodes]
+                  robot_reported_scores=record.scores, invalid_retries=bench.invalid_retries)
+    if driven.streams is not None:  # what the DTPS reader received per episode (frames, bad messages, frames lost)
+        report["watchtower_streams"] = driven.streams
     errs = [e.error_median_m for e in episodes if e.error_median_m is not None]
     report["localization_median_error_m"] = float(np.median(errs)) if errs else None
     for row, e in zip(report["episodes"], episodes, strict=True):
@@ -364,15 +457,22 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
         job.outcome.public_report.update(report)
     zip_path = _pack(job.dir / f"trajectories-{split}.zip", ev, episodes)
     job.outcome.artifacts.append(Artifact(zip_path.name, str(zip_path), hidden, "application/zip"))
-    bad = [e for e in episodes if not e.valid or e.trajectory is None]
-    if bad:
-        e = bad[0]
-        word = "tracking_lost" if e.lost or e.trajectory is None else "invalid"
-        raise HostFault(f"{word}: {split} episode {e.episode} is not fit to be scored (the DTA's validation): "
-                        + ("; ".join(e.reasons) or "the watchtowers localised the robot fewer than twice"))
+    bad = [e for e in episodes if not e.fit]
+    if bad:  # the retries are spent: the lab's fault, the job goes back to the queue for another lab
+        raise HostFault(_unfit(bad[0], split, bench.invalid_retries))
     if not hidden and job.job.video and episodes[0].trajectory is not None:
         _video(job, episodes[0].trajectory, bench)
     return _scores(episodes, bench)
+
+
+def _unfit(e: AutolabEpisode, split: str, retries: int) -> str:
+    """The host error of an episode still invalid after every attempt: the verdict, the reasons, each attempt's."""
+    attempts = [*e.earlier, e]
+    text = f"{e.verdict}: {split} episode {e.episode} is not fit to be scored (the DTA's validation): {e.why()}"
+    if len(attempts) == 1:
+        return text + (" (invalid_retries: 0)" if retries == 0 else "")
+    return (text + f"; after {len(attempts)} attempts (the benchmark's invalid_retries: {retries}): "
+            + "; ".join(f"attempt {a.attempt}: {a.verdict} ({a.why()})" for a in attempts))
 
 
 def _video(job, trajectory: Path, bench) -> None:

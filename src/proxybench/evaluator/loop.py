@@ -99,6 +99,16 @@ class Reporter:
         log.info("%s", text)
 
 
+def _extra_wall(progress: dict[str, Any] | None, budget: float | None) -> float:
+    """The wall-clock time the worker added to the job's budget (``extra_wall_s`` in its progress: an Autolab's
+    re-runs of invalid episodes, the lab's time), at most ten budgets (the most retries a benchmark may ask)."""
+    try:
+        extra = float((progress or {}).get("extra_wall_s", 0.0))
+    except (TypeError, ValueError):
+        return 0.0
+    return min(max(extra, 0.0), 10.0 * (budget or 0.0)) if math.isfinite(extra) else 0.0
+
+
 class _Heartbeat(threading.Thread):
     """Extends one lease until stopped; sets ``lost`` on a 409 (or 404) answer."""
 
@@ -356,7 +366,7 @@ class Evaluator:
         worker.give(job.path)
         try:
             while worker.proc.poll() is None and not heart.lost.is_set() and not self._stopping.is_set():
-                if time.monotonic() > deadline:
+                if time.monotonic() > deadline + _extra_wall(heart.progress, budget):
                     break
                 self._wake.wait(0.25)
                 self._wake.clear()  # the events themselves say what happened
@@ -372,7 +382,7 @@ class Evaluator:
                 return job_artifacts_only(Outcome.parse(sent), job.path)
             except ValueError as exc:
                 log.error("job %s: the worker's outcome is unusable: %s", lease.job_id, exc)
-        if time.monotonic() > deadline:  # the submission's fault: its agent answered too slowly
+        if time.monotonic() > deadline + _extra_wall(heart.progress, budget):  # the agent answered too slowly
             outcome = Outcome("failed", self._over_budget(lease.benchmark, budget or 0.0))
         elif self._stopping.is_set():
             outcome = Outcome("aborted", f"evaluator {self.config.name!r} was stopped ({self.stop_reason}) while "

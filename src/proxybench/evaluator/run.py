@@ -93,9 +93,20 @@ class _Job:
         self.phase = "setup"
         self.unsafe = False  # an agent package ran outside the safe sandbox (developer's flag)
         self.ground_truth = True  # the target reports the true lane pose (its compliance probe says)
+        self.extra_wall_s = 0.0  # wall-clock time the lab added to the job's budget (an Autolab's re-runs)
 
     def progress(self, done: int, total: int) -> None:
-        _write_json(self.dir / "progress.json", {"phase": self.phase, "done": done, "total": total})
+        state = {"phase": self.phase, "done": done, "total": total}
+        if self.extra_wall_s:
+            state["extra_wall_s"] = self.extra_wall_s
+        _write_json(self.dir / "progress.json", state)
+
+    def allow_extra_wall(self, seconds: float) -> None:
+        """Give the job ``seconds`` more of wall-clock time (an Autolab running an invalid episode again: the lab's
+        time, which must not make the agent's job ``failed`` for running past its budget); the evaluator reads it
+        from ``progress.json``."""
+        self.extra_wall_s += max(0.0, seconds)
+        self.progress(0, 0)
 
     # -- setup -------------------------------------------------------------------------------------
 

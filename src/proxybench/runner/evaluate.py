@@ -6,8 +6,8 @@ CLI only prints.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Collection, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from proxybench.domain.kinds import DomainKind
@@ -18,7 +18,7 @@ from proxybench.runner.sweep import SweepResult, results_frame, run_jobs
 from proxybench.tasks.benchmark import NAMED_DOMAINS, Benchmark, BenchmarkError
 from proxybench.tasks.scoring import Rank, leaderboard
 
-__all__ = ["Evaluation", "benchmark_domain", "evaluate_benchmark"]
+__all__ = ["Evaluation", "benchmark_domain", "evaluate_benchmark", "with_reruns"]
 
 
 @dataclass
@@ -52,6 +52,7 @@ def evaluate_benchmark(
     bench: Benchmark, agents: Sequence[AgentSpec], run_dir: str | Path, backend: Backend | None = None, *,
     domain: str | DomainSpec | None = None, privileged: Callable[[AgentSpec], bool] | None = None,
     progress: Callable[[int, int], None] | None = None, streams: StreamSpec | None = None,
+    episodes: Collection[int] | None = None,
 ) -> Evaluation:
     """Run every admitted agent on every episode of ``bench``; rank them by the benchmark's criteria.
 
@@ -60,10 +61,10 @@ def evaluate_benchmark(
     domain's episodes go through the same jobs, cache and resume, with the benchmark's starts and routes.
     Agents that the benchmark does not admit (privileged ones on a camera-only benchmark) are left out
     and listed in ``refused`` with the reason. ``streams``: fixed cameras (a lab's watchtowers) recorded in every
-    episode, beside its trajectory in the run directory (``JobResult.streams``).
+    episode, beside its trajectory in the run directory (``JobResult.streams``). ``episodes``: run only the
+    episodes of these indices (an Autolab's re-run of an invalid episode: its own seed, start and route), the
+    evaluation then holding theirs alone (:func:`with_reruns` puts them into the whole split's).
     """
-    from proxybench.tasks.aggregate import aggregate, scores_by_agent
-
     refused: dict[str, str] = {}
     admitted = []
     for a in agents:
@@ -84,10 +85,31 @@ def evaluate_benchmark(
         npcs = None
     jobs = [Job(a, dom, bench.map, ep.index, ep.seed, bench.duration, ep.pose, bench.camera_only, metrics,
                 route=ep.route, npcs=npcs, streams=streams)
-            for a in admitted for ep in bench.episode_specs()]
+            for a in admitted for ep in bench.episode_specs() if episodes is None or ep.index in episodes]
     sweep = run_jobs(jobs, run_dir, backend or InlineBackend(),
                      progress=(lambda d, t, _r: progress(d, t)) if progress else None)
+    return _evaluation(bench, sweep, refused)
+
+
+def _evaluation(bench: Benchmark, sweep: SweepResult, refused: dict[str, str]) -> Evaluation:
+    """The aggregates and the leaderboard of a sweep's results."""
+    from proxybench.tasks.aggregate import aggregate, scores_by_agent
+
     frame = results_frame(sweep.results)
     agg = aggregate(frame[["agent", "domain", "episode", "metric", "value"]], n_resamples=1000)
     ranks = leaderboard(scores_by_agent(agg), bench.criteria())
     return Evaluation(bench, ranks, agg, sweep, refused)
+
+
+def with_reruns(ev: Evaluation, rerun: Evaluation) -> Evaluation:
+    """``ev`` with the results of each (agent, episode) that ``rerun`` ran again replaced by the re-run's (an
+    Autolab's retry of an invalid run: the last attempt is the episode's), aggregates and leaderboard recomputed;
+    the sweep's costs are both sweeps'. ``ev`` itself is left as it was."""
+    again = {(r.agent, r.episode): r for r in rerun.sweep.results}
+    results = [again.pop((r.agent, r.episode), r) for r in ev.sweep.results]
+    timings = dict(ev.sweep.timings)
+    for k, v in rerun.sweep.timings.items():
+        timings[k] = timings.get(k, 0.0) + v
+    sweep = replace(ev.sweep, results=[*results, *again.values()], cached=ev.sweep.cached + rerun.sweep.cached,
+                    ran=ev.sweep.ran + rerun.sweep.ran, wall_s=ev.sweep.wall_s + rerun.sweep.wall_s, timings=timings)
+    return _evaluation(ev.benchmark, sweep, ev.refused)

@@ -102,6 +102,8 @@ def public_view(row: BenchmarkVersion, superuser: bool) -> dict[str, Any]:
     out = {"name": row.name, "version": row.version, "description": row.description, "features": row.features,
            "spec_yaml": row.spec_yaml, "spec_hash": row.spec_hash, "created_at": row.created_at,
            "has_hidden_split": row.test_seed is not None}
+    if "autolab" in (row.features or []):  # how often an Autolab runs an invalid episode again (docs/autolab.md)
+        out["invalid_retries"] = benchmark_of(row).invalid_retries
     if superuser:
         out["test_seed"] = row.test_seed
     return out

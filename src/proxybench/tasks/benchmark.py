@@ -246,6 +246,11 @@ class Benchmark(_Strict):
         20.0, ge=1.0, le=1000.0, allow_inf_nan=False,
         description="an evaluator gives a job at most this multiple of its simulated time (every episode of every "
                     "split) in wall-clock time, plus a start-up allowance; beyond, the job ends failed")
+    invalid_retries: int = Field(
+        2, ge=0, le=10,
+        description="an Autolab (feature autolab) runs an episode its watchtowers' measurement made invalid (the DTA's "
+                    "validation: the robot lost, the light changed, the recording ended early) again on the robot, "
+                    "reset, up to this many times within the job; only then is the job the lab's host-error")
     agents: list[AgentEntry] = Field(default_factory=list, description="agents `evaluate` runs when none are named: "
                                      "zoo names, or {name, command, cwd, transport, ...} of agent nodes")
 

@@ -156,6 +156,8 @@ class BenchmarkOut(_Out):
     spec_hash: str
     created_at: float
     has_hidden_split: bool
+    invalid_retries: int | None = Field(None, description="Autolab benchmarks (feature autolab): how many times an "
+                                        "episode the watchtowers' measurement made invalid is run again in one job")
     test_seed: int | None = Field(None, description="super-users only")
     created: bool | None = Field(None, description="uploads: whether this made a new version")
 
