@@ -24,6 +24,7 @@ an agent that fails is the submission's.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import time
@@ -105,7 +106,6 @@ def _agent_failed(job, traj, split: str, episode: int, hidden: bool) -> Submissi
 def _episode(job, lab: Lab, bench, spec, conn, live, desk, ep, split: str, folder: Path, m):
     """One episode on the node (see the module): (the streams recorded, the node's trajectory, first command)."""
     from proxybench.protocol.failures import RobotFailure
-    from proxybench.runner.outcomes import make_agent_for
     from proxybench.runner.robot_episode import run_episode_on_plant
     from proxybench.runner.rollout import PrivilegedAgentError
     from proxybench.runner.starts import start_pose
@@ -117,33 +117,48 @@ def _episode(job, lab: Lab, bench, spec, conn, live, desk, ep, split: str, folde
     waited = _place(desk, f"place robot {robot.name} at x={x:.3f} m, y={y:.3f} m, θ={th * 57.29578:.1f}° for "
                           f"{what}", lab.operator.timeout_s)
     log.info("%s: the operator placed %s after %.1f s", what, robot.name, waited)
-    agent = make_agent_for(spec)
+    with contextlib.ExitStack() as held:  # undone in reverse: the agent ended first, then the recording, the desk
+        nonce = desk.open_episode(what)
+        held.callback(desk.close_episode)
+        live.sink.begin(folder / "streams")
+        held.callback(live.sink.end)
+        agent = _start_agent(job, spec, bench)
+        held.callback(getattr(agent, "close", lambda: None))
+        plant = _Watched(conn.plant(m), desk, nonce, f"robot {robot.name!r} of lab {lab.name!r} in {what}")
+        try:
+            traj = run_episode_on_plant(
+                plant, agent, ep.seed, bench.duration, pose=tuple(pose),
+                route=None if ep.route is None else list(ep.route),
+                camera=not agent.privileged or getattr(agent, "wants_camera", False),
+                allow_privileged=not bench.camera_only,
+                meta={"map": bench.map, "episode": ep.index, "domain": f"lab:{lab.name}/{robot.name}",
+                      "domain_kind": "robot"})
+        except RobotFailure as exc:
+            raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} failed in {what}: {exc}") \
+                from None
+        except PrivilegedAgentError as exc:
+            raise SubmissionFault(str(exc)) from None
+    if plant.first is None:  # the runner sends a command every frame: an episode without one never stepped
+        raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} ran no frame in {what}")
+    return live.sink.episodes[-1], traj, plant.first
+
+
+def _start_agent(job, spec, bench):
+    """The job's agent started (:func:`~proxybench.runner.outcomes.make_agent_for`: sandboxed as the spec says); one
+    that fails to start, or is privileged on a camera-only benchmark, is the submission's fault."""
+    from proxybench.protocol.failures import AgentFailure
+    from proxybench.runner.outcomes import make_agent_for
+
+    try:
+        agent = make_agent_for(spec)
+    except AgentFailure as exc:
+        job.check_sandbox([exc.stderr_tail])
+        raise SubmissionFault(f"the agent did not start: {exc}") from None
     if agent.privileged and bench.camera_only:
         getattr(agent, "close", lambda: None)()
         raise SubmissionFault(f"agent {spec.name!r} is privileged (reads the true lane pose); benchmark "
                               f"{bench.name!r} admits camera-only agents")
-    nonce = desk.open_episode(what)
-    live.sink.begin(folder / "streams")
-    plant = _Watched(conn.plant(m), desk, nonce, f"robot {robot.name!r} of lab {lab.name!r} in {what}")
-    try:
-        traj = run_episode_on_plant(
-            plant, agent, ep.seed, bench.duration, pose=tuple(pose),
-            route=None if ep.route is None else list(ep.route),
-            camera=not agent.privileged or getattr(agent, "wants_camera", False),
-            allow_privileged=not bench.camera_only,
-            meta={"map": bench.map, "episode": ep.index, "domain": f"lab:{lab.name}/{robot.name}",
-                  "domain_kind": "robot"})
-    except RobotFailure as exc:
-        raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} failed in {what}: {exc}") from None
-    except PrivilegedAgentError as exc:
-        raise SubmissionFault(str(exc)) from None
-    finally:
-        getattr(agent, "close", lambda: None)()
-        desk.close_episode()
-        live.sink.end()
-    if plant.first is None:  # the runner sends a command every frame: an episode without one never stepped
-        raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} ran no frame in {what}")
-    return live.sink.episodes[-1], traj, plant.first
+    return agent
 
 
 def _place(desk, request: str, timeout_s: float) -> float:
