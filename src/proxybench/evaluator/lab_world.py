@@ -106,9 +106,9 @@ def episode_streams(res):
     return dataclasses.replace(res, streams=said.get("streams"))
 
 
-def contact_invalid(res, split: str, robot: str) -> str | None:
-    """Why episode ``res`` is invalid by the lab's collision rule: another robot ran into this one (None: it was not
-    hit, or it was at fault too and ended as a ``collision``)."""
+def contact_invalid(res) -> str | None:
+    """Why episode ``res`` is invalid by the lab's collision rule, as a reason of the DTA's verdict: another robot ran
+    into this one (None: it was not hit, or it was at fault too and ended as a ``collision``)."""
     from proxybench.runner.lab_world import CONTACT_EVENT
     from proxybench.tasks.trajectory import Trajectory
 
@@ -117,5 +117,4 @@ def contact_invalid(res, split: str, robot: str) -> str | None:
     hit = Trajectory.load(res.trajectory).event(CONTACT_EVENT)
     if hit is None:
         return None
-    return (f"invalid: {split} episode {res.episode} on robot {robot!r} is not fit to be scored: at "
-            f"t = {hit.t:.2f} s {hit.message}; it is run again")
+    return f"at t = {hit.t:.2f} s {hit.message}"
