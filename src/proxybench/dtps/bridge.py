@@ -340,16 +340,13 @@ class Server:
     def _on_command(self, topic: str):
         async def on_data(rd) -> None:
             try:
-                msg = rd.get_as_native_object()
-                left, right = msg["left"], msg["right"]
-                if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in (left, right)):
-                    raise TypeError(f"left/right are {type(left).__name__}/{type(right).__name__}, not numbers")
+                left, right = _wheels(rd.get_as_native_object())
             except Exception as exc:
                 self.out.send(ev="bad", topic=topic, detail=f"{type(exc).__name__}: {exc}"[:500])
                 return
             self.count += 1
             self.answered = True
-            self.out.send(ev="cmd", topic=topic, left=float(left), right=float(right), seq=self.seq, n=self.count,
+            self.out.send(ev="cmd", topic=topic, left=left, right=right, seq=self.seq, n=self.count,
                           wall=time.time())
         return on_data
 
@@ -478,11 +475,9 @@ class Client:
         async def on_data(rd) -> None:
             try:
                 msg = rd.get_as_native_object()
-                left, right = msg["left"], msg["right"]
-                if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in (left, right)):
-                    raise TypeError(f"left/right are {type(left).__name__}/{type(right).__name__}, not numbers")
+                left, right = _wheels(msg)
                 stamp = (msg.get("header") or {}).get("timestamp")
-                self.out.send(ev="command", topic=topic, left=float(left), right=float(right),
+                self.out.send(ev="command", topic=topic, left=left, right=right,
                               stamp=stamp if isinstance(stamp, float) else None, wall=time.time())
             except Exception as exc:
                 self.out.send(ev="bad", topic=topic, detail=f"{type(exc).__name__}: {exc}"[:500])
@@ -618,6 +613,14 @@ def _pose_of(msg: dict) -> list[float]:
         w, x, y, z = (float(q[k]) for k in "wxyz")
         return [float(p["x"]), float(p["y"]), math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))]
     return [float(msg["x"]), float(msg["y"]), float(msg.get("theta", msg.get("yaw", 0.0)))]
+
+
+def _wheels(msg: dict) -> tuple[float, float]:
+    """(left, right) of a wheel command (a WheelsCmd message); TypeError/KeyError when they are not numbers."""
+    left, right = msg["left"], msg["right"]
+    if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in (left, right)):
+        raise TypeError(f"left/right are {type(left).__name__}/{type(right).__name__}, not numbers")
+    return float(left), float(right)
 
 
 def _own_network() -> None:
