@@ -11,6 +11,7 @@ import contextlib
 import os
 import select
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -107,6 +108,15 @@ class BridgeLink:
             self._pump(left)
         out, self.events = self.events, []
         return out
+
+    def drain(self, deadline: float, handle: Callable[[dict[str, Any]], None]) -> None:
+        """Every event that arrives until ``deadline`` (monotonic) handed to ``handle``, in order; :class:`BridgeError`
+        when the bridge ends."""
+        while True:
+            for ev in self.poll(deadline):
+                handle(ev)
+            if time.monotonic() >= deadline:
+                return
 
     def wait_for(self, kind: str, deadline: float) -> dict[str, Any]:
         """The first event ``kind`` (the others stay queued for :meth:`poll`); :class:`BridgeError` at the deadline

@@ -62,11 +62,7 @@ class RobotObserver:
     def pump(self, deadline: float) -> None:
         """Take what the bridge heard until ``deadline`` (monotonic)."""
         try:
-            while True:
-                for ev in self.link.poll(deadline):
-                    self._event(ev)
-                if time.monotonic() >= deadline:
-                    return
+            self.link.drain(deadline, self._event)
         except BridgeError as exc:
             raise RobotFailure("exited", f"the DTPS link to the robot {self.address} ended: {exc.detail}",
                                exc.exit_code, exc.stderr_tail) from None

@@ -53,11 +53,7 @@ class DtpsRobotLink:
     def pump(self, deadline: float) -> None:
         """Take what the robot sent until ``deadline`` (monotonic)."""
         try:
-            while True:
-                for ev in self.link.poll(deadline):
-                    self._event(ev)
-                if time.monotonic() >= deadline:
-                    return
+            self.link.drain(deadline, self._event)
         except BridgeError as exc:
             raise RobotFailure("exited", f"the DTPS bridge to {self.address} ended: {exc.detail}", exc.exit_code,
                                exc.stderr_tail) from None
