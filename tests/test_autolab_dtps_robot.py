@@ -27,35 +27,13 @@ import pytest
 
 from proxybench.autolab.lab import load_lab
 from proxybench.autolab.operator import OperatorDesk, OperatorError, OperatorTimeout, confirm_ready, intervene
-
-LAB = """\
-format: proxybench-lab/1
-name: real-lab
-map: loop_3x3
-robots:
-  - {name: db1, dtps: 127.0.0.1:PORT/robot/map_0/vehicle_0}
-watchtowers:
-  streams: []
-reset: {mode: operator}
-operator: {timeout_s: 600}
-"""
+from support.real_robot import LAB, answer, operator_places, run_lab_job, submit, write_lab
 
 
 def _lab(tmp_path: Path, text: str = LAB.replace("PORT", "7599").replace("streams: []", "streams: [{name: wt1, "
                                                  "dtps: 127.0.0.1:7600/wt1, calibration: c.yaml}]")):
     (tmp_path / "lab.yaml").write_text(text)
     return load_lab(tmp_path / "lab.yaml")
-
-
-def _answer(fn, path: Path, *args) -> threading.Thread:
-    """A thread that calls ``fn(*args)`` once ``path`` exists (the operator, reacting to the desk)."""
-    def run() -> None:
-        while not path.exists():
-            time.sleep(0.02)
-        fn(*args)
-    t = threading.Thread(target=run, daemon=True)
-    t.start()
-    return t
 
 
 # -- the operator's desk ---------------------------------------------------------------------------------------
@@ -69,7 +47,7 @@ def test_a_placement_waits_for_the_operator_and_a_stale_confirmation_never_count
     (desk.folder / "ready-0123456789abcdef").write_text("{}")  # an answer to an earlier request
     with pytest.raises(OperatorTimeout, match=r"operator-timeout: no one confirmed robot 'db1' placed .*at x=1"):
         desk.place("at x=1", 0.3)
-    asked = _answer(confirm_ready, desk.folder / "waiting.json", lab, "db1")
+    asked = answer(confirm_ready, desk.folder / "waiting.json", lab, "db1")
     desk.place("at x=2", 600)
     asked.join()
     assert not list(desk.folder.iterdir())  # the request and its answer are gone
@@ -123,7 +101,7 @@ def test_a_dtps_robot_needs_the_labs_own_cameras_and_an_sdk_agent(tmp_path: Path
 
 
 def test_the_watchtowers_clock_starts_at_the_robots_first_command(tmp_path: Path) -> None:
-    from proxybench.evaluator.autolab_dtps import rebase_streams
+    from proxybench.evaluator.autolab_real import rebase_streams
 
     tower = tmp_path / "wt1"
     tower.mkdir()
@@ -195,22 +173,6 @@ def _stand_in(tmp_path: Path, port: int) -> tuple[subprocess.Popen, str]:
     return proc, towers
 
 
-def _write_lab(tmp_path: Path, port: int, towers: str, layout) -> None:
-    from proxybench.autolab.calibration import draw_calibrations, write_calibration
-
-    cals, _ = draw_calibrations(layout)  # what the stand-in's watchtowers publish: the lab's calibrations
-    (tmp_path / "cal").mkdir()
-    lines = []
-    for w in layout.watchtowers:
-        write_calibration(tmp_path / "cal" / f"{w.name}.yaml", cals[w.name])
-        lines.append(f"    - {{name: {w.name}, dtps: {towers}/{w.name}, calibration: cal/{w.name}.yaml}}")
-    tags = ", ".join(f"{{id: {g.id}, x: {g.x}, y: {g.y}, heading: {g.heading}, size: {g.size}}}"
-                     for g in layout.ground_tags)
-    text = LAB.replace("PORT", str(port)).replace("  streams: []", "  streams:\n" + "\n".join(lines)
-                                                  + f"\n  ground_tags: [{tags}]")
-    (tmp_path / "lab.yaml").write_text(text)
-
-
 def _path_errors(track: Path, truth: Path) -> np.ndarray:
     """Each localised sample's distance to the stand-in's true path (its poses at every physics step)."""
     import pandas as pd
@@ -235,7 +197,7 @@ def real_lab(tmp_path: Path):
     port = free_port()
     proc, towers = _stand_in(tmp_path, port)
     try:
-        _write_lab(tmp_path, port, towers, layout)
+        write_lab(tmp_path, port, towers, layout)
         yield proc
     finally:
         if proc.poll() is None:
@@ -251,16 +213,10 @@ pytest.importorskip("fastapi")
 pytest.importorskip("uvicorn")
 
 from support.dtps import sdk  # noqa: E402
+from support.real_robot import lab_evaluator  # noqa: E402
 from support.sandbox import AGENT_USER_GROUP, agent_uid, processes_left, require_safe_sandbox  # noqa: E402
-from test_autolab_evaluator import BENCH, sdk_package  # noqa: E402
-from test_evaluator import Served, evaluator, served, the_job  # noqa: E402, F401 - served: a fixture
-
-
-def _submit(served: Served, tmp_path: Path) -> dict:  # noqa: F811
-    served.admin.post("/benchmarks", {"yaml": BENCH, "features": ["autolab"], "hidden_split": False})
-    archive = tmp_path / "sdk-lane.zip"
-    archive.write_bytes(sdk_package())  # its timing is for simulation; a foreign robot keeps its own clock
-    return served.developer.submit_archive(archive, "sdk-lane", benchmark="autolab_tiny")
+from test_autolab_evaluator import BENCH  # noqa: E402
+from test_evaluator import Served, served, the_job  # noqa: E402, F401 - served: a fixture
 
 
 @sdk
@@ -271,13 +227,8 @@ def test_an_sdk_package_drives_the_labs_dtps_robot_placed_by_the_operator_and_is
     import zipfile
 
     require_safe_sandbox()
-    sub = _submit(served, tmp_path)
-    lab = load_lab(tmp_path / "lab.yaml")
-    placed = _answer(confirm_ready, lab.operator.folder / "db1" / "waiting.json", lab, "db1")
-    lab_ev = evaluator(served, tmp_path, name="lab", video=False, features=("sim", "autolab"), autolab=lab)
-    status = lab_ev.take_one()
-    placed.join(timeout=60)
-    job, (result,) = the_job(served, sub["id"])
+    sub = submit(served, tmp_path)  # the SDK package's timing is for simulation; a foreign robot keeps its own clock
+    status, job, (result,) = run_lab_job(served, tmp_path, load_lab(tmp_path / "lab.yaml"), sub)
     assert status == job["status"] == "success", result["message"]
     report = result["public_report"]
     assert report["domain_kind"] == "autolab/dtps" and report["measured_by"] == "watchtowers"
@@ -306,16 +257,13 @@ def test_an_sdk_package_drives_the_labs_dtps_robot_placed_by_the_operator_and_is
 def test_an_operators_intervention_ends_the_episode_and_the_job_as_the_labs_fault(
         served: Served, tmp_path: Path, real_lab: subprocess.Popen) -> None:  # noqa: F811
     require_safe_sandbox()
-    sub = _submit(served, tmp_path)
+    sub = submit(served, tmp_path)
     lab = load_lab(tmp_path / "lab.yaml")
     desk = lab.operator.folder / "db1"
-    placed = _answer(confirm_ready, desk / "waiting.json", lab, "db1")
-    stepped_in = _answer(intervene, desk / "episode.json", lab, "db1", "the robot ran into a cable")
-    lab_ev = evaluator(served, tmp_path, name="lab", video=False, features=("sim", "autolab"), autolab=lab)
-    assert lab_ev.take_one() == "host-error"
-    placed.join(timeout=60)
+    stepped_in = answer(intervene, desk / "episode.json", lab, "db1", "the robot ran into a cable")
+    status, job, results = run_lab_job(served, tmp_path, lab, sub)
     stepped_in.join(timeout=60)
-    job, results = the_job(served, sub["id"])
+    assert status == "host-error"
     assert job["status"] == "queued" and results == []  # the lab's fault: nothing stored, the job runs again
     (event,) = [e for e in served.admin.get(f"/jobs/{job['id']}")["events"] if e["kind"] == "host-error"]
     assert event["message"] == ("manual_intervention: the operator intervened on robot 'db1' of lab 'real-lab' in "
@@ -333,14 +281,10 @@ def test_a_dtps_robot_that_drops_off_mid_episode_is_a_robot_failure_with_nothing
     from proxybench.dtps.robot_options import parse_address
 
     require_safe_sandbox()
-    served.admin.post("/benchmarks", {"yaml": BENCH.replace("duration: 3.0", "duration: 60.0"),
-                                      "features": ["autolab"], "hidden_split": False})
-    archive = tmp_path / "sdk-lane.zip"
-    archive.write_bytes(sdk_package())
-    sub = served.developer.submit_archive(archive, "sdk-lane", benchmark="autolab_tiny")
+    sub = submit(served, tmp_path, bench=BENCH.replace("duration: 3.0", "duration: 60.0"))
     lab = load_lab(tmp_path / "lab.yaml")
-    placed = _answer(confirm_ready, lab.operator.folder / "db1" / "waiting.json", lab, "db1")
-    lab_ev = evaluator(served, tmp_path, name="lab", video=False, features=("sim", "autolab"), autolab=lab)
+    placed = operator_places(lab)
+    lab_ev = lab_evaluator(served, tmp_path, lab)
     outcome: list[str | None] = []
     driving = threading.Thread(target=lambda: outcome.append(lab_ev.take_one()), daemon=True)
     driving.start()

@@ -20,16 +20,14 @@ import numpy as np
 import pytest
 
 from proxybench.autolab.lab import load_lab
-from proxybench.autolab.operator import confirm_ready
 
 pytest.importorskip("fastapi")
 pytest.importorskip("uvicorn")
 
 from support.dtps import sdk
+from support.real_robot import run_lab_job, submit, write_lab
 from support.sandbox import AGENT_USER_GROUP, agent_uid, processes_left, require_safe_sandbox
-from test_autolab_dtps_robot import _answer, _write_lab
-from test_autolab_evaluator import BENCH, sdk_package
-from test_evaluator import Served, evaluator, served, the_job  # noqa: F401 - served: a fixture
+from test_evaluator import Served, served  # noqa: F401 - served: a fixture
 
 
 def _node(tmp_path: Path, port: int) -> str:
@@ -51,7 +49,7 @@ def node_lab(tmp_path: Path) -> Path:
     layout = auto_layout(load_map("loop_3x3"))
     write_layout(tmp_path / "towers.yaml", layout)
     port = free_port()
-    _write_lab(tmp_path, port, f"127.0.0.1:{port}", layout)
+    write_lab(tmp_path, port, f"127.0.0.1:{port}", layout)
     text = (tmp_path / "lab.yaml").read_text()
     robot = next(line for line in text.splitlines() if "name: db1" in line)
     (tmp_path / "lab.yaml").write_text(text.replace(robot, f"  - {{name: db1, command: {_node(tmp_path, port)!r}}}"))
@@ -88,16 +86,8 @@ def test_a_robot_node_with_a_simulated_layout_is_refused_saying_why(tmp_path: Pa
 def test_an_sdk_package_drives_the_labs_robot_node_and_is_scored_from_the_watchtowers(
         served: Served, tmp_path: Path, node_lab: Path) -> None:  # noqa: F811
     require_safe_sandbox()
-    served.admin.post("/benchmarks", {"yaml": BENCH, "features": ["autolab"], "hidden_split": False})
-    archive = tmp_path / "sdk-lane.zip"
-    archive.write_bytes(sdk_package())
-    sub = served.developer.submit_archive(archive, "sdk-lane", benchmark="autolab_tiny")
-    lab = load_lab(node_lab)
-    placed = _answer(confirm_ready, lab.operator.folder / "db1" / "waiting.json", lab, "db1")
-    lab_ev = evaluator(served, tmp_path, name="lab", video=False, features=("sim", "autolab"), autolab=lab)
-    status = lab_ev.take_one()
-    placed.join(timeout=60)
-    job, (result,) = the_job(served, sub["id"])
+    sub = submit(served, tmp_path)
+    status, job, (result,) = run_lab_job(served, tmp_path, load_lab(node_lab), sub)
     assert status == job["status"] == "success", result["message"]
     report = result["public_report"]
     assert report["domain_kind"] == "autolab/node" and report["measured_by"] == "watchtowers"
@@ -126,16 +116,8 @@ def test_an_aido_node_package_drives_the_labs_robot_node_through_the_runner(
     from test_evaluator import make_package
 
     require_safe_sandbox()
-    served.admin.post("/benchmarks", {"yaml": BENCH, "features": ["autolab"], "hidden_split": False})
-    archive = tmp_path / "forward.zip"
-    archive.write_bytes(make_package("ok"))  # an AIDO node driving straight on at (0.3, 0.3)
-    sub = served.developer.submit_archive(archive, "forward", benchmark="autolab_tiny")
-    lab = load_lab(node_lab)
-    placed = _answer(confirm_ready, lab.operator.folder / "db1" / "waiting.json", lab, "db1")
-    lab_ev = evaluator(served, tmp_path, name="lab", video=False, features=("sim", "autolab"), autolab=lab)
-    status = lab_ev.take_one()
-    placed.join(timeout=60)
-    job, (result,) = the_job(served, sub["id"])
+    sub = submit(served, tmp_path, package=make_package("ok"), name="forward")  # an AIDO node driving straight on
+    status, job, (result,) = run_lab_job(served, tmp_path, load_lab(node_lab), sub)
     assert status == job["status"] == "success", result["message"]
     report = result["public_report"]
     (record,) = report["robot_record"]

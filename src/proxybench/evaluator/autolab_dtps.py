@@ -21,95 +21,40 @@ before it is dropped: the robot stood still) and localised, validated and scored
 episode and the job: ``manual_intervention``; no confirmation in time: ``robot_failure: operator-timeout``; a
 program that ends early or never commands the robot is the agent's failure. A robot that **drops off** DTPS (its
 server no longer accepts a connection, :class:`Heartbeat`, or the relay or observer ends) ends the episode and the
-job as ``robot_failure``, whatever the program did after it lost its robot.
+job as ``robot_failure``, whatever the program did after it lost its robot. What this shares with a robot node's
+job (:mod:`.autolab_node`) is in :mod:`.autolab_real`.
 """
 
 from __future__ import annotations
 
 import csv
-import json
 import logging
 import os
 import socket
 import threading
 import time
-import zipfile
-from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from proxybench.autolab.lab import Lab
-from proxybench.evaluator.outcome import Artifact, HostFault, SubmissionFault
+from proxybench.evaluator import autolab_real as real
+from proxybench.evaluator.autolab_real import Scoring
+from proxybench.evaluator.outcome import HostFault, SubmissionFault
 
-__all__ = ["Heartbeat", "Scoring", "check_dtps_robot", "rebase_streams", "run_dtps_split", "tell_operator"]
+__all__ = ["Heartbeat", "Scoring", "check_dtps_robot", "run_dtps_split"]
 
 log = logging.getLogger("proxybench.evaluator.job")
 #: how often the episode loop looks at the robot, the program and the operator's desk [s]
 _TICK = 0.05
 
 
-@dataclass
-class _Ran:
-    """One episode as :func:`~.autolab.localize_episode` reads it: its streams, no truth, ended by time."""
-
-    episode: int
-    streams: Path
-    termination: object
-    trajectory: Path | None = None
-
-
-@dataclass(frozen=True)
-class Scoring:
-    """What a DTPS robot's split shares with a virtual robot's (:mod:`.autolab`: localise, validate and score an
-    episode; aggregate; the video), handed in by that module, which imports this one (never the other way)."""
-
-    localize: Callable[..., Any]
-    scores: Callable[..., dict[str, float | None]]
-    video: Callable[..., None]
-
-
 def check_dtps_robot(lab: Lab, spec) -> None:
     """What a DTPS robot's job needs; :class:`HostFault` saying what is missing."""
     from proxybench.runner.jobs import SdkProgram
 
-    if lab.watchtowers.layout is not None:
-        raise HostFault(f"lab {lab.name!r}: simulated watchtowers (layout) cannot see a DTPS robot; give the lab's "
-                        "own cameras as watchtowers.streams")
-    if lab.reset.mode == "teleport":  # lab.yaml refuses it already; a lab made in code might not
-        raise HostFault(f"lab {lab.name!r}: a DTPS robot is placed by its operator (reset.mode operator or pose_file)")
+    real.check_real_robot(lab, "a DTPS robot")
     if not isinstance(spec, SdkProgram):
         raise HostFault(f"lab {lab.name!r}: on a DTPS robot this evaluator runs duckietown-sdk agents only; agent "
                         f"{spec.name!r} is an AIDO node (docs/autolab.md, 'A real robot')")
-
-
-def rebase_streams(folder: Path, origin: float) -> int:
-    """Each watchtower's ``timestamps.csv`` in ``folder`` on the episode's clock: ``t = stamp − origin`` (the
-    camera's stamp, the robot's first command's wall time); frames before it dropped (their files removed). The
-    frames kept."""
-    kept = 0
-    for stamps in sorted(folder.glob("*/timestamps.csv")):
-        with open(stamps, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-        keep = []
-        for r in rows:
-            t = float(r["stamp"]) - origin
-            if t >= 0.0:
-                keep.append((r["frame"], f"{t:.6f}", r["stamp"], r["received"]))
-            else:
-                for f in stamps.parent.glob(f"{int(r['frame']):06d}.*"):
-                    f.unlink()
-        if not keep:
-            for f in stamps.parent.iterdir():
-                f.unlink()
-            stamps.parent.rmdir()
-            continue
-        with open(stamps, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(["frame", "t", "stamp", "received"])
-            w.writerows(keep)
-        kept += len(keep)
-    return kept
 
 
 class Heartbeat:
@@ -200,21 +145,13 @@ class _Lab:
 
 def _episode(job, lab: Lab, robot, bench, spec, held: _Lab, ep, split: str, folder: Path):
     """One episode on the DTPS robot (see the module): (the streams folder, what the robot heard, clock origin)."""
-    from proxybench.autolab.operator import OperatorTimeout
     from proxybench.dtps.agent import NETNS_ENV
     from proxybench.dtps.env import env_path
     from proxybench.protocol.failures import RobotFailure
     from proxybench.protocol.transport import Launch, node_argv
-    from proxybench.runner.starts import start_pose
 
-    x, y, th = ep.pose if ep.pose is not None else start_pose(bench.map, ep.seed, bench.domain_params())
     what = f"{split} episode {ep.index}"
-    request = f"place robot {robot.name} at x={x:.3f} m, y={y:.3f} m, θ={th * 57.29578:.1f}° for {what}"
-    try:
-        waited = held.desk.place(request, lab.operator.timeout_s, tell=tell_operator)
-    except OperatorTimeout as exc:
-        raise HostFault(f"robot_failure: {exc}") from None
-    log.info("%s: the operator placed %s after %.1f s", what, robot.name, waited)
+    real.place_robot(held.desk, lab, robot, bench, ep, what)
     held.observer.take()  # what came before this episode is not its record
     options = spec.node_options()
     nonce = held.desk.open_episode(what)
@@ -233,28 +170,24 @@ def _episode(job, lab: Lab, robot, bench, spec, held: _Lab, ep, split: str, fold
             try:
                 held.observer.pump(time.monotonic())
             except RobotFailure as exc:
-                raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} failed in {what}: "
-                                f"{exc.detail}") from None
+                raise real.robot_failure(lab, robot, what, exc.detail) from None
             if first is None and held.observer.heard.commands:
                 first = held.observer.heard.commands[0][0]
             reason = held.desk.intervention(nonce)
             if reason is not None:
-                raise HostFault(f"manual_intervention: the operator intervened on robot {robot.name!r} of lab "
-                                f"{lab.name!r} in {what}: {reason}")
+                raise real.intervened(lab, robot, what, reason)
             if held.heartbeat.lost is not None:
-                raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} failed in {what}: "
-                                f"{held.heartbeat.lost}")
+                raise real.robot_failure(lab, robot, what, held.heartbeat.lost)
             if not held.relay.alive or not held.observer.alive:
-                raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} failed in {what}: its "
-                                f"DTPS link ({held.address}) ended")
+                raise real.robot_failure(lab, robot, what, f"its DTPS link ({held.address}) ended")
             now = time.time()
             if first is not None and now - first >= bench.duration:
                 break
             if proc.exited():
                 gone = held.heartbeat.probe()  # a program that lost its robot is not at fault
                 if gone is not None:
-                    raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} failed in {what}: "
-                                    f"its DTPS server {held.address.host}:{held.address.port} went away ({gone})")
+                    raise real.robot_failure(lab, robot, what, f"its DTPS server {held.address.host}:"
+                                                               f"{held.address.port} went away ({gone})")
                 tail = proc.stderr.finish()
                 job.check_sandbox([tail])
                 ran = "before its first command" if first is None else f"{now - first:.1f} s into the episode"
@@ -274,39 +207,19 @@ def _episode(job, lab: Lab, robot, bench, spec, held: _Lab, ep, split: str, fold
     return sink.episodes[-1], heard, first
 
 
-def tell_operator(text: str) -> None:
-    """The placement request: the job's log, and the evaluator's terminal where it has one."""
-    log.warning("%s", text)
-    try:
-        fd = os.open("/dev/tty", os.O_WRONLY | os.O_NOCTTY | os.O_NONBLOCK)
-    except OSError:
-        return
-    try:
-        os.write(fd, f"[proxybench autolab] {text}\n".encode())
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def run_dtps_split(job, lab: Lab, bench, spec, split: str, hidden: bool, *,
                    scoring: Scoring) -> dict[str, float | None]:
     """A split's episodes on the lab's DTPS robot (see the module); the benchmark's scores, from the localised
     trajectories."""
-    from proxybench.autolab.live import live_streams
     from proxybench.domain.events import Termination
     from proxybench.domain.maps import load_map
     from proxybench.dtps.cameras import ReaderError
-    from proxybench.tasks.metrics import METRICS
 
     robot = lab.robot(job.job.autolab_robot)
     check_dtps_robot(lab, spec)
     job.phase = split
     m = load_map(bench.map)
-    try:
-        live = live_streams(lab, None)
-    except ReaderError as exc:
-        raise HostFault(f"watchtowers: {exc}") from None
+    live = real.open_watchtowers(lab)
     specs = bench.episode_specs()
     log.info("%s: %d episodes of %g s on lab %r's DTPS robot %r (%s), %d watchtowers recording over DTPS", split,
              len(specs), bench.duration, lab.name, robot.name, robot.dtps, len(live.names))
@@ -320,45 +233,19 @@ def run_dtps_split(job, lab: Lab, bench, spec, split: str, hidden: bool, *,
                 streams, heard, first = _episode(job, lab, robot, bench, spec, held, ep, split, folder)
             except ReaderError as exc:
                 raise HostFault(f"watchtowers: {exc}") from None
-            kept = rebase_streams(streams.folder, first)
+            kept = real.rebase_streams(streams.folder, first)
             log.info("%s episode %d: first command at %.3f; %d watchtower frames from then on, %d commands and %d "
                      "poses heard", split, ep.index, first, kept, len(heard.commands), len(heard.poses))
             records.append(_write_record(folder / "robot.csv", heard.since(first), first))
             origins.append({"episode": ep.index, "first_command_wall": first, "commands": len(heard.commands),
                             "poses": len(heard.poses), "bad": heard.bad, "frames": kept})
-            ran = _Ran(ep.index, streams.folder, Termination.TIMEOUT)
-            job.phase = f"{split} localisation"
-            episodes.append(scoring.localize(ran, bench, lab, None, m, folder / "localized", METRICS, robot.name))
-            job.phase = split
+            ran = real.Ran(ep.index, streams.folder, Termination.TIMEOUT)
+            episodes.append(real.localize_episode(job, scoring, ran, bench, lab, m, folder, robot, split))
             job.progress(k + 1, len(specs))
     finally:
         if held is not None:
             held.close()
         live.close()
-    report = {"domain_kind": "autolab/dtps", "measured_by": "watchtowers", "lab": lab.name, "robot": robot.name,
-              "robot_address": robot.dtps, "watchtowers": len(live.names),
-              "localization": [e.report() for e in episodes], "localization_median_error_m": None,
-              "robot_record": origins, "watchtower_streams": [e.report() for e in live.sink.episodes],
-              "episodes": [{"episode": e.episode, "scores": e.report()["scores"], "valid": e.valid}
-                           for e in episodes]}
-    if hidden:
-        job.outcome.hidden_report = report
-    else:
-        job.outcome.public_report.update(report)
-    zip_path = job.dir / f"trajectories-{split}.zip"
-    with zipfile.ZipFile(zip_path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for e, record in zip(episodes, records, strict=True):
-            for f in e.files:
-                zf.write(f, f"episode-{e.episode}{'' if f.suffix == '.parquet' else '-' + f.stem}{f.suffix}")
-            zf.write(record, f"robot-episode-{e.episode}.csv")
-        zf.writestr("robot-record.json", json.dumps(origins, indent=1))
-    job.outcome.artifacts.append(Artifact(zip_path.name, str(zip_path), hidden, "application/zip"))
-    bad = [e for e in episodes if not e.valid or e.trajectory is None]
-    if bad:
-        e = bad[0]
-        word = "tracking_lost" if e.lost or e.trajectory is None else "invalid"
-        raise HostFault(f"{word}: {split} episode {e.episode} is not fit to be scored (the DTA's validation): "
-                        + ("; ".join(e.reasons) or "the watchtowers localised the robot fewer than twice"))
-    if not hidden and job.job.video and episodes and episodes[0].trajectory is not None:
-        scoring.video(job, episodes[0].trajectory, bench)
-    return scoring.scores(episodes, bench)
+    return real.finish_split(job, lab, robot, bench, split, hidden, scoring, kind="autolab/dtps",
+                             about={"robot_address": robot.dtps}, episodes=episodes, records=origins,
+                             robot_files=records, live=live)

@@ -14,7 +14,8 @@ for any job. Per split:
 - per episode the **operator** places the robot (:mod:`proxybench.autolab.operator`; the node is also told the
   start pose, which a simulator takes and a real robot's bridge may ignore) and may intervene while it runs;
 - the episode's clock starts at the runner's **first command** to the node (its wall time), each watchtower's
-  recording re-based to it as for a DTPS robot (:func:`.autolab_dtps.rebase_streams`);
+  recording re-based to it as for a DTPS robot (:func:`.autolab_real.rebase_streams`: what any non-virtual
+  robot's job shares);
 - the scores come from the **localised** trajectory only (:func:`~.autolab.localize_episode`); the node's own
   record (the pose it reports) is kept beside, scored as ``robot_reported_scores``, never as the result.
 
@@ -25,17 +26,17 @@ an agent that fails is the submission's.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import time
-import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from proxybench.autolab.lab import Lab
-from proxybench.evaluator.autolab_dtps import Scoring, rebase_streams, tell_operator
-from proxybench.evaluator.outcome import Artifact, HostFault, SubmissionFault
+from proxybench.evaluator import autolab_real as real
+from proxybench.evaluator.autolab_real import Scoring
+from proxybench.evaluator.outcome import HostFault, SubmissionFault
 
 __all__ = ["check_node_robot", "run_node_split"]
 
@@ -44,20 +45,15 @@ log = logging.getLogger("proxybench.evaluator.job")
 
 def check_node_robot(lab: Lab) -> None:
     """What a robot node's job needs of the lab; :class:`HostFault` saying what is missing."""
-    if lab.watchtowers.layout is not None:
-        raise HostFault(f"lab {lab.name!r}: simulated watchtowers (layout) cannot see a robot node's robot; give the "
-                        "lab's own cameras as watchtowers.streams")
-    if lab.reset.mode == "teleport":  # lab.yaml refuses it already; a lab made in code might not
-        raise HostFault(f"lab {lab.name!r}: a robot node's robot is placed by its operator (reset.mode operator or "
-                        "pose_file)")
+    real.check_real_robot(lab, "a robot node's robot")
 
 
 class _Watched:
     """The runner's plant of the node, as the lab watches it: the wall time of the first command sent, and the
     operator's desk looked at before every frame (an intervention ends the episode before the next command)."""
 
-    def __init__(self, plant: Any, desk: Any, nonce: str, what: str):
-        self._plant, self._desk, self._nonce, self._what = plant, desk, nonce, what
+    def __init__(self, plant: Any, desk: Any, nonce: str, intervened: Callable[[str], Exception]):
+        self._plant, self._desk, self._nonce, self._intervened = plant, desk, nonce, intervened
         self.first: float | None = None
 
     def __getattr__(self, name: str) -> Any:
@@ -66,20 +62,10 @@ class _Watched:
     def advance(self, commands, alive, k: int):
         reason = self._desk.intervention(self._nonce)
         if reason is not None:
-            raise HostFault(f"manual_intervention: the operator intervened on {self._what}: {reason}")
+            raise self._intervened(reason)
         if self.first is None:
             self.first = time.time()
         return self._plant.advance(commands, alive, k)
-
-
-@dataclass
-class _Ran:
-    """One episode as :func:`~.autolab.localize_episode` reads it: its streams, no truth, the node's ending."""
-
-    episode: int
-    streams: Path
-    termination: object
-    trajectory: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -108,15 +94,10 @@ def _episode(job, lab: Lab, bench, spec, conn, live, desk, ep, split: str, folde
     from proxybench.protocol.failures import RobotFailure
     from proxybench.runner.robot_episode import run_episode_on_plant
     from proxybench.runner.rollout import PrivilegedAgentError
-    from proxybench.runner.starts import start_pose
 
     robot = lab.robot(job.job.autolab_robot)
-    pose = ep.pose if ep.pose is not None else start_pose(bench.map, ep.seed, bench.domain_params())
     what = f"{split} episode {ep.index}"
-    x, y, th = pose
-    waited = _place(desk, f"place robot {robot.name} at x={x:.3f} m, y={y:.3f} m, θ={th * 57.29578:.1f}° for "
-                          f"{what}", lab.operator.timeout_s)
-    log.info("%s: the operator placed %s after %.1f s", what, robot.name, waited)
+    pose = real.place_robot(desk, lab, robot, bench, ep, what)
     with contextlib.ExitStack() as held:  # undone in reverse: the agent ended first, then the recording, the desk
         nonce = desk.open_episode(what)
         held.callback(desk.close_episode)
@@ -124,7 +105,7 @@ def _episode(job, lab: Lab, bench, spec, conn, live, desk, ep, split: str, folde
         held.callback(live.sink.end)
         agent = _start_agent(job, spec, bench)
         held.callback(getattr(agent, "close", lambda: None))
-        plant = _Watched(conn.plant(m), desk, nonce, f"robot {robot.name!r} of lab {lab.name!r} in {what}")
+        plant = _Watched(conn.plant(m), desk, nonce, lambda reason: real.intervened(lab, robot, what, reason))
         try:
             traj = run_episode_on_plant(
                 plant, agent, ep.seed, bench.duration, pose=tuple(pose),
@@ -134,8 +115,7 @@ def _episode(job, lab: Lab, bench, spec, conn, live, desk, ep, split: str, folde
                 meta={"map": bench.map, "episode": ep.index, "domain": f"lab:{lab.name}/{robot.name}",
                       "domain_kind": "robot"})
         except RobotFailure as exc:
-            raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} failed in {what}: {exc}") \
-                from None
+            raise real.robot_failure(lab, robot, what, str(exc)) from None
         except PrivilegedAgentError as exc:
             raise SubmissionFault(str(exc)) from None
     if plant.first is None:  # the runner sends a command every frame: an episode without one never stepped
@@ -161,22 +141,10 @@ def _start_agent(job, spec, bench):
     return agent
 
 
-def _place(desk, request: str, timeout_s: float) -> float:
-    """The operator's placement (:meth:`OperatorDesk.place`); no answer in time is the lab's fault."""
-    from proxybench.autolab.operator import OperatorTimeout
-
-    try:
-        return desk.place(request, timeout_s, tell=tell_operator)
-    except OperatorTimeout as exc:
-        raise HostFault(f"robot_failure: {exc}") from None
-
-
 def _open(lab: Lab, robot, bench):
     """The node (through the runner's robot domain, :func:`~proxybench.runner.robots.open_robot`), then the lab's
     watchtowers (a stand-in's node serves them) and the operator's desk; closes what opened on a failure."""
-    from proxybench.autolab.live import live_streams
     from proxybench.autolab.operator import OperatorDesk, OperatorError
-    from proxybench.dtps.cameras import ReaderError
     from proxybench.protocol.failures import RobotFailure
     from proxybench.runner.jobs import DomainSpec
     from proxybench.runner.robots import open_robot
@@ -188,10 +156,10 @@ def _open(lab: Lab, robot, bench):
         raise HostFault(f"robot_failure: robot {robot.name!r} of lab {lab.name!r} (`{robot.command}`) did not "
                         f"start: {exc}") from None
     try:
-        live = live_streams(lab, None)
-    except ReaderError as exc:
+        live = real.open_watchtowers(lab)
+    except HostFault:
         conn.close()
-        raise HostFault(f"watchtowers: {exc}") from None
+        raise
     try:
         desk = OperatorDesk.of(lab, robot.name)
     except OperatorError as exc:
@@ -216,7 +184,7 @@ def run_node_split(job, lab: Lab, bench, spec, split: str, hidden: bool, *,
     job.phase = split
     m = load_map(bench.map)
     specs = bench.episode_specs()
-    episodes, reported, records = [], [], []
+    episodes, reported, records, robot_files = [], [], [], []
     with robot_slot(robot.command, 1):  # one bridge to one robot, across this machine's evaluators
         conn, live, desk = _open(lab, robot, bench)
         log.info("%s: %d episodes of %g s on lab %r's robot node %r (`%s`), %d watchtowers recording over DTPS",
@@ -230,55 +198,22 @@ def run_node_split(job, lab: Lab, bench, spec, split: str, hidden: bool, *,
                     raise HostFault(f"watchtowers: {exc}") from None
                 if traj.termination is Termination.AGENT_FAILURE:
                     raise _agent_failed(job, traj, split, ep.index, hidden)
-                kept = rebase_streams(streams.folder, first)
+                kept = real.rebase_streams(streams.folder, first)
                 record = traj.save(folder / "robot.parquet")
+                robot_files.append(record)
                 reported.append(_Reported(ep.index, {n: float(METRICS[n](traj)) for n in bench.metrics}))
                 records.append({"episode": ep.index, "first_command_wall": first, "frames": kept,
                                 "termination": str(traj.termination), "robot": traj.meta.get("robot"),
-                                "record": Path(record).name})
+                                "record": record.name})
                 log.info("%s episode %d: first command at %.3f; %d watchtower frames from then on; the node ended "
                          "it %s", split, ep.index, first, kept, traj.termination)
-                ran = _Ran(ep.index, streams.folder, traj.termination)
-                job.phase = f"{split} localisation"
-                episodes.append(scoring.localize(ran, bench, lab, None, m, folder / "localized", METRICS,
-                                                 robot.name))
-                job.phase = split
+                ran = real.Ran(ep.index, streams.folder, traj.termination)
+                episodes.append(real.localize_episode(job, scoring, ran, bench, lab, m, folder, robot, split))
                 job.progress(k + 1, len(specs))
         finally:
             conn.close()
             live.close()
-    return _finish(job, lab, robot, bench, split, hidden, scoring, episodes, reported, records, live)
-
-
-def _finish(job, lab: Lab, robot, bench, split: str, hidden: bool, scoring: Scoring, episodes, reported, records,
-            live) -> dict[str, float | None]:
-    """The split's report, its trajectories' zip, the DTA's verdict and the scores (from the localisation only)."""
-    report = {"domain_kind": "autolab/node", "measured_by": "watchtowers", "lab": lab.name, "robot": robot.name,
-              "robot_command": robot.command, "watchtowers": len(live.names),
-              "localization": [e.report() for e in episodes], "localization_median_error_m": None,
-              "robot_record": records, "robot_reported_scores": scoring.scores(reported, bench),
-              "watchtower_streams": [e.report() for e in live.sink.episodes],
-              "episodes": [{"episode": e.episode, "scores": e.report()["scores"], "valid": e.valid}
-                           for e in episodes]}
-    if hidden:
-        job.outcome.hidden_report = report
-    else:
-        job.outcome.public_report.update(report)
-    zip_path = job.dir / f"trajectories-{split}.zip"
-    with zipfile.ZipFile(zip_path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for e in episodes:
-            for f in e.files:
-                zf.write(f, f"episode-{e.episode}{'' if f.suffix == '.parquet' else '-' + f.stem}{f.suffix}")
-            zf.write(job.dir / "autolab" / split / str(e.episode) / "robot.parquet",
-                     f"robot-episode-{e.episode}.parquet")
-        zf.writestr("robot-record.json", json.dumps(records, indent=1))
-    job.outcome.artifacts.append(Artifact(zip_path.name, str(zip_path), hidden, "application/zip"))
-    bad = [e for e in episodes if not e.valid or e.trajectory is None]
-    if bad:
-        e = bad[0]
-        word = "tracking_lost" if e.lost or e.trajectory is None else "invalid"
-        raise HostFault(f"{word}: {split} episode {e.episode} is not fit to be scored (the DTA's validation): "
-                        + ("; ".join(e.reasons) or "the watchtowers localised the robot fewer than twice"))
-    if not hidden and job.job.video and episodes and episodes[0].trajectory is not None:
-        scoring.video(job, episodes[0].trajectory, bench)
-    return scoring.scores(episodes, bench)
+    return real.finish_split(job, lab, robot, bench, split, hidden, scoring, kind="autolab/node",
+                             about={"robot_command": robot.command}, episodes=episodes, records=records,
+                             robot_files=robot_files, live=live,
+                             extra={"robot_reported_scores": scoring.scores(reported, bench)})
