@@ -16,6 +16,7 @@ distance counts for less in the pose graph.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,16 +52,30 @@ class TagPose:
 #: pupil-apriltags detectors by decimation, kept for the process's life: destroying one can crash the process
 #: (a segmentation fault in its ``__del__``, seen with pupil-apriltags 1.0.4.post11)
 _PUPIL: dict[float, object] = {}
+#: one maker at a time: two threads (the online detector's worker and the main thread) making one decimation's
+#: detector at once would make two, and drop one
+_PUPIL_LOCK = threading.Lock()
 
 
 def _pupil(decimate: float):
-    if decimate not in _PUPIL:
-        try:
-            from pupil_apriltags import Detector as _Pupil
-        except ImportError as exc:
-            raise ImportError("the apriltag detector needs pupil-apriltags: pip install 'proxybench[autolab]'") from exc
-        _PUPIL[decimate] = _Pupil(families="tag36h11", nthreads=1, quad_decimate=decimate, refine_edges=1)
-    return _PUPIL[decimate]
+    with _PUPIL_LOCK:
+        if decimate not in _PUPIL:
+            try:
+                from pupil_apriltags import Detector as _Pupil
+            except ImportError as exc:
+                raise ImportError("the apriltag detector needs pupil-apriltags: pip install "
+                                  "'proxybench[autolab]'") from exc
+
+            class _Kept(_Pupil):
+                """Never destroyed: kept for the process's life anyway, and pupil-apriltags' ``__del__`` crashed the
+                evaluator's worker from the garbage collector (SIGSEGV in apriltag_detector_destroy, seen with
+                1.0.4.post11 after a job's online detection); the C detector goes with the process."""
+
+                def __del__(self) -> None:
+                    pass
+
+            _PUPIL[decimate] = _Kept(families="tag36h11", nthreads=1, quad_decimate=decimate, refine_edges=1)
+        return _PUPIL[decimate]
 
 
 class Detector:

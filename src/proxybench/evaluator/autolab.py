@@ -478,15 +478,42 @@ def _unfit(e: AutolabEpisode, split: str, retries: int) -> str:
 
 
 def _video(job, trajectory: Path, bench) -> None:
-    """A top-down video of the first localised episode (optional: a missing codec costs no result)."""
+    """A top-down video of the first localised episode and its watchtower view (:func:`_tower_video`), both
+    optional: a missing codec costs no result."""
     from proxybench.evaluator.report import topdown_video
 
     try:
         path = topdown_video(trajectory, job.dir / "validation-episode-0.mp4", bench.frame_rate)
     except Exception as exc:
         log.warning("no video of the first episode: %s", exc)
+    else:
+        job.outcome.artifacts.append(Artifact(path.name, str(path), False, "video/mp4"))
+    _tower_video(job, Path(trajectory).parent)
+
+
+def _tower_video(job, folder: Path) -> None:
+    """The best-placed watchtower's frames of the episode localised in ``folder`` (its log and ``track.csv``), the
+    localised pose and its σ drawn where the tower's calibration projects it (:mod:`proxybench.autolab.towerview`);
+    its size and CPU time in the report (``watchtower_video``)."""
+    import pandas as pd
+
+    from proxybench.autolab.logs import read_log
+    from proxybench.autolab.towerview import watchtower_video
+
+    try:
+        track = pd.read_csv(folder / "track.csv")
+        video = watchtower_video(read_log(folder), {k: track[k].to_numpy() for k in track.columns},
+                                 job.dir / "validation-episode-0-watchtower.mp4")
+    except Exception as exc:
+        log.warning("no watchtower video of the first episode: %s", exc)
         return
-    job.outcome.artifacts.append(Artifact(path.name, str(path), False, "video/mp4"))
+    if video is None:
+        log.warning("no watchtower video of the first episode: no watchtower's view holds its localised pose")
+        return
+    log.info("watchtower video: %s, %d frames of %d x %d, %.2f s of CPU", video.watchtower, video.frames,
+             video.width, video.height, video.cpu_s)
+    job.outcome.artifacts.append(Artifact(video.path.name, str(video.path), False, "video/mp4"))
+    job.outcome.public_report["watchtower_video"] = video.report()
 
 
 def run_autolab(job) -> Outcome:
