@@ -39,7 +39,7 @@ def test_a_benchmark_says_how_often_an_invalid_run_is_retried() -> None:
     from proxybench.tasks.benchmark import BenchmarkError
 
     assert _bench().invalid_retries == 2 and _bench(invalid_retries=0).invalid_retries == 0
-    for bad in (-1, 11, "twice", 1.5):
+    for bad in (-1, 11, "twice", 1.5, "2", True):  # a count, written as one
         with pytest.raises((BenchmarkError, ValueError), match="invalid_retries"):
             _bench(invalid_retries=bad)
 

@@ -247,7 +247,7 @@ class Benchmark(_Strict):
         description="an evaluator gives a job at most this multiple of its simulated time (every episode of every "
                     "split) in wall-clock time, plus a start-up allowance; beyond, the job ends failed")
     invalid_retries: int = Field(
-        2, ge=0, le=10,
+        2, ge=0, le=10, strict=True,
         description="an Autolab (feature autolab) runs an episode its watchtowers' measurement made invalid (the DTA's "
                     "validation: the robot lost, the light changed, the recording ended early) again on the robot, "
                     "reset, up to this many times within the job; only then is the job the lab's host-error")
