@@ -64,14 +64,15 @@ def test_the_api_shows_an_autolab_benchmarks_retries(served: Served) -> None:  #
 
 
 def test_a_host_error_after_the_retries_names_every_attempt() -> None:
-    from proxybench.evaluator.autolab import AutolabEpisode, _unfit
+    from proxybench.evaluator.autolab import AutolabEpisode
+    from proxybench.evaluator.autolab_attempts import unfit
 
     def attempt(k: int, reasons: list[str]) -> AutolabEpisode:
         return AutolabEpisode(0, None, {}, False, reasons, False, 0, 10, attempt=k)
 
     last = attempt(3, ["robot 'db1' never localised"])
     last.earlier = [attempt(1, ["ended prematurely"]), attempt(2, [])]
-    text = _unfit(last, "validation", 2)
+    text = unfit(last, "validation", 2)
     assert text.startswith("tracking_lost: validation episode 0 is not fit to be scored (the DTA's validation): "
                            "robot 'db1' never localised; after 3 attempts (the benchmark's invalid_retries: 2): ")
     assert ("attempt 1: tracking_lost (ended prematurely); attempt 2: tracking_lost (the watchtowers localised the "

@@ -8,11 +8,13 @@ module that uses only the lab and the operator runs without them.
 
 from __future__ import annotations
 
+import contextlib
+import json
 import threading
 import time
 from pathlib import Path
 
-__all__ = ["LAB", "answer", "lab_evaluator", "operator_places", "run_lab_job", "submit", "write_lab"]
+__all__ = ["LAB", "Operator", "answer", "lab_evaluator", "operator_places", "run_lab_job", "submit", "write_lab"]
 
 #: lab.yaml of one DTPS robot at 127.0.0.1:PORT and no watchtowers yet (``streams: []``), placed by its operator
 LAB = """\
@@ -44,6 +46,35 @@ def operator_places(lab, robot: str = "db1") -> threading.Thread:
     from proxybench.autolab.operator import confirm_ready
 
     return answer(confirm_ready, lab.operator.folder / robot / "waiting.json", lab, robot)
+
+
+class Operator(threading.Thread):
+    """The operator confirming every placement the evaluator asks for (``autolab ready``), each request once, until
+    :meth:`stop`; :attr:`requests`: what was asked, in order (an invalid run run again is placed again)."""
+
+    def __init__(self, lab, robot: str = "db1"):
+        super().__init__(daemon=True)
+        self.lab, self.robot = lab, robot
+        self.requests: list[str] = []
+        self._done = threading.Event()
+        self.start()
+
+    def run(self) -> None:
+        from proxybench.autolab.operator import OperatorError, confirm_ready
+
+        waiting = self.lab.operator.folder / self.robot / "waiting.json"
+        answered = None
+        while not self._done.wait(0.02):
+            with contextlib.suppress(OSError, ValueError):
+                nonce = json.loads(waiting.read_text()).get("nonce")
+                if nonce is not None and nonce != answered:
+                    with contextlib.suppress(OperatorError):  # the request went away meanwhile
+                        self.requests.append(confirm_ready(self.lab, self.robot))
+                    answered = nonce
+
+    def stop(self) -> None:
+        self._done.set()
+        self.join(timeout=60)
 
 
 def write_lab(tmp_path: Path, port: int, towers: str, layout) -> None:
@@ -84,13 +115,18 @@ def lab_evaluator(served, tmp_path: Path, lab):
     return evaluator(served, tmp_path, name="lab", video=False, features=("sim", "autolab"), autolab=lab)
 
 
-def run_lab_job(served, tmp_path: Path, lab, sub: dict) -> tuple[str | None, dict, list[dict]]:
-    """The lab's evaluator takes one job while the operator places the robot: (its status, the submission's job,
-    its results)."""
+def run_lab_job(served, tmp_path: Path, lab, sub: dict,
+                requests: list[str] | None = None) -> tuple[str | None, dict, list[dict]]:
+    """The lab's evaluator takes one job while the operator places the robot as often as asked: (its status, the
+    submission's job, its results); ``requests``, where given, gets the placement requests the operator answered."""
     from test_evaluator import the_job
 
-    placed = operator_places(lab)
-    status = lab_evaluator(served, tmp_path, lab).take_one()
-    placed.join(timeout=60)
+    operator = Operator(lab)
+    try:
+        status = lab_evaluator(served, tmp_path, lab).take_one()
+    finally:
+        operator.stop()
+    if requests is not None:
+        requests.extend(operator.requests)
     job, results = the_job(served, sub["id"])
     return status, job, results

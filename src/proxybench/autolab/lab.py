@@ -21,7 +21,7 @@ as it is. See docs/autolab.md ("A lab") for an example::
     # world: shared                                 # the virtual robots share one floor (default own: one each)
     # operator: {folder: lab.operator, timeout_s: 600}      # where a person confirms placements, intervenes
     limits: {lost_s: 1.0, light_change: 0.2, end_slack_s: 1.0, max_episode_s: 120}
-    # drills: {streams_stop_s: 1.5, streams_stop: [wt01], streams_stop_attempts: 1}   # simulated faults
+    # drills: {streams_stop_s: 1.5, streams_stop: [wt01], streams_stop_attempts: 1}   # faults played on purpose
 
 The watchtower layout is the existing layout model (:mod:`.watchtowers`); a calibration is the existing
 calibration file (:mod:`.calibration`: intrinsics as ROS's ``camera_info`` writes them, extrinsics in the map
@@ -195,9 +195,10 @@ class LabLimits(BaseModel):
 
 
 class Drills(BaseModel):
-    """Faults a lab of simulated watchtowers plays on purpose, so that its operators (and tests) see how its
-    evaluator handles them: ``streams_stop_s``: the watchtowers named in ``streams_stop`` (default: all) deliver no
-    frame after this episode time [s], as a camera whose network or driver stopped mid-episode;
+    """Faults a lab plays on purpose, so that its operators (and tests) see how its evaluator handles them:
+    ``streams_stop_s``: the watchtowers named in ``streams_stop`` (default: all) deliver no frame after this episode
+    time [s], as a camera whose network or driver stopped mid-episode (simulated watchtowers' recordings, and a lab's
+    own streams as the evaluator recorded them: the cameras themselves run on);
     ``streams_stop_attempts``: only in the first this many attempts at each episode (default: every attempt), so
     that a run made invalid is valid when the benchmark's ``invalid_retries`` runs it again."""
 
@@ -251,9 +252,11 @@ class Lab(BaseModel):
         clash = sorted(set(tags) & {g.id for g in self.watchtowers.ground_tags})
         if clash:
             raise ValueError(f"robots: roof tag id(s) {', '.join(map(str, clash))} are also ground tags")
-        if self.drills.streams_stop_s is not None and self.watchtowers.layout is None:
-            raise ValueError("drills: a lab's own watchtower streams are not stopped on purpose; drills are for "
-                             "simulated watchtowers (layout)")
+        if self.watchtowers.layout is None:  # a layout's names are checked against it (check_lab: it needs the map)
+            unknown = sorted(set(self.drills.streams_stop) - {s.name for s in self.watchtowers.streams})
+            if unknown:
+                raise ValueError(f"drills.streams_stop: no watchtower {', '.join(map(repr, unknown))} in "
+                                 "watchtowers.streams")
         if self.world == "shared" and self.watchtowers.layout is None:
             raise ValueError("world: a shared world's watchtowers are simulated: give watchtowers.layout")
         if self.reset.mode == "teleport":
@@ -345,11 +348,6 @@ def check_lab(lab: Lab, origin: str = "lab.yaml") -> list[str]:
         if unknown:
             raise LabError(f"{origin}: drills.streams_stop: no watchtower {', '.join(map(repr, unknown))} in the "
                            "layout")
-        if lab.drills.streams_stop_s is not None:
-            which = ", ".join(lab.drills.streams_stop) or "all"
-            first = lab.drills.streams_stop_attempts
-            lines.append(f"drill: watchtower stream(s) {which} stop at t = {lab.drills.streams_stop_s:g} s"
-                         + ("" if first is None else f" in the first {first} attempt(s) at each episode"))
     for s in lab.watchtowers.streams:
         try:
             load_calibration(s.calibration)
@@ -358,6 +356,11 @@ def check_lab(lab: Lab, origin: str = "lab.yaml") -> list[str]:
         if s.recorded is not None and not (s.recorded / "timestamps.csv").is_file():
             raise LabError(f"{origin}: watchtowers.streams[{s.name}].recorded: {s.recorded} holds no timestamps.csv")
         lines.append(f"watchtower {s.name}: {'DTPS ' + s.dtps if s.dtps else f'recorded {s.recorded}'}, calibrated")
+    if lab.drills.streams_stop_s is not None:
+        which = ", ".join(lab.drills.streams_stop) or "all"
+        first = lab.drills.streams_stop_attempts
+        lines.append(f"drill: watchtower stream(s) {which} stop at t = {lab.drills.streams_stop_s:g} s"
+                     + ("" if first is None else f" in the first {first} attempt(s) at each episode"))
     if lab.reset.poses is not None:
         from proxybench.dtps.robot_options import load_start_poses
 

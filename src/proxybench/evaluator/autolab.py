@@ -43,6 +43,7 @@ import numpy as np
 
 from proxybench.autolab.lab import Lab
 from proxybench.autolab.online import Lag
+from proxybench.evaluator.autolab_attempts import attempt_name, pack_attempts, retry_invalid, unfit
 from proxybench.evaluator.outcome import Artifact, HostFault, Outcome, SubmissionFault
 
 __all__ = ["AutolabEpisode", "localize_episode", "run_autolab", "stop_streams", "world_tags"]
@@ -158,16 +159,20 @@ def stop_streams(streams: Path, lab: Lab, attempt: int = 1) -> list[str]:
     names = lab.drills.streams_stop or sorted(p.name for p in streams.iterdir() if p.is_dir())
     for name in names:
         stamps = streams / name / "timestamps.csv"
+        if not stamps.is_file():  # a lab's own stream that delivered nothing in the episode: nothing to stop
+            continue
         with open(stamps, newline="") as fh:
-            rows = list(csv.DictReader(fh))
+            reader = csv.DictReader(fh)
+            rows = list(reader)
+            columns = reader.fieldnames or ["frame", "t"]  # a lab's own streams also say each frame's stamp
         kept = [r for r in rows if float(r["t"]) <= at]
         for r in rows[len(kept):]:
             for frame in (streams / name).glob(f"{int(r['frame']):06d}.*"):
                 frame.unlink()
         with open(stamps, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(["frame", "t"])
-            w.writerows([(r["frame"], r["t"]) for r in kept])
+            w = csv.DictWriter(fh, fieldnames=columns)
+            w.writeheader()
+            w.writerows(kept)
     log.warning("drill: watchtower stream(s) %s stopped at t = %g s", ", ".join(names), at)
     return names
 
@@ -279,8 +284,6 @@ def _pack(path: Path, ev, episodes: list[AutolabEpisode]) -> Path:
     an episode run again because it was invalid keeps each attempt before the last under
     ``episode-<k>-attempt-<a>…`` and ``robot-episode-<k>-attempt-<a>.parquet``, and ``attempts.json`` lists every
     attempt of every episode (number, verdict, reasons)."""
-    import json
-
     by_ep = {r.episode: r for r in ev.sweep.results}
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         for e in episodes:
@@ -290,14 +293,7 @@ def _pack(path: Path, ev, episodes: list[AutolabEpisode]) -> Path:
             r = by_ep.get(e.episode)
             if r is not None and r.trajectory and Path(r.trajectory).is_file():
                 zf.write(r.trajectory, f"robot-episode-{e.episode}.parquet")
-            for a in e.earlier:
-                name = f"episode-{e.episode}-attempt-{a.attempt}"
-                for f in a.files:
-                    zf.write(f, f"{name}{'' if f.suffix == '.parquet' else f'-{f.stem}'}{f.suffix}")
-                if a.robot_record and Path(a.robot_record).is_file():
-                    zf.write(a.robot_record, f"robot-{name}.parquet")
-        zf.writestr("attempts.json", json.dumps({str(e.episode): [a.attempt_report() for a in [*e.earlier, e]]
-                                                 for e in episodes}, indent=1))
+        pack_attempts(zf, episodes)
     return path
 
 
@@ -394,8 +390,7 @@ def _drive(job, lab: Lab, bench, spec, split: str, hidden: bool, attempt: int = 
     job.phase = f"{split} localisation"
     episodes = []
     for k, res in enumerate(sorted(ran.sweep.results, key=lambda r: r.episode)):
-        name = str(res.episode) if attempt == 1 else f"{res.episode}-attempt-{attempt}"  # every attempt kept
-        folder = job.dir / "autolab" / split / name
+        folder = job.dir / "autolab" / split / attempt_name(res.episode, attempt)  # every attempt kept
         episodes.append(localize_episode(res, bench, lab, layout, m, folder, METRICS, robot.name,
                                          online.episode(res.streams) if res.streams and world is None else None,
                                          attempt=attempt))
@@ -417,24 +412,19 @@ def _retry_invalid(job, lab: Lab, bench, spec, split: str, hidden: bool, driven:
     """Run each episode the DTA's validation found invalid again on the robot (reset to its start, as every episode
     is), up to the benchmark's ``invalid_retries`` times: a run the lab measured badly (the robot lost, the light
     changed, a stream stopped) is the lab's fault, not the agent's, so the job only fails over to another lab once
-    the retries are spent. Each episode keeps its attempts before (``earlier``): every one is in the report and
-    the artifacts."""
-    robot = lab.robot(job.job.autolab_robot).name
-    for attempt in range(2, bench.invalid_retries + 2):
-        bad = {e.episode: e for e in driven.episodes if not e.fit}
-        if not bad:
-            break
-        for e in bad.values():
-            log.warning("%s episode %d is %s (%s): resetting robot %r and running it again (attempt %d of %d)",
-                        split, e.episode, e.verdict, e.why(), robot, attempt, bench.invalid_retries + 1)
-        job.allow_extra_wall(len(bad) * bench.duration * bench.wall_time_factor)  # the lab's time, not the agent's
-        again = _drive(job, lab, bench, spec, split, hidden, attempt, set(bad), driven.ev)
-        for e in again.episodes:
-            e.earlier = [*bad[e.episode].earlier, bad[e.episode]]
-        redone = {e.episode: e for e in again.episodes}
-        driven = _Driven(again.ev, again.record, [redone.get(e.episode, e) for e in driven.episodes],
-                         None if driven.streams is None else [*driven.streams, *(again.streams or [])], again.towers)
-    return driven
+    the retries are spent (:func:`~.autolab_attempts.retry_invalid`, which a DTPS robot's and a robot node's jobs
+    use too). Each episode keeps its attempts before (``earlier``): every one is in the report and the artifacts."""
+    state = driven  # the split's evaluation so far: each re-run's results put in place of the attempts before
+
+    def again(bad: list[AutolabEpisode], attempt: int) -> list[AutolabEpisode]:
+        nonlocal state
+        redo = _drive(job, lab, bench, spec, split, hidden, attempt, {e.episode for e in bad}, state.ev)
+        state = _Driven(redo.ev, redo.record, state.episodes,
+                        None if state.streams is None else [*state.streams, *(redo.streams or [])], redo.towers)
+        return redo.episodes
+
+    episodes = retry_invalid(job, bench, split, lab.robot(job.job.autolab_robot).name, driven.episodes, again)
+    return replace(state, episodes=episodes)
 
 
 def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str, float | None]:
@@ -461,20 +451,10 @@ def _run_split(job, lab: Lab, bench, spec, split: str, hidden: bool) -> dict[str
     job.outcome.artifacts.append(Artifact(zip_path.name, str(zip_path), hidden, "application/zip"))
     bad = [e for e in episodes if not e.fit]
     if bad:  # the retries are spent: the lab's fault, the job goes back to the queue for another lab
-        raise HostFault(_unfit(bad[0], split, bench.invalid_retries))
+        raise HostFault(unfit(bad[0], split, bench.invalid_retries))
     if not hidden and job.job.video and episodes[0].trajectory is not None:
         _video(job, episodes[0].trajectory, bench)
     return _scores(episodes, bench)
-
-
-def _unfit(e: AutolabEpisode, split: str, retries: int) -> str:
-    """The host error of an episode still invalid after every attempt: the verdict, the reasons, each attempt's."""
-    attempts = [*e.earlier, e]
-    text = f"{e.verdict}: {split} episode {e.episode} is not fit to be scored (the DTA's validation): {e.why()}"
-    if len(attempts) == 1:
-        return text + (" (invalid_retries: 0)" if retries == 0 else "")
-    return (text + f"; after {len(attempts)} attempts (the benchmark's invalid_retries: {retries}): "
-            + "; ".join(f"attempt {a.attempt}: {a.verdict} ({a.why()})" for a in attempts))
 
 
 def _video(job, trajectory: Path, bench) -> None:

@@ -143,14 +143,14 @@ class _Lab:
             self.lock.release()
 
 
-def _episode(job, lab: Lab, robot, bench, spec, held: _Lab, ep, split: str, folder: Path):
-    """One episode on the DTPS robot (see the module): (the streams folder, what the robot heard, clock origin)."""
+def _episode(job, lab: Lab, robot, bench, spec, held: _Lab, ep, what: str, folder: Path):
+    """One episode (``what``: one attempt at it) on the DTPS robot (see the module): (the streams folder, what the
+    robot heard, clock origin)."""
     from proxybench.dtps.agent import NETNS_ENV
     from proxybench.dtps.env import env_path
     from proxybench.protocol.failures import RobotFailure
     from proxybench.protocol.transport import Launch, node_argv
 
-    what = f"{split} episode {ep.index}"
     real.place_robot(held.desk, lab, robot, bench, ep, what)
     held.observer.take()  # what came before this episode is not its record
     options = spec.node_options()
@@ -207,13 +207,34 @@ def _episode(job, lab: Lab, robot, bench, spec, held: _Lab, ep, split: str, fold
     return sink.episodes[-1], heard, first
 
 
+def _attempt(job, lab: Lab, robot, bench, spec, held: _Lab, ep, split: str, attempt: int, m, scoring: Scoring,
+             origins: list[dict]):
+    """One attempt at an episode: run (the operator places the robot), the streams re-based on the first command,
+    the robot's record written and noted in ``origins``, localised and validated; the episode as measured."""
+    from proxybench.domain.events import Termination
+    from proxybench.dtps.cameras import ReaderError
+
+    folder = real.attempt_folder(job, split, ep.index, attempt)
+    what = real.episode_name(split, ep.index, attempt)
+    try:
+        streams, heard, first = _episode(job, lab, robot, bench, spec, held, ep, what, folder)
+    except ReaderError as exc:
+        raise HostFault(f"watchtowers: {exc}") from None
+    kept = real.rebase_streams(streams.folder, first)
+    log.info("%s: first command at %.3f; %d watchtower frames from then on, %d commands and %d poses heard", what,
+             first, kept, len(heard.commands), len(heard.poses))
+    record = _write_record(folder / "robot.csv", heard.since(first), first)
+    origins.append({"episode": ep.index, "attempt": attempt, "first_command_wall": first,
+                    "commands": len(heard.commands), "poses": len(heard.poses), "bad": heard.bad, "frames": kept})
+    ran = real.Ran(ep.index, streams.folder, Termination.TIMEOUT)
+    return real.localize_episode(job, scoring, ran, bench, lab, m, folder, robot, split, attempt, record)
+
+
 def run_dtps_split(job, lab: Lab, bench, spec, split: str, hidden: bool, *,
                    scoring: Scoring) -> dict[str, float | None]:
-    """A split's episodes on the lab's DTPS robot (see the module); the benchmark's scores, from the localised
-    trajectories."""
-    from proxybench.domain.events import Termination
+    """A split's episodes on the lab's DTPS robot (see the module), an invalid one run again as the benchmark says
+    (:func:`.autolab_real.run_attempts`); the benchmark's scores, from the localised trajectories."""
     from proxybench.domain.maps import load_map
-    from proxybench.dtps.cameras import ReaderError
 
     robot = lab.robot(job.job.autolab_robot)
     check_dtps_robot(lab, spec)
@@ -223,29 +244,18 @@ def run_dtps_split(job, lab: Lab, bench, spec, split: str, hidden: bool, *,
     specs = bench.episode_specs()
     log.info("%s: %d episodes of %g s on lab %r's DTPS robot %r (%s), %d watchtowers recording over DTPS", split,
              len(specs), bench.duration, lab.name, robot.name, robot.dtps, len(live.names))
-    episodes, records, origins = [], [], []
+    episodes, origins = [], []
     held = None
     try:
         held = _Lab(lab, robot, spec, live)
         for k, ep in enumerate(specs):
-            folder = job.dir / "autolab" / split / str(ep.index)
-            try:
-                streams, heard, first = _episode(job, lab, robot, bench, spec, held, ep, split, folder)
-            except ReaderError as exc:
-                raise HostFault(f"watchtowers: {exc}") from None
-            kept = real.rebase_streams(streams.folder, first)
-            log.info("%s episode %d: first command at %.3f; %d watchtower frames from then on, %d commands and %d "
-                     "poses heard", split, ep.index, first, kept, len(heard.commands), len(heard.poses))
-            records.append(_write_record(folder / "robot.csv", heard.since(first), first))
-            origins.append({"episode": ep.index, "first_command_wall": first, "commands": len(heard.commands),
-                            "poses": len(heard.poses), "bad": heard.bad, "frames": kept})
-            ran = real.Ran(ep.index, streams.folder, Termination.TIMEOUT)
-            episodes.append(real.localize_episode(job, scoring, ran, bench, lab, m, folder, robot, split))
+            def attempt(n: int, ep=ep):
+                return _attempt(job, lab, robot, bench, spec, held, ep, split, n, m, scoring, origins)
+            episodes.append(real.run_attempts(job, bench, split, robot, attempt))
             job.progress(k + 1, len(specs))
     finally:
         if held is not None:
             held.close()
         live.close()
     return real.finish_split(job, lab, robot, bench, split, hidden, scoring, kind="autolab/dtps",
-                             about={"robot_address": robot.dtps}, episodes=episodes, records=origins,
-                             robot_files=records, live=live)
+                             about={"robot_address": robot.dtps}, episodes=episodes, records=origins, live=live)

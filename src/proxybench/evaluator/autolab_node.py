@@ -29,7 +29,7 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -89,14 +89,14 @@ def _agent_failed(job, traj, split: str, episode: int, hidden: bool) -> Submissi
                            + "".join(f"\n  {line}" for line in tail[-15:]))
 
 
-def _episode(job, lab: Lab, bench, spec, conn, live, desk, ep, split: str, folder: Path, m):
-    """One episode on the node (see the module): (the streams recorded, the node's trajectory, first command)."""
+def _episode(job, lab: Lab, bench, spec, conn, live, desk, ep, what: str, folder: Path, m):
+    """One episode (``what``: one attempt at it) on the node (see the module): (the streams recorded, the node's
+    trajectory, first command)."""
     from proxybench.protocol.failures import RobotFailure
     from proxybench.runner.robot_episode import run_episode_on_plant
     from proxybench.runner.rollout import PrivilegedAgentError
 
     robot = lab.robot(job.job.autolab_robot)
-    what = f"{split} episode {ep.index}"
     pose = real.place_robot(desk, lab, robot, bench, ep, what)
     with contextlib.ExitStack() as held:  # undone in reverse: the agent ended first, then the recording, the desk
         nonce = desk.open_episode(what)
@@ -169,51 +169,73 @@ def _open(lab: Lab, robot, bench):
     return conn, live, desk
 
 
+@dataclass
+class _Split:
+    """What a split on the node holds open (the node, the watchtowers, the desk) and gathers: each attempt's record
+    (``robot_record``) and each episode's scores from the node's own record, its last attempt's."""
+
+    conn: Any
+    live: Any
+    desk: Any
+    records: list[dict[str, Any]] = field(default_factory=list)
+    reported: dict[int, _Reported] = field(default_factory=dict)
+
+
+def _attempt(job, lab: Lab, robot, bench, spec, held: _Split, ep, split: str, attempt: int, m, hidden: bool,
+             scoring: Scoring):
+    """One attempt at an episode: run (the operator places the robot), the streams re-based on the first command,
+    the node's record saved and noted, localised and validated; the episode as measured."""
+    from proxybench.domain.events import Termination
+    from proxybench.dtps.cameras import ReaderError
+    from proxybench.tasks.metrics import METRICS
+
+    folder = real.attempt_folder(job, split, ep.index, attempt)
+    what = real.episode_name(split, ep.index, attempt)
+    try:
+        streams, traj, first = _episode(job, lab, bench, spec, held.conn, held.live, held.desk, ep, what, folder, m)
+    except ReaderError as exc:
+        raise HostFault(f"watchtowers: {exc}") from None
+    if traj.termination is Termination.AGENT_FAILURE:
+        raise _agent_failed(job, traj, split, ep.index, hidden)
+    kept = real.rebase_streams(streams.folder, first)
+    record = traj.save(folder / "robot.parquet")
+    held.reported[ep.index] = _Reported(ep.index, {n: float(METRICS[n](traj)) for n in bench.metrics})
+    held.records.append({"episode": ep.index, "attempt": attempt, "first_command_wall": first, "frames": kept,
+                         "termination": str(traj.termination), "robot": traj.meta.get("robot"),
+                         "record": record.name})
+    log.info("%s: first command at %.3f; %d watchtower frames from then on; the node ended it %s", what, first,
+             kept, traj.termination)
+    ran = real.Ran(ep.index, streams.folder, traj.termination)
+    return real.localize_episode(job, scoring, ran, bench, lab, m, folder, robot, split, attempt, record)
+
+
 def run_node_split(job, lab: Lab, bench, spec, split: str, hidden: bool, *,
                    scoring: Scoring) -> dict[str, float | None]:
-    """A split's episodes on the lab's robot node (see the module); the benchmark's scores, from the localised
-    trajectories."""
-    from proxybench.domain.events import Termination
+    """A split's episodes on the lab's robot node (see the module), an invalid one run again as the benchmark says
+    (:func:`.autolab_real.run_attempts`); the benchmark's scores, from the localised trajectories."""
     from proxybench.domain.maps import load_map
-    from proxybench.dtps.cameras import ReaderError
     from proxybench.runner.robot_jobs import robot_slot
-    from proxybench.tasks.metrics import METRICS
 
     robot = lab.robot(job.job.autolab_robot)
     check_node_robot(lab)
     job.phase = split
     m = load_map(bench.map)
     specs = bench.episode_specs()
-    episodes, reported, records, robot_files = [], [], [], []
+    episodes = []
     with robot_slot(robot.command, 1):  # one bridge to one robot, across this machine's evaluators
-        conn, live, desk = _open(lab, robot, bench)
+        held = _Split(*_open(lab, robot, bench))
         log.info("%s: %d episodes of %g s on lab %r's robot node %r (`%s`), %d watchtowers recording over DTPS",
-                 split, len(specs), bench.duration, lab.name, robot.name, robot.command, len(live.names))
+                 split, len(specs), bench.duration, lab.name, robot.name, robot.command, len(held.live.names))
         try:
             for k, ep in enumerate(specs):
-                folder = job.dir / "autolab" / split / str(ep.index)
-                try:
-                    streams, traj, first = _episode(job, lab, bench, spec, conn, live, desk, ep, split, folder, m)
-                except ReaderError as exc:
-                    raise HostFault(f"watchtowers: {exc}") from None
-                if traj.termination is Termination.AGENT_FAILURE:
-                    raise _agent_failed(job, traj, split, ep.index, hidden)
-                kept = real.rebase_streams(streams.folder, first)
-                record = traj.save(folder / "robot.parquet")
-                robot_files.append(record)
-                reported.append(_Reported(ep.index, {n: float(METRICS[n](traj)) for n in bench.metrics}))
-                records.append({"episode": ep.index, "first_command_wall": first, "frames": kept,
-                                "termination": str(traj.termination), "robot": traj.meta.get("robot"),
-                                "record": record.name})
-                log.info("%s episode %d: first command at %.3f; %d watchtower frames from then on; the node ended "
-                         "it %s", split, ep.index, first, kept, traj.termination)
-                ran = real.Ran(ep.index, streams.folder, traj.termination)
-                episodes.append(real.localize_episode(job, scoring, ran, bench, lab, m, folder, robot, split))
+                def attempt(n: int, ep=ep):
+                    return _attempt(job, lab, robot, bench, spec, held, ep, split, n, m, hidden, scoring)
+                episodes.append(real.run_attempts(job, bench, split, robot, attempt))
                 job.progress(k + 1, len(specs))
         finally:
-            conn.close()
-            live.close()
+            held.conn.close()
+            held.live.close()
     return real.finish_split(job, lab, robot, bench, split, hidden, scoring, kind="autolab/node",
-                             about={"robot_command": robot.command}, episodes=episodes, records=records,
-                             robot_files=robot_files, live=live,
-                             extra={"robot_reported_scores": scoring.scores(reported, bench)})
+                             about={"robot_command": robot.command}, episodes=episodes, records=held.records,
+                             live=held.live,
+                             extra={"robot_reported_scores": scoring.scores(list(held.reported.values()), bench)})

@@ -5,8 +5,10 @@ Neither robot is simulated by proxybench, so both are placed by the lab's operat
 :mod:`proxybench.autolab.operator`), watched by the lab's own DTPS watchtowers (:func:`open_watchtowers`), clocked by
 the first command (:func:`rebase_streams`), and scored from the localised trajectory only
 (:func:`localize_episode`: the :class:`Scoring` that :mod:`.autolab` hands in); a split ends in one report, one
-``trajectories-<split>.zip``, the DTA's verdict and the scores (:func:`finish_split`). The lab's faults are worded
-once here (:func:`robot_failure`, :func:`intervened`).
+``trajectories-<split>.zip``, the DTA's verdict and the scores (:func:`finish_split`). An invalid run is run again,
+the operator placing the robot again, as the benchmark says (:func:`run_attempts`: ``invalid_retries``, as for a
+virtual robot, :mod:`.autolab_attempts`). The lab's faults are worded once here (:func:`robot_failure`,
+:func:`intervened`).
 """
 
 from __future__ import annotations
@@ -22,10 +24,12 @@ from pathlib import Path
 from typing import Any
 
 from proxybench.autolab.lab import Lab
+from proxybench.evaluator.autolab_attempts import attempt_name, pack_attempts, retry_invalid, unfit
 from proxybench.evaluator.outcome import Artifact, HostFault
 
-__all__ = ["Ran", "Scoring", "check_real_robot", "finish_split", "intervened", "localize_episode",
-           "open_watchtowers", "place_robot", "rebase_streams", "robot_failure", "tell_operator"]
+__all__ = ["Ran", "Scoring", "attempt_folder", "check_real_robot", "episode_name", "finish_split", "intervened",
+           "localize_episode", "open_watchtowers", "place_robot", "rebase_streams", "robot_failure", "run_attempts",
+           "tell_operator"]
 
 log = logging.getLogger("proxybench.evaluator.job")
 
@@ -145,48 +149,73 @@ def rebase_streams(folder: Path, origin: float) -> int:
     return kept
 
 
-def localize_episode(job, scoring: Scoring, ran: Ran, bench, lab: Lab, m, folder: Path, robot, split: str):
+def episode_name(split: str, episode: int, attempt: int) -> str:
+    """How the operator's request, the desk and the lab's faults name an attempt: ``validation episode 0``, a re-run
+    ``validation episode 0, attempt 2``."""
+    return f"{split} episode {episode}" + ("" if attempt == 1 else f", attempt {attempt}")
+
+
+def attempt_folder(job, split: str, episode: int, attempt: int) -> Path:
+    """An attempt's folder, ``autolab/<split>/K`` (a re-run: ``K-attempt-A``): every attempt's streams and record
+    kept."""
+    return job.dir / "autolab" / split / attempt_name(episode, attempt)
+
+
+def localize_episode(job, scoring: Scoring, ran: Ran, bench, lab: Lab, m, folder: Path, robot, split: str,
+                     attempt: int = 1, record: Path | None = None):
     """The episode localised, validated and scored as a virtual robot's (``scoring.localize``), from its streams
-    only (no truth), into ``folder / "localized"``."""
+    only (no truth), into ``folder / "localized"``; ``attempt``: which run of the episode it is (the lab's drills
+    may spare later ones); ``record``: the robot's own record of it, kept beside (never scored)."""
     from proxybench.tasks.metrics import METRICS
 
     job.phase = f"{split} localisation"
-    done = scoring.localize(ran, bench, lab, None, m, folder / "localized", METRICS, robot.name)
+    done = scoring.localize(ran, bench, lab, None, m, folder / "localized", METRICS, robot.name, attempt=attempt)
+    done.robot_record = None if record is None else str(record)
     job.phase = split
     return done
 
 
+def run_attempts(job, bench, split: str, robot, run: Callable[[int], Any]):
+    """One episode on a non-virtual robot as the benchmark says: ``run(attempt)`` runs it (the operator places the
+    robot, as for every attempt) and returns it measured; while it is not fit to be scored it is run again, up to
+    ``invalid_retries`` times (:func:`~.autolab_attempts.retry_invalid`: the job's wall budget extended per re-run,
+    each attempt keeping the ones before). The last attempt."""
+    (done,) = retry_invalid(job, bench, split, robot.name, [run(1)], lambda _bad, attempt: [run(attempt)])
+    return done
+
+
 def finish_split(job, lab: Lab, robot, bench, split: str, hidden: bool, scoring: Scoring, *, kind: str,
-                 about: dict[str, Any], episodes, records: list[dict], robot_files: list[Path], live,
+                 about: dict[str, Any], episodes, records: list[dict], live,
                  extra: dict[str, Any] | None = None) -> dict[str, float | None]:
-    """A split's report (``kind``: its ``domain_kind``; ``about``: how the robot is reached; ``extra``: after its
-    ``robot_record``), its ``trajectories-<split>.zip`` (each episode's localisation and the robot's own record,
-    ``robot_files``, as ``robot-episode-K``), the DTA's verdict and the scores, from the localisation only."""
+    """A split's report (``kind``: its ``domain_kind``; ``about``: how the robot is reached; ``records``: each
+    attempt's robot record, as ``robot_record``; ``extra``: after it), its ``trajectories-<split>.zip`` (each
+    episode's localisation and the robot's own record as ``robot-episode-K``, each earlier attempt's beside,
+    ``attempts.json``), the DTA's verdict (once the retries are spent, naming every attempt) and the scores, from
+    the localisation only."""
     report = {"domain_kind": kind, "measured_by": "watchtowers", "lab": lab.name, "robot": robot.name, **about,
               "watchtowers": len(live.names),
               "localization": [e.report() for e in episodes], "localization_median_error_m": None,
               "robot_record": records, **(extra or {}),
               "watchtower_streams": [e.report() for e in live.sink.episodes],
               "episodes": [{"episode": e.episode, "scores": e.report()["scores"], "valid": e.valid}
-                           for e in episodes]}
+                           for e in episodes], "invalid_retries": bench.invalid_retries}
     if hidden:
         job.outcome.hidden_report = report
     else:
         job.outcome.public_report.update(report)
     zip_path = job.dir / f"trajectories-{split}.zip"
     with zipfile.ZipFile(zip_path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for e, record in zip(episodes, robot_files, strict=True):
+        for e in episodes:
             for f in e.files:
                 zf.write(f, f"episode-{e.episode}{'' if f.suffix == '.parquet' else '-' + f.stem}{f.suffix}")
-            zf.write(record, f"robot-episode-{e.episode}{record.suffix}")
+            if e.robot_record:
+                zf.write(e.robot_record, f"robot-episode-{e.episode}{Path(e.robot_record).suffix}")
+        pack_attempts(zf, episodes)
         zf.writestr("robot-record.json", json.dumps(records, indent=1))
     job.outcome.artifacts.append(Artifact(zip_path.name, str(zip_path), hidden, "application/zip"))
-    bad = [e for e in episodes if not e.valid or e.trajectory is None]
-    if bad:
-        e = bad[0]
-        word = "tracking_lost" if e.lost or e.trajectory is None else "invalid"
-        raise HostFault(f"{word}: {split} episode {e.episode} is not fit to be scored (the DTA's validation): "
-                        + ("; ".join(e.reasons) or "the watchtowers localised the robot fewer than twice"))
+    bad = [e for e in episodes if not e.fit]
+    if bad:  # the retries are spent: the lab's fault, the job goes back to the queue for another lab
+        raise HostFault(unfit(bad[0], split, bench.invalid_retries))
     if not hidden and job.job.video and episodes and episodes[0].trajectory is not None:
         scoring.video(job, episodes[0].trajectory, bench)
     return scoring.scores(episodes, bench)
