@@ -80,6 +80,32 @@ def test_a_host_error_after_the_retries_names_every_attempt() -> None:
     assert [a["attempt"] for a in last.report()["attempts"]] == [1, 2, 3]
 
 
+def test_every_robots_retries_give_the_job_the_labs_time_and_keep_each_attempt() -> None:
+    """The loop a virtual robot's, a DTPS robot's and a robot node's jobs share (evaluator/autolab_attempts.py)."""
+    from proxybench.evaluator.autolab import AutolabEpisode
+    from proxybench.evaluator.autolab_attempts import retry_invalid
+
+    class Job:
+        extra = 0.0
+
+        def allow_extra_wall(self, seconds: float) -> None:
+            self.extra += seconds
+
+    bench, job = _bench(invalid_retries=2), Job()
+    ran: list[tuple[int, int]] = []
+
+    def run_again(bad: list[AutolabEpisode], attempt: int) -> list[AutolabEpisode]:
+        ran.extend((e.episode, attempt) for e in bad)
+        return [AutolabEpisode(e.episode, None, {}, False, ["lost"], True, 0, 5, attempt=attempt) for e in bad]
+
+    fit = AutolabEpisode(0, Path("fit.parquet"), {}, True, [], False, 9, 9)
+    bad = AutolabEpisode(1, None, {}, False, ["lost"], True, 0, 5)
+    done = retry_invalid(job, bench, "validation", "db1", [fit, bad], run_again)
+    assert ran == [(1, 2), (1, 3)] and done[0] is fit  # only the invalid episode, twice more
+    assert [a.attempt for a in [*done[1].earlier, done[1]]] == [1, 2, 3]
+    assert job.extra == pytest.approx(2 * bench.duration * bench.wall_time_factor)  # one episode's time per re-run
+
+
 def _run(srv: Served, tmp_path: Path, lab: str, bench: str = BENCH) -> tuple[str, dict]:
     from proxybench.autolab.lab import load_lab
 
