@@ -213,7 +213,13 @@ pytest.importorskip("fastapi")
 pytest.importorskip("uvicorn")
 
 from support.dtps import sdk  # noqa: E402
-from support.real_robot import lab_evaluator  # noqa: E402
+from support.real_robot import (  # noqa: E402
+    check_retried_once,
+    check_retries_spent,
+    drilled,
+    lab_evaluator,
+    run_drilled,
+)
 from support.sandbox import AGENT_USER_GROUP, agent_uid, processes_left, require_safe_sandbox  # noqa: E402
 from test_autolab_evaluator import BENCH  # noqa: E402
 from test_evaluator import Served, served, the_job  # noqa: E402, F401 - served: a fixture
@@ -311,58 +317,24 @@ def test_a_dtps_robot_that_drops_off_mid_episode_is_a_robot_failure_with_nothing
 
 # -- an invalid run run again, as the benchmark says (invalid_retries) ---------------------------------------------
 
-#: the lab's drill on its own streams: the evaluator's recording of every watchtower ends 1.5 s into the 3-s episode
-STOP = "drills: {streams_stop_s: 1.5%s}\n"
-
-
 def test_a_drill_on_a_labs_own_streams_names_them(tmp_path: Path) -> None:
     from proxybench.autolab.lab import LabError
 
     text = LAB.replace("PORT", "7599").replace("streams: []", "streams: [{name: wt1, dtps: 127.0.0.1:7600/wt1, "
                                                "calibration: c.yaml}]")
-    assert _lab(tmp_path, text + STOP % ", streams_stop_attempts: 1").drills.stops_streams(1)
+    assert _lab(tmp_path, text + "drills: {streams_stop_s: 1.5, streams_stop_attempts: 1}\n").drills.stops_streams(1)
     with pytest.raises(LabError, match=r"drills.streams_stop: no watchtower 'wt9' in watchtowers.streams"):
-        _lab(tmp_path, text + STOP % ", streams_stop: [wt9]")
-
-
-def _drilled(tmp_path: Path, attempts: str) -> object:
-    """The stand-in lab with the drill (``attempts``: in which attempts at an episode, e.g. ", streams_stop_attempts:
-    1"; "": every one)."""
-    with open(tmp_path / "lab.yaml", "a") as fh:
-        fh.write(STOP % attempts)
-    return load_lab(tmp_path / "lab.yaml")
+        _lab(tmp_path, text + "drills: {streams_stop_s: 1.5, streams_stop: [wt9]}\n")
 
 
 @sdk
 @AGENT_USER_GROUP
 def test_an_invalid_run_on_the_dtps_robot_is_placed_and_run_again_and_the_valid_attempt_scores_the_job(
         served: Served, tmp_path: Path, real_lab: subprocess.Popen) -> None:  # noqa: F811
-    import io
-    import json
-    import zipfile
-
     require_safe_sandbox()
-    lab = _drilled(tmp_path, ", streams_stop_attempts: 1")
-    sub = submit(served, tmp_path)
-    asked: list[str] = []
-    status, job, (result,) = run_lab_job(served, tmp_path, lab, sub, asked)
-    assert status == job["status"] == "success", result["message"]
-    assert len(asked) == 2 and "for validation episode 0, attempt 2" in asked[1], asked  # placed again
-    report = result["public_report"]
-    (loc,) = report["localization"]
-    assert report["invalid_retries"] == 2 and loc["attempt"] == 2 and loc["valid"]
-    first, second = loc["attempts"]
-    assert first["attempt"] == 1 and first["verdict"] == "invalid" and "ended prematurely" in first["reasons"][0]
-    assert second == {**second, "attempt": 2, "verdict": "valid", "reasons": []}
-    assert [r["attempt"] for r in report["robot_record"]] == [1, 2]  # the robot's record of each attempt
-    assert result["public_scores"]["survival_time_median"] == 3.0  # scored from the valid attempt: the whole episode
-    zipped = next(a for a in result["artifacts"] if a["name"] == "trajectories-validation.zip")
-    with zipfile.ZipFile(io.BytesIO(served.admin.http.get(f"/artifacts/{zipped['sha256']}").content)) as zf:
-        names = set(zf.namelist())
-        attempts = json.loads(zf.read("attempts.json"))
-    assert {"episode-0.parquet", "episode-0-track.csv", "robot-episode-0.csv",  # the attempt that was scored
-            "episode-0-attempt-1-track.csv", "robot-episode-0-attempt-1.csv"} <= names  # and the one before
-    assert [(a["attempt"], a["verdict"]) for a in attempts["0"]] == [(1, "invalid"), (2, "valid")]
+    status, job, results, asked = run_drilled(served, tmp_path, drilled(tmp_path / "lab.yaml", attempts=1))
+    assert status == job["status"] == "success", results
+    check_retried_once(served, results[0], asked, ".csv")
     uid = agent_uid()
     assert uid is None or processes_left(uid) == []
 
@@ -372,16 +344,6 @@ def test_an_invalid_run_on_the_dtps_robot_is_placed_and_run_again_and_the_valid_
 def test_a_run_on_the_dtps_robot_invalid_in_every_attempt_ends_host_error_naming_each(
         served: Served, tmp_path: Path, real_lab: subprocess.Popen) -> None:  # noqa: F811
     require_safe_sandbox()
-    lab = _drilled(tmp_path, "")
-    sub = submit(served, tmp_path, bench=BENCH.replace("camera_only: true", "camera_only: true\ninvalid_retries: 1"))
-    asked: list[str] = []
-    status, job, results = run_lab_job(served, tmp_path, lab, sub, asked)
-    assert status == "host-error" and len(asked) == 2, asked
-    assert job["status"] == "queued" and results == []  # the lab's fault: nothing stored, another lab may run it
-    (event,) = [e for e in served.admin.get(f"/jobs/{job['id']}")["events"] if e["kind"] == "host-error"]
-    message = event["message"]
-    assert message.startswith("invalid: validation episode 0 is not fit to be scored (the DTA's validation)"), message
-    assert "after 2 attempts (the benchmark's invalid_retries: 1): attempt 1: invalid (ended prematurely" in message
-    assert "; attempt 2: invalid (ended prematurely" in message
+    check_retries_spent(served, *run_drilled(served, tmp_path, drilled(tmp_path / "lab.yaml"), retries=1))
     uid = agent_uid()
     assert uid is None or processes_left(uid) == []

@@ -25,7 +25,15 @@ pytest.importorskip("fastapi")
 pytest.importorskip("uvicorn")
 
 from support.dtps import sdk
-from support.real_robot import run_lab_job, submit, write_lab
+from support.real_robot import (
+    check_retried_once,
+    check_retries_spent,
+    drilled,
+    run_drilled,
+    run_lab_job,
+    submit,
+    write_lab,
+)
 from support.sandbox import AGENT_USER_GROUP, agent_uid, processes_left, require_safe_sandbox
 from test_evaluator import Served, served  # noqa: F401 - served: a fixture
 
@@ -128,60 +136,20 @@ def test_an_aido_node_package_drives_the_labs_robot_node_through_the_runner(
     assert uid is None or processes_left(uid) == []
 
 
-def _drilled(node_lab: Path, attempts: str):
-    """The node's lab with the drill on its own streams: the evaluator's recording of every watchtower ends 1.5 s
-    into the 3-s episode (``attempts``: in which attempts at an episode, e.g. ", streams_stop_attempts: 1")."""
-    with open(node_lab, "a") as fh:
-        fh.write(f"drills: {{streams_stop_s: 1.5{attempts}}}\n")
-    return load_lab(node_lab)
-
-
 @sdk
 @AGENT_USER_GROUP
 def test_an_invalid_run_on_the_robot_node_is_placed_and_run_again_and_the_valid_attempt_scores_the_job(
         served: Served, tmp_path: Path, node_lab: Path) -> None:  # noqa: F811
-    import json
-
     require_safe_sandbox()
-    sub = submit(served, tmp_path)
-    asked: list[str] = []
-    status, job, (result,) = run_lab_job(served, tmp_path, _drilled(node_lab, ", streams_stop_attempts: 1"), sub,
-                                         asked)
-    assert status == job["status"] == "success", result["message"]
-    assert len(asked) == 2 and "for validation episode 0, attempt 2" in asked[1], asked  # placed again
-    report = result["public_report"]
-    (loc,) = report["localization"]
-    assert report["invalid_retries"] == 2 and loc["attempt"] == 2 and loc["valid"]
-    assert [(a["attempt"], a["verdict"]) for a in loc["attempts"]] == [(1, "invalid"), (2, "valid")]
-    assert "ended prematurely" in loc["attempts"][0]["reasons"][0]
-    assert [r["attempt"] for r in report["robot_record"]] == [1, 2]
-    assert result["public_scores"]["survival_time_median"] == 3.0
+    status, job, results, asked = run_drilled(served, tmp_path, drilled(node_lab, attempts=1))
+    assert status == job["status"] == "success", results
+    report = check_retried_once(served, results[0], asked, ".parquet")
     assert report["robot_reported_scores"]["driven_lanedir_consec_median"] > 0.1  # the scored attempt's own record
-    zipped = next(a for a in result["artifacts"] if a["name"] == "trajectories-validation.zip")
-    with zipfile.ZipFile(io.BytesIO(served.admin.http.get(f"/artifacts/{zipped['sha256']}").content)) as zf:
-        names = set(zf.namelist())
-        attempts = json.loads(zf.read("attempts.json"))
-    assert {"episode-0.parquet", "robot-episode-0.parquet", "episode-0-attempt-1-track.csv",
-            "robot-episode-0-attempt-1.parquet"} <= names
-    assert [a["attempt"] for a in attempts["0"]] == [1, 2]
 
 
 @sdk
 @AGENT_USER_GROUP
 def test_a_run_on_the_robot_node_invalid_in_every_attempt_ends_host_error_naming_each(
         served: Served, tmp_path: Path, node_lab: Path) -> None:  # noqa: F811
-    from test_autolab_evaluator import BENCH
-    from test_evaluator import the_job
-
     require_safe_sandbox()
-    sub = submit(served, tmp_path, bench=BENCH.replace("camera_only: true", "camera_only: true\ninvalid_retries: 1"))
-    asked: list[str] = []
-    status, job, results = run_lab_job(served, tmp_path, _drilled(node_lab, ""), sub, asked)
-    assert status == "host-error" and len(asked) == 2, asked
-    assert job["status"] == "queued" and results == []  # the lab's fault: nothing stored, another lab may run it
-    (event,) = [e for e in served.admin.get(f"/jobs/{job['id']}")["events"] if e["kind"] == "host-error"]
-    message = event["message"]
-    assert message.startswith("invalid: validation episode 0 is not fit to be scored (the DTA's validation)"), message
-    assert "after 2 attempts (the benchmark's invalid_retries: 1): attempt 1: invalid (ended prematurely" in message
-    assert "; attempt 2: invalid (ended prematurely" in message
-    assert the_job(served, sub["id"])[1] == []
+    check_retries_spent(served, *run_drilled(served, tmp_path, drilled(node_lab), retries=1))

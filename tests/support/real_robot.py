@@ -14,7 +14,8 @@ import threading
 import time
 from pathlib import Path
 
-__all__ = ["LAB", "Operator", "answer", "lab_evaluator", "operator_places", "run_lab_job", "submit", "write_lab"]
+__all__ = ["LAB", "Operator", "answer", "check_retried_once", "check_retries_spent", "drilled", "lab_evaluator",
+           "operator_places", "run_drilled", "run_lab_job", "submit", "write_lab"]
 
 #: lab.yaml of one DTPS robot at 127.0.0.1:PORT and no watchtowers yet (``streams: []``), placed by its operator
 LAB = """\
@@ -130,3 +131,72 @@ def run_lab_job(served, tmp_path: Path, lab, sub: dict,
         requests.extend(operator.requests)
     job, results = the_job(served, sub["id"])
     return status, job, results
+
+
+def drilled(lab_yaml: Path, attempts: int | None = None):
+    """The lab at ``lab_yaml`` with the drill on its own streams: the evaluator's recording of every watchtower ends
+    1.5 s into the 3-s episode, in the first ``attempts`` attempts at an episode (None: in every one); loaded."""
+    from proxybench.autolab.lab import load_lab
+
+    with open(lab_yaml, "a") as fh:
+        fh.write("drills: {streams_stop_s: 1.5" + ("" if attempts is None else f", streams_stop_attempts: {attempts}")
+                 + "}\n")
+    return load_lab(lab_yaml)
+
+
+def check_retried_once(served, result: dict, asked: list[str], record_suffix: str) -> dict:
+    """What a job whose one episode was invalid at first and valid when run again shows: the operator asked twice,
+    the second attempt scored, both in the report (the robot's record of each too) and in the zip (the earlier
+    attempt's track and robot record, ``robot-episode-0-attempt-1<record_suffix>``; ``attempts.json``). The
+    report."""
+    import io
+    import json
+    import zipfile
+
+    assert len(asked) == 2 and "for validation episode 0, attempt 2" in asked[1], asked  # placed again
+    report = result["public_report"]
+    (loc,) = report["localization"]
+    assert report["invalid_retries"] == 2 and loc["attempt"] == 2 and loc["valid"]
+    first, second = loc["attempts"]
+    assert first["attempt"] == 1 and first["verdict"] == "invalid" and "ended prematurely" in first["reasons"][0]
+    assert second == {**second, "attempt": 2, "verdict": "valid", "reasons": []}
+    assert [r["attempt"] for r in report["robot_record"]] == [1, 2]  # the robot's record of each attempt
+    assert result["public_scores"]["survival_time_median"] == 3.0  # scored from the valid attempt: the whole episode
+    zipped = next(a for a in result["artifacts"] if a["name"] == "trajectories-validation.zip")
+    with zipfile.ZipFile(io.BytesIO(served.admin.http.get(f"/artifacts/{zipped['sha256']}").content)) as zf:
+        names = set(zf.namelist())
+        attempts = json.loads(zf.read("attempts.json"))
+    assert {"episode-0.parquet", "episode-0-track.csv", f"robot-episode-0{record_suffix}",  # the scored attempt
+            "episode-0-attempt-1-track.csv", f"robot-episode-0-attempt-1{record_suffix}"} <= names  # the one before
+    assert [(a["attempt"], a["verdict"]) for a in attempts["0"]] == [(1, "invalid"), (2, "valid")]
+    return report
+
+
+def run_drilled(served, tmp_path: Path, lab, retries: int | None = None) -> tuple[str | None, dict, list[dict],
+                                                                                  list[str]]:
+    """The lane-following SDK package submitted to the benchmark (``invalid_retries: retries``; None: its default)
+    and run by ``lab`` (:func:`drilled`): (the status, the job, its results, the placements the operator was
+    asked for)."""
+    from test_autolab_evaluator import BENCH
+
+    bench = BENCH if retries is None else BENCH.replace("camera_only: true",
+                                                        f"camera_only: true\ninvalid_retries: {retries}")
+    asked: list[str] = []
+    status, job, results = run_lab_job(served, tmp_path, lab, submit(served, tmp_path, bench=bench), asked)
+    return status, job, results, asked
+
+
+def check_retries_spent(served, status: str | None, job: dict, results: list[dict],
+                        asked: list[str] | None = None) -> str:
+    """What a job whose one episode was invalid in both attempts (``invalid_retries: 1``) shows: ``host-error``
+    naming both attempts, nothing stored, the job queued again; the operator asked twice (``asked``; None: a
+    virtual robot, reset without one). The host error's message."""
+    assert status == "host-error", status
+    assert asked is None or len(asked) == 2, asked
+    assert job["status"] == "queued" and results == []  # the lab's fault: nothing stored, another lab may run it
+    (event,) = [e for e in served.admin.get(f"/jobs/{job['id']}")["events"] if e["kind"] == "host-error"]
+    message = event["message"]
+    assert message.startswith("invalid: validation episode 0 is not fit to be scored (the DTA's validation)"), message
+    assert "after 2 attempts (the benchmark's invalid_retries: 1): attempt 1: invalid (ended prematurely" in message
+    assert "; attempt 2: invalid (ended prematurely" in message
+    return message
