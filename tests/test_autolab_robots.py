@@ -39,22 +39,21 @@ def _lab(robots: list[dict]) -> Lab:
                                "reset": {"mode": "operator"}})
 
 
-def test_a_robot_is_held_by_one_job_at_a_time_and_only_drivable_robots_are_offered() -> None:
+def test_a_robot_is_held_by_one_job_at_a_time_and_every_kind_of_robot_is_offered() -> None:
     from proxybench.evaluator.robots import RobotLeases
 
     leases = RobotLeases(_lab([{"name": "db1", "virtual": True}, {"name": "cam", "dtps": "10.0.0.2/cam"},
                                {"name": "db2", "virtual": True}]))
-    assert leases.robots == ("db1", "db2") and len(leases) == 2  # the DTPS robot is not driven yet
-    assert [leases.take(), leases.take(), leases.take()] == ["db1", "db2", None]
-    assert leases.busy == ["db1", "db2"]
+    assert leases.robots == ("db1", "cam", "db2") and len(leases) == 3  # a lab's DTPS robot is driven too
+    assert [leases.take(), leases.take(), leases.take(), leases.take()] == ["db1", "cam", "db2", None]
+    assert leases.busy == ["db1", "cam", "db2"]
     leases.give_back("db1")
-    assert leases.busy == ["db2"] and leases.take() == "db1"
+    assert leases.busy == ["cam", "db2"] and leases.take() == "db1"
     leases.give_back("db2")
     with pytest.raises(RuntimeError, match="robot 'db2' is not held"):
         leases.give_back("db2")
     leases.close()  # the evaluator's end frees what it still holds
     assert leases.busy == []
-    # a lab with no virtual robot offers its first, whose job the worker refuses saying why
     assert RobotLeases(_lab([{"name": "cam", "dtps": "10.0.0.2/cam"}])).robots == ("cam",)
 
 

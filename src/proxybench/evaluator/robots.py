@@ -15,12 +15,12 @@ and the robot's name (two labs of one name describe one lab). ``PROXYBENCH_AUTOL
 ``DIR/<lab>/`` instead (checked the same way): the test suite gives each of its processes its own, so that tests
 running at once with one lab's name do not wait for each other's robots.
 
-The robots it drives are the lab's **virtual** DB21Js (each a simulator of the worker's own behind its own DTPS
-server, in a network namespace of its own under the safe sandbox, so that each SDK agent finds *its* robot at
-127.0.0.1:7501). With ``world: shared`` they are robots of the lab's one world (:mod:`.lab_world`), else each is
-the ego of a world of its own (docs/autolab.md, "Several robots"). A lab without virtual robots offers its first
-robot, whose job the worker refuses with a host error saying why (a DTPS or robot-node robot is described but not
-yet driven).
+It offers every robot of the lab, in the lab's order: **virtual** DB21Js (each a simulator of the worker's own
+behind its own DTPS server, in a network namespace of its own under the safe sandbox, so that each SDK agent
+finds *its* robot at 127.0.0.1:7501; with ``world: shared`` robots of the lab's one world, :mod:`.lab_world`,
+else each the ego of a world of its own: docs/autolab.md, "Several robots"), **DTPS** robots (a relay into the
+agent's namespace, :mod:`.autolab_dtps`) and **robot nodes** (:mod:`.autolab_node`). What a robot cannot do for a
+job (an AIDO node on a DTPS robot) the worker refuses with a host error saying why.
 """
 
 from __future__ import annotations
@@ -46,9 +46,8 @@ class RobotLeases:
     of this lab's robots live (default ``<tmp>/proxybench-<uid>/autolab-robots/<lab>``; tests give their own)."""
 
     def __init__(self, lab: Lab, lock_dir: Path | None = None):
-        virtual = [r.name for r in lab.robots if r.kind == "virtual"]
         self.lab = lab.name
-        self.robots: tuple[str, ...] = tuple(virtual or [lab.robots[0].name])
+        self.robots: tuple[str, ...] = tuple(r.name for r in lab.robots)
         self._lock_dir = lock_dir
         self._held: dict[str, int] = {}  # robot -> descriptor of its lock file (closing it frees the robot)
         self._elsewhere: dict[str, str] = {}  # robot -> its holder in another process, as last seen
