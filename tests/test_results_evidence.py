@@ -251,16 +251,18 @@ def test_export_refuses_a_plv_run_missing_a_proxy_s_training(tmp_path: Path):
 
 @pytest.fixture(scope="module")
 def choice_study(tmp_path_factory) -> Path:
-    """A finished plv-vs-prpv comparison on the reality model: PLV read from a canned PLV run, PRPV from 3 agents ×
-    2 episodes replayed in its two proxies (the nominal and camera pitch 35°)."""
+    """A finished plv-vs-prpv comparison on the reality model: PLV read from a canned PLV run, PRPV from 8 agents
+    (not in alphabetical order: the shipped table is sorted, the bootstrap resamples in the run's order) × 3
+    episodes replayed in its two proxies (the nominal and camera pitch 35°)."""
     import yaml
 
     from proxybench.cli import learning  # noqa: F401 - registers the command
 
     tmp = tmp_path_factory.mktemp("choice")
     run = _plv_study(tmp / "plv")
-    exp = {"agents": ["straight", "pid", "pure-pursuit"], "episodes": 2, "seconds": 2.0, "image_size": [32, 24],
-           "n_boot": 50, "plv": {"from_run": str(run)}}
+    exp = {"agents": ["straight", "bang-bang", "pid", "pid-fast", "pid-twitchy", "pure-pursuit", "pid-sluggish",
+                      "random"], "episodes": 3, "seconds": 3.0, "image_size": [32, 24], "n_boot": 100,
+           "plv": {"from_run": str(run)}}
     (tmp / "exp.yaml").write_text(yaml.safe_dump(exp))
     res = _cli("plv-vs-prpv", "--config", str(tmp / "exp.yaml"), "--out", str(tmp / "out"), "--backend", "inline")
     assert res.exit_code == 0, res.output

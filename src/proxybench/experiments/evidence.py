@@ -600,7 +600,9 @@ def _export_choice(study: Path, dest: Path, command: str | None, commit: str | N
     differ = _choice_differences(shipped, recompute_choice(shipped, scores), str(study / "choice.json"))
     if differ:
         raise EvidenceError(differ[0])
-    slim = {**shipped, "extra": {k: v for k, v in extra.items() if k != "episode_scores"}}
+    # the bootstrap resamples agents in the order the run held them: keep that order (the table is sorted)
+    slim = {**shipped, "extra": {**{k: v for k, v in extra.items() if k != "episode_scores"},
+                                 "episode_agents": list(scores.target)}}
     (dest / "choice.json").write_text(json.dumps(slim, indent=1, default=str) + "\n")
     episodes = _write_table(_choice_scores_rows(scores), ["domain", "agent", "episode"], dest / EPISODES)
     source = extra.get("plv_from_run")
@@ -639,7 +641,13 @@ def _choice_numbers(name: str, folder: Path, rel: str) -> Rebuilt:
     metrics = list((shipped.get("extra") or {}).get("metrics") or [])
     if not metrics:
         raise EvidenceError(f"{folder / 'choice.json'}: extra.metrics is missing")
-    res = recompute_choice(shipped, _choice_scores_from_table(folder, metrics))
+    scores = _choice_scores_from_table(folder, metrics)
+    order = list((shipped.get("extra") or {}).get("episode_agents") or scores.target)
+    if sorted(order) != sorted(scores.target):
+        raise EvidenceError(f"{folder / EPISODES}: its agents are not choice.json's extra.episode_agents")
+    scores.target = {a: scores.target[a] for a in order}
+    scores.candidates = {c: {a: by[a] for a in order if a in by} for c, by in scores.candidates.items()}
+    res = recompute_choice(shipped, scores)
     problems = [f"{name}: {p}" for p in _choice_differences(shipped, res, f"{rel}/choice.json")]
     numbers = {}
     fresh = json.loads(json.dumps(res.to_dict(), default=str))
