@@ -270,11 +270,7 @@ class Worlds:
             x, y, th = state[: self.n, 0], state[: self.n, 1], state[: self.n, 2]
             c, s = np.cos(th), np.sin(th)
             for j, p in enumerate(self._tpl[0]):
-                rows = self._ego_row + j
-                m[rows, PF_X] = x + c * p[PF_X] - s * p[PF_Y]
-                m[rows, PF_Y] = y + s * p[PF_X] + c * p[PF_Y]
-                m[rows, PF_COS] = c * p[PF_COS] - s * p[PF_SIN]
-                m[rows, PF_SIN] = s * p[PF_COS] + c * p[PF_SIN]
+                _place(m, self._ego_row + j, x, y, c, s, p)
             return m
         if self.ped_world.size:
             a = self.peds
@@ -287,11 +283,7 @@ class Worlds:
             x, y, th = state[self.n:, 0], state[self.n:, 1], state[self.n:, 2]
             c, s = np.cos(th), np.sin(th)
             for j, p in enumerate(self._bot_prims):
-                rows = self._bot_row + j
-                m[rows, PF_X] = x + c * p[PF_X] - s * p[PF_Y]
-                m[rows, PF_Y] = y + s * p[PF_X] + c * p[PF_Y]
-                m[rows, PF_COS] = c * p[PF_COS] - s * p[PF_SIN]
-                m[rows, PF_SIN] = s * p[PF_COS] + c * p[PF_SIN]
+                _place(m, self._bot_row + j, x, y, c, s, p)
         return m
 
     def collide(self, trace: np.ndarray, tick0: np.ndarray, dt: float, flags: np.ndarray, kind: np.ndarray,
@@ -311,3 +303,12 @@ class Worlds:
         for r in self._bot_row[(self.robot_world == w)]:
             keep[r - self.world_lo[w]: r - self.world_lo[w] + self._bot_prims.shape[0]] = False
         return m[self.world_lo[w]: self.world_hi[w]][keep].copy()
+
+
+def _place(m: np.ndarray, rows, x: np.ndarray, y: np.ndarray, c: np.ndarray, s: np.ndarray, p: np.ndarray) -> None:
+    """Primitive ``p`` (in a robot's frame) placed at each robot's pose (x, y, heading cos c / sin c) in ``m``'s
+    ``rows``: one rigid transform for ego robots of a shared world and NPC robots alike."""
+    m[rows, PF_X] = x + c * p[PF_X] - s * p[PF_Y]
+    m[rows, PF_Y] = y + s * p[PF_X] + c * p[PF_Y]
+    m[rows, PF_COS] = c * p[PF_COS] - s * p[PF_SIN]
+    m[rows, PF_SIN] = s * p[PF_COS] + c * p[PF_SIN]
