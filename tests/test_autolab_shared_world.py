@@ -44,6 +44,9 @@ def test_a_shared_world_needs_simulated_watchtowers_and_a_job_names_it_only_for_
         Lab.model_validate({"map": "loop_3x3", "robots": [{"name": "db1", "virtual": True}], "world": "shared",
                             "watchtowers": {"streams": [{"name": "wt1", "dtps": "10.0.0.3/wt1",
                                                          "calibration": "/x.yaml"}]}})
+    with pytest.raises(ValidationError, match=r"watchtowers\.serve must be files"):
+        Lab.model_validate({"map": "loop_3x3", "robots": [{"name": "db1", "virtual": True}], "world": "shared",
+                            "watchtowers": {"layout": "auto", "serve": "dtps"}})
     lab = Lab.model_validate({"map": "loop_3x3", "robots": [{"name": "db1", "virtual": True, "roof_tag": 420},
                                                             {"name": "db2", "virtual": True}],
                               "watchtowers": {"layout": "auto"}, "world": "shared"})

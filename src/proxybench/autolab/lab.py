@@ -259,6 +259,11 @@ class Lab(BaseModel):
                                  "watchtowers.streams")
         if self.world == "shared" and self.watchtowers.layout is None:
             raise ValueError("world: a shared world's watchtowers are simulated: give watchtowers.layout")
+        if self.world == "shared" and self.watchtowers.serve != "files":
+            # the shared world's server records every tower itself; serving them as well would localise from
+            # a second, per-robot copy of the towers that sees only one robot
+            raise ValueError("world: a shared world's watchtowers are written by its own server: "
+                             "watchtowers.serve must be files (the default), not dtps")
         if self.reset.mode == "teleport":
             real = [r.name for r in self.robots if not r.virtual]
             if real:
