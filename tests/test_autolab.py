@@ -102,6 +102,34 @@ def test_the_tag_table_is_opencvs_tag36h11():
         assert np.array_equal(apriltags.cells(i)[1:-1, 1:-1], marker)
 
 
+_MAKE_AND_DESTROY = """
+import gc, sys
+import numpy as np
+from proxybench.autolab.detect import pupil_detector_class
+cls = pupil_detector_class()
+img = (np.random.default_rng(0).random((120, 160)) * 255).astype(np.uint8)
+for _ in range(8):
+    det = cls(families="tag36h11", nthreads=1, quad_decimate=2.0, refine_edges=1)
+    det.detect(img)
+    del det
+    gc.collect()
+print("destroyed")
+"""
+
+
+def test_a_detector_is_destroyed_without_touching_freed_memory():
+    """pupil-apriltags' own destructor frees the tag families before the detector that still walks them: with
+    glibc's freed-memory poisoning (MALLOC_PERTURB_) that use after free crashes at once, as it did now and then
+    in evaluator workers; ours destroys the detector first."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "MALLOC_PERTURB_": "165", "MALLOC_CHECK_": "3"}
+    done = subprocess.run([sys.executable, "-c", _MAKE_AND_DESTROY], env=env, capture_output=True, text=True)
+    assert done.returncode == 0 and done.stdout.strip() == "destroyed", done.stderr[-2000:]
+
+
 def test_floor_tags_are_drawn_as_their_patterns_and_measured_to_a_millimetre():
     rng = np.random.default_rng(3)
     truth = {}

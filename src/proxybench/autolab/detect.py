@@ -49,32 +49,46 @@ class TagPose:
     pixels: float  # the tag's edge in the image [px], a measure of how well it is seen
 
 
-#: pupil-apriltags detectors by decimation, kept for the process's life: destroying one can crash the process
-#: (a segmentation fault in its ``__del__``, seen with pupil-apriltags 1.0.4.post11)
+#: pupil-apriltags detectors by decimation, made once per process (a detector's tables take a while to build)
 _PUPIL: dict[float, object] = {}
 #: one maker at a time: two threads (the online detector's worker and the main thread) making one decimation's
 #: detector at once would make two, and drop one
 _PUPIL_LOCK = threading.Lock()
 
 
+def pupil_detector_class() -> type:
+    """pupil-apriltags' ``Detector`` with its destructor in the right order.
+
+    pupil-apriltags (1.0.4.post11) frees the tag families first and the detector after, but destroying the
+    detector walks its families (``quick_decode_uninit``): a use after free that crashed evaluator workers now
+    and then (SIGSEGV from the garbage collector) and always with glibc's ``MALLOC_PERTURB_``. AprilTag's own
+    example, and duckietown/lib-dt-apriltags#26, destroy the detector first; so does this."""
+    try:
+        from pupil_apriltags import Detector as _Pupil
+    except ImportError as exc:
+        raise ImportError("the apriltag detector needs pupil-apriltags: pip install 'proxybench[autolab]'") from exc
+
+    class PupilDetector(_Pupil):
+        def __del__(self) -> None:
+            ptr = getattr(self, "tag_detector_ptr", None)
+            if ptr is None:  # never made, or already destroyed
+                return
+            self.tag_detector_ptr = None
+            self.libc.apriltag_detector_destroy.restype = None
+            self.libc.apriltag_detector_destroy(ptr)
+            for family, tf in self.tag_families.items():
+                destroy = getattr(self.libc, f"{family}_destroy")
+                destroy.restype = None
+                destroy(tf)
+
+    return PupilDetector
+
+
 def _pupil(decimate: float):
     with _PUPIL_LOCK:
         if decimate not in _PUPIL:
-            try:
-                from pupil_apriltags import Detector as _Pupil
-            except ImportError as exc:
-                raise ImportError("the apriltag detector needs pupil-apriltags: pip install "
-                                  "'proxybench[autolab]'") from exc
-
-            class _Kept(_Pupil):
-                """Never destroyed: kept for the process's life anyway, and pupil-apriltags' ``__del__`` crashed the
-                evaluator's worker from the garbage collector (SIGSEGV in apriltag_detector_destroy, seen with
-                1.0.4.post11 after a job's online detection); the C detector goes with the process."""
-
-                def __del__(self) -> None:
-                    pass
-
-            _PUPIL[decimate] = _Kept(families="tag36h11", nthreads=1, quad_decimate=decimate, refine_edges=1)
+            _PUPIL[decimate] = pupil_detector_class()(families="tag36h11", nthreads=1, quad_decimate=decimate,
+                                                      refine_edges=1)
         return _PUPIL[decimate]
 
 
