@@ -1,8 +1,8 @@
 """The validation study's pre-registration is tamper-evident (issue 35, item 1; issue 38's "validate resumes
 without its secret"): criteria.json is never rewritten, a study without its secret stops, an interim look shows
 no θ, and an edit of the look log, the criteria, a target's record, the scoring code or the order of criteria and
-data is reported (the command exits non-zero). One quick study (3 targets, episodes of 2 s) is run once; each
-test works on a copy of its folder."""
+data is reported (the command exits non-zero). One quick study (3 targets, 4 agents of two families, episodes of
+2 s) is run once; each test works on a copy of its folder."""
 
 from __future__ import annotations
 
@@ -19,7 +19,10 @@ from proxybench.cli import app
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("validate_registration")]
 
 ENV = {"COLUMNS": "200", "NO_COLOR": "1"}
-ARGS = ["validate", "--quick", "--targets", "3", "--backend", "inline"]
+#: what is checked here does not depend on the pool's size: half of --quick's (two families, so every family split
+#: has two agents a side), which halves the study's episodes
+ARGS = ["validate", "--quick", "--targets", "3", "--agent", "pid", "--agent", "pid-twitchy", "--agent", "vision",
+        "--agent", "vision-fast", "--backend", "inline"]
 
 
 def _short_episodes(mp: pytest.MonkeyPatch) -> None:
