@@ -17,7 +17,10 @@ from proxybench.experiments.evidence import readme_quotes
 
 ENV = {"COLUMNS": "200", "NO_COLOR": "1"}
 REPO = Path(__file__).resolve().parents[1]
-VALIDATE = ["validate", "--quick", "--targets", "3", "--seconds", "2", "--backend", "inline"]
+#: 4 agents of two families (half of --quick's pool, two a side in every family split): what is checked here does
+#: not depend on the pool's size, and the study runs half the episodes
+VALIDATE = ["validate", "--quick", "--targets", "3", "--seconds", "2", "--agent", "pid", "--agent", "pid-twitchy",
+            "--agent", "vision", "--agent", "vision-fast", "--backend", "inline"]
 
 
 def _cli(*args: str):
