@@ -85,6 +85,55 @@ def test_the_margin_test_and_the_size_it_needs():
     assert missing.n == 2
 
 
+def test_holm_holds_four_tests_to_one_alpha_together():
+    """One pass in four at α each is what chance gives: under Holm a comparison just inside the margin at α
+    is not shown, a clear one is, and nothing after the first failure in p order is shown."""
+    from proxybench.usefulness.validation import holm, margin_test
+
+    rng = np.random.default_rng(1)
+    base = np.full(20, 0.1)
+    clear = base + rng.normal(-0.03, 0.02, 20)  # PRPV better by 0.03: non-inferior and superior even at α/4
+    edge = base + rng.normal(0.0, 0.05, 20)  # noise about zero
+    edge = edge - (margin_test("a", "b", edge, base, 0.02).upper - 0.019)  # its α bound just under the margin
+    worse = base + rng.normal(0.06, 0.02, 20)
+    values = [(clear, base), (edge, base), (worse, base), (worse + 0.01, base)]
+    plain = [margin_test("prpv", "cal", a, b, 0.02) for a, b in values]
+    assert [m.noninferior for m in plain] == [True, True, False, False]
+    held = holm(plain, values, 0.05)
+    assert [m.noninferior for m in held] == [True, False, False, False]
+    assert held[0].superior and held[0].alpha == pytest.approx(0.05 / 4)  # the smallest p first, at α/4
+    assert held[1].alpha == pytest.approx(0.05 / 3) and held[1].upper > plain[1].upper  # a stricter bound
+    assert {m.alpha for m in held[2:]} == {0.05 / 2, 0.05}
+    # a test whose own bound is under the margin is still not shown after an earlier one failed (step-down)
+    from scipy.stats import t as student
+
+    noise = rng.normal(0.0, 0.05, 20)
+    noise = (noise - noise.mean()) / noise.std(ddof=1) * 0.05  # SD exactly 0.05: p is set by the mean alone
+    at_p = [(base + noise + 0.02 + student.ppf(p, 19) * 0.05 / np.sqrt(20), base) for p in (0.03, 0.04)]
+    stop = holm([margin_test("prpv", "cal", a, b, 0.02) for a, b in at_p], at_p, 0.05)
+    assert stop[0].alpha == pytest.approx(0.025) and not stop[0].noninferior  # p 0.03 > 0.025: not shown
+    assert stop[1].upper < 0.02 and not stop[1].noninferior  # p 0.04 < 0.05, but Holm stopped at the first
+    assert holm([margin_test("a", "b", [0.1], [0.1], 0.02)], [([0.1], [0.1])], 0.05)[0].n == 1  # untested: no error
+
+
+def test_a_study_registered_before_the_multiplicity_rule_resumes_uncorrected(tmp_path):
+    """A folder whose criteria predate ``multiplicity`` keeps its registered rule (each test at α) when the run
+    names none, so it resumes and is looked at as registered; a run that names a rule is compared as given."""
+    from proxybench.experiments.validate.registration import registered_rule
+    from proxybench.experiments.validate.run import ValidateConfig, settings_for
+
+    cfg = ValidateConfig(family="gym")
+    s = settings_for(cfg, False)
+    assert registered_rule(cfg, s, tmp_path) is s  # no study there: a new one is corrected
+    old = s.model_copy(update={"primary": s.primary.model_copy(update={"multiplicity": None})})
+    (tmp_path / "criteria.json").write_text(json.dumps({"settings": old.model_dump(mode="json")}))
+    assert registered_rule(cfg, s, tmp_path).model_dump(mode="json") == old.model_dump(mode="json")
+    named = ValidateConfig(family="gym", multiplicity="holm")
+    assert registered_rule(named, s, tmp_path) is s
+    (tmp_path / "criteria.json").write_text(json.dumps({"settings": s.model_dump(mode="json")}))
+    assert registered_rule(cfg, s, tmp_path) is s  # a corrected study stays corrected
+
+
 def test_trajectory_error_holds_a_replay_that_ended_early():
     recorded = np.column_stack([np.linspace(0, 2, 21), np.linspace(0, 2, 21), np.zeros(21)])
     assert trajectory_error(recorded, recorded) == 0.0
@@ -123,6 +172,7 @@ def test_the_nominal_is_the_centre_candidate_of_every_family_and_an_off_centre_g
 
 def test_the_criteria_plan_each_stratum_for_the_margin():
     from proxybench.experiments.validate.run import ValidateConfig, settings_for
+    from proxybench.usefulness.validation import targets_needed
 
     s = settings_for(ValidateConfig(family="gym"), False)
     plan = s.primary
@@ -131,7 +181,12 @@ def test_the_criteria_plan_each_stratum_for_the_margin():
     near, far = plan.strata["near"], plan.strata["far"]
     # uniform draw: trim in [-0.15, 0.35] (0.2 of 0.5 inside |trim| <= 0.1), delay in [0.02, 0.3] (0.18 of 0.28)
     assert near.share == pytest.approx(0.4 * 0.18 / 0.28, abs=1e-6) and near.share + far.share == pytest.approx(1)
-    assert near.needed == far.needed == 156  # one-sided t, α 0.05, 80 %: 0.02 at SD 0.10
+    # Holm over 2 strata × 2 comparisons: the first test is held to α/4, and the sizes are planned for it
+    assert plan.multiplicity == "holm" and plan.tests == 4 and plan.level(0.05) == pytest.approx(0.0125)
+    assert near.needed == far.needed == targets_needed(0.02, 0.10, 0.0125) > 156
+    uncorrected = settings_for(ValidateConfig(family="gym", multiplicity="none"), False).primary
+    assert uncorrected.multiplicity is None and uncorrected.strata["near"].needed == 156  # one-sided t, α 0.05, 80 %
+    assert "multiplicity" not in uncorrected.model_dump(mode="json")  # as studies registered before the rule
     (n_near, mde_near), (_, mde_far) = (st.planned(40, 0.05, 0.8, 0.1) for st in (near, far))
     assert n_near == pytest.approx(40 * near.share, abs=1e-3) and mde_near > mde_far > 0.02
     assert near.planned(4, 0.05, 0.8, 0.1)[1] is None  # under 2 targets expected: no MDE
@@ -283,7 +338,10 @@ def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path, m
     assert len(summary["strata"]) == 3
     for (b, st), t in tests.items():
         assert t["n"] + t["not_applicable"] == summary["strata"].count(st), (b, st)
-        assert t["noninferior"] == bool(t["upper"] < t["margin"]) and t["superior"] == bool(t["upper"] < 0)
+        # Holm: each test at its own level (at most α), shown only below the margin at that level
+        assert t["alpha"] <= 0.05 and (not t["noninferior"] or t["upper"] < t["margin"])
+        assert t["superior"] == bool(t["noninferior"] and t["upper"] < 0)
+    assert sorted(t["alpha"] for t in tests.values()) == pytest.approx([0.05 / 4, 0.05 / 3, 0.05 / 2, 0.05])
     assert ("stratum" in res.output) and ("PRPV − calibration" in res.output or "PRPV against calibration" in
                                           res.output)
     assert {"calibration", "trajectory_fit"} <= set(methods)

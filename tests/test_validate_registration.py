@@ -89,6 +89,8 @@ def test_other_settings_on_a_finished_study_are_refused_and_its_criteria_kept(st
         res = _validate(study, *other)
         assert res.exit_code == 2 and "the folder's criteria say" in res.output, (other, res.output)
     assert "(and top_k)" in res.output  # every setting that differs is named
+    res = _validate(study, "--multiplicity", "none")  # the registered Holm rule cannot be dropped afterwards
+    assert res.exit_code == 2 and "primary: the folder's criteria say" in res.output
     assert (study / "criteria.json").read_bytes() == before
 
 

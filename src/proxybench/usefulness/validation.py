@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -43,7 +43,7 @@ from proxybench.usefulness.metrics import (
     resampled_means,
 )
 
-__all__ = ["CONTINUOUS", "METHODS", "Comparison", "Margin", "Quality", "compare", "margin_test",
+__all__ = ["CONTINUOUS", "METHODS", "Comparison", "Margin", "Quality", "compare", "holm", "margin_test",
            "minimum_detectable_effect", "pick", "quality", "selection_scores", "targets_needed", "trajectory_error"]
 
 Results = Mapping[str, np.ndarray]
@@ -280,6 +280,34 @@ def margin_test(a: str, b: str, values_a: Sequence[float], values_b: Sequence[fl
     upper = float(d.mean() + t.ppf(1 - alpha, n - 1) * sd / math.sqrt(n))
     return Margin(a, b, n, float(d.mean()), sd, upper, margin, alpha, bool(upper < margin), bool(upper < 0),
                   float(minimum_detectable_effect(n, alpha, power) * sd), power)
+
+
+def holm(tests: Sequence[Margin], values: Sequence[tuple[Sequence[float], Sequence[float]]], alpha: float, *,
+         fallback_sd: float | None = None) -> list[Margin]:
+    """The non-inferiority tests ``tests`` (each of a − b over its ``values``: (a's, b's)) again under Holm's
+    step-down, so that the family's chance of any false "non-inferior" is at most ``alpha``: ordered by their
+    one-sided p-value against the margin, the j-th (from 0) of m is tested at alpha/(m − j) and only while every
+    earlier one was shown. Each comes back with its level as ``alpha``, its bound and MDE at that level, and
+    ``superior`` only where non-inferiority was shown and the bound at the same level is below 0 (the usual switch
+    from non-inferiority to superiority). Why: several strata × competitors each at ``alpha`` would let one pass
+    in four by chance alone. Tests without a p-value (under two targets) stay untested and are ordered last."""
+    from scipy.stats import t as student
+
+    def p_value(m: Margin) -> float:
+        if m.n < 2 or not math.isfinite(m.sd) or m.sd <= 0:
+            return math.inf
+        return float(student.cdf((m.mean - m.margin) / (m.sd / math.sqrt(m.n)), m.n - 1))
+
+    order = sorted(range(len(tests)), key=lambda i: p_value(tests[i]))
+    out: list[Margin | None] = [None] * len(tests)
+    shown_so_far = True
+    for j, i in enumerate(order):
+        level = alpha / (len(tests) - j)
+        m = tests[i]
+        again = margin_test(m.a, m.b, *values[i], m.margin, alpha=level, power=m.power, fallback_sd=fallback_sd)
+        shown_so_far = shown_so_far and again.noninferior
+        out[i] = replace(again, noninferior=shown_so_far, superior=shown_so_far and again.superior)
+    return [m for m in out if m is not None]
 
 
 def trajectory_error(replay: np.ndarray, recorded: np.ndarray) -> float:

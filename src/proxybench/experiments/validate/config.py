@@ -159,6 +159,10 @@ class ValidateConfig(StudyConfig):
     of PRPV − calibration is below it"""
     assumed_sd: float = Field(0.10, gt=0.0, le=1.0)
     """the standard deviation of the paired differences the power computation assumes (PRPV/K(K−1))"""
+    multiplicity: Literal["holm", "none"] | None = None
+    """how the primary tests (2 strata × 2 comparisons) share alpha: holm (Holm's step-down; a new study's
+    default) | none (each at alpha, as studies registered before 28 Nov 2026); unset on a folder that holds a
+    study: what its criteria registered"""
     per_stratum: int | None = Field(None, ge=2, le=500)
     """targets in each stratum (near, far): the draw goes on until each has this many, so the strata's sizes are
     declared, not left to the draw's shares (targets = 2 × this)"""
@@ -269,6 +273,28 @@ class PrimaryPlan(BaseModel):
     strata: dict[str, StratumPlan]
     test: str
     decision: str
+    multiplicity: Literal["holm"] | None = None
+    """how the primary tests (strata × comparisons) share alpha: ``holm`` (Holm's step-down, the default of a
+    study registered since 28 Nov 2026); None: each test at alpha, as the studies registered before"""
+
+    @model_serializer(mode="wrap")
+    def _omit_uncorrected(self, handler: Any) -> dict[str, Any]:
+        """No ``multiplicity`` key when it is None: the criteria of a study registered before the field existed
+        read (and hash) byte for byte as they were written."""
+        data = handler(self)
+        if data.get("multiplicity") is None:
+            data.pop("multiplicity", None)
+        return data
+
+    @property
+    def tests(self) -> int:
+        """How many primary tests share alpha: strata × comparisons."""
+        return len(self.strata) * len(self.comparisons)
+
+    def level(self, alpha: float) -> float:
+        """The strictest level a primary test is held to (Holm's first step; alpha itself uncorrected): the
+        level the sizes are planned at."""
+        return alpha / self.tests if self.multiplicity == "holm" else alpha
 
 
 class ValidateSettings(BaseModel):
@@ -356,11 +382,15 @@ def stratum_of(theta: dict[str, float], near: dict[str, tuple[float, float]]) ->
     return "near" if inside else "far"
 
 
-def _plan(s: dict, draw: dict[str, tuple[float, ...]], per_stratum: int | None = None) -> PrimaryPlan:
-    """The primary comparison's plan: per stratum its share of the draw and the targets it needs (the targets
-    planned in it and their MDE follow from the study's ``targets``: :meth:`StratumPlan.planned`)."""
+def _plan(s: dict, draw: dict[str, tuple[float, ...]], per_stratum: int | None = None,
+          multiplicity: Literal["holm"] | None = "holm") -> PrimaryPlan:
+    """The primary comparison's plan: per stratum its share of the draw and the targets it needs at the level the
+    multiplicity rule holds the first test to (the targets planned in it and their MDE follow from the study's
+    ``targets``: :meth:`StratumPlan.planned`)."""
     from proxybench.usefulness.validation import targets_needed
 
+    tests = 2 * len(PRIMARY_COMPARISONS)
+    level = s["alpha"] / tests if multiplicity == "holm" else s["alpha"]
     near, nominal = s["near"], nominal_theta(s["near"])
     share = 1.0
     for n, (lo, hi) in near.items():
@@ -369,7 +399,7 @@ def _plan(s: dict, draw: dict[str, tuple[float, ...]], per_stratum: int | None =
             share *= max(0.0, min(hi, b) - max(lo, a)) / (b - a) if b > a else float(lo <= a <= hi)
         else:
             share *= float(lo <= nominal[n] <= hi)
-    needed = targets_needed(s["margin"], s["assumed_sd"], s["alpha"], s["power"])
+    needed = targets_needed(s["margin"], s["assumed_sd"], level, s["power"])
     box = ", ".join(f"{n} in [{lo:g}, {hi:g}]" for n, (lo, hi) in near.items())
     strata = {}
     for name, sh, words in (("near", share, f"every one of {box} (the θ a factory-calibrated robot has)"),
@@ -378,16 +408,26 @@ def _plan(s: dict, draw: dict[str, tuple[float, ...]], per_stratum: int | None =
             raise ConfigError(f"per_stratum: the draw puts no target in the {name} stratum ({box}); widen --draw or "
                               "leave per_stratum out")
         strata[name] = StratumPlan(definition=words, share=round(sh, 6), needed=needed, allocated=per_stratum)
+    test = (f"per stratum and comparison, the paired differences PRPV − calibration of the pick's quality on the "
+            f"held-out agents (PRPV/K(K−1), B on E2); the upper bound of their one-sided {1 - s['alpha']:g} t "
+            f"interval: non-inferior if below the margin {s['margin']:g}, superior if below 0; a target where a "
+            "calibration is not applicable is left out of that comparison; strata assigned from the hidden θ at "
+            "the reveal (final report only)")
+    if multiplicity == "holm":
+        test = (f"per stratum and comparison ({tests} tests), the paired differences PRPV − calibration of the pick's "
+                "quality on the held-out agents (PRPV/K(K−1), B on E2), tested under Holm's step-down so that the "
+                f"chance of any false 'non-inferior' among the {tests} is at most {s['alpha']:g}: ordered by their "
+                f"one-sided t p-value against the margin {s['margin']:g}, the j-th (from 1) is non-inferior if the "
+                f"upper bound of its one-sided t interval at level {s['alpha']:g}/({tests} − j + 1) is below the "
+                "margin and every earlier one was; superior if non-inferior and that bound is below 0; a target "
+                "where a calibration is not applicable is left out of that comparison; strata assigned from the "
+                "hidden θ at the reveal (final report only)")
     return PrimaryPlan(
-        comparisons=PRIMARY_COMPARISONS, margin=s["margin"], assumed_sd=s["assumed_sd"], strata=strata,
-        test=(f"per stratum and comparison, the paired differences PRPV − calibration of the pick's quality on the "
-              f"held-out agents (PRPV/K(K−1), B on E2); the upper bound of their one-sided {1 - s['alpha']:g} t "
-              f"interval: non-inferior if below the margin {s['margin']:g}, superior if below 0; a target where a "
-              "calibration is not applicable is left out of that comparison; strata assigned from the hidden θ at "
-              "the reveal (final report only)"),
+        comparisons=PRIMARY_COMPARISONS, margin=s["margin"], assumed_sd=s["assumed_sd"], strata=strata, test=test,
         decision=("'PRPV is non-inferior to X within the margin in stratum S' only when the test says so, 'PRPV is "
                   "superior to X in stratum S' only when the upper bound is below 0; otherwise 'not shown', with "
-                  "the interval and n; PRPV − nominal θ is a secondary comparison"))
+                  "the interval and n; PRPV − nominal θ is a secondary comparison"),
+        multiplicity=multiplicity)
 
 
 def settings_for(cfg: ValidateConfig, quick: bool) -> ValidateSettings:
@@ -415,7 +455,8 @@ def settings_for(cfg: ValidateConfig, quick: bool) -> ValidateSettings:
     for name in fields["draw"]:
         _draw_name(cfg.family, name)
     draw = {_GYM_TO_PROXY.get(k, k) if cfg.family == "gym" else k: v for k, v in fields["draw"].items()}
-    s = ValidateSettings(**fields, primary=_plan(fields, draw, cfg.per_stratum))
+    rule = None if cfg.multiplicity == "none" else "holm"
+    s = ValidateSettings(**fields, primary=_plan(fields, draw, cfg.per_stratum, rule))
     outside = [k for k in s.grid if k in draw and not (min(draw[k]) < min(s.grid[k]) or max(draw[k]) > max(s.grid[k]))]
     if outside:
         raise ConfigError(f"draw: {', '.join(outside)} must be drawn wider than the grid searches it, so that the "

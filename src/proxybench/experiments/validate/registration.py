@@ -32,7 +32,7 @@ from proxybench.experiments.config import ConfigError
 from proxybench.experiments.validate.config import ValidateConfig, ValidateSettings
 
 __all__ = ["CRITERIA", "LOOKS", "append_look", "check_registration", "draw_seed", "open_study", "read_looks",
-           "record_target", "scoring_files", "scoring_hash", "summary_sha256", "write_criteria"]
+           "record_target", "registered_rule", "scoring_files", "scoring_hash", "summary_sha256", "write_criteria"]
 
 CRITERIA = "criteria.json"
 LOOKS = "looks.jsonl"
@@ -170,6 +170,17 @@ def _supersede(out: Path) -> Path | None:
     for n in names:
         (out / n).rename(dest / n)
     return dest
+
+
+def registered_rule(cfg: ValidateConfig, s: ValidateSettings, out: Path) -> ValidateSettings:
+    """``s`` with the multiplicity rule of the study already in ``out`` when ``--multiplicity`` is not given: a
+    study registered before the rule existed (its criteria without ``multiplicity``) resumes, and is looked at,
+    uncorrected as registered, instead of being refused for a setting its user never chose."""
+    criteria = _read_criteria(out) if cfg.multiplicity is None else None
+    primary = ((criteria or {}).get("settings") or {}).get("primary")
+    if not isinstance(primary, dict) or "multiplicity" in primary or s.primary.multiplicity is None:
+        return s
+    return s.model_copy(update={"primary": s.primary.model_copy(update={"multiplicity": None})})
 
 
 def open_study(cfg: ValidateConfig, s: ValidateSettings, out: Path, *, interim: bool = False

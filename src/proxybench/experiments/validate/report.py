@@ -40,7 +40,9 @@ def primary_sentences(summary: ValidationSummary) -> list[str]:
     out = []
     for test in summary.primary_tests:
         b, where = test.b, _where(test, summary.interim)
-        level = f"one-sided {1 - test.alpha:.0%} upper bound"
+        level = f"one-sided {100 * (1 - test.alpha):.4g}% upper bound"
+        if s.primary.multiplicity == "holm":
+            level += f" (Holm's level for this test among {len(summary.primary_tests)})"
         skipped = (f"; {test.not_applicable} target(s) where {b} was not applicable left out"
                    if test.not_applicable else "")
         if test.n < 2:
@@ -120,12 +122,13 @@ def _primary_table(summary: ValidationSummary) -> str:
     """The primary tests, and the sizes the criteria planned for each stratum."""
     plan = summary.settings.primary.strata
     planned = summary.planned
-    head = ("stratum", "PRPV − …", "n", "not applicable", "mean", "upper bound", "margin", "non-inferior",
+    head = ("stratum", "PRPV − …", "n", "not applicable", "mean", "upper bound", "level α", "margin", "non-inferior",
             "superior", "MDE (observed SD)", "planned / needed (criteria)")
     rows = []
     for t in summary.primary_tests:
         st = plan.get(t.stratum)
-        cells = (t.stratum, t.b, t.n, t.not_applicable, f"{t.mean:+.4f}", f"{t.upper:+.4f}", f"{t.margin:g}",
+        cells = (t.stratum, t.b, t.n, t.not_applicable, f"{t.mean:+.4f}", f"{t.upper:+.4f}", f"{t.alpha:.4g}",
+                 f"{t.margin:g}",
                  "yes" if t.noninferior else "not shown", "yes" if t.superior else "not shown", f"{t.mde:.3f}",
                  f"{planned[t.stratum]['targets']:g} / {st.needed}" if st and t.stratum in planned else "—")
         rows.append("<tr>" + "".join(f"<td>{html.escape(str(x))}</td>" for x in cells) + "</tr>")

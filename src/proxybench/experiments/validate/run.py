@@ -447,7 +447,7 @@ def run_validate(cfg: ValidateConfig, out: str | Path, backend: Backend | None =
     criteria must exist and be for these settings)."""
     t0 = time.perf_counter()
     out = Path(out)
-    s = settings_for(cfg, quick)
+    s = registration.registered_rule(cfg, settings_for(cfg, quick), out)
     criteria, draw_seed, notes = registration.open_study(cfg, s, out, interim=finished_only)
     specs: list[AgentSpec] = []
     if not finished_only:

@@ -44,6 +44,7 @@ from proxybench.usefulness.metrics import agent_means, dominance_from_means
 from proxybench.usefulness.validation import (
     CONTINUOUS,
     METHODS,
+    holm,
     margin_test,
     minimum_detectable_effect,
     pick,
@@ -157,15 +158,18 @@ def primary_tests(s: ValidateSettings, recs: list[TargetRecord], strata: list[st
         return []
     groups = ({"all": recs} if strata is None else
               {name: [r for r, st in zip(recs, strata, strict=True) if st == name] for name in s.primary.strata})
-    out = []
+    cells, values, tests = [], [], []
     for other in (m for m in s.primary.comparisons if m in s.methods):
         for stratum, group in groups.items():
-            test = margin_test("prpv", other, [qualities(r, "prpv") for r in group],
-                               [qualities(r, other) for r in group], s.margin, alpha=s.alpha, power=s.power,
-                               fallback_sd=s.assumed_sd)
-            out.append(PrimaryTest(**test.as_dict(), stratum=stratum,
-                                   not_applicable=sum(other in r.not_applicable for r in group)))
-    return out
+            pair = ([qualities(r, "prpv") for r in group], [qualities(r, other) for r in group])
+            tests.append(margin_test("prpv", other, *pair, s.margin, alpha=s.alpha, power=s.power,
+                                     fallback_sd=s.assumed_sd))
+            values.append(pair)
+            cells.append((stratum, sum(other in r.not_applicable for r in group)))
+    if s.primary.multiplicity == "holm":
+        tests = holm(tests, values, s.alpha, fallback_sd=s.assumed_sd)
+    return [PrimaryTest(**test.as_dict(), stratum=stratum, not_applicable=skipped)
+            for test, (stratum, skipped) in zip(tests, cells, strict=True)]
 
 
 def _comparisons(s: ValidateSettings) -> list[tuple[str, str]]:
@@ -247,7 +251,7 @@ def _planned(s: ValidateSettings) -> dict[str, dict[str, float | None]]:
     """Per stratum: the targets the plan expects in it and the margin they can show (:meth:`StratumPlan.planned`)."""
     out = {}
     for name, st in s.primary.strata.items():
-        n, mde = st.planned(s.targets, s.alpha, s.power, s.assumed_sd)
+        n, mde = st.planned(s.targets, s.primary.level(s.alpha), s.power, s.assumed_sd)
         out[name] = {"targets": n, "mde": mde}
     return out
 
