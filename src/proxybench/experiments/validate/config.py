@@ -292,9 +292,14 @@ class PrimaryPlan(BaseModel):
         return len(self.strata) * len(self.comparisons)
 
     def level(self, alpha: float) -> float:
-        """The strictest level a primary test is held to (Holm's first step; alpha itself uncorrected): the
-        level the sizes are planned at."""
-        return alpha / self.tests if self.multiplicity == "holm" else alpha
+        """The strictest level a primary test is held to: the level the sizes are planned at."""
+        return first_level(alpha, self.tests, self.multiplicity)
+
+
+def first_level(alpha: float, tests: int, multiplicity: str | None) -> float:
+    """The level the first of ``tests`` primary tests is held to: alpha/tests under Holm (its first step),
+    alpha itself uncorrected."""
+    return alpha / tests if multiplicity == "holm" else alpha
 
 
 class ValidateSettings(BaseModel):
@@ -389,8 +394,8 @@ def _plan(s: dict, draw: dict[str, tuple[float, ...]], per_stratum: int | None =
     ``targets``: :meth:`StratumPlan.planned`)."""
     from proxybench.usefulness.validation import targets_needed
 
-    tests = 2 * len(PRIMARY_COMPARISONS)
-    level = s["alpha"] / tests if multiplicity == "holm" else s["alpha"]
+    tests = 2 * len(PRIMARY_COMPARISONS)  # the near and far strata × the comparisons
+    level = first_level(s["alpha"], tests, multiplicity)
     near, nominal = s["near"], nominal_theta(s["near"])
     share = 1.0
     for n, (lo, hi) in near.items():
@@ -408,20 +413,18 @@ def _plan(s: dict, draw: dict[str, tuple[float, ...]], per_stratum: int | None =
             raise ConfigError(f"per_stratum: the draw puts no target in the {name} stratum ({box}); widen --draw or "
                               "leave per_stratum out")
         strata[name] = StratumPlan(definition=words, share=round(sh, 6), needed=needed, allocated=per_stratum)
+    tail = ("a target where a calibration is not applicable is left out of that comparison; strata assigned from "
+            "the hidden θ at the reveal (final report only)")
     test = (f"per stratum and comparison, the paired differences PRPV − calibration of the pick's quality on the "
             f"held-out agents (PRPV/K(K−1), B on E2); the upper bound of their one-sided {1 - s['alpha']:g} t "
-            f"interval: non-inferior if below the margin {s['margin']:g}, superior if below 0; a target where a "
-            "calibration is not applicable is left out of that comparison; strata assigned from the hidden θ at "
-            "the reveal (final report only)")
+            f"interval: non-inferior if below the margin {s['margin']:g}, superior if below 0; {tail}")
     if multiplicity == "holm":
         test = (f"per stratum and comparison ({tests} tests), the paired differences PRPV − calibration of the pick's "
                 "quality on the held-out agents (PRPV/K(K−1), B on E2), tested under Holm's step-down so that the "
                 f"chance of any false 'non-inferior' among the {tests} is at most {s['alpha']:g}: ordered by their "
                 f"one-sided t p-value against the margin {s['margin']:g}, the j-th (from 1) is non-inferior if the "
                 f"upper bound of its one-sided t interval at level {s['alpha']:g}/({tests} − j + 1) is below the "
-                "margin and every earlier one was; superior if non-inferior and that bound is below 0; a target "
-                "where a calibration is not applicable is left out of that comparison; strata assigned from the "
-                "hidden θ at the reveal (final report only)")
+                f"margin and every earlier one was; superior if non-inferior and that bound is below 0; {tail}")
     return PrimaryPlan(
         comparisons=PRIMARY_COMPARISONS, margin=s["margin"], assumed_sd=s["assumed_sd"], strata=strata, test=test,
         decision=("'PRPV is non-inferior to X within the margin in stratum S' only when the test says so, 'PRPV is "
