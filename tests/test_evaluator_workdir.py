@@ -8,6 +8,8 @@ import os
 import pwd
 import stat
 import tempfile
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -136,4 +138,41 @@ def test_a_job_folder_swapped_for_a_link_is_never_used(tmp_path: Path) -> None:
         job.close(remove=True)
         assert theirs.is_dir() and list(theirs.iterdir()) == []  # the link was removed, never followed
     finally:
+        ev.close()
+
+
+def _reading_its_job(worker) -> bool:
+    """Whether the spare worker waits on stdin for its job: past its ``PR_SET_PDEATHSIG``, its imports done."""
+    try:
+        with open(f"/proc/{worker.proc.pid}/wchan") as f:
+            return "pipe" in f.read()
+    except OSError:
+        return False
+
+
+def test_a_spare_worker_outlives_the_slot_thread_that_asked_for_it(tmp_path: Path) -> None:
+    """An Autolab's robots run one slot thread each and share the spare worker, so the slot that made it may end
+    while another slot's job runs in it. A worker dies with the *thread* that forked it (``PR_SET_PDEATHSIG``): a
+    job was killed that way (-9, no outcome) in CI. Workers are forked by the evaluator's own spawner thread."""
+    ev = _evaluator(_private(tmp_path / "work"))
+    made = []
+
+    def slot() -> None:
+        made.append(ev._new_worker())
+        deadline = time.monotonic() + 120  # a bound, not a speed: a busy machine imports slowly
+        while not _reading_its_job(made[0]) and made[0].proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+
+    thread = threading.Thread(target=slot)
+    thread.start()
+    thread.join()
+    (worker,) = made
+    try:
+        assert _reading_its_job(worker), "the spare never got to wait for its job"
+        while os.path.exists(f"/proc/self/task/{thread.native_id}"):  # the thread's end is when the kernel acts
+            time.sleep(0.01)
+        worker.proc.stdin.close()  # no job: a live spare then exits 0; one its thread's end killed has -9
+        assert worker.proc.wait(timeout=60) == 0
+    finally:
+        worker.kill()
         ev.close()

@@ -32,6 +32,7 @@ import os
 import signal
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -162,6 +163,10 @@ class Evaluator:
         self._spare: Worker | None = None
         self._spare_lock = threading.Lock()  # the spare is shared by the slots of an Autolab's robots
         self._keep_spare = False  # run(): start the next job's worker as soon as one is free
+        # Workers are forked from this one thread, which lives as long as the evaluator: a worker dies with the
+        # *thread* that forked it (PR_SET_PDEATHSIG), and a slot's thread ends while a spare it made may be
+        # running another slot's job (that job's worker was killed, -9, with no outcome)
+        self._spawner = ThreadPoolExecutor(max_workers=1, thread_name_prefix="worker-spawner")
         #: an Autolab's robots: a job is leased only with a free one in hand (one slot per robot in run())
         self.robots = RobotLeases(config.autolab) if config.autolab is not None else None
         self.lab_world = None  # the lab's shared world (world: shared), started by run()
@@ -258,6 +263,7 @@ class Evaluator:
         if self._spare is not None:
             self._spare.kill()
             self._spare = None
+        self._spawner.shutdown()
         if self.robots is not None:
             self.robots.close()
         if self.lab_world is not None:
@@ -404,7 +410,14 @@ class Evaluator:
                 "the agent answered too slowly (each step may take up to its step timeout, but not every step)")
 
     def _new_worker(self) -> Worker:
-        return Worker(self.work.fresh_file("spare-worker.log"), self._worker_env)
+        """A worker forked by the spawner thread (see ``__init__``), whichever thread asks."""
+        log_fd = self.work.fresh_file("spare-worker.log")
+        try:
+            made = self._spawner.submit(Worker, log_fd, self._worker_env)
+        except BaseException:  # closed: the worker would close its log itself
+            os.close(log_fd)
+            raise
+        return made.result()
 
     # -- reporting ---------------------------------------------------------------------------------
 
