@@ -9,6 +9,7 @@ agent user, the unprivileged user the sandbox runs agents as.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
@@ -241,6 +242,19 @@ def _daemon(seconds: str) -> str:
     return f"(setsid sleep {seconds} </dev/null >/dev/null 2>&1 &)"
 
 
+def _state(proc: Launch) -> str:
+    """The launcher's exit status, its process tree and the program's stderr: what a failure report needs (this
+    test failed once in CI, on a machine we cannot see, and said only that)."""
+    from proxybench.protocol._subreaper import descendants
+
+    tree = []
+    for pid in [proc.proc.pid, *descendants(proc.proc.pid)]:
+        with contextlib.suppress(OSError), open(f"/proc/{pid}/cmdline", "rb") as f:
+            words = f.read().replace(b"\0", b" ").decode(errors="replace")
+            tree.append(f"{pid} {words[:100]}")
+    return f"launcher status {proc.proc.poll()}, tree {tree}, stderr {proc.stderr.tail()}"
+
+
 def _sleep_arg() -> str:
     return f"{3000 + uuid.uuid4().int % 1000}.{uuid.uuid4().int % 10**6:06d}"
 
@@ -261,7 +275,7 @@ def test_a_setsid_daemon_of_a_program_that_is_stopped_is_killed(term_first: bool
     deadline = time.monotonic() + 30
     while not _with(f"sleep\0{arg}") and time.monotonic() < deadline:
         time.sleep(0.02)
-    assert _with(f"sleep\0{arg}"), "the daemon never started"
+    assert _with(f"sleep\0{arg}"), f"the daemon never started: {_state(proc)}"
     proc.terminate(0.0, term_first=term_first)
     assert proc.returncode is not None
     assert _gone(f"sleep\0{arg}") == []
