@@ -8,11 +8,11 @@ import re
 
 import pytest
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from typer.testing import CliRunner
 
 from proxybench.cli import app
-from proxybench.cli.progress import PlainProgress, PlainStatus, progress_bar, status
+from proxybench.cli.progress import PlainProgress, PlainStatus, progress_bar, stage_progress, status
 
 runner = CliRunner()
 
@@ -185,6 +185,21 @@ def test_plain_status_prints_the_first_and_changed_states_and_where_it_ended(mon
         for k in range(5):
             s.update(f"run {k}")
     assert buf.getvalue().splitlines() == ["starting", "run 4"]
+
+
+def test_a_stage_first_reported_done_has_no_time_left_until_it_moves_again(monkeypatch):
+    """A study reports a stage first when its first unit is done (or resumes at a count): that count is the
+    baseline, as it took an unknown time. A validate study's targets once read 0:00:01 left of some 4 hours."""
+    monkeypatch.setenv("PROXYBENCH_PROGRESS_SECONDS", "0")
+    clock = [100.0]
+    buf = io.StringIO()
+    bar = progress_bar(TextColumn("{task.description}"), MofNCompleteColumn(), TimeRemainingColumn(),
+                       console=Console(file=buf, width=200), get_time=lambda: clock[0])
+    progress = stage_progress(bar)
+    progress("targets", 1, 10)
+    clock[0] += 600.0  # the second target took 10 min
+    progress("targets", 2, 10)
+    assert buf.getvalue().splitlines() == ["targets 1/10 -:--:-- (10%)", "targets 2/10 1:20:00 (20%)"]
 
 
 def test_a_terminal_gets_rich_bars():

@@ -208,8 +208,8 @@ def stage_progress(bar: Progress) -> Callable[[str, int, int], None]:
     tasks: dict[str, TaskID] = {}
 
     def progress(stage: str, done: int, total: int) -> None:
-        if stage not in tasks:
-            tasks[stage] = bar.add_task(stage, total=total)
+        if stage not in tasks:  # its first count is the baseline: how long that much took is not known
+            tasks[stage] = bar.add_task(stage, total=total, completed=done)  # (a study's first target once read 1 s)
         bar.update(tasks[stage], completed=done, total=total)
 
     return progress

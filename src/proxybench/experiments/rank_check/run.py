@@ -121,6 +121,8 @@ def run_rank_check(cfg: RankCheckConfig, out: str | Path, backend: Backend | Non
     t0, out, backend = time.perf_counter(), Path(out), backend or InlineBackend()
     rows, statement = [], ""
     targets = _targets(cfg, out)
+    if progress:  # the clock of the targets' ETA starts now, not when the first one is done
+        progress("targets", 0, len(targets))
     for k, target in enumerate(targets):
         folder = out / "targets" / str(k)
         rc = RankConfig(agents=cfg.agents, episodes=cfg.episodes, seconds=cfg.seconds, alpha=cfg.alpha,

@@ -463,6 +463,8 @@ def run_validate(cfg: ValidateConfig, out: str | Path, backend: Backend | None =
     key = hashlib.sha256(json.dumps(s.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()[:16]
     logged = registration.logged_records(registration.read_looks(out)[0])
     records, indices, used, problems, ran = [], [], {}, [], 0
+    if progress and not finished_only:  # the clock of the targets' ETA starts now, not when the first one is done
+        progress("targets", sum(1 for k in logged if k < len(targets)), len(targets))
     for k, target in enumerate(targets):
         path = folder / f"{k:03d}.json"
         try:
