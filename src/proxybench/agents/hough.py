@@ -32,7 +32,8 @@ def marking_masks(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(yellow, white) boolean masks of an RGB uint8 image by HSV thresholds (see the module docstring)."""
     rgb = img.astype(np.float32) / 255.0
     r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
-    hi, lo = rgb.max(-1), rgb.min(-1)
+    # elementwise over the three planes: exactly max(-1)/min(-1), without a reduction over a length-3 axis
+    hi, lo = np.maximum(np.maximum(r, g), b), np.minimum(np.minimum(r, g), b)
     chroma = hi - lo
     sat = np.where(hi > 0, chroma / np.maximum(hi, 1e-6), 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
