@@ -317,7 +317,10 @@ def _short_quick_episodes(monkeypatch, family: str, seconds: float = 2.0) -> Non
 def test_validate_quick_end_to_end_writes_criteria_first_and_resumes(tmp_path, monkeypatch):
     _short_quick_episodes(monkeypatch, "heldout")
     out = tmp_path / "v"
-    args = ["validate", "--quick", "--targets", "3", "--episodes-eval", "3", "--backend", "inline", "--out", str(out)]
+    pool = ["--agent", "pid", "--agent", "pid-twitchy", "--agent", "vision", "--agent", "vision-fast"]  # half of
+    # --quick's, two families (two agents a side in every split): nothing checked here depends on the pool's size
+    args = ["validate", "--quick", "--targets", "3", "--episodes-eval", "3", *pool, "--backend", "inline", "--out",
+            str(out)]
     res = CliRunner().invoke(app, args, env={"COLUMNS": "200"})
     assert res.exit_code == 0, res.output
     criteria = json.loads((out / "criteria.json").read_text())
@@ -404,8 +407,11 @@ def test_validate_gym_family_quick_end_to_end(tmp_path, monkeypatch):
         pytest.skip(why)
     _short_quick_episodes(monkeypatch, "gym")
     out = tmp_path / "g"
-    res = CliRunner().invoke(app, ["validate", "--family", "gym", "--quick", "--targets", "2", "--backend", "inline",
-                                   "--out", str(out)], env={"COLUMNS": "200"})
+    # half of --quick's pool, two families: what is checked here (the family, the secret's mode, no θ in the
+    # reports) does not depend on the pool, and the gym nodes' episodes are the suite's slowest
+    pool = ["--agent", "pid", "--agent", "pid-twitchy", "--agent", "vision", "--agent", "vision-fast"]
+    res = CliRunner().invoke(app, ["validate", "--family", "gym", "--quick", "--targets", "2", *pool, "--backend",
+                                   "inline", "--out", str(out)], env={"COLUMNS": "200"})
     assert res.exit_code == 0, res.output
     summary = json.loads((out / "summary.json").read_text())
     assert summary["family"] == "gym" and summary["targets"] == 2 and "prpv" in summary["methods"]
